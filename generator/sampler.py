@@ -1,0 +1,227 @@
+"""(PDE config, seed, index) -> trajectory: keys, parameters, initial condition, jit(vmap(scan)) rollout.
+
+Sample i uses the key ``fold_in(key(seed), i)``, split into a parameter key and an IC key, so it does not
+depend on which other samples share its batch. A redrawn sample (after a blow-up) uses
+``fold_in(fold_in(key(seed), i), attempt)``.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from typing import Literal, Mapping, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .pdes import PDE, PDES
+from .spectral import etdrk4_coefficients, rollout
+
+OnBlowup = Literal["raise", "redraw"]
+MAX_INDEX = 2**32 - 1
+
+
+class BlowUpError(ValueError):
+    """A solve produced NaN or Inf; names the sample indices and their parameters."""
+
+
+@dataclass
+class Trajectory:
+    """A batch of solutions.
+
+    u: float32 [B, T, C, *space] (jax array); t: float32 [T]; params: {name: float32 [B]};
+    indices: int64 [B] global sample indices (None for ``solve``); redraws: int [B] blow-up redraws used.
+    """
+
+    u: jax.Array
+    t: np.ndarray
+    params: dict[str, jax.Array]
+    pde: PDE
+    indices: np.ndarray | None = None
+    redraws: np.ndarray | None = field(default=None)
+
+    def __len__(self) -> int:
+        return int(self.u.shape[0])
+
+
+def get_pde(name: str, overrides: Mapping | None = None, **kwargs) -> PDE:
+    """The catalog PDE ``name`` with its defaults, changed by ``overrides`` / keyword arguments.
+
+    Values may be strings (parsed: domains like "loguniform(1e-3, 1e-1)", numbers, ic kinds).
+    """
+    if name not in PDES:
+        raise ValueError(f"unknown PDE {name!r}; allowed: {', '.join(PDES)}")
+    pde = PDES[name]()
+    return pde.replace(overrides, **kwargs) if (overrides or kwargs) else pde
+
+
+def _coefficients(pde: PDE, p: Mapping[str, jax.Array]):
+    return etdrk4_coefficients(pde.linear(pde.grid, p), pde.step_dt)
+
+
+def _evolve(pde: PDE, u0: jax.Array, p: Mapping[str, jax.Array], coeffs) -> jax.Array:
+    """One trajectory [T, C, *space] from u0 [C, *space]; frame 0 is the dealiased u0 the solver evolves."""
+    grid = pde.grid
+    mask = grid.dealias_mask()
+    nonlinear = pde.nonlinear(grid, p)
+    masked = None if nonlinear is None else (lambda v: mask * nonlinear(v))
+    v0 = mask * grid.rfft(u0.astype(jnp.float32))
+    frames = rollout(v0, coeffs, masked, pde.n_frames, pde.steps_per_frame, grid.irfft)
+    return jnp.concatenate([grid.irfft(v0)[None], frames])
+
+
+def draw_params(pde: PDE, key: jax.Array) -> dict[str, jax.Array]:
+    """One draw of every parameter from its domain: {name: float32 scalar}."""
+    return {name: dom.sample(jax.random.fold_in(key, j)) for j, (name, dom) in enumerate(pde.param_domains.items())}
+
+
+def _draw(pde: PDE, key: jax.Array):
+    """(parameters, initial condition, ETDRK4 coefficients) of one sample from its key."""
+    k_param, k_ic = jax.random.split(key)
+    p = draw_params(pde, k_param)
+    return p, pde.sample_ic(k_ic), _coefficients(pde, p)
+
+
+# Per-sample set-up (parameters, initial condition, ETDRK4 coefficients) runs as its own compiled
+# program over fixed-size chunks of keys, one key per loop iteration. XLA's CPU code for transcendental
+# and complex operations rounds differently when vectorised over, or fused across, a batch of another
+# size; a fixed program per chunk makes sample i independent of its batch. The time stepping is a
+# separate vmapped program: FFTs and real arithmetic only (see spectral.cmul), batch-invariant.
+SETUP_CHUNK = 8
+
+
+@functools.lru_cache(maxsize=64)
+def compiled_setup(pde: PDE):
+    """jit of keys [SETUP_CHUNK] -> (params {name: [K]}, u0 [K, C, *space], coefficients [K, ...])."""
+    return jax.jit(lambda keys: jax.lax.map(functools.partial(_draw, pde), keys))
+
+
+def _evolve_checked(pde: PDE, u0, p, coeffs):
+    u = _evolve(pde, u0, p, coeffs)
+    return u, jnp.all(jnp.isfinite(u))
+
+
+@functools.lru_cache(maxsize=64)
+def compiled_evolve(pde: PDE):
+    """jit(vmap) of (u0, params, coefficients) -> (u [B, T, C, *space], finite [B])."""
+    return jax.jit(jax.vmap(functools.partial(_evolve_checked, pde)))
+
+
+def _run_keys(pde: PDE, keys: jax.Array):
+    """keys [B] -> (u [B, T, C, *space], params {name: [B]}, finite [B])."""
+    batch = keys.shape[0]
+    padded = jnp.concatenate([keys, jnp.repeat(keys[:1], (-batch) % SETUP_CHUNK, axis=0)])
+    setup = compiled_setup(pde)
+    parts = [setup(padded[i : i + SETUP_CHUNK]) for i in range(0, padded.shape[0], SETUP_CHUNK)]
+    params, u0, coeffs = jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:batch], *parts)
+    u, finite = compiled_evolve(pde)(u0, params, coeffs)
+    return u, params, finite
+
+
+def _solve_batch(pde: PDE, u0: jax.Array, params: Mapping[str, jax.Array]):
+    coeffs = jax.lax.map(functools.partial(_coefficients, pde), params)
+    return jax.vmap(functools.partial(_evolve, pde))(u0, params, coeffs)
+
+
+@functools.lru_cache(maxsize=64)
+def compiled_solver(pde: PDE):
+    """jit of (u0 [B, C, *space], params {name: [B]}) -> u; params are traced: new values never recompile."""
+    return jax.jit(functools.partial(_solve_batch, pde))
+
+
+def sample_keys(seed: int, indices: np.ndarray, attempt: int = 0) -> jax.Array:
+    """Keys fold_in(key(seed), i) (and fold_in(., attempt) for attempt > 0), one per index: [B]."""
+    base = jax.random.key(seed)
+    idx = jnp.asarray(indices, jnp.uint32)
+    keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(idx)
+    if attempt:
+        keys = jax.vmap(lambda k: jax.random.fold_in(k, attempt))(keys)
+    return keys
+
+
+def _check_indices(indices: Sequence[int] | np.ndarray | int) -> np.ndarray:
+    idx = np.atleast_1d(np.asarray(indices))
+    if idx.ndim != 1 or idx.size == 0 or not np.issubdtype(idx.dtype, np.integer):
+        raise ValueError(f"indices must be a non-empty 1D sequence of integers, got {indices!r}")
+    if idx.min() < 0 or idx.max() > MAX_INDEX:
+        raise ValueError(f"sample indices must be in [0, {MAX_INDEX}], got min {idx.min()} max {idx.max()}")
+    return idx.astype(np.int64)
+
+
+def sample(
+    pde: PDE | str,
+    indices: Sequence[int] | np.ndarray | int,
+    seed: int = 0,
+    on_blowup: OnBlowup = "raise",
+    max_redraws: int = 3,
+) -> Trajectory:
+    """Solve samples ``indices`` of ``pde`` under ``seed``: a Trajectory with u [B, T, C, *space].
+
+    on_blowup="raise": a NaN/Inf trajectory raises BlowUpError naming the indices and parameters.
+    on_blowup="redraw": such a sample is redrawn with attempt keys 1..max_redraws (deterministic per
+    index); ``Trajectory.redraws`` counts them; still failing after max_redraws raises.
+    """
+    pde = get_pde(pde) if isinstance(pde, str) else pde
+    if on_blowup not in ("raise", "redraw"):
+        raise ValueError(f"on_blowup={on_blowup!r} not allowed; allowed: 'raise', 'redraw'")
+    if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    idx = _check_indices(indices)
+    u, params, finite = _run_keys(pde, sample_keys(int(seed), idx))
+    redraws = np.zeros(len(idx), np.int64)
+    attempt = 0
+    bad = np.flatnonzero(~np.asarray(finite))
+    while bad.size and on_blowup == "redraw" and attempt < max_redraws:
+        attempt += 1
+        # rerun the full batch shape (failed keys padded by repetition) so no new compile is needed
+        retry = np.resize(idx[bad], len(idx))
+        u2, p2, f2 = _run_keys(pde, sample_keys(int(seed), retry, attempt))
+        sel = jnp.asarray(bad)
+        u = u.at[sel].set(u2[: bad.size])
+        params = {k: v.at[sel].set(p2[k][: bad.size]) for k, v in params.items()}
+        redraws[bad] = attempt
+        bad = bad[~np.asarray(f2[: bad.size])]
+    if bad.size:
+        detail = "; ".join(
+            f"index {idx[b]}: " + ", ".join(f"{k}={float(v[b]):.4g}" for k, v in params.items()) for b in bad[:5]
+        )
+        hint = "" if on_blowup == "redraw" else " (on_blowup='redraw' draws replacements)"
+        raise BlowUpError(
+            f"{pde.NAME}: {bad.size} of {len(idx)} trajectories blew up (NaN/Inf) with step {pde.step_dt:.4g}: "
+            f"{detail}{hint}; a smaller dt or a narrower parameter domain avoids this"
+        )
+    return Trajectory(u=u, t=pde.times(), params=params, pde=pde, indices=idx, redraws=redraws)
+
+
+def solve(pde: PDE | str, u0, params: Mapping[str, float | Sequence[float]]) -> Trajectory:
+    """Solve from a caller's initial condition.
+
+    u0: [C, *space] or [B, C, *space] (C may be omitted for one-field PDEs when unbatched 1D/2D arrays
+    match the grid); params: {name: scalar or [B]} for every parameter of the PDE. Returns u [B, T, C, *space].
+    """
+    pde = get_pde(pde) if isinstance(pde, str) else pde
+    grid, n_fields = pde.grid, len(pde.FIELDS)
+    u0 = jnp.asarray(u0, jnp.float32)
+    if u0.shape == grid.shape:
+        u0 = u0[None]
+    if u0.shape == (n_fields, *grid.shape):
+        u0 = u0[None]
+    if u0.ndim != 2 + grid.ndim or u0.shape[1:] != (n_fields, *grid.shape):
+        raise ValueError(
+            f"{pde.NAME}: u0 has shape {tuple(u0.shape)}; expected [B, {n_fields}, {', '.join(map(str, grid.shape))}]"
+        )
+    missing = set(pde.PARAMS) - set(params)
+    extra = set(params) - set(pde.PARAMS)
+    if missing or extra:
+        raise ValueError(f"{pde.NAME}: params must be exactly {sorted(pde.PARAMS)}; missing {sorted(missing)}, unknown {sorted(extra)}")
+    batch = u0.shape[0]
+    p = {k: jnp.broadcast_to(jnp.asarray(v, jnp.float32), (batch,)) for k, v in params.items()}
+    for name, spec in pde.PARAMS.items():
+        if spec.positive and not bool(jnp.all(p[name] > 0)):
+            raise ValueError(f"{pde.NAME}: {name}={np.asarray(p[name])} not allowed: {spec.description} must be > 0")
+    u = compiled_solver(pde)(u0, p)
+    bad = np.flatnonzero(~np.asarray(jnp.all(jnp.isfinite(u.reshape(batch, -1)), axis=1)))
+    if bad.size:
+        raise BlowUpError(f"{pde.NAME}: solve blew up (NaN/Inf) for batch entries {bad[:10].tolist()} with step {pde.step_dt:.4g}")
+    return Trajectory(u=u, t=pde.times(), params=p, pde=pde)
