@@ -1,0 +1,68 @@
+"""The one place where the torch side meets JAX.
+
+- ``configure_jax()`` sets per-process JAX options before JAX starts: no GPU preallocation (torch shares
+  the device), and a persistent compilation cache in a private per-user directory so a second process
+  (a DataLoader worker, a resumed run) does not recompile from scratch.
+- ``to_torch(x)`` hands a JAX array to torch through DLPack: zero-copy on CPU and on a shared GPU.
+  The tensor shares JAX's buffer: never modify it in place (clone first).
+- ``trajectory_tensors(traj)`` converts a generator.Trajectory to torch tensors.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+CACHE_ENV = "PDESTREAM_JAX_CACHE"
+
+
+def jax_cache_dir() -> Path:
+    """Private directory of JAX's persistent compilation cache (``$PDESTREAM_JAX_CACHE`` overrides)."""
+    default = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "pdestream" / "jax"
+    return Path(os.environ.get(CACHE_ENV, default))
+
+
+def configure_jax() -> None:
+    """Set JAX's process options; call before JAX computes anything (safe to call repeatedly)."""
+    # Must be in the environment before the JAX backend starts: 75% GPU preallocation would starve torch.
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+    import jax
+
+    cache = jax_cache_dir()
+    try:
+        cache.mkdir(parents=True, exist_ok=True, mode=0o700)
+    except OSError:
+        return  # a read-only home only costs recompilation
+    jax.config.update("jax_compilation_cache_dir", str(cache))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+def to_torch(x):
+    """JAX array -> torch.Tensor on the same device, sharing memory (DLPack)."""
+    import torch
+
+    return torch.from_dlpack(x)
+
+
+def trajectory_tensors(traj) -> dict:
+    """generator.Trajectory -> {"u": [B, T, C, *space], "t": [T], "params": [B, P], "index": [B]} (torch).
+
+    Parameter columns follow the PDE's PARAMS order; "param_names" lists them.
+    """
+    import numpy as np
+    import torch
+
+    names = list(traj.pde.PARAMS)
+    u = to_torch(traj.u)
+    if names:
+        params = torch.stack([to_torch(traj.params[n]) for n in names], dim=1)
+    else:
+        params = torch.zeros((u.shape[0], 0), dtype=torch.float32)
+    return {
+        "u": u,
+        "t": torch.from_numpy(np.asarray(traj.t)),
+        "params": params,
+        "index": torch.from_numpy(np.asarray(traj.indices, dtype=np.int64)),
+        "param_names": names,
+    }

@@ -1,0 +1,128 @@
+"""Training views of a trajectory, shared by the stream and the cache loader.
+
+A view turns one trajectory ``u: [T, C, *space]`` (torch float32) with its parameters ``params: [P]``
+into training examples (dicts of tensors):
+
+- ``Whole()``: {"u": [T, C, *space], "t": [T]}
+- ``NextStep(k_in, k_out, windows)``: {"x": [k_in, C, *space], "y": [k_out, C, *space], "t0": []} from
+  windows starting at frame s; ``windows="all"`` gives every start, an int gives that many random starts
+  per trajectory (so one solve feeds many pairs)
+- ``Operator(t_in, t_out)``: {"x": [C, *space] at frame t_in, "y": [C, *space] at frame t_out}
+
+Every example also carries "params": [P] (conditioning) and "index": [] (global sample index).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Union
+
+import torch
+
+
+@dataclass(frozen=True)
+class Whole:
+    """The whole trajectory as one example."""
+
+    name = "whole"
+
+    def check(self, n_frames: int) -> None:
+        pass
+
+    def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
+        return [0]
+
+    def example(self, u: torch.Tensor, t: torch.Tensor, start: int) -> dict:
+        return {"u": u, "t": t}
+
+
+@dataclass(frozen=True)
+class NextStep:
+    """k_in input frames -> the k_out frames that follow; windows: "all" or a number of random starts."""
+
+    k_in: int = 1
+    k_out: int = 1
+    windows: Union[int, str] = "all"
+    name = "next_step"
+
+    def __post_init__(self):
+        if self.k_in < 1 or self.k_out < 1:
+            raise ValueError(f"next_step: k_in={self.k_in} and k_out={self.k_out} must both be >= 1")
+        if not (self.windows == "all" or (isinstance(self.windows, int) and self.windows >= 1)):
+            raise ValueError(f"next_step: windows={self.windows!r} not allowed; use 'all' or an integer >= 1")
+
+    def check(self, n_frames: int) -> None:
+        if self.k_in + self.k_out > n_frames:
+            raise ValueError(
+                f"next_step window k_in + k_out = {self.k_in} + {self.k_out} is longer than the trajectory "
+                f"({n_frames} frames); allowed: k_in + k_out <= {n_frames}"
+            )
+
+    def n_starts(self, n_frames: int) -> int:
+        return n_frames - self.k_in - self.k_out + 1
+
+    def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
+        """Window starts: all of them, or ``windows`` drawn uniformly (with replacement) by ``generator``."""
+        count = self.n_starts(n_frames)
+        if self.windows == "all":
+            return list(range(count))
+        return torch.randint(count, (int(self.windows),), generator=generator).tolist()
+
+    def example(self, u: torch.Tensor, t: torch.Tensor, start: int) -> dict:
+        mid = start + self.k_in
+        return {"x": u[start:mid], "y": u[mid : mid + self.k_out], "t0": t[start]}
+
+
+@dataclass(frozen=True)
+class Operator:
+    """Frame t_in -> frame t_out (negative indices count from the end; default u(0) -> u(t_end))."""
+
+    t_in: int = 0
+    t_out: int = -1
+    name = "operator"
+
+    def check(self, n_frames: int) -> None:
+        for label, value in (("t_in", self.t_in), ("t_out", self.t_out)):
+            if not -n_frames <= value < n_frames:
+                raise ValueError(f"operator: {label}={value} outside a trajectory of {n_frames} frames")
+        if self.t_in % n_frames >= self.t_out % n_frames:
+            raise ValueError(f"operator: t_in={self.t_in} must come before t_out={self.t_out}")
+
+    def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
+        return [0]
+
+    def example(self, u: torch.Tensor, t: torch.Tensor, start: int) -> dict:
+        return {"x": u[self.t_in], "y": u[self.t_out]}
+
+
+View = Union[Whole, NextStep, Operator]
+VIEWS = {"whole": Whole, "next_step": NextStep, "operator": Operator}
+
+
+def make_view(view: View | str, **kwargs) -> View:
+    """A view from an object or a name ("whole", "next_step", "operator") plus its keyword arguments."""
+    if isinstance(view, (Whole, NextStep, Operator)):
+        return view
+    if view not in VIEWS:
+        raise ValueError(f"unknown view {view!r}; allowed: {', '.join(VIEWS)}")
+    try:
+        return VIEWS[view](**kwargs)
+    except TypeError as err:
+        raise ValueError(f"view {view!r}: {err}") from None
+
+
+def examples(view: View, u: torch.Tensor, t: torch.Tensor, params: torch.Tensor, index: int,
+             generator: torch.Generator | None = None) -> list[dict]:
+    """All examples of one trajectory u [T, C, *space] (params [P], t [T]) under ``view``."""
+    out = []
+    for start in view.starts(u.shape[0], generator):
+        ex = view.example(u, t, start)
+        ex["params"] = params
+        ex["index"] = torch.tensor(index, dtype=torch.int64)
+        out.append(ex)
+    return out
+
+
+def collate(batch: list[dict]) -> dict:
+    """Stack a list of examples into a batch dict: each tensor gets a leading batch dimension."""
+    return {key: torch.stack([ex[key] for ex in batch]) for key in batch[0]}

@@ -1,0 +1,1 @@
+"""pdestream.surrogate: torch models and the training loop (never imports JAX)."""
