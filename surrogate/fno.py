@@ -1,0 +1,123 @@
+"""Fourier Neural Operator (Li et al., 2021) for periodic 1D and 2D fields.
+
+Input ``x: [B, C_in, *space]`` (frames stacked into channels), optional conditioning ``params: [B, P]``
+(broadcast over space as P extra input channels), output ``[B, C_out, *space]``. Normalized grid
+coordinates are appended as input channels, as in the paper. Each layer is
+``gelu(SpectralConv(v) + Conv1x1(v))``; the spectral convolution keeps the lowest ``modes`` Fourier modes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+@dataclass(frozen=True)
+class FNOConfig:
+    """width: channels inside the operator; modes: Fourier modes kept per dimension; layers: Fourier layers."""
+
+    width: int = 32
+    modes: int = 12
+    layers: int = 4
+
+    def __post_init__(self):
+        for name in ("width", "modes", "layers"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"fno: {name}={value!r} not allowed; must be an integer >= 1")
+
+
+def pointwise(ndim: int, c_in: int, c_out: int) -> nn.Module:
+    """A 1x1 convolution in 1D or 2D (a per-point linear map over channels)."""
+    return (nn.Conv1d if ndim == 1 else nn.Conv2d)(c_in, c_out, kernel_size=1)
+
+
+class SpectralConv(nn.Module):
+    """Multiply the lowest Fourier modes by learned complex weights; zero the rest.
+
+    Weights are stored as real tensors with a trailing (re, im) axis so checkpoints hold only real floats.
+    In 2D the kept block is [:m, :m] and [-m:, :m] of the rfft2 (both signs of the first wavenumber).
+    """
+
+    def __init__(self, ndim: int, c_in: int, c_out: int, modes: int):
+        super().__init__()
+        self.ndim, self.modes = ndim, modes
+        blocks = 1 if ndim == 1 else 2
+        scale = 1.0 / (c_in * c_out)
+        shape = (blocks, c_in, c_out) + (modes,) * ndim + (2,)
+        self.weight = nn.Parameter(scale * torch.rand(shape))  # [blocks, C_in, C_out, *modes, 2]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        w = torch.view_as_complex(self.weight)  # [blocks, C_in, C_out, *modes]
+        space = x.shape[2:]
+        x_ft = torch.fft.rfftn(x, dim=tuple(range(2, x.ndim)))  # [B, C_in, *space[:-1], n_last//2+1]
+        out = torch.zeros(x.shape[0], w.shape[2], *x_ft.shape[2:], dtype=x_ft.dtype, device=x.device)
+        if self.ndim == 1:
+            m = min(self.modes, x_ft.shape[-1])
+            out[..., :m] = torch.einsum("bix,iox->box", x_ft[..., :m], w[0, :, :, :m])
+        else:
+            m1, m2 = min(self.modes, space[0] // 2), min(self.modes, x_ft.shape[-1])
+            out[..., :m1, :m2] = torch.einsum("bixy,ioxy->boxy", x_ft[..., :m1, :m2], w[0, :, :, :m1, :m2])
+            out[..., -m1:, :m2] = torch.einsum("bixy,ioxy->boxy", x_ft[..., -m1:, :m2], w[1, :, :, :m1, :m2])
+        return torch.fft.irfftn(out, s=space, dim=tuple(range(2, x.ndim)))  # [B, C_out, *space]
+
+
+def grid_channels(x: torch.Tensor, ndim: int) -> torch.Tensor:
+    """Normalized coordinates in [0, 1), [B, ndim, *space], matching x [B, C, *space]."""
+    space = x.shape[2:]
+    axes = [torch.arange(n, dtype=x.dtype, device=x.device) / n for n in space]
+    mesh = torch.meshgrid(*axes, indexing="ij")  # ndim x [*space]
+    return torch.stack(mesh).unsqueeze(0).expand(x.shape[0], ndim, *space)
+
+
+def condition(x: torch.Tensor, params: torch.Tensor | None, n_params: int) -> torch.Tensor:
+    """Append params [B, P] broadcast over space as P channels: [B, C, *space] -> [B, C + P, *space]."""
+    if n_params == 0:
+        return x
+    if params is None or params.shape != (x.shape[0], n_params):
+        got = None if params is None else tuple(params.shape)
+        raise ValueError(f"model expects params of shape [B={x.shape[0]}, P={n_params}], got {got}")
+    p = params.to(x.dtype).reshape(*params.shape, *([1] * (x.ndim - 2)))  # [B, P, 1, ...]
+    return torch.cat([x, p.expand(-1, -1, *x.shape[2:])], dim=1)
+
+
+def check_input(x: torch.Tensor, ndim: int, in_channels: int, name: str) -> None:
+    """Clear error for an input of the wrong dimensionality or channel count."""
+    if x.ndim != ndim + 2 or x.shape[1] != in_channels:
+        raise ValueError(f"{name} ({ndim}D, {in_channels} input channels) expects input [B, {in_channels}, "
+                         f"{', '.join('n' * ndim)}], got shape {tuple(x.shape)}")
+
+
+class FNO(nn.Module):
+    """FNO: lift (1x1) -> ``layers`` Fourier layers -> project (1x1, 1x1)."""
+
+    def __init__(self, ndim: int, in_channels: int, out_channels: int, n_params: int = 0,
+                 config: FNOConfig = FNOConfig()):
+        super().__init__()
+        self.ndim, self.in_channels, self.n_params, self.config = ndim, in_channels, n_params, config
+        width = config.width
+        self.lift = pointwise(ndim, in_channels + n_params + ndim, width)
+        self.spectral = nn.ModuleList(SpectralConv(ndim, width, width, config.modes) for _ in range(config.layers))
+        self.skip = nn.ModuleList(pointwise(ndim, width, width) for _ in range(config.layers))
+        self.project = nn.Sequential(pointwise(ndim, width, 4 * width), nn.GELU(), pointwise(ndim, 4 * width, out_channels))
+
+    def forward(self, x: torch.Tensor, params: torch.Tensor | None = None) -> torch.Tensor:
+        check_input(x, self.ndim, self.in_channels, "fno")
+        x = condition(x, params, self.n_params)  # [B, C_in + P, *space]
+        v = self.lift(torch.cat([x, grid_channels(x, self.ndim)], dim=1))  # [B, width, *space]
+        for i, (spec, skip) in enumerate(zip(self.spectral, self.skip)):
+            v = spec(v) + skip(v)  # [B, width, *space]
+            if i < len(self.spectral) - 1:  # no activation after the last layer, as in the paper
+                v = F.gelu(v)
+        return self.project(v)  # [B, C_out, *space]
+
+
+def n_parameters(model: nn.Module) -> int:
+    """Number of trainable scalars (a complex weight counts as 2)."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+__all__ = ["FNO", "FNOConfig", "SpectralConv", "condition", "check_input", "n_parameters", "pointwise"]

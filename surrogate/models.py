@@ -1,0 +1,60 @@
+"""Model registry: ``MODELS`` and ``build_model``, with clear errors for unknown names and settings."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from torch import nn
+
+from .fno import FNO, FNOConfig
+from .unet import UNet, UNetConfig
+
+MODELS = {"fno": (FNO, FNOConfig), "unet": (UNet, UNetConfig)}
+
+
+def parse_model_name(name: str) -> tuple[str, int | None]:
+    """"fno" -> ("fno", None); "fno2d" -> ("fno", 2): a suffix pins the spatial dimension."""
+    base, ndim = name, None
+    if name[-2:] in ("1d", "2d"):
+        base, ndim = name[:-2], int(name[-2])
+    if base not in MODELS:
+        allowed = ", ".join([*MODELS, *(f"{m}{d}d" for m in MODELS for d in (1, 2))])
+        raise ValueError(f"unknown model {name!r}; allowed: {allowed}")
+    return base, ndim
+
+
+def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_params: int = 0, **cfg) -> nn.Module:
+    """A model for inputs [B, in_channels, *space] with ndim space dims, params [B, n_params] -> [B, out_channels, *space].
+
+    ``cfg`` sets the model's config dataclass (FNOConfig: width, modes, layers; UNetConfig: channels, depth);
+    string values (from ``--model-set``) are converted to int.
+    """
+    base, pinned = parse_model_name(name)
+    if ndim not in (1, 2):
+        raise ValueError(f"model {name!r}: ndim={ndim} not supported; allowed: 1, 2")
+    if pinned is not None and pinned != ndim:
+        raise ValueError(f"model {name!r} is {pinned}D but the PDE is {ndim}D; use {base!r} or {base}{ndim}d")
+    cls, config_cls = MODELS[base]
+    fields = [f.name for f in dataclasses.fields(config_cls)]
+    unknown = sorted(set(cfg) - set(fields))
+    if unknown:
+        raise ValueError(f"model {base!r}: unknown setting(s) {', '.join(unknown)}; allowed: {', '.join(fields)}")
+    values = {}
+    for key, value in cfg.items():
+        try:
+            values[key] = int(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"model {base!r}: {key}={value!r} is not an integer") from None
+    return cls(ndim, in_channels, out_channels, n_params, config_cls(**values))
+
+
+def model_spec(model: nn.Module) -> dict:
+    """Plain dict that ``build_model(**spec)`` turns back into the same architecture (for checkpoints)."""
+    name = "fno" if isinstance(model, FNO) else "unet"
+    return {"name": name, "ndim": model.ndim, "in_channels": model.in_channels,
+            "out_channels": _out_channels(model), "n_params": model.n_params, **dataclasses.asdict(model.config)}
+
+
+def _out_channels(model: nn.Module) -> int:
+    last = model.project[-1] if isinstance(model, FNO) else model.head
+    return last.out_channels

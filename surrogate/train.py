@@ -1,0 +1,191 @@
+"""One training loop for any DataLoader of batch dicts, streamed or cached, with identical code.
+
+A batch is {"x": [B, k_in, C, *space] or [B, C, *space], "y": same layout with k_out frames, "params": [B, P],
+"index": [B], ...}. Frames are stacked into channels for the model ([B, k*C, *space]); fields and
+parameters are normalized by a ``Normalizer`` (per-field / per-parameter mean and std) taken from the data
+source when it offers one, else from the first training batch. The loss is the MSE in normalized units.
+
+The run directory gets ``metrics.csv`` (one row per log step), ``metrics.json`` (summary) and ``model.pt``
+(state dicts and plain dicts only: ``torch.load(path, weights_only=True)`` works).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+from tqdm import tqdm
+
+from .models import build_model, model_spec
+
+
+@dataclass
+class Normalizer:
+    """Per-field mean/std ([C]) and per-parameter mean/std ([P]); std is floored so constants stay finite."""
+
+    mean: torch.Tensor
+    std: torch.Tensor
+    p_mean: torch.Tensor
+    p_std: torch.Tensor
+
+    @classmethod
+    def from_batch(cls, batch: dict, ndim: int) -> "Normalizer":
+        """Statistics of one batch: fields over x and y ([..., C, *space]), parameters over params [B, P]."""
+        fields = torch.cat([_fields_last(batch["x"], ndim), _fields_last(batch["y"], ndim)])  # [N, C]
+        params = batch["params"].double()  # [B, P]
+        return cls(fields.mean(0).float(), _floor(fields.std(0)).float(),
+                   params.mean(0).float(), _floor(params.std(0) if len(params) > 1 else torch.zeros(params.shape[1])).float())
+
+    @classmethod
+    def from_state(cls, state: dict) -> "Normalizer":
+        return cls(**{k: torch.as_tensor(v, dtype=torch.float32) for k, v in state.items()})
+
+    def state(self) -> dict:
+        return {"mean": self.mean, "std": self.std, "p_mean": self.p_mean, "p_std": self.p_std}
+
+    def _shape(self, v: torch.Tensor, ndim: int) -> torch.Tensor:
+        return v.reshape(-1, *([1] * ndim))  # [C, 1, ...] broadcasts over [..., C, *space]
+
+    def norm(self, u: torch.Tensor, ndim: int) -> torch.Tensor:
+        return (u - self._shape(self.mean, ndim)) / self._shape(self.std, ndim)
+
+    def denorm(self, u: torch.Tensor, ndim: int) -> torch.Tensor:
+        return u * self._shape(self.std, ndim) + self._shape(self.mean, ndim)
+
+    def params(self, p: torch.Tensor) -> torch.Tensor:
+        return (p - self.p_mean) / self.p_std  # [B, P]
+
+
+def _fields_last(u: torch.Tensor, ndim: int) -> torch.Tensor:
+    """[..., C, *space] -> [N, C] in float64 (for accurate statistics)."""
+    c = u.shape[-ndim - 1]
+    return u.double().movedim(-ndim - 1, -1).reshape(-1, c)
+
+
+def _floor(std: torch.Tensor) -> torch.Tensor:
+    return torch.where(std > 1e-8, std, torch.ones_like(std))  # a fixed parameter or constant field: scale 1
+
+
+def stack_frames(u: torch.Tensor, ndim: int) -> torch.Tensor:
+    """[B, k, C, *space] -> [B, k*C, *space]; [B, C, *space] unchanged."""
+    return u.flatten(1, u.ndim - ndim - 1)
+
+
+def predict(model: nn.Module, norm: Normalizer, x: torch.Tensor, params: torch.Tensor, ndim: int,
+            y_shape: torch.Size) -> torch.Tensor:
+    """Physical-unit prediction in the target's layout y_shape ([B, k_out, C, *space] or [B, C, *space])."""
+    out = model(stack_frames(norm.norm(x, ndim), ndim), norm.params(params))  # [B, k_out*C, *space]
+    return norm.denorm(out.reshape(y_shape), ndim)
+
+
+def make_schedule(opt: torch.optim.Optimizer, name: str, steps: int, lr: float):
+    """"cosine" (decay to 1% of lr) or "onecycle" (warm-up then anneal) over ``steps`` optimizer steps."""
+    if name == "cosine":
+        return torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps, eta_min=lr * 0.01)
+    if name == "onecycle":
+        return torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps)
+    raise ValueError(f"unknown schedule {name!r}; allowed: cosine, onecycle")
+
+
+def forever(loader):
+    """Batches from ``loader``, starting a new epoch whenever a finite loader runs out."""
+    while True:
+        empty = True
+        for batch in loader:
+            empty = False
+            yield batch
+        if empty:
+            raise ValueError("the data loader yielded no batches (empty dataset?)")
+        if hasattr(loader, "dataset") and hasattr(loader.dataset, "set_epoch"):
+            loader.dataset.set_epoch(getattr(loader.dataset, "epoch", 0) + 1)
+
+
+def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, schedule: str = "cosine",
+          normalizer: Normalizer | None = None, log_every: int = 10, meta: dict | None = None,
+          label: str = "train") -> dict:
+    """Train ``model`` for ``steps`` optimizer steps on batches from ``loader``; returns the summary dict.
+
+    Works the same for an IterableDataset stream (DataLoader(stream, batch_size=None)) and a map-style cache
+    (DataLoader(cached, batch_size=B, shuffle=True)). Times are wall-clock seconds: "t_data" is time spent
+    waiting for the next batch, "t_compute" forward + backward + optimizer step.
+    """
+    if steps < 1:
+        raise ValueError(f"steps={steps} not allowed; must be >= 1")
+    if lr <= 0:
+        raise ValueError(f"lr={lr} not allowed; must be > 0")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    ndim = model.ndim
+    opt = torch.optim.Adam(model.parameters(), lr=lr)
+    sched = make_schedule(opt, schedule, steps, lr)
+    batches = forever(loader)
+    t_data = t_compute = 0.0
+    examples, trajectories, rows = 0, set(), []
+    bar = tqdm(total=steps, desc=label, disable=not sys.stderr.isatty(), leave=False)
+    start = time.perf_counter()
+    model.train()
+    for step in range(1, steps + 1):
+        t0 = time.perf_counter()
+        batch = next(batches)
+        t1 = time.perf_counter()
+        if normalizer is None:  # the data source offered none: calibrate on the first batch
+            normalizer = Normalizer.from_batch(batch, ndim)
+        x, y = batch["x"], batch["y"]  # [B, (k,) C, *space]
+        target = stack_frames(normalizer.norm(y, ndim), ndim)  # [B, k_out*C, *space]
+        pred = model(stack_frames(normalizer.norm(x, ndim), ndim), normalizer.params(batch["params"]))
+        loss = F.mse_loss(pred, target)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+        loss_value = loss.item()
+        t2 = time.perf_counter()
+        if not math.isfinite(loss_value):
+            raise ValueError(f"{label}: training diverged at step {step} (loss={loss_value}); lower --lr")
+        t_data, t_compute = t_data + t1 - t0, t_compute + t2 - t1
+        examples += len(x)
+        trajectories.update(batch["index"].tolist())
+        bar.update(1)
+        if step % log_every == 0 or step == steps:
+            rows.append({"step": step, "loss": loss_value, "lr": sched.get_last_lr()[0], "examples": examples,
+                         "trajectories": len(trajectories), "t_data": t_data, "t_compute": t_compute,
+                         "elapsed": time.perf_counter() - start})
+            bar.set_postfix(loss=f"{loss_value:.3g}")
+    bar.close()
+    summary = {"label": label, "steps": steps, "final_loss": rows[-1]["loss"], "examples_seen": examples,
+               "trajectories_seen": len(trajectories), "t_data": t_data, "t_compute": t_compute,
+               "wall": time.perf_counter() - start, "data_share": t_data / max(t_data + t_compute, 1e-12),
+               "model": model_spec(model), "lr": lr, "schedule": schedule, **(meta or {})}
+    with open(out / "metrics.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    (out / "metrics.json").write_text(json.dumps(summary, indent=2))
+    save_checkpoint(out / "model.pt", model, normalizer, step=steps, meta=meta)
+    summary["normalizer"] = normalizer
+    summary["curve"] = rows
+    return summary
+
+
+def save_checkpoint(path, model: nn.Module, normalizer: Normalizer, step: int, meta: dict | None = None) -> None:
+    """State dict + plain dicts only, so ``torch.load(path, weights_only=True)`` loads it."""
+    torch.save({"model": model.state_dict(), "spec": model_spec(model), "normalizer": normalizer.state(),
+                "step": step, "meta": meta or {}}, path)
+
+
+def load_checkpoint(path) -> tuple[nn.Module, Normalizer, dict]:
+    """(model in eval mode, normalizer, the checkpoint dict) from ``save_checkpoint``'s file."""
+    ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    spec = dict(ckpt["spec"])
+    model = build_model(spec.pop("name"), spec.pop("ndim"), spec.pop("in_channels"), spec.pop("out_channels"),
+                        spec.pop("n_params"), **spec)
+    model.load_state_dict(ckpt["model"])
+    return model.eval(), Normalizer.from_state(ckpt["normalizer"]), ckpt
