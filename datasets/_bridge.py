@@ -66,3 +66,38 @@ def trajectory_tensors(traj) -> dict:
         "index": torch.from_numpy(np.asarray(traj.indices, dtype=np.int64)),
         "param_names": names,
     }
+
+
+def configure_worker(worker_id: int = 0) -> None:
+    """``worker_init_fn`` for DataLoader worker processes: JAX on the CPU (the GPU is torch's), then
+    ``configure_jax``. Works because unpickling the dataset does not start a JAX backend."""
+    os.environ.setdefault("JAX_PLATFORMS", "cpu")
+    import jax
+
+    jax.config.update("jax_platforms", os.environ["JAX_PLATFORMS"])
+    configure_jax()
+
+
+def jax_provenance() -> dict:
+    """What decides the random bits of a sample besides (config, seed, index): JAX's version and PRNG mode."""
+    import jax
+
+    return {"jax_version": jax.__version__, "jax_threefry_partitionable": int(jax.config.jax_threefry_partitionable)}
+
+
+def resolve_pde(pde):
+    """A generator PDE from a PDE object or a catalog name."""
+    import generator
+
+    if isinstance(pde, str):
+        return generator.get_pde(pde)
+    if not isinstance(pde, generator.PDE):
+        raise ValueError(f"pde must be a generator PDE or a catalog name ({', '.join(generator.PDES)}), got {pde!r}")
+    return pde
+
+
+def sample_tensors(pde, indices, seed: int = 0, on_blowup: str = "raise") -> dict:
+    """``trajectory_tensors(generator.sample(pde, indices, seed, on_blowup))``; NaN/Inf raises BlowUpError."""
+    import generator
+
+    return trajectory_tensors(generator.sample(pde, indices, seed, on_blowup=on_blowup))

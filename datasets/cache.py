@@ -1,0 +1,240 @@
+"""Cache samples to HDF5 or Zarr (``write_cache``), open a cache with xarray (``open_cache``).
+
+Samples 0..N-1 are generated in fixed-size blocks (one compile) by ``generator.sample`` in a background
+thread while the previous block is written, so writing costs little generation throughput. The schema
+and crash-safety scheme are in ``datasets.schema``. The map-style loader is ``datasets.loader``.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import shutil
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import schema
+
+TARGET_BLOCK_BYTES = 32 * 2**20  # default block: ~32 MiB of samples (bounded memory, few block writes)
+
+
+@dataclass
+class WriteSummary:
+    """What ``write_cache`` did: samples written this run, of total; wall seconds; bytes on disk."""
+
+    path: str
+    n_samples: int
+    written: int
+    seconds: float
+    bytes: int
+
+    def line(self) -> str:
+        rate = self.written / self.seconds if self.seconds > 0 else 0.0
+        return (f"wrote {self.written} samples ({self.n_samples} of {self.n_samples} complete) to {self.path} in "
+                f"{self.seconds:.1f} s ({rate:.1f} samples/s), {self.bytes / 2**20:.1f} MiB")
+
+
+def default_block(pde, n_samples: int) -> int:
+    per_sample = 4 * len(pde.FIELDS) * pde.n_frames * pde.n**pde.NDIM
+    return max(1, min(n_samples, 256, TARGET_BLOCK_BYTES // per_sample))
+
+
+def _check_writable(path: Path) -> None:
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise FileNotFoundError(f"cannot write {path}: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise PermissionError(f"cannot write {path}: directory {parent} is not writable")
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir():
+        if not (path / "zarr.json").exists():
+            raise ValueError(f"refusing to overwrite {path}: a directory that is not a Zarr store")
+        shutil.rmtree(path)
+    else:
+        path.unlink()
+
+
+def _create(path: Path, fmt: str, lay: schema.Layout, block: int) -> None:
+    """Create under a temporary name and rename: a kill during creation leaves no half-made cache."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        schema.create_hdf5(str(tmp), lay) if fmt == "hdf5" else schema.create_zarr(str(tmp), lay, block)
+        os.replace(tmp, path)
+    except BaseException:
+        if tmp.exists():
+            shutil.rmtree(tmp) if tmp.is_dir() else tmp.unlink()
+        raise
+
+
+def _check_resume(path: Path, attrs: dict, lay: schema.Layout) -> None:
+    """Refuse to finish a cache that another configuration (or JAX PRNG set-up) started."""
+    keys = ("pdestream_config_hash", "pdestream_seed", "pdestream_n_samples", "pdestream_on_blowup",
+            "jax_version", "jax_threefry_partitionable", "pdestream_schema")
+    diff = [f"{k[10:] if k.startswith('pdestream_') else k} {attrs.get(k)!r} != {lay.attrs[k]!r}"
+            for k in keys if attrs.get(k) != lay.attrs[k]]
+    if diff:
+        raise ValueError(f"cannot resume {path}: it was written with a different set-up ({'; '.join(diff)}); "
+                         "use the same PDE settings, seed and --n, or --overwrite to start again")
+
+
+def _generate(pde, seed, blocks, block, on_blowup, out: queue.Queue, stop: threading.Event) -> None:
+    """Producer thread: solve each (lo, hi) block (padded to ``block`` samples: one compile), hand it on."""
+    import generator
+
+    try:
+        for lo, hi in blocks:
+            idx = np.minimum(np.arange(lo, lo + block), hi - 1)  # pad by repeating the last index
+            traj = generator.sample(pde, idx, seed, on_blowup=on_blowup)
+            u = np.asarray(traj.u)[: hi - lo]
+            item = (lo, hi, u, {k: np.asarray(v)[: hi - lo] for k, v in traj.params.items()},
+                    np.minimum(traj.redraws[: hi - lo], 127).astype(np.int8))
+            while not stop.is_set():
+                try:
+                    out.put(item, timeout=0.1)
+                    break
+                except queue.Full:
+                    pass
+            if stop.is_set():
+                return
+    except BaseException as err:  # re-raised by the writer in the main thread
+        out.put(err)
+    out.put(None)
+
+
+def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, overwrite: bool = False,
+                block: int | None = None, on_blowup: str = "raise", progress: bool = True) -> WriteSummary:
+    """Write samples 0..n_samples-1 of ``pde`` under ``seed`` to ``path`` (.h5/.hdf5 or .zarr).
+
+    Fields are float32 [sample, time, x(, y)] (schema in ``datasets.schema``). ``block`` samples are
+    solved per batch (default: ~32 MiB); ``resume`` finishes an interrupted cache of the same set-up
+    (bit-identical to an uninterrupted run); ``overwrite`` replaces an existing one. ``progress`` shows a
+    tqdm bar when stderr is a terminal.
+    """
+    from ._bridge import configure_jax, jax_provenance
+
+    path = Path(path)
+    fmt = schema.cache_format(path)
+    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
+        raise ValueError(f"n_samples={n_samples!r} not allowed: need an integer >= 1")
+    if resume and overwrite:
+        raise ValueError("--resume and --overwrite exclude each other: resume finishes a cache, overwrite replaces it")
+    if on_blowup not in ("raise", "redraw"):
+        raise ValueError(f"on_blowup={on_blowup!r} not allowed; allowed: 'raise', 'redraw'")
+    exists = path.exists() or path.is_symlink()
+    if exists and not (resume or overwrite):
+        raise FileExistsError(f"{path} exists; pass --resume to finish it or --overwrite to replace it")
+    _check_writable(path)
+    configure_jax()
+    stored = None
+    if resume and exists:
+        info = open_cache(path)  # clear error if it is not a cache
+        stored, info = dict(info.attrs), info.close()
+    if block is None:
+        block = stored["pdestream_block"] if stored else default_block(pde, n_samples)
+    if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 1:
+        raise ValueError(f"block={block!r} not allowed: need an integer >= 1")
+    block = int(min(block, n_samples))
+    lay = schema.layout(pde, int(n_samples), seed, block, on_blowup, jax_provenance())
+    if stored:
+        _check_resume(path, stored, lay)
+        if stored["pdestream_block"] != block:
+            raise ValueError(f"cannot resume {path} with block={block}: it was started with block="
+                             f"{stored['pdestream_block']} (leave --block out to use it)")
+    else:
+        if exists:
+            _remove(path)
+        try:
+            _create(path, fmt, lay, block)
+        except OSError as err:
+            raise ValueError(f"cannot create {path}: {err}") from None
+    return _fill(pde, path, lay, block, progress)
+
+
+def _fill(pde, path: Path, lay: schema.Layout, block: int, progress: bool) -> WriteSummary:
+    from tqdm import tqdm
+
+    start = time.perf_counter()
+    n = lay.dims["sample"]
+    store = schema.open_store(str(path), "r+")
+    written = 0
+    try:
+        done = np.asarray(store["complete"][:]) == 1
+        todo = [(lo, min(lo + block, n)) for lo in range(0, n, block) if not done[lo : lo + block].all()]
+        bar = tqdm(total=n, initial=int(done.sum()), unit="sample", desc=pde.NAME, smoothing=0.1,
+                   disable=not progress or not sys.stderr.isatty())
+        out: queue.Queue = queue.Queue(maxsize=1)  # one block solved ahead of the one being written
+        stop = threading.Event()
+        seed, on_blowup = lay.attrs["pdestream_seed"], lay.attrs["pdestream_on_blowup"]
+        worker = threading.Thread(target=_generate, args=(pde, seed, todo, block, on_blowup, out, stop), daemon=True)
+        worker.start()
+        try:
+            while (item := out.get()) is not None:
+                if isinstance(item, BaseException):
+                    raise item
+                lo, hi, u, params, redraws = item
+                for c, name in enumerate(pde.FIELDS):
+                    store[name][lo:hi] = u[:, :, c]
+                for name, values in params.items():
+                    store[name][lo:hi] = values
+                store["redraws"][lo:hi] = redraws
+                if hasattr(store, "flush"):
+                    store.flush()  # data reaches the file before the flags that vouch for it
+                store["complete"][lo:hi] = np.ones(hi - lo, np.int8)
+                if hasattr(store, "flush"):
+                    store.flush()
+                written += hi - lo
+                bar.update(hi - lo)
+        finally:
+            stop.set()
+            bar.close()
+        if not (np.asarray(store["complete"][:]) == 1).all():
+            raise RuntimeError(f"{path}: blocks missing after writing (a bug)")
+        schema.mark_complete(store, str(path))
+    finally:
+        schema.close(store)
+    return WriteSummary(str(path), n, written, time.perf_counter() - start, schema.disk_bytes(path))
+
+
+def open_cache(path, complete_only: bool = False):
+    """The cache at ``path`` as an xarray.Dataset (lazy); ``complete_only`` keeps written samples only.
+
+    ValueError (one line) for a missing path, a file that is not a pdestream cache, or an unreadable one.
+    """
+    import xarray as xr
+
+    path = Path(path)
+    fmt = schema.cache_format(path)
+    if not path.exists():
+        raise ValueError(f"no cache at {path}: the path does not exist")
+    try:
+        if fmt == "hdf5":
+            ds = xr.open_dataset(path, engine="h5netcdf")
+        else:
+            ds = xr.open_zarr(path, consolidated=True)
+    except Exception as err:  # h5py / zarr / json errors of every kind: name the file, not the library
+        detail = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise ValueError(f"{path} is not a readable {fmt} cache (truncated or corrupted?): {detail}") from None
+    missing = [k for k in (schema.CONFIG_ATTR, "pdestream_n_samples", "pdestream_fields", "pdestream_params")
+               if k not in ds.attrs]
+    missing += [v for v in ("complete", "sample") if v not in ds.variables]
+    if missing:
+        ds.close()
+        raise ValueError(f"{path} is not a pdestream cache (missing {', '.join(missing)})")
+    if ds.sizes["sample"] != ds.attrs["pdestream_n_samples"]:
+        ds.close()
+        raise ValueError(f"{path} is damaged: {ds.sizes['sample']} samples stored, {ds.attrs['pdestream_n_samples']} expected")
+    if complete_only:
+        ds = ds.isel(sample=np.flatnonzero(ds["complete"].values == 1))
+    return ds
+
+
+def is_complete(ds) -> bool:
+    """True when every sample is written and the writer finished (the flag it sets last)."""
+    return bool(ds.attrs.get("pdestream_complete") == 1 and (ds["complete"].values == 1).all())

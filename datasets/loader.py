@@ -1,0 +1,98 @@
+"""CachedTrajectories: the precomputed fallback, a map-style torch Dataset over a cache file.
+
+It gives the same example dicts as the stream (``datasets.views``; "params" [P] in PDE.PARAMS order,
+"index" the global sample index), so a model trains on a cache or on the stream alike. The file is opened
+lazily in each process that reads (never carried across fork or spawn); only small metadata (times,
+parameters, complete mask) is held in memory.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import torch
+
+from . import schema
+from .cache import is_complete, open_cache
+from .views import NextStep, examples, make_view
+
+
+class CachedTrajectories(torch.utils.data.Dataset):
+    """Examples of a cache under a view.
+
+    Item k: ``whole``/``operator``: sample k; ``next_step`` with windows="all": the pair (sample, start)
+    k // n_starts, k % n_starts; with windows=W: sample k // W at a start drawn by torch's RNG.
+    ``allow_incomplete=True`` reads only the complete samples of an interrupted cache.
+    """
+
+    def __init__(self, path, view="whole", allow_incomplete: bool = False, **view_kwargs):
+        self.path = str(path)
+        self.view = make_view(view, **view_kwargs)
+        ds = open_cache(self.path)
+        try:
+            self.config = json.loads(ds.attrs[schema.CONFIG_ATTR])
+            self.seed = int(ds.attrs["pdestream_seed"])
+            self.fields = ds.attrs["pdestream_fields"].split()
+            self.param_names = ds.attrs["pdestream_params"].split()
+            complete = ds["complete"].values == 1
+            if not is_complete(ds) and not allow_incomplete:
+                raise ValueError(
+                    f"{self.path} is incomplete ({int(complete.sum())} of {complete.size} samples written); finish "
+                    "it with `pdestream generate ... --resume`, or pass allow_incomplete=True to read the written ones")
+            self.rows = np.flatnonzero(complete)  # positions in the file
+            self.indices = ds["sample"].values[self.rows].astype(np.int64)
+            cols = [ds[n].values[self.rows] for n in self.param_names]
+            self.params = torch.from_numpy(np.stack(cols, 1) if cols else np.zeros((len(self.rows), 0), np.float32))
+            self.t = torch.from_numpy(ds["time"].values.astype(np.float32))
+        finally:
+            ds.close()
+        n_frames = len(self.t)
+        self.view.check(n_frames)
+        self._window = None
+        self.per_sample = 1
+        if isinstance(self.view, NextStep):
+            # read only the frames of one window; a one-window view gives the example at that start
+            self._window = NextStep(self.view.k_in, self.view.k_out, "all")
+            all_starts = self.view.windows == "all"
+            self.per_sample = self.view.n_starts(n_frames) if all_starts else int(self.view.windows)
+        self._store, self._pid = None, None
+
+    @property
+    def pde(self):
+        """The cached PDE (rebuilt from the stored config; imports generator, hence JAX, on first use)."""
+        import generator
+
+        return generator.from_config(self.config)
+
+    def __len__(self) -> int:
+        return len(self.rows) * self.per_sample
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_store"], state["_pid"] = None, None  # a file handle never crosses processes
+        return state
+
+    def _open(self):
+        if self._store is None or self._pid != os.getpid():
+            self._store, self._pid = schema.open_store(self.path, "r"), os.getpid()
+        return self._store
+
+    def __getitem__(self, k: int) -> dict:
+        if not -len(self) <= k < len(self):
+            raise IndexError(f"index {k} out of range for {len(self)} examples")
+        k %= len(self)
+        j, sub = divmod(k, self.per_sample)
+        row, n_frames = int(self.rows[j]), len(self.t)
+        lo, hi, view = 0, n_frames, self.view
+        if self._window is not None:
+            start = sub if self.view.windows == "all" else int(torch.randint(self.view.n_starts(n_frames), ()))
+            lo, hi, view = start, start + self.view.k_in + self.view.k_out, self._window
+        store = self._open()
+        try:
+            u = np.stack([np.asarray(store[f][row, lo:hi]) for f in self.fields], axis=1)  # [T', C, *space]
+        except Exception as err:  # a corrupted chunk or a file changed under us: name the file and sample
+            raise ValueError(f"{self.path}: cannot read sample {self.indices[j]}: {err}") from None
+        return examples(view, torch.from_numpy(u), self.t[lo:hi], self.params[j], int(self.indices[j]))[0]
+

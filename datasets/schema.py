@@ -1,0 +1,205 @@
+"""The on-disk schema of a pdestream cache, one layout for HDF5 (.h5/.hdf5) and Zarr v3 (.zarr).
+
+Readable by plain xarray (``xr.open_dataset(path, engine="h5netcdf")``, ``xr.open_zarr(path)``)::
+
+    dims         sample (N), time (T), x (n)[, y (n)]
+    data vars    one per field of the PDE (PDE.FIELDS), float32 [sample, time, x(, y)]
+    coords       time [T] float32, x [n], y [n] float32 (cell-left points), sample [N] int64 (global index),
+                 one float32 [sample] per PDE parameter (units, long_name), redraws int8 [sample]
+                 (blow-up redraws used), complete int8 [sample] (1 once the sample is written)
+    attributes   pde, equation, pdestream_config (full resolved config, JSON), pdestream_config_hash,
+                 pdestream_fields, pdestream_params (names in PDE order, space-separated),
+                 pdestream_seed, pdestream_n_samples, pdestream_block, pdestream_on_blowup,
+                 pdestream_version, jax_version, jax_threefry_partitionable, pdestream_schema,
+                 pdestream_complete (0 until every block is written; set last)
+
+Crash safety: every array is fully laid out when the file is created (HDF5: contiguous, allocated
+early; Zarr: chunks along ``sample`` that a write block covers whole), so writing a block changes data
+only, never metadata. A block's ``complete`` flags are written after its data, so a killed writer leaves
+a cache that reads as incomplete.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+SCHEMA_VERSION = 1
+SUFFIXES = {".h5": "hdf5", ".hdf5": "hdf5", ".zarr": "zarr"}
+CONFIG_ATTR = "pdestream_config"
+FLAGS = ("redraws", "complete")  # int8 per-sample coordinates besides the parameters
+
+
+def cache_format(path) -> str:
+    """"hdf5" or "zarr" from the path's suffix; ValueError for anything else."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in SUFFIXES:
+        raise ValueError(f"cache path {str(path)!r} must end in .h5, .hdf5 or .zarr (got {suffix or 'no suffix'!r})")
+    return SUFFIXES[suffix]
+
+
+@dataclass
+class Layout:
+    """What a cache holds: dims, coordinates written at creation, per-sample and field arrays, attrs."""
+
+    dims: dict[str, int]
+    coords: dict[str, tuple[tuple[str, ...], np.ndarray, dict]]
+    per_sample: dict[str, tuple[str, dict]]  # name -> (dtype, attrs), dims ("sample",)
+    fields: dict[str, dict]  # name -> attrs, float32 over field_dims
+    field_dims: tuple[str, ...]
+    attrs: dict = field(default_factory=dict)
+
+
+def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenance: dict) -> Layout:
+    """The layout of a cache of samples 0..n_samples-1 of ``pde`` under ``seed``."""
+    from importlib.metadata import version
+
+    space = ("x", "y")[: pde.NDIM]
+    dims = {"sample": n_samples, "time": pde.n_frames, **{d: pde.n for d in space}}
+    coords = {
+        "sample": (("sample",), np.arange(n_samples, dtype=np.int64), {"long_name": "global sample index"}),
+        "time": (("time",), pde.times(), {"long_name": "time", "units": "1", "axis": "T"}),
+    }
+    for d in space:
+        coords[d] = ((d,), pde.grid.coords(), {"long_name": f"{d} (cell-left grid point)", "units": "1",
+                                               "axis": d.upper()})
+    per_sample = {name: ("float32", {"long_name": p.description, "units": p.units, "domain": str(getattr(pde, name))})
+                  for name, p in pde.PARAMS.items()}
+    per_sample["redraws"] = ("int8", {"long_name": "blow-up redraws used for this sample", "units": "1"})
+    per_sample["complete"] = ("int8", {"long_name": "sample fully written", "flag_values": [0, 1],
+                                       "flag_meanings": "missing written"})
+    link = " ".join(per_sample)  # CF: the per-sample coordinates of every field
+    fields = {f: {"long_name": f"{f} ({pde.NAME})", "units": "1", "coordinates": link} for f in pde.FIELDS}
+    attrs = {
+        "Conventions": "CF-1.10",
+        "title": f"pdestream cache: {pde.NAME}, samples 0..{n_samples - 1}, seed {seed}",
+        "pde": pde.NAME,
+        "equation": pde.EQUATION,
+        CONFIG_ATTR: json.dumps(pde.config(), sort_keys=True),
+        "pdestream_config_hash": pde.config_hash(),
+        "pdestream_fields": " ".join(pde.FIELDS),  # data variables, in PDE.FIELDS order
+        "pdestream_params": " ".join(pde.PARAMS),  # parameter coordinates, in PDE.PARAMS order
+        "pdestream_seed": int(seed),
+        "pdestream_n_samples": int(n_samples),
+        "pdestream_block": int(block),
+        "pdestream_on_blowup": on_blowup,
+        "pdestream_version": version("pdestream"),
+        **provenance,
+        "pdestream_schema": SCHEMA_VERSION,
+        "pdestream_complete": 0,
+    }
+    return Layout(dims, coords, per_sample, fields, ("sample", "time", *space), attrs)
+
+
+def plain(value):
+    """numpy scalars/bytes from a file attribute -> plain Python values."""
+    if isinstance(value, bytes):
+        return value.decode()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return value
+
+
+# --- HDF5 ------------------------------------------------------------------------------------------
+def _early_dcpl():
+    """Allocate the whole dataset at creation and never write fill values: later writes are data only."""
+    import h5py
+
+    dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+    dcpl.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
+    dcpl.set_fill_time(h5py.h5d.FILL_TIME_NEVER)
+    return dcpl
+
+
+def create_hdf5(path: str, lay: Layout) -> None:
+    """A netCDF4-compatible HDF5 file (dimension scales through h5netcdf) with every array allocated."""
+    import h5netcdf
+
+    with h5netcdf.File(path, "w") as f:
+        f.dimensions = lay.dims
+        for name, (dims, data, attrs) in lay.coords.items():
+            f.create_variable(name, dims, data=data).attrs.update(attrs)
+        for name, (dtype, attrs) in lay.per_sample.items():
+            f.create_variable(name, ("sample",), dtype, dcpl=_early_dcpl()).attrs.update(attrs)
+        for name, attrs in lay.fields.items():
+            f.create_variable(name, lay.field_dims, "float32", dcpl=_early_dcpl()).attrs.update(attrs)
+        f.attrs.update(lay.attrs)
+
+
+def create_zarr(path: str, lay: Layout, block: int) -> None:
+    """A Zarr v3 group with dimension_names; fields chunked per sample, per-sample arrays per block."""
+    import zarr
+    from zarr.codecs import ZstdCodec
+
+    group = zarr.open_group(path, mode="w-", zarr_format=3, attributes=lay.attrs)
+    for name, (dims, data, attrs) in lay.coords.items():
+        arr = group.create_array(name, shape=data.shape, dtype=data.dtype, chunks=data.shape,
+                                 dimension_names=dims, attributes=attrs)
+        arr[...] = data
+    for name, (dtype, attrs) in lay.per_sample.items():
+        fill = np.nan if dtype == "float32" else 0
+        group.create_array(name, shape=(lay.dims["sample"],), dtype=dtype, chunks=(block,), fill_value=fill,
+                           dimension_names=("sample",), attributes=attrs)
+    shape = tuple(lay.dims[d] for d in lay.field_dims)
+    for name, attrs in lay.fields.items():
+        # one chunk per sample: random access reads one sample; checksums catch corrupted chunks
+        group.create_array(name, shape=shape, dtype="float32", chunks=(1, *shape[1:]), fill_value=np.nan,
+                           compressors=ZstdCodec(level=1, checksum=True), dimension_names=lay.field_dims,
+                           attributes=attrs)
+    consolidate(path)
+
+
+def consolidate(path: str) -> None:
+    """Consolidated metadata, so xr.open_zarr(path) opens quickly and without a warning."""
+    import warnings
+
+    import zarr
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "consolidated metadata is not part of the Zarr v3 spec"
+        zarr.consolidate_metadata(path)
+
+
+# --- one interface over both formats -----------------------------------------------------------------
+def open_store(path: str, mode: str = "r"):
+    """The raw h5py.File / zarr.Group of a cache (mode "r" or "r+"); both index arrays as store[name][...]."""
+    if cache_format(path) == "hdf5":
+        import h5py
+
+        return h5py.File(path, mode)
+    import zarr
+
+    return zarr.open_group(path, mode=mode, zarr_format=3, use_consolidated=False)
+
+
+def store_attrs(store) -> dict:
+    return {k: plain(v) for k, v in store.attrs.items()}
+
+
+def mark_complete(store, path: str) -> None:
+    """Set the global completion flag (written last, after every block's data and flags)."""
+    if cache_format(path) == "hdf5":
+        store.attrs["pdestream_complete"] = np.int64(1)
+        store.flush()
+    else:
+        store.attrs["pdestream_complete"] = 1
+        consolidate(path)
+
+
+def close(store) -> None:
+    if hasattr(store, "close"):  # h5py.File; a zarr.Group holds no handle
+        store.close()
+
+
+def disk_bytes(path) -> int:
+    """Apparent size on disk: the file, or every file under a Zarr directory."""
+    path = Path(path)
+    if path.is_file():
+        return path.stat().st_size
+    return sum(os.path.getsize(os.path.join(root, f)) for root, _, files in os.walk(path) for f in files)
