@@ -1,0 +1,149 @@
+"""Sampler contract: determinism, no recompilation, registry-wide sanity, initial conditions, bad input."""
+
+import jax
+import numpy as np
+import pytest
+
+import generator as g
+from generator.sampler import compiled_evolve, compiled_setup, compiled_solver
+
+# Small but non-trivial versions of every PDE (a short time window keeps the registry sweep fast).
+SMALL = {
+    "advection1d": dict(n=32, n_frames=5),
+    "diffusion1d": dict(n=32, n_frames=5),
+    "burgers1d": dict(n=64, n_frames=5, t_end=0.2),
+    "kdv1d": dict(n=64, n_frames=5, t_end=1.0),
+    "ks1d": dict(n=64, length=40.0, n_frames=5, t_end=5.0),
+    "ns2d": dict(n=32, n_frames=4, t_end=1.0),
+    "grayscott2d": dict(n=32, length=0.32, n_frames=4, t_end=60.0),
+}
+
+
+def test_every_registered_pde_has_a_small_config():
+    assert set(SMALL) == set(g.PDES)
+
+
+def dealiased(pde, field):
+    """The 2/3-rule projection of a field, computed with numpy (independently of the solver)."""
+    axes = tuple(range(-pde.NDIM, 0))
+    f = np.fft.rfftn(np.asarray(field, np.float64), axes=axes)
+    return np.fft.irfftn(f * pde.grid.dealias_mask(), s=pde.grid.shape, axes=axes)
+
+
+@pytest.mark.parametrize("name", sorted(SMALL))
+def test_registry_sweep_shapes_finite_first_frame_and_params(name):
+    pde = g.get_pde(name, **SMALL[name])
+    traj = g.sample(pde, [0, 7, 3], seed=11)
+    u = np.asarray(traj.u)
+    assert u.shape == (3, pde.n_frames, len(pde.FIELDS), *pde.grid.shape) and u.dtype == np.float32
+    assert np.isfinite(u).all()
+    assert traj.t.shape == (pde.n_frames,) and traj.t[0] == 0 and np.isclose(traj.t[-1], pde.t_end)
+    assert list(traj.indices) == [0, 7, 3]
+    # frame 0 is the initial condition drawn from the IC key of each sample (dealiased)
+    for b, i in enumerate(traj.indices):
+        _, k_ic = jax.random.split(g.sample_keys(11, np.array([i]))[0])
+        ic = np.asarray(pde.sample_ic(k_ic))
+        np.testing.assert_allclose(u[b, 0], dealiased(pde, ic), atol=1e-5 * max(1.0, np.abs(ic).max()))
+    for pname, dom in pde.param_domains.items():
+        lo, hi = dom.bounds
+        assert np.all((np.asarray(traj.params[pname]) >= lo) & (np.asarray(traj.params[pname]) <= hi))
+    assert np.abs(u[:, -1] - u[:, 0]).max() > 0  # it evolved
+
+
+@pytest.mark.parametrize("name", sorted(SMALL))
+def test_sample_is_bit_identical_alone_and_in_any_batch(name):
+    pde = g.get_pde(name, **SMALL[name])
+    alone = np.asarray(g.sample(pde, [5], seed=3).u[0])
+    in_batch = np.asarray(g.sample(pde, [9, 5, 2], seed=3).u[1])
+    in_bigger = np.asarray(g.sample(pde, list(range(12)), seed=3).u[5])
+    assert np.array_equal(alone, in_batch) and np.array_equal(alone, in_bigger)
+    other_seed = np.asarray(g.sample(pde, [5], seed=4).u[0])
+    assert not np.array_equal(alone, other_seed)
+
+
+def test_default_grids_resolve_their_defaults():
+    # the top fifth of the retained (2/3-rule) modes holds a small share of the peak amplitude at every frame
+    for name in g.PDES:
+        pde = g.get_pde(name)
+        u = np.asarray(g.sample(pde, range(4), seed=0).u)
+        uh = np.abs(np.fft.rfftn(u, axes=tuple(range(3, u.ndim))))
+        m = pde.grid.max_abs_mode()
+        band = (m > 0.8 * pde.n / 3) & (m <= pde.n // 3)
+        tail = uh[..., band].max(-1) / uh.reshape(*uh.shape[:3], -1).max(-1)
+        assert tail.max() < 0.05, (name, tail.max())
+
+
+def test_new_parameters_never_recompile():
+    pde = g.get_pde("burgers1d", n=32, n_frames=3, t_end=0.1)
+    x = pde.grid.coords()
+    for nu in (0.01, 0.03, 0.09):
+        g.solve(pde, np.sin(2 * np.pi * x)[None, None].repeat(2, 0), {"nu": [nu, nu / 2]})
+    assert compiled_solver(pde)._cache_size() == 1
+    for seed, idx in ((0, [0, 1]), (1, [5, 6]), (2, [100, 3])):
+        g.sample(pde, idx, seed=seed)
+    assert compiled_setup(pde)._cache_size() == 1 and compiled_evolve(pde)._cache_size() == 1
+
+
+def test_grf_has_the_declared_pointwise_variance():
+    ic = g.GaussianRandomField(sigma=2.0, tau=3.0, alpha=2.0, zero_mean=False)
+    for ndim, n in ((1, 64), (2, 16)):
+        grid = g.Grid(ndim, n, 1.0)
+        keys = jax.random.split(jax.random.key(0), 4000 // n ** (ndim - 1))
+        u = np.asarray(jax.vmap(lambda k: ic.sample(k, grid, 1))(keys), np.float64)
+        expected = ic.pointwise_std(grid) ** 2  # sum_k lambda_k / L^d over the retained modes
+        # ~4000 x n correlated draws: a few percent of sampling error
+        assert abs(u.var() / expected - 1) < 0.1, (ndim, u.var(), expected)
+
+
+def test_fno_burgers_setup_is_a_config():
+    pde = g.get_pde("burgers1d", n=1024, nu=0.1, t_end=1.0, n_frames=2)
+    assert (pde.ic.sigma, pde.ic.tau, pde.ic.alpha) == (25.0, 5.0, 2.0)  # N(0, 625 (-Lap + 25 I)^-2)
+    assert str(pde.nu) == "0.1" and pde.times().tolist() == [0.0, 1.0]
+    assert g.from_config(pde.config()) == pde
+
+
+def test_overrides_from_strings_and_config_round_trip():
+    pde = g.get_pde("ns2d", {"n": "32", "nu": "loguniform(1e-2, 2e-2)", "forcing": "none", "ic.alpha": "3"})
+    assert pde.n == 32 and pde.nu == g.LogUniform(1e-2, 2e-2) and pde.forcing == "none" and pde.ic.alpha == 3.0
+    assert g.from_config(pde.config()) == pde
+    assert pde.config_hash() != g.get_pde("ns2d").config_hash()
+
+
+@pytest.mark.parametrize(
+    "call, words",
+    [
+        (lambda: g.get_pde("navier"), ["navier", "burgers1d"]),
+        (lambda: g.get_pde("burgers1d", nu="loguniform(1e-3)"), ["loguniform(1e-3)", "2 number"]),
+        (lambda: g.get_pde("burgers1d", nu="gauss(0, 1)"), ["gauss", "uniform"]),
+        (lambda: g.get_pde("burgers1d", nu="uniform(0.1, abc)"), ["abc", "not a number"]),
+        (lambda: g.get_pde("burgers1d", nu=-0.1), ["nu=-0.1", "> 0"]),
+        (lambda: g.get_pde("burgers1d", nu="uniform(-0.1, 0.2)"), ["nu=uniform(-0.1, 0.2)", "> 0"]),
+        (lambda: g.get_pde("burgers1d", n=-64), ["n=-64", ">= 8"]),
+        (lambda: g.get_pde("burgers1d", n="many"), ["many", "int"]),
+        (lambda: g.get_pde("burgers1d", dt=1.0), ["dt=1.0", "unstable", "dt <="]),
+        (lambda: g.get_pde("burgers1d", viscosity=0.1), ["viscosity", "nu"]),
+        (lambda: g.get_pde("burgers1d", **{"ic.gamma": 1}), ["ic.gamma", "ic.sigma"]),
+        (lambda: g.get_pde("burgers1d", ic="smooth"), ["smooth", "grf"]),
+        (lambda: g.get_pde("ns2d", forcing="shear"), ["shear", "kolmogorov"]),
+        (lambda: g.sample("burgers1d", [-1]), ["-1", "indices"]),
+        (lambda: g.sample("burgers1d", [0], on_blowup="ignore"), ["ignore", "redraw"]),
+        (lambda: g.solve("burgers1d", np.zeros(7), {"nu": 0.1}), ["(7,)", "256"]),
+        (lambda: g.solve("burgers1d", np.zeros(256), {"nu": -1.0}), ["nu", "> 0"]),
+        (lambda: g.solve("burgers1d", np.zeros(256), {"mu": 1.0}), ["nu", "mu"]),
+    ],
+)
+def test_bad_input_names_the_value_and_what_is_allowed(call, words):
+    with pytest.raises(ValueError) as err:
+        call()
+    for word in words:
+        assert word in str(err.value), (word, str(err.value))
+
+
+def test_blow_up_is_reported_with_index_and_parameters():
+    # an absurd velocity bound makes the derived step far too large for the advection: the solve blows up
+    pde = g.get_pde("ns2d", n=32, n_frames=3, t_end=20.0, velocity_bound=1e-3, nu=0.01)
+    with pytest.raises(g.BlowUpError) as err:
+        g.sample(pde, [4, 2], seed=0)
+    assert "index 4" in str(err.value) and "nu=0.01" in str(err.value) and "redraw" in str(err.value)
+    with pytest.raises(g.BlowUpError, match="blew up"):
+        g.sample(pde, [4], seed=0, on_blowup="redraw", max_redraws=2)
