@@ -78,11 +78,45 @@ def build_parser() -> argparse.ArgumentParser:
 
 # --- generate / inspect (datasets.cache) -------------------------------------------------------------
 def add_generate(sub) -> None:
-    pass
+    p = sub.add_parser("generate", help="solve N samples and write them to an HDF5 (.h5) or Zarr (.zarr) cache",
+                       description="Solve samples 0..N-1 of a PDE under a seed and write them block by block to "
+                                   "a cache readable by xarray (see datasets/schema.py for the layout).")
+    p.add_argument("pde", nargs="?", help="PDE name (see `pdestream list`); may come from --config instead")
+    p.add_argument("--n", type=int, required=True, help="number of samples (global indices 0..N-1)")
+    p.add_argument("--seed", type=int, default=0, help="sample i is a pure function of (config, seed, i)")
+    p.add_argument("--out", required=True, metavar="PATH.h5|PATH.zarr", help="cache to write; format by suffix")
+    _add_pde_config_args(p)
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--resume", action="store_true", help="finish an interrupted cache of the same set-up")
+    mode.add_argument("--overwrite", action="store_true", help="replace an existing cache")
+    p.add_argument("--block", type=int, help="samples solved and written per block (default: ~32 MiB)")
+    p.add_argument("--on-blowup", choices=("raise", "redraw"), default="raise",
+                   help="a NaN/Inf trajectory stops the run (raise) or is redrawn deterministically (redraw)")
+    p.set_defaults(func=cmd_generate)
+
+
+def cmd_generate(args: argparse.Namespace) -> None:
+    import datasets
+
+    pde = pde_from_args(args.pde, args)
+    done = datasets.write_cache(pde, args.out, args.n, seed=args.seed, resume=args.resume, overwrite=args.overwrite,
+                                block=args.block, on_blowup=args.on_blowup)
+    print(done.line())
 
 
 def add_inspect(sub) -> None:
-    pass
+    p = sub.add_parser("inspect", help="what a cache holds: PDE, config, completeness, parameter ranges, statistics")
+    p.add_argument("path", help="cache file (.h5/.hdf5) or directory (.zarr)")
+    p.add_argument("--plot", metavar="FILE.png", help="also draw a few samples (space-time for 1D, snapshots for 2D)")
+    p.set_defaults(func=cmd_inspect)
+
+
+def cmd_inspect(args: argparse.Namespace) -> None:
+    from datasets import inspect
+
+    print(inspect.summary(args.path))
+    if args.plot:
+        print(f"plot: {inspect.plot(args.path, args.plot)}")
 
 
 # --- train / compare (surrogate) ---------------------------------------------------------------------
