@@ -35,6 +35,9 @@ class Whole:
     def example(self, u: torch.Tensor, t: torch.Tensor, start: int) -> dict:
         return {"u": u, "t": t}
 
+    def gather(self, u: torch.Tensor, t: torch.Tensor, traj: torch.Tensor, start: torch.Tensor) -> dict:
+        return {"u": u[traj], "t": t.repeat(len(traj), 1)}
+
 
 @dataclass(frozen=True)
 class NextStep:
@@ -72,6 +75,11 @@ class NextStep:
         mid = start + self.k_in
         return {"x": u[start:mid], "y": u[mid : mid + self.k_out], "t0": t[start]}
 
+    def gather(self, u: torch.Tensor, t: torch.Tensor, traj: torch.Tensor, start: torch.Tensor) -> dict:
+        x_frames = start[:, None] + torch.arange(self.k_in)  # [N, k_in]
+        y_frames = start[:, None] + self.k_in + torch.arange(self.k_out)  # [N, k_out]
+        return {"x": u[traj[:, None], x_frames], "y": u[traj[:, None], y_frames], "t0": t[start]}
+
 
 @dataclass(frozen=True)
 class Operator:
@@ -93,6 +101,9 @@ class Operator:
 
     def example(self, u: torch.Tensor, t: torch.Tensor, start: int) -> dict:
         return {"x": u[self.t_in], "y": u[self.t_out]}
+
+    def gather(self, u: torch.Tensor, t: torch.Tensor, traj: torch.Tensor, start: torch.Tensor) -> dict:
+        return {"x": u[traj, self.t_in], "y": u[traj, self.t_out]}
 
 
 View = Union[Whole, NextStep, Operator]
@@ -120,6 +131,16 @@ def examples(view: View, u: torch.Tensor, t: torch.Tensor, params: torch.Tensor,
         ex["params"] = params
         ex["index"] = torch.tensor(index, dtype=torch.int64)
         out.append(ex)
+    return out
+
+
+def gather(view: View, u: torch.Tensor, t: torch.Tensor, params: torch.Tensor, index: torch.Tensor,
+           traj: torch.Tensor, start: torch.Tensor) -> dict:
+    """A collated batch in one indexing pass: example k is trajectory ``traj[k]`` of u [B, T, C, *space]
+    (params [B, P], index [B]) at window start ``start[k]``. Equals ``collate`` of the same ``examples``."""
+    out = view.gather(u, t, traj, start)
+    out["params"] = params[traj]
+    out["index"] = index[traj]
     return out
 
 

@@ -1,0 +1,331 @@
+"""TrajectoryStream: the JAX sampler as a torch IterableDataset (no dataset on disk).
+
+Sample identity is (PDE, seed, global index). Epoch e of a finite stream covers the indices
+``e * n_samples + [0, n_samples)`` (``resample=False``: ``[0, n_samples)`` every epoch); an endless stream
+counts 0, 1, 2, ... Shard ``rank * num_workers + worker_id`` takes every ``world_size * num_workers``-th
+index, so workers and ranks together see each index once, whatever their number. A shard solves
+``solve_batch`` trajectories at a time (one fixed shape: JAX compiles once), turns them into examples with
+the view, shuffles them within that solve batch and yields collated batches of ``batch_size`` examples.
+Random window starts and the shuffle are seeded from (seed, epoch, index), so a resumed run replays bits.
+
+Progress (epoch, examples consumed per worker) lives in a small shared-memory array so ``set_epoch`` and
+``load_state_dict`` reach persistent spawn workers; ``stream_loader`` builds the DataLoader that keeps it.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import queue
+import threading
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, IterableDataset, get_worker_info
+
+from . import _bridge
+from .views import gather, make_view
+
+MAX_INDEX = 2**32 - 1  # the generator's index range
+MAX_WORKERS = 64  # progress slots per rank
+_DONE = object()
+
+
+def _int_arg(name: str, value, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"{name}={value!r} not allowed; must be an integer >= {low}")
+    return int(value)
+
+
+def _derived_seed(*words: int) -> int:
+    """A 63-bit torch seed that is a pure function of the words (seed, epoch, index, purpose)."""
+    return int(np.random.SeedSequence([int(w) for w in words]).generate_state(2, np.uint32).view(np.uint64)[0] >> 1)
+
+
+class TrajectoryStream(IterableDataset):
+    """Batches of training examples solved on demand; use as ``DataLoader(stream, batch_size=None)``.
+
+    pde: generator PDE or catalog name; view: "whole" / "next_step" / "operator" or a view object (extra
+    keyword arguments configure a named view, e.g. k_in=2, windows=4); batch_size: examples per batch;
+    n_samples: trajectories per epoch (None: endless); solve_batch: trajectories per solver call;
+    rank/world_size: default from torch.distributed when initialized; on_blowup: "raise" or "redraw".
+    Batches are dicts of tensors as in ``datasets.views`` (e.g. next_step: x [B, k_in, C, *space],
+    y [B, k_out, C, *space], t0 [B], params [B, P], index [B]).
+    """
+
+    def __init__(self, pde, seed: int = 0, view="next_step", batch_size: int = 32, n_samples: int | None = None,
+                 solve_batch: int = 16, shuffle: bool = True, resample: bool = True, drop_last: bool = False,
+                 rank: int | None = None, world_size: int | None = None, prefetch: bool = True,
+                 on_blowup: str = "raise", **view_kwargs):
+        self.pde = _bridge.resolve_pde(pde)
+        if view_kwargs and not isinstance(view, str):
+            raise ValueError(f"view options {sorted(view_kwargs)} only go with a view name, not a view object")
+        self.view = make_view(view, **view_kwargs)
+        self.view.check(self.pde.n_frames)
+        self.seed = _int_arg("seed", seed, 0)
+        self.batch_size = _int_arg("batch_size", batch_size, 1)
+        self.solve_batch = _int_arg("solve_batch", solve_batch, 1)
+        self.n_samples = None if n_samples is None else _int_arg("n_samples", n_samples, 1)
+        if self.n_samples is not None and self.n_samples > MAX_INDEX + 1:
+            raise ValueError(f"n_samples={n_samples} exceeds the generator's index range ({MAX_INDEX + 1})")
+        if (rank is None) != (world_size is None):
+            raise ValueError(f"give both rank and world_size or neither (got rank={rank}, world_size={world_size})")
+        if world_size is not None:
+            world_size = _int_arg("world_size", world_size, 1)
+            if not (isinstance(rank, (int, np.integer)) and 0 <= rank < world_size):
+                raise ValueError(f"rank={rank!r} not allowed; must be in [0, {world_size})")
+        self.rank, self.world_size = rank, world_size
+        if on_blowup not in ("raise", "redraw"):
+            raise ValueError(f"on_blowup={on_blowup!r} not allowed; allowed: 'raise', 'redraw'")
+        self.on_blowup, self.shuffle, self.resample = on_blowup, bool(shuffle), bool(resample)
+        self.drop_last, self.prefetch = bool(drop_last), bool(prefetch)
+        self.per_trajectory = len(self.view.starts(self.pde.n_frames, torch.Generator()))
+        # [epoch, shards recorded (0: none yet), consumed examples of worker 0, 1, ...]
+        self._progress = mp.get_context("spawn").RawArray("q", 2 + MAX_WORKERS)
+        self._override = None  # a state loaded inside a worker (torchdata's StatefulDataLoader)
+        self._local = None  # [epoch, consumed] of the running iterator
+        self._unpickled = False
+        self.num_workers = 0  # set by stream_loader; how many consumed counts state_dict reports
+
+    # --- placement -------------------------------------------------------------------------------
+    def placement(self) -> tuple[int, int]:
+        """(rank, world_size): explicit, else torch.distributed's when initialized, else (0, 1)."""
+        if self.world_size is not None:
+            return self.rank, self.world_size
+        dist = torch.distributed
+        if dist.is_available() and dist.is_initialized():
+            return dist.get_rank(), dist.get_world_size()
+        return 0, 1
+
+    def _shard(self) -> tuple[int, int, int, int]:
+        """(worker id, workers, shard, stride) of the calling process."""
+        info = get_worker_info()
+        wid, nw = (0, 1) if info is None else (info.id, info.num_workers)
+        rank, world = self.placement()
+        return wid, nw, rank * nw + wid, world * nw
+
+    def _base(self, epoch: int) -> int:
+        return epoch * self.n_samples if (self.n_samples is not None and self.resample) else 0
+
+    def _shard_count(self, epoch: int, shard: int, stride: int) -> int:
+        total = self.n_samples if self.n_samples is not None else MAX_INDEX + 1
+        if self._base(epoch) + total - 1 > MAX_INDEX:
+            raise ValueError(f"epoch {epoch} with n_samples={self.n_samples} runs past sample index {MAX_INDEX}")
+        return max(0, -(-(total - shard) // stride))
+
+    # --- epochs and state ------------------------------------------------------------------------
+    def set_epoch(self, epoch: int) -> None:
+        """Start epoch ``epoch`` from its beginning (reaches persistent workers through shared memory)."""
+        self._progress[0] = _int_arg("epoch", epoch, 0)
+        self._progress[1:] = [0] * (1 + MAX_WORKERS)
+
+    @property
+    def epoch(self) -> int:
+        return int(self._progress[0])
+
+    def state_dict(self) -> dict:
+        """Where the stream stands: epoch and examples consumed per worker (shard) of this rank."""
+        rank, world = self.placement()
+        info = get_worker_info()
+        if info is None:
+            nw = max(1, self.num_workers)
+            epoch, consumed = int(self._progress[0]), [int(c) for c in self._progress[2 : 2 + nw]]
+        else:  # inside a worker: only this worker's progress (StatefulDataLoader merges them)
+            epoch, done = self._local or (int(self._progress[0]), int(self._progress[2 + info.id]))
+            consumed = [0] * info.num_workers
+            consumed[info.id] = done
+        return {"seed": self.seed, "n_samples": self.n_samples, "rank": rank, "world_size": world,
+                "epoch": epoch, "consumed": consumed}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Resume from ``state_dict()`` output: the next batch is the one after the last consumed."""
+        rank, world = self.placement()
+        for key, mine in (("seed", self.seed), ("n_samples", self.n_samples), ("rank", rank), ("world_size", world)):
+            if state.get(key) != mine:
+                raise ValueError(f"state has {key}={state.get(key)!r} but this stream has {key}={mine!r}")
+        consumed = [_int_arg("consumed", c, 0) for c in state["consumed"]]
+        epoch = _int_arg("epoch", state["epoch"], 0)
+        if not 1 <= len(consumed) <= MAX_WORKERS:
+            raise ValueError(f"state has {len(consumed)} worker counts; allowed 1..{MAX_WORKERS}")
+        info = get_worker_info()
+        if info is not None:
+            if len(consumed) != info.num_workers:
+                raise ValueError(f"state saved with {len(consumed)} workers, resumed with {info.num_workers}")
+            self._override = (epoch, consumed[info.id])
+            return
+        self.set_epoch(epoch)
+        self._progress[1] = len(consumed)
+        self._progress[2 : 2 + len(consumed)] = consumed
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["rank"], state["world_size"] = self.placement()  # torch.distributed is not set up in workers
+        if mp.context.get_spawning_popen() is None:  # plain pickling: a copy, not the shared memory
+            state["_progress"] = list(self._progress)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        if isinstance(self._progress, list):
+            values, self._progress = self._progress, mp.get_context("spawn").RawArray("q", 2 + MAX_WORKERS)
+            self._progress[:] = values
+        self._unpickled = True
+
+    # --- iteration -------------------------------------------------------------------------------
+    def __iter__(self):
+        # A plain function (not a generator) so that the state is settled when iter() returns.
+        wid, nw, shard, stride = self._shard()
+        in_main = get_worker_info() is None
+        if not in_main and not self._unpickled:
+            raise ValueError("TrajectoryStream in a forked DataLoader worker: JAX is not fork-safe; use "
+                             "datasets.stream_loader(stream, num_workers=N) or multiprocessing_context='spawn'")
+        if self._override is not None:
+            epoch, skip = self._override
+            self._override = None
+        else:
+            recorded = int(self._progress[1])
+            epoch, skip = int(self._progress[0]), int(self._progress[2 + wid])
+            if recorded and recorded != nw:
+                raise ValueError(f"state saved with {recorded} worker(s) per rank, resumed with {nw}")
+        if in_main:
+            self._progress[1] = nw
+        self._local = [epoch, skip]
+        return self._batches(epoch, skip, shard, stride, wid, in_main)
+
+    def _batches(self, epoch, skip, shard, stride, wid, in_main):
+        count = self._shard_count(epoch, shard, stride)
+        per_chunk = self.solve_batch * self.per_trajectory
+        first, offset = divmod(skip, per_chunk)
+        chunks = self._chunks(epoch, shard, stride, range(first, -(-count // self.solve_batch)), count)
+        pieces, filled = [], 0
+        try:
+            for data, traj, start in chunks:
+                traj, start, offset = traj[offset:], start[offset:], 0
+                pos = 0
+                while pos < len(traj):
+                    take = min(self.batch_size - filled, len(traj) - pos)
+                    pieces.append(gather(self.view, data["u"], data["t"], data["params"], data["index"],
+                                         traj[pos : pos + take], start[pos : pos + take]))
+                    pos, filled = pos + take, filled + take
+                    if filled == self.batch_size:
+                        yield self._emit(pieces, wid, in_main)
+                        pieces, filled = [], 0
+            if pieces and not self.drop_last:
+                yield self._emit(pieces, wid, in_main)
+        finally:
+            chunks.close()
+        if self.n_samples is not None:  # epoch complete: the next iteration starts the next one
+            self._local = [epoch + 1, 0]
+            if in_main:
+                self.set_epoch(epoch + 1)
+
+    def _emit(self, pieces, wid, in_main) -> dict:
+        batch = pieces[0] if len(pieces) == 1 else {k: torch.cat([p[k] for p in pieces]) for k in pieces[0]}
+        self._local[1] += len(batch["index"])  # counted when handed out, so state_dict includes it
+        if in_main:
+            self._progress[2 + wid] = self._local[1]
+        return batch
+
+    def _chunk(self, epoch: int, shard: int, stride: int, c: int, count: int):
+        """Solve batch c of a shard: (tensors of its trajectories, example trajectory [N], window start [N])."""
+        positions = np.arange(c * self.solve_batch, min((c + 1) * self.solve_batch, count))
+        indices = self._base(epoch) + shard + positions * stride
+        padded = np.resize(indices, self.solve_batch)  # one shape for the solver; extras are dropped
+        data = _bridge.sample_tensors(self.pde, padded, self.seed, self.on_blowup)
+        data = {k: (v[: len(indices)] if k in ("u", "params", "index") else v) for k, v in data.items()}
+        traj, start = [], []
+        for b, i in enumerate(indices):
+            rng = torch.Generator().manual_seed(_derived_seed(self.seed, epoch, i, 0))
+            s = self.view.starts(self.pde.n_frames, rng)
+            traj += [b] * len(s)
+            start += s
+        traj, start = torch.tensor(traj), torch.tensor(start)
+        if self.shuffle:  # mix examples of the solve batch's trajectories
+            rng = torch.Generator().manual_seed(_derived_seed(self.seed, epoch, indices[0], 1))
+            perm = torch.randperm(len(traj), generator=rng)
+            traj, start = traj[perm], start[perm]
+        return data, traj, start
+
+    def _chunks(self, epoch, shard, stride, chunk_ids, count):
+        """Solve batches in order; with prefetch, a thread solves the next while the caller consumes."""
+        if not self.prefetch:
+            for c in chunk_ids:
+                yield self._chunk(epoch, shard, stride, c, count)
+            return
+        ready, stop = queue.Queue(maxsize=1), threading.Event()
+
+        def put(item) -> bool:
+            while not stop.is_set():
+                try:
+                    ready.put(item, timeout=0.1)
+                    return True
+                except queue.Full:
+                    pass
+            return False
+
+        def work():
+            try:
+                for c in chunk_ids:
+                    if not put(self._chunk(epoch, shard, stride, c, count)):
+                        return
+                put(_DONE)
+            except BaseException as err:  # handed to the consumer (e.g. BlowUpError)
+                put(err)
+
+        thread = threading.Thread(target=work, daemon=True, name="pdestream-prefetch")
+        thread.start()
+        try:
+            while (item := ready.get()) is not _DONE:
+                if isinstance(item, BaseException):
+                    raise item
+                yield item
+        finally:
+            stop.set()
+            thread.join()
+
+    def normalization(self, n: int = 64):
+        """Per-field mean/std from the first ``n`` samples of this seed (see datasets.normalize)."""
+        from .normalize import compute_normalization
+
+        return compute_normalization(self.pde, seed=self.seed, n=n, solve_batch=self.solve_batch)
+
+
+class StreamLoader(DataLoader):
+    """A DataLoader that records, batch by batch, what the training loop consumed from worker shards,
+    so ``stream.state_dict()`` is exact with workers, and that starts the next epoch after a full one."""
+
+    def __iter__(self):
+        stream = self.dataset
+        if self.num_workers == 0:  # the stream counts for itself in this process
+            yield from super().__iter__()
+            return
+        rank, world = stream.placement()
+        nw = self.num_workers
+        recorded = int(stream._progress[1])
+        if recorded and recorded != nw:
+            raise ValueError(f"stream state saved with {recorded} worker(s) per rank, resumed with {nw}")
+        stream._progress[1] = nw
+        for batch in super().__iter__():
+            base = stream._base(int(stream._progress[0]))
+            shard = (int(batch["index"][0]) - base) % (world * nw)
+            stream._progress[2 + shard - rank * nw] += len(batch["index"])
+            yield batch
+        if stream.n_samples is not None:
+            stream.set_epoch(int(stream._progress[0]) + 1)
+
+
+def stream_loader(stream: TrajectoryStream, num_workers: int = 0, prefetch_factor: int = 2,
+                  context: str = "spawn", **kwargs) -> StreamLoader:
+    """A DataLoader for ``stream``: batch_size=None; with workers, a spawn (or forkserver) context since
+    JAX is not fork-safe, persistent workers, and JAX on the CPU in each worker with the shared
+    compilation cache. Extra keyword arguments go to DataLoader (e.g. pin_memory=True)."""
+    num_workers = _int_arg("num_workers", num_workers, 0)
+    if num_workers > MAX_WORKERS:
+        raise ValueError(f"num_workers={num_workers} not allowed; at most {MAX_WORKERS}")
+    if context not in ("spawn", "forkserver"):
+        raise ValueError(f"context={context!r} not allowed; allowed: 'spawn', 'forkserver' (JAX is not fork-safe)")
+    stream.num_workers = num_workers
+    if num_workers == 0:
+        return StreamLoader(stream, batch_size=None, **kwargs)
+    kwargs.setdefault("persistent_workers", True)
+    return StreamLoader(stream, batch_size=None, num_workers=num_workers, multiprocessing_context=context,
+                        prefetch_factor=prefetch_factor, worker_init_fn=_bridge.configure_worker, **kwargs)
