@@ -84,17 +84,36 @@ def _check_resume(path: Path, attrs: dict, lay: schema.Layout) -> None:
                          "use the same PDE settings, seed and --n, or --overwrite to start again")
 
 
-def _generate(pde, seed, blocks, block, on_blowup, out: queue.Queue, stop: threading.Event) -> None:
-    """Producer thread: solve each (lo, hi) block (padded to ``block`` samples: one compile), hand it on."""
+def solve_block(pde, seed: int, lo: int, hi: int, block: int, on_blowup: str):
+    """Samples lo..hi-1 solved as one batch padded to ``block`` (one compile for every block):
+    (u float32 [hi-lo, T, C, *space], {param: float32 [hi-lo]}, redraws int8 [hi-lo]) as numpy."""
     import generator
 
+    idx = np.minimum(np.arange(lo, lo + block), hi - 1)  # pad by repeating the last index
+    traj = generator.sample(pde, idx, seed, on_blowup=on_blowup)
+    return (np.asarray(traj.u)[: hi - lo], {k: np.asarray(v)[: hi - lo] for k, v in traj.params.items()},
+            np.minimum(traj.redraws[: hi - lo], 127).astype(np.int8))
+
+
+def write_block(store, pde, lo: int, hi: int, u, params, redraws) -> None:
+    """Write one block's data, then its ``complete`` flags (the flags vouch for data already written)."""
+    for c, name in enumerate(pde.FIELDS):
+        store[name][lo:hi] = u[:, :, c]
+    for name, values in params.items():
+        store[name][lo:hi] = values
+    store["redraws"][lo:hi] = redraws
+    if hasattr(store, "flush"):
+        store.flush()  # data reaches the file before the flags that vouch for it
+    store["complete"][lo:hi] = np.ones(hi - lo, np.int8)
+    if hasattr(store, "flush"):
+        store.flush()
+
+
+def _generate(pde, seed, blocks, block, on_blowup, out: queue.Queue, stop: threading.Event) -> None:
+    """Producer thread: solve each (lo, hi) block (padded to ``block`` samples: one compile), hand it on."""
     try:
         for lo, hi in blocks:
-            idx = np.minimum(np.arange(lo, lo + block), hi - 1)  # pad by repeating the last index
-            traj = generator.sample(pde, idx, seed, on_blowup=on_blowup)
-            u = np.asarray(traj.u)[: hi - lo]
-            item = (lo, hi, u, {k: np.asarray(v)[: hi - lo] for k, v in traj.params.items()},
-                    np.minimum(traj.redraws[: hi - lo], 127).astype(np.int8))
+            item = (lo, hi, *solve_block(pde, seed, lo, hi, block, on_blowup))
             while not stop.is_set():
                 try:
                     out.put(item, timeout=0.1)
@@ -117,6 +136,13 @@ def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, 
     (bit-identical to an uninterrupted run); ``overwrite`` replaces an existing one. ``progress`` shows a
     tqdm bar when stderr is a terminal.
     """
+    path, lay, block = prepare(pde, path, n_samples, seed, resume, overwrite, block, on_blowup)
+    return _fill(pde, path, lay, block, progress)
+
+
+def prepare(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=None, on_blowup="raise"):
+    """Check the arguments, then create the cache (or check the one to resume): (Path, Layout, block).
+    Shared by ``write_cache`` and the Dask writer (``datasets.distributed``)."""
     from ._bridge import configure_jax, jax_provenance
 
     path = Path(path)
@@ -154,7 +180,13 @@ def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, 
             _create(path, fmt, lay, block)
         except OSError as err:
             raise ValueError(f"cannot create {path}: {err}") from None
-    return _fill(pde, path, lay, block, progress)
+    return path, lay, block
+
+
+def pending_blocks(store, block: int) -> list[tuple[int, int]]:
+    """The (lo, hi) blocks of a cache with a sample not yet marked complete."""
+    done = np.asarray(store["complete"][:]) == 1
+    return [(lo, min(lo + block, len(done))) for lo in range(0, len(done), block) if not done[lo : lo + block].all()]
 
 
 def _fill(pde, path: Path, lay: schema.Layout, block: int, progress: bool) -> WriteSummary:
@@ -165,9 +197,8 @@ def _fill(pde, path: Path, lay: schema.Layout, block: int, progress: bool) -> Wr
     store = schema.open_store(str(path), "r+")
     written = 0
     try:
-        done = np.asarray(store["complete"][:]) == 1
-        todo = [(lo, min(lo + block, n)) for lo in range(0, n, block) if not done[lo : lo + block].all()]
-        bar = tqdm(total=n, initial=int(done.sum()), unit="sample", desc=pde.NAME, smoothing=0.1,
+        todo = pending_blocks(store, block)
+        bar = tqdm(total=n, initial=n - sum(hi - lo for lo, hi in todo), unit="sample", desc=pde.NAME, smoothing=0.1,
                    disable=not progress or not sys.stderr.isatty())
         out: queue.Queue = queue.Queue(maxsize=1)  # one block solved ahead of the one being written
         stop = threading.Event()
@@ -178,17 +209,8 @@ def _fill(pde, path: Path, lay: schema.Layout, block: int, progress: bool) -> Wr
             while (item := out.get()) is not None:
                 if isinstance(item, BaseException):
                     raise item
-                lo, hi, u, params, redraws = item
-                for c, name in enumerate(pde.FIELDS):
-                    store[name][lo:hi] = u[:, :, c]
-                for name, values in params.items():
-                    store[name][lo:hi] = values
-                store["redraws"][lo:hi] = redraws
-                if hasattr(store, "flush"):
-                    store.flush()  # data reaches the file before the flags that vouch for it
-                store["complete"][lo:hi] = np.ones(hi - lo, np.int8)
-                if hasattr(store, "flush"):
-                    store.flush()
+                lo, hi = item[:2]
+                write_block(store, pde, *item)
                 written += hi - lo
                 bar.update(hi - lo)
         finally:
