@@ -45,6 +45,15 @@ class Normalizer:
                    params.mean(0).float(), _floor(params.std(0) if len(params) > 1 else torch.zeros(params.shape[1])).float())
 
     @classmethod
+    def from_source(cls, loader) -> "Normalizer | None":
+        """The data source's own statistics (e.g. TrajectoryStream.normalization()), or None if it has none."""
+        source = getattr(loader, "dataset", loader)
+        if not hasattr(source, "normalization"):
+            return None
+        n = source.normalization()
+        return cls(n.mean, n.std, n.params_mean, n.params_std)
+
+    @classmethod
     def from_state(cls, state: dict) -> "Normalizer":
         return cls(**{k: torch.as_tensor(v, dtype=torch.float32) for k, v in state.items()})
 
@@ -131,12 +140,15 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
     examples, trajectories, rows = 0, set(), []
     bar = tqdm(total=steps, desc=label, disable=not sys.stderr.isatty(), leave=False)
     start = time.perf_counter()
+    if normalizer is None:
+        normalizer = Normalizer.from_source(loader)
+        t_data += time.perf_counter() - start  # a calibration draw is data time
     model.train()
     for step in range(1, steps + 1):
         t0 = time.perf_counter()
         batch = next(batches)
         t1 = time.perf_counter()
-        if normalizer is None:  # the data source offered none: calibrate on the first batch
+        if normalizer is None:  # the data source offers none: calibrate on the first batch
             normalizer = Normalizer.from_batch(batch, ndim)
         x, y = batch["x"], batch["y"]  # [B, (k,) C, *space]
         target = stack_frames(normalizer.norm(y, ndim), ndim)  # [B, k_out*C, *space]
