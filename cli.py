@@ -120,12 +120,102 @@ def cmd_inspect(args: argparse.Namespace) -> None:
 
 
 # --- train / compare (surrogate) ---------------------------------------------------------------------
+def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr: float) -> None:
+    p.add_argument("--model", default="fno", help="fno or unet (fno1d/fno2d/unet1d/unet2d pin the dimension)")
+    p.add_argument("--model-set", action="append", metavar="KEY=VALUE", default=[],
+                   help="model setting, e.g. --model-set width=64 --model-set modes=16 (unet: channels, depth)")
+    p.add_argument("--view", default=None, choices=["next_step", "operator"],
+                   help="training pairs: next_step (frames k -> k+1) or operator (u(t=0) -> u(t_end))")
+    p.add_argument("--k-in", type=int, default=1, help="next_step: input frames stacked into channels")
+    p.add_argument("--k-out", type=int, default=1, help="next_step: predicted frames")
+    p.add_argument("--steps", type=int, default=steps, help="optimizer steps")
+    p.add_argument("--batch-size", type=int, default=batch_size, help="examples per optimizer step")
+    p.add_argument("--lr", type=float, default=lr, help="peak learning rate (Adam, cosine decay)")
+
+
+def _view_from_args(args, default: str):
+    import datasets
+
+    name = args.view or default
+    return datasets.make_view(name, k_in=args.k_in, k_out=args.k_out) if name == "next_step" else datasets.make_view(name)
+
+
 def add_train(sub) -> None:
-    pass
+    p = sub.add_parser("train", help="train a surrogate (FNO / U-Net) on the stream or on a cache")
+    p.add_argument("pde", help="PDE name (see `pdestream list`)")
+    p.add_argument("--source", default="stream", metavar="stream|PATH",
+                   help="'stream' (solve on the fly) or a cache written by `pdestream generate`")
+    p.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory: metrics.csv/json, model.pt")
+    p.add_argument("--seed", type=int, default=0, help="model initialization and data seed")
+    p.add_argument("--test-samples", type=int, default=32, help="held-out trajectories for the test errors")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing run in RUN_DIR")
+    _add_model_args(p, steps=1000, batch_size=32, lr=1e-3)
+    _add_pde_config_args(p)
+    p.set_defaults(func=cmd_train)
+
+
+def cmd_train(args: argparse.Namespace) -> None:
+    from pathlib import Path
+
+    from surrogate.runs import train_run
+
+    if (Path(args.out) / "model.pt").exists() and not args.overwrite:
+        raise FileExistsError(f"{args.out} already holds a run (model.pt); pass --overwrite or choose another --out")
+    if args.source != "stream" and not Path(args.source).exists():
+        raise FileNotFoundError(f"--source {args.source}: no such cache (or use --source stream)")
+    pde = pde_from_args(args.pde, args)
+    if args.test_samples < 1:
+        raise ValueError(f"--test-samples={args.test_samples} not allowed; must be >= 1")
+    s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
+                  view=_view_from_args(args, "next_step"), steps=args.steps, batch_size=args.batch_size, lr=args.lr,
+                  seed=args.seed, n_test=args.test_samples, explicit=_parse_sets(args.set))
+    print(f"trained {args.model} on {args.source} for {s['steps']} steps in {s['wall']:.1f} s "
+          f"(waiting for data {s['t_data']:.1f} s, computing {s['t_compute']:.1f} s); "
+          f"{s['trajectories_seen']} trajectories, final loss {s['final_loss']:.4g}")
+    t = s["test"]["test"]
+    print(f"test ({args.test_samples} held-out trajectories): rel L2 {t['rel_l2']:.4f}, nRMSE {t['nrmse']:.4f}"
+          + (f", rollout rel L2 at the last frame {t['rollout_final']:.4f}" if "rollout_final" in t else ""))
+    print(f"run: {args.out}/metrics.csv, metrics.json, model.pt")
 
 
 def add_compare(sub) -> None:
-    pass
+    p = sub.add_parser("compare", help="the same model trained on a fixed cache vs the on-the-fly stream")
+    p.add_argument("pde", nargs="?", default="burgers1d", help="PDE name (default burgers1d)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output: compare.md/csv/json/png, cache, runs")
+    p.add_argument("--cache-samples", type=int, default=32, metavar="M", help="size of the fixed cached set")
+    p.add_argument("--seeds", type=int, default=3, help="model seeds per arm (mean and spread)")
+    p.add_argument("--test-samples", type=int, default=128, help="held-out trajectories per test set")
+    p.add_argument("--shift", type=float, default=0.25,
+                   help="shifted test set: parameter domains moved this fraction of their width above the top")
+    p.add_argument("--shift-set", action="append", metavar="PARAM=DOMAIN", default=[],
+                   help="explicit shifted domain, e.g. --shift-set nu='loguniform(0.1,0.2)'")
+    p.add_argument("--format", default="h5", choices=["h5", "zarr"], help="cache format")
+    _add_model_args(p, steps=600, batch_size=32, lr=3e-3)
+    _add_pde_config_args(p)
+    p.set_defaults(func=cmd_compare)
+
+
+COMPARE_DEFAULTS = {"n": "64", "n_frames": "11"}  # small enough for ~10 min on 2 CPU cores
+
+
+def cmd_compare(args: argparse.Namespace) -> None:
+    from pathlib import Path
+
+    from surrogate.compare import CompareConfig, compare
+
+    args.set = [f"{k}={v}" for k, v in COMPARE_DEFAULTS.items()] + list(args.set)
+    pde = pde_from_args(args.pde, args)
+    model_cfg = {"width": 32, "modes": 12, "layers": 3} if args.model.startswith("fno") else {}
+    model_cfg.update(_parse_sets(args.model_set))
+    if args.seeds < 1 or args.cache_samples < 1 or args.test_samples < 1:
+        raise ValueError("--seeds, --cache-samples and --test-samples must be >= 1")
+    cfg = CompareConfig(model=args.model, model_cfg=model_cfg, view=_view_from_args(args, "operator"),
+                        steps=args.steps, batch_size=args.batch_size, lr=args.lr, cache_samples=args.cache_samples,
+                        seeds=tuple(range(args.seeds)), n_test=args.test_samples, shift=args.shift,
+                        cache_format=args.format)
+    compare(pde, args.out, cfg, shift_overrides=_parse_sets(args.shift_set))
+    print((Path(args.out) / "compare.md").read_text(), end="")
+    print(f"table: {args.out}/compare.md, compare.csv; figure: {args.out}/compare.png")
 
 
 # --- bench (benchmarks) ------------------------------------------------------------------------------
