@@ -46,6 +46,8 @@ def default_block(pde, n_samples: int) -> int:
 
 def _check_writable(path: Path) -> None:
     parent = path.parent if str(path.parent) else Path(".")
+    if parent.exists() and not parent.is_dir():
+        raise NotADirectoryError(f"cannot write {path}: {parent} is not a directory")
     if not parent.is_dir():
         raise FileNotFoundError(f"cannot write {path}: directory {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):
@@ -237,7 +239,7 @@ def open_cache(path, complete_only: bool = False):
         raise ValueError(f"no cache at {path}: the path does not exist")
     try:
         if fmt == "hdf5":
-            ds = xr.open_dataset(path, engine="h5netcdf")
+            ds = xr.open_dataset(path, engine="h5netcdf", phony_dims="access")  # foreign files too
         else:
             ds = xr.open_zarr(path, consolidated=True)
     except Exception as err:  # h5py / zarr / json errors of every kind: name the file, not the library

@@ -1,0 +1,214 @@
+"""HDF5/Zarr cache: schema seen by plain xarray, bit-identity with the generator and the stream,
+completion tracking and resume, and clear errors for files that are not (whole) caches."""
+
+import h5py
+import numpy as np
+import pytest
+import torch
+import xarray as xr
+
+import datasets
+import generator
+from datasets import cache as cache_mod
+from datasets.cache import is_complete
+
+SEED = 3
+N = 10
+BLOCK = 4  # 10 samples: blocks 0-3, 4-7 and a short last one (padded to 4)
+
+
+@pytest.fixture(scope="module")
+def pde():
+    return generator.get_pde("burgers1d", {"n": "32", "n_frames": "6"})
+
+
+@pytest.fixture(scope="module")
+def reference(pde):
+    """Samples 0..N-1 solved in ONE batch: the cache writes blocks of 4, so equality is batch-independence."""
+    traj = generator.sample(pde, np.arange(N), SEED)
+    return np.array(traj.u), {k: np.array(v) for k, v in traj.params.items()}
+
+
+@pytest.fixture(scope="module", params=["h5", "zarr"])
+def cached(request, pde, tmp_path_factory):
+    path = tmp_path_factory.mktemp("cache") / f"burgers.{request.param}"
+    summary = datasets.write_cache(pde, path, N, seed=SEED, block=BLOCK, progress=False)
+    assert summary.written == N and summary.n_samples == N
+    return path
+
+
+def _plain_open(path):
+    return xr.open_zarr(path) if str(path).endswith(".zarr") else xr.open_dataset(path, engine="h5netcdf")
+
+
+def test_plain_xarray_sees_the_schema(cached, pde, reference):
+    ds = _plain_open(cached)
+    assert ds["u"].dims == ("sample", "time", "x") and ds["u"].dtype == np.float32
+    assert list(ds.data_vars) == ["u"]
+    assert {"sample", "time", "x", "nu", "complete", "redraws"} <= set(ds.coords)
+    np.testing.assert_array_equal(ds["sample"].values, np.arange(N))
+    assert ds["sample"].dtype == np.int64
+    np.testing.assert_array_equal(ds["time"].values, pde.times())
+    np.testing.assert_array_equal(ds["x"].values, pde.grid.coords())
+    assert ds["nu"].attrs["units"] == "length^2/time" and ds["nu"].attrs["long_name"] == "viscosity"
+    assert ds["u"].attrs["long_name"] and ds["time"].attrs["units"]
+    a = ds.attrs
+    assert a["pde"] == "burgers1d" and a["equation"] == pde.EQUATION
+    assert generator.from_config(__import__("json").loads(a["pdestream_config"])) == pde
+    assert a["pdestream_config_hash"] == pde.config_hash() and a["pdestream_seed"] == SEED
+    assert a["jax_version"] and a["jax_threefry_partitionable"] in (0, 1) and a["pdestream_version"]
+    assert a["pdestream_complete"] == 1 and (ds["complete"].values == 1).all()
+    u, params = reference
+    np.testing.assert_array_equal(ds["u"].values, u[:, :, 0])  # bit for bit
+    np.testing.assert_array_equal(ds["nu"].values, params["nu"])
+
+
+def test_open_cache_and_loader_match_the_generator(cached, reference):
+    ds = datasets.open_cache(cached)
+    assert is_complete(ds)
+    u, params = reference
+    loader = datasets.CachedTrajectories(cached, view="whole")
+    assert len(loader) == N and loader.param_names == ["nu"] and loader.pde.NAME == "burgers1d"
+    for i in (0, 5, N - 1):
+        ex = loader[i]
+        assert torch.equal(ex["u"], torch.from_numpy(u[i])) and int(ex["index"]) == i
+        assert ex["params"].tolist() == [float(params["nu"][i])]
+
+
+def test_loader_equals_the_stream(cached, pde):
+    stream = datasets.TrajectoryStream(pde, seed=SEED, view="whole", batch_size=N, n_samples=N, shuffle=False,
+                                       resample=False, solve_batch=8)
+    streamed = {}
+    for batch in torch.utils.data.DataLoader(stream, batch_size=None):
+        for k, i in enumerate(batch["index"].tolist()):
+            streamed[i] = (batch["u"][k], batch["params"][k])
+    assert sorted(streamed) == list(range(N))
+    loader = datasets.CachedTrajectories(cached, view="whole")
+    for i in range(N):
+        assert torch.equal(loader[i]["u"], streamed[i][0]) and torch.equal(loader[i]["params"], streamed[i][1])
+
+
+def test_next_step_indexes_sample_start_pairs(cached, reference):
+    u, _ = reference
+    loader = datasets.CachedTrajectories(cached, view="next_step", k_in=2, k_out=1)
+    starts = 6 - 2 - 1 + 1
+    assert len(loader) == N * starts
+    ex = loader[7 * starts + 2]  # sample 7, window starting at frame 2
+    assert int(ex["index"]) == 7 and ex["t0"].item() == pytest.approx(0.4)
+    assert torch.equal(ex["x"], torch.from_numpy(u[7, 2:4])) and torch.equal(ex["y"], torch.from_numpy(u[7, 4:5]))
+    batch = next(iter(torch.utils.data.DataLoader(loader, batch_size=8, shuffle=True)))
+    assert batch["x"].shape == (8, 2, 1, 32) and batch["params"].shape == (8, 1)
+    random_windows = datasets.CachedTrajectories(cached, view="next_step", windows=3)
+    assert len(random_windows) == 3 * N and random_windows[4]["x"].shape == (1, 1, 32)
+
+
+def test_two_dimensional_two_fields(tmp_path):
+    pde = generator.get_pde("ns2d", {"n": "16", "n_frames": "3", "t_end": "1"})
+    path = tmp_path / "ns.zarr"
+    datasets.write_cache(pde, path, 3, seed=1, progress=False)
+    ds = xr.open_zarr(path)
+    assert ds["vorticity"].dims == ("sample", "time", "x", "y") and "y" in ds.coords
+    u = np.asarray(generator.sample(pde, [2], 1).u[0])
+    loader = datasets.CachedTrajectories(path, view="operator")
+    assert torch.equal(loader[2]["y"], torch.from_numpy(u[-1]))
+
+
+def _interrupted(pde, path, monkeypatch):
+    """A write that dies in its second block, as a crash would: the first block is done, the rest not."""
+    real, calls = generator.sample, []
+
+    def failing(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(generator, "sample", failing)
+    with pytest.raises(KeyboardInterrupt):
+        datasets.write_cache(pde, path, N, seed=SEED, block=BLOCK, progress=False)
+    monkeypatch.setattr(generator, "sample", real)
+
+
+@pytest.mark.parametrize("suffix", ["h5", "zarr"])
+def test_interrupted_reads_incomplete_then_resumes_identically(pde, tmp_path, monkeypatch, reference, suffix):
+    path = tmp_path / f"part.{suffix}"
+    _interrupted(pde, path, monkeypatch)
+    ds = datasets.open_cache(path)
+    assert not is_complete(ds) and ds.attrs["pdestream_complete"] == 0
+    assert ds["complete"].values.tolist() == [1] * BLOCK + [0] * (N - BLOCK)
+    ds.close()
+    with pytest.raises(ValueError, match="incomplete .4 of 10"):
+        datasets.CachedTrajectories(path)
+    assert len(datasets.CachedTrajectories(path, allow_incomplete=True)) == BLOCK
+    assert datasets.open_cache(path, complete_only=True).sizes["sample"] == BLOCK
+    with pytest.raises(FileExistsError, match="--resume"):
+        datasets.write_cache(pde, path, N, seed=SEED, progress=False)
+    with pytest.raises(ValueError, match="different set-up.*seed"):
+        datasets.write_cache(pde, path, N, seed=SEED + 1, resume=True, progress=False)
+    with pytest.raises(ValueError, match="different set-up.*config_hash"):
+        datasets.write_cache(pde.replace(nu="0.05"), path, N, seed=SEED, resume=True, progress=False)
+    done = datasets.write_cache(pde, path, N, seed=SEED, resume=True, progress=False)
+    assert done.written == N - BLOCK
+    part = datasets.open_cache(path)
+    assert is_complete(part)
+    np.testing.assert_array_equal(part["u"].values, reference[0][:, :, 0])
+    np.testing.assert_array_equal(part["nu"].values, reference[1]["nu"])
+
+
+def test_refusals(pde, tmp_path):
+    with pytest.raises(ValueError, match="exclude each other"):
+        datasets.write_cache(pde, tmp_path / "a.h5", 4, resume=True, overwrite=True)
+    with pytest.raises(ValueError, match="must end in .h5, .hdf5 or .zarr"):
+        datasets.write_cache(pde, tmp_path / "a.nc", 4)
+    with pytest.raises(ValueError, match="n_samples=0"):
+        datasets.write_cache(pde, tmp_path / "a.h5", 0)
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        datasets.write_cache(pde, tmp_path / "no" / "a.h5", 4)
+    (tmp_path / "mine.zarr").mkdir()
+    (tmp_path / "mine.zarr" / "notes.txt").write_text("keep me")
+    with pytest.raises(ValueError, match="not a Zarr store"):
+        datasets.write_cache(pde, tmp_path / "mine.zarr", 4, overwrite=True, progress=False)
+    assert (tmp_path / "mine.zarr" / "notes.txt").exists()
+
+
+def test_unreadable_and_foreign_files_get_one_line_errors(cached, tmp_path):
+    def one_line(path, match):
+        with pytest.raises(ValueError, match=match) as err:
+            datasets.open_cache(path)
+        assert "\n" not in str(err.value)
+        with pytest.raises(ValueError):
+            datasets.CachedTrajectories(path)
+
+    one_line(tmp_path / "missing.h5", "does not exist")
+    (tmp_path / "garbage.h5").write_bytes(b"not an HDF5 file at all" * 100)
+    one_line(tmp_path / "garbage.h5", "not a readable hdf5 cache")
+    with h5py.File(tmp_path / "foreign.h5", "w") as f:
+        f["data"] = np.zeros(3)
+    one_line(tmp_path / "foreign.h5", "not a pdestream cache")
+    if str(cached).endswith(".h5"):
+        blob = cached.read_bytes()
+        (tmp_path / "truncated.h5").write_bytes(blob[: len(blob) // 2])
+        one_line(tmp_path / "truncated.h5", "not a readable hdf5 cache")
+    else:
+        import shutil
+
+        broken = tmp_path / "broken.zarr"
+        shutil.copytree(cached, broken)
+        (broken / "zarr.json").write_text("{ truncated")
+        one_line(broken, "not a readable zarr cache")
+        corrupt = tmp_path / "corrupt.zarr"
+        shutil.copytree(cached, corrupt)
+        chunk = corrupt / "u" / "c" / "5" / "0" / "0"
+        data = bytearray(chunk.read_bytes())
+        data[len(data) // 2] ^= 0xFF  # one flipped byte: the zstd checksum must catch it
+        chunk.write_bytes(bytes(data))
+        loader = datasets.CachedTrajectories(corrupt)
+        with pytest.raises(ValueError, match="cannot read sample 5"):
+            loader[5]
+        assert torch.equal(loader[4]["u"], datasets.CachedTrajectories(cached)[4]["u"])
+
+
+def test_default_block_bounds_memory(pde):
+    assert cache_mod.default_block(pde, 5) == 5
+    big = generator.get_pde("ns2d", {"n": "256"})
+    assert 1 <= cache_mod.default_block(big, 10_000) * 4 * big.n_frames * 256 * 256 <= cache_mod.TARGET_BLOCK_BYTES

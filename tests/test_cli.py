@@ -1,0 +1,131 @@
+"""The command line: list / generate / inspect, crash + --resume through a real process, and user errors
+that print one line and exit non-zero without a traceback."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+import cli
+import datasets
+from datasets.cache import is_complete
+
+SMALL = ["--set", "n=32", "--set", "n_frames=6"]
+
+
+def run_cli(capsys, *argv):
+    code = cli.main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_list_names_every_pde(capsys):
+    code, out, _ = run_cli(capsys, "list")
+    assert code == 0 and "burgers1d: u_t + u u_x = nu u_xx" in out and "ns2d" in out
+
+
+def test_generate_then_inspect(capsys, tmp_path):
+    path = tmp_path / "b.zarr"
+    code, out, err = run_cli(capsys, "generate", "burgers1d", "--n", "6", "--seed", "2", "--out", str(path), *SMALL,
+                             "--set", "nu=loguniform(0.02,0.05)")
+    assert code == 0 and err == ""
+    assert out.count("\n") == 1 and "wrote 6 samples" in out  # one summary line, no bar off a terminal
+    ds = datasets.open_cache(path)
+    assert is_complete(ds) and ds.attrs["pdestream_seed"] == 2
+    assert 0.02 <= ds["nu"].values.min() and ds["nu"].values.max() <= 0.05
+    code, out, _ = run_cli(capsys, "inspect", str(path), "--plot", str(tmp_path / "b.png"))
+    assert code == 0
+    for text in ("burgers1d", "u_t + u u_x = nu u_xx", "6 of 6 complete", "param nu: [", "field u: mean",
+                 "bytes on disk", '"n": 32'):
+        assert text in out, text
+    assert (tmp_path / "b.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_generate_from_toml(capsys, tmp_path):
+    (tmp_path / "c.toml").write_text('[pde]\nname = "diffusion1d"\nn = 32\nn_frames = 4\n')
+    code, _, err = run_cli(capsys, "generate", "--config", str(tmp_path / "c.toml"), "--n", "2",
+                           "--out", str(tmp_path / "d.h5"))
+    assert code == 0, err
+    ds = datasets.open_cache(tmp_path / "d.h5")
+    assert ds.attrs["pde"] == "diffusion1d" and ds.sizes["x"] == 32 and ds.sizes["time"] == 4
+
+
+@pytest.mark.parametrize("args, message", [
+    (["generate", "nosuchpde", "--n", "2", "--out", "{tmp}/a.h5"], "unknown PDE 'nosuchpde'"),
+    (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/a.h5", "--set", "nu"], "bad --set 'nu'"),
+    (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/a.h5", "--set", "nu=-1"], "nu=-1"),
+    (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/a.h5", "--set", "colour=3"], "unknown setting 'colour'"),
+    (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/nodir/a.h5"], "does not exist"),
+    (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/locked/a.h5"], "not writable"),
+    (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/exists.h5/a.h5"], "is not a directory"),
+    (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/a.nc"], "must end in .h5, .hdf5 or .zarr"),
+    (["generate", "burgers1d", "--n", "0", "--out", "{tmp}/a.h5"], "n_samples=0"),
+    (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/exists.h5"], "exists; pass --resume"),
+    (["inspect", "{tmp}/missing.zarr"], "does not exist"),
+    (["inspect", "{tmp}/exists.h5"], "not a readable hdf5 cache"),
+])
+def test_user_errors_are_one_line(capsys, tmp_path, args, message):
+    (tmp_path / "exists.h5").write_bytes(b"\0" * 64)  # also a corrupted cache
+    (tmp_path / "locked").mkdir(mode=0o500)
+    if os.geteuid() == 0 and "locked" in " ".join(args):
+        pytest.skip("root writes anywhere")
+    code, out, err = run_cli(capsys, *[a.replace("{tmp}", str(tmp_path)) for a in args])
+    assert code != 0 and out == ""
+    assert err.startswith("pdestream: error: ") and err.count("\n") == 1 and message in err, err
+
+
+def test_no_traceback_through_a_real_process(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "cli", "generate", "nosuchpde", "--n", "2", "--out",
+                          str(tmp_path / "a.h5")], capture_output=True, text=True, timeout=120)
+    assert res.returncode != 0 and "Traceback" not in res.stderr
+    assert res.stderr.strip().splitlines() == [res.stderr.strip()] and "unknown PDE" in res.stderr
+
+
+# ~0.3-1 s per block of 4 on a 2-core CPU: slow enough to kill the writer between blocks
+SLOW = ["burgers1d", "--n", "12", "--seed", "5", "--block", "4", "--set", "n=64", "--set", "n_frames=6",
+        "--set", "t_end=100"]
+
+
+def _complete_flags(path):
+    if not path.exists():
+        return None
+    try:
+        with h5py.File(path, "r", locking=False) as f:  # the writer holds the lock; its metadata is static
+            return f["complete"][:]
+    except (OSError, KeyError):
+        return None
+
+
+def test_kill_9_then_resume_equals_an_uninterrupted_run(capsys, tmp_path):
+    full, part = tmp_path / "full.h5", tmp_path / "part.h5"
+    assert run_cli(capsys, "generate", *SLOW, "--out", str(full))[0] == 0  # also warms the compile cache
+    proc = subprocess.Popen([sys.executable, "-m", "cli", "generate", *SLOW, "--out", str(part)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline, flags = time.monotonic() + 120, None
+    while time.monotonic() < deadline and proc.poll() is None:
+        flags = _complete_flags(part)
+        if flags is not None and flags.sum() >= 4:
+            break
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert proc.returncode == -signal.SIGKILL, "the writer finished before it could be killed: use a slower config"
+    ds = datasets.open_cache(part)
+    written = int((ds["complete"].values == 1).sum())
+    assert not is_complete(ds) and 4 <= written < 12
+    ds.close()
+    with pytest.raises(ValueError, match="incomplete"):
+        datasets.CachedTrajectories(part)
+    code, out, err = run_cli(capsys, "generate", *SLOW, "--out", str(part), "--resume")
+    assert code == 0, err
+    assert f"wrote {12 - written} samples" in out
+    a, b = datasets.open_cache(full), datasets.open_cache(part)
+    assert is_complete(b)
+    for name in ("u", "nu", "sample", "complete", "redraws"):
+        np.testing.assert_array_equal(a[name].values, b[name].values)
+    assert a.attrs == b.attrs
