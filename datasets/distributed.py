@@ -1,0 +1,118 @@
+"""Write a cache on a Dask cluster: ``write_cache_dask`` (the ``--executor dask`` of ``pdestream generate``).
+
+The client creates the store exactly as ``write_cache`` does (``cache.prepare``), then submits one task per
+block that is not yet complete. A task is a pure function of (PDE config, seed, block): it solves the block
+(``cache.solve_block``) and writes that block's chunks and then its ``complete`` flags (``cache.write_block``).
+Zarr chunks along ``sample`` never straddle two blocks, so concurrent tasks never write the same chunk, and a
+block whose worker died is simply computed again by Dask (writing the same bytes twice is harmless). The
+client sets the cache's completion flag last. Result: bit-identical to ``write_cache``; resume redoes only
+missing blocks.
+
+HDF5 allows one writer per file, so the Dask executor writes Zarr only.
+
+Running on a real cluster: start workers however the site does it (``dask-jobqueue``'s ``SLURMCluster``,
+``dask scheduler`` + ``dask worker``, Kubernetes) with pdestream installed and the output directory on a
+shared filesystem, then pass the scheduler's address (``--scheduler tcp://host:8786``).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import logging
+import os
+import sys
+import time
+from contextlib import contextmanager
+
+from . import cache, schema
+
+# Embedded workers: JAX on the CPU, one XLA thread each (processes, not threads, give the parallelism).
+SINGLE_THREAD_XLA = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+
+
+def _worker_env() -> dict:
+    xla = os.environ.get("XLA_FLAGS", "")
+    return {"JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu"),
+            "XLA_FLAGS": f"{xla} {SINGLE_THREAD_XLA}".strip(), "OMP_NUM_THREADS": "1"}
+
+
+@contextmanager
+def dask_client(scheduler: str | None = None, workers: int = 2):
+    """A ``distributed.Client``: to ``scheduler`` (an address such as tcp://host:8786) when given, else to
+    an embedded ``LocalCluster`` of ``workers`` spawned single-threaded processes (closed on exit)."""
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as err:
+            raise ValueError(f"cannot reach the Dask scheduler at {scheduler!r}: {err}") from None
+        with client:
+            yield client
+        return
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                      silence_logs=logging.ERROR, env=_worker_env()) as cluster, Client(cluster) as client:
+        yield client
+
+
+def _block_task(config: dict, seed: int, path: str, lo: int, hi: int, block: int, on_blowup: str):
+    """Runs on a worker: solve samples lo..hi-1 and write them (data, then flags) into the Zarr store."""
+    import generator
+
+    from ._bridge import configure_jax
+
+    configure_jax()  # persistent compilation cache: a (re)started worker does not recompile from scratch
+    pde = generator.from_config(config)
+    data = cache.solve_block(pde, seed, lo, hi, block, on_blowup)
+    cache.write_block(schema.open_store(path, "r+"), pde, lo, hi, *data)
+    return lo, hi
+
+
+def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | None = None, workers: int = 2,
+                     resume: bool = False, overwrite: bool = False, block: int | None = None,
+                     on_blowup: str = "raise", progress: bool = True) -> cache.WriteSummary:
+    """``write_cache`` with blocks solved and written in parallel by Dask workers (Zarr output only).
+
+    Same arguments and result as ``datasets.write_cache`` (bit-identical cache), plus ``scheduler`` (address
+    of a running Dask scheduler; None: an embedded LocalCluster) and ``workers`` (its process count).
+    """
+    from distributed import as_completed
+    from tqdm import tqdm
+
+    if schema.cache_format(path) != "zarr":
+        raise ValueError(f"the dask executor writes Zarr only (got {str(path)!r}): HDF5 allows one writer per file; "
+                         "use a .zarr path, or --executor local for HDF5")
+    if not scheduler and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"workers={workers!r} not allowed: need an integer >= 1")
+    path, lay, block = cache.prepare(pde, path, n_samples, seed, resume, overwrite, block, on_blowup)
+    start = time.perf_counter()
+    store = schema.open_store(str(path), "r+")
+    if store["complete"].chunks != (block,):  # the guarantee that makes concurrent writes safe
+        raise ValueError(f"{path}: per-sample chunks {store['complete'].chunks} do not match block={block}")
+    todo = cache.pending_blocks(store, block)
+    n = lay.dims["sample"]
+    config = json.loads(lay.attrs[schema.CONFIG_ATTR])
+    tag = f"pdestream-{lay.attrs['pdestream_config_hash']}-s{seed}"
+    with dask_client(scheduler, workers) as client:
+        if "dashboard" in client.scheduler_info().get("services", {}):
+            hint = "" if importlib.util.find_spec("bokeh") else " (install bokeh to see its plots)"
+            print(f"dask dashboard: {client.dashboard_link}{hint}", file=sys.stderr)
+        futures = [client.submit(_block_task, config, int(seed), str(path), lo, hi, block, lay.attrs[
+            "pdestream_on_blowup"], key=f"{tag}-{lo}-{hi}", pure=False) for lo, hi in todo]
+        bar = tqdm(total=n, initial=n - sum(hi - lo for lo, hi in todo), unit="sample", desc=f"{pde.NAME} (dask)",
+                   smoothing=0.1, disable=not progress or not sys.stderr.isatty())
+        try:
+            for future in as_completed(futures):
+                lo, hi = future.result()  # a task's error (e.g. generator.BlowUpError) is raised here
+                bar.update(hi - lo)
+        except BaseException:
+            client.cancel(futures)
+            raise
+        finally:
+            bar.close()
+    if not (store["complete"][:] == 1).all():
+        raise RuntimeError(f"{path}: blocks missing after the Dask run (a bug)")
+    schema.mark_complete(store, str(path))
+    written = sum(hi - lo for lo, hi in todo)
+    return cache.WriteSummary(str(path), n, written, time.perf_counter() - start, schema.disk_bytes(path))

@@ -1,0 +1,153 @@
+"""Dask generation against the single-process writer (bit for bit, with a worker killed mid-run, on resume)
+and 2-rank streaming over torch.distributed (gloo on 127.0.0.1). Tiny: burgers1d n=32, 5 frames, 12 samples,
+blocks of 4. Each test that starts a Dask cluster costs ~10-20 s of start-up on 2 cores."""
+
+import json
+import logging
+import os
+import socket
+import subprocess
+import sys
+
+import cloudpickle
+import numpy as np
+import pytest
+from distributed import Client, LocalCluster, WorkerPlugin
+
+import generator
+from datasets import open_cache, schema, write_cache
+from datasets.distributed import _worker_env, write_cache_dask
+
+N, BLOCK, SEED = 12, 4, 3
+SETTINGS = {"n": "32", "n_frames": "5"}
+cloudpickle.register_pickle_by_value(sys.modules[__name__])  # workers cannot import this test module
+
+
+@pytest.fixture(scope="module")
+def pde():
+    return generator.get_pde("burgers1d", SETTINGS)
+
+
+@pytest.fixture(scope="module")
+def reference(pde, tmp_path_factory):
+    """The single-process cache the Dask runs must reproduce."""
+    path = tmp_path_factory.mktemp("ref") / "ref.zarr"
+    write_cache(pde, path, N, seed=SEED, block=BLOCK, progress=False)
+    return path
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                      silence_logs=logging.ERROR, env=_worker_env()) as c:
+        yield c
+
+
+def assert_same_cache(got, want):
+    a, b = open_cache(got), open_cache(want)
+    assert sorted(a.variables) == sorted(b.variables)
+    for name in b.variables:
+        np.testing.assert_array_equal(a[name].values, b[name].values, err_msg=name)
+    assert a.attrs == b.attrs  # includes pdestream_complete == 1
+    assert not np.isnan(a["u"].values).any()
+
+
+def test_two_workers_equal_single_process_bit_for_bit(pde, reference, tmp_path):
+    out = tmp_path / "dask.zarr"
+    done = write_cache_dask(pde, out, N, seed=SEED, workers=2, block=BLOCK, progress=False)  # embedded cluster
+    assert (done.written, done.n_samples) == (N, N)
+    assert_same_cache(out, reference)
+    ref = np.asarray(generator.sample(pde, [5], SEED).u[0])  # sample 5 solved alone, not by any writer
+    np.testing.assert_array_equal(open_cache(out)["u"].values[5], ref[:, 0])
+
+
+class KillOnce(WorkerPlugin):
+    """Kills its worker process the first time a worker starts the task of block [4, 8)."""
+
+    def __init__(self, marker: str):
+        self.marker = marker
+
+    def transition(self, key, start, finish, **kwargs):
+        if finish == "executing" and str(key).endswith("-4-8") and not os.path.exists(self.marker):
+            open(self.marker, "w").close()
+            os._exit(1)
+
+
+def test_killed_worker_block_is_redone(pde, reference, cluster, tmp_path):
+    marker = tmp_path / "killed"
+    with Client(cluster) as client:
+        client.register_plugin(KillOnce(str(marker)), name="kill-once")
+        before = set(client.scheduler_info()["workers"])
+        out = tmp_path / "dask.zarr"
+        done = write_cache_dask(pde, out, N, seed=SEED, scheduler=cluster.scheduler_address, block=BLOCK,
+                                progress=False)
+        client.wait_for_workers(2, timeout=60)
+        after = set(client.scheduler_info()["workers"])
+        client.unregister_worker_plugin("kill-once")
+    assert marker.exists() and before != after  # a worker really died (the nanny started a new one)
+    assert done.written == N
+    assert_same_cache(out, reference)
+
+
+def test_resume_redoes_only_missing_blocks_and_hdf5_is_refused(pde, reference, cluster, tmp_path):
+    with pytest.raises(ValueError, match="one writer per file"):
+        write_cache_dask(pde, tmp_path / "x.h5", N, seed=SEED, block=BLOCK)
+    assert not (tmp_path / "x.h5").exists()
+    out = tmp_path / "resume.zarr"
+    write_cache(pde, out, N, seed=SEED, block=BLOCK, progress=False)
+    store = schema.open_store(str(out), "r+")  # as if the run died while writing block [4, 8)
+    store["u"][4:8] = np.zeros((4, pde.n_frames, pde.n), np.float32)
+    store["complete"][4:8] = np.zeros(4, np.int8)
+    store.attrs["pdestream_complete"] = 0
+    schema.consolidate(str(out))
+    with pytest.raises(FileExistsError):
+        write_cache_dask(pde, out, N, seed=SEED, scheduler=cluster.scheduler_address, block=BLOCK)
+    done = write_cache_dask(pde, out, N, seed=SEED, scheduler=cluster.scheduler_address, resume=True,
+                            progress=False)
+    assert done.written == BLOCK
+    assert_same_cache(out, reference)
+
+
+RANK = r"""
+import json, sys
+import numpy as np, torch.distributed as dist
+from torch.utils.data import DataLoader
+import generator
+from datasets.stream import TrajectoryStream
+
+rank, port, out = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+dist.init_process_group("gloo", init_method=f"tcp://127.0.0.1:{port}", rank=rank, world_size=2)
+pde = generator.get_pde("burgers1d", json.loads(sys.argv[4]))
+stream = TrajectoryStream(pde, seed=int(sys.argv[5]), view="whole", batch_size=3, n_samples=11, solve_batch=4)
+u = {int(i): x.numpy() for b in DataLoader(stream, batch_size=None) for i, x in zip(b["index"], b["u"])}
+everyone = [None, None]
+dist.all_gather_object(everyone, sorted(u))
+np.savez(out, placement=np.array(stream.placement()), gathered=np.array(json.dumps(everyone)),
+         **{f"u{i}": x for i, x in u.items()})
+dist.destroy_process_group()
+"""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_two_ranks_stream_disjoint_samples_whose_union_is_complete(pde, tmp_path):
+    port, env = free_port(), {**os.environ, "JAX_PLATFORMS": "cpu"}
+    procs = [subprocess.Popen([sys.executable, "-c", RANK, str(r), str(port), str(tmp_path / f"rank{r}.npz"),
+                               json.dumps(SETTINGS), str(SEED)], env=env, stderr=subprocess.PIPE, text=True)
+             for r in (0, 1)]
+    errors = [p.communicate(timeout=180)[1] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], errors
+    got = [np.load(tmp_path / f"rank{r}.npz") for r in (0, 1)]
+    for r in (0, 1):
+        assert got[r]["placement"].tolist() == [r, 2]  # rank and world size came from torch.distributed
+    gathered = [json.loads(str(g["gathered"])) for g in got]
+    assert gathered[0] == gathered[1]  # all_gather_object agrees on both ranks
+    ranks = gathered[0]
+    assert set(ranks[0]).isdisjoint(ranks[1]) and sorted(ranks[0] + ranks[1]) == list(range(11))
+    assert ranks[0] == list(range(0, 11, 2))
+    for r, i in ((0, 4), (1, 9)):  # streamed on a rank == solved alone here, bit for bit
+        np.testing.assert_array_equal(got[r][f"u{i}"], np.asarray(generator.sample(pde, [i], SEED).u[0]))
