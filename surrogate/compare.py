@@ -35,25 +35,31 @@ class CompareConfig:
     cache_samples: int = 32
     seeds: tuple = (0, 1, 2)
     n_test: int = 128
-    shift: float = 0.25  # shifted domain: the next 25% (in log for loguniform) beyond the upper bound
+    shift: float = -0.25  # shifted domain: 25% of the width (in log for loguniform) below the lower bound
     cache_format: str = "h5"
 
 
 def shifted_pde(pde, frac: float = 0.25, overrides: dict | None = None):
-    """The PDE with each random parameter's domain moved just above its training range.
+    """The PDE with each random parameter's domain moved just outside its training range [a, b].
 
-    uniform(a, b) -> uniform(b, b + frac (b - a)); loguniform(a, b) -> loguniform(b, b (b / a)^frac).
-    ``overrides`` ({name: domain string}) replaces the automatic choice. None when nothing can shift.
+    frac > 0 (above): uniform(b, b + frac (b - a)), loguniform(b, b (b / a)^frac); frac < 0 (below):
+    uniform(a - |frac| (b - a), a), loguniform(a (a / b)^|frac|, a). ``overrides`` ({name: domain string})
+    replaces the automatic choice. None when no parameter is random.
     """
+    if frac == 0:
+        raise ValueError("shift=0 would test on the training domain; use a fraction like 0.25 or -0.25")
     changes = dict(overrides or {})
     for name, domain in pde.param_domains.items():
         if name in changes:
             continue
         kind, (lo, hi) = type(domain).__name__, domain.bounds
+        f = abs(frac)
         if kind == "Uniform":
-            changes[name] = f"uniform({hi!r}, {hi + frac * (hi - lo)!r})"
+            a, b = (hi, hi + f * (hi - lo)) if frac > 0 else (lo - f * (hi - lo), lo)
+            changes[name] = f"uniform({a:.6g}, {b:.6g})"
         elif kind == "LogUniform":
-            changes[name] = f"loguniform({hi!r}, {hi * (hi / lo) ** frac!r})"
+            a, b = (hi, hi * (hi / lo) ** f) if frac > 0 else (lo * (lo / hi) ** f, lo)
+            changes[name] = f"loguniform({a:.6g}, {b:.6g})"
     return pde.replace(changes) if changes else None
 
 

@@ -30,9 +30,22 @@ class FNOConfig:
                 raise ValueError(f"fno: {name}={value!r} not allowed; must be an integer >= 1")
 
 
+class Pointwise(nn.Module):
+    """A per-point linear map over channels, [B, C_in, *space] -> [B, C_out, *space] (a 1x1 convolution;
+    nn.Linear on channels-last is about twice as fast as Conv1d(kernel_size=1) on CPU)."""
+
+    def __init__(self, c_in: int, c_out: int):
+        super().__init__()
+        self.linear = nn.Linear(c_in, c_out)
+        self.out_channels = c_out
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.linear(x.movedim(1, -1)).movedim(-1, 1)  # [B, C_out, *space]
+
+
 def pointwise(ndim: int, c_in: int, c_out: int) -> nn.Module:
-    """A 1x1 convolution in 1D or 2D (a per-point linear map over channels)."""
-    return (nn.Conv1d if ndim == 1 else nn.Conv2d)(c_in, c_out, kernel_size=1)
+    """A 1x1 convolution in 1D or 2D (ndim is accepted for symmetry with the other layer builders)."""
+    return Pointwise(c_in, c_out)
 
 
 class SpectralConv(nn.Module):
