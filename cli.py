@@ -145,6 +145,17 @@ def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr:
     p.add_argument("--steps", type=int, default=steps, help="optimizer steps")
     p.add_argument("--batch-size", type=int, default=batch_size, help="examples per optimizer step")
     p.add_argument("--lr", type=float, default=lr, help="peak learning rate (Adam, cosine decay)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="torch CPU threads (compare default 1: the solver thread of the stream gets the other core)")
+
+
+def _set_threads(threads: int | None) -> None:
+    import torch
+
+    if threads is not None:
+        if threads < 1:
+            raise ValueError(f"--threads={threads} not allowed; must be >= 1")
+        torch.set_num_threads(threads)
 
 
 def _view_from_args(args, default: str):
@@ -178,6 +189,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     if args.source != "stream" and not Path(args.source).exists():
         raise FileNotFoundError(f"--source {args.source}: no such cache (or use --source stream)")
     pde = pde_from_args(args.pde, args)
+    _set_threads(args.threads)
     if args.test_samples < 1:
         raise ValueError(f"--test-samples={args.test_samples} not allowed; must be >= 1")
     s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
@@ -199,8 +211,9 @@ def add_compare(sub) -> None:
     p.add_argument("--cache-samples", type=int, default=32, metavar="M", help="size of the fixed cached set")
     p.add_argument("--seeds", type=int, default=3, help="model seeds per arm (mean and spread)")
     p.add_argument("--test-samples", type=int, default=128, help="held-out trajectories per test set")
-    p.add_argument("--shift", type=float, default=0.25,
-                   help="shifted test set: parameter domains moved this fraction of their width above the top")
+    p.add_argument("--shift", type=float, default=-0.25,
+                   help="shifted test set: parameter domains moved this fraction of their width beyond the "
+                        "training range (< 0: below the lower bound, > 0: above the upper bound)")
     p.add_argument("--shift-set", action="append", metavar="PARAM=DOMAIN", default=[],
                    help="explicit shifted domain, e.g. --shift-set nu='loguniform(0.1,0.2)'")
     p.add_argument("--format", default="h5", choices=["h5", "zarr"], help="cache format")
@@ -219,6 +232,7 @@ def cmd_compare(args: argparse.Namespace) -> None:
 
     args.set = [f"{k}={v}" for k, v in COMPARE_DEFAULTS.items()] + list(args.set)
     pde = pde_from_args(args.pde, args)
+    _set_threads(1 if args.threads is None else args.threads)
     model_cfg = {"width": 32, "modes": 12, "layers": 3} if args.model.startswith("fno") else {}
     model_cfg.update(_parse_sets(args.model_set))
     if args.seeds < 1 or args.cache_samples < 1 or args.test_samples < 1:
