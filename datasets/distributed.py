@@ -45,15 +45,17 @@ def dask_client(scheduler: str | None = None, workers: int = 2):
 
     if scheduler:
         try:
-            client = Client(scheduler, timeout="20s")
+            client = Client(scheduler, timeout="20s", set_as_default=False)
         except (OSError, TimeoutError) as err:
             raise ValueError(f"cannot reach the Dask scheduler at {scheduler!r}: {err}") from None
         with client:
             yield client
         return
+    # set_as_default=False: leave the caller's dask scheduler (e.g. for xarray's .compute()) untouched
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                      silence_logs=logging.ERROR, env=_worker_env()) as cluster, Client(cluster) as client:
-        yield client
+                      silence_logs=logging.ERROR, env=_worker_env()) as cluster:
+        with Client(cluster, set_as_default=False) as client:
+            yield client
 
 
 def _block_task(config: dict, seed: int, path: str, lo: int, hi: int, block: int, on_blowup: str):
@@ -76,6 +78,7 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
 
     Same arguments and result as ``datasets.write_cache`` (bit-identical cache), plus ``scheduler`` (address
     of a running Dask scheduler; None: an embedded LocalCluster) and ``workers`` (its process count).
+    ``progress``: a tqdm bar over finished blocks (on a terminal) and the dashboard address on stderr.
     """
     from distributed import as_completed
     from tqdm import tqdm
@@ -95,7 +98,7 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
     config = json.loads(lay.attrs[schema.CONFIG_ATTR])
     tag = f"pdestream-{lay.attrs['pdestream_config_hash']}-s{seed}"
     with dask_client(scheduler, workers) as client:
-        if "dashboard" in client.scheduler_info().get("services", {}):
+        if progress and "dashboard" in client.scheduler_info().get("services", {}):
             hint = "" if importlib.util.find_spec("bokeh") else " (install bokeh to see its plots)"
             print(f"dask dashboard: {client.dashboard_link}{hint}", file=sys.stderr)
         futures = [client.submit(_block_task, config, int(seed), str(path), lo, hi, block, lay.attrs[
@@ -103,7 +106,7 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
         bar = tqdm(total=n, initial=n - sum(hi - lo for lo, hi in todo), unit="sample", desc=f"{pde.NAME} (dask)",
                    smoothing=0.1, disable=not progress or not sys.stderr.isatty())
         try:
-            for future in as_completed(futures):
+            for future in as_completed(futures, loop=client.loop):
                 lo, hi = future.result()  # a task's error (e.g. generator.BlowUpError) is raised here
                 bar.update(hi - lo)
         except BaseException:
