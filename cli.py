@@ -217,7 +217,7 @@ def add_compare(sub) -> None:
     p.add_argument("--shift-set", action="append", metavar="PARAM=DOMAIN", default=[],
                    help="explicit shifted domain, e.g. --shift-set nu='loguniform(0.1,0.2)'")
     p.add_argument("--format", default="h5", choices=["h5", "zarr"], help="cache format")
-    _add_model_args(p, steps=600, batch_size=32, lr=3e-3)
+    _add_model_args(p, steps=1000, batch_size=32, lr=3e-3)
     _add_pde_config_args(p)
     p.set_defaults(func=cmd_compare)
 
