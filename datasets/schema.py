@@ -14,7 +14,7 @@ Readable by plain xarray (``xr.open_dataset(path, engine="h5netcdf")``, ``xr.ope
                  pdestream_complete (0 until every block is written; set last)
 
 Crash safety: every array is fully laid out when the file is created (HDF5: contiguous, allocated
-early; Zarr: chunks along ``sample`` that a write block covers whole), so writing a block changes data
+early; Zarr: chunks along ``sample`` that divide the write block, so a block covers whole chunks), so writing a block changes data
 only, never metadata. A block's ``complete`` flags are written after its data, so a killed writer leaves
 a cache that reads as incomplete.
 """
@@ -31,7 +31,8 @@ import numpy as np
 SCHEMA_VERSION = 1
 SUFFIXES = {".h5": "hdf5", ".hdf5": "hdf5", ".zarr": "zarr"}
 CONFIG_ATTR = "pdestream_config"
-FLAGS = ("redraws", "complete")  # int8 per-sample coordinates besides the parameters
+FLAGS = ("redraws", "complete")
+CHUNK_BYTES = 256 * 2**10  # target Zarr chunk size (see chunk_samples)  # int8 per-sample coordinates besides the parameters
 
 
 def cache_format(path) -> str:
@@ -147,12 +148,28 @@ def create_zarr(path: str, lay: Layout, block: int) -> None:
         group.create_array(name, shape=(lay.dims["sample"],), dtype=dtype, chunks=(block,), fill_value=fill,
                            dimension_names=("sample",), attributes=attrs)
     shape = tuple(lay.dims[d] for d in lay.field_dims)
+    chunk = chunk_samples(4 * int(np.prod(shape[1:])), block)
     for name, attrs in lay.fields.items():
-        # one chunk per sample: random access reads one sample; checksums catch corrupted chunks
-        group.create_array(name, shape=shape, dtype="float32", chunks=(1, *shape[1:]), fill_value=np.nan,
+        # checksums catch corrupted chunks
+        group.create_array(name, shape=shape, dtype="float32", chunks=(chunk, *shape[1:]), fill_value=np.nan,
                            compressors=ZstdCodec(level=1, checksum=True), dimension_names=lay.field_dims,
                            attributes=attrs)
     consolidate(path)
+
+
+def chunk_samples(sample_bytes: int, block: int, target: int = CHUNK_BYTES) -> int:
+    """Samples per Zarr chunk: the largest divisor of ``block`` whose chunk stays within ``target`` bytes.
+
+    Zarr spends ~1 ms of CPU per chunk written or read whatever its size, so small samples share a chunk
+    (writing then costs generation little); random reads still decode at most ~``target`` bytes. A
+    divisor of the write block keeps every block whole chunks (no read-modify-write, safe for parallel
+    writers of different blocks).
+    """
+    best = 1
+    for c in range(1, block + 1):
+        if block % c == 0 and c * sample_bytes <= target:
+            best = c
+    return best
 
 
 def consolidate(path: str) -> None:

@@ -103,14 +103,19 @@ def test_next_step_indexes_sample_start_pairs(cached, reference):
 
 
 def test_two_dimensional_two_fields(tmp_path):
-    pde = generator.get_pde("ns2d", {"n": "16", "n_frames": "3", "t_end": "1"})
-    path = tmp_path / "ns.zarr"
+    pde = generator.get_pde("grayscott2d", {"n": "16", "n_frames": "3", "t_end": "4"})
+    path = tmp_path / "gs.zarr"
     datasets.write_cache(pde, path, 3, seed=1, progress=False)
     ds = xr.open_zarr(path)
-    assert ds["vorticity"].dims == ("sample", "time", "x", "y") and "y" in ds.coords
-    u = np.asarray(generator.sample(pde, [2], 1).u[0])
+    assert list(ds.data_vars) == ["u", "v"] and ds["v"].dims == ("sample", "time", "x", "y")
+    assert {"y", "F", "k", "Du", "Dv"} <= set(ds.coords)
+    traj = generator.sample(pde, [2], 1)
+    u = np.array(traj.u[0])  # [T, C=2, 16, 16]
+    np.testing.assert_array_equal(ds["v"].values[2], u[:, 1])
     loader = datasets.CachedTrajectories(path, view="operator")
+    assert loader.param_names == ["F", "k", "Du", "Dv"]
     assert torch.equal(loader[2]["y"], torch.from_numpy(u[-1]))
+    assert loader[2]["params"].tolist() == [float(traj.params[n][0]) for n in loader.param_names]
 
 
 def _interrupted(pde, path, monkeypatch):
@@ -198,14 +203,16 @@ def test_unreadable_and_foreign_files_get_one_line_errors(cached, tmp_path):
         one_line(broken, "not a readable zarr cache")
         corrupt = tmp_path / "corrupt.zarr"
         shutil.copytree(cached, corrupt)
-        chunk = corrupt / "u" / "c" / "5" / "0" / "0"
+        per_chunk = xr.open_zarr(corrupt)["u"].encoding["chunks"][0]
+        assert per_chunk < N
+        chunk = corrupt / "u" / "c" / str((N - 1) // per_chunk) / "0" / "0"  # holds sample N - 1
         data = bytearray(chunk.read_bytes())
         data[len(data) // 2] ^= 0xFF  # one flipped byte: the zstd checksum must catch it
         chunk.write_bytes(bytes(data))
         loader = datasets.CachedTrajectories(corrupt)
-        with pytest.raises(ValueError, match="cannot read sample 5"):
-            loader[5]
-        assert torch.equal(loader[4]["u"], datasets.CachedTrajectories(cached)[4]["u"])
+        with pytest.raises(ValueError, match=f"cannot read sample {N - 1}"):
+            loader[N - 1]
+        assert torch.equal(loader[0]["u"], datasets.CachedTrajectories(cached)[0]["u"])
 
 
 def test_default_block_bounds_memory(pde):
