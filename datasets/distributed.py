@@ -71,6 +71,33 @@ def _block_task(config: dict, seed: int, path: str, lo: int, hi: int, block: int
     return lo, hi
 
 
+def _run_blocks(client, name: str, lay, path: str, todo, block: int, progress: bool) -> None:
+    """One task per (lo, hi) block; raises the first task error after cancelling the rest."""
+    from distributed import as_completed
+    from tqdm import tqdm
+
+    if progress and "dashboard" in client.scheduler_info().get("services", {}):
+        hint = "" if importlib.util.find_spec("bokeh") else " (install bokeh to see its plots)"
+        print(f"dask dashboard: {client.dashboard_link}{hint}", file=sys.stderr)
+    seed, on_blowup = lay.attrs["pdestream_seed"], lay.attrs["pdestream_on_blowup"]
+    config = json.loads(lay.attrs[schema.CONFIG_ATTR])  # tasks rebuild the PDE from it: plain data travels
+    tag = f"pdestream-{lay.attrs['pdestream_config_hash']}-s{seed}"  # readable task names on the dashboard
+    futures = [client.submit(_block_task, config, seed, path, lo, hi, block, on_blowup, key=f"{tag}-{lo}-{hi}",
+                             pure=False) for lo, hi in todo]
+    n = lay.dims["sample"]
+    bar = tqdm(total=n, initial=n - sum(hi - lo for lo, hi in todo), unit="sample", desc=f"{name} (dask)",
+               smoothing=0.1, disable=not progress or not sys.stderr.isatty())
+    try:
+        for future in as_completed(futures, loop=client.loop):
+            lo, hi = future.result()  # a task's error (e.g. generator.BlowUpError) is raised here
+            bar.update(hi - lo)
+    except BaseException:
+        client.cancel(futures)
+        raise
+    finally:
+        bar.close()
+
+
 def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | None = None, workers: int = 2,
                      resume: bool = False, overwrite: bool = False, block: int | None = None,
                      on_blowup: str = "raise", progress: bool = True) -> cache.WriteSummary:
@@ -80,9 +107,6 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
     of a running Dask scheduler; None: an embedded LocalCluster) and ``workers`` (its process count).
     ``progress``: a tqdm bar over finished blocks (on a terminal) and the dashboard address on stderr.
     """
-    from distributed import as_completed
-    from tqdm import tqdm
-
     if schema.cache_format(path) != "zarr":
         raise ValueError(f"the dask executor writes Zarr only (got {str(path)!r}): HDF5 allows one writer per file; "
                          "use a .zarr path, or --executor local for HDF5")
@@ -91,31 +115,15 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
     path, lay, block = cache.prepare(pde, path, n_samples, seed, resume, overwrite, block, on_blowup)
     start = time.perf_counter()
     store = schema.open_store(str(path), "r+")
-    if store["complete"].chunks != (block,):  # the guarantee that makes concurrent writes safe
-        raise ValueError(f"{path}: per-sample chunks {store['complete'].chunks} do not match block={block}")
+    for name in (*lay.fields, *lay.per_sample):  # blocks cover whole chunks: no two tasks share a chunk
+        if block % store[name].chunks[0]:
+            raise ValueError(f"{path}: {name} chunks {store[name].chunks} along sample do not tile block={block}")
     todo = cache.pending_blocks(store, block)
-    n = lay.dims["sample"]
-    config = json.loads(lay.attrs[schema.CONFIG_ATTR])
-    tag = f"pdestream-{lay.attrs['pdestream_config_hash']}-s{seed}"
-    with dask_client(scheduler, workers) as client:
-        if progress and "dashboard" in client.scheduler_info().get("services", {}):
-            hint = "" if importlib.util.find_spec("bokeh") else " (install bokeh to see its plots)"
-            print(f"dask dashboard: {client.dashboard_link}{hint}", file=sys.stderr)
-        futures = [client.submit(_block_task, config, int(seed), str(path), lo, hi, block, lay.attrs[
-            "pdestream_on_blowup"], key=f"{tag}-{lo}-{hi}", pure=False) for lo, hi in todo]
-        bar = tqdm(total=n, initial=n - sum(hi - lo for lo, hi in todo), unit="sample", desc=f"{pde.NAME} (dask)",
-                   smoothing=0.1, disable=not progress or not sys.stderr.isatty())
-        try:
-            for future in as_completed(futures, loop=client.loop):
-                lo, hi = future.result()  # a task's error (e.g. generator.BlowUpError) is raised here
-                bar.update(hi - lo)
-        except BaseException:
-            client.cancel(futures)
-            raise
-        finally:
-            bar.close()
+    if todo:  # a finished cache needs no cluster
+        with dask_client(scheduler, workers) as client:
+            _run_blocks(client, pde.NAME, lay, str(path), todo, block, progress)
     if not (store["complete"][:] == 1).all():
         raise RuntimeError(f"{path}: blocks missing after the Dask run (a bug)")
     schema.mark_complete(store, str(path))
     written = sum(hi - lo for lo, hi in todo)
-    return cache.WriteSummary(str(path), n, written, time.perf_counter() - start, schema.disk_bytes(path))
+    return cache.WriteSummary(str(path), lay.dims["sample"], written, time.perf_counter() - start, schema.disk_bytes(path))

@@ -106,6 +106,8 @@ def test_resume_redoes_only_missing_blocks_and_hdf5_is_refused(pde, reference, c
                             progress=False)
     assert done.written == BLOCK
     assert_same_cache(out, reference)
+    # nothing left to do: no scheduler is contacted (this address would fail after a 20 s timeout)
+    assert write_cache_dask(pde, out, N, seed=SEED, scheduler="tcp://127.0.0.1:1", resume=True).written == 0
 
 
 RANK = r"""
