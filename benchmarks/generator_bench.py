@@ -97,21 +97,30 @@ def exponax_fn(name: str, pde, batch: int):
     return lambda: run(keys).block_until_ready()
 
 
-def timed(fn) -> float:
-    t0 = time.perf_counter()
+def timed(fn, cpu: bool = False) -> float:
+    """Wall seconds of fn() (or process CPU seconds: robust when other jobs load the machine)."""
+    clock = time.process_time if cpu else time.perf_counter
+    t0 = clock()
     fn()
-    return time.perf_counter() - t0
+    return clock() - t0
 
 
 def compare(fns: dict[str, Callable], reps: int) -> dict:
-    """First-call time and median steady time of each function, runs alternating."""
+    """First-call time and median steady wall and CPU time of each function, runs alternating."""
     first = {k: timed(f) for k, f in fns.items()}
-    runs = {k: [] for k in fns}
+    wall, cpu = {k: [] for k in fns}, {k: [] for k in fns}
     for _ in range(reps):
         for k, f in fns.items():
-            runs[k].append(timed(f))
-    med = {k: statistics.median(v) for k, v in runs.items()}
-    return {k: {"first_s": first[k], "median_s": med[k], "compile_s": max(first[k] - med[k], 0.0)} for k in fns}
+            t0, c0 = time.perf_counter(), time.process_time()
+            f()
+            wall[k].append(time.perf_counter() - t0)
+            cpu[k].append(time.process_time() - c0)
+    out = {}
+    for k in fns:
+        med = statistics.median(wall[k])
+        out[k] = {"first_s": first[k], "median_s": med, "cpu_s": statistics.median(cpu[k]),
+                  "compile_s": max(first[k] - med, 0.0)}
+    return out
 
 
 def rel_l2(a, b) -> float:

@@ -67,8 +67,7 @@ def _evolve(pde: PDE, u0: jax.Array, p: Mapping[str, jax.Array], coeffs) -> jax.
     nonlinear = pde.nonlinear(grid, p)
     masked = None if nonlinear is None else (lambda v: mask * nonlinear(v))
     v0 = mask * grid.rfft(u0.astype(jnp.float32))
-    frames = rollout(v0, coeffs, masked, pde.n_frames, pde.steps_per_frame, grid.irfft)
-    return jnp.concatenate([grid.irfft(v0)[None], frames])
+    return rollout(v0, coeffs, masked, pde.n_frames, pde.steps_per_frame, grid.irfft)
 
 
 def draw_params(pde: PDE, key: jax.Array) -> dict[str, jax.Array]:

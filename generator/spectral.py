@@ -168,11 +168,18 @@ def rollout(
     steps_per_frame: int,
     to_physical: Callable[[jax.Array], jax.Array],
 ) -> jax.Array:
-    """States at frames 1..n_frames-1 (``steps_per_frame`` steps apart): [n_frames-1, *to_physical(v).shape]."""
+    """States at frames 0..n_frames-1 (``steps_per_frame`` steps apart): [n_frames, *to_physical(v0).shape].
 
-    def advance(v, _):
+    Frames go into one preallocated buffer, updated in place; under vmap it is already batch-major, so no
+    transpose or concatenation copies the trajectory afterwards.
+    """
+    first = to_physical(v0)
+    frames = jnp.zeros((n_frames, *first.shape), first.dtype)
+    frames = jax.lax.dynamic_update_index_in_dim(frames, first, 0, 0)
+
+    def advance(i, carry):
+        v, frames = carry
         v = jax.lax.fori_loop(0, steps_per_frame, lambda _, w: etdrk4_step(w, coeffs, nonlinear), v)
-        return v, to_physical(v)
+        return v, jax.lax.dynamic_update_index_in_dim(frames, to_physical(v), i, 0)
 
-    _, frames = jax.lax.scan(advance, v0, None, length=n_frames - 1)
-    return frames
+    return jax.lax.fori_loop(1, n_frames, advance, (v0, frames))[1]
