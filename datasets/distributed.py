@@ -121,9 +121,10 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
     todo = cache.pending_blocks(store, block)
     if todo:  # a finished cache needs no cluster
         with dask_client(scheduler, workers) as client:
-            _run_blocks(client, pde.NAME, lay, str(path), todo, block, progress)
+            # an absolute path: remote workers run in another directory (of a shared filesystem)
+            _run_blocks(client, pde.NAME, lay, str(path.resolve()), todo, block, progress)
     if not (store["complete"][:] == 1).all():
         raise RuntimeError(f"{path}: blocks missing after the Dask run (a bug)")
     schema.mark_complete(store, str(path))
-    written = sum(hi - lo for lo, hi in todo)
-    return cache.WriteSummary(str(path), lay.dims["sample"], written, time.perf_counter() - start, schema.disk_bytes(path))
+    written, seconds = sum(hi - lo for lo, hi in todo), time.perf_counter() - start
+    return cache.WriteSummary(str(path), lay.dims["sample"], written, seconds, schema.disk_bytes(path))
