@@ -218,6 +218,9 @@ def _fill(pde, path: Path, lay: schema.Layout, block: int, progress: bool) -> Wr
         finally:
             stop.set()
             bar.close()
+            # let a solve in flight finish (Ctrl-C waits at most one block): a JAX call torn down at
+            # interpreter exit aborts the process instead of exiting cleanly
+            worker.join()
         if not (np.asarray(store["complete"][:]) == 1).all():
             raise RuntimeError(f"{path}: blocks missing after writing (a bug)")
         schema.mark_complete(store, str(path))

@@ -88,6 +88,17 @@ def test_loader_equals_the_stream(cached, pde):
         assert torch.equal(loader[i]["u"], streamed[i][0]) and torch.equal(loader[i]["params"], streamed[i][1])
 
 
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")  # the forked workers only read files, never JAX
+def test_loader_workers_open_their_own_file(cached, reference):
+    loader = datasets.CachedTrajectories(cached, view="whole")
+    loader[0]  # the parent now holds a handle; workers must not use it
+    state = loader.__getstate__()
+    assert state["_store"] is None  # nothing open crosses a pickle (spawn)
+    batches = torch.utils.data.DataLoader(loader, batch_size=4, num_workers=2, multiprocessing_context="fork")
+    got = torch.cat([b["u"] for b in batches])
+    assert torch.equal(got, torch.from_numpy(reference[0]))
+
+
 def test_next_step_indexes_sample_start_pairs(cached, reference):
     u, _ = reference
     loader = datasets.CachedTrajectories(cached, view="next_step", k_in=2, k_out=1)

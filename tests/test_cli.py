@@ -129,3 +129,21 @@ def test_kill_9_then_resume_equals_an_uninterrupted_run(capsys, tmp_path):
     for name in ("u", "nu", "sample", "complete", "redraws"):
         np.testing.assert_array_equal(a[name].values, b[name].values)
     assert a.attrs == b.attrs
+
+
+def test_ctrl_c_leaves_an_incomplete_cache_and_one_line(tmp_path):
+    part = tmp_path / "part.h5"
+    proc = subprocess.Popen([sys.executable, "-m", "cli", "generate", *SLOW, "--out", str(part)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        flags = _complete_flags(part)
+        if flags is not None and flags.sum() >= 4:
+            break
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, "the writer finished before Ctrl-C: use a slower config"
+    assert err == "pdestream: interrupted\n"
+    ds = datasets.open_cache(part)
+    assert not is_complete(ds) and 4 <= int((ds["complete"].values == 1).sum()) < 12
