@@ -247,6 +247,9 @@ def open_cache(path, complete_only: bool = False):
             ds = xr.open_zarr(path, consolidated=True)
     except Exception as err:  # h5py / zarr / json errors of every kind: name the file, not the library
         detail = str(err).splitlines()[0] if str(err) else type(err).__name__
+        if "unable to lock file" in detail:
+            raise ValueError(f"{path} is open for writing by another process (HDF5 locks it while a "
+                             "generate runs); wait for it to finish or stop it") from None
         raise ValueError(f"{path} is not a readable {fmt} cache (truncated or corrupted?): {detail}") from None
     missing = [k for k in (schema.CONFIG_ATTR, "pdestream_n_samples", "pdestream_fields", "pdestream_params")
                if k not in ds.attrs]
