@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     pde = generator.get_pde(args.pde, {**DEFAULT, **dict(s.split("=", 1) for s in args.set)})
     block = min(args.block, n)
     print(f"{pde.NAME} n={pde.n} frames={pde.n_frames} | N={n} samples, block {block}, {repeats} repeat(s), "
-          f"{os.cpu_count()} CPUs")
+          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} (other processes skew the figures)")
     tmp = tempfile.mkdtemp(prefix="dask_bench_")
     try:
         ref = os.path.join(tmp, "local.zarr")
@@ -94,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{f'dask {k} worker(s), end-to-end':<28}{t_e2e:9.2f}{n / t_e2e:11.1f}{t_local / t_e2e:10.2f}")
         if len(rows) > 1:
             print(f"dask scaling {rows[-1][0]} vs {rows[0][0]} worker(s), steady: {rows[0][1] / rows[-1][1]:.2f}x")
+        print(f"load average at the end: {os.getloadavg()[0]:.1f}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return 0

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from distributed import Client, LocalCluster, WorkerPlugin
 
+import cli
 import generator
 from datasets import open_cache, schema, write_cache
 from datasets.distributed import _worker_env, write_cache_dask
@@ -108,6 +109,22 @@ def test_resume_redoes_only_missing_blocks_and_hdf5_is_refused(pde, reference, c
     assert_same_cache(out, reference)
     # nothing left to do: no scheduler is contacted (this address would fail after a 20 s timeout)
     assert write_cache_dask(pde, out, N, seed=SEED, scheduler="tcp://127.0.0.1:1", resume=True).written == 0
+
+
+def test_cli_dask_executor_and_its_errors(reference, cluster, tmp_path, capsys):
+    small = ["generate", "burgers1d", "--n", str(N), "--seed", str(SEED), "--block", str(BLOCK),
+             *[a for k, v in SETTINGS.items() for a in ("--set", f"{k}={v}")]]
+    out = tmp_path / "cli.zarr"
+    assert cli.main([*small, "--out", str(out), "--executor", "dask", "--scheduler", cluster.scheduler_address]) == 0
+    assert f"wrote {N} samples" in capsys.readouterr().out
+    assert_same_cache(out, reference)
+    for extra, message in ((["--out", str(tmp_path / "a.h5"), "--executor", "dask"], "one writer per file"),
+                           (["--out", str(tmp_path / "b.zarr"), "--workers", "2"], "go with --executor dask"),
+                           (["--out", str(tmp_path / "c.zarr"), "--executor", "dask", "--workers", "2",
+                             "--scheduler", "tcp://127.0.0.1:1"], "with --scheduler the cluster has its own")):
+        assert cli.main([*small, *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("pdestream: error: ") and message in err and err.count("\n") == 1, err
 
 
 RANK = r"""
