@@ -37,24 +37,32 @@ def _worker_env() -> dict:
             "XLA_FLAGS": f"{xla} {SINGLE_THREAD_XLA}".strip(), "OMP_NUM_THREADS": "1"}
 
 
+def _distributed():
+    """The dask.distributed module, or a clear error naming the optional extra."""
+    try:
+        import distributed
+    except ImportError:
+        raise ValueError("the dask executor needs dask.distributed: pip install 'pdestream[dask]'") from None
+    return distributed
+
+
 @contextmanager
 def dask_client(scheduler: str | None = None, workers: int = 2):
     """A ``distributed.Client``: to ``scheduler`` (an address such as tcp://host:8786) when given, else to
     an embedded ``LocalCluster`` of ``workers`` spawned single-threaded processes (closed on exit)."""
-    from distributed import Client, LocalCluster
-
+    dist = _distributed()
     if scheduler:
         try:
-            client = Client(scheduler, timeout="20s", set_as_default=False)
+            client = dist.Client(scheduler, timeout="20s", set_as_default=False)
         except (OSError, TimeoutError) as err:
             raise ValueError(f"cannot reach the Dask scheduler at {scheduler!r}: {err}") from None
         with client:
             yield client
         return
     # set_as_default=False: leave the caller's dask scheduler (e.g. for xarray's .compute()) untouched
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+    with dist.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                       silence_logs=logging.ERROR, env=_worker_env()) as cluster:
-        with Client(cluster, set_as_default=False) as client:
+        with dist.Client(cluster, set_as_default=False) as client:
             yield client
 
 
@@ -73,7 +81,6 @@ def _block_task(config: dict, seed: int, path: str, lo: int, hi: int, block: int
 
 def _run_blocks(client, name: str, lay, path: str, todo, block: int, progress: bool) -> None:
     """One task per (lo, hi) block; raises the first task error after cancelling the rest."""
-    from distributed import as_completed
     from tqdm import tqdm
 
     if progress and "dashboard" in client.scheduler_info().get("services", {}):
@@ -88,7 +95,7 @@ def _run_blocks(client, name: str, lay, path: str, todo, block: int, progress: b
     bar = tqdm(total=n, initial=n - sum(hi - lo for lo, hi in todo), unit="sample", desc=f"{name} (dask)",
                smoothing=0.1, disable=not progress or not sys.stderr.isatty())
     try:
-        for future in as_completed(futures, loop=client.loop):
+        for future in _distributed().as_completed(futures, loop=client.loop):
             lo, hi = future.result()  # a task's error (e.g. generator.BlowUpError) is raised here
             bar.update(hi - lo)
     except BaseException:
@@ -110,6 +117,7 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
     if schema.cache_format(path) != "zarr":
         raise ValueError(f"the dask executor writes Zarr only (got {str(path)!r}): HDF5 allows one writer per file; "
                          "use a .zarr path, or --executor local for HDF5")
+    _distributed()  # before anything is created on disk
     if not scheduler and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise ValueError(f"workers={workers!r} not allowed: need an integer >= 1")
     path, lay, block = cache.prepare(pde, path, n_samples, seed, resume, overwrite, block, on_blowup)
