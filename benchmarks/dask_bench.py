@@ -53,7 +53,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, help="timed runs per arm (default 3; quick 1)")
     ap.add_argument("--workers", default="1,2", help="worker counts to measure")
     args = ap.parse_args(argv)
-    from distributed import LocalCluster
+    try:
+        from distributed import LocalCluster
+    except ImportError:
+        print("dask benchmark not run: dask is not installed (pip install -e '.[dask]')")
+        return 0
 
     os.environ.setdefault("JAX_PLATFORMS", "cpu")
     n = args.n or (48 if args.quick else 192)
