@@ -248,7 +248,19 @@ def cmd_compare(args: argparse.Namespace) -> None:
 
 # --- bench (benchmarks) ------------------------------------------------------------------------------
 def add_bench(sub) -> None:
-    pass
+    p = sub.add_parser("bench", help="benchmarks: generator vs Exponax, stream, cache (figures, not pass/fail)",
+                       description="Run the benchmark families (python -m benchmarks): generator (pdestream vs "
+                       "Exponax, FFT floor, warm start, memory, scaling), stream, cache, dask.")
+    p.add_argument("families", nargs="*", metavar="FAMILY", help="generator, stream, cache, dask (default: all)")
+    p.add_argument("--quick", action="store_true", help="smaller, faster runs")
+    p.add_argument("--json", metavar="OUT.json", help="write the generator figures as JSON")
+    p.set_defaults(func=cmd_bench)
+
+
+def cmd_bench(args: argparse.Namespace) -> None:
+    import benchmarks.__main__ as bench
+
+    bench.run(args.families or None, args.quick, args.json)
 
 
 USER_ERRORS = (ValueError, FileExistsError, FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError)

@@ -42,7 +42,7 @@ class Case:
     overrides: dict  # get_pde overrides at the standard size (dt, t_end, n_frames give steps = n_frames - 1)
     batch: int
     exponax: Callable  # (exponax module, n, dt) -> stepper
-    stage_irffts: int  # channels our nonlinear term brings to physical space per stage (FFT floor)
+    stage_ffts: tuple[int, int]  # (irffts, rffts) of fields our nonlinear term does per stage (FFT floor)
 
 
 def _ns_bound(n: int, dt: float) -> float:
@@ -52,17 +52,17 @@ def _ns_bound(n: int, dt: float) -> float:
 CASES = {
     "burgers1d": Case(
         dict(n=1024, length=1.0, nu="0.01", dt=5e-4, t_end=0.1, n_frames=201, **{"ic.sigma": 20.0}), 64,
-        lambda ex, n, dt: ex.stepper.Burgers(1, 1.0, n, dt, diffusivity=0.01, order=4), 1),
+        lambda ex, n, dt: ex.stepper.Burgers(1, 1.0, n, dt, diffusivity=0.01, order=4), (1, 1)),
     "ks1d": Case(
         dict(n=256, length=100.0, nu="1.05", dt=0.1, t_end=20.0, n_frames=201), 64,
         lambda ex, n, dt: ex.stepper.KuramotoSivashinskyConservative(1, 100.0, n, dt, fourth_order_scale=1.05, order=4),
-        1),
+        (1, 1)),
     "ns2d": Case(
         dict(n=128, length=2 * math.pi, nu="0.01", dt=0.02, t_end=2.0, n_frames=101, forcing="kolmogorov",
              forcing_amplitude=1.0, forcing_wavenumber=4, drag=0.1, velocity_bound=_ns_bound(128, 0.02)), 16,
         lambda ex, n, dt: ex.stepper.KolmogorovFlowVorticity(
             2, 2 * math.pi, n, dt, diffusivity=0.01, drag=-0.1, injection_mode=4, injection_scale=1.0,
-            convection_scale=-1.0, order=4), 4),
+            convection_scale=-1.0, order=4), (2, 2)),
 }
 
 
@@ -143,21 +143,20 @@ def accuracy(name: str, pde) -> dict:
             "err_exponax": rel_l2(theirs, theirs_ref), "refs_agree": rel_l2(theirs_ref, ours_ref)}
 
 
-def fft_floor(name: str, pde, batch: int) -> float:
-    """Seconds for the transforms our rollout does, alone: per step 4 stages x (k irffts + 1 rfft), per frame 1 irfft."""
-    grid, k = pde.grid, CASES[name].stage_irffts
+def fft_floor_fn(name: str, pde, batch: int):
+    """The transforms our rollout does, alone: per step 4 stages x (k irffts + m rffts), per frame 1 irfft."""
+    grid, (k, m) = pde.grid, CASES[name].stage_ffts
     v0 = jnp.ones((batch, *grid.kshape), jnp.complex64)
 
     def step(v, _):
         for _stage in range(4):
             u = grid.irfft(jnp.broadcast_to(v[:, None], (batch, k, *grid.kshape)))
-            v = grid.rfft(u.sum(1) * 1e-3)  # keeps every irfft live and the values bounded
+            w = grid.rfft(jnp.broadcast_to(u.sum(1, keepdims=True) * 1e-3, (batch, m, *grid.shape)))
+            v = w.sum(1)  # keeps every transform live and the values bounded
         return v, grid.irfft(v)
 
     run = jax.jit(lambda v: jax.lax.scan(step, v, None, length=pde.n_frames - 1))
-    fn = lambda: jax.block_until_ready(run(v0))  # noqa: E731
-    fn()
-    return statistics.median(timed(fn) for _ in range(5))
+    return lambda: jax.block_until_ready(run(v0))
 
 
 def child(name: str) -> None:
@@ -165,8 +164,10 @@ def child(name: str) -> None:
     generator.enable_compilation_cache(os.environ["PDESTREAM_JAX_CACHE"])
     pde = case_pde(name)
     hwm0 = _vmhwm()
-    seconds = timed(ours_fn(pde, CASES[name].batch))
-    print(json.dumps({"first_batch_s": seconds, "peak_delta_mb": (_vmhwm() - hwm0) / 2**20}))
+    fn = ours_fn(pde, CASES[name].batch)
+    first = timed(fn)
+    peak = (_vmhwm() - hwm0) / 2**20
+    print(json.dumps({"first_batch_s": first, "second_batch_s": timed(fn), "peak_delta_mb": peak}))
 
 
 def _vmhwm() -> int:
@@ -183,24 +184,29 @@ def second_process(name: str) -> dict:
             res = subprocess.run([sys.executable, "-m", "benchmarks.generator_bench", "--child", name],
                                  env=env, capture_output=True, text=True, check=True)
             out[label] = json.loads(res.stdout.strip().splitlines()[-1])
-    return {"first_batch_cold_s": out["cold"]["first_batch_s"], "first_batch_warm_s": out["warm"]["first_batch_s"],
-            "peak_delta_mb": out["warm"]["peak_delta_mb"]}
+    warm = out["warm"]
+    return {"first_batch_cold_s": out["cold"]["first_batch_s"], "first_batch_warm_s": warm["first_batch_s"],
+            "warm_start_overhead_s": warm["first_batch_s"] - warm["second_batch_s"], "peak_delta_mb": warm["peak_delta_mb"]}
 
 
 def bench_case(name: str, reps: int, scaling: bool) -> dict:
     case, pde = CASES[name], case_pde(name)
     steps, batch = pde.n_frames - 1, case.batch
-    t = compare({"ours": ours_fn(pde, batch), "exponax": exponax_fn(name, pde, batch)}, reps)
+    fns = {"ours": ours_fn(pde, batch), "exponax": exponax_fn(name, pde, batch), "floor": fft_floor_fn(name, pde, batch)}
+    t = compare(fns, reps)
     row = {"pde": name, "n": pde.n, "batch": batch, "steps": steps, "dt": pde.step_dt}
     for side in ("ours", "exponax"):
         row[f"{side}_traj_s"] = batch / t[side]["median_s"]
         row[f"{side}_frames_s"] = batch * pde.n_frames / t[side]["median_s"]
+        row[f"{side}_cpu_traj_s"] = batch / t[side]["cpu_s"]
         row[f"{side}_compile_s"] = t[side]["compile_s"]
     row["ratio"] = row["ours_traj_s"] / row["exponax_traj_s"]
+    row["cpu_ratio"] = row["ours_cpu_traj_s"] / row["exponax_cpu_traj_s"]
     row.update(accuracy(name, pde))
     row["step_us"] = t["ours"]["median_s"] / (batch * steps) * 1e6
-    row["floor_us"] = fft_floor(name, pde, batch) / (batch * steps) * 1e6
+    row["floor_us"] = t["floor"]["median_s"] / (batch * steps) * 1e6
     row["step_over_floor"] = row["step_us"] / row["floor_us"]
+    row["cpu_step_over_floor"] = t["ours"]["cpu_s"] / t["floor"]["cpu_s"]
     row["bytes_per_traj"] = pde.n_frames * len(pde.FIELDS) * pde.n**pde.NDIM * 4
     row.update(second_process(name))
     if scaling:
@@ -222,20 +228,24 @@ def scale_runs(name: str, grid: list[tuple[int, int]], reps: int, steps: int = 5
 
 
 def print_table(rows: list[dict]) -> None:
-    head = (f"{'pde':10} {'N':>5} {'B':>3} {'ours traj/s':>11} {'exponax':>9} {'ratio':>6} {'frames/s':>9} "
-            f"{'compile s (ours/ex)':>19} {'agree':>8} {'err ours':>9} {'err ex':>9} {'step us':>8} {'floor us':>8} "
-            f"{'x floor':>7} {'warm 1st s':>10} {'peak MB':>8}")
-    print(head)
+    print(f"{'pde':10} {'N':>5} {'B':>3} {'steps':>5} | {'traj/s ours':>11} {'exponax':>8} {'ratio':>6} | "
+          f"{'CPU-s ratio':>11} | {'frames/s':>9} | {'compile s ours/ex':>17}")
     for r in rows:
-        print(f"{r['pde']:10} {r['n']:5d} {r['batch']:3d} {r['ours_traj_s']:11.1f} {r['exponax_traj_s']:9.1f} "
-              f"{r['ratio']:6.2f} {r['ours_frames_s']:9.0f} {r['ours_compile_s']:9.2f}/{r['exponax_compile_s']:<9.2f} "
-              f"{r['agree']:8.1e} {r['err_ours']:9.1e} {r['err_exponax']:9.1e} {r['step_us']:8.2f} {r['floor_us']:8.2f} "
-              f"{r['step_over_floor']:7.2f} {r['first_batch_warm_s']:10.2f} {r['peak_delta_mb']:8.0f}")
+        print(f"{r['pde']:10} {r['n']:5d} {r['batch']:3d} {r['steps']:5d} | {r['ours_traj_s']:11.1f} "
+              f"{r['exponax_traj_s']:8.1f} {r['ratio']:6.2f} | {r['cpu_ratio']:11.2f} | {r['ours_frames_s']:9.0f} | "
+              f"{r['ours_compile_s']:8.2f}/{r['exponax_compile_s']:<8.2f}")
+    print(f"\n{'pde':10} | {'agree':>7} {'err ours':>8} {'err ex':>8} {'refs':>7} | {'step us':>8} {'floor us':>8} "
+          f"{'x floor':>7} {'(CPU)':>6} | {'1st batch cold/warm s':>21} {'warm overhead s':>15} | {'peak MB':>7} {'MB/traj':>7}")
+    for r in rows:
+        print(f"{r['pde']:10} | {r['agree']:7.1e} {r['err_ours']:8.1e} {r['err_exponax']:8.1e} {r['refs_agree']:7.1e} | "
+              f"{r['step_us']:8.2f} {r['floor_us']:8.2f} {r['step_over_floor']:7.2f} {r['cpu_step_over_floor']:6.2f} | "
+              f"{r['first_batch_cold_s']:10.2f}/{r['first_batch_warm_s']:<10.2f} {r['warm_start_overhead_s']:15.2f} | "
+              f"{r['peak_delta_mb']:7.0f} {r['bytes_per_traj'] / 2**20:7.2f}")
     for r in rows:
         for key in ("resolution", "batch_sizes"):
             if key in r:
-                print(f"{r['pde']} {key}: " + "  ".join(
-                    f"N={s['n']} B={s['batch']}: {s['ours_us']:.2f}/{s['exponax_us']:.2f} us ({s['ratio']:.2f}x)"
+                print(f"{r['pde']} {key} (us/step/sample ours/exponax): " + "  ".join(
+                    f"N={s['n']} B={s['batch']}: {s['ours_us']:.1f}/{s['exponax_us']:.1f} ({s['ratio']:.2f}x)"
                     for s in r[key]))
 
 
@@ -259,7 +269,10 @@ def main(argv: list[str] | None = None) -> int:
     for name in names:
         rows.append(bench_case(name, reps, scaling=not args.quick))
         print(f"[{name} done]", file=sys.stderr, flush=True)
-    print(f"jax {jax.__version__}, {os.cpu_count()} CPU cores, float32; us = per step per sample; ratio = ours/exponax")
+    print(f"jax {jax.__version__}, {os.cpu_count()} CPU cores, float32, medians of {reps} alternating runs; ratio = "
+          "ours/exponax throughput (wall; CPU-s: process CPU time, robust to other load); agree/err: rel. L2 over the "
+          "trajectory (ours vs exponax; each vs its own solver at dt/8; refs: the two dt/8 solutions); floor: the "
+          "step's FFTs alone; warm overhead: first minus second batch in a fresh process with a warm cache")
     print_table(rows)
     if args.json:
         with open(args.json, "w") as f:
