@@ -26,16 +26,12 @@ def configure_jax() -> None:
     """Set JAX's process options; call before JAX computes anything (safe to call repeatedly)."""
     # Must be in the environment before the JAX backend starts: 75% GPU preallocation would starve torch.
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
-    import jax
+    import generator
 
-    cache = jax_cache_dir()
     try:
-        cache.mkdir(parents=True, exist_ok=True, mode=0o700)
+        generator.enable_compilation_cache(jax_cache_dir())
     except OSError:
-        return  # a read-only home only costs recompilation
-    jax.config.update("jax_compilation_cache_dir", str(cache))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+        pass  # a read-only home only costs recompilation
 
 
 def to_torch(x):
