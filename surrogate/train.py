@@ -105,7 +105,11 @@ def make_schedule(opt: torch.optim.Optimizer, name: str, steps: int, lr: float):
 
 
 def forever(loader):
-    """Batches from ``loader``, starting a new epoch whenever a finite loader runs out."""
+    """Batches from ``loader``, iterating it again whenever a finite loader runs out.
+
+    The loader owns its epochs: a finite TrajectoryStream / StreamLoader starts the next epoch itself when one
+    ends, and a shuffling DataLoader reshuffles on each new iteration, so nothing is advanced here.
+    """
     while True:
         empty = True
         for batch in loader:
@@ -113,8 +117,6 @@ def forever(loader):
             yield batch
         if empty:
             raise ValueError("the data loader yielded no batches (empty dataset?)")
-        if hasattr(loader, "dataset") and hasattr(loader.dataset, "set_epoch"):
-            loader.dataset.set_epoch(getattr(loader.dataset, "epoch", 0) + 1)
 
 
 def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, schedule: str = "cosine",

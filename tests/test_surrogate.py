@@ -109,6 +109,50 @@ def test_normalizer_from_batch_matches_torch_statistics():
     assert torch.allclose(norm.denorm(norm.norm(batch["x"], 1), 1), batch["x"], atol=1e-5)
 
 
+class Recording:
+    """A loader wrapper that records each batch's sample indices (and still exposes ``.dataset``)."""
+
+    def __init__(self, loader):
+        self.loader, self.dataset, self.seen = loader, loader.dataset, []
+
+    def __iter__(self):
+        for batch in self.loader:
+            self.seen.append(batch["index"].tolist())
+            yield batch
+
+
+def _tiny_pde():
+    import generator
+
+    return generator.get_pde("burgers1d", {"n": "32", "n_frames": "6", "t_end": "0.2"})
+
+
+def test_training_on_a_finite_stream_skips_no_epoch(tmp_path):
+    # n_samples=2, one batch per epoch: epoch e must give samples 2e, 2e+1 (the loader owns the epochs)
+    import datasets
+
+    stream = datasets.TrajectoryStream(_tiny_pde(), seed=0, view="operator", batch_size=2, n_samples=2,
+                                       solve_batch=2, shuffle=False)
+    loader = Recording(datasets.stream_loader(stream))
+    model = build_model("fno", 1, 1, 1, 1, width=8, modes=4, layers=2)
+    train(model, loader, 4, tmp_path, log_every=1)
+    assert loader.seen == [[0, 1], [2, 3], [4, 5], [6, 7]]
+
+
+def test_training_on_a_cache_reshuffles_each_epoch(tmp_path):
+    import datasets
+    from surrogate.data import train_loader
+
+    pde = _tiny_pde()
+    datasets.write_cache(pde, tmp_path / "c.h5", 4, seed=0, progress=False)
+    loader, _ = train_loader(pde, str(tmp_path / "c.h5"), datasets.make_view("operator"), batch_size=4, seed=0)
+    loader = Recording(loader)
+    model = build_model("fno", 1, 1, 1, 1, width=8, modes=4, layers=2)
+    train(model, loader, 4, tmp_path / "run", log_every=1)
+    assert all(sorted(epoch) == [0, 1, 2, 3] for epoch in loader.seen)  # one epoch per batch, every sample
+    assert len({tuple(epoch) for epoch in loader.seen}) > 1  # a new order each epoch
+
+
 TINY = ["--set", "n=32", "--set", "n_frames=6", "--set", "t_end=0.2"]
 TINY_MODEL = ["--model-set", "width=8", "--model-set", "modes=4", "--model-set", "layers=2"]
 
