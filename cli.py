@@ -42,14 +42,13 @@ def pde_from_args(name: str, args: argparse.Namespace):
             raise ValueError(f"cannot read config {args.config}: {err.strerror}") from None
         except tomllib.TOMLDecodeError as err:
             raise ValueError(f"config {args.config} is not valid TOML: {err}") from None
-        data = data.get("pde", data)
-        name = data.pop("name", data.pop("pde", name)) if name is None else name
-        ic = data.pop("ic", None)
-        if isinstance(ic, dict):
-            settings["ic"] = ic
-        elif ic is not None:
-            settings["ic"] = ic
-        settings.update(data)
+        # either a [pde] table (with name = NAME) or top-level keys (with pde = NAME)
+        table = dict(data["pde"]) if isinstance(data.get("pde"), dict) else dict(data)
+        file_name = table.pop("name", None) or (table.pop("pde") if isinstance(table.get("pde"), str) else None)
+        if name and file_name and name != file_name:
+            raise ValueError(f"the command names PDE {name!r} but config {args.config} is for {file_name!r}")
+        name = name or file_name
+        settings.update(table)
     settings.update(_parse_sets(getattr(args, "set", None)))
     if name is None:
         raise ValueError("no PDE named: give one (see `pdestream list`) or a config with pde = NAME")

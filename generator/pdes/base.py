@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Mapping
 
 import jax
+import numpy as np
 
 from ..domains import Domain, parse_domain
 from ..ics import IC_KINDS
@@ -93,10 +94,8 @@ class PDE:
         """The internal step actually taken: frame_dt / steps_per_frame (<= dt and <= stable_dt)."""
         return self.frame_dt / self.steps_per_frame
 
-    def times(self):
+    def times(self) -> np.ndarray:
         """Frame times, float32 [n_frames]."""
-        import numpy as np
-
         return np.linspace(0.0, self.t_end, self.n_frames).astype(np.float32)
 
     # --- validation and configuration --------------------------------------------------------------
@@ -213,7 +212,9 @@ def make_ic(value: Any):
 def _coerce(name: str, value: Any, current: Any) -> Any:
     """Convert a (possibly string) override to the type of the field's current value."""
     if not isinstance(value, str):
-        return value
+        if value is None or isinstance(value, (bool, int, float)):
+            return value
+        raise ValueError(f"bad value for {name}: {value!r} is not a {type(current or 0.0).__name__}")
     text = value.strip()
     try:
         if isinstance(current, bool):

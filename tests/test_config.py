@@ -1,0 +1,42 @@
+"""PDE settings from TOML files and --set, as the CLI reads them (cli.pde_from_args)."""
+
+import argparse
+
+import pytest
+
+import cli
+import generator as g
+
+
+def args_for(tmp_path, text, sets=()):
+    path = tmp_path / "pde.toml"
+    path.write_text(text)
+    return argparse.Namespace(config=str(path), set=list(sets))
+
+
+def test_a_pde_table_and_top_level_keys_mean_the_same(tmp_path):
+    table = cli.pde_from_args(None, args_for(tmp_path, '[pde]\nname = "ns2d"\nn = 32\nnu = "uniform(0.01, 0.02)"\n'
+                                                      'ic = {kind = "grf", alpha = 3.0}\n'))
+    top = cli.pde_from_args(None, args_for(tmp_path, 'pde = "ns2d"\nn = 32\nnu = "uniform(0.01, 0.02)"\n'
+                                                    '[ic]\nkind = "grf"\nalpha = 3.0\n'))
+    assert table == top == g.get_pde("ns2d", n=32, nu="uniform(0.01, 0.02)", ic={"kind": "grf", "alpha": 3.0})
+
+
+def test_set_overrides_the_file(tmp_path):
+    pde = cli.pde_from_args("burgers1d", args_for(tmp_path, "n = 64\nnu = 0.05\n", ["nu=0.02", "ic.tau=7"]))
+    assert pde.n == 64 and str(pde.nu) == "0.02" and pde.ic.tau == 7.0
+
+
+@pytest.mark.parametrize("text, words", [
+    ('pde = "burgers1d"\nlength = [1]\n', ["length", "[1]"]),
+    ('pde = "burgers1d"\nic = {kind = "grf", sigma = [1, 2]}\n', ["ic.sigma", "[1, 2]"]),
+    ('pde = "ns2d"\n', ["burgers1d", "ns2d"]),
+    ("n = 64\n", ["no PDE named"]),
+    ("n = \n", ["not valid TOML"]),
+])
+def test_bad_config_files_give_one_clear_error(tmp_path, text, words):
+    name = "burgers1d" if "ns2d" in text else None
+    with pytest.raises(ValueError) as err:
+        cli.pde_from_args(name, args_for(tmp_path, text))
+    for word in words:
+        assert word in str(err.value)
