@@ -85,12 +85,16 @@ def test_new_parameters_never_recompile():
 
 
 def test_grf_has_the_declared_pointwise_variance():
-    ic = g.GaussianRandomField(sigma=2.0, tau=3.0, alpha=2.0, zero_mean=False)
+    sigma, tau, alpha, length = 2.0, 3.0, 2.0, 1.0
+    ic = g.GaussianRandomField(sigma=sigma, tau=tau, alpha=alpha, zero_mean=False)
     for ndim, n in ((1, 64), (2, 16)):
-        grid = g.Grid(ndim, n, 1.0)
+        grid = g.Grid(ndim, n, length)
         keys = jax.random.split(jax.random.key(0), 4000 // n ** (ndim - 1))
         u = np.asarray(jax.vmap(lambda k: ic.sample(k, grid, 1))(keys), np.float64)
-        expected = ic.pointwise_std(grid) ** 2  # sum_k lambda_k / L^d over the retained modes
+        # closed form: Var u(x) = sum over retained modes m of sigma^2 (|2 pi m / L|^2 + tau^2)^-alpha / L^d
+        m = np.arange(-(n // 3), n // 3 + 1)
+        m2 = sum(x**2 for x in np.meshgrid(*([m] * ndim), indexing="ij"))
+        expected = (sigma**2 * ((2 * np.pi / length) ** 2 * m2 + tau**2) ** -alpha).sum() / length**ndim
         # ~4000 x n correlated draws: a few percent of sampling error
         assert abs(u.var() / expected - 1) < 0.1, (ndim, u.var(), expected)
 

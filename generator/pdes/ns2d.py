@@ -90,7 +90,6 @@ class NS2D(PDE):
     def derived_velocity_bound(self) -> float:
         """max |velocity| assumed by the CFL rule when velocity_bound is unset (length/time)."""
         grid = self.grid
-        ic_velocity = 0.0
         if hasattr(self.ic, "eigenvalues"):  # a GRF vorticity: velocity variance is sum lambda_k / |k|^2 / L^2
             lam = self.ic.eigenvalues(grid, full=True)
             m = np.fft.fftfreq(grid.n, 1.0 / grid.n)
