@@ -1,4 +1,9 @@
-"""Normalization statistics from a calibration draw: per-field mean/std of u, per-parameter mean/std."""
+"""Normalization statistics: per-field mean/std of u, per-parameter mean/std.
+
+One accumulator (``Moments``, float64 sums) serves every source: a stream's calibration draw
+(``compute_normalization``), a cache's stored samples (``CachedTrajectories.normalization``) and, as a
+fallback for other loaders, one batch (``Normalization.from_batch``).
+"""
 
 from __future__ import annotations
 
@@ -25,6 +30,7 @@ class Normalization:
     params_mean: torch.Tensor
     params_std: torch.Tensor
     ndim: int
+    samples: int = 0  # trajectories the statistics came from (0: unknown)
 
     def _shape(self, stat: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
         return stat.to(like.device, like.dtype).reshape(-1, *([1] * self.ndim))
@@ -44,6 +50,18 @@ class Normalization:
         return {k: (v.tolist() if isinstance(v, torch.Tensor) else v) for k, v in self.__dict__.items()}
 
     @classmethod
+    def from_batch(cls, batch: dict, ndim: int, fields=None, params=None) -> "Normalization":
+        """Statistics of one batch dict (a fallback for sources without their own): fields over "x" and "y"
+        (or "u"), [..., C, *space]; parameters over "params" [B, P]. Names default to field0.., param0.."""
+        moments = Moments(ndim)
+        for key in ("x", "y") if "x" in batch else ("u",):
+            moments.add(batch[key])
+        moments.add(params=batch["params"])
+        c, p = batch["x" if "x" in batch else "u"].shape[-ndim - 1], batch["params"].shape[-1]
+        n = len(torch.unique(batch["index"])) if "index" in batch else len(batch["params"])
+        return moments.result(fields or [f"field{i}" for i in range(c)], params or [f"param{i}" for i in range(p)], n)
+
+    @classmethod
     def from_dict(cls, d: dict) -> "Normalization":
         tensors = ("mean", "std", "params_mean", "params_std")
         return cls(**{k: (torch.tensor(v, dtype=torch.float32) if k in tensors else
@@ -55,6 +73,36 @@ def _safe_std(var: torch.Tensor) -> torch.Tensor:
     return torch.where(std > 1e-12, std, torch.ones_like(std))  # a constant field is left unscaled
 
 
+class Moments:
+    """Float64 running sums of u and u^2 per field and of p and p^2 per parameter (the one place that
+    accumulates normalization statistics: calibration draws, caches and single batches)."""
+
+    def __init__(self, ndim: int):
+        self.ndim = ndim
+        self.s1 = self.s2 = self.p1 = self.p2 = 0
+        self.count = self.n_params = 0
+
+    def add(self, u: torch.Tensor | None = None, params: torch.Tensor | None = None) -> None:
+        """u: [..., C, *space] (any leading axes); params: [B, P]."""
+        if u is not None:
+            u = u.double().movedim(-self.ndim - 1, 0).flatten(1)  # [C, N]
+            self.s1, self.s2, self.count = self.s1 + u.sum(1), self.s2 + (u * u).sum(1), self.count + u.shape[1]
+        if params is not None:
+            p = params.double()
+            self.p1, self.p2, self.n_params = self.p1 + p.sum(0), self.p2 + (p * p).sum(0), self.n_params + len(p)
+
+    def result(self, fields, params, samples: int = 0) -> Normalization:
+        """Population mean/std (std floored to 1 where ~0) as float32 Normalization."""
+        if not self.count or not self.n_params:
+            raise ValueError("no data to compute normalization statistics from (empty draw or batch)")
+        mean, pmean = self.s1 / self.count, self.p1 / self.n_params
+        return Normalization(
+            fields=tuple(fields), mean=mean.float(), std=_safe_std(self.s2 / self.count - mean**2).float(),
+            params=tuple(params), params_mean=pmean.float(),
+            params_std=_safe_std(self.p2 / self.n_params - pmean**2).float(), ndim=self.ndim, samples=int(samples),
+        )
+
+
 def compute_normalization(pde, seed: int = 0, n: int = 64, solve_batch: int = 16) -> Normalization:
     """Statistics over samples 0..n-1 of (pde, seed), all frames and grid points; float64 accumulation."""
     pde = _bridge.resolve_pde(pde)
@@ -62,17 +110,9 @@ def compute_normalization(pde, seed: int = 0, n: int = 64, solve_batch: int = 16
         raise ValueError(f"n={n!r} not allowed; the calibration draw needs an integer n >= 1")
     if isinstance(solve_batch, bool) or not isinstance(solve_batch, (int, np.integer)) or solve_batch < 1:
         raise ValueError(f"solve_batch={solve_batch!r} not allowed; must be an integer >= 1")
-    total = s1 = s2 = p1 = p2 = 0
+    moments = Moments(pde.NDIM)
     for lo in range(0, n, solve_batch):
         indices = np.arange(lo, min(lo + solve_batch, n))
         data = _bridge.sample_tensors(pde, np.resize(indices, solve_batch), seed)
-        u = data["u"][: len(indices)].double().transpose(0, 2).flatten(1)  # [C, B*T*space]
-        p = data["params"][: len(indices)].double()  # [B, P]
-        s1, s2, total = s1 + u.sum(1), s2 + (u * u).sum(1), total + u.shape[1]
-        p1, p2 = p1 + p.sum(0), p2 + (p * p).sum(0)
-    mean, pmean = s1 / total, p1 / n
-    return Normalization(
-        fields=tuple(pde.FIELDS), mean=mean.float(), std=_safe_std(s2 / total - mean**2).float(),
-        params=tuple(pde.PARAMS), params_mean=pmean.float(), params_std=_safe_std(p2 / n - pmean**2).float(),
-        ndim=pde.NDIM,
-    )
+        moments.add(data["u"][: len(indices)], data["params"][: len(indices)])  # [B, T, C, *space], [B, P]
+    return moments.result(pde.FIELDS, pde.PARAMS, samples=n)

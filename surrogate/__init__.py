@@ -9,8 +9,8 @@
 
 from .fno import FNO, FNOConfig
 from .models import MODELS, build_model, model_spec
-from .train import Normalizer, load_checkpoint
+from .train import load_checkpoint
 from .unet import UNet, UNetConfig
 
-__all__ = ["FNO", "FNOConfig", "MODELS", "Normalizer", "UNet", "UNetConfig", "build_model", "load_checkpoint",
+__all__ = ["FNO", "FNOConfig", "MODELS", "UNet", "UNetConfig", "build_model", "load_checkpoint",
            "model_spec"]

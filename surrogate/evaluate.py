@@ -12,7 +12,9 @@ from torch import nn
 from datasets.views import NextStep, Operator, collate, examples
 
 from .metrics import nrmse, rel_l2, summarize
-from .train import Normalizer, predict
+from datasets.normalize import Normalization
+
+from .train import predict
 
 
 def pairs(view, batch: dict) -> dict:
@@ -30,7 +32,7 @@ def pairs(view, batch: dict) -> dict:
 
 
 @torch.no_grad()
-def evaluate(model: nn.Module, norm: Normalizer, test: list[dict], view, chunk: int = 256) -> dict:
+def evaluate(model: nn.Module, norm: Normalization, test: list[dict], view, chunk: int = 256) -> dict:
     """Mean relative L2 and nRMSE (PDEBench) over every pair of the test trajectories, physical units."""
     model.eval()
     errors = {"rel_l2": [], "nrmse": []}
@@ -46,7 +48,7 @@ def evaluate(model: nn.Module, norm: Normalizer, test: list[dict], view, chunk: 
 
 
 @torch.no_grad()
-def rollout(model: nn.Module, norm: Normalizer, u0: torch.Tensor, params: torch.Tensor, n_frames: int) -> torch.Tensor:
+def rollout(model: nn.Module, norm: Normalization, u0: torch.Tensor, params: torch.Tensor, n_frames: int) -> torch.Tensor:
     """Feed predictions back, in normalized units: u0 [B, k_in, C, *space] -> [B, n_frames, C, *space]."""
     k_in, frames, done = u0.shape[1], [], 0
     window = u0
@@ -60,7 +62,7 @@ def rollout(model: nn.Module, norm: Normalizer, u0: torch.Tensor, params: torch.
 
 
 @torch.no_grad()
-def rollout_error(model: nn.Module, norm: Normalizer, test: list[dict], k_in: int, horizon: int | None = None) -> list[float]:
+def rollout_error(model: nn.Module, norm: Normalization, test: list[dict], k_in: int, horizon: int | None = None) -> list[float]:
     """Relative L2 per predicted frame (mean over test trajectories), rolling out from the first k_in frames.
 
     horizon: frames to predict (default: the rest of the trajectory).
@@ -73,8 +75,8 @@ def rollout_error(model: nn.Module, norm: Normalizer, test: list[dict], k_in: in
         h = u.shape[1] - k_in if horizon is None else horizon
         if not 1 <= h <= u.shape[1] - k_in:
             raise ValueError(f"rollout horizon={h} not allowed; must be in 1..{u.shape[1] - k_in} for {u.shape[1]} frames")
-        pred = rollout(model, norm, norm.norm(u[:, :k_in], ndim), norm.params(batch["params"]), h)
-        pred = norm.denorm(pred, ndim)  # [B, h, C, *space]
+        pred = rollout(model, norm, norm.normalize(u[:, :k_in]), norm.normalize_params(batch["params"]), h)
+        pred = norm.denormalize(pred)  # [B, h, C, *space]
         truth = u[:, k_in:k_in + h]
         per_frame.append(torch.stack([rel_l2(pred[:, j], truth[:, j]) for j in range(h)], dim=1))  # [B, h]
     model.train()

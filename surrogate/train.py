@@ -2,8 +2,9 @@
 
 A batch is {"x": [B, k_in, C, *space] or [B, C, *space], "y": same layout with k_out frames, "params": [B, P],
 "index": [B], ...}. Frames are stacked into channels for the model ([B, k*C, *space]); fields and
-parameters are normalized by a ``Normalizer`` (per-field / per-parameter mean and std) taken from the data
-source when it offers one, else from the first training batch. The loss is the MSE in normalized units.
+parameters are normalized by a ``datasets.Normalization`` (per-field / per-parameter mean and std) taken from the
+data source when it offers one (a stream's calibration draw, a cache's stored samples), else from the first
+training batch. The loss is the MSE in normalized units.
 
 The run directory gets ``metrics.csv`` (one row per log step), ``metrics.json`` (summary) and ``model.pt``
 (state dicts and plain dicts only: ``torch.load(path, weights_only=True)`` works).
@@ -16,7 +17,6 @@ import json
 import math
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -24,63 +24,16 @@ import torch.nn.functional as F
 from torch import nn
 from tqdm import tqdm
 
+from datasets.normalize import Normalization
+
 from .models import build_model, model_spec
 
 
-@dataclass
-class Normalizer:
-    """Per-field mean/std ([C]) and per-parameter mean/std ([P]); std is floored so constants stay finite."""
-
-    mean: torch.Tensor
-    std: torch.Tensor
-    p_mean: torch.Tensor
-    p_std: torch.Tensor
-
-    @classmethod
-    def from_batch(cls, batch: dict, ndim: int) -> "Normalizer":
-        """Statistics of one batch: fields over x and y ([..., C, *space]), parameters over params [B, P]."""
-        fields = torch.cat([_fields_last(batch["x"], ndim), _fields_last(batch["y"], ndim)])  # [N, C]
-        params = batch["params"].double()  # [B, P]
-        return cls(fields.mean(0).float(), _floor(fields.std(0)).float(),
-                   params.mean(0).float(), _floor(params.std(0) if len(params) > 1 else torch.zeros(params.shape[1])).float())
-
-    @classmethod
-    def from_source(cls, loader) -> "Normalizer | None":
-        """The data source's own statistics (e.g. TrajectoryStream.normalization()), or None if it has none."""
-        source = getattr(loader, "dataset", loader)
-        if not hasattr(source, "normalization"):
-            return None
-        n = source.normalization()
-        return cls(n.mean, n.std, n.params_mean, n.params_std)
-
-    @classmethod
-    def from_state(cls, state: dict) -> "Normalizer":
-        return cls(**{k: torch.as_tensor(v, dtype=torch.float32) for k, v in state.items()})
-
-    def state(self) -> dict:
-        return {"mean": self.mean, "std": self.std, "p_mean": self.p_mean, "p_std": self.p_std}
-
-    def _shape(self, v: torch.Tensor, ndim: int) -> torch.Tensor:
-        return v.reshape(-1, *([1] * ndim))  # [C, 1, ...] broadcasts over [..., C, *space]
-
-    def norm(self, u: torch.Tensor, ndim: int) -> torch.Tensor:
-        return (u - self._shape(self.mean, ndim)) / self._shape(self.std, ndim)
-
-    def denorm(self, u: torch.Tensor, ndim: int) -> torch.Tensor:
-        return u * self._shape(self.std, ndim) + self._shape(self.mean, ndim)
-
-    def params(self, p: torch.Tensor) -> torch.Tensor:
-        return (p - self.p_mean) / self.p_std  # [B, P]
-
-
-def _fields_last(u: torch.Tensor, ndim: int) -> torch.Tensor:
-    """[..., C, *space] -> [N, C] in float64 (for accurate statistics)."""
-    c = u.shape[-ndim - 1]
-    return u.double().movedim(-ndim - 1, -1).reshape(-1, c)
-
-
-def _floor(std: torch.Tensor) -> torch.Tensor:
-    return torch.where(std > 1e-8, std, torch.ones_like(std))  # a fixed parameter or constant field: scale 1
+def source_normalization(loader) -> Normalization | None:
+    """The data source's own statistics over its data (TrajectoryStream / CachedTrajectories
+    ``.normalization()``), or None if it has none."""
+    source = getattr(loader, "dataset", loader)
+    return source.normalization() if hasattr(source, "normalization") else None
 
 
 def stack_frames(u: torch.Tensor, ndim: int) -> torch.Tensor:
@@ -88,11 +41,11 @@ def stack_frames(u: torch.Tensor, ndim: int) -> torch.Tensor:
     return u.flatten(1, u.ndim - ndim - 1)
 
 
-def predict(model: nn.Module, norm: Normalizer, x: torch.Tensor, params: torch.Tensor, ndim: int,
+def predict(model: nn.Module, norm: Normalization, x: torch.Tensor, params: torch.Tensor, ndim: int,
             y_shape: torch.Size) -> torch.Tensor:
     """Physical-unit prediction in the target's layout y_shape ([B, k_out, C, *space] or [B, C, *space])."""
-    out = model(stack_frames(norm.norm(x, ndim), ndim), norm.params(params))  # [B, k_out*C, *space]
-    return norm.denorm(out.reshape(y_shape), ndim)
+    out = model(stack_frames(norm.normalize(x), ndim), norm.normalize_params(params))  # [B, k_out*C, *space]
+    return norm.denormalize(out.reshape(y_shape))
 
 
 def make_schedule(opt: torch.optim.Optimizer, name: str, steps: int, lr: float):
@@ -120,7 +73,7 @@ def forever(loader):
 
 
 def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, schedule: str = "cosine",
-          normalizer: Normalizer | None = None, log_every: int = 10, meta: dict | None = None,
+          normalizer: Normalization | None = None, log_every: int = 10, meta: dict | None = None,
           label: str = "train") -> dict:
     """Train ``model`` for ``steps`` optimizer steps on batches from ``loader``; returns the summary dict.
 
@@ -143,18 +96,18 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
     bar = tqdm(total=steps, desc=label, disable=not sys.stderr.isatty(), leave=False)
     start = time.perf_counter()
     if normalizer is None:
-        normalizer = Normalizer.from_source(loader)
-        t_data += time.perf_counter() - start  # a calibration draw is data time
+        normalizer = source_normalization(loader)
+        t_data += time.perf_counter() - start  # a calibration draw (or reading a cache for it) is data time
     model.train()
     for step in range(1, steps + 1):
         t0 = time.perf_counter()
         batch = next(batches)
         t1 = time.perf_counter()
         if normalizer is None:  # the data source offers none: calibrate on the first batch
-            normalizer = Normalizer.from_batch(batch, ndim)
+            normalizer = Normalization.from_batch(batch, ndim)
         x, y = batch["x"], batch["y"]  # [B, (k,) C, *space]
-        target = stack_frames(normalizer.norm(y, ndim), ndim)  # [B, k_out*C, *space]
-        pred = model(stack_frames(normalizer.norm(x, ndim), ndim), normalizer.params(batch["params"]))
+        target = stack_frames(normalizer.normalize(y), ndim)  # [B, k_out*C, *space]
+        pred = model(stack_frames(normalizer.normalize(x), ndim), normalizer.normalize_params(batch["params"]))
         loss = F.mse_loss(pred, target)
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -177,7 +130,7 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
     summary = {"label": label, "steps": steps, "final_loss": rows[-1]["loss"], "examples_seen": examples,
                "trajectories_seen": len(trajectories), "t_data": t_data, "t_compute": t_compute,
                "wall": time.perf_counter() - start, "data_share": t_data / max(t_data + t_compute, 1e-12),
-               "model": model_spec(model), "lr": lr, "schedule": schedule, **(meta or {})}
+               "normalization_samples": normalizer.samples, "model": model_spec(model), "lr": lr, "schedule": schedule, **(meta or {})}
     with open(out / "metrics.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
@@ -189,17 +142,19 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
     return summary
 
 
-def save_checkpoint(path, model: nn.Module, normalizer: Normalizer, step: int, meta: dict | None = None) -> None:
+def save_checkpoint(path, model: nn.Module, normalizer: Normalization, step: int, meta: dict | None = None) -> None:
     """State dict + plain dicts only, so ``torch.load(path, weights_only=True)`` loads it."""
-    torch.save({"model": model.state_dict(), "spec": model_spec(model), "normalizer": normalizer.state(),
+    torch.save({"model": model.state_dict(), "spec": model_spec(model), "normalization": normalizer.to_dict(),
                 "step": step, "meta": meta or {}}, path)
 
 
-def load_checkpoint(path) -> tuple[nn.Module, Normalizer, dict]:
-    """(model in eval mode, normalizer, the checkpoint dict) from ``save_checkpoint``'s file."""
+def load_checkpoint(path) -> tuple[nn.Module, Normalization, dict]:
+    """(model in eval mode, its normalization, the checkpoint dict) from ``save_checkpoint``'s file."""
     ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    if "normalization" not in ckpt:
+        raise ValueError(f"{path} is a checkpoint of an older pdestream (no 'normalization' entry); train it again")
     spec = dict(ckpt["spec"])
     model = build_model(spec.pop("name"), spec.pop("ndim"), spec.pop("in_channels"), spec.pop("out_channels"),
                         spec.pop("n_params"), **spec)
     model.load_state_dict(ckpt["model"])
-    return model.eval(), Normalizer.from_state(ckpt["normalizer"]), ckpt
+    return model.eval(), Normalization.from_dict(ckpt["normalization"]), ckpt

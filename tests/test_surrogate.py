@@ -8,7 +8,8 @@ import torch
 import cli
 from surrogate import MODELS, build_model
 from surrogate.metrics import nrmse, rel_l2
-from surrogate.train import Normalizer, load_checkpoint, train
+from datasets.normalize import Normalization
+from surrogate.train import load_checkpoint, train
 
 torch.set_num_threads(1)
 
@@ -89,8 +90,9 @@ def test_checkpoint_round_trip(tmp_path):
     raw = torch.load(tmp_path / "model.pt", weights_only=True)  # plain containers and tensors only
     assert raw["spec"]["name"] == "fno" and raw["meta"]["pde"]["n"] == 32 and raw["step"] == 3
     loaded, norm, _ = load_checkpoint(tmp_path / "model.pt")
-    x = Normalizer.norm(norm, batch["x"], 1).flatten(1, 2)
-    p = norm.params(batch["params"])
+    assert isinstance(norm, Normalization) and raw["normalization"]["samples"] == 8  # the first batch's 8 samples
+    x = norm.normalize(batch["x"]).flatten(1, 2)
+    p = norm.normalize_params(batch["params"])
     model.eval()
     assert torch.equal(loaded(x, p), model(x, p))
     assert torch.equal(norm.mean, summary["normalizer"].mean)
@@ -99,14 +101,16 @@ def test_checkpoint_round_trip(tmp_path):
     assert json.loads((tmp_path / "metrics.json").read_text())["steps"] == 3
 
 
-def test_normalizer_from_batch_matches_torch_statistics():
+def test_normalization_from_batch_matches_torch_statistics():
     batch = {"x": torch.randn(4, 2, 3, 8) * 5 + 2, "y": torch.randn(4, 1, 3, 8), "params": torch.rand(4, 2)}
-    norm = Normalizer.from_batch(batch, ndim=1)
+    norm = Normalization.from_batch(batch, ndim=1)
     fields = torch.cat([batch["x"].transpose(1, 2).reshape(4, 3, -1).transpose(0, 1).reshape(3, -1),
                         batch["y"].transpose(1, 2).reshape(4, 3, -1).transpose(0, 1).reshape(3, -1)], dim=1)
     assert torch.allclose(norm.mean, fields.mean(1), atol=1e-5)
-    assert torch.allclose(norm.std, fields.std(1), atol=1e-5)
-    assert torch.allclose(norm.denorm(norm.norm(batch["x"], 1), 1), batch["x"], atol=1e-5)
+    assert torch.allclose(norm.std, fields.std(1, correction=0), atol=1e-5)  # population std, as every source
+    assert torch.allclose(norm.params_std, batch["params"].std(0, correction=0), atol=1e-6)
+    assert norm.fields == ("field0", "field1", "field2") and norm.samples == 4
+    assert torch.allclose(norm.denormalize(norm.normalize(batch["x"])), batch["x"], atol=1e-5)
 
 
 class Recording:
