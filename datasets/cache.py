@@ -8,10 +8,8 @@ and crash-safety scheme are in ``datasets.schema``. The map-style loader is ``da
 from __future__ import annotations
 
 import os
-import queue
 import shutil
 import sys
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from . import schema
+from ._prefetch import prefetch
 
 TARGET_BLOCK_BYTES = 32 * 2**20  # default block: ~32 MiB of samples (bounded memory, few block writes)
 
@@ -111,24 +110,6 @@ def write_block(store, pde, lo: int, hi: int, u, params, redraws) -> None:
         store.flush()
 
 
-def _generate(pde, seed, blocks, block, on_blowup, out: queue.Queue, stop: threading.Event) -> None:
-    """Producer thread: solve each (lo, hi) block (padded to ``block`` samples: one compile), hand it on."""
-    try:
-        for lo, hi in blocks:
-            item = (lo, hi, *solve_block(pde, seed, lo, hi, block, on_blowup))
-            while not stop.is_set():
-                try:
-                    out.put(item, timeout=0.1)
-                    break
-                except queue.Full:
-                    pass
-            if stop.is_set():
-                return
-    except BaseException as err:  # re-raised by the writer in the main thread
-        out.put(err)
-    out.put(None)
-
-
 def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, overwrite: bool = False,
                 block: int | None = None, on_blowup: str = "raise", progress: bool = True) -> WriteSummary:
     """Write samples 0..n_samples-1 of ``pde`` under ``seed`` to ``path`` (.h5/.hdf5 or .zarr).
@@ -202,25 +183,19 @@ def _fill(pde, path: Path, lay: schema.Layout, block: int, progress: bool) -> Wr
         todo = pending_blocks(store, block)
         bar = tqdm(total=n, initial=n - sum(hi - lo for lo, hi in todo), unit="sample", desc=pde.NAME, smoothing=0.1,
                    disable=not progress or not sys.stderr.isatty())
-        out: queue.Queue = queue.Queue(maxsize=1)  # one block solved ahead of the one being written
-        stop = threading.Event()
         seed, on_blowup = lay.attrs["pdestream_seed"], lay.attrs["pdestream_on_blowup"]
-        worker = threading.Thread(target=_generate, args=(pde, seed, todo, block, on_blowup, out, stop), daemon=True)
-        worker.start()
+        # one block solved ahead of the one being written; each padded to ``block`` samples (one compile)
+        solved = prefetch(lambda: ((lo, hi, *solve_block(pde, seed, lo, hi, block, on_blowup)) for lo, hi in todo))
         try:
-            while (item := out.get()) is not None:
-                if isinstance(item, BaseException):
-                    raise item
+            for item in solved:
                 lo, hi = item[:2]
                 write_block(store, pde, *item)
                 written += hi - lo
                 bar.update(hi - lo)
         finally:
-            stop.set()
+            # stops the solver thread; Ctrl-C or a failed write waits at most for the solve in flight
+            solved.close()
             bar.close()
-            # let a solve in flight finish (Ctrl-C waits at most one block): a JAX call torn down at
-            # interpreter exit aborts the process instead of exiting cleanly
-            worker.join()
         if not (np.asarray(store["complete"][:]) == 1).all():
             raise RuntimeError(f"{path}: blocks missing after writing (a bug)")
         schema.mark_complete(store, str(path))

@@ -15,19 +15,17 @@ Progress (epoch, examples consumed per worker) lives in a small shared-memory ar
 from __future__ import annotations
 
 import multiprocessing as mp
-import queue
-import threading
 
 import numpy as np
 import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from . import _bridge
+from ._prefetch import prefetch
 from .views import gather, make_view
 
 MAX_INDEX = 2**32 - 1  # the generator's index range
 MAX_WORKERS = 64  # progress slots per rank
-_DONE = object()
 
 
 def _int_arg(name: str, value, low: int) -> int:
@@ -247,40 +245,10 @@ class TrajectoryStream(IterableDataset):
 
     def _chunks(self, epoch, shard, stride, chunk_ids, count):
         """Solve batches in order; with prefetch, a thread solves the next while the caller consumes."""
-        if not self.prefetch:
-            for c in chunk_ids:
-                yield self._chunk(epoch, shard, stride, c, count)
-            return
-        ready, stop = queue.Queue(maxsize=1), threading.Event()
+        def solve():
+            return (self._chunk(epoch, shard, stride, c, count) for c in chunk_ids)
 
-        def put(item) -> bool:
-            while not stop.is_set():
-                try:
-                    ready.put(item, timeout=0.1)
-                    return True
-                except queue.Full:
-                    pass
-            return False
-
-        def work():
-            try:
-                for c in chunk_ids:
-                    if not put(self._chunk(epoch, shard, stride, c, count)):
-                        return
-                put(_DONE)
-            except BaseException as err:  # handed to the consumer (e.g. BlowUpError)
-                put(err)
-
-        thread = threading.Thread(target=work, daemon=True, name="pdestream-prefetch")
-        thread.start()
-        try:
-            while (item := ready.get()) is not _DONE:
-                if isinstance(item, BaseException):
-                    raise item
-                yield item
-        finally:
-            stop.set()
-            thread.join()
+        return prefetch(solve) if self.prefetch else solve()
 
     def normalization(self, n: int = 64):
         """Per-field mean/std from the first ``n`` samples of this seed (see datasets.normalize)."""

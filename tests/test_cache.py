@@ -1,6 +1,8 @@
 """HDF5/Zarr cache: schema seen by plain xarray, bit-identity with the generator and the stream,
 completion tracking and resume, and clear errors for files that are not (whole) caches."""
 
+import threading
+
 import h5py
 import numpy as np
 import pytest
@@ -143,6 +145,44 @@ def _interrupted(pde, path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         datasets.write_cache(pde, path, N, seed=SEED, block=BLOCK, progress=False)
     monkeypatch.setattr(generator, "sample", real)
+
+
+def test_prefetch_stops_when_consumer_and_producer_both_fail():
+    """The consumer fails (a full disk, Ctrl-C) with a solved item waiting, then the producer's solve in
+    flight raises: closing must still return (the producer's error hand-over must not block)."""
+    from datasets._prefetch import prefetch
+
+    in_flight, release = threading.Event(), threading.Event()
+
+    def items():
+        yield 1
+        yield 2  # waits in the queue while the consumer works on 1
+        in_flight.set()
+        release.wait(10)
+        raise RuntimeError("solve failed")
+
+    solved = prefetch(items)
+    assert next(solved) == 1
+    assert in_flight.wait(10)
+    closer = threading.Thread(target=solved.close, daemon=True)
+    closer.start()
+    release.set()
+    closer.join(10)
+    assert not closer.is_alive(), "prefetch.close() hung"
+    errors = prefetch(lambda: iter([ValueError("an item, not an error"), 3]))
+    assert [type(x) for x in errors] == [ValueError, int]  # exception objects as items pass through
+    with pytest.raises(RuntimeError, match="solve failed"):
+        list(prefetch(items))
+
+
+def test_failed_write_stops_the_writer(pde, tmp_path, monkeypatch):
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(cache_mod, "write_block", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        datasets.write_cache(pde, tmp_path / "full.h5", N, seed=SEED, block=BLOCK, progress=False)
+    assert not is_complete(datasets.open_cache(tmp_path / "full.h5"))
 
 
 @pytest.mark.parametrize("suffix", ["h5", "zarr"])
