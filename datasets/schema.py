@@ -14,8 +14,8 @@ Readable by plain xarray (``xr.open_dataset(path, engine="h5netcdf")``, ``xr.ope
                  pdestream_complete (0 until every block is written; set last)
 
 Crash safety: every array is fully laid out when the file is created (HDF5: contiguous, allocated
-early; Zarr: chunks along ``sample`` that divide the write block, so a block covers whole chunks), so writing a block changes data
-only, never metadata. A block's ``complete`` flags are written after its data, so a killed writer leaves
+early, the int8 flags zeroed; Zarr: chunks along ``sample`` that divide the write block, so a block
+covers whole chunks), so writing a block changes data only, never metadata. A block's ``complete`` flags are written after its data, so a killed writer leaves
 a cache that reads as incomplete.
 """
 
@@ -31,8 +31,7 @@ import numpy as np
 SCHEMA_VERSION = 1
 SUFFIXES = {".h5": "hdf5", ".hdf5": "hdf5", ".zarr": "zarr"}
 CONFIG_ATTR = "pdestream_config"
-FLAGS = ("redraws", "complete")
-CHUNK_BYTES = 256 * 2**10  # target Zarr chunk size (see chunk_samples)  # int8 per-sample coordinates besides the parameters
+CHUNK_BYTES = 256 * 2**10  # target Zarr chunk size (see chunk_samples)
 
 
 def cache_format(path) -> str:
@@ -96,25 +95,20 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
     return Layout(dims, coords, per_sample, fields, ("sample", "time", *space), attrs)
 
 
-def plain(value):
-    """numpy scalars/bytes from a file attribute -> plain Python values."""
-    if isinstance(value, bytes):
-        return value.decode()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    return value
-
-
 # --- HDF5 ------------------------------------------------------------------------------------------
-def _early_dcpl():
-    """Allocate the whole dataset at creation and never write fill values: later writes are data only."""
+def _early_dcpl(zero: bool = False):
+    """Allocate the whole dataset at creation, so later writes are data only. ``zero``: write zeros into it
+    at creation (HDF5 may hand out freed space holding stale bytes: an unwritten ``complete`` flag must read
+    0); otherwise never write fill values (field data is only read once its flag says it was written)."""
     import h5py
 
     dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
     dcpl.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
-    dcpl.set_fill_time(h5py.h5d.FILL_TIME_NEVER)
+    if zero:
+        dcpl.set_fill_value(np.zeros((), np.int8))
+        dcpl.set_fill_time(h5py.h5d.FILL_TIME_ALLOC)
+    else:
+        dcpl.set_fill_time(h5py.h5d.FILL_TIME_NEVER)
     return dcpl
 
 
@@ -127,7 +121,8 @@ def create_hdf5(path: str, lay: Layout) -> None:
         for name, (dims, data, attrs) in lay.coords.items():
             f.create_variable(name, dims, data=data).attrs.update(attrs)
         for name, (dtype, attrs) in lay.per_sample.items():
-            f.create_variable(name, ("sample",), dtype, dcpl=_early_dcpl()).attrs.update(attrs)
+            zero = dtype == "int8"  # the flags (redraws, complete): 0 until their sample is written
+            f.create_variable(name, ("sample",), dtype, dcpl=_early_dcpl(zero)).attrs.update(attrs)
         for name, attrs in lay.fields.items():
             f.create_variable(name, lay.field_dims, "float32", dcpl=_early_dcpl()).attrs.update(attrs)
         f.attrs.update(lay.attrs)
@@ -195,10 +190,6 @@ def open_store(path: str, mode: str = "r"):
     return zarr.open_group(path, mode=mode, zarr_format=3, use_consolidated=False)
 
 
-def store_attrs(store) -> dict:
-    return {k: plain(v) for k, v in store.attrs.items()}
-
-
 def mark_complete(store, path: str) -> None:
     """Set the global completion flag (written last, after every block's data and flags)."""
     if cache_format(path) == "hdf5":
@@ -210,6 +201,7 @@ def mark_complete(store, path: str) -> None:
 
 
 def close(store) -> None:
+    """Close a store from ``open_store`` (an h5py.File; a zarr.Group needs nothing)."""
     if hasattr(store, "close"):  # h5py.File; a zarr.Group holds no handle
         store.close()
 

@@ -266,6 +266,21 @@ def test_unreadable_and_foreign_files_get_one_line_errors(cached, tmp_path):
         assert torch.equal(loader[0]["u"], datasets.CachedTrajectories(cached)[0]["u"])
 
 
+def test_hdf5_flags_are_zeroed_at_creation(cached):
+    """An unwritten sample must read as incomplete even where HDF5 reuses freed space with stale bytes:
+    the flag arrays are filled with 0 when the file is created; field data is never filled (no cost)."""
+    if not str(cached).endswith(".h5"):
+        pytest.skip("Zarr chunks that were never written read as the fill value 0")
+    with h5py.File(cached, "r") as f:
+        for name, zeroed in (("complete", True), ("redraws", True), ("u", False)):
+            plist = f[name].id.get_create_plist()
+            want = h5py.h5d.FILL_TIME_ALLOC if zeroed else h5py.h5d.FILL_TIME_NEVER
+            assert plist.get_fill_time() == want, name
+        fill = np.ones((), np.int8)
+        f["complete"].id.get_create_plist().get_fill_value(fill)
+        assert fill == 0
+
+
 def test_default_block_bounds_memory(pde):
     assert cache_mod.default_block(pde, 5) == 5
     big = generator.get_pde("ns2d", {"n": "256"})
