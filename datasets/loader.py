@@ -79,6 +79,20 @@ class CachedTrajectories(torch.utils.data.Dataset):
             self._store, self._pid = schema.open_store(self.path, "r"), os.getpid()
         return self._store
 
+    def normalization(self, chunk: int = 64):
+        """Per-field mean/std over every stored sample (all frames and grid points) and per-parameter mean/std,
+        accumulated as for a stream's calibration draw (datasets.normalize.Moments); reads ``chunk`` samples at once."""
+        from .normalize import Moments
+
+        store = self._open()
+        moments = Moments(len(store[self.fields[0]].shape) - 2)  # stored as [sample, time, *space]
+        for s in range(0, len(self.rows), chunk):
+            rows = self.rows[s:s + chunk]
+            lo = int(rows[0])
+            u = np.stack([np.asarray(store[f][lo:int(rows[-1]) + 1])[rows - lo] for f in self.fields], axis=2)
+            moments.add(torch.from_numpy(u), self.params[s:s + chunk])  # [b, T, C, *space], [b, P]
+        return moments.result(self.fields, self.param_names, samples=len(self.rows))
+
     def __getitem__(self, k: int) -> dict:
         if not -len(self) <= k < len(self):
             raise IndexError(f"index {k} out of range for {len(self)} examples")

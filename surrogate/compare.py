@@ -2,7 +2,9 @@
 
 Arm "cache": M samples (seed 0) written once with datasets.write_cache, read back from disk, reshuffled
 each epoch. Arm "stream": samples 0, 1, 2, ... of the same seed, solved on demand (its first M samples are
-the cache's). Both are evaluated on the same held-out test set (another seed) and on a shifted test set
+the cache's). Each arm is normalized from its own source the same way (datasets.normalize.Moments): the cache
+from its M stored samples, the stream from its calibration draw, samples 0..63 of the training seed (the first
+samples it trains on; the draw's solve time counts as data wait). Both are evaluated on the same held-out test set (another seed) and on a shifted test set
 whose parameters lie just outside the training domain. Several model seeds give mean and spread.
 Outputs in out_dir: compare.md, compare.csv, compare.json, compare.png and each run's directory.
 """
@@ -118,6 +120,7 @@ def _row(arm: str, runs: list[dict], written, tests: dict) -> dict:
     row["final_train_loss"] = _stats([r["final_loss"] for r in runs])[0]
     row["wall_s"] = _stats([r["wall"] + (written.seconds if written else 0.0) for r in runs])[0]
     row["samples_seen"] = runs[0]["trajectories_seen"]
+    row["norm_samples"] = runs[0]["normalization_samples"]  # cache: its M samples; stream: samples 0..n-1
     row["examples_seen"] = runs[0]["examples_seen"]
     row["bytes_on_disk"] = written.bytes if written else 0
     row["cache_write_s"] = written.seconds if written else 0.0
@@ -132,17 +135,24 @@ def _write_table(out: Path, rows: list[dict], pde, shifted, cfg: CompareConfig) 
         writer.writeheader()
         writer.writerows(rows)
     errs = [k for k in rows[0] if k.endswith(("rel_l2", "nrmse", "rollout_final")) and not k.endswith("_std")]
-    head = ["source", *errs, "wall s", "samples seen", "bytes on disk", "cache write s", "data wait s", "compute s"]
+    stream = next(r for r in rows if r["source"] == "stream")
+    head = ["source", *errs, "wall s", "samples seen", "norm samples", "bytes on disk", "cache write s", "data wait s", "compute s"]
     lines = [f"{pde.NAME} ({_domains(pde)}, n={pde.n}, {pde.n_frames} frames), {cfg.model} {cfg.model_cfg}, "
              f"view {datasets.make_view(cfg.view)}, {cfg.steps} steps x batch {cfg.batch_size}, M={cfg.cache_samples} cached, "
              f"seeds {list(cfg.seeds)}; errors: mean ± std over seeds on {cfg.n_test} held-out trajectories; "
              "wall s: training run (+ cache write), per seed; data wait: the loop waiting for batches (the "
-             "stream solves in a background thread); compute: forward + backward + Adam"
+             "stream solves in a background thread); compute: forward + backward + Adam; samples seen: distinct "
+             "training trajectories; norm samples: the trajectories each arm's normalization statistics came from "
+             f"(cache: its {cfg.cache_samples} stored samples, i.e. its training set; stream: its calibration draw, "
+             f"samples 0..{stream['norm_samples'] - 1} of the training seed, "
+             + ("among the first it trains on, so no extra samples" if stream["samples_seen"] >= stream["norm_samples"]
+                else f"of which {stream['norm_samples'] - stream['samples_seen']} beyond those it trains on")
+             + "; its solve time is part of data wait)"
              + (f"; shifted: {_domains(shifted)}" if shifted else ""), "",
              "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
     for r in rows:
         cells = [r["source"], *(f"{r[k]:.4f} ± {r[k + '_std']:.4f}" for k in errs), f"{r['wall_s']:.1f}",
-                 str(r["samples_seen"]), f"{r['bytes_on_disk']:,}", f"{r['cache_write_s']:.1f}", f"{r['data_wait_s']:.1f}", f"{r['train_s']:.1f}"]
+                 str(r["samples_seen"]), str(r["norm_samples"]), f"{r['bytes_on_disk']:,}", f"{r['cache_write_s']:.1f}", f"{r['data_wait_s']:.1f}", f"{r['train_s']:.1f}"]
         lines.append("| " + " | ".join(cells) + " |")
     (out / "compare.md").write_text("\n".join(lines) + "\n")
 

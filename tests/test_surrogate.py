@@ -113,6 +113,24 @@ def test_normalization_from_batch_matches_torch_statistics():
     assert torch.allclose(norm.denormalize(norm.normalize(batch["x"])), batch["x"], atol=1e-5)
 
 
+def test_cache_normalization_is_the_stream_draw_over_the_same_samples(tmp_path):
+    import numpy as np
+
+    import datasets
+    import generator
+
+    pde = _tiny_pde()
+    datasets.write_cache(pde, tmp_path / "c.h5", 6, seed=3, progress=False)
+    cached = datasets.CachedTrajectories(tmp_path / "c.h5", view="operator").normalization(chunk=4)
+    u = np.asarray(generator.sample(pde, range(6), 3).u, np.float64)  # [B, T, C, n], computed apart
+    np.testing.assert_allclose(cached.mean.numpy(), u.mean(axis=(0, 1, 3)), atol=1e-6)
+    np.testing.assert_allclose(cached.std.numpy(), u.std(axis=(0, 1, 3)), rtol=1e-5)
+    drawn = datasets.TrajectoryStream(pde, 3, solve_batch=4).normalization(n=6)
+    assert cached.samples == drawn.samples == 6 and cached.fields == drawn.fields == ("u",)
+    for name in ("mean", "std", "params_mean", "params_std"):
+        torch.testing.assert_close(getattr(cached, name), getattr(drawn, name), rtol=1e-6, atol=1e-9)
+
+
 class Recording:
     """A loader wrapper that records each batch's sample indices (and still exposes ``.dataset``)."""
 
@@ -215,6 +233,9 @@ def test_compare_end_to_end(tmp_path, capsys):
     cache, stream = result["rows"]
     assert cache["source"] == "cache" and stream["source"] == "stream" and cache["seeds"] == 2
     assert cache["samples_seen"] == 4 and stream["samples_seen"] == 16  # 4 steps x 4 fresh trajectories
+    # each arm normalized from its own source: the cache's 4 stored samples, the stream's 64-sample draw
+    assert cache["norm_samples"] == 4 and stream["norm_samples"] == 64
+    assert "samples 0..63 of the training seed, of which 48 beyond those it trains on" in (out / "compare.md").read_text()
     assert cache["bytes_on_disk"] > 0 and stream["bytes_on_disk"] == 0
     assert "shifted_rel_l2" in cache and result["shifted_pde"]["nu"].startswith("loguniform(")
     assert "| cache |" in capsys.readouterr().out
