@@ -43,6 +43,14 @@ def default_block(pde, n_samples: int) -> int:
     return max(1, min(n_samples, 256, TARGET_BLOCK_BYTES // per_sample))
 
 
+def _check_int(name: str, value, low: int, high: int | None = None) -> None:
+    """ValueError naming ``value`` unless it is an integer in [low, high]."""
+    ok = not isinstance(value, bool) and isinstance(value, (int, np.integer)) and value >= low
+    if not ok or (high is not None and value > high):
+        allowed = f"an integer >= {low}" if high is None else f"an integer in [{low}, {high}]"
+        raise ValueError(f"{name}={value!r} not allowed: need {allowed}")
+
+
 def _check_writable(path: Path) -> None:
     parent = path.parent if str(path.parent) else Path(".")
     if parent.exists() and not parent.is_dir():
@@ -126,12 +134,16 @@ def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, 
 def prepare(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=None, on_blowup="raise"):
     """Check the arguments, then create the cache (or check the one to resume): (Path, Layout, block).
     Shared by ``write_cache`` and the Dask writer (``datasets.distributed``)."""
-    from ._bridge import configure_jax, jax_provenance
+    from ._bridge import configure_jax, jax_provenance, max_index, resolve_pde
 
+    # every argument is checked before anything is created: a refused run leaves nothing behind
     path = Path(path)
     fmt = schema.cache_format(path)
-    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
-        raise ValueError(f"n_samples={n_samples!r} not allowed: need an integer >= 1")
+    resolve_pde(pde)  # a generator PDE (its config was checked when it was built)
+    _check_int("n_samples", n_samples, 1, max_index() + 1)
+    _check_int("seed", seed, 0, 2**63 - 1)
+    if block is not None:
+        _check_int("block", block, 1)
     if resume and overwrite:
         raise ValueError("--resume and --overwrite exclude each other: resume finishes a cache, overwrite replaces it")
     if on_blowup not in ("raise", "redraw"):
@@ -147,10 +159,8 @@ def prepare(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
         stored, info = dict(info.attrs), info.close()
     if block is None:
         block = stored["pdestream_block"] if stored else default_block(pde, n_samples)
-    if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 1:
-        raise ValueError(f"block={block!r} not allowed: need an integer >= 1")
     block = int(min(block, n_samples))
-    lay = schema.layout(pde, int(n_samples), seed, block, on_blowup, jax_provenance())
+    lay = schema.layout(pde, int(n_samples), int(seed), block, on_blowup, jax_provenance())
     if stored:
         _check_resume(path, stored, lay)
         if stored["pdestream_block"] != block:

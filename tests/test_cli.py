@@ -79,6 +79,21 @@ def test_user_errors_are_one_line(capsys, tmp_path, args, message):
     assert err.startswith("pdestream: error: ") and err.count("\n") == 1 and message in err, err
 
 
+@pytest.mark.parametrize("args, message", [
+    (["--seed", "-1"], "seed=-1 not allowed"),
+    (["--seed", str(2**63)], f"seed={2**63} not allowed"),
+    (["--block", "0"], "block=0 not allowed"),
+    (["--n", str(2**32 + 1)], f"n_samples={2**32 + 1} not allowed"),
+    (["--set", "n_frames=0"], "n_frames"),
+])
+def test_refused_generate_creates_nothing(capsys, tmp_path, args, message):
+    """Every argument is checked before the cache is created, so a corrected rerun needs no --overwrite."""
+    argv = ["generate", "burgers1d", "--n", "4", "--out", str(tmp_path / "s.h5"), *SMALL, *args]
+    code, out, err = run_cli(capsys, *argv)
+    assert code != 0 and out == "" and err.startswith("pdestream: error: ") and message in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_no_traceback_through_a_real_process(tmp_path):
     res = subprocess.run([sys.executable, "-m", "cli", "generate", "nosuchpde", "--n", "2", "--out",
                           str(tmp_path / "a.h5")], capture_output=True, text=True, timeout=120)
