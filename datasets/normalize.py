@@ -68,9 +68,11 @@ class Normalization:
                           (tuple(v) if isinstance(v, list) else v)) for k, v in d.items()})
 
 
-def _safe_std(var: torch.Tensor) -> torch.Tensor:
+def _safe_std(var: torch.Tensor, mean: torch.Tensor) -> torch.Tensor:
+    # a constant field or fixed parameter is left unscaled; var = E[u^2] - E[u]^2 leaves a rounding residue
+    # of ~1e-8 |mean| for constants, hence the relative floor
     std = var.clamp_min(0).sqrt()
-    return torch.where(std > 1e-12, std, torch.ones_like(std))  # a constant field is left unscaled
+    return torch.where(std > torch.maximum(1e-6 * mean.abs(), torch.full_like(std, 1e-12)), std, torch.ones_like(std))
 
 
 class Moments:
@@ -97,9 +99,9 @@ class Moments:
             raise ValueError("no data to compute normalization statistics from (empty draw or batch)")
         mean, pmean = self.s1 / self.count, self.p1 / self.n_params
         return Normalization(
-            fields=tuple(fields), mean=mean.float(), std=_safe_std(self.s2 / self.count - mean**2).float(),
+            fields=tuple(fields), mean=mean.float(), std=_safe_std(self.s2 / self.count - mean**2, mean).float(),
             params=tuple(params), params_mean=pmean.float(),
-            params_std=_safe_std(self.p2 / self.n_params - pmean**2).float(), ndim=self.ndim, samples=int(samples),
+            params_std=_safe_std(self.p2 / self.n_params - pmean**2, pmean).float(), ndim=self.ndim, samples=int(samples),
         )
 
 

@@ -111,6 +111,9 @@ def test_normalization_from_batch_matches_torch_statistics():
     assert torch.allclose(norm.params_std, batch["params"].std(0, correction=0), atol=1e-6)
     assert norm.fields == ("field0", "field1", "field2") and norm.samples == 4
     assert torch.allclose(norm.denormalize(norm.normalize(batch["x"])), batch["x"], atol=1e-5)
+    # a constant field and a fixed parameter stay unscaled (values chosen so E[u^2] - E[u]^2 leaves ~1e-17, not 0)
+    const = Normalization.from_batch({"u": torch.full((100, 3, 1, 8), 0.7), "params": torch.full((1000, 1), 0.1)}, ndim=1)
+    assert const.std.tolist() == [1.0] and const.params_std.tolist() == [1.0]
 
 
 def test_cache_normalization_is_the_stream_draw_over_the_same_samples(tmp_path):
