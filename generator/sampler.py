@@ -118,16 +118,22 @@ def evolve_chunk(pde: PDE) -> int:
     return max(1, EVOLVE_BYTES // (16 * len(pde.FIELDS) * pde.n**pde.NDIM))
 
 
+@functools.partial(jax.jit, static_argnums=1)
+def _join(parts, batch: int):
+    """Set-up chunks -> one batch of ``batch`` samples, in one dispatch (copies only: bits unchanged)."""
+    return jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:batch], *parts)
+
+
 def _run_keys(pde: PDE, keys: jax.Array):
     """keys [B] -> (u [B, T, C, *space], params {name: [B]}, finite [B])."""
     batch = keys.shape[0]
     padded = jnp.concatenate([keys, jnp.repeat(keys[:1], (-batch) % SETUP_CHUNK, axis=0)])
     setup = compiled_setup(pde)
     parts = [setup(padded[i : i + SETUP_CHUNK]) for i in range(0, padded.shape[0], SETUP_CHUNK)]
-    params, u0, coeffs = jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:batch], *parts)
+    params, u0, coeffs = _join(parts, batch)
     evolve, size = compiled_evolve(pde), evolve_chunk(pde)
-    chunks = [evolve(*jax.tree_util.tree_map(lambda x: x[i : i + size], (u0, params, coeffs)))
-              for i in range(0, batch, size)]
+    chunks = [evolve(u0, params, coeffs)] if batch <= size else [
+        evolve(*jax.tree_util.tree_map(lambda x: x[i : i + size], (u0, params, coeffs))) for i in range(0, batch, size)]
     u, finite = chunks[0] if len(chunks) == 1 else jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *chunks)
     return u, params, finite
 
