@@ -5,7 +5,9 @@
   (a DataLoader worker, a resumed run) does not recompile from scratch.
 - ``to_torch(x)`` hands a JAX array to torch through DLPack: zero-copy on CPU and on a shared GPU.
   The tensor shares JAX's buffer: never modify it in place (clone first).
-- ``trajectory_tensors(traj)`` converts a generator.Trajectory to torch tensors.
+- ``trajectory_tensors(traj)`` converts a generator.Trajectory to torch tensors; ``sample_tensors`` and
+  ``sample_numpy`` solve samples straight to torch / numpy; ``resolve_pde``, ``pde_from_config`` and
+  ``max_index`` give the rest of datasets/ what it needs of generator without importing it (nor JAX).
 """
 
 from __future__ import annotations
@@ -97,3 +99,26 @@ def sample_tensors(pde, indices, seed: int = 0, on_blowup: str = "raise") -> dic
     import generator
 
     return trajectory_tensors(generator.sample(pde, indices, seed, on_blowup=on_blowup))
+
+
+def sample_numpy(pde, indices, seed: int = 0, on_blowup: str = "raise"):
+    """``generator.sample`` as numpy: (u float32 [B, T, C, *space], {param: float32 [B]}, redraws int64 [B])."""
+    import generator
+    import numpy as np
+
+    traj = generator.sample(pde, indices, seed, on_blowup=on_blowup)
+    return np.asarray(traj.u), {k: np.asarray(v) for k, v in traj.params.items()}, np.asarray(traj.redraws)
+
+
+def pde_from_config(config: dict):
+    """``generator.from_config``: the PDE of a stored ``PDE.config()`` dict."""
+    import generator
+
+    return generator.from_config(config)
+
+
+def max_index() -> int:
+    """The largest sample index the generator accepts (indices are 0..max_index())."""
+    from generator.sampler import MAX_INDEX
+
+    return MAX_INDEX

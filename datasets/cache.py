@@ -96,12 +96,12 @@ def _check_resume(path: Path, attrs: dict, lay: schema.Layout) -> None:
 def solve_block(pde, seed: int, lo: int, hi: int, block: int, on_blowup: str):
     """Samples lo..hi-1 solved as one batch padded to ``block`` (one compile for every block):
     (u float32 [hi-lo, T, C, *space], {param: float32 [hi-lo]}, redraws int8 [hi-lo]) as numpy."""
-    import generator
+    from ._bridge import sample_numpy
 
     idx = np.minimum(np.arange(lo, lo + block), hi - 1)  # pad by repeating the last index
-    traj = generator.sample(pde, idx, seed, on_blowup=on_blowup)
-    return (np.asarray(traj.u)[: hi - lo], {k: np.asarray(v)[: hi - lo] for k, v in traj.params.items()},
-            np.minimum(traj.redraws[: hi - lo], 127).astype(np.int8))
+    u, params, redraws = sample_numpy(pde, idx, seed, on_blowup)
+    return (u[: hi - lo], {k: v[: hi - lo] for k, v in params.items()},
+            np.minimum(redraws[: hi - lo], 127).astype(np.int8))
 
 
 def write_block(store, pde, lo: int, hi: int, u, params, redraws) -> None:

@@ -68,12 +68,10 @@ def dask_client(scheduler: str | None = None, workers: int = 2):
 
 def _block_task(config: dict, seed: int, path: str, lo: int, hi: int, block: int, on_blowup: str):
     """Runs on a worker: solve samples lo..hi-1 and write them (data, then flags) into the Zarr store."""
-    import generator
-
-    from ._bridge import configure_jax
+    from ._bridge import configure_jax, pde_from_config
 
     configure_jax()  # persistent compilation cache: a (re)started worker does not recompile from scratch
-    pde = generator.from_config(config)
+    pde = pde_from_config(config)
     data = cache.solve_block(pde, seed, lo, hi, block, on_blowup)
     cache.write_block(schema.open_store(path, "r+"), pde, lo, hi, *data)
     return lo, hi

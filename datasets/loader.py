@@ -62,9 +62,9 @@ class CachedTrajectories(torch.utils.data.Dataset):
     @property
     def pde(self):
         """The cached PDE (rebuilt from the stored config; imports generator, hence JAX, on first use)."""
-        import generator
+        from ._bridge import pde_from_config
 
-        return generator.from_config(self.config)
+        return pde_from_config(self.config)
 
     def __len__(self) -> int:
         return len(self.rows) * self.per_sample

@@ -24,7 +24,6 @@ from . import _bridge
 from ._prefetch import prefetch
 from .views import gather, make_view
 
-MAX_INDEX = 2**32 - 1  # the generator's index range
 MAX_WORKERS = 64  # progress slots per rank
 
 
@@ -63,8 +62,8 @@ class TrajectoryStream(IterableDataset):
         self.batch_size = _int_arg("batch_size", batch_size, 1)
         self.solve_batch = _int_arg("solve_batch", solve_batch, 1)
         self.n_samples = None if n_samples is None else _int_arg("n_samples", n_samples, 1)
-        if self.n_samples is not None and self.n_samples > MAX_INDEX + 1:
-            raise ValueError(f"n_samples={n_samples} exceeds the generator's index range ({MAX_INDEX + 1})")
+        if self.n_samples is not None and self.n_samples > _bridge.max_index() + 1:
+            raise ValueError(f"n_samples={n_samples} exceeds the generator's index range ({_bridge.max_index() + 1})")
         if (rank is None) != (world_size is None):
             raise ValueError(f"give both rank and world_size or neither (got rank={rank}, world_size={world_size})")
         if world_size is not None:
@@ -105,9 +104,10 @@ class TrajectoryStream(IterableDataset):
         return epoch * self.n_samples if (self.n_samples is not None and self.resample) else 0
 
     def _shard_count(self, epoch: int, shard: int, stride: int) -> int:
-        total = self.n_samples if self.n_samples is not None else MAX_INDEX + 1
-        if self._base(epoch) + total - 1 > MAX_INDEX:
-            raise ValueError(f"epoch {epoch} with n_samples={self.n_samples} runs past sample index {MAX_INDEX}")
+        last = _bridge.max_index()
+        total = self.n_samples if self.n_samples is not None else last + 1
+        if self._base(epoch) + total - 1 > last:
+            raise ValueError(f"epoch {epoch} with n_samples={self.n_samples} runs past sample index {last}")
         return max(0, -(-(total - shard) // stride))
 
     # --- epochs and state ------------------------------------------------------------------------

@@ -285,3 +285,27 @@ def test_default_block_bounds_memory(pde):
     assert cache_mod.default_block(pde, 5) == 5
     big = generator.get_pde("ns2d", {"n": "256"})
     assert 1 <= cache_mod.default_block(big, 10_000) * 4 * big.n_frames * 256 * 256 <= cache_mod.TARGET_BLOCK_BYTES
+
+
+def test_only_the_bridge_reaches_jax():
+    """House rule: in datasets/ only _bridge.py imports jax or generator (also inside functions); surrogate/
+    never does. Scans the source, so a lazy import in a rarely run function is caught too."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    files = [p for p in sorted((root / "datasets").glob("*.py")) if p.name != "_bridge.py"]
+    files += sorted((root / "surrogate").glob("*.py"))
+    assert len(files) > 5
+    offenders = []
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                names = [node.module or ""]
+            else:
+                continue
+            offenders += [f"{path.relative_to(root)}:{node.lineno} {n}" for n in names
+                          if n.split(".")[0] in ("jax", "jaxlib", "generator", "equinox", "exponax")]
+    assert offenders == []
