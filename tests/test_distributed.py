@@ -1,11 +1,10 @@
 """Dask generation against the single-process writer (bit for bit, with a worker killed mid-run, on resume)
-and 2-rank streaming over torch.distributed (gloo on 127.0.0.1). Tiny: burgers1d n=32, 5 frames, 12 samples,
+and 2-rank streaming over torch.distributed (gloo, meeting through a file). Tiny: burgers1d n=32, 5 frames, 12 samples,
 blocks of 4. Each test that starts a Dask cluster costs ~10-20 s of start-up on 2 cores."""
 
 import json
 import logging
 import os
-import socket
 import subprocess
 import sys
 
@@ -144,8 +143,8 @@ from torch.utils.data import DataLoader
 import generator
 from datasets.stream import TrajectoryStream
 
-rank, port, out = int(sys.argv[1]), sys.argv[2], sys.argv[3]
-dist.init_process_group("gloo", init_method=f"tcp://127.0.0.1:{port}", rank=rank, world_size=2)
+rank, store, out = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+dist.init_process_group("gloo", init_method=f"file://{store}", rank=rank, world_size=2)
 pde = generator.get_pde("burgers1d", json.loads(sys.argv[4]))
 stream = TrajectoryStream(pde, seed=int(sys.argv[5]), view="whole", batch_size=3, n_samples=11, solve_batch=4)
 u = {int(i): x.numpy() for b in DataLoader(stream, batch_size=None) for i, x in zip(b["index"], b["u"])}
@@ -157,15 +156,10 @@ dist.destroy_process_group()
 """
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_two_ranks_stream_disjoint_samples_whose_union_is_complete(pde, tmp_path):
-    port, env = free_port(), {**os.environ, "JAX_PLATFORMS": "cpu"}
-    procs = [subprocess.Popen([sys.executable, "-c", RANK, str(r), str(port), str(tmp_path / f"rank{r}.npz"),
+    # rendezvous through a file (torch's FileStore), not a port: no bind-close-reuse race with other processes
+    store, env = tmp_path / "rendezvous", {**os.environ, "JAX_PLATFORMS": "cpu"}
+    procs = [subprocess.Popen([sys.executable, "-c", RANK, str(r), str(store), str(tmp_path / f"rank{r}.npz"),
                                json.dumps(SETTINGS), str(SEED)], env=env, stderr=subprocess.PIPE, text=True)
              for r in (0, 1)]
     errors = [p.communicate(timeout=180)[1] for p in procs]
