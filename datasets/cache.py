@@ -33,12 +33,14 @@ class WriteSummary:
     bytes: int
 
     def line(self) -> str:
+        """The one-line summary ``pdestream generate`` prints."""
         rate = self.written / self.seconds if self.seconds > 0 else 0.0
         return (f"wrote {self.written} samples ({self.n_samples} of {self.n_samples} complete) to {self.path} in "
                 f"{self.seconds:.1f} s ({rate:.1f} samples/s), {self.bytes / 2**20:.1f} MiB")
 
 
 def default_block(pde, n_samples: int) -> int:
+    """Samples per block: ~TARGET_BLOCK_BYTES of float32 data (4 B x C x T x n**NDIM each), 1..256."""
     per_sample = 4 * len(pde.FIELDS) * pde.n_frames * pde.n**pde.NDIM
     return max(1, min(n_samples, 256, TARGET_BLOCK_BYTES // per_sample))
 

@@ -79,6 +79,18 @@ class CachedTrajectories(torch.utils.data.Dataset):
             self._store, self._pid = schema.open_store(self.path, "r"), os.getpid()
         return self._store
 
+    def close(self) -> None:
+        """Close this process's file handle (reopened by the next read); a forked copy's is left alone."""
+        store, self._store = self._store, None
+        if store is not None and self._pid == os.getpid():
+            schema.close(store)
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:  # at interpreter exit h5py may already be torn down
+            pass
+
     def normalization(self, chunk: int = 64):
         """Per-field mean/std over every stored sample (all frames and grid points) and per-parameter mean/std,
         accumulated as for a stream's calibration draw (datasets.normalize.Moments); reads ``chunk`` samples at once."""

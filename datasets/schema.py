@@ -15,8 +15,8 @@ Readable by plain xarray (``xr.open_dataset(path, engine="h5netcdf")``, ``xr.ope
 
 Crash safety: every array is fully laid out when the file is created (HDF5: contiguous, allocated
 early, the int8 flags zeroed; Zarr: chunks along ``sample`` that divide the write block, so a block
-covers whole chunks), so writing a block changes data only, never metadata. A block's ``complete`` flags are written after its data, so a killed writer leaves
-a cache that reads as incomplete.
+covers whole chunks), so writing a block changes data only, never metadata. A block's ``complete`` flags
+are written after its data, so a killed writer leaves a cache that reads as incomplete.
 """
 
 from __future__ import annotations

@@ -118,6 +118,7 @@ class TrajectoryStream(IterableDataset):
 
     @property
     def epoch(self) -> int:
+        """The epoch the next iteration of this stream covers."""
         return int(self._progress[0])
 
     def state_dict(self) -> dict:

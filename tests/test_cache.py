@@ -309,3 +309,17 @@ def test_only_the_bridge_reaches_jax():
             offenders += [f"{path.relative_to(root)}:{node.lineno} {n}" for n in names
                           if n.split(".")[0] in ("jax", "jaxlib", "generator", "equinox", "exponax")]
     assert offenders == []
+
+
+def test_loader_close_releases_the_file(cached):
+    loader = datasets.CachedTrajectories(cached)
+    first = loader[0]["u"]
+    handle = loader._store
+    loader.close()
+    if str(cached).endswith(".h5"):
+        assert not handle  # h5py: a closed file is falsy
+        with h5py.File(cached, "r+"):  # no handle of ours left: HDF5 lets a writer in
+            pass
+    assert torch.equal(loader[0]["u"], first)  # the next read reopens
+    loader.close()
+    loader.close()  # twice is harmless
