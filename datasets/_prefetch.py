@@ -6,11 +6,23 @@ while batch k is trained on). JAX releases the GIL while it computes, so the two
 
 from __future__ import annotations
 
+import atexit
 import queue
 import threading
 from collections.abc import Callable, Iterable, Iterator
 
 _DONE = object()
+_LIVE: set = set()  # (stop event, thread) of every running producer
+
+
+@atexit.register
+def _stop_all() -> None:
+    # A script may exit with a stream still open (break out of the loop, never close it). Daemon threads
+    # are killed at interpreter exit, and one killed inside a JAX call aborts the process ("terminate
+    # called..."): stop every producer and let its call in flight finish first.
+    for stop, thread in list(_LIVE):
+        stop.set()
+        thread.join()
 
 
 class _Raised:
@@ -52,6 +64,7 @@ def prefetch(make: Callable[[], Iterable], depth: int = 1, name: str = "pdestrea
             put(_Raised(err))
 
     thread = threading.Thread(target=work, daemon=True, name=name)
+    _LIVE.add((stop, thread))
     thread.start()
     try:
         while (item := ready.get()) is not _DONE:
@@ -61,3 +74,4 @@ def prefetch(make: Callable[[], Iterable], depth: int = 1, name: str = "pdestrea
     finally:
         stop.set()
         thread.join()
+        _LIVE.discard((stop, thread))

@@ -210,3 +210,19 @@ def test_bad_loader_and_state_arguments(pde):
     stream.load_state_dict({**stream.state_dict(), "consumed": [1, 1]})
     with pytest.raises(ValueError, match="saved with 2 worker"):
         iter(stream)
+
+
+def test_a_script_may_exit_with_a_stream_still_open(tmp_path):
+    # The prefetch thread is inside a JAX call when the interpreter exits; it must finish, not abort.
+    import subprocess
+    import sys
+
+    script = tmp_path / "leave_open.py"
+    script.write_text(
+        "import generator\nfrom datasets import TrajectoryStream\n"
+        "it = iter(TrajectoryStream(generator.get_pde('burgers1d', n=256), 0, view='whole', batch_size=16))\n"
+        "next(it)\nprint('done')\n"
+    )
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and "done" in out.stdout, out.stderr[-500:]
+    assert "terminate called" not in out.stderr
