@@ -85,6 +85,27 @@ def wait_share(pde, steps: int, num_workers: int, windows, batch_size: int = 32)
     return waited / total, 1e3 * total / steps
 
 
+def rss_mb() -> float:
+    """Resident memory of this process now (MB), from /proc (Linux)."""
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS")) / 1024
+
+
+def memory_growth(pde, n_samples: int, batch: int = 16) -> tuple[float, float]:
+    """(RSS after 10% of the stream, RSS growth over the remaining 90%) in MB, streaming n_samples whole
+    trajectories through a 0-worker loader: a leak shows as growth, warm-up allocations do not."""
+    stream = TrajectoryStream(pde, SEED, view="whole", batch_size=batch, solve_batch=batch, n_samples=n_samples)
+    it = iter(stream_loader(stream, num_workers=0))
+    n_batches = -(-n_samples // batch)
+    warm = max(1, n_batches // 10)
+    for _ in range(warm):
+        next(it)
+    start = rss_mb()
+    for _ in range(n_batches - warm):
+        next(it)
+    return start, rss_mb() - start
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer batches and steps (a smoke run)")
@@ -111,6 +132,11 @@ def main(argv=None) -> None:
         for workers in (0, 2):
             share, ms = wait_share(pde, steps, workers, windows)
             print(f"| windows={windows} | {workers} | {ms:.1f} | {100 * share:.1f}% |")
+
+    n_mem = 2_000 if args.quick else 10_000
+    start, growth = memory_growth(pde, n_mem)
+    print(f"\nmemory: streaming {n_mem} trajectories (0 workers), RSS {start:.0f} MB after the first 10%, "
+          f"then {growth:+.1f} MB over the rest (target < 50 MB)")
 
 
 if __name__ == "__main__":
