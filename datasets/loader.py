@@ -2,8 +2,9 @@
 
 It gives the same example dicts as the stream (``datasets.views``; "params" [P] in PDE.PARAMS order,
 "index" the global sample index), so a model trains on a cache or on the stream alike. The file is opened
-lazily in each process that reads (never carried across fork or spawn); only small metadata (times,
-parameters, complete mask) is held in memory.
+lazily in each process that reads (never carried across fork or spawn). A cache whose samples fit in
+IN_MEMORY_BYTES is read whole on first use in each process (one sequential read instead of one chunk read
+per example, which dominates training time on small samples); larger ones are read example by example.
 """
 
 from __future__ import annotations
@@ -18,16 +19,20 @@ from . import schema
 from .cache import is_complete, open_cache
 from .views import NextStep, examples, make_view
 
+IN_MEMORY_BYTES = 512 * 2**20
+
 
 class CachedTrajectories(torch.utils.data.Dataset):
     """Examples of a cache under a view.
 
     Item k: ``whole``/``operator``: sample k; ``next_step`` with windows="all": the pair (sample, start)
     k // n_starts, k % n_starts; with windows=W: sample k // W at a start drawn by torch's RNG.
-    ``allow_incomplete=True`` reads only the complete samples of an interrupted cache.
+    ``allow_incomplete=True`` reads only the complete samples of an interrupted cache. ``in_memory``: read
+    all samples at once per process (None: when they fit in IN_MEMORY_BYTES; each DataLoader worker holds a copy).
     """
 
-    def __init__(self, path, view="whole", allow_incomplete: bool = False, **view_kwargs):
+    def __init__(self, path, view="whole", allow_incomplete: bool = False, in_memory: bool | None = None,
+                 **view_kwargs):
         self.path = str(path)
         self.view = make_view(view, **view_kwargs)
         ds = open_cache(self.path)
@@ -46,6 +51,7 @@ class CachedTrajectories(torch.utils.data.Dataset):
             cols = [ds[n].values[self.rows] for n in self.param_names]
             self.params = torch.from_numpy(np.stack(cols, 1) if cols else np.zeros((len(self.rows), 0), np.float32))
             self.t = torch.from_numpy(ds["time"].values.astype(np.float32))
+            nbytes = len(self.rows) * len(self.fields) * int(np.prod(ds[self.fields[0]].shape[1:])) * 4
         finally:
             ds.close()
         n_frames = len(self.t)
@@ -57,7 +63,8 @@ class CachedTrajectories(torch.utils.data.Dataset):
             self._window = NextStep(self.view.k_in, self.view.k_out, "all")
             all_starts = self.view.windows == "all"
             self.per_sample = self.view.n_starts(n_frames) if all_starts else int(self.view.windows)
-        self._store, self._pid = None, None
+        self.in_memory = nbytes <= IN_MEMORY_BYTES if in_memory is None else bool(in_memory)
+        self._store, self._pid, self._memory = None, None, None
 
     @property
     def pde(self):
@@ -72,6 +79,7 @@ class CachedTrajectories(torch.utils.data.Dataset):
     def __getstate__(self):
         state = dict(self.__dict__)
         state["_store"], state["_pid"] = None, None  # a file handle never crosses processes
+        state["_memory"] = None  # each process reads its own copy
         return state
 
     def _open(self):
@@ -105,20 +113,34 @@ class CachedTrajectories(torch.utils.data.Dataset):
             moments.add(torch.from_numpy(u), self.params[s:s + chunk])  # [b, T, C, *space], [b, P]
         return moments.result(self.fields, self.param_names, samples=len(self.rows))
 
+    def _samples(self) -> np.ndarray:
+        """Every readable sample of the file in memory: float32 [N, T, C, *space] (read once per process)."""
+        if self._memory is None or self._pid != os.getpid():
+            store = self._open()
+            try:
+                self._memory = np.stack([np.asarray(store[f][:])[self.rows] for f in self.fields], axis=2)
+            except Exception as err:  # a corrupted chunk anywhere: name the file (in_memory=False names the sample)
+                raise ValueError(f"{self.path}: cannot read its samples: {err}") from None
+        return self._memory
+
+    def _read(self, j: int, lo: int, hi: int) -> np.ndarray:
+        """Frames lo:hi of readable sample j straight from the file: float32 [hi - lo, C, *space]."""
+        store = self._open()
+        try:
+            return np.stack([np.asarray(store[f][int(self.rows[j]), lo:hi]) for f in self.fields], axis=1)
+        except Exception as err:  # a corrupted chunk or a file changed under us: name the file and sample
+            raise ValueError(f"{self.path}: cannot read sample {self.indices[j]}: {err}") from None
+
     def __getitem__(self, k: int) -> dict:
         if not -len(self) <= k < len(self):
             raise IndexError(f"index {k} out of range for {len(self)} examples")
         k %= len(self)
         j, sub = divmod(k, self.per_sample)
-        row, n_frames = int(self.rows[j]), len(self.t)
+        n_frames = len(self.t)
         lo, hi, view = 0, n_frames, self.view
         if self._window is not None:
             start = sub if self.view.windows == "all" else int(torch.randint(self.view.n_starts(n_frames), ()))
             lo, hi, view = start, start + self.view.k_in + self.view.k_out, self._window
-        store = self._open()
-        try:
-            u = np.stack([np.asarray(store[f][row, lo:hi]) for f in self.fields], axis=1)  # [T', C, *space]
-        except Exception as err:  # a corrupted chunk or a file changed under us: name the file and sample
-            raise ValueError(f"{self.path}: cannot read sample {self.indices[j]}: {err}") from None
+        u = self._samples()[j, lo:hi] if self.in_memory else self._read(j, lo, hi)  # [T', C, *space]
         return examples(view, torch.from_numpy(u), self.t[lo:hi], self.params[j], int(self.indices[j]))[0]
 

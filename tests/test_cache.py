@@ -260,7 +260,9 @@ def test_unreadable_and_foreign_files_get_one_line_errors(cached, tmp_path):
         data = bytearray(chunk.read_bytes())
         data[len(data) // 2] ^= 0xFF  # one flipped byte: the zstd checksum must catch it
         chunk.write_bytes(bytes(data))
-        loader = datasets.CachedTrajectories(corrupt)
+        with pytest.raises(ValueError, match="cannot read its samples"):  # read whole: fails at once
+            datasets.CachedTrajectories(corrupt)[0]
+        loader = datasets.CachedTrajectories(corrupt, in_memory=False)  # per example: names the sample
         with pytest.raises(ValueError, match=f"cannot read sample {N - 1}"):
             loader[N - 1]
         assert torch.equal(loader[0]["u"], datasets.CachedTrajectories(cached)[0]["u"])
@@ -323,3 +325,16 @@ def test_loader_close_releases_the_file(cached):
     assert torch.equal(loader[0]["u"], first)  # the next read reopens
     loader.close()
     loader.close()  # twice is harmless
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".zarr"])
+def test_in_memory_and_per_example_reads_give_the_same_examples(tmp_path, suffix):
+    pde = generator.get_pde("burgers1d", n=32, n_frames=6, t_end=0.1)
+    path = tmp_path / f"c{suffix}"
+    datasets.write_cache(pde, path, 6, seed=2, progress=False)
+    whole = datasets.CachedTrajectories(path, view="next_step", k_in=2, in_memory=True)
+    per_example = datasets.CachedTrajectories(path, view="next_step", k_in=2, in_memory=False)
+    assert whole.in_memory and not per_example.in_memory and len(whole) == len(per_example) == 6 * 4
+    for k in range(len(whole)):
+        a, b = whole[k], per_example[k]
+        assert a.keys() == b.keys() and all(torch.equal(a[key], b[key]) for key in a)
