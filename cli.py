@@ -27,10 +27,8 @@ def _add_pde_config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="FILE.toml", help="TOML file of settings (a [pde] table or top-level keys)")
 
 
-def pde_from_args(name: str, args: argparse.Namespace):
-    """The PDE named on the command line with --config then --set applied."""
-    import generator
-
+def settings_from_args(name: str | None, args: argparse.Namespace) -> tuple[str | None, dict]:
+    """(PDE name, settings) from the command line: the --config file's keys, then --set overrides."""
     settings: dict = {}
     if getattr(args, "config", None):
         import tomllib
@@ -50,6 +48,14 @@ def pde_from_args(name: str, args: argparse.Namespace):
         name = name or file_name
         settings.update(table)
     settings.update(_parse_sets(getattr(args, "set", None)))
+    return name, settings
+
+
+def pde_from_args(name: str | None, args: argparse.Namespace):
+    """The PDE named on the command line with --config then --set applied."""
+    import generator
+
+    name, settings = settings_from_args(name, args)
     if name is None:
         raise ValueError("no PDE named: give one (see `pdestream list`) or a config with pde = NAME")
     return generator.get_pde(name, settings)
@@ -193,7 +199,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         raise ValueError(f"--test-samples={args.test_samples} not allowed; must be >= 1")
     s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
                   view=_view_from_args(args, "next_step"), steps=args.steps, batch_size=args.batch_size, lr=args.lr,
-                  seed=args.seed, n_test=args.test_samples, explicit=_parse_sets(args.set))
+                  seed=args.seed, n_test=args.test_samples, explicit=settings_from_args(args.pde, args)[1])
     print(f"trained {args.model} on {args.source} for {s['steps']} steps in {s['wall']:.1f} s "
           f"(waiting for data {s['t_data']:.1f} s, computing {s['t_compute']:.1f} s); "
           f"{s['trajectories_seen']} trajectories, final loss {s['final_loss']:.4g}")

@@ -40,3 +40,14 @@ def test_bad_config_files_give_one_clear_error(tmp_path, text, words):
         cli.pde_from_args(name, args_for(tmp_path, text))
     for word in words:
         assert word in str(err.value)
+
+
+def test_train_refuses_a_cache_whose_settings_differ_from_the_config_file(tmp_path, capsys):
+    cache = tmp_path / "c.h5"
+    assert cli.main(["generate", "burgers1d", "--n", "4", "--set", "n=32", "--set", "n_frames=3",
+                     "--out", str(cache)]) == 0
+    (tmp_path / "other.toml").write_text("n = 64\nn_frames = 3\n")
+    code = cli.main(["train", "burgers1d", "--source", str(cache), "--config", str(tmp_path / "other.toml"),
+                     "--steps", "1", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code != 0 and "other settings" in err and "n: cache 32 vs asked 64" in err
