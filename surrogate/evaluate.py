@@ -34,7 +34,7 @@ def pairs(view, batch: dict) -> dict:
 @torch.no_grad()
 def evaluate(model: nn.Module, norm: Normalization, test: list[dict], view, chunk: int = 256) -> dict:
     """Mean relative L2 and nRMSE (PDEBench) over every pair of the test trajectories, physical units."""
-    model.eval()
+    model.train(False)  # evaluation mode
     errors = {"rel_l2": [], "nrmse": []}
     for batch in test:
         p = pairs(view, batch)
@@ -67,7 +67,7 @@ def rollout_error(model: nn.Module, norm: Normalization, test: list[dict], k_in:
 
     horizon: frames to predict (default: the rest of the trajectory).
     """
-    model.eval()
+    model.train(False)  # evaluation mode
     ndim = model.ndim
     per_frame = []
     for batch in test:

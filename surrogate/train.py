@@ -157,4 +157,4 @@ def load_checkpoint(path) -> tuple[nn.Module, Normalization, dict]:
     model = build_model(spec.pop("name"), spec.pop("ndim"), spec.pop("in_channels"), spec.pop("out_channels"),
                         spec.pop("n_params"), **spec)
     model.load_state_dict(ckpt["model"])
-    return model.eval(), Normalization.from_dict(ckpt["normalization"]), ckpt
+    return model.train(False), Normalization.from_dict(ckpt["normalization"]), ckpt
