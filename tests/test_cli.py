@@ -118,17 +118,23 @@ def _complete_flags(path):
         return None
 
 
-def test_kill_9_then_resume_equals_an_uninterrupted_run(capsys, tmp_path):
-    full, part = tmp_path / "full.h5", tmp_path / "part.h5"
-    assert run_cli(capsys, "generate", *SLOW, "--out", str(full))[0] == 0  # also warms the compile cache
+def _writer_with_4_samples_flagged(part):
+    """A `generate` subprocess writing ``part``, returned once at least 4 samples are flagged complete."""
     proc = subprocess.Popen([sys.executable, "-m", "cli", "generate", *SLOW, "--out", str(part)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    deadline, flags = time.monotonic() + 120, None
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
         flags = _complete_flags(part)
         if flags is not None and flags.sum() >= 4:
             break
         time.sleep(0.005)
+    return proc
+
+
+def test_kill_9_then_resume_equals_an_uninterrupted_run(capsys, tmp_path):
+    full, part = tmp_path / "full.h5", tmp_path / "part.h5"
+    assert run_cli(capsys, "generate", *SLOW, "--out", str(full))[0] == 0  # also warms the compile cache
+    proc = _writer_with_4_samples_flagged(part)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert proc.returncode == -signal.SIGKILL, "the writer finished before it could be killed: use a slower config"
@@ -150,14 +156,7 @@ def test_kill_9_then_resume_equals_an_uninterrupted_run(capsys, tmp_path):
 
 def test_ctrl_c_leaves_an_incomplete_cache_and_one_line(tmp_path):
     part = tmp_path / "part.h5"
-    proc = subprocess.Popen([sys.executable, "-m", "cli", "generate", *SLOW, "--out", str(part)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and proc.poll() is None:
-        flags = _complete_flags(part)
-        if flags is not None and flags.sum() >= 4:
-            break
-        time.sleep(0.005)
+    proc = _writer_with_4_samples_flagged(part)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, "the writer finished before Ctrl-C: use a slower config"
