@@ -94,20 +94,39 @@ def resolve_pde(pde):
     return pde
 
 
-def sample_tensors(pde, indices, seed: int = 0, on_blowup: str = "raise") -> dict:
-    """``trajectory_tensors(generator.sample(pde, indices, seed, on_blowup))``; NaN/Inf raises BlowUpError."""
+def sample_tensors(pde, indices, seed: int = 0, on_blowup: str = "raise", params: dict | None = None) -> dict:
+    """``trajectory_tensors(generator.sample(pde, indices, seed, on_blowup, params=params))``; NaN/Inf raises
+    BlowUpError. params: optional explicit values {name: [B]} (the IC still comes from (seed, index))."""
     import generator
 
-    return trajectory_tensors(generator.sample(pde, indices, seed, on_blowup=on_blowup))
+    return trajectory_tensors(generator.sample(pde, indices, seed, on_blowup=on_blowup, params=params))
 
 
-def sample_numpy(pde, indices, seed: int = 0, on_blowup: str = "raise"):
+def sample_numpy(pde, indices, seed: int = 0, on_blowup: str = "raise", params: dict | None = None):
     """``generator.sample`` as numpy: (u float32 [B, T, C, *space], {param: float32 [B]}, redraws int64 [B])."""
     import generator
     import numpy as np
 
-    traj = generator.sample(pde, indices, seed, on_blowup=on_blowup)
+    traj = generator.sample(pde, indices, seed, on_blowup=on_blowup, params=params)
     return np.asarray(traj.u), {k: np.asarray(v) for k, v in traj.params.items()}, np.asarray(traj.redraws)
+
+
+def param_domains(pde) -> dict:
+    """{name: (kind, low, high, options)} of the PDE's parameters in PARAMS order, as plain values:
+    kind is "fixed", "uniform", "loguniform" or "choice"; options is the tuple of a choice, else ()."""
+    out = {}
+    for name, dom in pde.param_domains.items():
+        kind = type(dom).__name__.lower()
+        low, high = dom.bounds
+        out[name] = (kind, float(low), float(high), tuple(getattr(dom, "options", ())))
+    return out
+
+
+def check_params(pde, params: dict, batch: int) -> None:
+    """ValueError (one line) unless ``params`` {name: [batch]} are parameters of ``pde`` inside their domains."""
+    from generator.sampler import explicit_params
+
+    explicit_params(pde, params, batch)
 
 
 def pde_from_config(config: dict):

@@ -14,6 +14,7 @@ from typing import Union
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 
 @dataclass(frozen=True)
@@ -30,6 +31,10 @@ class Fixed:
     @property
     def bounds(self) -> tuple[float, float]:
         return (self.value, self.value)
+
+    def contains(self, value: float) -> bool:
+        """Whether ``value`` is one this domain can produce (float32 rounding allowed)."""
+        return bool(np.float32(value) == np.float32(self.value))
 
     def __str__(self) -> str:
         return repr(float(self.value))
@@ -51,6 +56,10 @@ class Uniform:
     @property
     def bounds(self) -> tuple[float, float]:
         return (self.low, self.high)
+
+    def contains(self, value: float) -> bool:
+        """Whether ``value`` lies in [low, high] (float32 rounding allowed)."""
+        return bool(np.float32(self.low) <= np.float32(value) <= np.float32(self.high))
 
     def __str__(self) -> str:
         return f"uniform({self.low!r}, {self.high!r})"
@@ -77,6 +86,10 @@ class LogUniform:
     def bounds(self) -> tuple[float, float]:
         return (self.low, self.high)
 
+    def contains(self, value: float) -> bool:
+        """Whether ``value`` lies in [low, high] (float32 rounding allowed)."""
+        return bool(np.float32(self.low) <= np.float32(value) <= np.float32(self.high))
+
     def __str__(self) -> str:
         return f"loguniform({self.low!r}, {self.high!r})"
 
@@ -98,6 +111,10 @@ class Choice:
     @property
     def bounds(self) -> tuple[float, float]:
         return (min(self.options), max(self.options))
+
+    def contains(self, value: float) -> bool:
+        """Whether ``value`` is one of the options (compared in float32)."""
+        return bool(np.float32(value) in np.asarray(self.options, np.float32))
 
     def __str__(self) -> str:
         return "choice(" + ", ".join(repr(o) for o in self.options) + ")"

@@ -75,10 +75,15 @@ def draw_params(pde: PDE, key: jax.Array) -> dict[str, jax.Array]:
     return {name: dom.sample(jax.random.fold_in(key, j)) for j, (name, dom) in enumerate(pde.param_domains.items())}
 
 
-def _draw(pde: PDE, key: jax.Array):
-    """(parameters, initial condition, ETDRK4 coefficients) of one sample from its key."""
+def _draw(pde: PDE, key: jax.Array, explicit: jax.Array, given: jax.Array):
+    """(parameters, initial condition, ETDRK4 coefficients) of one sample from its key.
+
+    explicit: float32 [P] caller's parameter values, used where ``given`` [P] (bool) is set; the other
+    parameters are drawn from the key as usual. The IC always comes from the key.
+    """
     k_param, k_ic = jax.random.split(key)
-    p = draw_params(pde, k_param)
+    drawn = draw_params(pde, k_param)
+    p = {name: jnp.where(given[j], explicit[j], drawn[name]) for j, name in enumerate(pde.PARAMS)}
     return p, pde.sample_ic(k_ic), _coefficients(pde, p)
 
 
@@ -92,8 +97,10 @@ SETUP_CHUNK = 8
 
 @functools.lru_cache(maxsize=64)
 def compiled_setup(pde: PDE):
-    """jit of keys [SETUP_CHUNK] -> (params {name: [K]}, u0 [K, C, *space], coefficients [K, ...])."""
-    return jax.jit(lambda keys: jax.lax.map(functools.partial(_draw, pde), keys))
+    """jit of (keys [K], explicit [K, P], given [K, P]) -> (params {name: [K]}, u0 [K, C, *space],
+    coefficients [K, ...]), K = SETUP_CHUNK. Drawn and explicit parameters go through this one program,
+    so a sample given its drawn values explicitly is bit-identical to the drawn sample."""
+    return jax.jit(lambda keys, explicit, given: jax.lax.map(lambda a: _draw(pde, *a), (keys, explicit, given)))
 
 
 def _evolve_checked(pde: PDE, u0, p, coeffs):
@@ -124,12 +131,16 @@ def _join(parts, batch: int):
     return jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:batch], *parts)
 
 
-def _run_keys(pde: PDE, keys: jax.Array):
-    """keys [B] -> (u [B, T, C, *space], params {name: [B]}, finite [B])."""
+def _run_keys(pde: PDE, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
+    """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, C, *space], params {name: [B]}, finite [B])."""
     batch = keys.shape[0]
-    padded = jnp.concatenate([keys, jnp.repeat(keys[:1], (-batch) % SETUP_CHUNK, axis=0)])
+    pad = (-batch) % SETUP_CHUNK
+    padded = jnp.concatenate([keys, jnp.repeat(keys[:1], pad, axis=0)])
+    explicit = np.concatenate([explicit, np.repeat(explicit[:1], pad, axis=0)])
+    given = np.concatenate([given, np.repeat(given[:1], pad, axis=0)])
     setup = compiled_setup(pde)
-    parts = [setup(padded[i : i + SETUP_CHUNK]) for i in range(0, padded.shape[0], SETUP_CHUNK)]
+    parts = [setup(padded[i : i + SETUP_CHUNK], explicit[i : i + SETUP_CHUNK], given[i : i + SETUP_CHUNK])
+             for i in range(0, padded.shape[0], SETUP_CHUNK)]
     params, u0, coeffs = _join(parts, batch)
     evolve, size = compiled_evolve(pde), evolve_chunk(pde)
     chunks = [evolve(u0, params, coeffs)] if batch <= size else [
@@ -172,18 +183,51 @@ def _check_indices(indices: Sequence[int] | np.ndarray | int) -> np.ndarray:
     return idx.astype(np.int64)
 
 
+def explicit_params(pde: PDE, params: Mapping[str, Sequence[float] | float] | None, batch: int):
+    """Caller's parameter values -> (explicit float32 [B, P], given bool [B, P]) in PDE.PARAMS order.
+
+    ``params`` maps some or all of the PDE's parameters to a scalar or [B] values; each value must lie in its
+    domain (ValueError naming the parameter, the value and the domain otherwise). Parameters left out are drawn.
+    """
+    names = list(pde.PARAMS)
+    explicit = np.zeros((batch, len(names)), np.float32)
+    given = np.zeros((batch, len(names)), bool)
+    if not params:
+        return explicit, given
+    unknown = sorted(set(params) - set(names))
+    if unknown:
+        raise ValueError(f"{pde.NAME}: unknown parameter(s) {unknown}; allowed: {names}")
+    for name, values in params.items():
+        j = names.index(name)
+        v = np.asarray(values, np.float64)
+        if v.ndim > 1 or (v.ndim == 1 and v.shape[0] != batch):
+            raise ValueError(f"{pde.NAME}: params[{name!r}] has shape {v.shape}; expected a scalar or [{batch}]")
+        v = np.broadcast_to(v, (batch,))
+        domain = pde.param_domains[name]
+        bad = [x for x in v if not (np.isfinite(x) and domain.contains(x))]
+        if bad:
+            raise ValueError(f"{pde.NAME}: {name}={bad[0]:.6g} not allowed: outside its domain {domain}")
+        explicit[:, j], given[:, j] = v.astype(np.float32), True
+    return explicit, given
+
+
 def sample(
     pde: PDE | str,
     indices: Sequence[int] | np.ndarray | int,
     seed: int = 0,
     on_blowup: OnBlowup = "raise",
     max_redraws: int = 3,
+    params: Mapping[str, Sequence[float] | float] | None = None,
 ) -> Trajectory:
     """Solve samples ``indices`` of ``pde`` under ``seed``: a Trajectory with u [B, T, C, *space].
 
+    params: optional explicit values {name: scalar or [B]} for some or all parameters (each inside its
+    domain); the initial condition still comes from the key of (seed, index), so sample identity is
+    (config, seed, index, params), and a sample given its drawn values is bit-identical to the drawn one.
     on_blowup="raise": a NaN/Inf trajectory raises BlowUpError naming the indices and parameters.
     on_blowup="redraw": such a sample is redrawn with attempt keys 1..max_redraws (deterministic per
-    index); ``Trajectory.redraws`` counts them; still failing after max_redraws raises.
+    index; explicit parameters are kept, only the drawn ones and the IC change); ``Trajectory.redraws``
+    counts them; still failing after max_redraws raises.
     """
     pde = get_pde(pde) if isinstance(pde, str) else pde
     if on_blowup not in ("raise", "redraw"):
@@ -191,15 +235,16 @@ def sample(
     if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     idx = _check_indices(indices)
-    u, params, finite = _run_keys(pde, sample_keys(int(seed), idx))
+    explicit, given = explicit_params(pde, params, len(idx))
+    u, params, finite = _run_keys(pde, sample_keys(int(seed), idx), explicit, given)
     redraws = np.zeros(len(idx), np.int64)
     attempt = 0
     bad = np.flatnonzero(~np.asarray(finite))
     while bad.size and on_blowup == "redraw" and attempt < max_redraws:
         attempt += 1
         # rerun the full batch shape (failed keys padded by repetition) so no new compile is needed
-        retry = np.resize(idx[bad], len(idx))
-        u2, p2, f2 = _run_keys(pde, sample_keys(int(seed), retry, attempt))
+        retry = np.resize(bad, len(idx))
+        u2, p2, f2 = _run_keys(pde, sample_keys(int(seed), idx[retry], attempt), explicit[retry], given[retry])
         sel = jnp.asarray(bad)
         u = u.at[sel].set(u2[: bad.size])
         params = {k: v.at[sel].set(p2[k][: bad.size]) for k, v in params.items()}

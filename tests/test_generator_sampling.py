@@ -151,3 +151,43 @@ def test_blow_up_is_reported_with_index_and_parameters():
     assert "index 4" in str(err.value) and "nu=0.01" in str(err.value) and "redraw" in str(err.value)
     with pytest.raises(g.BlowUpError, match="blew up"):
         g.sample(pde, [4], seed=0, on_blowup="redraw", max_redraws=2)
+
+
+# --- explicit parameters: sample identity (config, seed, index, params) -----------------------------
+@pytest.mark.parametrize("name, settings", [("burgers1d", {"n": 64, "n_frames": 4}),
+                                            ("grayscott2d", {"n": 32, "n_frames": 3, "t_end": 20.0})])
+def test_explicit_params_equal_the_drawn_sample_bit_for_bit(name, settings):
+    pde = g.get_pde(name, **settings)
+    drawn = g.sample(pde, [3, 4, 5], seed=7)
+    values = {k: np.asarray(v) for k, v in drawn.params.items()}
+    # alone, in another batch, in another order: the same bits as the drawn samples
+    again = g.sample(pde, [5, 3, 4], seed=7, params={k: v[[2, 0, 1]] for k, v in values.items()})
+    assert np.array_equal(np.asarray(again.u), np.asarray(drawn.u)[[2, 0, 1]])
+    one = g.sample(pde, [4], seed=7, params={k: v[1:2] for k, v in values.items()})
+    assert np.array_equal(np.asarray(one.u[0]), np.asarray(drawn.u[1]))
+
+
+def test_explicit_params_change_the_solution_but_not_the_ic():
+    pde = g.get_pde("burgers1d", n=64, n_frames=4)
+    a = g.sample(pde, [0, 0], seed=1, params={"nu": [0.01, 0.1]})
+    assert np.allclose(np.asarray(a.params["nu"]), [0.01, 0.1])
+    assert np.array_equal(np.asarray(a.u[0, 0]), np.asarray(a.u[1, 0]))  # same key: same IC
+    assert not np.allclose(np.asarray(a.u[0, -1]), np.asarray(a.u[1, -1]))  # other nu: other solution
+    # a subset of parameters: the others are drawn from the key as usual
+    gs = g.get_pde("grayscott2d", n=32, n_frames=2, t_end=10.0)
+    drawn = g.sample(gs, [2], seed=0)
+    part = g.sample(gs, [2], seed=0, params={"F": 0.04})
+    assert float(part.params["F"][0]) == np.float32(0.04)
+    assert float(part.params["k"][0]) == float(drawn.params["k"][0])
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"nu": 0.5}, "nu=0.5 not allowed: outside its domain loguniform(0.01, 0.1)"),
+    ({"nu": float("nan")}, "nu=nan not allowed"),
+    ({"mu": 0.05}, "unknown parameter(s) ['mu']"),
+    ({"nu": [0.05, 0.05, 0.05]}, "expected a scalar or [2]"),
+])
+def test_explicit_params_are_checked(params, message):
+    with pytest.raises(ValueError) as err:
+        g.sample("burgers1d", [0, 1], params=params)
+    assert message in str(err.value)
