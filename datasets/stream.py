@@ -8,13 +8,12 @@ index, so workers and ranks together see each index once, whatever their number.
 the view, shuffles them within that solve batch and yields collated batches of ``batch_size`` examples.
 Random window starts and the shuffle are seeded from (seed, epoch, index), so a resumed run replays bits.
 
-Progress (epoch, examples consumed per worker) lives in a small shared-memory array so ``set_epoch`` and
-``load_state_dict`` reach persistent spawn workers; ``stream_loader`` builds the DataLoader that keeps it.
+Progress (epoch, examples consumed per worker) lives in a ``datasets.progress.Progress`` in shared memory so
+``set_epoch`` and ``load_state_dict`` reach persistent spawn workers; ``stream_loader`` builds the DataLoader
+that keeps it.
 """
 
 from __future__ import annotations
-
-import multiprocessing as mp
 
 import numpy as np
 import torch
@@ -22,9 +21,8 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from . import _bridge
 from ._prefetch import prefetch
+from .progress import MAX_WORKERS, Progress
 from .views import gather, make_view
-
-MAX_WORKERS = 64  # progress slots per rank
 
 
 def _int_arg(name: str, value, low: int) -> int:
@@ -76,11 +74,7 @@ class TrajectoryStream(IterableDataset):
         self.on_blowup, self.shuffle, self.resample = on_blowup, bool(shuffle), bool(resample)
         self.drop_last, self.prefetch = bool(drop_last), bool(prefetch)
         self.per_trajectory = len(self.view.starts(self.pde.n_frames, torch.Generator()))
-        # [epoch, shards recorded (0: none yet), consumed examples of worker 0, 1, ...]
-        self._progress = mp.get_context("spawn").RawArray("q", 2 + MAX_WORKERS)
-        self._override = None  # a state loaded inside a worker (torchdata's StatefulDataLoader)
-        self._local = None  # [epoch, consumed] of the running iterator
-        self._unpickled = False
+        self._progress = Progress()  # epoch and examples consumed per worker, shared with spawn workers
         self.num_workers = 0  # set by stream_loader; how many consumed counts state_dict reports
 
     # --- placement -------------------------------------------------------------------------------
@@ -113,25 +107,21 @@ class TrajectoryStream(IterableDataset):
     # --- epochs and state ------------------------------------------------------------------------
     def set_epoch(self, epoch: int) -> None:
         """Start epoch ``epoch`` from its beginning (reaches persistent workers through shared memory)."""
-        self._progress[0] = _int_arg("epoch", epoch, 0)
-        self._progress[1:] = [0] * (1 + MAX_WORKERS)
+        self._progress.set_epoch(_int_arg("epoch", epoch, 0))
 
     @property
     def epoch(self) -> int:
         """The epoch the next iteration of this stream covers."""
-        return int(self._progress[0])
+        return self._progress.epoch
 
     def state_dict(self) -> dict:
         """Where the stream stands: epoch and examples consumed per worker (shard) of this rank."""
         rank, world = self.placement()
         info = get_worker_info()
         if info is None:
-            nw = max(1, self.num_workers)
-            epoch, consumed = int(self._progress[0]), [int(c) for c in self._progress[2 : 2 + nw]]
+            epoch, consumed = self._progress.snapshot(max(1, self.num_workers))
         else:  # inside a worker: only this worker's progress (StatefulDataLoader merges them)
-            epoch, done = self._local or (int(self._progress[0]), int(self._progress[2 + info.id]))
-            consumed = [0] * info.num_workers
-            consumed[info.id] = done
+            epoch, consumed = self._progress.snapshot(info.num_workers, info.id)
         return {"seed": self.seed, "n_samples": self.n_samples, "rank": rank, "world_size": world,
                 "epoch": epoch, "consumed": consumed}
 
@@ -141,53 +131,26 @@ class TrajectoryStream(IterableDataset):
         for key, mine in (("seed", self.seed), ("n_samples", self.n_samples), ("rank", rank), ("world_size", world)):
             if state.get(key) != mine:
                 raise ValueError(f"state has {key}={state.get(key)!r} but this stream has {key}={mine!r}")
-        consumed = [_int_arg("consumed", c, 0) for c in state["consumed"]]
-        epoch = _int_arg("epoch", state["epoch"], 0)
-        if not 1 <= len(consumed) <= MAX_WORKERS:
-            raise ValueError(f"state has {len(consumed)} worker counts; allowed 1..{MAX_WORKERS}")
         info = get_worker_info()
-        if info is not None:
-            if len(consumed) != info.num_workers:
-                raise ValueError(f"state saved with {len(consumed)} workers, resumed with {info.num_workers}")
-            self._override = (epoch, consumed[info.id])
-            return
-        self.set_epoch(epoch)
-        self._progress[1] = len(consumed)
-        self._progress[2 : 2 + len(consumed)] = consumed
+        if info is None:
+            self._progress.restore(state["epoch"], state["consumed"])
+        else:  # torchdata's StatefulDataLoader loads it inside each worker: for that worker's next iteration
+            self._progress.restore(state["epoch"], state["consumed"], info.id, info.num_workers)
 
     def __getstate__(self):
         state = self.__dict__.copy()
         state["rank"], state["world_size"] = self.placement()  # torch.distributed is not set up in workers
-        if mp.context.get_spawning_popen() is None:  # plain pickling: a copy, not the shared memory
-            state["_progress"] = list(self._progress)
-        return state
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        if isinstance(self._progress, list):
-            values, self._progress = self._progress, mp.get_context("spawn").RawArray("q", 2 + MAX_WORKERS)
-            self._progress[:] = values
-        self._unpickled = True
+        return state  # Progress pickles itself: a plain copy, or the shared memory for a spawning worker
 
     # --- iteration -------------------------------------------------------------------------------
     def __iter__(self):
         # A plain function (not a generator) so that the state is settled when iter() returns.
         wid, nw, shard, stride = self._shard()
         in_main = get_worker_info() is None
-        if not in_main and not self._unpickled:
+        if not in_main and not self._progress.unpickled:
             raise ValueError("TrajectoryStream in a forked DataLoader worker: JAX is not fork-safe; use "
                              "datasets.stream_loader(stream, num_workers=N) or multiprocessing_context='spawn'")
-        if self._override is not None:
-            epoch, skip = self._override
-            self._override = None
-        else:
-            recorded = int(self._progress[1])
-            epoch, skip = int(self._progress[0]), int(self._progress[2 + wid])
-            if recorded and recorded != nw:
-                raise ValueError(f"state saved with {recorded} worker(s) per rank, resumed with {nw}")
-        if in_main:
-            self._progress[1] = nw
-        self._local = [epoch, skip]
+        epoch, skip = self._progress.start(wid, nw, share=in_main)
         return self._batches(epoch, skip, shard, stride, wid, in_main)
 
     def _batches(self, epoch, skip, shard, stride, wid, in_main):
@@ -213,15 +176,13 @@ class TrajectoryStream(IterableDataset):
         finally:
             chunks.close()
         if self.n_samples is not None:  # epoch complete: the next iteration starts the next one
-            self._local = [epoch + 1, 0]
+            self._progress.running = [epoch + 1, 0]
             if in_main:
                 self.set_epoch(epoch + 1)
 
     def _emit(self, pieces, wid, in_main) -> dict:
         batch = pieces[0] if len(pieces) == 1 else {k: torch.cat([p[k] for p in pieces]) for k in pieces[0]}
-        self._local[1] += len(batch["index"])  # counted when handed out, so state_dict includes it
-        if in_main:
-            self._progress[2 + wid] = self._local[1]
+        self._progress.advance(wid, len(batch["index"]), share=in_main)  # when handed out: state_dict has it
         return batch
 
     def _chunk(self, epoch: int, shard: int, stride: int, c: int, count: int):
@@ -269,17 +230,14 @@ class StreamLoader(DataLoader):
             return
         rank, world = stream.placement()
         nw = self.num_workers
-        recorded = int(stream._progress[1])
-        if recorded and recorded != nw:
-            raise ValueError(f"stream state saved with {recorded} worker(s) per rank, resumed with {nw}")
-        stream._progress[1] = nw
+        progress = stream._progress
+        progress.record_workers(nw)
         for batch in super().__iter__():
-            base = stream._base(int(stream._progress[0]))
-            shard = (int(batch["index"][0]) - base) % (world * nw)
-            stream._progress[2 + shard - rank * nw] += len(batch["index"])
+            shard = (int(batch["index"][0]) - stream._base(progress.epoch)) % (world * nw)
+            progress.add(shard - rank * nw, len(batch["index"]))
             yield batch
         if stream.n_samples is not None:
-            stream.set_epoch(int(stream._progress[0]) + 1)
+            stream.set_epoch(progress.epoch + 1)
 
 
 def stream_loader(stream: TrajectoryStream, num_workers: int = 0, prefetch_factor: int = 2,

@@ -226,3 +226,34 @@ def test_a_script_may_exit_with_a_stream_still_open(tmp_path):
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and "done" in out.stdout, out.stderr[-500:]
     assert "terminate called" not in out.stderr
+
+
+def test_progress_counts_snapshots_and_pickles_to_a_copy():
+    import pickle
+
+    from datasets.progress import Progress
+
+    p = Progress()
+    p.set_epoch(2)
+    p.add(1, 5)
+    p.add(1, 3)
+    assert p.epoch == 2 and p.consumed(1) == 8 and p.snapshot(2) == (2, [0, 8])
+    copy = pickle.loads(pickle.dumps(p))  # plain pickling: independent memory
+    copy.add(1, 1)
+    assert (p.consumed(1), copy.consumed(1)) == (8, 9) and copy.unpickled and not p.unpickled
+    p.restore(3, [4, 5])
+    assert p.snapshot(2) == (3, [4, 5]) and p.workers == 2
+    with pytest.raises(ValueError, match="saved with 2 worker"):
+        p.record_workers(3)
+    p.restore(0, [1, 2], worker=1, workers=2)  # inside worker 1: for its next iteration only
+    assert p.start(1, 2, share=False) == (0, 2) and p.snapshot(2) == (3, [4, 5])
+    p.advance(1, 3, share=False)
+    assert p.snapshot(2, worker=1) == (0, [0, 5])
+
+
+def test_out_of_range_state_is_refused_not_wrapped(pde):
+    stream = TrajectoryStream(pde, SEED, n_samples=4)
+    for key, value in (("consumed", [2**63]), ("epoch", 2**64), ("consumed", [-1])):
+        with pytest.raises(ValueError, match=f"{key}={value if key == 'epoch' else value[0]} not allowed"):
+            stream.load_state_dict({**stream.state_dict(), key: value})
+    assert stream.state_dict()["consumed"] == [0] and stream.epoch == 0
