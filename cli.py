@@ -7,6 +7,7 @@ print one line ``pdestream: error: ...`` and exit with status 2; no traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 
@@ -69,8 +70,37 @@ def cmd_list(args: argparse.Namespace) -> None:
         print()
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Adds "(default: X)" to an option's help unless it has none (None, a flag off, no list) or says it already."""
+
+    def _get_help_string(self, action):
+        none = action.default is None or action.default is False or action.default == []
+        if none or "default" in (action.help or ""):
+            return action.help
+        return super()._get_help_string(action)
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose --help shows defaults; subcommand parsers are of this class too."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
+
+
+def _version() -> str:
+    """The installed package's version (importlib.metadata), or a note when running from an uninstalled tree."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("pdestream")
+    except PackageNotFoundError:
+        return "(not installed: pip install -e .)"
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="pdestream", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="pdestream", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("list", help="every PDE with its equation, fields, parameters and domains")
@@ -151,7 +181,18 @@ def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr:
     p.add_argument("--batch-size", type=int, default=batch_size, help="examples per optimizer step")
     p.add_argument("--lr", type=float, default=lr, help="peak learning rate (Adam, cosine decay)")
     p.add_argument("--threads", type=int, default=None,
-                   help="torch CPU threads (compare default 1: the solver thread of the stream gets the other core)")
+                   help="torch CPU threads (default: train --source stream: all cores but one, so the stream's "
+                        "solver thread keeps a core; train on a cache: torch's default; compare: 1)")
+
+
+def default_threads(source: str) -> int | None:
+    """torch CPU threads for `train` without --threads: for the stream, the cores this process may use minus one
+    (at least 1), since torch's threads fighting the solver thread ran 6x slower on 2 cores; for a cache, None
+    (torch's default)."""
+    if source != "stream":
+        return None
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, cores - 1)
 
 
 def _set_threads(threads: int | None) -> None:
@@ -194,7 +235,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     if args.source != "stream" and not Path(args.source).exists():
         raise FileNotFoundError(f"--source {args.source}: no such cache (or use --source stream)")
     pde = pde_from_args(args.pde, args)
-    _set_threads(args.threads)
+    _set_threads(default_threads(args.source) if args.threads is None else args.threads)
     if args.test_samples < 1:
         raise ValueError(f"--test-samples={args.test_samples} not allowed; must be >= 1")
     s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
