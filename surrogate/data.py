@@ -8,7 +8,7 @@
 from __future__ import annotations
 
 import torch
-from torch.utils.data import DataLoader
+from torch.utils.data import DataLoader, Sampler
 
 import datasets
 
@@ -35,21 +35,77 @@ def _lookup(config: dict, key: str):
 
 
 def train_loader(pde, source: str, view, batch_size: int, seed: int = 0, data_seed: int = 0,
-                 explicit: dict | None = None):
+                 explicit: dict | None = None, data_cfg: dict | None = None):
     """(DataLoader of batch dicts, the PDE the data comes from) for ``source`` = "stream" or a cache path.
 
     Stream: samples 0, 1, 2, ... of (pde, data_seed), never repeated. Cache: its samples, reshuffled each
-    epoch by a torch generator seeded with ``seed``.
+    epoch by an ``EpochBatchSampler`` seeded with ``seed`` (resumable: ``loader.batch_sampler.state_dict()``).
+    data_cfg: opaque settings of the data source recorded in run.json (None: the defaults above).
     """
     if source == "stream":
         stream = datasets.TrajectoryStream(pde, seed=data_seed, view=view, batch_size=batch_size)
         return datasets.stream_loader(stream), stream.pde
     cached = datasets.CachedTrajectories(source, view=view)
     check_cache_matches(cached, pde, explicit)
-    gen = torch.Generator().manual_seed(seed)
-    loader = DataLoader(cached, batch_size=batch_size, shuffle=True, generator=gen,
-                        drop_last=len(cached) >= batch_size, collate_fn=datasets.collate)
+    sampler = EpochBatchSampler(len(cached), batch_size, seed, drop_last=len(cached) >= batch_size)
+    # the generator only feeds the DataLoader's per-iteration worker seed, which would otherwise be drawn
+    # from the global torch RNG (that one also draws random next_step windows, and a resume restores it)
+    loader = DataLoader(cached, batch_sampler=sampler, collate_fn=datasets.collate, generator=torch.Generator())
     return loader, cached.pde
+
+
+class EpochBatchSampler(Sampler):
+    """Batches of example indices (lists of ``batch_size`` ints), one shuffled pass per epoch, resumable.
+
+    The batches are the ones ``DataLoader(ds, batch_size, shuffle=True, generator=Generator().manual_seed(seed),
+    drop_last)`` gives, and epoch e's order is a pure function of (seed, e): the generator is replayed through
+    the draws that loader makes per epoch. ``state_dict()`` records (epoch, batches handed out) -- exact for a
+    DataLoader without workers, which asks for one batch at a time.
+    """
+
+    def __init__(self, n: int, batch_size: int, seed: int, drop_last: bool = False):
+        if n < 1 or batch_size < 1:
+            raise ValueError(f"EpochBatchSampler: n={n} and batch_size={batch_size} must both be >= 1")
+        self.n, self.batch_size, self.seed, self.drop_last = n, batch_size, seed, bool(drop_last)
+        self.epoch, self.consumed = 0, 0
+        self._gen, self._gen_epoch = None, -1  # generator positioned at the start of epoch _gen_epoch
+
+    def __len__(self) -> int:
+        return self.n // self.batch_size if self.drop_last else -(-self.n // self.batch_size)
+
+    def _permutation(self, epoch: int) -> torch.Tensor:
+        """Epoch ``epoch``'s order [n]. Per epoch the shuffling DataLoader draws from its generator: its base
+        seed (an int64), RandomSampler's permutation, and a second permutation for the (empty) remainder."""
+        if self._gen is None or self._gen_epoch > epoch:
+            self._gen, self._gen_epoch = torch.Generator().manual_seed(self.seed), 0
+        while True:
+            torch.empty((), dtype=torch.int64).random_(generator=self._gen)
+            perm = torch.randperm(self.n, generator=self._gen)
+            torch.randperm(self.n, generator=self._gen)
+            self._gen_epoch += 1
+            if self._gen_epoch > epoch:
+                return perm
+
+    def __iter__(self):
+        if self.consumed >= len(self):  # resumed right at the end of an epoch
+            self.epoch, self.consumed = self.epoch + 1, 0
+        epoch, order = self.epoch, self._permutation(self.epoch).tolist()
+        for b in range(self.consumed, len(self)):
+            self.consumed = b + 1  # counted when handed out, so a state taken after this batch skips it
+            yield order[b * self.batch_size : (b + 1) * self.batch_size]
+        self.epoch, self.consumed = epoch + 1, 0
+
+    def state_dict(self) -> dict:
+        return {"sampler": "epoch_batch", "seed": self.seed, "n": self.n, "batch_size": self.batch_size,
+                "drop_last": self.drop_last, "epoch": self.epoch, "consumed": self.consumed}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Continue after the last batch handed out when ``state`` was taken (same seed, size and batching)."""
+        for key in ("seed", "n", "batch_size", "drop_last"):
+            if state.get(key) != getattr(self, key):
+                raise ValueError(f"sampler state has {key}={state.get(key)!r} but this cache source has "
+                                 f"{key}={getattr(self, key)!r}")
+        self.epoch, self.consumed = int(state["epoch"]), int(state["consumed"])
 
 
 def test_set(pde, seed: int, n: int, batch_size: int = 32) -> list[dict]:
