@@ -163,3 +163,57 @@ def test_ctrl_c_leaves_an_incomplete_cache_and_one_line(tmp_path):
     assert err == "pdestream: interrupted\n"
     ds = datasets.open_cache(part)
     assert not is_complete(ds) and 4 <= int((ds["complete"].values == 1).sum()) < N_SLOW
+
+
+def test_version_prints_the_installed_version(capsys):
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as exit:
+        cli.main(["--version"])
+    assert exit.value.code == 0
+    assert capsys.readouterr().out.strip() == f"pdestream {version('pdestream')}"
+
+
+@pytest.mark.parametrize("command, shown", [
+    ("generate", ["seed, i) (default: 0)", "(default: raise)"]),
+    ("train", ["(default: stream)", "optimizer steps (default: 1000)", "(default: 0.001)"]),
+    ("compare", ["(default: 128)", "(default: h5)", "(default: 0.003)"]),
+])
+def test_help_shows_defaults(capsys, monkeypatch, command, shown):
+    monkeypatch.setenv("COLUMNS", "240")  # one option per line
+    with pytest.raises(SystemExit):
+        cli.main([command, "--help"])
+    out = capsys.readouterr().out
+    for text in shown:
+        assert text in out, text
+    assert "(default: None)" not in out and "(default: False)" not in out
+
+
+def test_stream_training_leaves_the_solver_a_core(monkeypatch):
+    for cores, threads in ((1, 1), (2, 1), (8, 7)):
+        monkeypatch.setattr(cli.os, "sched_getaffinity", lambda pid, cores=cores: set(range(cores)))
+        assert cli.default_threads("stream") == threads
+    assert cli.default_threads("burgers.h5") is None  # a cache: torch's default
+
+
+def test_train_without_threads_applies_the_stream_default(capsys, monkeypatch, tmp_path):
+    import torch
+
+    import surrogate.runs
+
+    seen = []
+
+    def stop(*args, **kwargs):
+        seen.append(torch.get_num_threads())
+        raise ValueError("stopped before training")
+
+    monkeypatch.setattr(surrogate.runs, "train_run", stop)
+    monkeypatch.setattr(cli.os, "sched_getaffinity", lambda pid: {0, 1, 2})
+    before = torch.get_num_threads()
+    try:
+        for extra, threads in (([], 2), (["--threads", "1"], 1)):
+            code, _, err = run_cli(capsys, "train", "burgers1d", "--out", str(tmp_path / "run"), *SMALL, *extra)
+            assert code == 2 and "stopped before training" in err
+            assert seen.pop() == threads
+    finally:
+        torch.set_num_threads(before)
