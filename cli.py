@@ -212,42 +212,89 @@ def _view_from_args(args, default: str):
 
 
 def add_train(sub) -> None:
-    p = sub.add_parser("train", help="train a surrogate (FNO / U-Net) on the stream or on a cache")
-    p.add_argument("pde", help="PDE name (see `pdestream list`)")
+    p = sub.add_parser("train", help="train a surrogate (FNO / U-Net) on the stream or on a cache; --resume a run")
+    p.add_argument("pde", nargs="?", help="PDE name (see `pdestream list`); may come from --config instead")
     p.add_argument("--source", default="stream", metavar="stream|PATH",
                    help="'stream' (solve on the fly) or a cache written by `pdestream generate`")
-    p.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory: metrics.csv/json, model.pt")
+    p.add_argument("--out", metavar="RUN_DIR", help="run directory: run.json, checkpoint.pt, metrics.csv/json, model.pt")
+    p.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run from its checkpoint.pt, with the "
+                                                       "settings of its run.json (only --threads may go with it)")
     p.add_argument("--seed", type=int, default=0, help="model initialization and data seed")
     p.add_argument("--test-samples", type=int, default=32, help="held-out trajectories for the test errors")
+    p.add_argument("--checkpoint-every", type=int, default=100, metavar="N",
+                   help="write RUN_DIR/checkpoint.pt every N steps (0: only at the end)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run in RUN_DIR")
     _add_model_args(p, steps=1000, batch_size=32, lr=1e-3)
     _add_pde_config_args(p)
     p.set_defaults(func=cmd_train)
 
 
+RUN_MARKERS = ("run.json", "checkpoint.pt", "model.pt", "metrics.json")  # any of them: the directory holds a run
+RESUME_ALLOWED = {"resume", "threads", "command", "func"}  # what may go with --resume (threads: how, not what)
+
+
+def _settings_given_with_resume(args: argparse.Namespace) -> list[str]:
+    """The options (and PDE name) set on the command line besides --resume and --threads."""
+    defaults = vars(build_parser().parse_args(["train", "--resume", "x"]))
+    given = [k for k, v in vars(args).items() if k not in RESUME_ALLOWED and v != defaults.get(k)]
+    return ["PDE name" if k == "pde" else "--" + k.replace("_", "-") for k in given]
+
+
 def cmd_train(args: argparse.Namespace) -> None:
+    if args.resume is not None:
+        return _resume_train(args)
     from pathlib import Path
 
     from surrogate.runs import train_run
 
-    if (Path(args.out) / "model.pt").exists() and not args.overwrite:
-        raise FileExistsError(f"{args.out} already holds a run (model.pt); pass --overwrite or choose another --out")
+    if args.out is None:
+        raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
+    held = [name for name in RUN_MARKERS if (Path(args.out) / name).exists()]
+    if held and not args.overwrite:
+        raise FileExistsError(f"{args.out} already holds a run ({', '.join(held)}); pass --resume {args.out} to "
+                              "continue it, --overwrite to replace it, or choose another --out")
     if args.source != "stream" and not Path(args.source).exists():
         raise FileNotFoundError(f"--source {args.source}: no such cache (or use --source stream)")
     pde = pde_from_args(args.pde, args)
     _set_threads(default_threads(args.source) if args.threads is None else args.threads)
     if args.test_samples < 1:
         raise ValueError(f"--test-samples={args.test_samples} not allowed; must be >= 1")
+    if args.checkpoint_every < 0:
+        raise ValueError(f"--checkpoint-every={args.checkpoint_every} not allowed; must be >= 0 (0: only at the end)")
     s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
                   view=_view_from_args(args, "next_step"), steps=args.steps, batch_size=args.batch_size, lr=args.lr,
-                  seed=args.seed, n_test=args.test_samples, explicit=settings_from_args(args.pde, args)[1])
-    print(f"trained {args.model} on {args.source} for {s['steps']} steps in {s['wall']:.1f} s "
+                  seed=args.seed, n_test=args.test_samples, explicit=settings_from_args(args.pde, args)[1],
+                  checkpoint_every=args.checkpoint_every)
+    _print_run(s, args.model, args.source, args.test_samples, args.out)
+
+
+def _resume_train(args: argparse.Namespace) -> None:
+    """`train --resume RUN_DIR`: everything from RUN_DIR/run.json; other settings are refused (one line)."""
+    import json
+    from pathlib import Path
+
+    from surrogate.runs import RUN_FILE, read_run, resume_run
+
+    given = _settings_given_with_resume(args)
+    if given:
+        raise ValueError(f"--resume takes the run's settings from {Path(args.resume) / RUN_FILE}; "
+                         f"drop {', '.join(given)} (only --threads may go with it)")
+    read_run(Path(args.resume))  # refuse a non-run or a finished run before anything else
+    settings = json.loads((Path(args.resume) / RUN_FILE).read_text())
+    _set_threads(default_threads(settings["source"]) if args.threads is None else args.threads)
+    s, step = resume_run(args.resume)
+    print(f"resumed {args.resume} at step {step} of {settings['steps']}")
+    _print_run(s, settings["model"], settings["source"], settings["n_test"], args.resume)
+
+
+def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
+    print(f"trained {model} on {source} for {s['steps']} steps in {s['wall']:.1f} s "
           f"(waiting for data {s['t_data']:.1f} s, computing {s['t_compute']:.1f} s); "
           f"{s['trajectories_seen']} trajectories, final loss {s['final_loss']:.4g}")
     t = s["test"]["test"]
-    print(f"test ({args.test_samples} held-out trajectories): rel L2 {t['rel_l2']:.4f}, nRMSE {t['nrmse']:.4f}"
+    print(f"test ({n_test} held-out trajectories): rel L2 {t['rel_l2']:.4f}, nRMSE {t['nrmse']:.4f}"
           + (f", rollout rel L2 at the last frame {t['rollout_final']:.4f}" if "rollout_final" in t else ""))
-    print(f"run: {args.out}/metrics.csv, metrics.json, model.pt")
+    print(f"run: {out}/metrics.csv, metrics.json, model.pt, checkpoint.pt")
 
 
 def add_compare(sub) -> None:

@@ -1,4 +1,9 @@
-"""One training run end to end: data source -> model -> train -> held-out test errors (used by the CLI)."""
+"""One training run end to end: data source -> model -> train -> held-out test errors (used by the CLI).
+
+A run directory holds ``run.json`` (written first: every setting ``resume_run`` needs to rebuild the run),
+``checkpoint.pt`` (the training state, every ``checkpoint_every`` steps and at the end), and when finished
+``metrics.csv``, ``model.pt`` and ``metrics.json`` (written last: its presence marks a finished run).
+"""
 
 from __future__ import annotations
 
@@ -12,7 +17,12 @@ import datasets
 from .data import test_set, train_loader
 from .evaluate import evaluate, rollout_error
 from .models import build_model
-from .train import train
+from .train import CHECKPOINT, atomic_write, check_train_settings, load_train_state, train
+
+RUN_FILE = "run.json"
+RUN_FORMAT = 1
+# files of a run; a fresh run in a directory first removes these, so no stale checkpoint can be resumed
+RUN_FILES = (RUN_FILE, CHECKPOINT, "model.pt", "metrics.json", "metrics.csv")
 
 
 def model_channels(pde, view) -> tuple[int, int]:
@@ -36,30 +46,92 @@ def test_errors(model, normalizer, view, test: list[dict]) -> dict:
 
 def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict | None = None, view="next_step",
               steps: int = 1000, batch_size: int = 32, lr: float = 1e-3, schedule: str = "cosine", seed: int = 0,
-              data_seed: int | None = None,
-              tests: dict[str, list[dict]] | None = None, n_test: int = 32, explicit: dict | None = None,
-              label: str = "train") -> dict:
+              data_seed: int | None = None, tests: dict[str, list[dict]] | None = None, n_test: int = 32,
+              explicit: dict | None = None, label: str = "train", checkpoint_every: int = 100,
+              data_cfg: dict | None = None) -> dict:
     """Train ``model`` on ``source`` ("stream" or a cache path) for ``steps`` optimizer steps; evaluate.
 
     seed: model initialization and cache shuffling; data_seed: the stream's sample seed (default: seed).
-    tests: named held-out sets (whole trajectories); default {"test": n_test trajectories of a held-out seed}.
-    Writes metrics.csv, metrics.json (with the test errors) and model.pt to out_dir; returns the summary.
+    tests: named held-out sets (whole trajectories); default {"test": n_test trajectories of a held-out seed}
+    (a resumed run rebuilds only the default). checkpoint_every: steps between checkpoints (0: only at the end).
+    data_cfg: settings of the data source (a JSON-able dict), passed to ``surrogate.data.train_loader``.
+    Writes run.json, checkpoint.pt, metrics.csv, model.pt and metrics.json (with the test errors) to out_dir;
+    returns the summary.
     """
     view = datasets.make_view(view)
-    data_seed = seed if data_seed is None else data_seed
-    loader, data_pde = train_loader(pde, source, view, batch_size, seed=seed, data_seed=data_seed, explicit=explicit)
+    settings = {"format": RUN_FORMAT, "pde": None, "source": str(source), "model": model,
+                "model_cfg": dict(model_cfg or {}), "view": view.name, "view_args": dict(vars(view)),
+                "steps": steps, "batch_size": batch_size, "lr": lr, "schedule": schedule, "seed": seed,
+                "data_seed": seed if data_seed is None else data_seed, "n_test": n_test,
+                "checkpoint_every": checkpoint_every, "data_cfg": data_cfg, "label": label}
+    return _run(pde, settings, Path(out_dir), tests=tests, explicit=explicit)
+
+
+def resume_run(run_dir) -> tuple[dict, int]:
+    """Continue the run in ``run_dir`` from its checkpoint.pt to its total steps: (summary, step resumed at).
+
+    Everything is rebuilt from run.json; the finished run equals the uninterrupted one (bit for bit on the
+    CPU) apart from timings. ValueError when the directory is not a run or the run is already complete.
+    """
+    run_dir = Path(run_dir)
+    settings, ckpt = read_run(run_dir)
+    from datasets._bridge import pde_from_config  # the one door to the generator (surrogate never imports it)
+
+    for stray in run_dir.glob(f".{CHECKPOINT}.*.tmp"):  # a write cut short by the kill
+        stray.unlink(missing_ok=True)
+    return _run(pde_from_config(settings["pde"]), settings, run_dir, resume=ckpt), int(ckpt["step"])
+
+
+def read_run(run_dir: Path) -> tuple[dict, dict]:
+    """(run.json settings, checkpoint.pt dict) of an unfinished run; ValueError naming what is wrong."""
+    if not run_dir.is_dir():
+        raise ValueError(f"--resume {run_dir}: no such run directory")
+    missing = [name for name in (RUN_FILE, CHECKPOINT) if not (run_dir / name).is_file()]
+    if missing:
+        hint = " (killed before its first checkpoint? start it again with --overwrite)" if missing == [CHECKPOINT] else ""
+        raise ValueError(f"--resume {run_dir}: not a resumable training run, no {' or '.join(missing)}{hint}")
+    try:
+        settings = json.loads((run_dir / RUN_FILE).read_text())
+    except (OSError, ValueError) as err:
+        raise ValueError(f"--resume {run_dir}: cannot read {RUN_FILE} ({err})") from None
+    if not isinstance(settings, dict) or settings.get("format") != RUN_FORMAT:
+        raise ValueError(f"--resume {run_dir}: {RUN_FILE} is not a pdestream run file of format {RUN_FORMAT}")
+    ckpt = load_train_state(run_dir / CHECKPOINT)
+    if ckpt.get("step") == settings["steps"] and (run_dir / "metrics.json").is_file():
+        raise ValueError(f"--resume {run_dir}: the run is already complete ({settings['steps']} of "
+                         f"{settings['steps']} steps; see metrics.json)")
+    return settings, ckpt
+
+
+def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: dict | None = None,
+         resume: dict | None = None) -> dict:
+    """Build the data source and model from ``settings`` (run.json's layout), then train and evaluate. A fresh
+    run (resume=None) writes run.json once everything has been checked, so a refused run leaves nothing."""
+    s = settings
+    check_train_settings(s["steps"], s["lr"], s["schedule"], s["checkpoint_every"])
+    view = datasets.make_view(s["view"], **s["view_args"])
+    loader, data_pde = train_loader(pde, s["source"], view, s["batch_size"], seed=s["seed"], data_seed=s["data_seed"],
+                                    explicit=explicit, data_cfg=s["data_cfg"])
     view.check(data_pde.n_frames)
     c_in, c_out = model_channels(data_pde, view)
-    torch.manual_seed(seed)  # same initial weights for every source with the same seed
-    net = build_model(model, data_pde.NDIM, c_in, c_out, len(data_pde.PARAMS), **(model_cfg or {}))
-    meta = {"pde": data_pde.config(), "source": str(source), "view": view.name,
-            "view_args": {k: v for k, v in vars(view).items()}, "seed": seed, "data_seed": data_seed, "batch_size": batch_size}
-    summary = train(net, loader, steps, out_dir, lr=lr, schedule=schedule, meta=meta, label=label)
-    if tests is None:
-        tests = {"test": test_set(data_pde, data_seed, n_test)}
-    summary["test"] = {name: test_errors(net, summary["normalizer"], view, t) for name, t in tests.items()}
-    path = Path(out_dir) / "metrics.json"
-    saved = json.loads(path.read_text())
-    saved["test"] = summary["test"]
-    path.write_text(json.dumps(saved, indent=2))
-    return summary
+    torch.manual_seed(s["seed"])  # same initial weights for every source with the same seed
+    net = build_model(s["model"], data_pde.NDIM, c_in, c_out, len(data_pde.PARAMS), **s["model_cfg"])
+    if resume is None:
+        s = {**s, "pde": data_pde.config()}  # the data's PDE: a cache's own settings
+        try:
+            text = json.dumps(s, indent=2)
+        except TypeError as err:
+            raise ValueError(f"run settings must be JSON values (data_cfg, model_cfg): {err}") from None
+        out.mkdir(parents=True, exist_ok=True)
+        for name in RUN_FILES:
+            (out / name).unlink(missing_ok=True)
+        atomic_write(out / RUN_FILE, text.encode())
+    meta = {"pde": data_pde.config(), "source": s["source"], "view": view.name, "view_args": dict(vars(view)),
+            "seed": s["seed"], "data_seed": s["data_seed"], "batch_size": s["batch_size"]}
+
+    def finish(model, normalizer) -> dict:
+        sets = tests if tests is not None else {"test": test_set(data_pde, s["data_seed"], s["n_test"])}
+        return {"test": {name: test_errors(model, normalizer, view, t) for name, t in sets.items()}}
+
+    return train(net, loader, s["steps"], out, lr=s["lr"], schedule=s["schedule"], meta=meta, label=s["label"],
+                 checkpoint_every=s["checkpoint_every"], resume=resume, finish=finish)

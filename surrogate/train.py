@@ -6,17 +6,27 @@ parameters are normalized by a ``datasets.Normalization`` (per-field / per-param
 data source when it offers one (a stream's calibration draw, a cache's stored samples), else from the first
 training batch. The loss is the MSE in normalized units.
 
-The run directory gets ``metrics.csv`` (one row per log step), ``metrics.json`` (summary) and ``model.pt``
-(state dicts and plain dicts only: ``torch.load(path, weights_only=True)`` works).
+The run directory gets ``metrics.csv`` (one row per log step), ``metrics.json`` (summary, written once at the
+end: its presence marks a finished run), ``model.pt`` and ``checkpoint.pt`` (the whole training state every
+``checkpoint_every`` steps and at the end, see ``train_state``; ``train(..., resume=ckpt)`` continues it). All
+``.pt`` files hold state dicts and plain containers only: ``torch.load(path, weights_only=True)`` works.
+
+Two optional hooks of the data source (``loader.dataset``) are called when it has them:
+``report_losses(batch, per_example)`` after each optimizer step (per_example: float64 CPU [B], each example's
+relative L2 error in normalized units), and ``stats()`` (a flat dict of numbers) at each logged row.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
+import os
 import sys
+import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -61,45 +71,131 @@ def forever(loader):
     """Batches from ``loader``, iterating it again whenever a finite loader runs out.
 
     The loader owns its epochs: a finite TrajectoryStream / StreamLoader starts the next epoch itself when one
-    ends, and a shuffling DataLoader reshuffles on each new iteration, so nothing is advanced here.
+    ends, and a shuffling DataLoader reshuffles on each new iteration, so nothing is advanced here. A resumed
+    source may start with an empty pass (it stopped right at an epoch's end), so only two empty passes in a
+    row mean there is no data.
     """
-    while True:
-        empty = True
+    empty_passes = 0
+    while empty_passes < 2:
+        empty_passes += 1
         for batch in loader:
-            empty = False
+            empty_passes = 0
             yield batch
-        if empty:
-            raise ValueError("the data loader yielded no batches (empty dataset?)")
+    raise ValueError("the data loader yielded no batches (empty dataset?)")
+
+
+CHECKPOINT = "checkpoint.pt"
+CHECKPOINT_FORMAT = 1
+POSTFIX_STATS = ("wait_share", "mean_uses")  # data-source stats shown in the progress bar when offered
+TIMINGS = ("t_data", "t_compute", "elapsed", "wall", "data_share")  # the only values a resume may change
+
+
+def check_train_settings(steps: int, lr: float, schedule: str, checkpoint_every: int = 0) -> None:
+    """ValueError naming the value and what is allowed (called before a run touches its directory)."""
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"steps={steps} not allowed; must be an integer >= 1")
+    if not lr > 0:
+        raise ValueError(f"lr={lr} not allowed; must be > 0")
+    if schedule not in ("cosine", "onecycle"):
+        raise ValueError(f"unknown schedule {schedule!r}; allowed: cosine, onecycle")
+    if isinstance(checkpoint_every, bool) or not isinstance(checkpoint_every, int) or checkpoint_every < 0:
+        raise ValueError(f"checkpoint_every={checkpoint_every} not allowed; must be an integer >= 0 (0: only at the end)")
+
+
+@dataclass
+class Progress:
+    """What a run has done so far; saved in checkpoint.pt so that a resumed run's metrics continue it.
+
+    wall: wall-clock seconds of earlier sessions (a resumed session adds its own); rows: metrics.csv rows;
+    trajectories: global sample indices seen; data_stats: the data source's last ``stats()``.
+    """
+
+    step: int = 0
+    examples: int = 0
+    t_data: float = 0.0
+    t_compute: float = 0.0
+    wall: float = 0.0
+    rows: list = field(default_factory=list)
+    trajectories: set = field(default_factory=set)
+    data_stats: dict | None = None
+
+    def counters(self, wall: float) -> dict:
+        """Plain values for checkpoint.pt; ``trajectories`` as a sorted int64 tensor [N]."""
+        return {"examples": self.examples, "t_data": self.t_data, "t_compute": self.t_compute, "wall": wall,
+                "trajectories": torch.tensor(sorted(self.trajectories), dtype=torch.int64),
+                "data_stats": self.data_stats}
+
+    @classmethod
+    def from_checkpoint(cls, ckpt: dict) -> "Progress":
+        c = ckpt["counters"]
+        return cls(step=int(ckpt["step"]), examples=int(c["examples"]), t_data=float(c["t_data"]),
+                   t_compute=float(c["t_compute"]), wall=float(c["wall"]), rows=[dict(r) for r in ckpt["rows"]],
+                   trajectories=set(c["trajectories"].tolist()), data_stats=c["data_stats"])
+
+
+def data_state_owner(loader) -> tuple[str | None, object]:
+    """("dataset" | "batch_sampler", the object) holding the data source's resumable state, or (None, None).
+
+    A stream (or the reservoir) keeps its own ``state_dict()``; a cache source keeps it in its batch sampler
+    (surrogate.data.EpochBatchSampler).
+    """
+    for name in ("dataset", "batch_sampler"):
+        owner = getattr(loader, name, None)
+        if callable(getattr(owner, "state_dict", None)) and callable(getattr(owner, "load_state_dict", None)):
+            return name, owner
+    return None, None
+
+
+def relative_errors(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Per-example ||pred - target|| / ||target|| over all non-batch dims: [B, ...] x 2 -> float64 CPU [B]."""
+    pred, target = pred.detach().flatten(1).double().cpu(), target.detach().flatten(1).double().cpu()
+    return (pred - target).norm(dim=1) / target.norm(dim=1).clamp_min(torch.finfo(torch.float64).tiny)
+
+
+def _postfix(loss: float, stats: dict | None) -> dict:
+    """Progress-bar items: the loss and a few of the data source's stats (POSTFIX_STATS, else its first two)."""
+    shown = {"loss": f"{loss:.3g}"}
+    if stats:
+        keys = [k for k in POSTFIX_STATS if k in stats] or list(stats)[:2]
+        shown.update({k: f"{stats[k]:.3g}" for k in keys})
+    return shown
 
 
 def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, schedule: str = "cosine",
           normalizer: Normalization | None = None, log_every: int = 10, meta: dict | None = None,
-          label: str = "train") -> dict:
+          label: str = "train", checkpoint_every: int = 0, resume: dict | None = None, finish=None) -> dict:
     """Train ``model`` for ``steps`` optimizer steps on batches from ``loader``; returns the summary dict.
 
     Works the same for an IterableDataset stream (DataLoader(stream, batch_size=None)) and a map-style cache
-    (DataLoader(cached, batch_size=B, shuffle=True)). Times are wall-clock seconds: "t_data" is time spent
-    waiting for the next batch, "t_compute" forward + backward + optimizer step.
+    (DataLoader(cached, batch_sampler=EpochBatchSampler(...))). Times are wall-clock seconds: "t_data" is time
+    spent waiting for the next batch, "t_compute" forward + backward + optimizer step.
+    checkpoint_every: write checkpoint.pt every that many steps (0: only at the end). resume: a checkpoint.pt
+    dict (``load_train_state``) to continue from, with the same model architecture, loader and steps; the
+    result is the uninterrupted run's, bit for bit on the CPU. finish: ``finish(model, normalizer) -> dict``,
+    merged into the summary before metrics.json is written (e.g. test errors).
     """
-    if steps < 1:
-        raise ValueError(f"steps={steps} not allowed; must be >= 1")
-    if lr <= 0:
-        raise ValueError(f"lr={lr} not allowed; must be > 0")
+    check_train_settings(steps, lr, schedule, checkpoint_every)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ndim = model.ndim
     opt = torch.optim.Adam(model.parameters(), lr=lr)
     sched = make_schedule(opt, schedule, steps, lr)
-    batches = forever(loader)
-    t_data = t_compute = 0.0
-    examples, trajectories, rows = 0, set(), []
-    bar = tqdm(total=steps, desc=label, disable=not sys.stderr.isatty(), leave=False)
     start = time.perf_counter()
-    if normalizer is None:
-        normalizer = source_normalization(loader)
-        t_data += time.perf_counter() - start  # a calibration draw (or reading a cache for it) is data time
+    if resume is not None:
+        normalizer, progress = restore(resume, model, opt, sched, loader, steps)
+    else:
+        progress = Progress()
+        if normalizer is None:
+            normalizer = source_normalization(loader)
+            progress.t_data += time.perf_counter() - start  # a calibration draw (or reading a cache) is data time
+    dataset = getattr(loader, "dataset", None)
+    report_losses, stats = getattr(dataset, "report_losses", None), getattr(dataset, "stats", None)
+    batches = forever(loader)
+    if resume is not None:  # last, so that nothing above draws from it; the data source may (random windows)
+        torch.set_rng_state(resume["torch_rng"])
+    bar = tqdm(total=steps, initial=progress.step, desc=label, disable=not sys.stderr.isatty(), leave=False)
     model.train()
-    for step in range(1, steps + 1):
+    for step in range(progress.step + 1, steps + 1):
         t0 = time.perf_counter()
         batch = next(batches)
         t1 = time.perf_counter()
@@ -117,29 +213,129 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
         t2 = time.perf_counter()
         if not math.isfinite(loss_value):
             raise ValueError(f"{label}: training diverged at step {step} (loss={loss_value}); lower --lr")
-        t_data, t_compute = t_data + t1 - t0, t_compute + t2 - t1
-        examples += len(x)
-        trajectories.update(batch["index"].tolist())
+        if report_losses is not None:  # from this step's forward pass: no extra model evaluation
+            report_losses(batch, relative_errors(pred, target))
+        progress.step = step
+        progress.t_data, progress.t_compute = progress.t_data + t1 - t0, progress.t_compute + t2 - t1
+        progress.examples += len(x)
+        progress.trajectories.update(batch["index"].tolist())
         bar.update(1)
         if step % log_every == 0 or step == steps:
-            rows.append({"step": step, "loss": loss_value, "lr": sched.get_last_lr()[0], "examples": examples,
-                         "trajectories": len(trajectories), "t_data": t_data, "t_compute": t_compute,
-                         "elapsed": time.perf_counter() - start})
-            bar.set_postfix(loss=f"{loss_value:.3g}")
+            row = {"step": step, "loss": loss_value, "lr": sched.get_last_lr()[0], "examples": progress.examples,
+                   "trajectories": len(progress.trajectories), "t_data": progress.t_data,
+                   "t_compute": progress.t_compute, "elapsed": progress.wall + time.perf_counter() - start}
+            if stats is not None:
+                progress.data_stats = dict(stats())
+                row.update({k: v for k, v in progress.data_stats.items() if k not in row})  # the loop's own win
+            progress.rows.append(row)
+            bar.set_postfix(_postfix(loss_value, progress.data_stats))
+        if checkpoint_every and step % checkpoint_every == 0 and step < steps:
+            save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, steps, start, meta))
+            write_metrics_csv(out / "metrics.csv", progress.rows)
     bar.close()
-    summary = {"label": label, "steps": steps, "final_loss": rows[-1]["loss"], "examples_seen": examples,
-               "trajectories_seen": len(trajectories), "t_data": t_data, "t_compute": t_compute,
-               "wall": time.perf_counter() - start, "data_share": t_data / max(t_data + t_compute, 1e-12),
-               "normalization_samples": normalizer.samples, "model": model_spec(model), "lr": lr, "schedule": schedule, **(meta or {})}
-    with open(out / "metrics.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+    if normalizer is None:
+        raise ValueError(f"{out}: no training step was run and no normalization is known")
+    write_metrics_csv(out / "metrics.csv", progress.rows)
+    save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, steps, start, meta))
+    wall = progress.wall + time.perf_counter() - start
+    summary = {"label": label, "steps": steps, "final_loss": progress.rows[-1]["loss"],
+               "examples_seen": progress.examples, "trajectories_seen": len(progress.trajectories),
+               "t_data": progress.t_data, "t_compute": progress.t_compute, "wall": wall,
+               "data_share": progress.t_data / max(progress.t_data + progress.t_compute, 1e-12),
+               "normalization_samples": normalizer.samples, "model": model_spec(model), "lr": lr, "schedule": schedule,
+               **(meta or {})}
+    if progress.data_stats is not None:
+        summary["data_stats"] = progress.data_stats
+    if finish is not None:
+        summary.update(finish(model, normalizer))
+    save_checkpoint(out / "model.pt", model, normalizer, step=steps, meta=meta)
+    atomic_write(out / "metrics.json", json.dumps(summary, indent=2).encode())  # last: marks the run finished
+    summary["normalizer"] = normalizer
+    summary["curve"] = progress.rows
+    return summary
+
+
+def write_metrics_csv(path: Path, rows: list[dict]) -> None:
+    """One row per log step; columns: the union of the rows' keys in first-seen order (data stats may vary)."""
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=columns, restval="")
         writer.writeheader()
         writer.writerows(rows)
-    (out / "metrics.json").write_text(json.dumps(summary, indent=2))
-    save_checkpoint(out / "model.pt", model, normalizer, step=steps, meta=meta)
-    summary["normalizer"] = normalizer
-    summary["curve"] = rows
-    return summary
+
+
+def train_state(model: nn.Module, opt, sched, normalizer: Normalization, loader, progress: Progress, steps: int,
+                start: float, meta: dict | None) -> dict:
+    """The checkpoint.pt dict: everything a resumed run needs to continue as if never stopped.
+
+    {"format": 1, "step": done, "steps": total, "model": state dict, "spec": model_spec, "optimizer": state
+    dict, "scheduler": state dict, "torch_rng": uint8 tensor (torch.get_rng_state()), "normalization":
+    Normalization.to_dict(), "rows": metrics rows so far, "counters": Progress.counters, "data": {"owner":
+    "dataset" | "batch_sampler", "state": its state_dict()} or None, "meta": run metadata}.
+    """
+    owner_name, owner = data_state_owner(loader)
+    return {"format": CHECKPOINT_FORMAT, "step": progress.step, "steps": steps, "model": model.state_dict(),
+            "spec": model_spec(model), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+            "torch_rng": torch.get_rng_state(), "normalization": normalizer.to_dict(),
+            "rows": [dict(r) for r in progress.rows], "counters": progress.counters(progress.wall + time.perf_counter() - start),
+            "data": None if owner is None else {"owner": owner_name, "state": owner.state_dict()}, "meta": meta or {}}
+
+
+def restore(ckpt: dict, model: nn.Module, opt, sched, loader, steps: int) -> tuple[Normalization, Progress]:
+    """Load a ``train_state`` dict into the model, optimizer, schedule and data source (not the torch RNG:
+    ``train`` sets that right before the first batch). ValueError when it belongs to another set-up."""
+    if ckpt.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"checkpoint format {ckpt.get('format')!r} not supported; allowed: {CHECKPOINT_FORMAT}")
+    if ckpt["steps"] != steps or not 0 < ckpt["step"] <= steps:
+        raise ValueError(f"checkpoint at step {ckpt['step']} of {ckpt['steps']} does not fit a run of {steps} steps")
+    if ckpt["spec"] != model_spec(model):
+        raise ValueError(f"checkpoint model {ckpt['spec']} differs from this run's {model_spec(model)}")
+    owner_name, owner = data_state_owner(loader)
+    saved = ckpt["data"]
+    if (saved is None) != (owner is None) or (saved is not None and saved["owner"] != owner_name):
+        raise ValueError(f"checkpoint data state ({saved and saved['owner']}) does not fit this data source "
+                         f"({owner_name})")
+    model.load_state_dict(ckpt["model"])
+    opt.load_state_dict(ckpt["optimizer"])
+    sched.load_state_dict(ckpt["scheduler"])
+    if owner is not None:
+        owner.load_state_dict(saved["state"])
+    return Normalization.from_dict(ckpt["normalization"]), Progress.from_checkpoint(ckpt)
+
+
+def atomic_write(path: Path, data: bytes) -> None:
+    """Replace ``path`` with ``data`` all at once: a temp file in the same directory, fsync, os.replace; a
+    crash leaves the old file or the new one, never half of one (at worst a stray ``.NAME.*.tmp``)."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)  # the rename itself survives a power cut once the directory is synced
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+def save_train_state(out: Path, state: dict) -> None:
+    """Write ``train_state``'s dict to out/checkpoint.pt atomically."""
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    atomic_write(out / CHECKPOINT, buf.getvalue())
+
+
+def load_train_state(path) -> dict:
+    """checkpoint.pt as a dict (weights_only: plain containers and tensors); ValueError when unreadable."""
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # truncated or foreign file: torch raises several kinds
+        raise ValueError(f"{path} cannot be read as a pdestream checkpoint ({type(err).__name__}: {err})".splitlines()[0]) from None
 
 
 def save_checkpoint(path, model: nn.Module, normalizer: Normalization, step: int, meta: dict | None = None) -> None:
