@@ -12,6 +12,8 @@
 
 from __future__ import annotations
 
+import functools
+import json
 import os
 from pathlib import Path
 
@@ -109,6 +111,25 @@ def sample_numpy(pde, indices, seed: int = 0, on_blowup: str = "raise", params: 
 
     traj = generator.sample(pde, indices, seed, on_blowup=on_blowup, params=params)
     return np.asarray(traj.u), {k: np.asarray(v) for k, v in traj.params.items()}, np.asarray(traj.redraws)
+
+
+def solve_job(config: dict, seed: int, indices, params: dict | None = None) -> dict:
+    """A producer's job (thread, spawned process or Dask worker): solve samples ``indices`` of the PDE of
+    ``config`` under ``seed`` with optional explicit ``params`` {name: [B]}. Returns numpy arrays
+    {"u": float32 [B, T, C, *space], "params": float32 [B, P] (PARAMS order), "index": int64 [B]}."""
+    import numpy as np
+
+    configure_jax()
+    pde = _pde_of(json.dumps(config, sort_keys=True))
+    u, p, _ = sample_numpy(pde, np.asarray(indices, np.int64), seed, "raise", params)
+    cols = [p[n] for n in pde.PARAMS]
+    return {"u": u, "params": np.stack(cols, 1) if cols else np.zeros((len(u), 0), np.float32),
+            "index": np.asarray(indices, np.int64)}
+
+
+@functools.lru_cache(maxsize=16)
+def _pde_of(config_json: str):
+    return pde_from_config(json.loads(config_json))
 
 
 def param_domains(pde) -> dict:

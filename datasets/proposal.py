@@ -1,0 +1,154 @@
+"""Where the next simulations go: uniform over the parameter domain, or steered toward high training loss.
+
+``ParamProposal`` works in the unit box of the random parameters (uniform: linear, loguniform: log, choice:
+equal-width bins per option). In ``"loss"`` mode it keeps the last ``window`` per-sample training losses
+reported by the training loop (``record``) and proposes (``propose``) a mixture:
+
+- with probability ``floor``, a uniform draw over the box (no region ever starves);
+- otherwise a recent training sample picked with probability proportional to ``loss ** power``, moved by a
+  Gaussian kernel of width ``bandwidth`` (unit-box units) and reflected back into the box: a draw from a
+  loss-weighted kernel density estimate of where the surrogate errs.
+
+Everything is numpy and seeded: the sequence of proposals is a pure function of (seed, the losses recorded
+and the order of calls), so a deterministic reservoir stays deterministic. ``state_dict`` captures it all.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+MODES = ("uniform", "loss")
+
+
+class ParamProposal:
+    """Proposes explicit parameter values {name: float64 [n]} for the next solves.
+
+    domains: {name: (kind, low, high, options)} for every PDE parameter in PARAMS order (``_bridge.param_domains``);
+    "fixed" ones are left to the solver. mode: "uniform" (propose() returns None: the solver draws from the
+    key as usual) or "loss". floor: share of uniform draws in "loss" mode, in (0, 1]. window: recent losses kept.
+    """
+
+    def __init__(self, domains: dict, mode: str = "loss", floor: float = 0.25, window: int = 2048,
+                 bandwidth: float = 0.05, power: float = 1.0, seed: int = 0):
+        if mode not in MODES:
+            raise ValueError(f"proposal={mode!r} not allowed; allowed: {', '.join(MODES)}")
+        if not (isinstance(floor, (int, float)) and 0 < floor <= 1):
+            raise ValueError(f"proposal floor={floor!r} not allowed; must be in (0, 1] (uniform share)")
+        if not (isinstance(bandwidth, (int, float)) and 0 < bandwidth <= 1):
+            raise ValueError(f"proposal bandwidth={bandwidth!r} not allowed; must be in (0, 1] (unit-box units)")
+        if not (isinstance(power, (int, float)) and 0 <= power <= 8):
+            raise ValueError(f"proposal power={power!r} not allowed; must be in [0, 8]")
+        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
+            raise ValueError(f"proposal window={window!r} not allowed; must be an integer >= 1")
+        self.mode, self.floor, self.window, self.bandwidth, self.power = mode, float(floor), window, float(bandwidth), float(power)
+        self.names = list(domains)  # every PDE parameter, PARAMS order (the columns of batch["params"])
+        self.domains = {k: tuple(v) for k, v in domains.items()}
+        self.random = [k for k, (kind, *_rest) in self.domains.items() if kind != "fixed"]
+        self.rng = np.random.default_rng(seed)
+        self.points = np.zeros((0, len(self.random)))  # recent training samples, unit box [W, D]
+        self.losses = np.zeros(0)  # their losses [W]
+        self.proposed = []  # every proposed unit point (for the plot), list of [D] lists
+        self.reports = 0
+
+    # --- unit box <-> parameter values -------------------------------------------------------------
+    def to_unit(self, values: np.ndarray) -> np.ndarray:
+        """[N, P] parameter values (all PDE parameters, PARAMS order) -> [N, D] unit coordinates of the random ones."""
+        values = np.asarray(values, np.float64).reshape(len(values), len(self.names))
+        cols = []
+        for name in self.random:
+            kind, low, high, options = self.domains[name]
+            v = values[:, self.names.index(name)]
+            if kind == "loguniform":
+                z = (np.log(v) - math.log(low)) / (math.log(high) - math.log(low))
+            elif kind == "choice":
+                opts = np.asarray(options)
+                z = (np.abs(v[:, None] - opts[None]).argmin(1) + 0.5) / len(opts)
+            else:
+                z = (v - low) / (high - low)
+            cols.append(np.clip(z, 0.0, 1.0))
+        return np.stack(cols, 1) if cols else np.zeros((len(values), 0))
+
+    def from_unit(self, z: np.ndarray) -> dict[str, np.ndarray]:
+        """[N, D] unit coordinates -> {name: float64 [N]} values inside each domain."""
+        out = {}
+        for j, name in enumerate(self.random):
+            kind, low, high, options = self.domains[name]
+            u = np.clip(z[:, j], 0.0, 1.0)
+            if kind == "loguniform":
+                v = np.exp(math.log(low) + u * (math.log(high) - math.log(low)))
+            elif kind == "choice":
+                v = np.asarray(options)[np.minimum((u * len(options)).astype(int), len(options) - 1)]
+            else:
+                v = low + u * (high - low)
+            # float32 rounding must not step outside the domain the solver checks against
+            out[name] = np.clip(v, np.nextafter(np.float32(low), np.float32(high)),
+                                np.nextafter(np.float32(high), np.float32(low))).astype(np.float64)
+        return out
+
+    # --- the loop's feedback and the proposals -----------------------------------------------------
+    def record(self, params: np.ndarray, losses: np.ndarray) -> None:
+        """Per-sample training losses [B] of samples with parameters [B, P] (PARAMS order); non-finite ignored."""
+        losses = np.asarray(losses, np.float64).reshape(-1)
+        ok = np.isfinite(losses)
+        if not ok.any() or not self.random:
+            return
+        self.points = np.concatenate([self.points, self.to_unit(np.asarray(params)[ok])])[-self.window :]
+        self.losses = np.concatenate([self.losses, losses[ok]])[-self.window :]
+        self.reports += int(ok.sum())
+
+    def propose(self, n: int) -> dict[str, np.ndarray] | None:
+        """Explicit values {name: float64 [n]} for the next n solves; None in "uniform" mode (key draws)."""
+        if self.mode == "uniform" or not self.random:
+            return None
+        d = len(self.random)
+        z = self.rng.random((n, d))  # the uniform part
+        steer = self.rng.random(n) >= self.floor
+        if steer.any() and len(self.losses):
+            w = np.maximum(self.losses, 0.0) ** self.power
+            w = w / w.sum() if w.sum() > 0 else np.full(len(w), 1.0 / len(w))
+            pick = self.rng.choice(len(w), size=int(steer.sum()), p=w)
+            moved = self.points[pick] + self.bandwidth * self.rng.standard_normal((len(pick), d))
+            moved = np.abs(moved)  # reflect at 0 ...
+            moved = 1.0 - np.abs(1.0 - moved)  # ... and at 1
+            z[steer] = np.clip(moved, 0.0, 1.0)
+        self.proposed.extend(z.tolist())
+        return self.from_unit(z)
+
+    def density(self, bins: int = 20) -> dict:
+        """For plots and reports, along the first random parameter: bin edges (unit box), proposal counts
+        and mean recent loss per bin (NaN where no loss was recorded)."""
+        edges = np.linspace(0, 1, bins + 1)
+        prop = np.asarray(self.proposed)[:, 0] if self.proposed and self.random else np.zeros(0)
+        counts = np.histogram(prop, edges)[0]
+        loss = np.full(bins, np.nan)
+        if len(self.losses):
+            which = np.minimum((self.points[:, 0] * bins).astype(int), bins - 1)
+            for b in range(bins):
+                if (which == b).any():
+                    loss[b] = self.losses[which == b].mean()
+        return {"edges": edges.tolist(), "counts": counts.tolist(), "loss": loss.tolist()}
+
+    # --- state -------------------------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        """Everything the next proposals depend on (plain values; loads with torch.load(weights_only=True))."""
+        return {"mode": self.mode, "rng": _plain(self.rng.bit_generator.state), "points": self.points.tolist(),
+                "losses": self.losses.tolist(), "proposed": list(self.proposed), "reports": self.reports}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore ``state_dict()`` output (the same domains and mode are required)."""
+        if state.get("mode") != self.mode:
+            raise ValueError(f"proposal state has mode {state.get('mode')!r}, this proposal {self.mode!r}")
+        self.rng.bit_generator.state = state["rng"]
+        self.points = np.asarray(state["points"], np.float64).reshape(-1, len(self.random))
+        self.losses = np.asarray(state["losses"], np.float64)
+        self.proposed = [list(p) for p in state["proposed"]]
+        self.reports = int(state["reports"])
+
+
+def _plain(state):
+    """numpy bit-generator state -> plain dict/int/str (no numpy scalars)."""
+    if isinstance(state, dict):
+        return {k: _plain(v) for k, v in state.items()}
+    return int(state) if isinstance(state, (np.integer, int)) and not isinstance(state, bool) else state

@@ -1,0 +1,447 @@
+"""A training reservoir between solver producers and the training loop (Melissa's idea, with pip install).
+
+Producers (``datasets.producers``: a background thread, spawned processes or a Dask cluster) solve batches of
+``solve_batch`` trajectories; the reservoir holds up to ``capacity`` of them and the loop draws training
+examples (through the usual views) from what it holds, so a solve is reused instead of used once:
+
+- **reuse bound**: a trajectory is drawn at most ``max_reuse`` times its example count under the view (one
+  "use" = as many examples as the FIFO stream takes from it: every window for ``next_step`` windows="all",
+  one for ``operator``); the loop waits for fresh solves rather than exceed it. Mean reuse is reported.
+- **eviction** when full: ``"fifo"`` (oldest first) or ``"random"``, among trajectories drawn at least once
+  (a solve is never thrown away unused: a producer that is faster than training waits instead).
+- **draw**: ``"uniform"`` over the trajectories below the bound, or ``"least_used"`` (the trajectory drawn
+  least, then its least-drawn window: Melissa's pairing of rarely used samples and windows).
+- **warmup**: no batch before ``warmup`` trajectories are in.
+- **mode** ``"deterministic"``: solves are inserted in submission order at fixed points of the draw sequence
+  (after the warm-up, one solve batch of B trajectories each time B x max_reuse uses have been drawn, or
+  earlier when nothing can be drawn), and draws come from a seeded generator, so the batch sequence is a pure
+  function of (PDE config, seed, settings) whatever the producer, and ``state_dict`` resumes it exactly
+  (the held trajectories are re-solved from their (index, params): sample identity). The solver still
+  works ahead in the background; the loop waits only when the scheduled solve is not done.
+  ``"async"`` (the fast one; **not reproducible**): results are inserted the moment they arrive, in any
+  order, so what a batch holds depends on timing.
+- **loss-driven sampling** (``proposal="loss"``): the next solves' parameters come from a
+  ``datasets.proposal.ParamProposal`` fed by the per-sample losses the training loop reports
+  (``report_losses``); ``"uniform"`` leaves the parameters to the solver's own draws.
+
+``max_reuse=1``, ``capacity=solve_batch``, ``draw="least_used"`` and deterministic mode is the plain FIFO
+stream. Sample identity is (PDE config, seed, index, params): samples are numbered 0, 1, 2, ... in
+submission order, and batches carry "index" and "params" as every other source does.
+"""
+
+from __future__ import annotations
+
+import atexit
+import collections
+import math
+import time
+import weakref
+from concurrent.futures import FIRST_COMPLETED, wait
+
+import numpy as np
+import torch
+from torch.utils.data import IterableDataset, get_worker_info
+
+from . import _bridge
+from .producers import open_producer
+from .proposal import ParamProposal, _plain
+from .views import gather, make_view
+
+MODES = ("async", "deterministic")
+DRAWS = ("uniform", "least_used")
+EVICTIONS = ("fifo", "random")
+_OPEN: "weakref.WeakSet[ReservoirStream]" = weakref.WeakSet()
+
+
+@atexit.register
+def _close_all() -> None:
+    # a script may leave a stream open: let producers finish their job in flight instead of dying in JAX
+    for stream in list(_OPEN):
+        stream.close()
+
+
+def _check_int(name: str, value, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"{name}={value!r} not allowed; must be an integer >= {low}")
+    return int(value)
+
+
+def _check_choice(name: str, value, allowed: tuple) -> str:
+    if value not in allowed:
+        raise ValueError(f"{name}={value!r} not allowed; allowed: {', '.join(allowed)}")
+    return value
+
+
+class Reservoir:
+    """The store itself: up to ``capacity`` trajectories with use counts; no threads, no solver.
+
+    u: float32 [capacity, T, C, *space] (allocated at the first insert); params [capacity, P]; index, uses,
+    serial (insertion order, -1: empty slot) [capacity]; window_uses [capacity, n_windows].
+    A trajectory is drawable while uses < cap_uses, and evictable once uses >= 1.
+    """
+
+    def __init__(self, capacity: int, cap_uses: int, n_windows: int, eviction: str, draw: str,
+                 rng: np.random.Generator):
+        self.capacity, self.cap_uses, self.n_windows = capacity, cap_uses, n_windows
+        self.eviction, self.draw_policy, self.rng = eviction, draw, rng
+        self.u = self.params = None
+        self.index = np.full(capacity, -1, np.int64)
+        self.uses = np.zeros(capacity, np.int64)
+        self.window_uses = np.zeros((capacity, n_windows), np.int64)
+        self.serial = np.full(capacity, -1, np.int64)
+        self.next_serial = self.inserted = self.evicted = self.drawn = 0
+        self.evicted_uses: list[int] = []  # use counts of evicted trajectories (reuse histogram)
+
+    def live(self) -> np.ndarray:
+        return np.flatnonzero(self.serial >= 0)
+
+    def room(self) -> int:
+        """Trajectories that can be inserted now: empty slots plus evictable ones."""
+        return int(((self.serial < 0) | (self.uses >= 1)).sum())
+
+    def eligible(self) -> np.ndarray:
+        return np.flatnonzero((self.serial >= 0) & (self.uses < self.cap_uses))
+
+    def insert(self, u: torch.Tensor, params: torch.Tensor, index: np.ndarray) -> int:
+        """Insert trajectories u [B, T, C, *space] (params [B, P], index [B]); returns how many were evicted.
+        The caller checks ``room() >= B`` first."""
+        if self.u is None:
+            self.u = torch.empty((self.capacity, *u.shape[1:]), dtype=u.dtype)
+            self.params = torch.empty((self.capacity, params.shape[1]), dtype=params.dtype)
+        evicted = 0
+        for b in range(len(index)):
+            empty = np.flatnonzero(self.serial < 0)
+            if len(empty):
+                slot = int(empty[0])
+            else:
+                used = np.flatnonzero(self.uses >= 1)
+                if not len(used):
+                    raise RuntimeError("reservoir full of unused trajectories (insert without room(): a bug)")
+                slot = int(used[self.serial[used].argmin()] if self.eviction == "fifo" else self.rng.choice(used))
+                self.evicted_uses.append(int(self.uses[slot]))
+                self.evicted += 1
+                evicted += 1
+            self.u[slot], self.params[slot] = u[b], params[b]
+            self.index[slot], self.uses[slot], self.serial[slot] = index[b], 0, self.next_serial
+            self.window_uses[slot] = 0
+            self.next_serial += 1
+            self.inserted += 1
+        return evicted
+
+    def draw(self) -> tuple[int, int] | None:
+        """One example: (slot, window start), or None when every held trajectory is at its bound."""
+        ok = self.eligible()
+        if not len(ok):
+            return None
+        if self.draw_policy == "least_used":
+            ok = ok[self.uses[ok] == self.uses[ok].min()]
+        slot = int(self.rng.choice(ok))
+        if self.draw_policy == "least_used":
+            w = self.window_uses[slot]
+            start = int(self.rng.choice(np.flatnonzero(w == w.min())))
+        else:
+            start = int(self.rng.integers(self.n_windows))
+        self.uses[slot] += 1
+        self.window_uses[slot, start] += 1
+        self.drawn += 1
+        return slot, start
+
+    def reuse(self, per_trajectory: int) -> np.ndarray:
+        """Uses / per_trajectory of every trajectory inserted so far (evicted and held), float64."""
+        held = self.uses[self.live()]
+        return np.concatenate([np.asarray(self.evicted_uses, np.float64), held.astype(np.float64)]) / per_trajectory
+
+
+class ReservoirStream(IterableDataset):
+    """Batches drawn from a training reservoir fed by solver producers; ``DataLoader(stream, batch_size=None)``.
+
+    pde: generator PDE or catalog name; view (+ view keyword arguments) as for TrajectoryStream; batch_size:
+    examples per batch; capacity: trajectories held (>= batch_size and >= solve_batch); max_reuse (>= 1): the
+    bound on uses per trajectory; warmup: trajectories held before the first batch (default
+    max(solve_batch, capacity // 4)); eviction "fifo" | "random"; draw "uniform" | "least_used"; mode
+    "async" | "deterministic" (see the module docstring); producer "thread" | "process" | "dask" (+ workers,
+    scheduler); inflight: solve jobs submitted ahead (default: 2 per producer slot); proposal "uniform" |
+    "loss" (+ proposal_kwargs for ParamProposal); sim_budget: stop after this many solved trajectories
+    (None: endless). Batches are dicts as from the views, with "params" [B, P] and "index" [B].
+    The stream runs in the training process (num_workers=0); its producers are the parallelism.
+    """
+
+    def __init__(self, pde, seed: int = 0, view="next_step", batch_size: int = 32, capacity: int = 256,
+                 max_reuse: float = 4.0, warmup: int | None = None, eviction: str = "fifo", draw: str = "uniform",
+                 solve_batch: int = 16, mode: str = "async", producer: str = "thread", workers: int = 1,
+                 scheduler: str | None = None, inflight: int | None = None, proposal: str = "uniform",
+                 proposal_kwargs: dict | None = None, sim_budget: int | None = None, **view_kwargs):
+        self.pde = _bridge.resolve_pde(pde)
+        if view_kwargs and not isinstance(view, str):
+            raise ValueError(f"view options {sorted(view_kwargs)} only go with a view name, not a view object")
+        self.view = make_view(view, **view_kwargs)
+        self.view.check(self.pde.n_frames)
+        self.seed = _check_int("seed", seed, 0)
+        self.batch_size = _check_int("batch_size", batch_size, 1)
+        self.solve_batch = _check_int("solve_batch", solve_batch, 1)
+        self.capacity = _check_int("capacity", capacity, 1)
+        if self.capacity < self.batch_size:
+            raise ValueError(f"capacity={capacity} not allowed: must be >= batch_size ({batch_size})")
+        if self.capacity < self.solve_batch:
+            raise ValueError(f"capacity={capacity} not allowed: must be >= solve_batch ({solve_batch})")
+        if isinstance(max_reuse, bool) or not isinstance(max_reuse, (int, float)) or not max_reuse >= 1 \
+                or not math.isfinite(max_reuse):
+            raise ValueError(f"max_reuse={max_reuse!r} not allowed; must be a finite number >= 1")
+        self.max_reuse = float(max_reuse)
+        default_warmup = max(self.solve_batch, self.capacity // 4)
+        self.warmup = min(default_warmup, self.capacity) if warmup is None else _check_int("warmup", warmup, 1)
+        if self.warmup > self.capacity:
+            raise ValueError(f"warmup={warmup} not allowed: must be <= capacity ({capacity})")
+        self.eviction = _check_choice("eviction", eviction, EVICTIONS)
+        self.draw = _check_choice("draw", draw, DRAWS)
+        self.mode = _check_choice("mode", mode, MODES)
+        self.producer, self.workers, self.scheduler = producer, workers, scheduler
+        self.sim_budget = None if sim_budget is None else _check_int("sim_budget", sim_budget, 1)
+        self.inflight = None if inflight is None else _check_int("inflight", inflight, 1)
+        n_frames = self.pde.n_frames
+        self.n_windows = self.view.n_starts(n_frames) if hasattr(self.view, "n_starts") else 1
+        self.per_trajectory = len(self.view.starts(n_frames, torch.Generator().manual_seed(0)))
+        self.cap_uses = max(1, round(self.max_reuse * self.per_trajectory))
+        self.config = self.pde.config()
+        self.proposal = ParamProposal(_bridge.param_domains(self.pde), mode=proposal, seed=self.seed,
+                                      **(proposal_kwargs or {}))
+        self.t = torch.from_numpy(np.asarray(self.pde.times()))
+        self._reset_state()
+        self._executor = self._closer = None
+
+    def _reset_state(self) -> None:
+        self.res = Reservoir(self.capacity, self.cap_uses, self.n_windows, self.eviction, self.draw,
+                             np.random.default_rng([self.seed, 1]))
+        self.next_index = 0  # the next sample index to submit
+        self.pending: collections.deque = collections.deque()  # (indices, params, future) in submission order
+        self.done: list = []  # async: finished jobs waiting for room
+        self.drawn_since_insert = 0
+        self.batches = 0
+        self.t_wait = 0.0  # seconds the loop waited for solves
+        self._t_first = None  # when iteration started (rates in stats())
+
+    # --- producers ---------------------------------------------------------------------------------
+    def _start(self) -> None:
+        if self._executor is None:
+            self._executor, self._closer, slots = open_producer(self.producer, self.workers, self.scheduler)
+            self.max_inflight = self.inflight or 2 * slots
+            _OPEN.add(self)
+        if self._t_first is None:
+            self._t_first = time.perf_counter()
+        # jobs restored by load_state_dict (or stopped by close) are submitted again, in their order
+        self.pending = collections.deque((i, p, self._submit(i, p) if f is None else f) for i, p, f in self.pending)
+        self._fill_pipeline()
+
+    def _submit(self, indices: np.ndarray, params: dict | None):
+        """One solve job, padded to solve_batch (one compiled shape for every job)."""
+        pad = np.resize(np.arange(len(indices)), self.solve_batch)
+        padded_params = None if params is None else {k: np.asarray(v)[pad] for k, v in params.items()}
+        return self._executor.submit(_bridge.solve_job, self.config, self.seed, indices[pad], padded_params)
+
+    def _fill_pipeline(self) -> None:
+        while len(self.pending) + len(self.done) < self.max_inflight:
+            budget = self.solve_batch if self.sim_budget is None else min(self.solve_batch, self.sim_budget - self.next_index)
+            if budget <= 0:
+                return
+            indices = np.arange(self.next_index, self.next_index + budget, dtype=np.int64)
+            params = self.proposal.propose(budget)
+            self.next_index += budget
+            self.pending.append((indices, params, self._submit(indices, params)))
+
+    def _insert(self, indices: np.ndarray, result: dict) -> None:
+        n = len(indices)
+        u = torch.from_numpy(np.require(result["u"][:n], requirements="W"))  # a JAX buffer is read-only
+        self.res.insert(u, torch.from_numpy(np.asarray(result["params"][:n])), indices)
+        self.drawn_since_insert = 0
+
+    def _take_oldest(self) -> None:
+        """Deterministic mode: wait for the oldest job and insert it."""
+        indices, _params, future = self.pending.popleft()
+        t0 = time.perf_counter()
+        result = future.result()
+        self.t_wait += time.perf_counter() - t0
+        self._insert(indices, result)
+        self._fill_pipeline()
+
+    def _collect(self, block: bool) -> None:
+        """Async mode: move finished jobs to ``done`` (waiting for one if ``block``) and insert what fits."""
+        if block and self.pending and not self.done:
+            t0 = time.perf_counter()
+            wait([f for _i, _p, f in self.pending], return_when=FIRST_COMPLETED)
+            self.t_wait += time.perf_counter() - t0
+        still = collections.deque()
+        for job in self.pending:
+            (self.done if job[2].done() else still).append(job)
+        self.pending = still
+        while self.done and self.res.room() >= len(self.done[0][0]):
+            indices, _params, future = self.done.pop(0)
+            self._insert(indices, future.result())  # a failed solve (BlowUpError) is raised here
+        self._fill_pipeline()
+
+    def _exhausted(self) -> bool:
+        return not self.pending and not self.done
+
+    # --- drawing -----------------------------------------------------------------------------------
+    def _want_insert(self) -> bool:
+        """Deterministic schedule: warm-up, then one solve batch per solve_batch x cap_uses draws, or when stuck."""
+        res = self.res
+        if not self.pending or res.room() < len(self.pending[0][0]):
+            return False
+        if res.inserted < self.warmup:
+            return True
+        return self.drawn_since_insert >= self.solve_batch * self.cap_uses or not len(res.eligible())
+
+    def _draw_one(self) -> tuple[int, int] | None:
+        """The next example (slot, start), waiting for solves as needed; None when the budget is spent."""
+        res = self.res
+        while True:
+            if self.mode == "deterministic":
+                while self._want_insert():
+                    self._take_oldest()
+                if res.inserted >= min(self.warmup, self.sim_budget or self.warmup):
+                    got = res.draw()
+                    if got is not None:
+                        self.drawn_since_insert += 1
+                        return got
+                if self._exhausted():
+                    return None
+                if self.pending and res.room() < len(self.pending[0][0]):
+                    raise RuntimeError("deterministic reservoir stuck: no room and nothing drawable (a bug)")
+                self._take_oldest()
+            else:
+                self._collect(block=False)
+                if res.inserted >= min(self.warmup, self.sim_budget or self.warmup):
+                    got = res.draw()
+                    if got is not None:
+                        self.drawn_since_insert += 1
+                        return got
+                if self._exhausted():
+                    return None
+                self._collect(block=True)
+
+    def __iter__(self):
+        if get_worker_info() is not None:
+            raise ValueError("ReservoirStream runs in the training process (num_workers=0): its producers "
+                             "(producer='process' or 'dask') are the parallelism")
+        self._start()
+        return self._batches()
+
+    def _batches(self):
+        while True:
+            picks = []
+            while len(picks) < self.batch_size:
+                got = self._draw_one()
+                if got is None:
+                    break
+                picks.append(got)
+            if picks:
+                slots = torch.tensor([p[0] for p in picks])
+                starts = torch.tensor([p[1] for p in picks])
+                index = torch.from_numpy(self.res.index)
+                batch = gather(self.view, self.res.u, self.t, self.res.params, index, slots, starts)
+                self.batches += 1
+            if not picks:
+                return
+            yield batch
+
+    # --- the training loop's hooks ------------------------------------------------------------------
+    def report_losses(self, batch: dict, per_example: torch.Tensor) -> None:
+        """Per-example training losses [B] of ``batch`` (the loop calls this after each step): they steer
+        ``proposal="loss"`` and feed the loss-over-domain plot in any mode."""
+        self.proposal.record(batch["params"].detach().cpu().numpy(), per_example.detach().cpu().numpy())
+
+    def stats(self) -> dict:
+        """Reservoir figures for metrics.csv and the progress bar (flat dict of numbers)."""
+        res = self.res
+        reuse = res.reuse(self.per_trajectory)
+        elapsed = max(self._elapsed(), 1e-9)
+        return {"inserted": res.inserted, "evicted": res.evicted, "held": len(res.live()),
+                "reuse_mean": float(reuse.mean()) if len(reuse) else 0.0,
+                "reuse_max": float(reuse.max()) if len(reuse) else 0.0,
+                "solver_traj_per_s": res.inserted / elapsed, "examples_per_s": res.drawn / elapsed,
+                "wait_share": self.t_wait / elapsed}
+
+    def _elapsed(self) -> float:
+        return 0.0 if self._t_first is None else time.perf_counter() - self._t_first
+
+    # --- state ---------------------------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        """Where the stream stands: held trajectories (index, params, uses), jobs submitted, generator
+        states, proposal. Plain values only. Exact for mode="deterministic"; async resumes approximately."""
+        res = self.res
+        live = res.live()
+        jobs = [(i, p) for i, p, _f in self.pending] + [(i, p) for i, p, _f in self.done]
+        return {
+            "kind": "reservoir", "seed": self.seed, "config_hash": self.pde.config_hash(), "mode": self.mode,
+            "slots": live.tolist(), "index": res.index[live].tolist(),
+            "params": res.params[live].tolist() if res.params is not None else [],
+            "uses": res.uses[live].tolist(), "window_uses": res.window_uses[live].tolist(),
+            "serial": res.serial[live].tolist(),
+            "counters": {"next_serial": res.next_serial, "inserted": res.inserted, "evicted": res.evicted,
+                         "drawn": res.drawn, "next_index": self.next_index,
+                         "drawn_since_insert": self.drawn_since_insert, "batches": self.batches},
+            "evicted_uses": list(res.evicted_uses),
+            "rng": _plain(res.rng.bit_generator.state),
+            "jobs": [{"indices": i.tolist(), "params": None if p is None else {k: np.asarray(v).tolist() for k, v in p.items()}}
+                     for i, p in jobs],
+            "proposal": self.proposal.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        """Resume from ``state_dict()``: re-solve the held trajectories (bit-identical: sample identity),
+        restore counts and generators, and queue the jobs that were in flight."""
+        if state.get("kind") != "reservoir":
+            raise ValueError("not a reservoir state (was it saved from a TrajectoryStream?)")
+        for key, mine in (("seed", self.seed), ("config_hash", self.pde.config_hash()), ("mode", self.mode)):
+            if state.get(key) != mine:
+                raise ValueError(f"reservoir state has {key}={state.get(key)!r} but this stream has {key}={mine!r}")
+        self.close()
+        self._reset_state()
+        res = self.res
+        slots = np.asarray(state["slots"], np.int64)
+        if len(slots):
+            names = list(self.pde.PARAMS)
+            params = np.asarray(state["params"], np.float32).reshape(len(slots), len(names))
+            index = np.asarray(state["index"], np.int64)
+            for lo in range(0, len(slots), self.solve_batch):
+                sel = np.arange(lo, min(lo + self.solve_batch, len(slots)))
+                pad = np.resize(sel, self.solve_batch)
+                out = _bridge.solve_job(self.config, self.seed, index[pad],
+                                        {n: params[pad, j] for j, n in enumerate(names)})
+                u = torch.from_numpy(out["u"][: len(sel)])
+                if res.u is None:
+                    res.u = torch.empty((self.capacity, *u.shape[1:]), dtype=u.dtype)
+                    res.params = torch.empty((self.capacity, len(names)), dtype=torch.float32)
+                res.u[slots[sel]] = u
+                res.params[slots[sel]] = torch.from_numpy(out["params"][: len(sel)])
+            res.index[slots] = index
+            res.uses[slots] = state["uses"]
+            res.window_uses[slots] = np.asarray(state["window_uses"], np.int64).reshape(len(slots), -1)
+            res.serial[slots] = state["serial"]
+        c = state["counters"]
+        res.next_serial, res.inserted, res.evicted, res.drawn = c["next_serial"], c["inserted"], c["evicted"], c["drawn"]
+        self.next_index, self.drawn_since_insert, self.batches = c["next_index"], c["drawn_since_insert"], c["batches"]
+        res.evicted_uses = list(state["evicted_uses"])
+        res.rng.bit_generator.state = state["rng"]
+        for job in state["jobs"]:
+            params = None if job["params"] is None else {k: np.asarray(v, np.float64) for k, v in job["params"].items()}
+            self.pending.append((np.asarray(job["indices"], np.int64), params, None))
+        self.proposal.load_state_dict(state["proposal"])
+
+    def normalization(self, n: int = 64):
+        """Per-field mean/std from samples 0..n-1 of this seed (the same calibration as TrajectoryStream)."""
+        from .normalize import compute_normalization
+
+        return compute_normalization(self.pde, seed=self.seed, n=n, solve_batch=self.solve_batch)
+
+    def close(self) -> None:
+        """Stop the producers (waits for the jobs in flight); the stream can be iterated again afterwards."""
+        if self._closer is not None:
+            closer, self._closer, self._executor = self._closer, None, None
+            self.pending = collections.deque((i, p, None) for i, p, _f in self.pending)
+            closer.close()
+            _OPEN.discard(self)
+
+    def __getstate__(self):
+        raise TypeError("a ReservoirStream holds live producers and is not pickled; use it with num_workers=0")
+
