@@ -408,7 +408,7 @@ class ReservoirStream(IterableDataset):
                 pad = np.resize(sel, self.solve_batch)
                 out = _bridge.solve_job(self.config, self.seed, index[pad],
                                         {n: params[pad, j] for j, n in enumerate(names)})
-                u = torch.from_numpy(out["u"][: len(sel)])
+                u = torch.from_numpy(np.require(out["u"][: len(sel)], requirements="W"))
                 if res.u is None:
                     res.u = torch.empty((self.capacity, *u.shape[1:]), dtype=u.dtype)
                     res.params = torch.empty((self.capacity, len(names)), dtype=torch.float32)

@@ -1,0 +1,197 @@
+"""Training reservoir: reuse bound, eviction, determinism and resume, sample identity, producers, proposal."""
+
+import collections
+
+import numpy as np
+import pytest
+import torch
+from torch.utils.data import DataLoader
+
+import generator
+from datasets.proposal import ParamProposal
+from datasets.reservoir import Reservoir, ReservoirStream
+
+PDE = generator.get_pde("burgers1d", n=32, n_frames=4)
+
+
+def take(stream, n):
+    """The first n batches of a stream, then close it."""
+    out = []
+    for batch in DataLoader(stream, batch_size=None):
+        out.append(batch)
+        if len(out) == n:
+            break
+    stream.close()
+    return out
+
+
+def same(a, b):
+    return len(a) == len(b) and all(torch.equal(x[k], y[k]) for x, y in zip(a, b) for k in x)
+
+
+# --- the store alone ---------------------------------------------------------------------------------
+def test_store_never_exceeds_the_bound_and_never_serves_an_evicted_trajectory():
+    rng = np.random.default_rng(0)
+    res = Reservoir(capacity=6, cap_uses=3, n_windows=2, eviction="random", draw="uniform", rng=rng)
+    held, uses, next_index = set(), collections.Counter(), 0
+    for step in range(400):
+        if rng.random() < 0.3 and res.room() >= 2:  # a producer inserts a batch of 2
+            before = set(res.index[res.live()].tolist())
+            res.insert(torch.zeros(2, 3, 1, 4), torch.zeros(2, 1), np.array([next_index, next_index + 1]))
+            next_index += 2
+            held = set(res.index[res.live()].tolist())
+            assert len(before - held) == 2 or len(before) + 2 <= 6  # only used ones make way
+        got = res.draw()
+        if got is None:  # the loop would wait: everything held is at its bound
+            assert all(res.uses[s] == 3 for s in res.live())
+            continue
+        slot, start = got
+        assert 0 <= start < 2
+        idx = int(res.index[slot])
+        assert idx in held  # never a trajectory already evicted
+        uses[idx] += 1
+        assert uses[idx] <= 3  # never above the bound
+    assert res.evicted > 0 and max(uses.values()) == 3
+    assert res.reuse(per_trajectory=1).max() <= 3
+
+
+def test_store_evicts_fifo_among_used_only_and_least_used_balances():
+    res = Reservoir(capacity=4, cap_uses=5, n_windows=3, eviction="fifo", draw="least_used",
+                    rng=np.random.default_rng(1))
+    res.insert(torch.zeros(4, 4, 1, 2), torch.zeros(4, 0), np.arange(4))
+    assert res.room() == 0  # nothing drawn yet: a new solve must wait, not evict an unused one
+    for _ in range(8):
+        res.draw()
+    assert sorted(res.uses.tolist()) == [2, 2, 2, 2]  # least used first: balanced
+    assert res.window_uses.max() - res.window_uses[res.window_uses.sum(1) > 0].min() <= 1
+    res.insert(torch.zeros(1, 4, 1, 2), torch.zeros(1, 0), np.array([10]))
+    assert 0 not in res.index and 10 in res.index  # the oldest made way
+
+
+# --- the stream ---------------------------------------------------------------------------------------
+def stream(**kw):
+    args = dict(seed=3, view="operator", batch_size=4, capacity=8, max_reuse=2, solve_batch=4, mode="deterministic")
+    args.update(kw)
+    return ReservoirStream(PDE, **args)
+
+
+def test_deterministic_batches_repeat_and_resume_exactly():
+    full = take(stream(draw="uniform", eviction="random"), 12)
+    assert same(full, take(stream(draw="uniform", eviction="random"), 12))
+    first = stream(draw="uniform", eviction="random")
+    head = []
+    for batch in DataLoader(first, batch_size=None):
+        head.append(batch)
+        if len(head) == 5:
+            break
+    state = first.state_dict()
+    first.close()
+    torch.save(state, "/dev/null")  # plain values
+    resumed = stream(draw="uniform", eviction="random")
+    resumed.load_state_dict(state)
+    assert same(head + take(resumed, 7), full)
+
+
+def test_examples_are_the_generator_samples_and_reuse_is_bounded():
+    batches = take(stream(max_reuse=3, draw="least_used"), 20)
+    counts = collections.Counter(i for b in batches for i in b["index"].tolist())
+    assert max(counts.values()) <= 3  # operator view: one use = one example
+    idx = np.array(sorted(counts))
+    ref = generator.sample(PDE, idx, seed=3)
+    u = np.asarray(ref.u)
+    for b in batches:
+        for k, i in enumerate(b["index"].tolist()):
+            j = int(np.searchsorted(idx, i))
+            assert np.array_equal(b["x"][k].numpy(), u[j, 0]) and np.array_equal(b["y"][k].numpy(), u[j, -1])
+            assert b["params"][k, 0].item() == float(ref.params["nu"][j])
+
+
+def test_fifo_setting_uses_each_solve_once_in_order():
+    batches = take(stream(capacity=4, max_reuse=1, draw="least_used", warmup=4), 6)
+    seen = [sorted(b["index"].tolist()) for b in batches]
+    assert seen == [list(range(4 * k, 4 * k + 4)) for k in range(6)]
+
+
+def test_async_mode_respects_the_bound_and_reports_stats():
+    s = stream(mode="async", max_reuse=2)
+    batches = take(s, 15)
+    counts = collections.Counter(i for b in batches for i in b["index"].tolist())
+    assert max(counts.values()) <= 2
+    st = s.stats()
+    assert st["inserted"] >= 8 and 0 <= st["wait_share"] <= 1 and st["reuse_max"] <= 2
+    assert set(st) >= {"inserted", "evicted", "reuse_mean", "reuse_max", "solver_traj_per_s", "examples_per_s"}
+
+
+def test_sim_budget_ends_the_stream():
+    s = stream(sim_budget=8, max_reuse=1)
+    batches = list(DataLoader(s, batch_size=None))
+    s.close()
+    assert sorted(i for b in batches for i in b["index"].tolist()) == list(range(8))
+
+
+@pytest.mark.parametrize("kind", ["process", "dask"])
+def test_other_producers_give_the_same_deterministic_batches(kind):
+    if kind == "dask":
+        pytest.importorskip("distributed")
+    ref = take(stream(), 8)
+    assert same(take(stream(producer=kind, workers=2), 8), ref)
+
+
+@pytest.mark.parametrize("kw, message", [
+    (dict(capacity=2), "capacity=2 not allowed: must be >= batch_size (4)"),
+    (dict(max_reuse=0.5), "max_reuse=0.5 not allowed; must be a finite number >= 1"),
+    (dict(warmup=9), "warmup=9 not allowed: must be <= capacity (8)"),
+    (dict(draw="newest"), "draw='newest' not allowed; allowed: uniform, least_used"),
+    (dict(eviction="lifo"), "eviction='lifo' not allowed; allowed: fifo, random"),
+    (dict(mode="sync"), "mode='sync' not allowed; allowed: async, deterministic"),
+    (dict(proposal="active"), "proposal='active' not allowed; allowed: uniform, loss"),
+])
+def test_bad_settings_are_one_line_errors(kw, message):
+    with pytest.raises(ValueError) as err:
+        stream(**kw)
+    assert str(err.value) == message
+
+
+def test_bad_producer_is_refused_when_started():
+    with pytest.raises(ValueError, match="producer='mpi' not allowed; allowed: thread, process, dask"):
+        take(stream(producer="mpi"), 1)
+
+
+# --- loss-driven proposal ------------------------------------------------------------------------------
+def test_proposal_concentrates_where_the_loss_is_high_and_keeps_its_floor():
+    domains = {"nu": ("loguniform", 0.01, 0.1, ()), "c": ("fixed", 1.0, 1.0, ())}
+    prop = ParamProposal(domains, mode="loss", floor=0.2, seed=0)
+    rng = np.random.default_rng(0)
+    nu = np.exp(rng.uniform(np.log(0.01), np.log(0.1), 2000))
+    loss = np.where(nu < 0.0159, 1.0, 0.01)  # high loss in the lowest fifth of the log box
+    prop.record(np.stack([nu, np.ones_like(nu)], 1), loss)
+    z = prop.to_unit(np.stack([prop.propose(5000)["nu"], np.ones(5000)], 1))[:, 0]
+    low = (z < 0.2).mean()
+    assert low > 0.7  # uniform would give 0.2
+    for a in np.arange(0.2, 1.0, 0.2):  # the uniform floor reaches every region
+        assert ((z >= a) & (z < a + 0.2)).mean() > 0.5 * 0.2 * 0.2
+    values = prop.propose(100)["nu"]
+    assert values.min() >= 0.01 and values.max() <= 0.1
+    again = ParamProposal(domains, mode="loss", floor=0.2, seed=0)
+    again.load_state_dict(prop.state_dict())
+    assert np.array_equal(again.propose(10)["nu"], prop.propose(10)["nu"])
+
+
+def test_uniform_proposal_leaves_parameters_to_the_solver():
+    prop = ParamProposal({"nu": ("loguniform", 0.01, 0.1, ())}, mode="uniform")
+    assert prop.propose(4) is None
+
+
+def test_loss_driven_stream_solves_the_proposed_parameters():
+    s = stream(proposal="loss", proposal_kwargs={"floor": 0.5})
+    batches = []
+    for batch in DataLoader(s, batch_size=None):
+        s.report_losses(batch, torch.where(batch["params"][:, 0] < 0.02, 1.0, 0.001).double())
+        batches.append(batch)
+        if len(batches) == 30:
+            break
+    s.close()
+    nu = torch.cat([b["params"][:, 0] for b in batches])
+    assert nu.min() >= 0.01 and nu.max() <= 0.1
+    late = torch.cat([b["params"][:, 0] for b in batches[15:]])
+    assert (late < 0.02).float().mean() > 0.4  # uniform in log: 0.30
