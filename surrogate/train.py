@@ -32,6 +32,7 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 from torch import nn
+from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from datasets.normalize import Normalization
@@ -188,6 +189,11 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
         if normalizer is None:
             normalizer = source_normalization(loader)
             progress.t_data += time.perf_counter() - start  # a calibration draw (or reading a cache) is data time
+    if isinstance(loader, DataLoader) and loader.generator is None:
+        # Each pass over a DataLoader draws its workers' base seed from its generator, else from the global torch
+        # RNG. A resumed run starts a pass where the uninterrupted one did not, so that draw would shift the RNG
+        # that the data source (random windows) and the model may use; a generator of its own keeps it out.
+        loader.generator = torch.Generator().manual_seed(torch.initial_seed())
     dataset = getattr(loader, "dataset", None)
     report_losses, stats = getattr(dataset, "report_losses", None), getattr(dataset, "stats", None)
     batches = forever(loader)

@@ -1,0 +1,279 @@
+"""Resumable training runs: checkpoint.pt, run.json, `train --resume`, and the data-source hooks of the loop.
+
+The kill tests run real processes: the run SIGKILLs itself (kill -9: no cleanup, no atexit) when the loop asks
+for a given batch, a few steps after a checkpoint, so the resumed run must redo those steps. The resumed run
+must end with the uninterrupted run's weights, bit for bit (one torch thread, CPU).
+"""
+
+import copy
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from torch.utils.data import DataLoader, IterableDataset
+
+import cli
+from surrogate import build_model
+from surrogate.data import EpochBatchSampler
+from surrogate.train import TIMINGS, _postfix, forever, relative_errors, stack_frames, train
+
+torch.set_num_threads(1)
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY_PDE = ["--set", "n=32", "--set", "n_frames=5"]
+TINY_MODEL = ["--model-set", "width=8", "--model-set", "modes=4", "--model-set", "layers=2"]
+STEPS = 30
+CHECKPOINT_KEYS = {"format", "step", "steps", "model", "spec", "optimizer", "scheduler", "torch_rng", "normalization",
+                   "rows", "counters", "data", "meta"}
+
+# Runs the CLI (spec "argv") or train_run (spec "train_run") in a fresh process with one torch thread; with
+# "kill_at" the process SIGKILLs itself when the training loop asks for that batch.
+RUNNER = r"""
+import json, os, signal, sys
+import torch
+torch.set_num_threads(1)
+import surrogate.train as T
+
+spec = json.loads(sys.argv[1])
+if spec.get("kill_at"):
+    real_forever = T.forever
+
+    def dying(loader):
+        for n, batch in enumerate(real_forever(loader), 1):
+            if n == spec["kill_at"]:
+                os.kill(os.getpid(), signal.SIGKILL)
+            yield batch
+
+    T.forever = dying
+if "argv" in spec:
+    import cli
+    sys.exit(cli.main(spec["argv"]))
+import datasets, generator
+from surrogate.runs import train_run
+kw = spec["train_run"]
+pde = generator.get_pde(kw.pop("pde"), kw.pop("pde_set"))
+train_run(pde, view=datasets.make_view(kw.pop("view"), **kw.pop("view_args")), **kw)
+"""
+
+
+def run_process(spec: dict) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", RUNNER, json.dumps(spec)], cwd=ROOT, capture_output=True, text=True,
+                          timeout=600)
+
+
+def load(path: Path) -> dict:
+    return torch.load(path, map_location="cpu", weights_only=True)
+
+
+def without_timings(rows: list[dict]) -> list[dict]:
+    return [{k: v for k, v in row.items() if k not in TIMINGS} for row in rows]
+
+
+def read_csv(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def assert_same_run(a: Path, b: Path) -> None:
+    """Same weights bit for bit (model.pt and the final checkpoint), same metrics apart from timings."""
+    ma, mb = load(a / "model.pt"), load(b / "model.pt")
+    assert ma["model"].keys() == mb["model"].keys()
+    for key in ma["model"]:
+        assert torch.equal(ma["model"][key], mb["model"][key]), key
+    ca, cb = load(a / "checkpoint.pt"), load(b / "checkpoint.pt")
+    for group in ("model",):
+        assert all(torch.equal(ca[group][k], cb[group][k]) for k in ca[group])
+    for pa, pb in zip(ca["optimizer"]["state"].values(), cb["optimizer"]["state"].values()):
+        assert all(torch.equal(pa[k], pb[k]) for k in pa)
+    assert ca["scheduler"] == cb["scheduler"] and ca["data"] == cb["data"] and torch.equal(ca["torch_rng"], cb["torch_rng"])
+    assert without_timings(read_csv(a / "metrics.csv")) == without_timings(read_csv(b / "metrics.csv"))
+    sa, sb = (json.loads((d / "metrics.json").read_text()) for d in (a, b))
+    assert without_timings([sa]) == without_timings([sb])
+    assert json.loads((a / "run.json").read_text()) == json.loads((b / "run.json").read_text())
+
+
+def kill_and_resume(whole: Path, killed: Path, fresh: dict, kill_at: int) -> dict:
+    """Run ``fresh`` uninterrupted into ``whole`` and killed at batch ``kill_at`` into ``killed``; resume the
+    killed one with the CLI. Returns the killed run's checkpoint as it stood after the kill."""
+    done = run_process(fresh(whole))
+    assert done.returncode == 0, done.stderr
+    dead = run_process({**fresh(killed), "kill_at": kill_at})
+    assert dead.returncode == -9, dead.stderr
+    assert not (killed / "metrics.json").exists() and not (killed / "model.pt").exists()
+    ckpt = load(killed / "checkpoint.pt")  # plain containers and tensors only
+    resumed = run_process({"argv": ["train", "--resume", str(killed), "--threads", "1"]})
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"resumed {killed} at step {ckpt['step']} of {STEPS}" in resumed.stdout
+    assert_same_run(whole, killed)
+    return ckpt
+
+
+def test_kill9_and_resume_on_the_stream_is_bit_identical(tmp_path, capsys):
+    def fresh(out):
+        return {"argv": ["train", "burgers1d", *TINY_PDE, *TINY_MODEL, "--steps", str(STEPS), "--batch-size", "8",
+                         "--checkpoint-every", "10", "--test-samples", "2", "--threads", "1", "--out", str(out)]}
+
+    ckpt = kill_and_resume(tmp_path / "whole", tmp_path / "killed", fresh, kill_at=26)  # steps 21..25 redone
+    assert set(ckpt) == CHECKPOINT_KEYS and ckpt["step"] == 20 and ckpt["steps"] == STEPS
+    assert ckpt["torch_rng"].dtype == torch.uint8 and ckpt["spec"]["width"] == 8
+    assert ckpt["data"]["owner"] == "dataset" and ckpt["data"]["state"]["consumed"] == [20 * 8]
+    assert [r["step"] for r in ckpt["rows"]] == [10, 20] and ckpt["counters"]["examples"] == 160
+    assert ckpt["normalization"]["samples"] == 64  # the stream's calibration draw, not recomputed on resume
+    assert ckpt["optimizer"]["state"] and ckpt["scheduler"]["last_epoch"] == 20
+    settings = json.loads((tmp_path / "killed" / "run.json").read_text())
+    assert settings["pde"]["pde"] == "burgers1d" and settings["pde"]["n"] == 32 and settings["source"] == "stream"
+    assert {k: settings[k] for k in ("model", "view", "steps", "batch_size", "checkpoint_every", "data_cfg")} == {
+        "model": "fno", "view": "next_step", "steps": STEPS, "batch_size": 8, "checkpoint_every": 10, "data_cfg": None}
+    assert settings["model_cfg"] == {"width": "8", "modes": "4", "layers": "2"} and settings["view_args"]["k_in"] == 1
+
+    # a finished run is not resumed again, whatever it was (uninterrupted or resumed), and is left as it is
+    for run in (tmp_path / "whole", tmp_path / "killed"):
+        before = {p.name: p.stat().st_mtime_ns for p in run.iterdir()}
+        assert cli.main(["train", "--resume", str(run)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("pdestream: error:") and "already complete" in err, err
+        assert {p.name: p.stat().st_mtime_ns for p in run.iterdir()} == before
+
+
+def test_kill9_and_resume_on_a_cache_is_bit_identical(tmp_path):
+    import datasets
+    import generator
+
+    pde_set = {"n": "32", "n_frames": "5"}
+    cache = tmp_path / "c.h5"
+    datasets.write_cache(generator.get_pde("burgers1d", pde_set), cache, 6, seed=0, progress=False)
+
+    def fresh(out):  # random next-step windows: the cache draws them from the global torch RNG (restored on resume)
+        return {"train_run": {"pde": "burgers1d", "pde_set": pde_set, "source": str(cache), "out_dir": str(out),
+                              "model_cfg": {"width": 8, "modes": 4, "layers": 2}, "view": "next_step",
+                              "view_args": {"windows": 2}, "steps": STEPS, "batch_size": 4, "checkpoint_every": 10,
+                              "n_test": 2, "seed": 3, "data_cfg": {"opaque": [1, 2]}}}
+
+    # 6 samples x 2 windows = 12 examples = 3 batches per epoch: the checkpoint at step 20 is mid-epoch 6
+    ckpt = kill_and_resume(tmp_path / "whole", tmp_path / "killed", fresh, kill_at=25)
+    assert ckpt["step"] == 20 and ckpt["data"]["owner"] == "batch_sampler"
+    assert ckpt["data"]["state"] == {"sampler": "epoch_batch", "seed": 3, "n": 12, "batch_size": 4, "drop_last": True,
+                                     "epoch": 6, "consumed": 2}
+    assert ckpt["normalization"]["samples"] == 6  # the cache's stored samples
+    settings = json.loads((tmp_path / "killed" / "run.json").read_text())
+    assert settings["view_args"] == {"k_in": 1, "k_out": 1, "windows": 2} and settings["data_cfg"] == {"opaque": [1, 2]}
+
+
+@pytest.mark.parametrize("n,batch_size,drop_last", [(10, 4, True), (3, 4, False), (9, 3, True), (7, 3, False)])
+def test_epoch_batch_sampler_matches_the_shuffling_dataloader_and_resumes_anywhere(n, batch_size, drop_last):
+    epochs = 4
+    old = DataLoader(list(range(n)), batch_size=batch_size, shuffle=True, drop_last=drop_last,
+                     generator=torch.Generator().manual_seed(5))
+    reference = [b.tolist() for _ in range(epochs) for b in old]  # what training on a cache gave before
+    sampler = EpochBatchSampler(n, batch_size, seed=5, drop_last=drop_last)
+    it = forever(sampler)
+    assert [next(it) for _ in reference] == reference
+    for k in range(len(reference)):  # a state taken after any batch, epoch ends included, continues exactly
+        first = EpochBatchSampler(n, batch_size, seed=5, drop_last=drop_last)
+        it = forever(first)
+        for _ in range(k):
+            next(it)
+        second = EpochBatchSampler(n, batch_size, seed=5, drop_last=drop_last)
+        second.load_state_dict(first.state_dict())
+        it = forever(second)
+        assert [next(it) for _ in reference[k:]] == reference[k:], k
+    with pytest.raises(ValueError, match="sampler state has seed=5 but this cache source has seed=6"):
+        EpochBatchSampler(n, batch_size, seed=6, drop_last=drop_last).load_state_dict(sampler.state_dict())
+
+
+def test_resume_refusals(tmp_path, capsys):
+    def refused(argv, needle):
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("pdestream: error:") and needle in err, err
+        assert "Traceback" not in err
+
+    refused(["train", "--resume", str(tmp_path / "nowhere")], f"--resume {tmp_path / 'nowhere'}: no such run directory")
+    assert not (tmp_path / "nowhere").exists()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    refused(["train", "--resume", str(empty)], f"{empty}: not a resumable training run, no run.json or checkpoint.pt")
+    (empty / "run.json").write_text("{}")
+    refused(["train", "--resume", str(empty)], "no checkpoint.pt (killed before its first checkpoint?")
+    (empty / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    refused(["train", "--resume", str(empty)], "run.json is not a pdestream run file")
+    (empty / "run.json").write_text(json.dumps({"format": 1, "steps": 5}))
+    refused(["train", "--resume", str(empty)], "checkpoint.pt cannot be read as a pdestream checkpoint")
+    assert sorted(p.name for p in empty.iterdir()) == ["checkpoint.pt", "run.json"]
+    # settings given with --resume are refused, all named in one line, before the directory is even looked at
+    refused(["train", "burgers1d", "--resume", str(empty), "--steps", "5", "--set", "n=64"],
+            "drop PDE name, --steps, --set (only --threads may go with it)")
+    refused(["train", "--resume", str(empty), "--out", str(tmp_path / "o"), "--overwrite"], "drop --out, --overwrite")
+    refused(["train", "burgers1d", *TINY_PDE, "--steps", "2"], "give --out RUN_DIR for a new run")
+    # a new run is not started over an unfinished one
+    refused(["train", "burgers1d", *TINY_PDE, "--steps", "2", "--out", str(empty)],
+            f"already holds a run (run.json, checkpoint.pt); pass --resume {empty} to continue it")
+    refused(["train", "burgers1d", *TINY_PDE, "--checkpoint-every", "-1", "--out", str(tmp_path / "neg")],
+            "--checkpoint-every=-1 not allowed")
+    assert not (tmp_path / "neg").exists() and not (tmp_path / "o").exists()
+
+
+class FakeSource(IterableDataset):
+    """A data source with both hooks: it records what the loop reports and offers statistics."""
+
+    def __init__(self, batch_size=4, n=16):
+        self.batch_size, self.n, self.reports, self.stats_calls = batch_size, n, [], 0
+
+    def __iter__(self):
+        gen = torch.Generator().manual_seed(0)
+        for i in range(1000):
+            x = torch.randn(self.batch_size, 1, 1, self.n, generator=gen)  # [B, k_in, C, n]
+            yield {"x": x, "y": 0.5 * x + 1, "params": torch.rand(self.batch_size, 1, generator=gen),
+                   "index": torch.arange(self.batch_size) + i * self.batch_size}
+
+    def report_losses(self, batch: dict, per_example: torch.Tensor) -> None:
+        self.reports.append((batch, per_example))
+
+    def stats(self) -> dict:
+        self.stats_calls += 1
+        return {"wait_share": 0.25, "mean_uses": float(self.stats_calls), "inserted": 7}
+
+
+def test_report_losses_and_stats_hooks(tmp_path):
+    source = FakeSource()
+    torch.manual_seed(0)
+    model = build_model("fno", 1, 1, 1, 1, width=8, modes=4, layers=2)
+    before = copy.deepcopy(model)
+    summary = train(model, DataLoader(source, batch_size=None), 6, tmp_path, log_every=2)
+    assert len(source.reports) == 6
+    for batch, per_example in source.reports:
+        assert per_example.dtype == torch.float64 and per_example.shape == (4,) and per_example.device.type == "cpu"
+        assert not per_example.requires_grad and bool((per_example > 0).all())
+    # the first report is the initial model's error on the first batch: ||pred - target|| / ||target||, normalized
+    batch, reported = source.reports[0]
+    norm = summary["normalizer"]
+    with torch.no_grad():
+        pred = before(stack_frames(norm.normalize(batch["x"]), 1), norm.normalize_params(batch["params"])).double()
+    target = stack_frames(norm.normalize(batch["y"]), 1).double()
+    expected = torch.stack([(p - t).norm() / t.norm() for p, t in zip(pred, target)])
+    torch.testing.assert_close(reported, expected, rtol=1e-5, atol=0)
+    torch.testing.assert_close(relative_errors(torch.zeros(2, 3), torch.ones(2, 3)), torch.ones(2, dtype=torch.float64))
+    # stats: one call per logged row, their items in each row, the last ones in the summary
+    rows = read_csv(tmp_path / "metrics.csv")
+    assert source.stats_calls == 3 and [r["mean_uses"] for r in rows] == ["1.0", "2.0", "3.0"]
+    assert all(r["wait_share"] == "0.25" and r["inserted"] == "7" for r in rows) and rows[0]["loss"]
+    expected_stats = {"wait_share": 0.25, "mean_uses": 3.0, "inserted": 7}
+    assert summary["data_stats"] == expected_stats
+    assert json.loads((tmp_path / "metrics.json").read_text())["data_stats"] == expected_stats
+    assert load(tmp_path / "checkpoint.pt")["counters"]["data_stats"] == expected_stats
+    assert list(_postfix(0.5, expected_stats)) == ["loss", "wait_share", "mean_uses"]
+
+
+def test_a_source_without_hooks_still_trains_and_checkpoints(tmp_path):
+    class Plain(FakeSource):
+        report_losses = stats = None
+
+    model = build_model("fno", 1, 1, 1, 1, width=8, modes=4, layers=2)
+    summary = train(model, DataLoader(Plain(), batch_size=None), 4, tmp_path, log_every=2, checkpoint_every=2)
+    assert "data_stats" not in summary and "mean_uses" not in read_csv(tmp_path / "metrics.csv")[0]
+    ckpt = load(tmp_path / "checkpoint.pt")
+    assert ckpt["step"] == 4 and ckpt["data"] is None  # a plain IterableDataset has no state to save
