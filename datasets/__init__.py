@@ -4,9 +4,10 @@ and loads caches back; ``_bridge`` is the only module that touches JAX."""
 from .cache import WriteSummary, open_cache, write_cache
 from .loader import CachedTrajectories
 from .normalize import Normalization, compute_normalization
+from .reservoir import Reservoir, ReservoirStream
 from .stream import StreamLoader, TrajectoryStream, stream_loader
 from .views import VIEWS, NextStep, Operator, Whole, collate, examples, gather, make_view
 
 __all__ = [
-    "Normalization", "StreamLoader", "TrajectoryStream", "compute_normalization", "gather", "stream_loader",
+    "Normalization", "Reservoir", "ReservoirStream", "StreamLoader", "TrajectoryStream", "compute_normalization", "gather", "stream_loader",
     "CachedTrajectories", "WriteSummary", "open_cache", "write_cache", "VIEWS", "NextStep", "Operator", "Whole", "collate", "examples", "make_view"]

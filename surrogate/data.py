@@ -12,7 +12,10 @@ from torch.utils.data import DataLoader, Sampler
 
 import datasets
 
-TEST_SEED_OFFSET = 1_000_003  # test seeds never coincide with a training seed below this offset
+TEST_SEED_OFFSET = 1_000_003
+# data_cfg {"kind": "reservoir", ...}: the ReservoirStream keyword arguments a run may set
+RESERVOIR_SETTINGS = {"capacity", "max_reuse", "warmup", "eviction", "draw", "solve_batch", "mode", "producer",
+                      "workers", "scheduler", "inflight", "proposal", "proposal_kwargs", "sim_budget"}  # test seeds never coincide with a training seed below this offset
 
 
 def check_cache_matches(cached, pde, explicit: dict | None = None) -> None:
@@ -42,6 +45,13 @@ def train_loader(pde, source: str, view, batch_size: int, seed: int = 0, data_se
     epoch by an ``EpochBatchSampler`` seeded with ``seed`` (resumable: ``loader.batch_sampler.state_dict()``).
     data_cfg: opaque settings of the data source recorded in run.json (None: the defaults above).
     """
+    if source == "stream" and (data_cfg or {}).get("kind") == "reservoir":
+        settings = {k: v for k, v in data_cfg.items() if k != "kind"}
+        unknown = sorted(set(settings) - RESERVOIR_SETTINGS)
+        if unknown:
+            raise ValueError(f"unknown reservoir setting(s) {unknown}; allowed: {', '.join(sorted(RESERVOIR_SETTINGS))}")
+        stream = datasets.ReservoirStream(pde, seed=data_seed, view=view, batch_size=batch_size, **settings)
+        return DataLoader(stream, batch_size=None), stream.pde
     if source == "stream":
         stream = datasets.TrajectoryStream(pde, seed=data_seed, view=view, batch_size=batch_size)
         return datasets.stream_loader(stream), stream.pde
