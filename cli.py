@@ -270,7 +270,6 @@ def cmd_train(args: argparse.Namespace) -> None:
 
 def _resume_train(args: argparse.Namespace) -> None:
     """`train --resume RUN_DIR`: everything from RUN_DIR/run.json; other settings are refused (one line)."""
-    import json
     from pathlib import Path
 
     from surrogate.runs import RUN_FILE, read_run, resume_run
@@ -279,10 +278,10 @@ def _resume_train(args: argparse.Namespace) -> None:
     if given:
         raise ValueError(f"--resume takes the run's settings from {Path(args.resume) / RUN_FILE}; "
                          f"drop {', '.join(given)} (only --threads may go with it)")
-    read_run(Path(args.resume))  # refuse a non-run or a finished run before anything else
-    settings = json.loads((Path(args.resume) / RUN_FILE).read_text())
+    run = read_run(Path(args.resume))  # refuse a non-run or a finished run before anything else
+    settings = run[0]
     _set_threads(default_threads(settings["source"]) if args.threads is None else args.threads)
-    s, step = resume_run(args.resume)
+    s, step = resume_run(args.resume, run)
     print(f"resumed {args.resume} at step {step} of {settings['steps']}")
     _print_run(s, settings["model"], settings["source"], settings["n_test"], args.resume)
 

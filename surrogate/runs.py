@@ -67,18 +67,20 @@ def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict 
     return _run(pde, settings, Path(out_dir), tests=tests, explicit=explicit)
 
 
-def resume_run(run_dir) -> tuple[dict, int]:
+def resume_run(run_dir, run: tuple[dict, dict] | None = None) -> tuple[dict, int]:
     """Continue the run in ``run_dir`` from its checkpoint.pt to its total steps: (summary, step resumed at).
 
     Everything is rebuilt from run.json; the finished run equals the uninterrupted one (bit for bit on the
-    CPU) apart from timings. ValueError when the directory is not a run or the run is already complete.
+    CPU) apart from timings. run: ``read_run(run_dir)``'s result when the caller has it already. ValueError
+    when the directory is not a run or the run is already complete.
     """
     run_dir = Path(run_dir)
-    settings, ckpt = read_run(run_dir)
+    settings, ckpt = read_run(run_dir) if run is None else run
     from datasets._bridge import pde_from_config  # the one door to the generator (surrogate never imports it)
 
-    for stray in run_dir.glob(f".{CHECKPOINT}.*.tmp"):  # a write cut short by the kill
-        stray.unlink(missing_ok=True)
+    for name in RUN_FILES:  # temp files of atomic writes cut short by the kill
+        for stray in run_dir.glob(f".{name}.*.tmp"):
+            stray.unlink(missing_ok=True)
     return _run(pde_from_config(settings["pde"]), settings, run_dir, resume=ckpt), int(ckpt["step"])
 
 

@@ -158,8 +158,14 @@ def _postfix(loss: float, stats: dict | None) -> dict:
     shown = {"loss": f"{loss:.3g}"}
     if stats:
         keys = [k for k in POSTFIX_STATS if k in stats] or list(stats)[:2]
-        shown.update({k: f"{stats[k]:.3g}" for k in keys})
+        shown.update({k: format(stats[k], ".3g") if isinstance(stats[k], (int, float)) else str(stats[k])
+                      for k in keys})
     return shown
+
+
+def _plain(stats: dict) -> dict:
+    """stats() values as Python numbers (numpy / 0-d tensor scalars would not load with weights_only=True)."""
+    return {str(k): (v.item() if hasattr(v, "item") else v) for k, v in stats.items()}
 
 
 def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, schedule: str = "cosine",
@@ -231,7 +237,7 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
                    "trajectories": len(progress.trajectories), "t_data": progress.t_data,
                    "t_compute": progress.t_compute, "elapsed": progress.wall + time.perf_counter() - start}
             if stats is not None:
-                progress.data_stats = dict(stats())
+                progress.data_stats = _plain(stats())
                 row.update({k: v for k, v in progress.data_stats.items() if k not in row})  # the loop's own win
             progress.rows.append(row)
             bar.set_postfix(_postfix(loss_value, progress.data_stats))
@@ -239,8 +245,6 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
             save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, steps, start, meta))
             write_metrics_csv(out / "metrics.csv", progress.rows)
     bar.close()
-    if normalizer is None:
-        raise ValueError(f"{out}: no training step was run and no normalization is known")
     write_metrics_csv(out / "metrics.csv", progress.rows)
     save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, steps, start, meta))
     wall = progress.wall + time.perf_counter() - start

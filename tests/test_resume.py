@@ -105,10 +105,12 @@ def kill_and_resume(whole: Path, killed: Path, fresh: dict, kill_at: int) -> dic
     assert dead.returncode == -9, dead.stderr
     assert not (killed / "metrics.json").exists() and not (killed / "model.pt").exists()
     ckpt = load(killed / "checkpoint.pt")  # plain containers and tensors only
+    (killed / ".checkpoint.pt.x1y2.tmp").write_bytes(b"half a checkpoint")  # as a kill during a write leaves it
     resumed = run_process({"argv": ["train", "--resume", str(killed), "--threads", "1"]})
     assert resumed.returncode == 0, resumed.stderr
     assert f"resumed {killed} at step {ckpt['step']} of {STEPS}" in resumed.stdout
     assert_same_run(whole, killed)
+    assert not list(killed.glob(".*.tmp"))
     return ckpt
 
 

@@ -191,6 +191,8 @@ def test_train_end_to_end_stream_and_cache(tmp_path, capsys):
                      "--test-samples", "4", "--out", str(out)]) == 0
     summary = json.loads((out / "metrics.json").read_text())
     assert summary["steps"] == 4 and summary["examples_seen"] == 32 and summary["source"] == "stream"
+    assert json.loads((out / "run.json").read_text())["steps"] == 4  # settings for --resume
+    assert torch.load(out / "checkpoint.pt", weights_only=True)["step"] == 4  # at the end (default every 100)
     assert 0 < summary["test"]["test"]["rel_l2"] and len(summary["test"]["test"]["rollout"]) == 5
     assert "rel L2" in capsys.readouterr().out
     # the same command again refuses to overwrite the run
