@@ -1,6 +1,7 @@
 """pdestream.datasets: the torch side. Streams solver output into training, caches it to HDF5/Zarr,
 and loads caches back; ``_bridge`` is the only module that touches JAX."""
 
+from ._bridge import param_domains, sample_tensors
 from .cache import WriteSummary, open_cache, write_cache
 from .loader import CachedTrajectories
 from .normalize import Normalization, compute_normalization
@@ -9,5 +10,5 @@ from .stream import StreamLoader, TrajectoryStream, stream_loader
 from .views import VIEWS, NextStep, Operator, Whole, collate, examples, gather, make_view
 
 __all__ = [
-    "Normalization", "Reservoir", "ReservoirStream", "StreamLoader", "TrajectoryStream", "compute_normalization", "gather", "stream_loader",
+    "Normalization", "Reservoir", "param_domains", "sample_tensors", "ReservoirStream", "StreamLoader", "TrajectoryStream", "compute_normalization", "gather", "stream_loader",
     "CachedTrajectories", "WriteSummary", "open_cache", "write_cache", "VIEWS", "NextStep", "Operator", "Whole", "collate", "examples", "make_view"]

@@ -128,23 +128,26 @@ class Reservoir:
             self.inserted += 1
         return evicted
 
-    def draw(self) -> tuple[int, int] | None:
-        """One example: (slot, window start), or None when every held trajectory is at its bound."""
+    def draw(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Up to k examples, each trajectory at most once: (slots [m], window starts [m]), m <= k; m = 0 when
+        every held trajectory is at its bound. "uniform": a random subset of the drawable trajectories and a
+        random window each; "least_used": the least-drawn trajectories and, in each, its least-drawn window
+        (ties broken at random)."""
         ok = self.eligible()
-        if not len(ok):
-            return None
+        m = min(k, len(ok))
+        if m == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
         if self.draw_policy == "least_used":
-            ok = ok[self.uses[ok] == self.uses[ok].min()]
-        slot = int(self.rng.choice(ok))
-        if self.draw_policy == "least_used":
-            w = self.window_uses[slot]
-            start = int(self.rng.choice(np.flatnonzero(w == w.min())))
+            order = np.lexsort((self.rng.random(len(ok)), self.uses[ok]))  # by uses, ties at random
+            slots = ok[order[:m]]
+            starts = (self.window_uses[slots] + self.rng.random((m, self.n_windows))).argmin(1)
         else:
-            start = int(self.rng.integers(self.n_windows))
-        self.uses[slot] += 1
-        self.window_uses[slot, start] += 1
-        self.drawn += 1
-        return slot, start
+            slots = self.rng.choice(ok, size=m, replace=False)
+            starts = self.rng.integers(self.n_windows, size=m)
+        self.uses[slots] += 1  # slots are distinct: one increment each
+        self.window_uses[slots, starts] += 1
+        self.drawn += m
+        return slots, starts
 
     def reuse(self, per_trajectory: int) -> np.ndarray:
         """Uses / per_trajectory of every trajectory inserted so far (evicted and held), float64."""
@@ -291,32 +294,35 @@ class ReservoirStream(IterableDataset):
             return True
         return self.drawn_since_insert >= self.solve_batch * self.cap_uses or not len(res.eligible())
 
-    def _draw_one(self) -> tuple[int, int] | None:
-        """The next example (slot, start), waiting for solves as needed; None when the budget is spent."""
+    def _draw(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Up to k examples (slots, starts), waiting for solves as needed; empty when the budget is spent."""
         res = self.res
+        ready = min(self.warmup, self.sim_budget or self.warmup)
         while True:
             if self.mode == "deterministic":
                 while self._want_insert():
                     self._take_oldest()
-                if res.inserted >= min(self.warmup, self.sim_budget or self.warmup):
-                    got = res.draw()
-                    if got is not None:
-                        self.drawn_since_insert += 1
-                        return got
+                if res.inserted >= ready:
+                    # never draw past the next scheduled insertion: the schedule fixes the sequence
+                    until = self.solve_batch * self.cap_uses - self.drawn_since_insert
+                    slots, starts = res.draw(min(k, until) if self.pending and until > 0 else k)
+                    if len(slots):
+                        self.drawn_since_insert += len(slots)
+                        return slots, starts
                 if self._exhausted():
-                    return None
+                    return np.zeros(0, np.int64), np.zeros(0, np.int64)
                 if self.pending and res.room() < len(self.pending[0][0]):
                     raise RuntimeError("deterministic reservoir stuck: no room and nothing drawable (a bug)")
                 self._take_oldest()
             else:
                 self._collect(block=False)
-                if res.inserted >= min(self.warmup, self.sim_budget or self.warmup):
-                    got = res.draw()
-                    if got is not None:
-                        self.drawn_since_insert += 1
-                        return got
+                if res.inserted >= ready:
+                    slots, starts = res.draw(k)
+                    if len(slots):
+                        self.drawn_since_insert += len(slots)
+                        return slots, starts
                 if self._exhausted():
-                    return None
+                    return np.zeros(0, np.int64), np.zeros(0, np.int64)
                 self._collect(block=True)
 
     def __iter__(self):
@@ -328,21 +334,20 @@ class ReservoirStream(IterableDataset):
 
     def _batches(self):
         while True:
-            picks = []
-            while len(picks) < self.batch_size:
-                got = self._draw_one()
-                if got is None:
+            slots, starts, got = [], [], 0
+            while got < self.batch_size:
+                s, w = self._draw(self.batch_size - got)
+                if not len(s):
                     break
-                picks.append(got)
-            if picks:
-                slots = torch.tensor([p[0] for p in picks])
-                starts = torch.tensor([p[1] for p in picks])
-                index = torch.from_numpy(self.res.index)
-                batch = gather(self.view, self.res.u, self.t, self.res.params, index, slots, starts)
-                self.batches += 1
-            if not picks:
+                slots.append(s)
+                starts.append(w)
+                got += len(s)
+            if not got:
                 return
-            yield batch
+            slots, starts = torch.from_numpy(np.concatenate(slots)), torch.from_numpy(np.concatenate(starts))
+            index = torch.from_numpy(self.res.index)
+            self.batches += 1
+            yield gather(self.view, self.res.u, self.t, self.res.params, index, slots, starts)
 
     # --- the training loop's hooks ------------------------------------------------------------------
     def report_losses(self, batch: dict, per_example: torch.Tensor) -> None:

@@ -41,11 +41,11 @@ def test_store_never_exceeds_the_bound_and_never_serves_an_evicted_trajectory():
             next_index += 2
             held = set(res.index[res.live()].tolist())
             assert len(before - held) == 2 or len(before) + 2 <= 6  # only used ones make way
-        got = res.draw()
-        if got is None:  # the loop would wait: everything held is at its bound
+        slots, starts = res.draw(1)
+        if not len(slots):  # the loop would wait: everything held is at its bound
             assert all(res.uses[s] == 3 for s in res.live())
             continue
-        slot, start = got
+        slot, start = int(slots[0]), int(starts[0])
         assert 0 <= start < 2
         idx = int(res.index[slot])
         assert idx in held  # never a trajectory already evicted
@@ -60,10 +60,14 @@ def test_store_evicts_fifo_among_used_only_and_least_used_balances():
                     rng=np.random.default_rng(1))
     res.insert(torch.zeros(4, 4, 1, 2), torch.zeros(4, 0), np.arange(4))
     assert res.room() == 0  # nothing drawn yet: a new solve must wait, not evict an unused one
-    for _ in range(8):
-        res.draw()
-    assert sorted(res.uses.tolist()) == [2, 2, 2, 2]  # least used first: balanced
-    assert res.window_uses.max() - res.window_uses[res.window_uses.sum(1) > 0].min() <= 1
+    for _ in range(3):
+        slots, _starts = res.draw(3)
+        assert len(set(slots.tolist())) == 3  # a trajectory at most once per draw
+    assert sorted(res.uses.tolist()) == [2, 2, 2, 3]  # least used first: balanced
+    for _ in range(3):
+        res.draw(1)
+    assert sorted(res.uses.tolist()) == [3, 3, 3, 3]
+    assert (res.window_uses == 1).all()  # three windows each, every window once: least-drawn windows first
     res.insert(torch.zeros(1, 4, 1, 2), torch.zeros(1, 0), np.array([10]))
     assert 0 not in res.index and 10 in res.index  # the oldest made way
 

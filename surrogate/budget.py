@@ -1,0 +1,315 @@
+"""Budget-matched comparison: which data route trains the better surrogate for the same cost?
+
+Arms (each trains the same model from the same initial weights; the clock of an arm covers everything it
+does: compiling, solving, writing and reading a cache, computing normalization statistics, training):
+
+- ``precomputed``: solve N trajectories into a cache (HDF5), read it back, train epochs over it;
+- ``fifo``: the plain stream, every solve used once;
+- ``reservoir``: the stream through a training reservoir (reuse under a bound, uniform parameters);
+- ``reservoir_loss``: the reservoir with loss-driven parameter sampling.
+
+Two budgets:
+
+- ``budget_s`` (wall-clock seconds per arm): every arm trains until its clock reaches the budget, with a
+  cosine learning rate over the elapsed fraction; the precomputed arm spends ``precompute_share`` of it
+  solving (N from the solver rate it measures on its first block, which counts too).
+- ``sim_budget`` (solved trajectories per arm): every arm gets the same N trajectories and ``steps`` optimizer
+  steps (the FIFO stream runs out after N trajectories' examples: it trains fewer steps, as it would).
+
+Test sets are stratified over the parameter box (a Latin hypercube in the unit box: linear for uniform, log for
+loguniform), with ICs from a held-out seed, plus the shifted domain. Errors are per trajectory (relative L2 of
+the operator's output, or of the whole autoregressive rollout for next-step models) and reported as mean,
+p95 and max. The models are snapshotted along the run and evaluated afterwards, so evaluation never eats an
+arm's budget or competes with its solver. Outputs: compare.md/csv/json and compare.png.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch.utils.data import DataLoader
+
+import datasets
+from datasets.proposal import ParamProposal
+
+from .compare import shifted_pde
+from .data import TEST_SEED_OFFSET, EpochBatchSampler
+from .evaluate import pairs, rollout
+from .metrics import rel_l2
+from .models import build_model
+from .runs import model_channels
+from .train import relative_errors, source_normalization, stack_frames
+
+ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")
+
+
+@dataclass
+class BudgetConfig:
+    """What every arm shares. Exactly one of budget_s / sim_budget is set."""
+
+    budget_s: float | None = None
+    sim_budget: int | None = None
+    arms: tuple = ARMS
+    model: str = "fno"
+    model_cfg: dict = field(default_factory=lambda: {"width": 32, "modes": 12, "layers": 3})
+    view: object = "operator"
+    batch_size: int = 32
+    lr: float = 3e-3
+    steps: int = 1000  # sim_budget: optimizer steps per arm
+    precompute_share: float = 0.5  # budget_s: the precomputed arm's share of the budget spent solving
+    capacity: int = 512
+    max_reuse: float = 16.0
+    reservoir_mode: str = "async"
+    proposal_floor: float = 0.25
+    solve_batch: int = 16
+    seed: int = 0
+    n_test: int = 128
+    shift: float = -0.25
+    snapshots: int = 8
+
+    def check(self) -> None:
+        if (self.budget_s is None) == (self.sim_budget is None):
+            raise ValueError("give exactly one budget: --budget SECONDS or --sim-budget N")
+        if self.budget_s is not None and not (isinstance(self.budget_s, (int, float)) and math.isfinite(self.budget_s)
+                                              and self.budget_s > 0):
+            raise ValueError(f"--budget={self.budget_s} not allowed; must be a number of seconds > 0")
+        if self.sim_budget is not None and (isinstance(self.sim_budget, bool) or not isinstance(self.sim_budget, int)
+                                            or self.sim_budget < 1):
+            raise ValueError(f"--sim-budget={self.sim_budget} not allowed; must be an integer >= 1 (trajectories)")
+        unknown = [a for a in self.arms if a not in ARMS]
+        if unknown or not self.arms:
+            raise ValueError(f"arms {list(self.arms)} not allowed; choose from {', '.join(ARMS)}")
+        if not 0 < self.precompute_share < 1:
+            raise ValueError(f"precompute share={self.precompute_share} not allowed; must be in (0, 1)")
+        if self.steps < 1 or self.n_test < 1 or self.snapshots < 1:
+            raise ValueError("steps, test samples and snapshots must be >= 1")
+
+
+# --- test sets ------------------------------------------------------------------------------------------
+def stratified_test_set(pde, n: int, seed: int, chunk: int = 32) -> list[dict]:
+    """n whole trajectories {"u": [b, T, C, *space], "params": [b, P], "index": [b]} whose parameters form a
+    Latin hypercube over the PDE's parameter box (every stratum of every parameter once); ICs from
+    seed TEST_SEED_OFFSET + seed."""
+    prop = ParamProposal(datasets.param_domains(pde), mode="uniform")
+    rng = np.random.default_rng([TEST_SEED_OFFSET, seed])
+    z = np.stack([(rng.permutation(n) + rng.random(n)) / n for _ in prop.random], 1) if prop.random else np.zeros((n, 0))
+    values = prop.from_unit(z)
+    out = []
+    for lo in range(0, n, chunk):
+        idx = np.arange(lo, min(lo + chunk, n))
+        pad = np.resize(idx, chunk)  # one compiled shape for every chunk
+        data = datasets.sample_tensors(pde, pad, TEST_SEED_OFFSET + seed, params={k: v[pad] for k, v in values.items()})
+        out.append({"u": data["u"][: len(idx)].clone(), "params": data["params"][: len(idx)].clone(),
+                    "index": data["index"][: len(idx)].clone()})
+    return out
+
+
+@torch.no_grad()
+def per_trajectory_errors(model, norm, view, test: list[dict]) -> np.ndarray:
+    """Relative L2 per test trajectory [N]: the operator's output, or the whole rollout of a next-step model."""
+    model.train(False)
+    errs = []
+    for batch in test:
+        if isinstance(view, datasets.NextStep):
+            k = view.k_in
+            u = batch["u"]  # [b, T, C, *space]
+            pred = rollout(model, norm, norm.normalize(u[:, :k]), norm.normalize_params(batch["params"]), u.shape[1] - k)
+            errs.append(rel_l2(norm.denormalize(pred), u[:, k:]))
+        else:
+            p = pairs(view, batch)
+            out = model(stack_frames(norm.normalize(p["x"]), model.ndim), norm.normalize_params(p["params"]))
+            errs.append(rel_l2(norm.denormalize(out.reshape(p["y"].shape)), p["y"]))
+    model.train()
+    return torch.cat(errs).numpy()
+
+
+def error_stats(errors: np.ndarray) -> dict:
+    """mean, p95 and max of per-trajectory errors."""
+    return {"mean": float(errors.mean()), "p95": float(np.percentile(errors, 95)), "max": float(errors.max())}
+
+
+# --- one arm ----------------------------------------------------------------------------------------------
+def _loader(arm: str, pde, view, cfg: BudgetConfig, out: Path, clock_start: float, log):
+    """(DataLoader, what the arm did to get it: {"trajectories_solved"?, "cache_bytes"?})."""
+    seed = cfg.seed
+    if arm == "precomputed":
+        if cfg.sim_budget is not None:
+            n = cfg.sim_budget
+        else:  # measure the solver on one block (it counts), then fill the precompute share of the budget
+            t0 = time.perf_counter()
+            datasets.sample_tensors(pde, np.arange(cfg.solve_batch), seed)
+            rate = cfg.solve_batch / (time.perf_counter() - t0)
+            left = cfg.precompute_share * cfg.budget_s - (time.perf_counter() - clock_start)
+            n = max(cfg.batch_size, int(rate * left))
+        path = out / "cache.h5"
+        written = datasets.write_cache(pde, path, n, seed=seed, overwrite=path.exists(), progress=False)
+        log(f"  precomputed: {written.line()}")
+        cached = datasets.CachedTrajectories(path, view=view)
+        sampler = EpochBatchSampler(len(cached), cfg.batch_size, seed, drop_last=len(cached) >= cfg.batch_size)
+        loader = DataLoader(cached, batch_sampler=sampler, collate_fn=datasets.collate, generator=torch.Generator())
+        return loader, {"trajectories_solved": n, "cache_bytes": written.bytes}
+    if arm == "fifo":
+        stream = datasets.TrajectoryStream(pde, seed=seed, view=view, batch_size=cfg.batch_size,
+                                           solve_batch=cfg.solve_batch, n_samples=cfg.sim_budget)
+        return datasets.stream_loader(stream), {}
+    per = len(view.starts(pde.n_frames, torch.Generator().manual_seed(0)))
+    reuse = cfg.max_reuse
+    if cfg.sim_budget is not None:  # enough reuse for the steps, the bound still holding
+        reuse = max(1.0, 1.05 * cfg.steps * cfg.batch_size / (cfg.sim_budget * per))
+    stream = datasets.ReservoirStream(
+        pde, seed=seed, view=view, batch_size=cfg.batch_size, capacity=max(cfg.capacity, cfg.batch_size),
+        max_reuse=reuse, solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode, sim_budget=cfg.sim_budget,
+        warmup=min(max(cfg.solve_batch, cfg.batch_size), cfg.capacity),
+        proposal="loss" if arm == "reservoir_loss" else "uniform", proposal_kwargs={"floor": cfg.proposal_floor})
+    return DataLoader(stream, batch_size=None), {}
+
+
+def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=print) -> dict:
+    """Train one arm within the budget; evaluate its snapshots afterwards. Returns the arm's record."""
+    out.mkdir(parents=True, exist_ok=True)
+    clock_start = time.perf_counter()
+    loader, extra = _loader(arm, pde, view, cfg, out, clock_start, log)
+    dataset = loader.dataset
+    norm = source_normalization(loader)
+    c_in, c_out = model_channels(pde, view)
+    torch.manual_seed(cfg.seed)  # the same initial weights in every arm
+    model = build_model(cfg.model, pde.NDIM, c_in, c_out, len(pde.PARAMS), **cfg.model_cfg)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    report = getattr(dataset, "report_losses", None)
+    snapshots, steps, examples, t_data, t_compute = [], 0, 0, 0.0, 0.0
+    batches = iter(loader)
+    model.train()
+    while True:
+        elapsed = time.perf_counter() - clock_start
+        done = steps / cfg.steps if cfg.sim_budget is not None else elapsed / cfg.budget_s
+        if len(snapshots) < cfg.snapshots and done >= (len(snapshots) + 1) / cfg.snapshots - 1e-9:
+            snapshots.append((elapsed, steps, copy.deepcopy(model.state_dict())))
+        if done >= 1:
+            break
+        for group in opt.param_groups:  # cosine over the budget's elapsed fraction, down to 1%
+            group["lr"] = cfg.lr * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * done)))
+        t0 = time.perf_counter()
+        batch = next(batches, None)
+        if batch is None:  # a cache pass ended: the next epoch; a stream's simulation budget ran out: stop
+            if arm != "precomputed":
+                snapshots.append((time.perf_counter() - clock_start, steps, copy.deepcopy(model.state_dict())))
+                break
+            batches = iter(loader)
+            continue
+        t1 = time.perf_counter()
+        target = stack_frames(norm.normalize(batch["y"]), pde.NDIM)
+        pred = model(stack_frames(norm.normalize(batch["x"]), pde.NDIM), norm.normalize_params(batch["params"]))
+        loss = F.mse_loss(pred, target)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        if not math.isfinite(loss.item()):
+            raise ValueError(f"{arm}: training diverged at step {steps + 1}; lower --lr")
+        if report is not None:
+            report(batch, relative_errors(pred, target))
+        t_data, t_compute = t_data + t1 - t0, t_compute + time.perf_counter() - t1
+        steps, examples = steps + 1, examples + len(batch["x"])
+    wall = time.perf_counter() - clock_start
+    stats = dataset.stats() if hasattr(dataset, "stats") else {}
+    reuse = dataset.res.reuse(dataset.per_trajectory).tolist() if hasattr(dataset, "res") else []
+    density = dataset.proposal.density() if hasattr(dataset, "proposal") else None
+    if hasattr(dataset, "close"):
+        dataset.close()
+    solved = extra.get("trajectories_solved", stats.get("inserted"))
+    if solved is None and hasattr(dataset, "state_dict"):  # the FIFO stream: how far it got
+        solved = min(examples // max(1, dataset.per_trajectory), cfg.sim_budget or 10**12)
+    curve = []
+    for t, s, state in snapshots:
+        model.load_state_dict(state)
+        curve.append({"elapsed": t, "step": s, **{f"{k}_{m}": v for k, e in
+                                                   ((k, per_trajectory_errors(model, norm, view, ts)) for k, ts in tests.items())
+                                                   for m, v in error_stats(e).items()}})
+    final = {k: per_trajectory_errors(model, norm, view, ts) for k, ts in tests.items()}
+    torch.save({"model": model.state_dict(), "normalization": norm.to_dict()}, out / "model.pt")
+    record = {"arm": arm, "wall_s": wall, "steps": steps, "examples": examples, "trajectories_solved": solved,
+              "data_wait_s": t_data, "compute_s": t_compute, "startup_s": wall - t_data - t_compute,
+              "wait_share": t_data / max(t_data + t_compute, 1e-9),  # of the training loop's time
+              "cache_bytes": extra.get("cache_bytes", 0), "stats": stats, "reuse": reuse, "density": density,
+              "curve": curve, "errors": {k: v.tolist() for k, v in final.items()},
+              **{f"{k}_{m}": v for k, e in final.items() for m, v in error_stats(e).items()}}
+    (out / "arm.json").write_text(json.dumps(record, indent=2))
+    return record
+
+
+# --- the comparison ----------------------------------------------------------------------------------------
+def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None = None, log=print) -> dict:
+    """Run every arm at the budget; write compare.md/csv/json and compare.png; return the result dict."""
+    cfg.check()
+    view = datasets.make_view(cfg.view)
+    view.check(pde.n_frames)
+    datasets.ReservoirStream(pde, view=view, batch_size=cfg.batch_size, capacity=max(cfg.capacity, cfg.batch_size),
+                             solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode,
+                             proposal_kwargs={"floor": cfg.proposal_floor})  # settings checked before any work
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    tests = {"test": stratified_test_set(pde, cfg.n_test, cfg.seed)}
+    shifted = shifted_pde(pde, cfg.shift, shift_overrides)
+    if shifted is not None:
+        tests["shifted"] = stratified_test_set(shifted, cfg.n_test, cfg.seed)
+    log(f"test sets: {cfg.n_test} stratified trajectories" + (" in-domain and shifted" if shifted else "")
+        + f" in {time.perf_counter() - t0:.1f} s")
+    records = []
+    for arm in cfg.arms:
+        rec = run_arm(arm, pde, view, cfg, out / arm, tests, log)
+        records.append(rec)
+        log(f"{arm:15s} test mean {rec['test_mean']:.4f} p95 {rec['test_p95']:.4f} max {rec['test_max']:.4f}; "
+            f"{rec['steps']} steps, {rec['trajectories_solved']} trajectories, {rec['wall_s']:.0f} s, "
+            f"waiting {100 * rec['wait_share']:.0f}%")
+    test_params = {k: torch.cat([b["params"] for b in ts]).tolist() for k, ts in tests.items()}
+    result = {"pde": pde.config(), "shifted_pde": shifted.config() if shifted else None,
+              "config": {k: v if not hasattr(v, "name") else v.name for k, v in asdict(cfg).items()},
+              "param_names": list(pde.PARAMS), "test_params": test_params, "arms": records}
+    (out / "compare.json").write_text(json.dumps(result, indent=2, default=str))
+    _write_tables(out, result, pde, cfg)
+    from .budget_plot import plot_budget
+
+    plot_budget(out / "compare.png", result, datasets.param_domains(pde))
+    return result
+
+
+COLUMNS = ("test_mean", "test_p95", "test_max", "shifted_mean", "shifted_p95", "shifted_max")
+
+
+def _write_tables(out: Path, result: dict, pde, cfg: BudgetConfig) -> None:
+    rows = []
+    for r in result["arms"]:
+        st = r["stats"] or {}
+        rows.append({"arm": r["arm"], **{c: r[c] for c in COLUMNS if c in r}, "steps": r["steps"],
+                     "trajectories_solved": r["trajectories_solved"], "wall_s": round(r["wall_s"], 1),
+                     "wait_share": round(r["wait_share"], 4), "reuse_mean": st.get("reuse_mean", ""),
+                     "reuse_max": st.get("reuse_max", ""), "cache_bytes": r["cache_bytes"]})
+    with open(out / "compare.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    budget = f"{cfg.budget_s:g} s wall clock per arm" if cfg.budget_s else \
+        f"{cfg.sim_budget} solved trajectories and {cfg.steps} optimizer steps per arm"
+    head = ["arm", *[c.replace("_", " ") for c in COLUMNS if c in rows[0]], "steps", "trajectories solved",
+            "wall s", "data wait", "mean reuse", "max reuse"]
+    lines = [f"{pde.NAME} (" + ", ".join(f"{k} ~ {v}" for k, v in pde.param_domains.items()) + f", n={pde.n}), "
+             f"budget: {budget}; {cfg.model} {cfg.model_cfg}, batch {cfg.batch_size}, lr {cfg.lr}, "
+             f"view {datasets.make_view(cfg.view)}; errors: relative L2 per trajectory over {cfg.n_test} test "
+             "trajectories stratified over the parameter box (mean, p95, max)", "",
+             "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+    for r in rows:
+        cells = [r["arm"], *[f"{r[c]:.4f}" for c in COLUMNS if c in r], str(r["steps"]), str(r["trajectories_solved"]),
+                 f"{r['wall_s']:.0f}", f"{100 * r['wait_share']:.1f}%",
+                 f"{r['reuse_mean']:.2f}" if r["reuse_mean"] != "" else "-",
+                 f"{r['reuse_max']:.2f}" if r["reuse_max"] != "" else "-"]
+        lines.append("| " + " | ".join(cells) + " |")
+    (out / "compare.md").write_text("\n".join(lines) + "\n")
