@@ -185,6 +185,48 @@ def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr:
                         "solver thread keeps a core; train on a cache: torch's default; compare: 1)")
 
 
+def _add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
+    g = p.add_argument_group("training reservoir (Melissa-style reuse of solves; see datasets/reservoir.py)")
+    if train:
+        g.add_argument("--reservoir", action="store_true",
+                       help="train through a training reservoir between the solver and the loop (--source stream)")
+    g.add_argument("--capacity", type=int, default=512, help="trajectories the reservoir holds")
+    g.add_argument("--max-reuse", type=float, default=16.0,
+                   help="bound on uses per trajectory (1 use = the examples a FIFO pass takes from it); the loop "
+                        "waits rather than exceed it")
+    g.add_argument("--reservoir-mode", choices=("async", "deterministic"), default="async",
+                   help="async: insert solves as they arrive (fast, not reproducible); deterministic: a fixed "
+                        "schedule, batches a pure function of the settings, exact --resume")
+    g.add_argument("--proposal-floor", type=float, default=0.25,
+                   help="loss-driven sampling: share of uniform parameter draws (no region starves)")
+    g.add_argument("--solve-batch", type=int, default=16, help="trajectories per solver job")
+    if not train:
+        return
+    g.add_argument("--warmup", type=int, help="trajectories held before the first batch (default: capacity/4)")
+    g.add_argument("--eviction", choices=("fifo", "random"), default="fifo", help="which used trajectory makes way")
+    g.add_argument("--draw", choices=("uniform", "least_used"), default="uniform",
+                   help="which trajectories a batch draws: at random, or the least used first")
+    g.add_argument("--producer", choices=("thread", "process", "dask"), default="thread",
+                   help="who solves: a background thread, spawned processes, or a Dask cluster")
+    g.add_argument("--workers", type=int, default=1, help="solver processes (--producer process, or an embedded Dask cluster)")
+    g.add_argument("--scheduler", metavar="ADDRESS", help="--producer dask: a running scheduler, e.g. tcp://host:8786")
+    g.add_argument("--proposal", choices=("uniform", "loss"), default="uniform",
+                   help="parameters of the next solves: the domain's own draws, or steered toward high training loss")
+
+
+def reservoir_cfg(args: argparse.Namespace) -> dict | None:
+    """data_cfg for train_run from `train --reservoir ...` (None without --reservoir)."""
+    if not args.reservoir:
+        return None
+    if args.source != "stream":
+        raise ValueError(f"--reservoir goes with --source stream (got --source {args.source})")
+    cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,
+           "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
+           "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,
+           "proposal_kwargs": {"floor": args.proposal_floor}, "solve_batch": args.solve_batch}
+    return {k: v for k, v in cfg.items() if v is not None}
+
+
 def default_threads(source: str) -> int | None:
     """torch CPU threads for `train` without --threads: for the stream, the cores this process may use minus one
     (at least 1), since torch's threads fighting the solver thread ran 6x slower on 2 cores; for a cache, None
@@ -225,6 +267,7 @@ def add_train(sub) -> None:
                    help="write RUN_DIR/checkpoint.pt every N steps (0: only at the end)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run in RUN_DIR")
     _add_model_args(p, steps=1000, batch_size=32, lr=1e-3)
+    _add_reservoir_args(p, train=True)
     _add_pde_config_args(p)
     p.set_defaults(func=cmd_train)
 
@@ -264,7 +307,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
                   view=_view_from_args(args, "next_step"), steps=args.steps, batch_size=args.batch_size, lr=args.lr,
                   seed=args.seed, n_test=args.test_samples, explicit=settings_from_args(args.pde, args)[1],
-                  checkpoint_every=args.checkpoint_every)
+                  checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args))
     _print_run(s, args.model, args.source, args.test_samples, args.out)
 
 
@@ -309,9 +352,23 @@ def add_compare(sub) -> None:
     p.add_argument("--shift-set", action="append", metavar="PARAM=DOMAIN", default=[],
                    help="explicit shifted domain, e.g. --shift-set nu='loguniform(0.1,0.2)'")
     p.add_argument("--format", default="h5", choices=["h5", "zarr"], help="cache format")
+    b = p.add_argument_group("budget-matched comparison (precomputed / fifo / reservoir / reservoir_loss)")
+    b.add_argument("--budget", type=float, metavar="SECONDS",
+                   help="every arm gets this wall-clock time (solving, caching and training all count)")
+    b.add_argument("--sim-budget", type=int, metavar="N",
+                   help="every arm gets N solved trajectories and --steps optimizer steps")
+    b.add_argument("--arms", default=",".join(BUDGET_ARMS), help="comma-separated subset of the arms")
+    b.add_argument("--precompute-share", type=float, default=0.5,
+                   help="--budget: share of the precomputed arm's time spent solving its dataset")
+    b.add_argument("--quick", action="store_true",
+                   help="a small scale for tests and a first look (n=64, 11 frames, small FNO, 20 s per arm)")
     _add_model_args(p, steps=1000, batch_size=32, lr=3e-3)
+    _add_reservoir_args(p, train=False)
     _add_pde_config_args(p)
     p.set_defaults(func=cmd_compare)
+
+
+BUDGET_ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")
 
 
 COMPARE_DEFAULTS = {"n": "64", "n_frames": "11"}  # small enough for ~10 min on 2 CPU cores
@@ -322,6 +379,8 @@ def cmd_compare(args: argparse.Namespace) -> None:
 
     from surrogate.compare import CompareConfig, compare
 
+    if args.budget is not None or args.sim_budget is not None or args.quick:
+        return _budget_compare(args)
     args.set = [f"{k}={v}" for k, v in COMPARE_DEFAULTS.items()] + list(args.set)
     pde = pde_from_args(args.pde, args)
     _set_threads(1 if args.threads is None else args.threads)
@@ -336,6 +395,33 @@ def cmd_compare(args: argparse.Namespace) -> None:
     compare(pde, args.out, cfg, shift_overrides=_parse_sets(args.shift_set))
     print((Path(args.out) / "compare.md").read_text(), end="")
     print(f"table: {args.out}/compare.md, compare.csv; figure: {args.out}/compare.png")
+
+
+def _budget_compare(args: argparse.Namespace) -> None:
+    """`compare --budget S | --sim-budget N [--quick]`: every arm at the same cost (surrogate.budget)."""
+    from pathlib import Path
+
+    from surrogate.budget import BudgetConfig, budget_compare
+
+    if args.quick:
+        args.set = [f"{k}={v}" for k, v in COMPARE_DEFAULTS.items()] + list(args.set)
+        if args.budget is None and args.sim_budget is None:
+            args.budget = 20.0
+    pde = pde_from_args(args.pde, args)
+    _set_threads(1 if args.threads is None else args.threads)
+    small = {"width": 32, "modes": 12, "layers": 3}
+    model_cfg = (small if args.quick else {"width": 64, "modes": 16, "layers": 4}) if args.model.startswith("fno") else {}
+    model_cfg.update(_parse_sets(args.model_set))
+    arms = tuple(a.strip() for a in args.arms.split(",") if a.strip())
+    cfg = BudgetConfig(budget_s=args.budget, sim_budget=args.sim_budget, arms=arms, model=args.model,
+                       model_cfg=model_cfg, view=_view_from_args(args, "operator"), batch_size=args.batch_size,
+                       lr=args.lr, steps=args.steps, precompute_share=args.precompute_share, capacity=args.capacity,
+                       max_reuse=args.max_reuse, reservoir_mode=args.reservoir_mode,
+                       proposal_floor=args.proposal_floor, solve_batch=args.solve_batch,
+                       n_test=32 if args.quick and args.test_samples == 128 else args.test_samples, shift=args.shift)
+    budget_compare(pde, args.out, cfg, shift_overrides=_parse_sets(args.shift_set))
+    print((Path(args.out) / "compare.md").read_text(), end="")
+    print(f"table: {args.out}/compare.md, compare.csv, compare.json; figure: {args.out}/compare.png")
 
 
 # --- bench (benchmarks) ------------------------------------------------------------------------------
