@@ -7,10 +7,16 @@ and crash-safety scheme are in ``datasets.schema``. The map-style loader is ``da
 
 from __future__ import annotations
 
+import ctypes
+import errno
+import fcntl
+import glob
+import json
 import os
 import shutil
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -63,25 +69,148 @@ def _check_writable(path: Path) -> None:
         raise PermissionError(f"cannot write {path}: directory {parent} is not writable")
 
 
-def _remove(path: Path) -> None:
-    if path.is_dir():
-        if not (path / "zarr.json").exists():
-            raise ValueError(f"refusing to overwrite {path}: a directory that is not a Zarr store")
+def _hidden(path: Path, tag: str) -> Path:
+    """A hidden sibling of ``path`` for this process, keeping the suffix (the format is read from it)."""
+    return path.with_name(f".{path.name}.{os.getpid()}.{tag}{path.suffix}")
+
+
+def _rmtree_or_unlink(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
         shutil.rmtree(path)
-    else:
+    elif path.exists() or path.is_symlink():
         path.unlink()
+
+
+def _make(path: Path, fmt: str, lay: schema.Layout, block: int) -> None:
+    schema.create_hdf5(str(path), lay) if fmt == "hdf5" else schema.create_zarr(str(path), lay, block)
 
 
 def _create(path: Path, fmt: str, lay: schema.Layout, block: int) -> None:
     """Create under a temporary name and rename: a kill during creation leaves no half-made cache."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = _hidden(path, "new")
     try:
-        schema.create_hdf5(str(tmp), lay) if fmt == "hdf5" else schema.create_zarr(str(tmp), lay, block)
+        _make(tmp, fmt, lay, block)
         os.replace(tmp, path)
     except BaseException:
-        if tmp.exists():
-            shutil.rmtree(tmp) if tmp.is_dir() else tmp.unlink()
+        _rmtree_or_unlink(tmp)
         raise
+
+
+@contextmanager
+def write_lock(path: Path):
+    """One writer per cache, whatever the format: an exclusive ``flock`` on the hidden sidecar ``.NAME.lock``,
+    held while the block runs and removed after. FileExistsError naming the holder's pid otherwise."""
+    lock = path.with_name(f".{path.name}.lock")
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as err:
+            raise ValueError(f"cannot lock {path}: {lock}: {err.strerror}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            pid = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise FileExistsError(f"{path} is being written by another process (pid {pid}); wait for it to "
+                                  "finish or stop it") from None
+        try:  # the previous holder may have removed the sidecar between our open and flock: lock the live one
+            live = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            live = False
+        if live:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.unlink(lock)  # still held: a process that opened this inode finds it unlinked and retries
+        os.close(fd)
+
+
+def _foreign(path: Path) -> str | None:
+    """None when ``path`` is a pdestream cache (ours to replace); otherwise what is there, in words."""
+    if path.is_symlink():
+        return f"a symlink to {os.readlink(path)}"
+    fmt = schema.cache_format(path)
+    if fmt == "zarr" and not path.is_dir():
+        return "a file, not a Zarr store (a directory)"
+    if fmt == "hdf5" and not path.is_file():
+        return "a directory, not an HDF5 file" if path.is_dir() else "not a regular file"
+    try:
+        names = schema.root_attr_names(path)
+        if fmt == "zarr":
+            attrs = json.loads((path / "zarr.json").read_text())["attributes"]
+            variables = f"{attrs['pdestream_fields']} {attrs['pdestream_params']}".split()
+    except (OSError, ValueError, KeyError, AttributeError):
+        if fmt == "zarr":
+            held = sorted(p.name for p in path.iterdir())
+            return f"a directory that is not a Zarr store (holds {', '.join(held[:3]) or 'nothing'}" + \
+                (", ..." if len(held) > 3 else "") + ")"
+        return "a file that is not a readable HDF5 file (if it is a damaged cache, remove it yourself)"
+    ours = {schema.CONFIG_ATTR, "pdestream_schema", "pdestream_fields", "pdestream_params"}
+    if not ours <= names:
+        return f"a {'Zarr store' if fmt == 'zarr' else 'HDF5 file'} without pdestream's attributes"
+    if fmt == "zarr":  # files a user added inside our store would be lost with it
+        known = {"zarr.json", "sample", "time", "x", "y", "redraws", "complete", *variables}
+        extra = sorted(p.name for p in path.iterdir() if p.name not in known)
+        if extra:
+            return f"a pdestream cache with other files in it ({', '.join(extra[:3])}{', ...' if len(extra) > 3 else ''})"
+    return None
+
+
+def _remove_stale(path: Path) -> None:
+    """Remove hidden work copies of ``path`` left by pdestream writers that were killed (their pid is gone).
+    Called under the write lock, so no live writer of ``path`` owns one."""
+    for p in path.parent.glob(f".{glob.escape(path.name)}.*.*{glob.escape(path.suffix)}"):
+        pid, _, tag = p.name[len(path.name) + 2 : len(p.name) - len(path.suffix)].partition(".")
+        if tag in ("new", "tmp") and pid.isdigit() and not _alive(int(pid)):
+            _rmtree_or_unlink(p)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one atomic step (Linux renameat2 RENAME_EXCHANGE); False where unsupported."""
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    at_fdcwd, rename_exchange = -100, 2
+    if fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def _swap_in(new: Path, path: Path) -> None:
+    """Put the finished cache ``new`` at ``path`` in place of the old one, then delete the old one."""
+    if new.is_file():
+        os.replace(new, path)  # one atomic rename over the old file
+        return
+    if _exchange(new, path):  # the old store now sits at ``new``
+        shutil.rmtree(new)
+        return
+    aside = _hidden(path, "old")  # a kill between the two renames leaves the old store here, not lost
+    os.rename(path, aside)
+    try:
+        os.rename(new, path)
+    except BaseException:
+        os.rename(aside, path)
+        raise
+    shutil.rmtree(aside)
 
 
 def _check_resume(path: Path, attrs: dict, lay: schema.Layout) -> None:
@@ -126,16 +255,37 @@ def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, 
 
     Fields are float32 [sample, time, x(, y)] (schema in ``datasets.schema``). ``block`` samples are
     solved per batch (default: ~32 MiB); ``resume`` finishes an interrupted cache of the same set-up
-    (bit-identical to an uninterrupted run); ``overwrite`` replaces an existing one. ``progress`` shows a
-    tqdm bar when stderr is a terminal.
+    (bit-identical to an uninterrupted run); ``overwrite`` replaces an existing pdestream cache (the new one
+    is built beside it and swapped in only once complete). ``progress`` shows a tqdm bar when stderr is a
+    terminal.
     """
-    path, lay, block = prepare(pde, path, n_samples, seed, resume, overwrite, block, on_blowup)
-    return _fill(pde, path, lay, block, progress)
+    start = time.perf_counter()
+    with writing(pde, path, n_samples, seed, resume, overwrite, block, on_blowup) as job:
+        written = _fill(pde, job, progress)
+    return WriteSummary(str(job.path), int(n_samples), written, time.perf_counter() - start,
+                        schema.disk_bytes(job.path))
 
 
-def prepare(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=None, on_blowup="raise"):
-    """Check the arguments, then create the cache (or check the one to resume): (Path, Layout, block).
-    Shared by ``write_cache`` and the Dask writer (``datasets.distributed``)."""
+@dataclass
+class Job:
+    """A cache being written: ``path`` (where it ends up), ``work`` (where blocks are written: ``path``, or a
+    hidden sibling when replacing an old cache), its layout and block."""
+
+    path: Path
+    work: Path
+    lay: schema.Layout
+    block: int
+
+
+@contextmanager
+def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=None, on_blowup="raise"):
+    """Check the arguments, lock ``path``, create the cache (or check the one to resume) and yield a ``Job``.
+    Shared by ``write_cache`` and the Dask writer (``datasets.distributed``).
+
+    Safety: a refused call creates nothing; ``overwrite`` replaces only a pdestream cache, building the new
+    one beside it and swapping it in when the block exits cleanly (a failure or Ctrl-C removes the new one and
+    leaves the old untouched); a failed fresh cache with no sample written is removed (nothing to resume).
+    """
     from ._bridge import configure_jax, jax_provenance, max_index, resolve_pde
 
     # every argument is checked before anything is created: a refused run leaves nothing behind
@@ -150,32 +300,63 @@ def prepare(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
         raise ValueError("--resume and --overwrite exclude each other: resume finishes a cache, overwrite replaces it")
     if on_blowup not in ("raise", "redraw"):
         raise ValueError(f"on_blowup={on_blowup!r} not allowed; allowed: 'raise', 'redraw'")
-    exists = path.exists() or path.is_symlink()
-    if exists and not (resume or overwrite):
+    if path.is_symlink():  # acting through a link would replace or fill whatever it points at
+        raise ValueError(f"{path} is a symlink to {os.readlink(path)}; pdestream does not write through links: "
+                         "give the real path")
+    if path.exists() and not (resume or overwrite):
         raise FileExistsError(f"{path} exists; pass --resume to finish it or --overwrite to replace it")
     _check_writable(path)
-    configure_jax()
-    stored = None
-    if resume and exists:
-        info = open_cache(path)  # clear error if it is not a cache
-        stored, info = dict(info.attrs), info.close()
-    if block is None:
-        block = stored["pdestream_block"] if stored else default_block(pde, n_samples)
-    block = int(min(block, n_samples))
-    lay = schema.layout(pde, int(n_samples), int(seed), block, on_blowup, jax_provenance())
-    if stored:
-        _check_resume(path, stored, lay)
-        if stored["pdestream_block"] != block:
-            raise ValueError(f"cannot resume {path} with block={block}: it was started with block="
-                             f"{stored['pdestream_block']} (leave --block out to use it)")
-    else:
-        if exists:
-            _remove(path)
+    with write_lock(path):
+        exists = path.exists()  # again, under the lock: another writer may have made it meanwhile
+        if exists and not (resume or overwrite):
+            raise FileExistsError(f"{path} exists; pass --resume to finish it or --overwrite to replace it")
+        if overwrite and exists and (what := _foreign(path)):
+            raise ValueError(f"refusing to overwrite {path}: it is {what}, not a pdestream cache; remove it "
+                             "yourself or choose another path")
+        configure_jax()
+        stored = None
+        if resume and exists:
+            info = open_cache(path)  # clear error if it is not a cache
+            stored, info = dict(info.attrs), info.close()
+        if block is None:
+            block = stored["pdestream_block"] if stored else default_block(pde, n_samples)
+        block = int(min(block, n_samples))
+        lay = schema.layout(pde, int(n_samples), int(seed), block, on_blowup, jax_provenance())
+        if stored:
+            _check_resume(path, stored, lay)
+            if stored["pdestream_block"] != block:
+                raise ValueError(f"cannot resume {path} with block={block}: it was started with block="
+                                 f"{stored['pdestream_block']} (leave --block out to use it)")
+        _remove_stale(path)
+        job = Job(path, _hidden(path, "tmp") if exists and overwrite else path, lay, block)
+        created = not stored
         try:
-            _create(path, fmt, lay, block)
-        except OSError as err:
-            raise ValueError(f"cannot create {path}: {err}") from None
-    return path, lay, block
+            if created:
+                try:  # a replacement is built at its hidden work path, a new cache made whole then renamed
+                    _make(job.work, fmt, lay, block) if job.work != path else _create(path, fmt, lay, block)
+                except OSError as err:
+                    raise ValueError(f"cannot create {path}: {err}") from None
+            yield job
+            if job.work != path:
+                _swap_in(job.work, path)
+        except BaseException:
+            if job.work != path:
+                _rmtree_or_unlink(job.work)  # ours: the old cache at ``path`` was never touched
+            elif created and not _any_written(path):
+                _rmtree_or_unlink(path)  # ours, and nothing in it to resume: a rerun needs no --overwrite
+            raise
+
+
+def _any_written(path: Path) -> bool:
+    """True when a sample of the cache at ``path`` is flagged complete (or it cannot be read: keep it)."""
+    try:
+        store = schema.open_store(str(path), "r")
+        try:
+            return bool((np.asarray(store["complete"][:]) == 1).any())
+        finally:
+            schema.close(store)
+    except Exception:
+        return True
 
 
 def pending_blocks(store, block: int) -> list[tuple[int, int]]:
@@ -184,12 +365,13 @@ def pending_blocks(store, block: int) -> list[tuple[int, int]]:
     return [(lo, min(lo + block, len(done))) for lo in range(0, len(done), block) if not done[lo : lo + block].all()]
 
 
-def _fill(pde, path: Path, lay: schema.Layout, block: int, progress: bool) -> WriteSummary:
+def _fill(pde, job: Job, progress: bool) -> int:
+    """Solve and write every pending block of ``job``, then mark it complete; returns the samples written."""
     from tqdm import tqdm
 
-    start = time.perf_counter()
+    lay, block = job.lay, job.block
     n = lay.dims["sample"]
-    store = schema.open_store(str(path), "r+")
+    store = schema.open_store(str(job.work), "r+")
     written = 0
     try:
         todo = pending_blocks(store, block)
@@ -209,11 +391,11 @@ def _fill(pde, path: Path, lay: schema.Layout, block: int, progress: bool) -> Wr
             solved.close()
             bar.close()
         if not (np.asarray(store["complete"][:]) == 1).all():
-            raise RuntimeError(f"{path}: blocks missing after writing (a bug)")
-        schema.mark_complete(store, str(path))
+            raise RuntimeError(f"{job.path}: blocks missing after writing (a bug)")
+        schema.mark_complete(store, str(job.work))
     finally:
         schema.close(store)
-    return WriteSummary(str(path), n, written, time.perf_counter() - start, schema.disk_bytes(path))
+    return written
 
 
 def open_cache(path, complete_only: bool = False):
@@ -231,7 +413,12 @@ def open_cache(path, complete_only: bool = False):
         if fmt == "hdf5":
             ds = xr.open_dataset(path, engine="h5netcdf", phony_dims="access")  # foreign files too
         else:
-            ds = xr.open_zarr(path, consolidated=True)
+            try:
+                ds = xr.open_zarr(path, consolidated=True)
+            except ValueError as err:  # no consolidated entry (a writer cut by an older pdestream): read the parts
+                if "onsolidated metadata" not in str(err):
+                    raise
+                ds = xr.open_zarr(path, consolidated=False)
     except Exception as err:  # h5py / zarr / json errors of every kind: name the file, not the library
         detail = str(err).splitlines()[0] if str(err) else type(err).__name__
         if "unable to lock file" in detail:

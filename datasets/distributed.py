@@ -1,6 +1,7 @@
 """Write a cache on a Dask cluster: ``write_cache_dask`` (the ``--executor dask`` of ``pdestream generate``).
 
-The client creates the store exactly as ``write_cache`` does (``cache.prepare``), then submits one task per
+The client creates the store exactly as ``write_cache`` does (``cache.writing``: checks, lock, a
+replacement built beside the old cache and swapped in at the end), then submits one task per
 block that is not yet complete. A task is a pure function of (PDE config, seed, block): it solves the block
 (``cache.solve_block``) and writes that block's chunks and then its ``complete`` flags (``cache.write_block``).
 Zarr chunks along ``sample`` never straddle two blocks, so concurrent tasks never write the same chunk, and a
@@ -29,6 +30,7 @@ from . import cache, schema
 
 # Embedded workers: JAX on the CPU, one XLA thread each (processes, not threads, give the parallelism).
 SINGLE_THREAD_XLA = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+CONNECT_TIMEOUT = "20s"  # how long the client tries to reach a --scheduler
 
 
 def _worker_env() -> dict:
@@ -53,7 +55,7 @@ def dask_client(scheduler: str | None = None, workers: int = 2):
     dist = _distributed()
     if scheduler:
         try:
-            client = dist.Client(scheduler, timeout="20s", set_as_default=False)
+            client = dist.Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
         except (OSError, TimeoutError) as err:
             raise ValueError(f"cannot reach the Dask scheduler at {scheduler!r}: {err}") from None
         with client:
@@ -118,19 +120,20 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
     _distributed()  # before anything is created on disk
     if not scheduler and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise ValueError(f"workers={workers!r} not allowed: need an integer >= 1")
-    path, lay, block = cache.prepare(pde, path, n_samples, seed, resume, overwrite, block, on_blowup)
     start = time.perf_counter()
-    store = schema.open_store(str(path), "r+")
-    for name in (*lay.fields, *lay.per_sample):  # blocks cover whole chunks: no two tasks share a chunk
-        if block % store[name].chunks[0]:
-            raise ValueError(f"{path}: {name} chunks {store[name].chunks} along sample do not tile block={block}")
-    todo = cache.pending_blocks(store, block)
-    if todo:  # a finished cache needs no cluster
-        with dask_client(scheduler, workers) as client:
-            # an absolute path: remote workers run in another directory (of a shared filesystem)
-            _run_blocks(client, pde.NAME, lay, str(path.resolve()), todo, block, progress)
-    if not (store["complete"][:] == 1).all():
-        raise RuntimeError(f"{path}: blocks missing after the Dask run (a bug)")
-    schema.mark_complete(store, str(path))
+    with cache.writing(pde, path, n_samples, seed, resume, overwrite, block, on_blowup) as job:
+        lay, block, work = job.lay, job.block, job.work  # work: a hidden sibling when replacing an old cache
+        store = schema.open_store(str(work), "r+")
+        for name in (*lay.fields, *lay.per_sample):  # blocks cover whole chunks: no two tasks share a chunk
+            if block % store[name].chunks[0]:
+                raise ValueError(f"{path}: {name} chunks {store[name].chunks} along sample do not tile block={block}")
+        todo = cache.pending_blocks(store, block)
+        if todo:  # a finished cache needs no cluster
+            with dask_client(scheduler, workers) as client:
+                # an absolute path: remote workers run in another directory (of a shared filesystem)
+                _run_blocks(client, pde.NAME, lay, str(work.resolve()), todo, block, progress)
+        if not (store["complete"][:] == 1).all():
+            raise RuntimeError(f"{path}: blocks missing after the Dask run (a bug)")
+        schema.mark_complete(store, str(work))
     written, seconds = sum(hi - lo for lo, hi in todo), time.perf_counter() - start
-    return cache.WriteSummary(str(path), lay.dims["sample"], written, seconds, schema.disk_bytes(path))
+    return cache.WriteSummary(str(job.path), lay.dims["sample"], written, seconds, schema.disk_bytes(job.path))

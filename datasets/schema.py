@@ -191,13 +191,50 @@ def open_store(path: str, mode: str = "r"):
 
 
 def mark_complete(store, path: str) -> None:
-    """Set the global completion flag (written last, after every block's data and flags)."""
+    """Set the global completion flag (written last, after every block's data and flags).
+
+    Zarr: one atomic replace of the root ``zarr.json`` (attributes and consolidated metadata together), so a
+    kill at any point leaves either the old or the new file, both readable; never a half-marked cache."""
     if cache_format(path) == "hdf5":
         store.attrs["pdestream_complete"] = np.int64(1)
         store.flush()
-    else:
-        store.attrs["pdestream_complete"] = 1
+        return
+    meta_path = Path(path) / "zarr.json"
+    meta = json.loads(meta_path.read_text())
+    if not meta.get("consolidated_metadata"):  # a cache cut by an older writer between its two steps
         consolidate(path)
+        meta = json.loads(meta_path.read_text())
+    meta["attributes"]["pdestream_complete"] = 1
+    atomic_write(meta_path, json.dumps(meta, indent=2).encode())
+
+
+def atomic_write(path: Path, data: bytes) -> None:
+    """Replace ``path`` with ``data`` in one rename: readers (and a kill) see the old or the new bytes."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())  # the bytes are on disk before the rename makes them the file
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def root_attr_names(path) -> set[str]:
+    """The names of the root attributes of an HDF5 file or a Zarr v3 store, read without writing anything;
+    OSError / ValueError when ``path`` is not one."""
+    path = Path(path)
+    if cache_format(path) == "hdf5":
+        import h5py
+
+        with h5py.File(path, "r", locking=False) as f:  # read-only; another process may hold it open
+            return set(f.attrs.keys())
+    attrs = json.loads((path / "zarr.json").read_text()).get("attributes")
+    if not isinstance(attrs, dict):
+        raise ValueError(f"{path}/zarr.json has no attributes")
+    return set(attrs)
 
 
 def close(store) -> None:

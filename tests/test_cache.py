@@ -176,13 +176,29 @@ def test_prefetch_stops_when_consumer_and_producer_both_fail():
 
 
 def test_failed_write_stops_the_writer(pde, tmp_path, monkeypatch):
-    def full_disk(*args, **kwargs):
-        raise OSError(28, "No space left on device")
+    """A failure before any sample is written removes the new cache (nothing to resume); after a written
+    block it keeps the incomplete cache for --resume."""
+    real, calls = cache_mod.write_block, []
 
-    monkeypatch.setattr(cache_mod, "write_block", full_disk)
+    def full_disk_after(k):
+        def write(*args, **kwargs):
+            calls.append(1)
+            if len(calls) > k:
+                raise OSError(28, "No space left on device")
+            real(*args, **kwargs)
+        return write
+
+    monkeypatch.setattr(cache_mod, "write_block", full_disk_after(0))
     with pytest.raises(OSError, match="No space left"):
         datasets.write_cache(pde, tmp_path / "full.h5", N, seed=SEED, block=BLOCK, progress=False)
-    assert not is_complete(datasets.open_cache(tmp_path / "full.h5"))
+    assert list(tmp_path.iterdir()) == []
+    calls.clear()
+    monkeypatch.setattr(cache_mod, "write_block", full_disk_after(1))
+    with pytest.raises(OSError, match="No space left"):
+        datasets.write_cache(pde, tmp_path / "full.h5", N, seed=SEED, block=BLOCK, progress=False)
+    ds = datasets.open_cache(tmp_path / "full.h5")
+    assert not is_complete(ds) and int(ds["complete"].sum()) == BLOCK
+    assert [p.name for p in tmp_path.iterdir()] == ["full.h5"]  # no lock or temp left behind
 
 
 @pytest.mark.parametrize("suffix", ["h5", "zarr"])
