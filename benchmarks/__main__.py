@@ -12,7 +12,7 @@ import importlib
 import importlib.util
 import sys
 
-FAMILIES = ("generator", "stream", "cache", "dask")
+FAMILIES = ("generator", "stream", "cache", "dask", "reservoir")
 
 
 def available() -> list[str]:

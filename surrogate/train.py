@@ -87,8 +87,9 @@ def forever(loader):
 
 CHECKPOINT = "checkpoint.pt"
 CHECKPOINT_FORMAT = 1
-POSTFIX_STATS = ("wait_share", "mean_uses")  # data-source stats shown in the progress bar when offered
-TIMINGS = ("t_data", "t_compute", "elapsed", "wall", "data_share")  # the only values a resume may change
+POSTFIX_STATS = ("wait_share", "reuse_mean")  # data-source stats shown in the progress bar when offered
+# the only values a resume may change: the loop's timers and the data source's rates
+TIMINGS = ("t_data", "t_compute", "elapsed", "wall", "data_share", "wait_share", "solver_traj_per_s", "examples_per_s")
 
 
 def check_train_settings(steps: int, lr: float, schedule: str, checkpoint_every: int = 0) -> None:

@@ -199,3 +199,31 @@ def test_loss_driven_stream_solves_the_proposed_parameters():
     assert nu.min() >= 0.01 and nu.max() <= 0.1
     late = torch.cat([b["params"][:, 0] for b in batches[15:]])
     assert (late < 0.02).float().mean() > 0.4  # uniform in log: 0.30
+
+
+# --- through the training loop and the CLI ------------------------------------------------------------------
+def test_kill9_and_resume_through_a_deterministic_reservoir_is_bit_identical(tmp_path):
+    from test_resume import STEPS, TINY_MODEL, TINY_PDE, kill_and_resume
+
+    def fresh(out):
+        return {"argv": ["train", "burgers1d", *TINY_PDE, *TINY_MODEL, "--steps", str(STEPS), "--batch-size", "8",
+                         "--checkpoint-every", "10", "--test-samples", "2", "--threads", "1", "--out", str(out),
+                         "--reservoir", "--reservoir-mode", "deterministic", "--capacity", "16", "--max-reuse", "3",
+                         "--solve-batch", "8", "--proposal", "loss"]}
+
+    ckpt = kill_and_resume(tmp_path / "whole", tmp_path / "killed", fresh, kill_at=26)
+    state = ckpt["data"]["state"]
+    assert state["kind"] == "reservoir" and len(state["slots"]) == 16 and state["proposal"]["reports"] > 0
+    rows = (tmp_path / "whole" / "metrics.csv").read_text().splitlines()
+    assert {"inserted", "evicted", "reuse_mean", "reuse_max", "wait_share"} <= set(rows[0].split(","))
+
+
+def test_cli_reservoir_settings_are_checked(capsys, tmp_path):
+    import cli
+
+    out = tmp_path / "run"
+    assert cli.main(["train", "burgers1d", "--reservoir", "--capacity", "4", "--out", str(out)]) == 2
+    assert "capacity=4 not allowed: must be >= batch_size (32)" in capsys.readouterr().err
+    assert cli.main(["train", "burgers1d", "--reservoir", "--max-reuse", "0", "--out", str(out)]) == 2
+    assert "max_reuse=0.0 not allowed; must be a finite number >= 1" in capsys.readouterr().err
+    assert not out.exists()

@@ -70,7 +70,11 @@ def load(path: Path) -> dict:
 
 
 def without_timings(rows: list[dict]) -> list[dict]:
-    return [{k: v for k, v in row.items() if k not in TIMINGS} for row in rows]
+    """Rows (or summaries, with their nested data_stats) without the values a resume may change."""
+    def strip(d):
+        return {k: strip(v) if isinstance(v, dict) else v for k, v in d.items() if k not in TIMINGS}
+
+    return [strip(row) for row in rows]
 
 
 def read_csv(path: Path) -> list[dict]:
