@@ -352,6 +352,7 @@ def add_compare(sub) -> None:
     p.add_argument("--shift-set", action="append", metavar="PARAM=DOMAIN", default=[],
                    help="explicit shifted domain, e.g. --shift-set nu='loguniform(0.1,0.2)'")
     p.add_argument("--format", default="h5", choices=["h5", "zarr"], help="cache format")
+    p.add_argument("--overwrite", action="store_true", help="replace an earlier compare output in DIR")
     b = p.add_argument_group("budget-matched comparison (precomputed / fifo / reservoir / reservoir_loss)")
     b.add_argument("--budget", type=float, metavar="SECONDS",
                    help="every arm gets this wall-clock time (solving, caching and training all count)")
@@ -374,11 +375,33 @@ BUDGET_ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")
 COMPARE_DEFAULTS = {"n": "64", "n_frames": "11"}  # small enough for ~10 min on 2 CPU cores
 
 
+COMPARE_OUTPUTS = ("compare.md", "compare.csv", "compare.json", "compare.png", "cache.h5", "cache.zarr")
+RUN_FILES = ("model.pt", "metrics.json", "arm.json", "run.json", "checkpoint.pt")
+
+
+def check_compare_out(out: str, overwrite: bool) -> None:
+    """Refuse an --out DIR that already holds compare output (tables, cache, run directories) unless
+    --overwrite: like `train`, a second run must not silently replace the first one's results."""
+    from pathlib import Path
+
+    d = Path(out)
+    if d.exists() and not d.is_dir():
+        raise NotADirectoryError(f"--out {out} is a file; compare writes a directory")
+    if overwrite or not d.is_dir():
+        return
+    found = [n for n in COMPARE_OUTPUTS if (d / n).exists()]
+    found += [f"{p.name}/" for p in sorted(d.iterdir()) if p.is_dir() and any((p / f).exists() for f in RUN_FILES)]
+    if found:
+        raise FileExistsError(f"{out} already holds compare output ({', '.join(found[:4])}"
+                              f"{', ...' if len(found) > 4 else ''}); pass --overwrite or choose another --out")
+
+
 def cmd_compare(args: argparse.Namespace) -> None:
     from pathlib import Path
 
     from surrogate.compare import CompareConfig, compare
 
+    check_compare_out(args.out, args.overwrite)
     if args.budget is not None or args.sim_budget is not None or args.quick:
         return _budget_compare(args)
     args.set = [f"{k}={v}" for k, v in COMPARE_DEFAULTS.items()] + list(args.set)
