@@ -166,7 +166,7 @@ def _loader(arm: str, pde, view, cfg: BudgetConfig, out: Path, clock_start: floa
     if cfg.sim_budget is not None:  # enough reuse for the steps, the bound still holding
         reuse = max(1.0, 1.05 * cfg.steps * cfg.batch_size / (cfg.sim_budget * per))
     stream = datasets.ReservoirStream(
-        pde, seed=seed, view=view, batch_size=cfg.batch_size, capacity=max(cfg.capacity, cfg.batch_size),
+        pde, seed=seed, view=view, batch_size=cfg.batch_size, capacity=cfg.capacity,
         max_reuse=reuse, solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode, sim_budget=cfg.sim_budget,
         warmup=min(max(cfg.solve_batch, cfg.batch_size), cfg.capacity),
         proposal="loss" if arm == "reservoir_loss" else "uniform", proposal_kwargs={"floor": cfg.proposal_floor})
@@ -251,7 +251,7 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
     cfg.check()
     view = datasets.make_view(cfg.view)
     view.check(pde.n_frames)
-    datasets.ReservoirStream(pde, view=view, batch_size=cfg.batch_size, capacity=max(cfg.capacity, cfg.batch_size),
+    datasets.ReservoirStream(pde, view=view, batch_size=cfg.batch_size, capacity=cfg.capacity,
                              solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode,
                              proposal_kwargs={"floor": cfg.proposal_floor})  # settings checked before any work
     out = Path(out_dir)

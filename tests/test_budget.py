@@ -1,0 +1,93 @@
+"""Budget-matched comparison: stratified test sets, per-arm budgets, outputs, CLI refusals."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+import cli
+import datasets
+import generator
+from datasets.proposal import ParamProposal
+from surrogate.budget import BudgetConfig, budget_compare, error_stats, stratified_test_set
+
+torch.set_num_threads(1)
+TINY = generator.get_pde("burgers1d", n=32, n_frames=5)
+TINY_MODEL = {"width": 8, "modes": 4, "layers": 2}
+
+
+def test_stratified_test_set_puts_one_sample_in_every_stratum():
+    pde = generator.get_pde("kdv1d", n=32, n_frames=3, t_end=0.1)  # two random parameters
+    test = stratified_test_set(pde, 10, seed=0, chunk=4)
+    params = torch.cat([b["params"] for b in test]).numpy()
+    assert params.shape == (10, 2) and sum(len(b["index"]) for b in test) == 10
+    z = ParamProposal(datasets.param_domains(pde)).to_unit(params)
+    for d in range(2):
+        assert sorted((z[:, d] * 10).astype(int).tolist()) == list(range(10))  # Latin hypercube
+    # the trajectories are the generator's samples with those parameters (identity: seed, index, params)
+    ref = generator.sample(pde, [4, 5], seed=1_000_003, params={"alpha": params[4:6, 0], "beta": params[4:6, 1]})
+    assert np.array_equal(np.asarray(ref.u), test[1]["u"][:2].numpy())
+
+
+def test_error_stats():
+    assert error_stats(np.array([1.0, 2.0, 3.0, 4.0])) == {"mean": 2.5, "p95": pytest.approx(3.85), "max": 4.0}
+
+
+def test_sim_budget_gives_every_arm_the_same_solves(tmp_path):
+    cfg = BudgetConfig(sim_budget=16, steps=12, batch_size=8, model_cfg=TINY_MODEL, n_test=8, capacity=16,
+                       solve_batch=8, snapshots=3)
+    result = budget_compare(TINY, tmp_path, cfg, log=lambda *_: None)
+    arms = {r["arm"]: r for r in result["arms"]}
+    assert set(arms) == {"precomputed", "fifo", "reservoir", "reservoir_loss"}
+    assert arms["precomputed"]["trajectories_solved"] == 16 and arms["precomputed"]["steps"] == 12
+    for name in ("reservoir", "reservoir_loss"):
+        assert arms[name]["trajectories_solved"] == 16 and arms[name]["steps"] == 12
+        assert max(arms[name]["reuse"]) <= arms[name]["stats"]["reuse_max"] + 1e-9
+    # FIFO uses each solve once: 16 trajectories x 4 windows... operator view: 16 examples = 2 batches of 8
+    assert arms["fifo"]["steps"] == 2
+    for r in arms.values():
+        assert {"test_mean", "test_p95", "test_max", "shifted_mean"} <= set(r)
+        assert r["test_mean"] <= r["test_p95"] <= r["test_max"] and len(r["errors"]["test"]) == 8
+        assert [p["step"] for p in r["curve"]] == sorted(p["step"] for p in r["curve"])
+    for name in ("compare.md", "compare.csv", "compare.json", "compare.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    table = (tmp_path / "compare.md").read_text()
+    assert table.count("\n| ") == 6 and "16 solved trajectories and 12 optimizer steps per arm" in table
+    saved = json.loads((tmp_path / "compare.json").read_text())
+    assert saved["param_names"] == ["nu"] and len(saved["test_params"]["test"]) == 8
+
+
+def test_time_budget_stops_every_arm_near_the_budget(tmp_path):
+    cfg = BudgetConfig(budget_s=3.0, arms=("precomputed", "reservoir"), batch_size=8, model_cfg=TINY_MODEL,
+                       n_test=4, capacity=16, solve_batch=8, snapshots=2)
+    result = budget_compare(TINY, tmp_path, cfg, log=lambda *_: None)
+    for r in result["arms"]:
+        assert 3.0 <= r["wall_s"] < 3.0 + 2.0 and r["steps"] > 0
+        assert len(r["curve"]) == 2 and r["curve"][-1]["elapsed"] >= 3.0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--budget", "0"], "--budget=0.0 not allowed; must be a number of seconds > 0"),
+    (["--budget", "-5"], "--budget=-5.0 not allowed"),
+    (["--sim-budget", "0"], "--sim-budget=0 not allowed; must be an integer >= 1 (trajectories)"),
+    (["--budget", "5", "--sim-budget", "4"], "give exactly one budget"),
+    (["--budget", "5", "--arms", "cache"], "arms ['cache'] not allowed; choose from precomputed, fifo"),
+    (["--budget", "5", "--precompute-share", "1"], "precompute share=1.0 not allowed; must be in (0, 1)"),
+    (["--budget", "5", "--capacity", "4"], "capacity=4 not allowed: must be >= batch_size (32)"),
+])
+def test_budget_refusals_are_one_line_and_create_nothing(capsys, tmp_path, args, message):
+    out = tmp_path / "cmp"
+    assert cli.main(["compare", "burgers1d", "--out", str(out), *args]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert not out.exists()
+
+
+def test_cli_quick_budget_compare_runs(capsys, tmp_path):
+    out = tmp_path / "cmp"
+    assert cli.main(["compare", "--quick", "--sim-budget", "16", "--steps", "6", "--batch-size", "8",
+                     "--capacity", "16", "--test-samples", "4", "--arms", "fifo,reservoir_loss",
+                     "--model-set", "width=8", "--model-set", "modes=4", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "| fifo |" in printed and "| reservoir_loss |" in printed and "compare.png" in printed
