@@ -140,10 +140,7 @@ def _foreign(path: Path) -> str | None:
         return "a directory, not an HDF5 file" if path.is_dir() else "not a regular file"
     try:
         names = schema.root_attr_names(path)
-        if fmt == "zarr":
-            attrs = json.loads((path / "zarr.json").read_text())["attributes"]
-            variables = f"{attrs['pdestream_fields']} {attrs['pdestream_params']}".split()
-    except (OSError, ValueError, KeyError, AttributeError):
+    except (OSError, ValueError):
         if fmt == "zarr":
             held = sorted(p.name for p in path.iterdir())
             return f"a directory that is not a Zarr store (holds {', '.join(held[:3]) or 'nothing'}" + \
@@ -151,8 +148,10 @@ def _foreign(path: Path) -> str | None:
         return "a file that is not a readable HDF5 file (if it is a damaged cache, remove it yourself)"
     ours = {schema.CONFIG_ATTR, "pdestream_schema", "pdestream_fields", "pdestream_params"}
     if not ours <= names:
-        return f"a {'Zarr store' if fmt == 'zarr' else 'HDF5 file'} without pdestream's attributes"
+        return f"{'a Zarr store' if fmt == 'zarr' else 'an HDF5 file'} without pdestream's attributes"
     if fmt == "zarr":  # files a user added inside our store would be lost with it
+        attrs = json.loads((path / "zarr.json").read_text())["attributes"]
+        variables = f"{attrs['pdestream_fields']} {attrs['pdestream_params']}".split()
         known = {"zarr.json", "sample", "time", "x", "y", "redraws", "complete", *variables}
         extra = sorted(p.name for p in path.iterdir() if p.name not in known)
         if extra:
@@ -311,8 +310,8 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
         if exists and not (resume or overwrite):
             raise FileExistsError(f"{path} exists; pass --resume to finish it or --overwrite to replace it")
         if overwrite and exists and (what := _foreign(path)):
-            raise ValueError(f"refusing to overwrite {path}: it is {what}, not a pdestream cache; remove it "
-                             "yourself or choose another path")
+            raise ValueError(f"refusing to overwrite {path}: it is {what}; --overwrite replaces only a pdestream "
+                             "cache (remove it yourself or choose another path)")
         configure_jax()
         stored = None
         if resume and exists:
