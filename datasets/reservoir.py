@@ -44,6 +44,7 @@ from torch.utils.data import IterableDataset, get_worker_info
 
 from . import _bridge
 from .producers import open_producer
+from .progress import Progress
 from .proposal import ParamProposal, _plain
 from .views import gather, make_view
 
@@ -219,7 +220,7 @@ class ReservoirStream(IterableDataset):
         self.pending: collections.deque = collections.deque()  # (indices, params, future) in submission order
         self.done: list = []  # async: finished jobs waiting for room
         self.drawn_since_insert = 0
-        self.batches = 0
+        self.progress = Progress(slots=1)  # batches handed out (one producer-side "worker": this process)
         self.t_wait = 0.0  # seconds the loop waited for solves
         self._t_first = None  # when iteration started (rates in stats())
 
@@ -346,7 +347,7 @@ class ReservoirStream(IterableDataset):
                 return
             slots, starts = torch.from_numpy(np.concatenate(slots)), torch.from_numpy(np.concatenate(starts))
             index = torch.from_numpy(self.res.index)
-            self.batches += 1
+            self.progress.add(0, 1)
             yield gather(self.view, self.res.u, self.t, self.res.params, index, slots, starts)
 
     # --- the training loop's hooks ------------------------------------------------------------------
@@ -366,6 +367,15 @@ class ReservoirStream(IterableDataset):
                 "solver_traj_per_s": res.inserted / elapsed, "examples_per_s": res.drawn / elapsed,
                 "wait_share": self.t_wait / elapsed}
 
+    def report(self) -> dict:
+        """What a run saves about its data: stats, reuse of every trajectory (1 = one FIFO pass), and where
+        the simulations went against the training loss along the first random parameter."""
+        random = self.proposal.random
+        return {"stats": self.stats(), "reuse": self.res.reuse(self.per_trajectory).tolist(),
+                "proposal": self.proposal.mode, "density": self.proposal.density(),
+                "param": random[0] if random else None,
+                "domain": self.proposal.domains[random[0]] if random else None}
+
     def _elapsed(self) -> float:
         return 0.0 if self._t_first is None else time.perf_counter() - self._t_first
 
@@ -384,7 +394,7 @@ class ReservoirStream(IterableDataset):
             "serial": res.serial[live].tolist(),
             "counters": {"next_serial": res.next_serial, "inserted": res.inserted, "evicted": res.evicted,
                          "drawn": res.drawn, "next_index": self.next_index,
-                         "drawn_since_insert": self.drawn_since_insert, "batches": self.batches},
+                         "drawn_since_insert": self.drawn_since_insert, "batches": self.progress.consumed(0)},
             "evicted_uses": list(res.evicted_uses),
             "rng": _plain(res.rng.bit_generator.state),
             "jobs": [{"indices": i.tolist(), "params": None if p is None else {k: np.asarray(v).tolist() for k, v in p.items()}}
@@ -425,7 +435,8 @@ class ReservoirStream(IterableDataset):
             res.serial[slots] = state["serial"]
         c = state["counters"]
         res.next_serial, res.inserted, res.evicted, res.drawn = c["next_serial"], c["inserted"], c["evicted"], c["drawn"]
-        self.next_index, self.drawn_since_insert, self.batches = c["next_index"], c["drawn_since_insert"], c["batches"]
+        self.next_index, self.drawn_since_insert = c["next_index"], c["drawn_since_insert"]
+        self.progress.restore(0, [c["batches"]])
         res.evicted_uses = list(state["evicted_uses"])
         res.rng.bit_generator.state = state["rng"]
         for job in state["jobs"]:

@@ -51,37 +51,62 @@ def plot_budget(path, result: dict, domains: dict) -> None:
     else:
         ax_dom.text(0.5, 0.5, "no random parameter", ha="center", transform=ax_dom.transAxes)
 
-    with_reuse = [r for r in arms if r["reuse"]]
-    if with_reuse:
-        top = max(max(r["reuse"]) for r in with_reuse)
-        bins = np.linspace(0, max(top, 1.0) * 1.05, 30)
-        for r in with_reuse:
-            ax_reuse.hist(r["reuse"], bins=bins, alpha=0.5, color=COLORS.get(r["arm"], "black"), label=r["arm"])
-        ax_reuse.legend(fontsize=8)
-    ax_reuse.set(xlabel="uses per trajectory (1 = one FIFO pass)", ylabel="trajectories",
-                 title="reservoir reuse")
-
+    draw_reuse(ax_reuse, {r["arm"]: r["reuse"] for r in arms if r["reuse"]})
     steered = next((r for r in arms if r["arm"] == "reservoir_loss" and r["density"]), None)
     if steered and random:
-        d = steered["density"]
-        edges = np.asarray(d["edges"])
-        kind, low, high, _ = domains[random[0]]
-        if kind == "loguniform":
-            x_edges = np.exp(np.log(low) + edges * (np.log(high) - np.log(low)))
-        else:
-            x_edges = low + edges * (high - low)
-        ax_prop.bar(x_edges[:-1], d["counts"], width=np.diff(x_edges), align="edge", alpha=0.5,
-                    color=COLORS["reservoir_loss"], label="simulations proposed")
-        ax_prop.set(xscale="log" if kind == "loguniform" else "linear", xlabel=random[0], ylabel="simulations")
-        twin = ax_prop.twinx()
-        twin.plot(np.sqrt(x_edges[:-1] * x_edges[1:]) if kind == "loguniform" else (x_edges[:-1] + x_edges[1:]) / 2,
-                  d["loss"], "k-o", ms=3, label="recent training loss")
-        twin.set(ylabel="mean recent per-sample loss (rel. L2, normalized units)")
-        ax_prop.legend(loc="upper left", fontsize=8)
-        twin.legend(loc="upper right", fontsize=8)
-        ax_prop.set_title("loss-driven sampling: where it simulated")
+        draw_proposal(ax_prop, steered["density"], random[0], domains[random[0]])
     else:
         ax_prop.text(0.5, 0.5, "no loss-driven arm", ha="center", transform=ax_prop.transAxes)
+        ax_prop.set_axis_off()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def draw_reuse(ax, reuse: dict) -> None:
+    """Histogram of uses per trajectory ({label: [reuse values]}; 1 = one FIFO pass)."""
+    if reuse:
+        top = max(max(v) for v in reuse.values())
+        bins = np.linspace(0, max(top, 1.0) * 1.05, 30)
+        for label, values in reuse.items():
+            ax.hist(values, bins=bins, alpha=0.5, color=COLORS.get(label, "tab:blue"), label=label)
+        ax.legend(fontsize=8)
+    ax.set(xlabel="uses per trajectory (1 = one FIFO pass)", ylabel="trajectories", title="reservoir reuse")
+
+
+def draw_proposal(ax, density: dict, name: str, domain: tuple) -> None:
+    """Where the proposal put its simulations (bars) against the recent training loss there (line), along
+    parameter ``name`` with domain (kind, low, high, options); ``density`` from ParamProposal.density()."""
+    edges = np.asarray(density["edges"])
+    kind, low, high, _ = domain
+    log = kind == "loguniform"
+    x = np.exp(np.log(low) + edges * (np.log(high) - np.log(low))) if log else low + edges * (high - low)
+    ax.bar(x[:-1], density["counts"], width=np.diff(x), align="edge", alpha=0.5, color=COLORS["reservoir_loss"],
+           label="simulations proposed")
+    ax.set(xscale="log" if log else "linear", xlabel=name, ylabel="simulations",
+           title="loss-driven sampling: where it simulated")
+    twin = ax.twinx()
+    twin.plot(np.sqrt(x[:-1] * x[1:]) if log else (x[:-1] + x[1:]) / 2, density["loss"], "k-o", ms=3,
+              label="recent training loss")
+    twin.set(ylabel="mean recent per-sample loss (rel. L2, normalized units)")
+    ax.legend(loc="upper left", fontsize=8)
+    twin.legend(loc="upper right", fontsize=8)
+
+
+def plot_reservoir_run(path, report: dict) -> None:
+    """reservoir.png of a training run through a reservoir: reuse histogram and, along the first random
+    parameter, where the simulations went against the loss (``ReservoirStream.report()``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_reuse, ax_prop) = plt.subplots(1, 2, figsize=(12, 4.2))
+    draw_reuse(ax_reuse, {"reservoir": report["reuse"]})
+    if report.get("param"):
+        draw_proposal(ax_prop, report["density"], report["param"], report["domain"])
+        ax_prop.set_title(f"simulations ({report['proposal']} proposal) and training loss")
+    else:
         ax_prop.set_axis_off()
     fig.tight_layout()
     fig.savefig(path, dpi=110)

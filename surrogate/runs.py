@@ -14,6 +14,7 @@ import torch
 
 import datasets
 
+from .budget_plot import plot_reservoir_run
 from .data import test_set, train_loader
 from .evaluate import evaluate, rollout_error
 from .models import build_model
@@ -135,5 +136,15 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
         sets = tests if tests is not None else {"test": test_set(data_pde, s["data_seed"], s["n_test"])}
         return {"test": {name: test_errors(model, normalizer, view, t) for name, t in sets.items()}}
 
-    return train(net, loader, s["steps"], out, lr=s["lr"], schedule=s["schedule"], meta=meta, label=s["label"],
-                 checkpoint_every=s["checkpoint_every"], resume=resume, finish=finish)
+    dataset = loader.dataset
+    try:
+        summary = train(net, loader, s["steps"], out, lr=s["lr"], schedule=s["schedule"], meta=meta,
+                        label=s["label"], checkpoint_every=s["checkpoint_every"], resume=resume, finish=finish)
+        if hasattr(dataset, "report"):  # a reservoir: its reuse and where it simulated, as data and a picture
+            report = dataset.report()
+            atomic_write(out / "reservoir.json", json.dumps(report, indent=2).encode())
+            plot_reservoir_run(out / "reservoir.png", report)
+    finally:
+        if hasattr(dataset, "close"):  # producers stop now, not at interpreter exit
+            dataset.close()
+    return summary
