@@ -344,7 +344,7 @@ def add_compare(sub) -> None:
     p.add_argument("pde", nargs="?", default="burgers1d", help="PDE name (default burgers1d)")
     p.add_argument("--out", required=True, metavar="DIR", help="output: compare.md/csv/json/png, cache, runs")
     p.add_argument("--cache-samples", type=int, default=32, metavar="M", help="size of the fixed cached set")
-    p.add_argument("--seeds", type=int, default=3, help="model seeds per arm (mean and spread)")
+    p.add_argument("--seeds", type=int, help="model seeds per arm, mean and spread (default: 3; with a budget: 1)")
     p.add_argument("--test-samples", type=int, default=128, help="held-out trajectories per test set")
     p.add_argument("--shift", type=float, default=-0.25,
                    help="shifted test set: parameter domains moved this fraction of their width beyond the "
@@ -409,6 +409,7 @@ def cmd_compare(args: argparse.Namespace) -> None:
     _set_threads(1 if args.threads is None else args.threads)
     model_cfg = {"width": 32, "modes": 12, "layers": 3} if args.model.startswith("fno") else {}
     model_cfg.update(_parse_sets(args.model_set))
+    args.seeds = 3 if args.seeds is None else args.seeds
     if args.seeds < 1 or args.cache_samples < 1 or args.test_samples < 1:
         raise ValueError("--seeds, --cache-samples and --test-samples must be >= 1")
     cfg = CompareConfig(model=args.model, model_cfg=model_cfg, view=_view_from_args(args, "operator"),
@@ -441,7 +442,8 @@ def _budget_compare(args: argparse.Namespace) -> None:
                        lr=args.lr, steps=args.steps, precompute_share=args.precompute_share, capacity=args.capacity,
                        max_reuse=args.max_reuse, reservoir_mode=args.reservoir_mode,
                        proposal_floor=args.proposal_floor, solve_batch=args.solve_batch,
-                       n_test=32 if args.quick and args.test_samples == 128 else args.test_samples, shift=args.shift)
+                       n_test=32 if args.quick and args.test_samples == 128 else args.test_samples, shift=args.shift,
+                       seeds=1 if args.seeds is None else args.seeds)
     budget_compare(pde, args.out, cfg, shift_overrides=_parse_sets(args.shift_set))
     print((Path(args.out) / "compare.md").read_text(), end="")
     print(f"table: {args.out}/compare.md, compare.csv, compare.json; figure: {args.out}/compare.png")

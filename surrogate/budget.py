@@ -71,7 +71,7 @@ class BudgetConfig:
     reservoir_mode: str = "async"
     proposal_floor: float = 0.25
     solve_batch: int = 16
-    seed: int = 0
+    seeds: int = 1  # repetitions per arm: model and data seeds 0..seeds-1 (mean and spread in the table)
     n_test: int = 128
     shift: float = -0.25
     snapshots: int = 8
@@ -90,8 +90,8 @@ class BudgetConfig:
             raise ValueError(f"arms {list(self.arms)} not allowed; choose from {', '.join(ARMS)}")
         if not 0 < self.precompute_share < 1:
             raise ValueError(f"precompute share={self.precompute_share} not allowed; must be in (0, 1)")
-        if self.steps < 1 or self.n_test < 1 or self.snapshots < 1:
-            raise ValueError("steps, test samples and snapshots must be >= 1")
+        if self.steps < 1 or self.n_test < 1 or self.snapshots < 1 or self.seeds < 1:
+            raise ValueError("steps, seeds, test samples and snapshots must be >= 1")
 
 
 # --- test sets ------------------------------------------------------------------------------------------
@@ -138,9 +138,8 @@ def error_stats(errors: np.ndarray) -> dict:
 
 
 # --- one arm ----------------------------------------------------------------------------------------------
-def _loader(arm: str, pde, view, cfg: BudgetConfig, out: Path, clock_start: float, log):
+def _loader(arm: str, pde, view, cfg: BudgetConfig, seed: int, out: Path, clock_start: float, log):
     """(DataLoader, what the arm did to get it: {"trajectories_solved"?, "cache_bytes"?})."""
-    seed = cfg.seed
     if arm == "precomputed":
         if cfg.sim_budget is not None:
             n = cfg.sim_budget
@@ -173,15 +172,16 @@ def _loader(arm: str, pde, view, cfg: BudgetConfig, out: Path, clock_start: floa
     return DataLoader(stream, batch_size=None), {}
 
 
-def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=print) -> dict:
-    """Train one arm within the budget; evaluate its snapshots afterwards. Returns the arm's record."""
+def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=print, seed: int = 0) -> dict:
+    """Train one arm (model and data seed ``seed``) within the budget; evaluate its snapshots afterwards.
+    Returns the arm's record."""
     out.mkdir(parents=True, exist_ok=True)
     clock_start = time.perf_counter()
-    loader, extra = _loader(arm, pde, view, cfg, out, clock_start, log)
+    loader, extra = _loader(arm, pde, view, cfg, seed, out, clock_start, log)
     dataset = loader.dataset
     norm = source_normalization(loader)
     c_in, c_out = model_channels(pde, view)
-    torch.manual_seed(cfg.seed)  # the same initial weights in every arm
+    torch.manual_seed(seed)  # the same initial weights in every arm
     model = build_model(cfg.model, pde.NDIM, c_in, c_out, len(pde.PARAMS), **cfg.model_cfg)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     report = getattr(dataset, "report_losses", None)
@@ -235,7 +235,7 @@ def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=
                                                    for m, v in error_stats(e).items()}})
     final = {k: per_trajectory_errors(model, norm, view, ts) for k, ts in tests.items()}
     torch.save({"model": model.state_dict(), "normalization": norm.to_dict()}, out / "model.pt")
-    record = {"arm": arm, "wall_s": wall, "steps": steps, "examples": examples, "trajectories_solved": solved,
+    record = {"arm": arm, "seed": seed, "wall_s": wall, "steps": steps, "examples": examples, "trajectories_solved": solved,
               "data_wait_s": t_data, "compute_s": t_compute, "startup_s": wall - t_data - t_compute,
               "wait_share": t_data / max(t_data + t_compute, 1e-9),  # of the training loop's time
               "cache_bytes": extra.get("cache_bytes", 0), "stats": stats, "reuse": reuse, "density": density,
@@ -257,19 +257,22 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    tests = {"test": stratified_test_set(pde, cfg.n_test, cfg.seed)}
+    tests = {"test": stratified_test_set(pde, cfg.n_test, 0)}
     shifted = shifted_pde(pde, cfg.shift, shift_overrides)
     if shifted is not None:
-        tests["shifted"] = stratified_test_set(shifted, cfg.n_test, cfg.seed)
+        tests["shifted"] = stratified_test_set(shifted, cfg.n_test, 0)
     log(f"test sets: {cfg.n_test} stratified trajectories" + (" in-domain and shifted" if shifted else "")
         + f" in {time.perf_counter() - t0:.1f} s")
     records = []
     for arm in cfg.arms:
-        rec = run_arm(arm, pde, view, cfg, out / arm, tests, log)
-        records.append(rec)
-        log(f"{arm:15s} test mean {rec['test_mean']:.4f} p95 {rec['test_p95']:.4f} max {rec['test_max']:.4f}; "
-            f"{rec['steps']} steps, {rec['trajectories_solved']} trajectories, {rec['wall_s']:.0f} s, "
-            f"waiting {100 * rec['wait_share']:.0f}%")
+        runs = []
+        for seed in range(cfg.seeds):
+            rec = run_arm(arm, pde, view, cfg, out / (arm if cfg.seeds == 1 else f"{arm}_seed{seed}"), tests, log, seed)
+            runs.append(rec)
+            log(f"{arm:15s} seed {seed}: test mean {rec['test_mean']:.4f} p95 {rec['test_p95']:.4f} max "
+                f"{rec['test_max']:.4f}; {rec['steps']} steps, {rec['trajectories_solved']} trajectories, "
+                f"{rec['wall_s']:.0f} s, waiting {100 * rec['wait_share']:.0f}%")
+        records.append(combine_seeds(runs))
     test_params = {k: torch.cat([b["params"] for b in ts]).tolist() for k, ts in tests.items()}
     result = {"pde": pde.config(), "shifted_pde": shifted.config() if shifted else None,
               "config": {k: v if not hasattr(v, "name") else v.name for k, v in asdict(cfg).items()},
@@ -280,6 +283,18 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
 
     plot_budget(out / "compare.png", result, datasets.param_domains(pde))
     return result
+
+
+def combine_seeds(runs: list[dict]) -> dict:
+    """One arm's record over seeds: seed 0's record (curves, plots) with every error column replaced by its mean
+    over seeds, its spread in COLUMN_std, and the per-seed values under "per_seed"."""
+    out = dict(runs[0])
+    out["per_seed"] = [{c: r[c] for c in (*COLUMNS, "steps", "trajectories_solved", "wall_s") if c in r} for r in runs]
+    for c in COLUMNS:
+        if c in out:
+            values = np.array([r[c] for r in runs])
+            out[c], out[c + "_std"] = float(values.mean()), float(values.std(ddof=1)) if len(values) > 1 else 0.0
+    return out
 
 
 COLUMNS = ("test_mean", "test_p95", "test_max", "shifted_mean", "shifted_p95", "shifted_max")
@@ -304,10 +319,14 @@ def _write_tables(out: Path, result: dict, pde, cfg: BudgetConfig) -> None:
     lines = [f"{pde.NAME} (" + ", ".join(f"{k} ~ {v}" for k, v in pde.param_domains.items()) + f", n={pde.n}), "
              f"budget: {budget}; {cfg.model} {cfg.model_cfg}, batch {cfg.batch_size}, lr {cfg.lr}, "
              f"view {datasets.make_view(cfg.view)}; errors: relative L2 per trajectory over {cfg.n_test} test "
-             "trajectories stratified over the parameter box (mean, p95, max)", "",
+             "trajectories stratified over the parameter box (mean, p95, max)"
+             + (f", each the mean ± std over {cfg.seeds} seeds (steps, trajectories, wall: seed 0)"
+                if cfg.seeds > 1 else ""), "",
              "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
-    for r in rows:
-        cells = [r["arm"], *[f"{r[c]:.4f}" for c in COLUMNS if c in r], str(r["steps"]), str(r["trajectories_solved"]),
+    for r, rec in zip(rows, result["arms"]):
+        spread = [f" ± {rec[c + '_std']:.4f}" if cfg.seeds > 1 else "" for c in COLUMNS if c in r]
+        cells = [r["arm"], *[f"{r[c]:.4f}{sd}" for c, sd in zip([c for c in COLUMNS if c in r], spread)],
+                 str(r["steps"]), str(r["trajectories_solved"]),
                  f"{r['wall_s']:.0f}", f"{100 * r['wait_share']:.1f}%",
                  f"{r['reuse_mean']:.2f}" if r["reuse_mean"] != "" else "-",
                  f"{r['reuse_max']:.2f}" if r["reuse_max"] != "" else "-"]
