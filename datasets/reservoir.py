@@ -34,6 +34,7 @@ from __future__ import annotations
 import atexit
 import collections
 import math
+import os
 import time
 import weakref
 from concurrent.futures import FIRST_COMPLETED, wait
@@ -59,6 +60,14 @@ def _close_all() -> None:
     # a script may leave a stream open: let producers finish their job in flight instead of dying in JAX
     for stream in list(_OPEN):
         stream.close()
+
+
+def _physical_memory() -> int:
+    """Bytes of RAM (0 where the OS does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 0
 
 
 def _check_int(name: str, value, low: int) -> int:
@@ -207,6 +216,11 @@ class ReservoirStream(IterableDataset):
         self.per_trajectory = len(self.view.starts(n_frames, torch.Generator().manual_seed(0)))
         self.cap_uses = max(1, round(self.max_reuse * self.per_trajectory))
         self.config = self.pde.config()
+        need = self.capacity * n_frames * len(self.pde.FIELDS) * self.pde.n ** self.pde.NDIM * 4
+        have = _physical_memory()
+        if have and need > have // 2:
+            raise ValueError(f"capacity={capacity} not allowed: holding {capacity} trajectories takes "
+                             f"{need / 2**30:.1f} GiB, more than half of this machine's {have / 2**30:.1f} GiB")
         self.proposal = ParamProposal(_bridge.param_domains(self.pde), mode=proposal, seed=self.seed,
                                       **(proposal_kwargs or {}))
         self.t = torch.from_numpy(np.asarray(self.pde.times()))

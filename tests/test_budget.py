@@ -91,3 +91,13 @@ def test_cli_quick_budget_compare_runs(capsys, tmp_path):
                      "--model-set", "width=8", "--model-set", "modes=4", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "| fifo |" in printed and "| reservoir_loss |" in printed and "compare.png" in printed
+
+
+def test_combine_seeds_reports_mean_and_spread():
+    from surrogate.budget import combine_seeds
+
+    runs = [{"arm": "a", "test_mean": 1.0, "test_p95": 2.0, "test_max": 3.0, "steps": 5, "curve": [1]},
+            {"arm": "a", "test_mean": 3.0, "test_p95": 4.0, "test_max": 9.0, "steps": 6, "curve": [2]}]
+    out = combine_seeds(runs)
+    assert out["test_mean"] == 2.0 and out["test_max"] == 6.0 and out["test_mean_std"] == pytest.approx(2 ** 0.5)
+    assert out["curve"] == [1] and [r["steps"] for r in out["per_seed"]] == [5, 6]

@@ -156,6 +156,12 @@ def test_bad_settings_are_one_line_errors(kw, message):
     assert str(err.value) == message
 
 
+def test_a_reservoir_larger_than_memory_is_refused():
+    with pytest.raises(ValueError, match=r"capacity=100000000 not allowed: holding 100000000 trajectories takes .* GiB, "
+                                         r"more than half of this machine's"):
+        stream(capacity=10**8)
+
+
 def test_bad_producer_is_refused_when_started():
     with pytest.raises(ValueError, match="producer='mpi' not allowed; allowed: thread, process, dask"):
         take(stream(producer="mpi"), 1)
