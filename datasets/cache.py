@@ -37,12 +37,14 @@ class WriteSummary:
     written: int
     seconds: float
     bytes: int
+    repaired: int = 0  # damaged samples found by --resume and recomputed
 
     def line(self) -> str:
         """The one-line summary ``pdestream generate`` prints."""
         rate = self.written / self.seconds if self.seconds > 0 else 0.0
-        return (f"wrote {self.written} samples ({self.n_samples} of {self.n_samples} complete) to {self.path} in "
-                f"{self.seconds:.1f} s ({rate:.1f} samples/s), {self.bytes / 2**20:.1f} MiB")
+        fixed = f"; {self.repaired} damaged samples recomputed" if self.repaired else ""
+        return (f"wrote {self.written} samples ({self.n_samples} of {self.n_samples} complete{fixed}) to {self.path} "
+                f"in {self.seconds:.1f} s ({rate:.1f} samples/s), {self.bytes / 2**20:.1f} MiB")
 
 
 def default_block(pde, n_samples: int) -> int:
@@ -262,7 +264,7 @@ def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, 
     with writing(pde, path, n_samples, seed, resume, overwrite, block, on_blowup) as job:
         written = _fill(pde, job, progress)
     return WriteSummary(str(job.path), int(n_samples), written, time.perf_counter() - start,
-                        schema.disk_bytes(job.path))
+                        schema.disk_bytes(job.path), job.repaired)
 
 
 @dataclass
@@ -274,6 +276,7 @@ class Job:
     work: Path
     lay: schema.Layout
     block: int
+    repaired: int = 0  # damaged samples of a resumed cache, reopened to be recomputed
 
 
 @contextmanager
@@ -327,7 +330,8 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
                 raise ValueError(f"cannot resume {path} with block={block}: it was started with block="
                                  f"{stored['pdestream_block']} (leave --block out to use it)")
         _remove_stale(path)
-        job = Job(path, _hidden(path, "tmp") if exists and overwrite else path, lay, block)
+        repaired = _reopen_damaged(path, lay, block) if stored else 0
+        job = Job(path, _hidden(path, "tmp") if exists and overwrite else path, lay, block, repaired)
         created = not stored
         try:
             if created:
@@ -344,6 +348,42 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
             elif created and not _any_written(path):
                 _rmtree_or_unlink(path)  # ours, and nothing in it to resume: a rerun needs no --overwrite
             raise
+
+
+def damaged_samples(store, names, block: int = 64) -> np.ndarray:
+    """Positions of samples flagged complete whose data in ``names`` (fields, parameters) is non-finite or
+    unreadable: a written sample is always finite, a deleted Zarr chunk reads as NaN, a corrupted one fails
+    its checksum. Reads ``block`` samples at a time."""
+    done = np.asarray(store["complete"][:]) == 1
+    bad = []
+    for lo in range(0, len(done), block):
+        hi = min(lo + block, len(done))
+        if not done[lo:hi].any():
+            continue
+        ok = np.ones(hi - lo, bool)
+        for name in names:
+            try:
+                ok &= np.isfinite(np.asarray(store[name][lo:hi]).reshape(hi - lo, -1)).all(1)
+            except Exception:  # an unreadable chunk: every sample of the block is suspect
+                ok[:] = False
+        bad.extend(lo + np.flatnonzero(done[lo:hi] & ~ok))
+    return np.asarray(bad, np.int64)
+
+
+def _reopen_damaged(path: Path, lay: schema.Layout, block: int) -> int:
+    """Resume: clear the flags of damaged samples (and the global flag) so they are solved again."""
+    store = schema.open_store(str(path), "r+")
+    try:
+        bad = damaged_samples(store, [*lay.fields, *(p for p in lay.per_sample if p not in ("redraws", "complete"))],
+                              block)
+        if len(bad):
+            schema.mark_complete(store, str(path), value=0)  # no longer complete until they are rewritten
+            flags = np.asarray(store["complete"][:])
+            flags[bad] = 0
+            store["complete"][:] = flags
+    finally:
+        schema.close(store)
+    return len(bad)
 
 
 def _any_written(path: Path) -> bool:

@@ -136,4 +136,5 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
             raise RuntimeError(f"{path}: blocks missing after the Dask run (a bug)")
         schema.mark_complete(store, str(work))
     written, seconds = sum(hi - lo for lo, hi in todo), time.perf_counter() - start
-    return cache.WriteSummary(str(job.path), lay.dims["sample"], written, seconds, schema.disk_bytes(job.path))
+    return cache.WriteSummary(str(job.path), lay.dims["sample"], written, seconds, schema.disk_bytes(job.path),
+                              job.repaired)

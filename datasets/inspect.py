@@ -11,16 +11,27 @@ from .cache import is_complete, open_cache
 
 
 def field_stats(ds, name: str, rows: np.ndarray, block: int = 64) -> dict:
-    """mean / std / min / max of field ``name`` over samples ``rows``, read ``block`` samples at a time."""
-    total, total_sq, count, lo, hi = 0.0, 0.0, 0, np.inf, -np.inf
+    """mean / std / min / max of field ``name`` over samples ``rows``, read ``block`` samples at a time, and
+    "damaged": the rows whose data is non-finite or unreadable (left out of the statistics)."""
+    total, total_sq, count, lo, hi, damaged = 0.0, 0.0, 0, np.inf, -np.inf, []
     for k in range(0, len(rows), block):
-        a = ds[name].isel(sample=rows[k : k + block]).values.astype(np.float64)
-        total, total_sq, count = total + a.sum(), total_sq + (a * a).sum(), count + a.size
-        lo, hi = min(lo, a.min()), max(hi, a.max())
+        part = rows[k : k + block]
+        try:
+            a = ds[name].isel(sample=part).values.astype(np.float64)
+        except Exception:  # a corrupted chunk: every sample of this read is suspect
+            damaged.extend(part)
+            continue
+        finite = np.isfinite(a.reshape(len(a), -1)).all(1)  # a written sample is always finite
+        damaged.extend(part[~finite])
+        a = a[finite]
+        if a.size:
+            total, total_sq, count = total + a.sum(), total_sq + (a * a).sum(), count + a.size
+            lo, hi = min(lo, a.min()), max(hi, a.max())
     if count == 0:
-        return {"mean": np.nan, "std": np.nan, "min": np.nan, "max": np.nan}
+        return {"mean": np.nan, "std": np.nan, "min": np.nan, "max": np.nan, "damaged": damaged}
     mean = total / count
-    return {"mean": mean, "std": np.sqrt(max(total_sq / count - mean * mean, 0.0)), "min": lo, "max": hi}
+    return {"mean": mean, "std": np.sqrt(max(total_sq / count - mean * mean, 0.0)), "min": lo, "max": hi,
+            "damaged": damaged}
 
 
 def summary(path) -> str:
@@ -42,8 +53,11 @@ def summary(path) -> str:
             f"  provenance: hash {a['pdestream_config_hash']}, pdestream {a['pdestream_version']}, "
             f"jax {a['jax_version']} (threefry_partitionable={a['jax_threefry_partitionable']})",
         ]
+        damaged = set()
         for name in a["pdestream_params"].split():
             values = ds[name].values[rows]
+            damaged.update(rows[~np.isfinite(values)])  # a deleted parameter chunk reads as NaN
+            values = values[np.isfinite(values)]
             units = ds[name].attrs.get("units", "1")
             span = f"[{values.min():.4g}, {values.max():.4g}]" if len(values) else "(none written)"
             lines.append(f"  param {name}: {span} [{units}], domain {ds[name].attrs.get('domain', '?')}")
@@ -53,7 +67,14 @@ def summary(path) -> str:
                 lines.append(f"  blow-up redraws: {int((redraws > 0).sum())} samples")
         for name in a["pdestream_fields"].split():
             s = field_stats(ds, name, rows)
+            damaged.update(s["damaged"])
             lines.append(f"  field {name}: mean {s['mean']:.4g}  std {s['std']:.4g}  min {s['min']:.4g}  max {s['max']:.4g}")
+        if damaged:
+            idx = [int(i) for i in ds["sample"].values[sorted(damaged)]]
+            shown = ", ".join(map(str, idx[:8])) + (f", ... ({len(idx)} in all)" if len(idx) > 8 else "")
+            lines[2] = (f"  samples: {int(complete.sum())} of {complete.size} flagged complete, DAMAGED: samples {shown} "
+                        "hold non-finite or missing data (recompute them with `pdestream generate ... --resume`); "
+                        f"seed {a['pdestream_seed']}")
         return "\n".join(lines)
     finally:
         ds.close()

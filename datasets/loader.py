@@ -50,6 +50,9 @@ class CachedTrajectories(torch.utils.data.Dataset):
             self.indices = ds["sample"].values[self.rows].astype(np.int64)
             cols = [ds[n].values[self.rows] for n in self.param_names]
             self.params = torch.from_numpy(np.stack(cols, 1) if cols else np.zeros((len(self.rows), 0), np.float32))
+            bad = np.flatnonzero(~torch.isfinite(self.params).all(1).numpy())
+            if len(bad):  # a deleted parameter chunk reads as NaN
+                raise self._damaged(bad)
             self.t = torch.from_numpy(ds["time"].values.astype(np.float32))
             nbytes = len(self.rows) * len(self.fields) * int(np.prod(ds[self.fields[0]].shape[1:])) * 4
         finally:
@@ -110,8 +113,18 @@ class CachedTrajectories(torch.utils.data.Dataset):
             rows = self.rows[s:s + chunk]
             lo = int(rows[0])
             u = np.stack([np.asarray(store[f][lo:int(rows[-1]) + 1])[rows - lo] for f in self.fields], axis=2)
+            bad = np.flatnonzero(~np.isfinite(u.reshape(len(u), -1)).all(1))
+            if len(bad):
+                raise self._damaged(s + bad)
             moments.add(torch.from_numpy(u), self.params[s:s + chunk])  # [b, T, C, *space], [b, P]
         return moments.result(self.fields, self.param_names, samples=len(self.rows))
+
+    def _damaged(self, positions) -> ValueError:
+        """The error for readable samples at ``positions`` whose data is non-finite (never true of a written one)."""
+        idx = [int(i) for i in self.indices[np.asarray(positions)]]
+        shown = ", ".join(map(str, idx[:8])) + (f", ... ({len(idx)} in all)" if len(idx) > 8 else "")
+        return ValueError(f"{self.path}: damaged samples {shown}: non-finite or missing data although flagged "
+                          "complete; recompute them with `pdestream generate ... --resume`")
 
     def _samples(self) -> np.ndarray:
         """Every readable sample of the file in memory: float32 [N, T, C, *space] (read once per process)."""
@@ -121,15 +134,22 @@ class CachedTrajectories(torch.utils.data.Dataset):
                 self._memory = np.stack([np.asarray(store[f][:])[self.rows] for f in self.fields], axis=2)
             except Exception as err:  # a corrupted chunk anywhere: name the file (in_memory=False names the sample)
                 raise ValueError(f"{self.path}: cannot read its samples: {err}") from None
+            bad = np.flatnonzero(~np.isfinite(self._memory.reshape(len(self._memory), -1)).all(1))
+            if len(bad):
+                self._memory = None
+                raise self._damaged(bad)
         return self._memory
 
     def _read(self, j: int, lo: int, hi: int) -> np.ndarray:
         """Frames lo:hi of readable sample j straight from the file: float32 [hi - lo, C, *space]."""
         store = self._open()
         try:
-            return np.stack([np.asarray(store[f][int(self.rows[j]), lo:hi]) for f in self.fields], axis=1)
+            u = np.stack([np.asarray(store[f][int(self.rows[j]), lo:hi]) for f in self.fields], axis=1)
         except Exception as err:  # a corrupted chunk or a file changed under us: name the file and sample
             raise ValueError(f"{self.path}: cannot read sample {self.indices[j]}: {err}") from None
+        if not np.isfinite(u).all():  # a deleted chunk reads as NaN
+            raise self._damaged([j])
+        return u
 
     def __getitem__(self, k: int) -> dict:
         if not -len(self) <= k < len(self):

@@ -16,7 +16,10 @@ Readable by plain xarray (``xr.open_dataset(path, engine="h5netcdf")``, ``xr.ope
 Crash safety: every array is fully laid out when the file is created (HDF5: contiguous, allocated
 early, the int8 flags zeroed; Zarr: chunks along ``sample`` that divide the write block, so a block
 covers whole chunks), so writing a block changes data only, never metadata. A block's ``complete`` flags
-are written after its data, so a killed writer leaves a cache that reads as incomplete.
+are written after its data, so a killed writer leaves a cache that reads as incomplete. The global flag
+is set last, for Zarr in one atomic replace of the root ``zarr.json``. A replacement (``--overwrite``) is
+built under a hidden sibling name and renamed into place once complete; one writer per cache holds an
+exclusive lock on the hidden sidecar ``.NAME.lock`` (``datasets.cache.write_lock``).
 """
 
 from __future__ import annotations
@@ -190,13 +193,14 @@ def open_store(path: str, mode: str = "r"):
     return zarr.open_group(path, mode=mode, zarr_format=3, use_consolidated=False)
 
 
-def mark_complete(store, path: str) -> None:
-    """Set the global completion flag (written last, after every block's data and flags).
+def mark_complete(store, path: str, value: int = 1) -> None:
+    """Set the global completion flag (written last, after every block's data and flags); ``value=0`` clears
+    it (before damaged samples are rewritten).
 
     Zarr: one atomic replace of the root ``zarr.json`` (attributes and consolidated metadata together), so a
     kill at any point leaves either the old or the new file, both readable; never a half-marked cache."""
     if cache_format(path) == "hdf5":
-        store.attrs["pdestream_complete"] = np.int64(1)
+        store.attrs["pdestream_complete"] = np.int64(value)
         store.flush()
         return
     meta_path = Path(path) / "zarr.json"
@@ -204,7 +208,7 @@ def mark_complete(store, path: str) -> None:
     if not meta.get("consolidated_metadata"):  # a cache cut by an older writer between its two steps
         consolidate(path)
         meta = json.loads(meta_path.read_text())
-    meta["attributes"]["pdestream_complete"] = 1
+    meta["attributes"]["pdestream_complete"] = int(value)
     atomic_write(meta_path, json.dumps(meta, indent=2).encode())
 
 

@@ -381,3 +381,54 @@ def test_compare_out_check_lets_new_dirs_and_overwrite_through(tmp_path):
         cli.check_compare_out(str(tmp_path), overwrite=False)
     with pytest.raises(NotADirectoryError):
         cli.check_compare_out(str(tmp_path / "notes.txt"), overwrite=False)
+
+
+# --- a damaged cache that claims completeness -----------------------------------------------------------------
+def _nan_in_h5(path, j):
+    with h5py.File(path, "r+") as f:
+        f["u"][j] = np.nan  # NaN bytes in the file
+
+
+def _deleted_field_chunk(path, j):
+    per_chunk = zarr.open_group(path, mode="r", zarr_format=3)["u"].chunks[0]
+    (path / "u" / "c" / str(j // per_chunk) / "0" / "0").unlink()  # now reads as the fill value NaN
+
+
+def _deleted_param_chunk(path, j):
+    for chunk in (path / "nu" / "c").iterdir():
+        chunk.unlink()
+
+
+@pytest.mark.parametrize("suffix, damage", [("h5", _nan_in_h5), ("zarr", _deleted_field_chunk),
+                                            ("zarr", _deleted_param_chunk)])
+def test_damaged_cache_is_reported_and_resume_recomputes_it(tmp_path, capsys, suffix, damage):
+    path = tmp_path / f"c.{suffix}"
+    assert generate(capsys, path, "--block", "2", n=6, seed=2)[0] == 0  # Zarr: 2 samples per chunk
+    want = datasets.open_cache(path)
+    want_u, want_nu = want["u"].values, want["nu"].values
+    want.close()
+    sha = digest(path)
+    damage(path, 3)
+    with pytest.raises(ValueError, match=r"damaged samples .*3"):
+        whole = datasets.CachedTrajectories(path)  # the parameter check of __init__, or the read of all samples
+        try:
+            whole[0]
+        finally:
+            whole.close()  # this process may not hold the HDF5 file open when it resumes below
+    if damage is not _deleted_param_chunk:
+        lazy = datasets.CachedTrajectories(path, in_memory=False)
+        lazy[0]
+        with pytest.raises(ValueError, match="damaged samples 3:"):
+            lazy[3]
+        lazy.close()
+    code, out, err = run_cli(capsys, "inspect", path)
+    assert code == 0 and "DAMAGED: samples" in out and "3" in out.split("DAMAGED: samples")[1].split("hold")[0], out
+    code, out, err = generate(capsys, path, "--resume", n=6, seed=2)
+    assert code == 0 and "damaged samples recomputed" in out, (out, err)
+    got = datasets.open_cache(path)
+    assert is_complete(got)
+    np.testing.assert_array_equal(got["u"].values, want_u)
+    np.testing.assert_array_equal(got["nu"].values, want_nu)
+    if suffix == "zarr":
+        assert digest(path) == sha  # bit-identical to the cache before the damage
+    assert "DAMAGED" not in run_cli(capsys, "inspect", path)[1]
