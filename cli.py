@@ -123,7 +123,9 @@ def add_generate(sub) -> None:
     _add_pde_config_args(p)
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--resume", action="store_true", help="finish an interrupted cache of the same set-up")
-    mode.add_argument("--overwrite", action="store_true", help="replace an existing cache")
+    mode.add_argument("--overwrite", action="store_true",
+                      help="replace an existing pdestream cache (the new one is built beside it and swapped in "
+                           "only when complete; anything else at PATH is refused)")
     p.add_argument("--block", type=int, help="samples solved and written per block (default: ~32 MiB)")
     p.add_argument("--on-blowup", choices=("raise", "redraw"), default="raise",
                    help="a NaN/Inf trajectory stops the run (raise) or is redrawn deterministically (redraw)")

@@ -122,8 +122,11 @@ def test_overwrite_with_unreachable_scheduler_keeps_the_old_cache(tmp_path, caps
     assert_untouched(path, sha, err, code)
 
 
-def test_successful_overwrite_replaces_and_leaves_nothing_else(old_cache, capsys):
+@pytest.mark.parametrize("exchange", ["renameat2", "two renames"])
+def test_successful_overwrite_replaces_and_leaves_nothing_else(old_cache, capsys, monkeypatch, exchange):
     path, sha = old_cache
+    if exchange == "two renames":  # where the atomic exchange is unsupported: old aside, new in, old deleted
+        monkeypatch.setattr(cache_mod, "_exchange", lambda a, b: False)
     code, out, err = generate(capsys, path, "--overwrite", n=6, seed=1)
     assert code == 0 and "wrote 6 samples" in out, err
     assert digest(path) != sha and listing(path.parent) == [path.name]
