@@ -198,8 +198,8 @@ def _exchange(a: Path, b: Path) -> bool:
 
 def _swap_in(new: Path, path: Path) -> None:
     """Put the finished cache ``new`` at ``path`` in place of the old one, then delete the old one."""
-    if new.is_file():
-        os.replace(new, path)  # one atomic rename over the old file
+    if new.is_file() or not path.exists():
+        os.replace(new, path)  # one atomic rename over the old file (or into a place left empty)
         return
     if _exchange(new, path):  # the old store now sits at ``new``
         shutil.rmtree(new)
@@ -341,6 +341,8 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
                     raise ValueError(f"cannot create {path}: {err}") from None
             yield job
             if job.work != path:
+                if path.exists() and (what := _foreign(path)):  # replaced by someone else while we wrote
+                    raise ValueError(f"refusing to overwrite {path}: it became {what} during the run")
                 _swap_in(job.work, path)
         except BaseException:
             if job.work != path:
