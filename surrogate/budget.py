@@ -14,7 +14,9 @@ Two budgets:
   cosine learning rate over the elapsed fraction; the precomputed arm spends ``precompute_share`` of it
   solving (N from the solver rate it measures on its first block, which counts too).
 - ``sim_budget`` (solved trajectories per arm): every arm gets the same N trajectories and ``steps`` optimizer
-  steps (the FIFO stream runs out after N trajectories' examples: it trains fewer steps, as it would).
+  steps (the FIFO stream runs out after N trajectories' examples: it trains fewer steps, as it would). The
+  reservoir arms run in deterministic mode there: their solves are paced over the training run, so the
+  loss-driven proposals follow the model as it learns.
 
 Test sets are stratified over the parameter box (a Latin hypercube in the unit box: linear for uniform, log for
 loguniform), with ICs from a held-out seed, plus the shifted domain. Errors are per trajectory (relative L2 of
@@ -168,7 +170,11 @@ def _loader(arm: str, pde, view, cfg: BudgetConfig, seed: int, out: Path, clock_
         reuse = max(1.0, 1.05 * cfg.steps * cfg.batch_size / (cfg.sim_budget * per))
     stream = datasets.ReservoirStream(
         pde, seed=seed, view=view, batch_size=cfg.batch_size, capacity=cfg.capacity,
-        max_reuse=reuse, solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode, sim_budget=cfg.sim_budget,
+        # at a simulation budget the solves are paced by training (deterministic schedule: one solve batch per
+        # solve_batch x max_reuse uses drawn), so loss-driven proposals see the model's current losses rather
+        # than an untrained model's, and the run is reproducible
+        max_reuse=reuse, solve_batch=cfg.solve_batch, sim_budget=cfg.sim_budget,
+        mode="deterministic" if cfg.sim_budget is not None else cfg.reservoir_mode,
         warmup=min(max(cfg.solve_batch, cfg.batch_size), cfg.capacity),
         proposal="loss" if arm == "reservoir_loss" else "uniform", proposal_kwargs={"floor": cfg.proposal_floor})
     return DataLoader(stream, batch_size=None), {}
