@@ -23,6 +23,9 @@ class Fixed:
 
     value: float
 
+    def __post_init__(self):
+        object.__setattr__(self, "value", _finite("fixed", self.value))
+
     def sample(self, key: jax.Array) -> jax.Array:
         """One float32 scalar (the key is unused: a fixed value consumes no randomness)."""
         del key
@@ -103,7 +106,7 @@ class Choice:
     def __post_init__(self):
         if len(self.options) == 0:
             raise ValueError("choice() needs at least one option, e.g. choice(0.5, 1.0)")
-        object.__setattr__(self, "options", tuple(float(o) for o in self.options))
+        object.__setattr__(self, "options", tuple(_finite("choice", o) for o in self.options))
 
     def sample(self, key: jax.Array) -> jax.Array:
         return jax.random.choice(key, jnp.asarray(self.options, jnp.float32))
@@ -123,6 +126,15 @@ class Choice:
 Domain = Union[Fixed, Uniform, LogUniform, Choice]
 DOMAIN_KINDS = {"fixed": Fixed, "uniform": Uniform, "loguniform": LogUniform, "choice": Choice}
 _CALL = re.compile(r"^\s*([A-Za-z_]+)\s*\((.*)\)\s*$")
+
+
+def _finite(kind: str, value) -> float:
+    """``value`` as a float if it is a finite real number (not a bool); ValueError naming the domain otherwise."""
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{kind}({value!r}): values must be finite numbers")
+    return float(value)
 
 
 def _check_interval(kind: str, low: float, high: float) -> None:

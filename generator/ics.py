@@ -44,6 +44,7 @@ class FourierSeries:
     amplitude: float = 1.0
     offset: float = 0.0
     kind = "fourier"
+    field_count = None  # any: one independent draw per PDE field
 
     def check(self, grid: Grid) -> None:
         """Raise ValueError if this distribution cannot be represented on ``grid``."""
@@ -85,6 +86,7 @@ class GaussianRandomField:
     mean: float = 0.0
     zero_mean: bool = True
     kind = "grf"
+    field_count = None  # any: one independent draw per PDE field
 
     def check(self, grid: Grid) -> None:
         for name in ("sigma", "alpha"):

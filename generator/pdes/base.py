@@ -19,9 +19,16 @@ from typing import Any, Callable, ClassVar, Mapping
 import jax
 import numpy as np
 
-from ..domains import Domain, parse_domain
+from ..domains import Domain, Fixed, parse_domain
 from ..ics import IC_KINDS
 from ..spectral import Grid
+
+# Limits that keep one configuration's frame/step arithmetic and memory sane; a setting beyond them is refused
+# when the PDE is built, naming the limit, instead of overflowing, exhausting memory or running for days.
+MAX_STEPS = 10**6  # internal time steps per trajectory (steps_per_frame * (n_frames - 1)); defaults take <= 2000
+MAX_GRID_POINTS = 2**24  # points per field (n**ndim): 4096^2 in 2D
+MAX_TRAJECTORY_BYTES = 2**30  # float32 frames of one trajectory (n_frames * fields * n**ndim * 4 B)
+MAX_IC_BOUND = 1e18  # max|u0|: a quadratic nonlinearity squares it, and float32 ends at 3.4e38
 
 
 @dataclass(frozen=True)
@@ -100,6 +107,7 @@ class PDE:
 
     # --- validation and configuration --------------------------------------------------------------
     def __post_init__(self):
+        self._check_fields()
         for name, spec in self.PARAMS.items():
             try:
                 domain = parse_domain(getattr(self, name))
@@ -117,6 +125,9 @@ class PDE:
             raise ValueError(f"{self.NAME}: t_end={self.t_end} not allowed: must be a finite number > 0")
         if isinstance(self.n_frames, bool) or not isinstance(self.n_frames, int) or self.n_frames < 2:
             raise ValueError(f"{self.NAME}: n_frames={self.n_frames!r} not allowed: need an integer >= 2 (t=0 and t_end)")
+        self._check_size()  # before anything allocates arrays of the grid's size
+        self._check_ic()
+        self.check_settings()
         if self.dt is not None:
             stable = self.stable_dt()
             if not self.dt > 0:
@@ -126,7 +137,68 @@ class PDE:
                     f"{self.NAME}: dt={self.dt} is unstable for this grid and parameter domain: "
                     f"allowed dt <= {stable:.4g} (or leave dt unset to derive it)"
                 )
-        self.ic.check(self.grid)
+        self._check_steps()
+
+    def check_settings(self) -> None:
+        """Subclass hook: refuse values of the PDE's own settings (types and finiteness are already checked)."""
+
+    def _check_fields(self) -> None:
+        """Every non-parameter setting and IC field has its field's kind and, if a number, is finite."""
+        try:
+            for name in self.config_fields():
+                if name not in self.PARAMS:
+                    object.__setattr__(self, name, check_value(name, getattr(self, name), self.default(name)))
+            ic = make_ic(self.ic)
+            if dataclasses.is_dataclass(ic):
+                fields = {f.name: check_value(f"ic.{f.name}", getattr(ic, f.name), f.default)
+                          for f in dataclasses.fields(ic)}
+                changed = {k: v for k, v in fields.items() if type(v) is not type(getattr(ic, k))}
+                ic = dataclasses.replace(ic, **changed) if changed else ic
+        except ValueError as err:
+            raise ValueError(f"{self.NAME}: {err}") from None
+        object.__setattr__(self, "ic", ic)
+
+    @classmethod
+    def default(cls, name: str) -> Any:
+        """The declared default of setting ``name`` (it decides the setting's kind: int, number, name, ...)."""
+        return next(f.default for f in dataclasses.fields(cls) if f.name == name)
+
+    def _check_ic(self) -> None:
+        """The IC fits this PDE: its kind's field count, its own rules on this grid, a float32-safe magnitude."""
+        want = getattr(self.ic, "field_count", None)
+        if want is not None and want != len(self.FIELDS):
+            fitting = [k for k, c in IC_KINDS.items() if getattr(c, "field_count", None) in (None, len(self.FIELDS))]
+            raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed: it makes {want} fields and {self.NAME} has "
+                             f"{len(self.FIELDS)} ({', '.join(self.FIELDS)}); allowed: {', '.join(fitting)}")
+        try:
+            self.ic.check(self.grid)
+        except ValueError as err:
+            raise ValueError(f"{self.NAME}: {err}") from None
+        bound = self.ic.bound(self.grid)
+        if not bound <= MAX_IC_BOUND:
+            raise ValueError(f"{self.NAME}: ic {self.ic} not allowed: its values reach ~{bound:.3g}; the limit is "
+                             f"max|u0| <= {MAX_IC_BOUND:g} (float32 data)")
+
+    def _check_size(self) -> None:
+        """Grid points and bytes of one trajectory within MAX_GRID_POINTS and MAX_TRAJECTORY_BYTES."""
+        points = self.n**self.NDIM
+        if points > MAX_GRID_POINTS:
+            raise ValueError(f"{self.NAME}: n={self.n} not allowed: {points} grid points per field; the limit is "
+                             f"n**{self.NDIM} <= {MAX_GRID_POINTS} (n <= {_root(MAX_GRID_POINTS, self.NDIM)})")
+        size = 4 * self.n_frames * len(self.FIELDS) * points
+        if size > MAX_TRAJECTORY_BYTES:
+            raise ValueError(f"{self.NAME}: n={self.n}, n_frames={self.n_frames} not allowed: one trajectory would "
+                             f"take {size / 2**30:.3g} GiB; the limit is {MAX_TRAJECTORY_BYTES / 2**30:g} GiB "
+                             "(fewer frames or a coarser grid)")
+
+    def _check_steps(self) -> None:
+        """The internal steps of one trajectory within MAX_STEPS (before steps_per_frame is ever computed)."""
+        target = self.dt if self.dt is not None else self.stable_dt()
+        steps = (self.n_frames - 1) * (self.frame_dt / target) if target > 0 else math.inf
+        if not steps <= MAX_STEPS:
+            raise ValueError(f"{self.NAME}: t_end={self.t_end:g}, n_frames={self.n_frames} with step {target:.3g} "
+                             f"would take ~{steps:.3g} internal steps per trajectory; the limit is {MAX_STEPS} "
+                             "(a shorter t_end, a larger dt, or a smaller initial condition, whose size sets the step)")
 
     def replace(self, overrides: Mapping[str, Any] | None = None, **kwargs) -> "PDE":
         """A copy with fields changed; values may be strings (as from ``--set key=value``).
@@ -139,10 +211,12 @@ class PDE:
         for key, value in {**(overrides or {}), **kwargs}.items():
             if key.startswith("ic."):
                 ic_changes[key[3:]] = value
+            elif key == "ic" and isinstance(value, Mapping) and "kind" not in value:
+                ic_changes.update(value)  # a TOML dotted key `ic.alpha = 2.5` arrives as {"ic": {"alpha": 2.5}}
             elif key == "ic":
                 changes["ic"] = make_ic(value)
             elif key in self.config_fields():
-                changes[key] = value if key in self.PARAMS else _coerce(key, value, getattr(self, key))
+                changes[key] = value if key in self.PARAMS else _coerce(key, value, self.default(key))
             else:
                 allowed = ", ".join([*self.config_fields(), "ic", "ic.<field>"])
                 raise ValueError(f"{self.NAME}: unknown setting {key!r}; allowed: {allowed}")
@@ -184,7 +258,9 @@ class PDE:
             f"   t in [0, {self.t_end:g}], {self.n_frames} frames, step {self.step_dt:.4g} ({self.steps_per_frame}/frame)",
         ]
         for name, spec in self.PARAMS.items():
-            lines.append(f"  {name} ~ {getattr(self, name)}   {spec.description} [{spec.units}]")
+            domain = getattr(self, name)
+            how = f"= {domain} (fixed)" if isinstance(domain, Fixed) else f"~ {domain}"
+            lines.append(f"  {name} {how}   {spec.description} [{spec.units}]")
         lines.append(f"  ic: {self.ic}")
         return "\n".join(lines)
 
@@ -196,8 +272,8 @@ def make_ic(value: Any):
     if isinstance(value, Mapping):
         fields = dict(value)
         kind = fields.pop("kind", None)
-        if kind not in IC_KINDS:
-            raise ValueError(f"unknown ic kind {kind!r}; allowed: {', '.join(IC_KINDS)}")
+        if not isinstance(kind, str) or kind not in IC_KINDS:
+            raise ValueError(f"unknown ic kind {_show(kind)}; allowed: {', '.join(IC_KINDS)}")
         cls = IC_KINDS[kind]
         defaults = cls()
         try:
@@ -206,15 +282,18 @@ def make_ic(value: Any):
             raise ValueError(f"ic kind {kind!r}: {err}") from None
     if hasattr(value, "sample") and hasattr(value, "kind"):
         return value
-    raise ValueError(f"bad ic {value!r}: expected a kind name ({', '.join(IC_KINDS)}) or a dict with 'kind'")
+    raise ValueError(f"bad ic {_show(value)}: expected a kind name ({', '.join(IC_KINDS)}) or a dict with 'kind'")
 
 
 def _coerce(name: str, value: Any, current: Any) -> Any:
-    """Convert a (possibly string) override to the type of the field's current value."""
-    if not isinstance(value, str):
-        if value is None or isinstance(value, (bool, int, float)):
-            return value
-        raise ValueError(f"bad value for {name}: {value!r} is not a {type(current or 0.0).__name__}")
+    """Convert a (possibly string) override to the kind of the field's current value, then check it."""
+    if isinstance(value, str):
+        value = _parse_text(name, value, current)
+    return check_value(name, value, current)
+
+
+def _parse_text(name: str, value: str, current: Any) -> Any:
+    """A setting's text (as from ``--set``) as the kind of ``current``: true/false, an integer, a number or None."""
     text = value.strip()
     try:
         if isinstance(current, bool):
@@ -226,6 +305,48 @@ def _coerce(name: str, value: Any, current: Any) -> Any:
         if isinstance(current, float) or current is None:
             return None if text.lower() == "none" else float(text)
     except ValueError:
-        kind = "true/false" if isinstance(current, bool) else type(current or 0.0).__name__
-        raise ValueError(f"bad value for {name}: {value!r} is not a {kind}") from None
+        raise ValueError(f"bad value for {name}: {value!r} is not {_kind(current)}") from None
     return text
+
+
+def _kind(default: Any) -> str:
+    """What a setting whose default is ``default`` must be, in words."""
+    if isinstance(default, bool):
+        return "true or false"
+    if isinstance(default, int):
+        return "an integer"
+    if isinstance(default, str):
+        return "a name (a string)"
+    return "a number" if default is not None else "a number or none"
+
+
+def check_value(name: str, value: Any, default: Any) -> Any:
+    """``value`` as a plain Python scalar of the kind of the field's ``default`` (bool, int, number, name; None
+    where the default is None), finite if a number; ValueError naming the setting otherwise."""
+    if isinstance(value, np.generic):
+        value = value.item()  # numpy scalars become plain values: clean JSON configs and messages
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+    else:
+        ok = number or (value is None and default is None)
+    if not ok:
+        raise ValueError(f"bad value for {name}: {_show(value)} is not {_kind(default)}")
+    if number and not math.isfinite(value):
+        raise ValueError(f"{name}={value} not allowed: must be a finite number")
+    return value
+
+
+def _show(value: Any) -> str:
+    """repr for messages, without numpy's wrappers (np.float64(0.1) -> 0.1)."""
+    return repr(value.item() if isinstance(value, np.generic) else value)
+
+
+def _root(limit: int, ndim: int) -> int:
+    """The largest n with n**ndim <= limit."""
+    n = round(limit ** (1 / ndim))
+    return n if n**ndim <= limit else n - 1

@@ -14,6 +14,9 @@ from .base import PDE, Param
 # The reaction Jacobian stays below ~1.5 in norm for 0 <= u, v <= 1; ETDRK4's real-axis limit is ~2.8,
 # so dt <= 1 keeps a margin (diffusion is integrated exactly and sets no limit).
 REACTION_DT = 1.0
+# The spot loop is unrolled into the compiled set-up program (written out for bit-identity), so its size
+# bounds compile time and memory: 256 spots cover a 64^2 box many times over.
+MAX_SPOTS = 256
 
 
 @dataclass(frozen=True)
@@ -26,10 +29,13 @@ class GrayScottSpots:
     height: float = 0.25
     noise: float = 0.01
     kind = "spots"
+    field_count = 2  # (u, v) = (1 - 2 s, s): Gray-Scott's two fields
 
     def check(self, grid):
-        if self.n_spots < 1 or not self.radius > 0:
-            raise ValueError(f"ic: n_spots={self.n_spots} must be >= 1 and radius={self.radius} > 0")
+        if not 1 <= self.n_spots <= MAX_SPOTS:
+            raise ValueError(f"ic.n_spots={self.n_spots} not allowed: need 1 <= n_spots <= {MAX_SPOTS}")
+        if not self.radius > 0:
+            raise ValueError(f"ic.radius={self.radius} not allowed: must be > 0")
 
     def sample(self, key, grid, n_fields=2):
         k_centre, k_noise = jax.random.split(key)

@@ -50,12 +50,16 @@ class NS2D(PDE):
     drag: float = 0.1
     velocity_bound: float | None = None
 
-    def __post_init__(self):
+    def check_settings(self):
         if self.forcing not in FORCINGS:
             raise ValueError(f"ns2d: forcing={self.forcing!r} not allowed; allowed: {', '.join(FORCINGS)}")
-        if self.drag < 0 or (self.velocity_bound is not None and self.velocity_bound <= 0):
-            raise ValueError(f"ns2d: drag={self.drag} must be >= 0 and velocity_bound={self.velocity_bound} > 0")
-        super().__post_init__()
+        if self.drag < 0:
+            raise ValueError(f"ns2d: drag={self.drag} not allowed: must be >= 0")
+        if self.velocity_bound is not None and not self.velocity_bound > 0:
+            raise ValueError(f"ns2d: velocity_bound={self.velocity_bound} not allowed: must be > 0 (or none: derived)")
+        if self.forcing != "none" and not 1 <= self.forcing_wavenumber <= self.n // 3:
+            raise ValueError(f"ns2d: forcing_wavenumber={self.forcing_wavenumber} not allowed on n={self.n}: need "
+                             f"1 <= forcing_wavenumber <= n//3 = {self.n // 3} (the grid must resolve the forcing)")
 
     def linear(self, grid, p):
         return (p["nu"] * grid.laplacian() - self.drag)[None]
