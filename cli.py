@@ -32,24 +32,35 @@ def settings_from_args(name: str | None, args: argparse.Namespace) -> tuple[str 
     """(PDE name, settings) from the command line: the --config file's keys, then --set overrides."""
     settings: dict = {}
     if getattr(args, "config", None):
-        import tomllib
-
-        try:
-            with open(args.config, "rb") as f:
-                data = tomllib.load(f)
-        except OSError as err:
-            raise ValueError(f"cannot read config {args.config}: {err.strerror}") from None
-        except tomllib.TOMLDecodeError as err:
-            raise ValueError(f"config {args.config} is not valid TOML: {err}") from None
+        data = read_config(args.config)
         # either a [pde] table (with name = NAME) or top-level keys (with pde = NAME)
         table = dict(data["pde"]) if isinstance(data.get("pde"), dict) else dict(data)
-        file_name = table.pop("name", None) or (table.pop("pde") if isinstance(table.get("pde"), str) else None)
+        file_name = table.pop("name", None) or table.pop("pde", None)
+        if file_name is not None and not isinstance(file_name, str):
+            raise ValueError(f"config {args.config}: the PDE name must be a string such as \"burgers1d\", "
+                             f"got {file_name!r}")
         if name and file_name and name != file_name:
             raise ValueError(f"the command names PDE {name!r} but config {args.config} is for {file_name!r}")
         name = name or file_name
         settings.update(table)
     settings.update(_parse_sets(getattr(args, "set", None)))
     return name, settings
+
+
+def read_config(path: str) -> dict:
+    """A TOML config file as a dict; one-line ValueError naming the file if unreadable, not UTF-8 or not TOML."""
+    import tomllib
+
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except OSError as err:
+        raise ValueError(f"cannot read config {path}: {err.strerror}") from None
+    except UnicodeDecodeError as err:  # tomllib decodes the whole file as UTF-8 first
+        raise ValueError(f"config {path} is not UTF-8 text (byte {err.object[err.start]:#04x} at offset "
+                         f"{err.start}); save it as UTF-8") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ValueError(f"config {path} is not valid TOML: {err}") from None
 
 
 def pde_from_args(name: str | None, args: argparse.Namespace):
@@ -462,10 +473,28 @@ def add_bench(sub) -> None:
     p.set_defaults(func=cmd_bench)
 
 
+# what a benchmark family imports beyond the base install, and the extra that provides it
+BENCH_NEEDS = {"generator": ("exponax", "bench"), "dask": ("distributed", "dask")}
+
+
+def check_bench_extras(families: list[str]) -> None:
+    """ValueError naming the pip extra to install when a chosen family's optional package is missing."""
+    import importlib.util
+
+    missing = [(f, *BENCH_NEEDS[f]) for f in families if f in BENCH_NEEDS and importlib.util.find_spec(BENCH_NEEDS[f][0]) is None]
+    if missing:
+        need = "; ".join(f"the {f} benchmark needs {pkg}: pip install -e '.[{extra}]'" for f, pkg, extra in missing)
+        others = [f for f in families if f not in {m[0] for m in missing}]
+        hint = f" (or run the others: pdestream bench {' '.join(others)})" if others else ""
+        raise ValueError(need + hint)
+
+
 def cmd_bench(args: argparse.Namespace) -> None:
     import benchmarks.__main__ as bench
 
-    bench.run(args.families or None, args.quick, args.json)
+    families = args.families or bench.available()
+    check_bench_extras(families)
+    bench.run(families, args.quick, args.json)
 
 
 USER_ERRORS = (ValueError, FileExistsError, FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError)

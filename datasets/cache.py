@@ -58,7 +58,13 @@ def _check_int(name: str, value, low: int, high: int | None = None) -> None:
     ok = not isinstance(value, bool) and isinstance(value, (int, np.integer)) and value >= low
     if not ok or (high is not None and value > high):
         allowed = f"an integer >= {low}" if high is None else f"an integer in [{low}, {high}]"
-        raise ValueError(f"{name}={value!r} not allowed: need {allowed}")
+        raise ValueError(f"{name}={_plain(value)!r} not allowed: need {allowed}")
+
+
+def _plain(value):
+    """A value read back from HDF5/Zarr attributes as a plain Python value, for messages (no np.int64(0))."""
+    value = value.item() if isinstance(value, np.generic) else value
+    return value.decode() if isinstance(value, bytes) else value
 
 
 def _check_writable(path: Path) -> None:
@@ -218,11 +224,37 @@ def _check_resume(path: Path, attrs: dict, lay: schema.Layout) -> None:
     """Refuse to finish a cache that another configuration (or JAX PRNG set-up) started."""
     keys = ("pdestream_config_hash", "pdestream_seed", "pdestream_n_samples", "pdestream_on_blowup",
             "jax_version", "jax_threefry_partitionable", "pdestream_schema")
-    diff = [f"{k[10:] if k.startswith('pdestream_') else k} {attrs.get(k)!r} != {lay.attrs[k]!r}"
-            for k in keys if attrs.get(k) != lay.attrs[k]]
+    diff = []
+    for k in keys:
+        cached, asked = _plain(attrs.get(k)), _plain(lay.attrs[k])
+        if cached == asked:
+            continue
+        line = f"{k[10:] if k.startswith('pdestream_') else k}: cache {cached!r} vs asked {asked!r}"
+        if k == "pdestream_config_hash":  # name the settings behind the hash
+            settings = _config_diff(attrs.get(schema.CONFIG_ATTR), lay.attrs[schema.CONFIG_ATTR])
+            line += f" (settings that differ: {'; '.join(settings)})" if settings else ""
+        diff.append(line)
     if diff:
         raise ValueError(f"cannot resume {path}: it was written with a different set-up ({'; '.join(diff)}); "
                          "use the same PDE settings, seed and --n, or --overwrite to start again")
+
+
+def _config_diff(cached_json, asked_json) -> list[str]:
+    """The PDE settings that differ between two stored configs (JSON), as "name: cache X vs asked Y"."""
+    try:
+        cached, asked = _flat(json.loads(_plain(cached_json))), _flat(json.loads(asked_json))
+    except (TypeError, ValueError):
+        return []  # an unreadable stored config: the caller names the config as a whole
+    return [f"{k}: cache {cached.get(k, '(unset)')} vs asked {asked.get(k, '(unset)')}"
+            for k in sorted(set(cached) | set(asked)) if cached.get(k) != asked.get(k)]
+
+
+def _flat(config: dict, prefix: str = "") -> dict:
+    """{"ic": {"alpha": 2}} -> {"ic.alpha": 2}: the names --set uses."""
+    out = {}
+    for k, v in config.items():
+        out.update(_flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
+    return out
 
 
 def solve_block(pde, seed: int, lo: int, hi: int, block: int, on_blowup: str):
@@ -260,6 +292,9 @@ def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, 
     is built beside it and swapped in only once complete). ``progress`` shows a tqdm bar when stderr is a
     terminal.
     """
+    from ._bridge import resolve_pde
+
+    pde = resolve_pde(pde)  # a catalog name or a generator PDE, like every other entry point
     start = time.perf_counter()
     with writing(pde, path, n_samples, seed, resume, overwrite, block, on_blowup) as job:
         written = _fill(pde, job, progress)
@@ -293,7 +328,7 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
     # every argument is checked before anything is created: a refused run leaves nothing behind
     path = Path(path)
     fmt = schema.cache_format(path)
-    resolve_pde(pde)  # a generator PDE (its config was checked when it was built)
+    pde = resolve_pde(pde)  # a generator PDE (its config was checked when it was built) or a catalog name
     _check_int("n_samples", n_samples, 1, max_index() + 1)
     _check_int("seed", seed, 0, 2**63 - 1)
     if block is not None:
