@@ -35,7 +35,7 @@ def configure_jax() -> None:
     try:
         generator.enable_compilation_cache(jax_cache_dir())
     except OSError:
-        pass  # a read-only home only costs recompilation
+        pass  # a read-only home only costs recompilation (an unsafe directory is refused with a warning there)
 
 
 def to_torch(x):

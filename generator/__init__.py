@@ -7,6 +7,7 @@ JAX only (never imports torch). Public API::
     sample(pde, indices, seed=0)      Trajectory with u [B, T, C, *space] float32, t [T], params {name: [B]}
     solve(pde, u0, params)            trajectory from a caller's initial condition
     enable_compilation_cache(path)    JAX's persistent compilation cache, so a new process skips compiling
+                                      (not used, with a warning, if another user owns or may write it)
 """
 
 from .domains import Choice, Domain, Fixed, LogUniform, Uniform, parse_domain
@@ -17,19 +18,48 @@ from .sampler import BlowUpError, Trajectory, draw_params, get_pde, sample, samp
 from .spectral import Grid
 
 
+_REFUSED_CACHE_DIRS: set[str] = set()
+
+
 def enable_compilation_cache(path, min_compile_time_s: float = 0.0) -> None:
     """Store compiled programs under ``path`` (created, private) and reuse them in later processes.
 
     With min_compile_time_s = 0 the small set-up programs are cached too, so a warm process compiles nothing.
     """
     import os
+    import warnings
 
     import jax
 
     os.makedirs(path, mode=0o700, exist_ok=True)
+    unsafe = unsafe_cache_dir(path)
+    if unsafe:  # programs loaded from the cache are executed: someone else able to write there could run code
+        if str(path) in _REFUSED_CACHE_DIRS:
+            return  # said once per process (workers call this for every block)
+        _REFUSED_CACHE_DIRS.add(str(path))
+        warnings.warn(f"not using the JAX compilation cache {path}: {unsafe}; programs compiled into it would be "
+                      "executed (make it yours and private: chmod 700, or set PDESTREAM_JAX_CACHE elsewhere)",
+                      stacklevel=2)
+        return
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", min_compile_time_s)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+def unsafe_cache_dir(path) -> str | None:
+    """Why directory ``path`` is unsafe for compiled programs (owned by another user, writable by group or
+    others), or None if it is private to this user (or the platform has no POSIX owners)."""
+    import os
+    import stat
+
+    if not hasattr(os, "getuid"):
+        return None
+    st = os.stat(path)  # follows a symlink: the directory actually used is what counts
+    if st.st_uid != os.getuid():
+        return f"it is owned by uid {st.st_uid}, not by this user (uid {os.getuid()})"
+    if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        return f"it is writable by {'others' if st.st_mode & stat.S_IWOTH else 'its group'} (mode {stat.S_IMODE(st.st_mode):o})"
+    return None
 
 
 def from_config(config: dict) -> PDE:
