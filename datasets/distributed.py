@@ -22,6 +22,9 @@ import importlib.util
 import json
 import logging
 import os
+import re
+import socket
+import struct
 import sys
 import time
 from contextlib import contextmanager
@@ -31,6 +34,64 @@ from . import cache, schema
 # Embedded workers: JAX on the CPU, one XLA thread each (processes, not threads, give the parallelism).
 SINGLE_THREAD_XLA = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 CONNECT_TIMEOUT = "20s"  # how long the client tries to reach a --scheduler
+PROBE_TIMEOUT = 5.0  # seconds a plain TCP connect to the scheduler may take before the address is refused
+SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")  # transports a remote scheduler listens on
+_ADDRESS = re.compile(r"^(?:(?P<scheme>[A-Za-z][A-Za-z0-9+.-]*)://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
+                      r":(?P<port>[0-9]{1,5})/?$")
+
+
+def check_scheduler(address) -> tuple[str, str, int]:
+    """(scheme, host, port) of a Dask scheduler address such as tcp://host:8786 (bare host:port means tcp);
+    a one-line ValueError naming the address and the expected form otherwise."""
+    if isinstance(address, str) and address.startswith("inproc://"):
+        return "inproc", address, 0  # LocalCluster(processes=False) in this very process
+    form = "expected SCHEME://HOST:PORT, e.g. tcp://10.0.0.5:8786 (schemes: " + ", ".join(SCHEDULER_SCHEMES) + ")"
+    match = _ADDRESS.match(address) if isinstance(address, str) else None
+    if match is None:
+        raise ValueError(f"bad --scheduler {address!r}: {form}")
+    scheme = (match["scheme"] or "tcp").lower()
+    port = int(match["port"])
+    if scheme not in SCHEDULER_SCHEMES:
+        raise ValueError(f"bad --scheduler {address!r}: unknown scheme {scheme!r}; {form}")
+    if not 1 <= port <= 65535:
+        raise ValueError(f"bad --scheduler {address!r}: port {port} not in 1..65535; {form}")
+    return scheme, match["host"].strip("[]"), port
+
+
+def probe_scheduler(address: str) -> None:
+    """Check the address format, then that a Dask scheduler answers there within PROBE_TIMEOUT seconds: a
+    malformed, unreachable or wrong address fails in seconds with one line (Dask's client may hang for minutes)."""
+    scheme, host, port = check_scheduler(address)
+    if scheme in ("ucx", "inproc"):
+        return  # not a TCP socket (inproc: a scheduler in this process): the client's own connect decides
+    try:
+        sock = socket.create_connection((host, port), timeout=PROBE_TIMEOUT)
+    except socket.gaierror:
+        raise ValueError(f"cannot reach the Dask scheduler at {address!r}: unknown host {host!r}") from None
+    except OSError as err:
+        why = "timed out" if isinstance(err, TimeoutError) else (err.strerror or str(err)).lower()
+        raise ValueError(f"cannot reach the Dask scheduler at {address!r}: {why} (is a scheduler running "
+                         f"there? start one with `dask scheduler --port {port}`)") from None
+    with sock:
+        if scheme == "tcp" and not _greets_like_dask(sock):
+            raise ValueError(f"{address!r} accepts connections but does not answer like a Dask scheduler "
+                             f"within {PROBE_TIMEOUT:g} s (wrong port, or a proxy in the way?)")
+
+
+def _greets_like_dask(sock: socket.socket) -> bool:
+    """Whether the peer sends a Dask TCP handshake: a scheduler writes its handshake as soon as it accepts, and
+    a frame starts with its length (uint64, little-endian), small for a handshake. Anything else (silence, an
+    HTTP proxy's reply read as a length of exabytes) is not a scheduler, and Dask's own client would hang on it."""
+    head = b""
+    try:
+        while len(head) < 8:
+            chunk = sock.recv(8 - len(head))
+            if not chunk:
+                return False
+            head += chunk
+    except OSError:
+        return False
+    return 0 < struct.unpack("<Q", head)[0] < 2**20
 
 
 def _worker_env() -> dict:
@@ -54,9 +115,10 @@ def dask_client(scheduler: str | None = None, workers: int = 2):
     an embedded ``LocalCluster`` of ``workers`` spawned single-threaded processes (closed on exit)."""
     dist = _distributed()
     if scheduler:
+        probe_scheduler(scheduler)
         try:
             client = dist.Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
-        except (OSError, TimeoutError) as err:
+        except Exception as err:  # a failed handshake raises what it likes (even MemoryError): one line
             raise ValueError(f"cannot reach the Dask scheduler at {scheduler!r}: {err}") from None
         with client:
             yield client
@@ -118,6 +180,8 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
         raise ValueError(f"the dask executor writes Zarr only (got {str(path)!r}): HDF5 allows one writer per file; "
                          "use a .zarr path, or --executor local for HDF5")
     _distributed()  # before anything is created on disk
+    if scheduler:
+        check_scheduler(scheduler)  # a malformed address: one line, nothing created (reachability: dask_client)
     if not scheduler and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise ValueError(f"workers={workers!r} not allowed: need an integer >= 1")
     start = time.perf_counter()
