@@ -36,9 +36,9 @@ def numeric_settings():
     """(pde, key) for every non-parameter number of every PDE and of its default IC."""
     for name, cls in g.PDES.items():
         pde = cls()
-        for key in pde.config_fields():
-            if key not in cls.PARAMS and not isinstance(cls.default(key), (bool, str)):
-                yield name, key
+        for f in dataclasses.fields(cls):
+            if f.name not in (*cls.PARAMS, "ic") and not isinstance(f.default, (bool, str)):
+                yield name, f.name
         for f in dataclasses.fields(pde.ic):
             if not isinstance(f.default, bool):
                 yield name, f"ic.{f.name}"
