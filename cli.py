@@ -42,6 +42,10 @@ def settings_from_args(name: str | None, args: argparse.Namespace) -> tuple[str 
         if name and file_name and name != file_name:
             raise ValueError(f"the command names PDE {name!r} but config {args.config} is for {file_name!r}")
         name = name or file_name
+        ic = table.get("ic")
+        if isinstance(ic, dict) and "kind" not in ic:  # TOML `ic.alpha = 2.5`: the same key as --set ic.alpha=2.5
+            table.pop("ic")
+            table.update({f"ic.{k}": v for k, v in ic.items()})
         settings.update(table)
     settings.update(_parse_sets(getattr(args, "set", None)))
     return name, settings

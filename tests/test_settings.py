@@ -367,3 +367,13 @@ def test_the_fno_config_is_the_fno_setup():
 def test_readme_configs_exist():
     named = re.findall(r"--config (\S+)", (ROOT / "README.md").read_text())
     assert named and all((ROOT / p).is_file() for p in named), named
+
+
+def test_train_names_a_dotted_ic_key_that_differs_from_the_cache(tmp_path, capsys):
+    cache = tmp_path / "c.h5"
+    assert cli.main(["generate", "burgers1d", "--n", "2", "--set", "n=32", "--set", "n_frames=3",
+                     "--out", str(cache)]) == 0
+    (tmp_path / "other.toml").write_text("n = 32\nn_frames = 3\nic.alpha = 3.0\n")
+    capsys.readouterr()
+    refused(["train", "burgers1d", "--source", str(cache), "--config", str(tmp_path / "other.toml"),
+             "--steps", "1", "--out", str(tmp_path / "run")], capsys, "ic.alpha: cache 2.0 vs asked 3.0")

@@ -183,8 +183,9 @@ class PDE:
         """Grid points and bytes of one trajectory within MAX_GRID_POINTS and MAX_TRAJECTORY_BYTES."""
         points = self.n**self.NDIM
         if points > MAX_GRID_POINTS:
+            most = _root(MAX_GRID_POINTS, self.NDIM)
             raise ValueError(f"{self.NAME}: n={self.n} not allowed: {points} grid points per field; the limit is "
-                             f"n**{self.NDIM} <= {MAX_GRID_POINTS} (n <= {_root(MAX_GRID_POINTS, self.NDIM)})")
+                             f"{MAX_GRID_POINTS} points (n <= {most} in {self.NDIM}D)")
         size = 4 * self.n_frames * len(self.FIELDS) * points
         if size > MAX_TRAJECTORY_BYTES:
             raise ValueError(f"{self.NAME}: n={self.n}, n_frames={self.n_frames} not allowed: one trajectory would "
