@@ -214,6 +214,9 @@ def _add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
     g.add_argument("--reservoir-mode", choices=("async", "deterministic"), default="async",
                    help="async: insert solves as they arrive (fast, not reproducible); deterministic: a fixed "
                         "schedule, batches a pure function of the settings, exact --resume")
+    g.add_argument("--target-reuse", type=float, metavar="R",
+                   help="pace the solver so each trajectory pays for about R uses (<= --max-reuse): a solver "
+                        "faster than training then leaves its core to training (default: solve flat out)")
     g.add_argument("--proposal-floor", type=float, default=0.25,
                    help="loss-driven sampling: share of uniform parameter draws (no region starves)")
     g.add_argument("--solve-batch", type=int, default=16, help="trajectories per solver job")
@@ -240,7 +243,8 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
     cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,
            "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
            "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,
-           "proposal_kwargs": {"floor": args.proposal_floor}, "solve_batch": args.solve_batch}
+           "proposal_kwargs": {"floor": args.proposal_floor}, "solve_batch": args.solve_batch,
+           "target_reuse": args.target_reuse}
     return {k: v for k, v in cfg.items() if v is not None}
 
 
@@ -457,7 +461,7 @@ def _budget_compare(args: argparse.Namespace) -> None:
     cfg = BudgetConfig(budget_s=args.budget, sim_budget=args.sim_budget, arms=arms, model=args.model,
                        model_cfg=model_cfg, view=_view_from_args(args, "operator"), batch_size=args.batch_size,
                        lr=args.lr, steps=args.steps, precompute_share=args.precompute_share, capacity=args.capacity,
-                       max_reuse=args.max_reuse, reservoir_mode=args.reservoir_mode,
+                       max_reuse=args.max_reuse, target_reuse=args.target_reuse, reservoir_mode=args.reservoir_mode,
                        proposal_floor=args.proposal_floor, solve_batch=args.solve_batch,
                        n_test=32 if args.quick and args.test_samples == 128 else args.test_samples, shift=args.shift,
                        seeds=1 if args.seeds is None else args.seeds)

@@ -173,7 +173,10 @@ class ReservoirStream(IterableDataset):
     bound on uses per trajectory; warmup: trajectories held before the first batch (default
     max(solve_batch, capacity // 4)); eviction "fifo" | "random"; draw "uniform" | "least_used"; mode
     "async" | "deterministic" (see the module docstring); producer "thread" | "process" | "dask" (+ workers,
-    scheduler); inflight: solve jobs submitted ahead (default: 2 per producer slot); proposal "uniform" |
+    scheduler); inflight: solve jobs submitted ahead (default: 2 per producer slot); target_reuse (in
+    [1, max_reuse]): pace the solver so each trajectory pays for about this many uses (async: a solve is
+    submitted only once the draws have paid for the previous ones; deterministic: the schedule's rate; default:
+    async solves as fast as it can, deterministic uses max_reuse); proposal "uniform" |
     "loss" (+ proposal_kwargs for ParamProposal); sim_budget: stop after this many solved trajectories
     (None: endless). Batches are dicts as from the views, with "params" [B, P] and "index" [B].
     The stream runs in the training process (num_workers=0); its producers are the parallelism.
@@ -183,7 +186,8 @@ class ReservoirStream(IterableDataset):
                  max_reuse: float = 4.0, warmup: int | None = None, eviction: str = "fifo", draw: str = "uniform",
                  solve_batch: int = 16, mode: str = "async", producer: str = "thread", workers: int = 1,
                  scheduler: str | None = None, inflight: int | None = None, proposal: str = "uniform",
-                 proposal_kwargs: dict | None = None, sim_budget: int | None = None, **view_kwargs):
+                 proposal_kwargs: dict | None = None, sim_budget: int | None = None, target_reuse: float | None = None,
+                 **view_kwargs):
         self.pde = _bridge.resolve_pde(pde)
         if view_kwargs and not isinstance(view, str):
             raise ValueError(f"view options {sorted(view_kwargs)} only go with a view name, not a view object")
@@ -215,6 +219,12 @@ class ReservoirStream(IterableDataset):
         self.n_windows = self.view.n_starts(n_frames) if hasattr(self.view, "n_starts") else 1
         self.per_trajectory = len(self.view.starts(n_frames, torch.Generator().manual_seed(0)))
         self.cap_uses = max(1, round(self.max_reuse * self.per_trajectory))
+        if target_reuse is not None and (isinstance(target_reuse, bool) or not isinstance(target_reuse, (int, float))
+                                         or not 1 <= target_reuse <= self.max_reuse):
+            raise ValueError(f"target_reuse={target_reuse!r} not allowed; must be a number in [1, max_reuse={max_reuse}]")
+        self.target_reuse = None if target_reuse is None else float(target_reuse)
+        # draws that pay for one solve batch: the deterministic schedule's step, and async mode's solver pacing
+        self.uses_per_solve = self.cap_uses if target_reuse is None else max(1, round(target_reuse * self.per_trajectory))
         self.config = self.pde.config()
         need = self.capacity * n_frames * len(self.pde.FIELDS) * self.pde.n ** self.pde.NDIM * 4
         have = _physical_memory()
@@ -259,12 +269,20 @@ class ReservoirStream(IterableDataset):
     def _fill_pipeline(self) -> None:
         while len(self.pending) + len(self.done) < self.max_inflight:
             budget = self.solve_batch if self.sim_budget is None else min(self.solve_batch, self.sim_budget - self.next_index)
-            if budget <= 0:
+            if budget <= 0 or self._paced():
                 return
             indices = np.arange(self.next_index, self.next_index + budget, dtype=np.int64)
             params = self.proposal.propose(budget)
             self.next_index += budget
             self.pending.append((indices, params, self._submit(indices, params)))
+
+    def _paced(self) -> bool:
+        """Async mode with target_reuse: hold the next solve until the draws so far have paid for the solves
+        submitted (one batch ahead), so a solver faster than that leaves its core to training."""
+        if self.mode != "async" or self.target_reuse is None or not len(self.res.eligible()):
+            return False  # (nothing drawable: the loop is waiting, so solve regardless)
+        paid = self.warmup + self.res.drawn / self.uses_per_solve
+        return self.next_index >= paid + self.solve_batch
 
     def _insert(self, indices: np.ndarray, result: dict) -> None:
         n = len(indices)
@@ -301,13 +319,13 @@ class ReservoirStream(IterableDataset):
 
     # --- drawing -----------------------------------------------------------------------------------
     def _want_insert(self) -> bool:
-        """Deterministic schedule: warm-up, then one solve batch per solve_batch x cap_uses draws, or when stuck."""
+        """Deterministic schedule: warm-up, then one solve batch per solve_batch x uses_per_solve draws, or when stuck."""
         res = self.res
         if not self.pending or res.room() < len(self.pending[0][0]):
             return False
         if res.inserted < self.warmup:
             return True
-        return self.drawn_since_insert >= self.solve_batch * self.cap_uses or not len(res.eligible())
+        return self.drawn_since_insert >= self.solve_batch * self.uses_per_solve or not len(res.eligible())
 
     def _draw(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Up to k examples (slots, starts), waiting for solves as needed; empty when the budget is spent."""
@@ -319,7 +337,7 @@ class ReservoirStream(IterableDataset):
                     self._take_oldest()
                 if res.inserted >= ready:
                     # never draw past the next scheduled insertion: the schedule fixes the sequence
-                    until = self.solve_batch * self.cap_uses - self.drawn_since_insert
+                    until = self.solve_batch * self.uses_per_solve - self.drawn_since_insert
                     slots, starts = res.draw(min(k, until) if self.pending and until > 0 else k)
                     if len(slots):
                         self.drawn_since_insert += len(slots)

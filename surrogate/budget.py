@@ -70,6 +70,7 @@ class BudgetConfig:
     precompute_share: float = 0.5  # budget_s: the precomputed arm's share of the budget spent solving
     capacity: int = 512
     max_reuse: float = 16.0
+    target_reuse: float | None = None  # time budget: pace the reservoirs' solver (None: solve flat out)
     reservoir_mode: str = "async"
     proposal_floor: float = 0.25
     solve_batch: int = 16
@@ -175,6 +176,7 @@ def _loader(arm: str, pde, view, cfg: BudgetConfig, seed: int, out: Path, clock_
         # than an untrained model's, and the run is reproducible
         max_reuse=reuse, solve_batch=cfg.solve_batch, sim_budget=cfg.sim_budget,
         mode="deterministic" if cfg.sim_budget is not None else cfg.reservoir_mode,
+        target_reuse=None if cfg.sim_budget is not None else cfg.target_reuse,
         warmup=min(max(cfg.solve_batch, cfg.batch_size), cfg.capacity),
         proposal="loss" if arm == "reservoir_loss" else "uniform", proposal_kwargs={"floor": cfg.proposal_floor})
     return DataLoader(stream, batch_size=None), {}

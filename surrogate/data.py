@@ -12,10 +12,10 @@ from torch.utils.data import DataLoader, Sampler
 
 import datasets
 
-TEST_SEED_OFFSET = 1_000_003
+TEST_SEED_OFFSET = 1_000_003  # test seeds never coincide with a training seed below this offset
 # data_cfg {"kind": "reservoir", ...}: the ReservoirStream keyword arguments a run may set
 RESERVOIR_SETTINGS = {"capacity", "max_reuse", "warmup", "eviction", "draw", "solve_batch", "mode", "producer",
-                      "workers", "scheduler", "inflight", "proposal", "proposal_kwargs", "sim_budget"}  # test seeds never coincide with a training seed below this offset
+                      "workers", "scheduler", "inflight", "proposal", "proposal_kwargs", "sim_budget", "target_reuse"}
 
 
 def check_cache_matches(cached, pde, explicit: dict | None = None) -> None:

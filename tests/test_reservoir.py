@@ -233,3 +233,23 @@ def test_cli_reservoir_settings_are_checked(capsys, tmp_path):
     assert cli.main(["train", "burgers1d", "--reservoir", "--max-reuse", "0", "--out", str(out)]) == 2
     assert "max_reuse=0.0 not allowed; must be a finite number >= 1" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_target_reuse_paces_a_fast_solver():
+    paced = stream(mode="async", max_reuse=8, capacity=32, warmup=8, target_reuse=4)
+    take(paced, 40)
+    # 40 batches x 4 examples = 160 uses pay for 160 / 4 = 40 trajectories (+ the warm-up, one batch ahead)
+    assert paced.res.inserted <= 8 + 160 / 4 + 2 * 4
+    # the rule itself: hold the next solve until the draws have paid for the ones submitted
+    s = stream(mode="async", max_reuse=8, capacity=32, warmup=8, target_reuse=4)
+    s.res.insert(torch.zeros(8, 4, 1, 32), torch.zeros(8, 1), np.arange(8))
+    s.next_index = 8 + 4 + 4  # warm-up, one batch paid for by 16 uses, one batch ahead
+    s.res.drawn = 16  # the second batch is not paid for yet (4 uses per trajectory)
+    assert s._paced()
+    s.res.drawn = 17
+    assert not s._paced()
+    s.res.uses[:] = 8  # nothing drawable: never hold the solver back
+    s.res.drawn = 0
+    assert not s._paced()
+    with pytest.raises(ValueError, match=r"target_reuse=9 not allowed; must be a number in \[1, max_reuse=8\]"):
+        stream(max_reuse=8, target_reuse=9)
