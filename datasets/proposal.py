@@ -5,9 +5,10 @@ equal-width bins per option). In ``"loss"`` mode it keeps the last ``window`` pe
 reported by the training loop (``record``) and proposes (``propose``) a mixture:
 
 - with probability ``floor``, a uniform draw over the box (no region ever starves);
-- otherwise a recent training sample picked with probability proportional to ``loss ** power``, moved by a
-  Gaussian kernel of width ``bandwidth`` (unit-box units) and reflected back into the box: a draw from a
-  loss-weighted kernel density estimate of where the surrogate errs.
+- otherwise a recent training sample picked with probability proportional to ``loss ** power`` divided by how
+  crowded its neighbourhood is among the recent samples, moved by a Gaussian kernel of width ``bandwidth``
+  (unit-box units) and reflected back into the box: a draw whose density follows the recent loss over the box
+  (not loss x where earlier proposals went, which would pile every solve into one corner).
 
 Everything is numpy and seeded: the sequence of proposals is a pure function of (seed, the losses recorded
 and the order of calls), so a deterministic reservoir stays deterministic. ``state_dict`` captures it all.
@@ -106,7 +107,10 @@ class ParamProposal:
         z = self.rng.random((n, d))  # the uniform part
         steer = self.rng.random(n) >= self.floor
         if steer.any() and len(self.losses):
-            w = np.maximum(self.losses, 0.0) ** self.power
+            # The recorded points were drawn from earlier proposals, so they crowd where the loss was high; weighting
+            # them by loss alone would compound that (loss x crowding) and pile every solve into one corner. Divide
+            # by the points' own kernel density so that the steered draws follow the loss, not the crowding.
+            w = np.maximum(self.losses, 0.0) ** self.power / self._crowding()
             w = w / w.sum() if w.sum() > 0 else np.full(len(w), 1.0 / len(w))
             pick = self.rng.choice(len(w), size=int(steer.sum()), p=w)
             moved = self.points[pick] + self.bandwidth * self.rng.standard_normal((len(pick), d))
@@ -115,6 +119,13 @@ class ParamProposal:
             z[steer] = np.clip(moved, 0.0, 1.0)
         self.proposed.extend(z.tolist())
         return self.from_unit(z)
+
+    def _crowding(self) -> np.ndarray:
+        """Kernel density of the recorded points at each of them [W] (Gaussian, width ``bandwidth``), estimated
+        against an evenly spaced subset of at most 256 of them (O(256 W D): a few ms per proposal)."""
+        ref = self.points[:: max(1, len(self.points) // 256)]
+        diff = self.points[:, None, :] - ref[None, :, :]  # [W, R, D]
+        return np.exp(-0.5 * (diff**2).sum(-1) / self.bandwidth**2).mean(1)
 
     def density(self, bins: int = 20) -> dict:
         """For plots and reports, along the first random parameter: bin edges (unit box), proposal counts

@@ -253,3 +253,12 @@ def test_target_reuse_paces_a_fast_solver():
     assert not s._paced()
     with pytest.raises(ValueError, match=r"target_reuse=9 not allowed; must be a number in \[1, max_reuse=8\]"):
         stream(max_reuse=8, target_reuse=9)
+
+
+def test_proposal_follows_the_loss_not_where_earlier_proposals_crowded():
+    prop = ParamProposal({"nu": ("uniform", 0.0, 1.0, ())}, mode="loss", floor=0.25, seed=1)
+    rng = np.random.default_rng(1)
+    z = np.concatenate([rng.uniform(0.9, 1.0, 1500), rng.uniform(0.0, 1.0, 548)])  # earlier solves crowd the top
+    prop.record(z[:, None], np.where(z > 0.9, 2.0, 1.0))  # the loss there is only twice as high
+    share = (prop.propose(4000)["nu"] > 0.9).mean()
+    assert 0.1 < share < 0.3  # ~0.16 follows the loss; weighting by loss alone would give ~0.65
