@@ -382,6 +382,9 @@ def add_compare(sub) -> None:
     b.add_argument("--arms", default=",".join(BUDGET_ARMS), help="comma-separated subset of the arms")
     b.add_argument("--precompute-share", type=float, default=0.5,
                    help="--budget: share of the precomputed arm's time spent solving its dataset")
+    b.add_argument("--sim-warmup-share", type=float, default=0.5,
+                   help="--sim-budget: share of a reservoir arm's solves made before training starts (the rest are "
+                        "paced over the run and, for reservoir_loss, steered)")
     b.add_argument("--quick", action="store_true",
                    help="a small scale for tests and a first look (n=64, 11 frames, small FNO, 20 s per arm)")
     _add_model_args(p, steps=1000, batch_size=32, lr=3e-3)
@@ -462,6 +465,7 @@ def _budget_compare(args: argparse.Namespace) -> None:
                        model_cfg=model_cfg, view=_view_from_args(args, "operator"), batch_size=args.batch_size,
                        lr=args.lr, steps=args.steps, precompute_share=args.precompute_share, capacity=args.capacity,
                        max_reuse=args.max_reuse, target_reuse=args.target_reuse, reservoir_mode=args.reservoir_mode,
+                       sim_warmup_share=args.sim_warmup_share,
                        proposal_floor=args.proposal_floor, solve_batch=args.solve_batch,
                        n_test=32 if args.quick and args.test_samples == 128 else args.test_samples, shift=args.shift,
                        seeds=1 if args.seeds is None else args.seeds)

@@ -15,8 +15,8 @@ Two budgets:
   solving (N from the solver rate it measures on its first block, which counts too).
 - ``sim_budget`` (solved trajectories per arm): every arm gets the same N trajectories and ``steps`` optimizer
   steps (the FIFO stream runs out after N trajectories' examples: it trains fewer steps, as it would). The
-  reservoir arms run in deterministic mode there: their solves are paced over the training run, so the
-  loss-driven proposals follow the model as it learns.
+  reservoir arms run in deterministic mode there: ``sim_warmup_share`` of the solves (uniform) before the first
+  step, the rest paced over the training run, so the loss-driven proposals follow the model as it learns.
 
 Test sets are stratified over the parameter box (a Latin hypercube in the unit box: linear for uniform, log for
 loguniform), with ICs from a held-out seed, plus the shifted domain. Errors are per trajectory (relative L2 of
@@ -71,6 +71,7 @@ class BudgetConfig:
     capacity: int = 512
     max_reuse: float = 16.0
     target_reuse: float | None = None  # time budget: pace the reservoirs' solver (None: solve flat out)
+    sim_warmup_share: float = 0.5  # sim budget: share of the solves a reservoir arm makes before training starts
     reservoir_mode: str = "async"
     proposal_floor: float = 0.25
     solve_batch: int = 16
@@ -91,6 +92,8 @@ class BudgetConfig:
         unknown = [a for a in self.arms if a not in ARMS]
         if unknown or not self.arms:
             raise ValueError(f"arms {list(self.arms)} not allowed; choose from {', '.join(ARMS)}")
+        if not 0 <= self.sim_warmup_share <= 1:
+            raise ValueError(f"sim warm-up share={self.sim_warmup_share} not allowed; must be in [0, 1]")
         if not 0 < self.precompute_share < 1:
             raise ValueError(f"precompute share={self.precompute_share} not allowed; must be in (0, 1)")
         if self.steps < 1 or self.n_test < 1 or self.snapshots < 1 or self.seeds < 1:
@@ -177,9 +180,18 @@ def _loader(arm: str, pde, view, cfg: BudgetConfig, seed: int, out: Path, clock_
         max_reuse=reuse, solve_batch=cfg.solve_batch, sim_budget=cfg.sim_budget,
         mode="deterministic" if cfg.sim_budget is not None else cfg.reservoir_mode,
         target_reuse=None if cfg.sim_budget is not None else cfg.target_reuse,
-        warmup=min(max(cfg.solve_batch, cfg.batch_size), cfg.capacity),
+        warmup=min(_warmup(cfg), cfg.capacity),
         proposal="loss" if arm == "reservoir_loss" else "uniform", proposal_kwargs={"floor": cfg.proposal_floor})
     return DataLoader(stream, batch_size=None), {}
+
+
+def _warmup(cfg: BudgetConfig) -> int:
+    """Trajectories a reservoir arm holds before its first batch: at a simulation budget, ``sim_warmup_share`` of
+    it, solved up front (uniformly), the rest paced over the run; at a time budget, one batch's worth."""
+    first = max(cfg.solve_batch, cfg.batch_size)
+    if cfg.sim_budget is None:
+        return first
+    return max(first, int(cfg.sim_warmup_share * cfg.sim_budget))
 
 
 def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=print, seed: int = 0) -> dict:
