@@ -52,6 +52,7 @@ class ParamProposal:
         self.losses = np.zeros(0)  # their losses [W]
         self.proposed = []  # every proposed unit point (for the plot), list of [D] lists
         self.reports = 0
+        self._w, self._w_at = None, 0  # pick probabilities of the recorded points, as of self._w_at reports
 
     # --- unit box <-> parameter values -------------------------------------------------------------
     def to_unit(self, values: np.ndarray) -> np.ndarray:
@@ -110,8 +111,7 @@ class ParamProposal:
             # The recorded points were drawn from earlier proposals, so they crowd where the loss was high; weighting
             # them by loss alone would compound that (loss x crowding) and pile every solve into one corner. Divide
             # by the points' own kernel density so that the steered draws follow the loss, not the crowding.
-            w = np.maximum(self.losses, 0.0) ** self.power / self._crowding()
-            w = w / w.sum() if w.sum() > 0 else np.full(len(w), 1.0 / len(w))
+            w = self._weights()
             pick = self.rng.choice(len(w), size=int(steer.sum()), p=w)
             moved = self.points[pick] + self.bandwidth * self.rng.standard_normal((len(pick), d))
             moved = np.abs(moved)  # reflect at 0 ...
@@ -119,6 +119,15 @@ class ParamProposal:
             z[steer] = np.clip(moved, 0.0, 1.0)
         self.proposed.extend(z.tolist())
         return self.from_unit(z)
+
+    def _weights(self) -> np.ndarray:
+        """Pick probabilities of the recorded points [W]; recomputed once ``window // 8`` new losses have come
+        in (the O(256 W) density would otherwise cost a cheap solver's loop a quarter of its time)."""
+        if self._w is None or len(self._w) != len(self.losses) or self.reports - self._w_at >= max(1, self.window // 8):
+            w = np.maximum(self.losses, 0.0) ** self.power / self._crowding()
+            self._w = w / w.sum() if w.sum() > 0 else np.full(len(w), 1.0 / len(w))
+            self._w_at = self.reports
+        return self._w
 
     def _crowding(self) -> np.ndarray:
         """Kernel density of the recorded points at each of them [W] (Gaussian, width ``bandwidth``), estimated
@@ -145,7 +154,8 @@ class ParamProposal:
     def state_dict(self) -> dict:
         """Everything the next proposals depend on (plain values; loads with torch.load(weights_only=True))."""
         return {"mode": self.mode, "rng": _plain(self.rng.bit_generator.state), "points": self.points.tolist(),
-                "losses": self.losses.tolist(), "proposed": list(self.proposed), "reports": self.reports}
+                "losses": self.losses.tolist(), "proposed": list(self.proposed), "reports": self.reports,
+                "weights": None if self._w is None else self._w.tolist(), "weights_at": self._w_at}
 
     def load_state_dict(self, state: dict) -> None:
         """Restore ``state_dict()`` output (the same domains and mode are required)."""
@@ -156,6 +166,8 @@ class ParamProposal:
         self.losses = np.asarray(state["losses"], np.float64)
         self.proposed = [list(p) for p in state["proposed"]]
         self.reports = int(state["reports"])
+        self._w = None if state.get("weights") is None else np.asarray(state["weights"], np.float64)
+        self._w_at = int(state.get("weights_at", 0))
 
 
 def _plain(state):
