@@ -121,9 +121,9 @@ class ParamProposal:
         return self.from_unit(z)
 
     def _weights(self) -> np.ndarray:
-        """Pick probabilities of the recorded points [W]; recomputed once ``window // 8`` new losses have come
-        in (the O(256 W) density would otherwise cost a cheap solver's loop a quarter of its time)."""
-        if self._w is None or len(self._w) != len(self.losses) or self.reports - self._w_at >= max(1, self.window // 8):
+        """Pick probabilities of the recorded points [W]; recomputed once ``window // 2`` new losses have come
+        in (the O(128 W) density would otherwise cost a cheap solver's loop a sixth of its time)."""
+        if self._w is None or len(self._w) != len(self.losses) or self.reports - self._w_at >= max(1, self.window // 2):
             w = np.maximum(self.losses, 0.0) ** self.power / self._crowding()
             self._w = w / w.sum() if w.sum() > 0 else np.full(len(w), 1.0 / len(w))
             self._w_at = self.reports
@@ -131,8 +131,8 @@ class ParamProposal:
 
     def _crowding(self) -> np.ndarray:
         """Kernel density of the recorded points at each of them [W] (Gaussian, width ``bandwidth``), estimated
-        against an evenly spaced subset of at most 256 of them (O(256 W D): a few ms per proposal)."""
-        ref = self.points[:: max(1, len(self.points) // 256)]
+        against an evenly spaced subset of at most 128 of them (O(128 W D): a few ms)."""
+        ref = self.points[:: max(1, len(self.points) // 128)]
         diff = self.points[:, None, :] - ref[None, :, :]  # [W, R, D]
         return np.exp(-0.5 * (diff**2).sum(-1) / self.bandwidth**2).mean(1)
 
