@@ -241,7 +241,7 @@ class FakeSource(IterableDataset):
 
     def stats(self) -> dict:
         self.stats_calls += 1
-        return {"wait_share": 0.25, "mean_uses": float(self.stats_calls), "inserted": 7}
+        return {"wait_share": 0.25, "reuse_mean": float(self.stats_calls), "inserted": 7}
 
 
 def test_report_losses_and_stats_hooks(tmp_path):
@@ -265,13 +265,13 @@ def test_report_losses_and_stats_hooks(tmp_path):
     torch.testing.assert_close(relative_errors(torch.zeros(2, 3), torch.ones(2, 3)), torch.ones(2, dtype=torch.float64))
     # stats: one call per logged row, their items in each row, the last ones in the summary
     rows = read_csv(tmp_path / "metrics.csv")
-    assert source.stats_calls == 3 and [r["mean_uses"] for r in rows] == ["1.0", "2.0", "3.0"]
+    assert source.stats_calls == 3 and [r["reuse_mean"] for r in rows] == ["1.0", "2.0", "3.0"]
     assert all(r["wait_share"] == "0.25" and r["inserted"] == "7" for r in rows) and rows[0]["loss"]
-    expected_stats = {"wait_share": 0.25, "mean_uses": 3.0, "inserted": 7}
+    expected_stats = {"wait_share": 0.25, "reuse_mean": 3.0, "inserted": 7}
     assert summary["data_stats"] == expected_stats
     assert json.loads((tmp_path / "metrics.json").read_text())["data_stats"] == expected_stats
     assert load(tmp_path / "checkpoint.pt")["counters"]["data_stats"] == expected_stats
-    assert list(_postfix(0.5, expected_stats)) == ["loss", "wait_share", "mean_uses"]
+    assert list(_postfix(0.5, expected_stats)) == ["loss", "wait_share", "reuse_mean"]
 
 
 def test_a_source_without_hooks_still_trains_and_checkpoints(tmp_path):
@@ -280,6 +280,6 @@ def test_a_source_without_hooks_still_trains_and_checkpoints(tmp_path):
 
     model = build_model("fno", 1, 1, 1, 1, width=8, modes=4, layers=2)
     summary = train(model, DataLoader(Plain(), batch_size=None), 4, tmp_path, log_every=2, checkpoint_every=2)
-    assert "data_stats" not in summary and "mean_uses" not in read_csv(tmp_path / "metrics.csv")[0]
+    assert "data_stats" not in summary and "reuse_mean" not in read_csv(tmp_path / "metrics.csv")[0]
     ckpt = load(tmp_path / "checkpoint.pt")
     assert ckpt["step"] == 4 and ckpt["data"] is None  # a plain IterableDataset has no state to save
