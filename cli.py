@@ -357,7 +357,12 @@ def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
     t = s["test"]["test"]
     print(f"test ({n_test} held-out trajectories): rel L2 {t['rel_l2']:.4f}, nRMSE {t['nrmse']:.4f}"
           + (f", rollout rel L2 at the last frame {t['rollout_final']:.4f}" if "rollout_final" in t else ""))
-    print(f"run: {out}/metrics.csv, metrics.json, model.pt, checkpoint.pt")
+    if "data_stats" in s and "reuse_mean" in s["data_stats"]:
+        d = s["data_stats"]
+        print(f"reservoir: {d['inserted']} trajectories solved, {d['evicted']} evicted, reuse mean {d['reuse_mean']:.2f} "
+              f"(max {d['reuse_max']:.2f}), loop waiting {100 * d['wait_share']:.1f}%")
+    extra = ", reservoir.json, reservoir.png" if "data_stats" in s and "reuse_mean" in s["data_stats"] else ""
+    print(f"run: {out}/metrics.csv, metrics.json, model.pt, checkpoint.pt{extra}")
 
 
 def add_compare(sub) -> None:
