@@ -100,7 +100,9 @@ class Reservoir:
         self.window_uses = np.zeros((capacity, n_windows), np.int64)
         self.serial = np.full(capacity, -1, np.int64)
         self.next_serial = self.inserted = self.evicted = self.drawn = 0
-        self.evicted_uses: list[int] = []  # use counts of evicted trajectories (reuse histogram)
+        # evicted trajectories by use count (index: uses): a fixed-size histogram, so neither memory nor the
+        # checkpoint grows with the length of the run
+        self.evicted_counts = np.zeros(cap_uses + 1, np.int64)
 
     def live(self) -> np.ndarray:
         return np.flatnonzero(self.serial >= 0)
@@ -128,7 +130,7 @@ class Reservoir:
                 if not len(used):
                     raise RuntimeError("reservoir full of unused trajectories (insert without room(): a bug)")
                 slot = int(used[self.serial[used].argmin()] if self.eviction == "fifo" else self.rng.choice(used))
-                self.evicted_uses.append(int(self.uses[slot]))
+                self.evicted_counts[self.uses[slot]] += 1
                 self.evicted += 1
                 evicted += 1
             self.u[slot], self.params[slot] = u[b], params[b]
@@ -159,10 +161,14 @@ class Reservoir:
         self.drawn += m
         return slots, starts
 
+    def use_counts(self) -> np.ndarray:
+        """Trajectories inserted so far (evicted and held) by use count: int64 [cap_uses + 1]."""
+        return self.evicted_counts + np.bincount(self.uses[self.live()], minlength=self.cap_uses + 1)
+
     def reuse(self, per_trajectory: int) -> np.ndarray:
-        """Uses / per_trajectory of every trajectory inserted so far (evicted and held), float64."""
-        held = self.uses[self.live()]
-        return np.concatenate([np.asarray(self.evicted_uses, np.float64), held.astype(np.float64)]) / per_trajectory
+        """Uses / per_trajectory of every trajectory inserted so far (evicted and held), float64 [inserted]."""
+        counts = self.use_counts()
+        return np.repeat(np.arange(len(counts), dtype=np.float64), counts) / per_trajectory
 
 
 class ReservoirStream(IterableDataset):
@@ -391,11 +397,12 @@ class ReservoirStream(IterableDataset):
     def stats(self) -> dict:
         """Reservoir figures for metrics.csv and the progress bar (flat dict of numbers)."""
         res = self.res
-        reuse = res.reuse(self.per_trajectory)
+        counts = res.use_counts()  # [cap_uses + 1]: reuse statistics without listing every trajectory
+        total, used = int(counts.sum()), np.flatnonzero(counts)
         elapsed = max(self._elapsed(), 1e-9)
         return {"inserted": res.inserted, "evicted": res.evicted, "held": len(res.live()),
-                "reuse_mean": float(reuse.mean()) if len(reuse) else 0.0,
-                "reuse_max": float(reuse.max()) if len(reuse) else 0.0,
+                "reuse_mean": float(counts @ np.arange(len(counts))) / total / self.per_trajectory if total else 0.0,
+                "reuse_max": float(used[-1]) / self.per_trajectory if total else 0.0,
                 "solver_traj_per_s": res.inserted / elapsed, "examples_per_s": res.drawn / elapsed,
                 "wait_share": self.t_wait / elapsed}
 
@@ -427,7 +434,7 @@ class ReservoirStream(IterableDataset):
             "counters": {"next_serial": res.next_serial, "inserted": res.inserted, "evicted": res.evicted,
                          "drawn": res.drawn, "next_index": self.next_index,
                          "drawn_since_insert": self.drawn_since_insert, "batches": self.progress.consumed(0)},
-            "evicted_uses": list(res.evicted_uses),
+            "evicted_counts": res.evicted_counts.tolist(),
             "rng": _plain(res.rng.bit_generator.state),
             "jobs": [{"indices": i.tolist(), "params": None if p is None else {k: np.asarray(v).tolist() for k, v in p.items()}}
                      for i, p in jobs],
@@ -469,7 +476,7 @@ class ReservoirStream(IterableDataset):
         res.next_serial, res.inserted, res.evicted, res.drawn = c["next_serial"], c["inserted"], c["evicted"], c["drawn"]
         self.next_index, self.drawn_since_insert = c["next_index"], c["drawn_since_insert"]
         self.progress.restore(0, [c["batches"]])
-        res.evicted_uses = list(state["evicted_uses"])
+        res.evicted_counts = np.asarray(state["evicted_counts"], np.int64)
         res.rng.bit_generator.state = state["rng"]
         for job in state["jobs"]:
             params = None if job["params"] is None else {k: np.asarray(v, np.float64) for k, v in job["params"].items()}

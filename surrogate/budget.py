@@ -49,7 +49,7 @@ from .evaluate import pairs, rollout
 from .metrics import rel_l2
 from .models import build_model
 from .runs import model_channels
-from .train import relative_errors, source_normalization, stack_frames
+from .train import predict, relative_errors, source_normalization, stack_frames
 
 ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")
 
@@ -132,8 +132,7 @@ def per_trajectory_errors(model, norm, view, test: list[dict]) -> np.ndarray:
             errs.append(rel_l2(norm.denormalize(pred), u[:, k:]))
         else:
             p = pairs(view, batch)
-            out = model(stack_frames(norm.normalize(p["x"]), model.ndim), norm.normalize_params(p["params"]))
-            errs.append(rel_l2(norm.denormalize(out.reshape(p["y"].shape)), p["y"]))
+            errs.append(rel_l2(predict(model, norm, p["x"], p["params"], model.ndim, p["y"].shape), p["y"]))
     model.train()
     return torch.cat(errs).numpy()
 
@@ -247,8 +246,8 @@ def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=
     if hasattr(dataset, "close"):
         dataset.close()
     solved = extra.get("trajectories_solved", stats.get("inserted"))
-    if solved is None and hasattr(dataset, "state_dict"):  # the FIFO stream: how far it got
-        solved = min(examples // max(1, dataset.per_trajectory), cfg.sim_budget or 10**12)
+    if solved is None:  # the FIFO stream uses each solve once: its examples tell how many it took
+        solved = examples // max(1, dataset.per_trajectory)
     curve = []
     for t, s, state in snapshots:
         model.load_state_dict(state)
