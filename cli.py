@@ -200,6 +200,9 @@ def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr:
     p.add_argument("--threads", type=int, default=None,
                    help="torch CPU threads (default: train --source stream: all cores but one, so the stream's "
                         "solver thread keeps a core; train on a cache: torch's default; compare: 1)")
+    p.add_argument("--device", default="cpu",
+                   help="where the model trains: cpu, cuda or cuda:N (the stream's JAX solver uses the GPU when "
+                        "JAX's CUDA build is installed, and hands batches to torch there without a host copy)")
 
 
 def _add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
@@ -328,7 +331,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
                   view=_view_from_args(args, "next_step"), steps=args.steps, batch_size=args.batch_size, lr=args.lr,
                   seed=args.seed, n_test=args.test_samples, explicit=settings_from_args(args.pde, args)[1],
-                  checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args))
+                  checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args), device=args.device)
     _print_run(s, args.model, args.source, args.test_samples, args.out)
 
 
@@ -444,7 +447,7 @@ def cmd_compare(args: argparse.Namespace) -> None:
     cfg = CompareConfig(model=args.model, model_cfg=model_cfg, view=_view_from_args(args, "operator"),
                         steps=args.steps, batch_size=args.batch_size, lr=args.lr, cache_samples=args.cache_samples,
                         seeds=tuple(range(args.seeds)), n_test=args.test_samples, shift=args.shift,
-                        cache_format=args.format)
+                        cache_format=args.format, device=args.device)
     compare(pde, args.out, cfg, shift_overrides=_parse_sets(args.shift_set))
     print((Path(args.out) / "compare.md").read_text(), end="")
     print(f"table: {args.out}/compare.md, compare.csv; figure: {args.out}/compare.png")
@@ -473,7 +476,7 @@ def _budget_compare(args: argparse.Namespace) -> None:
                        sim_warmup_share=args.sim_warmup_share,
                        proposal_floor=args.proposal_floor, solve_batch=args.solve_batch,
                        n_test=32 if args.quick and args.test_samples == 128 else args.test_samples, shift=args.shift,
-                       seeds=1 if args.seeds is None else args.seeds)
+                       seeds=1 if args.seeds is None else args.seeds, device=args.device)
     budget_compare(pde, args.out, cfg, shift_overrides=_parse_sets(args.shift_set))
     print((Path(args.out) / "compare.md").read_text(), end="")
     print(f"table: {args.out}/compare.md, compare.csv, compare.json; figure: {args.out}/compare.png")

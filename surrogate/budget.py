@@ -44,7 +44,7 @@ import datasets
 from datasets.proposal import ParamProposal
 
 from .compare import shifted_pde
-from .data import TEST_SEED_OFFSET, EpochBatchSampler
+from .data import TEST_SEED_OFFSET, EpochBatchSampler, check_device, model_device, to_device
 from .evaluate import pairs, rollout
 from .metrics import rel_l2
 from .models import build_model
@@ -78,6 +78,7 @@ class BudgetConfig:
     seeds: int = 1  # repetitions per arm: model and data seeds 0..seeds-1 (mean and spread in the table)
     n_test: int = 128
     shift: float = -0.25
+    device: str = "cpu"  # where the models train ("cuda": JAX solves on the GPU too when it sees one)
     snapshots: int = 8
 
     def check(self) -> None:
@@ -96,6 +97,7 @@ class BudgetConfig:
             raise ValueError(f"sim warm-up share={self.sim_warmup_share} not allowed; must be in [0, 1]")
         if not 0 < self.precompute_share < 1:
             raise ValueError(f"precompute share={self.precompute_share} not allowed; must be in (0, 1)")
+        check_device(self.device)
         if self.steps < 1 or self.n_test < 1 or self.snapshots < 1 or self.seeds < 1:
             raise ValueError("steps, seeds, test samples and snapshots must be >= 1")
 
@@ -125,6 +127,7 @@ def per_trajectory_errors(model, norm, view, test: list[dict]) -> np.ndarray:
     model.train(False)
     errs = []
     for batch in test:
+        batch = to_device(batch, model_device(model))
         if isinstance(view, datasets.NextStep):
             k = view.k_in
             u = batch["u"]  # [b, T, C, *space]
@@ -134,7 +137,7 @@ def per_trajectory_errors(model, norm, view, test: list[dict]) -> np.ndarray:
             p = pairs(view, batch)
             errs.append(rel_l2(predict(model, norm, p["x"], p["params"], model.ndim, p["y"].shape), p["y"]))
     model.train()
-    return torch.cat(errs).numpy()
+    return torch.cat(errs).cpu().numpy()
 
 
 def error_stats(errors: np.ndarray) -> dict:
@@ -203,7 +206,7 @@ def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=
     norm = source_normalization(loader)
     c_in, c_out = model_channels(pde, view)
     torch.manual_seed(seed)  # the same initial weights in every arm
-    model = build_model(cfg.model, pde.NDIM, c_in, c_out, len(pde.PARAMS), **cfg.model_cfg)
+    model = build_model(cfg.model, pde.NDIM, c_in, c_out, len(pde.PARAMS), **cfg.model_cfg).to(cfg.device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     report = getattr(dataset, "report_losses", None)
     snapshots, steps, examples, t_data, t_compute = [], 0, 0, 0.0, 0.0
@@ -226,6 +229,7 @@ def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=
                 break
             batches = iter(loader)
             continue
+        batch = to_device(batch, cfg.device)  # a copy to the GPU counts as waiting for data
         t1 = time.perf_counter()
         target = stack_frames(norm.normalize(batch["y"]), pde.NDIM)
         pred = model(stack_frames(norm.normalize(batch["x"]), pde.NDIM), norm.normalize_params(batch["params"]))

@@ -39,6 +39,7 @@ class CompareConfig:
     n_test: int = 128
     shift: float = -0.25  # shifted domain: 25% of the width (in log for loguniform) below the lower bound
     cache_format: str = "h5"
+    device: str = "cpu"  # where the models train (surrogate.runs.train_run)
 
 
 def shifted_pde(pde, frac: float = 0.25, overrides: dict | None = None):
@@ -93,7 +94,7 @@ def compare(pde, out_dir, cfg: CompareConfig = CompareConfig(), shift_overrides:
         for arm, source in (("cache", str(cache)), ("stream", "stream")):
             summary = train_run(pde, source, out / f"{arm}_seed{seed}", model=cfg.model, model_cfg=cfg.model_cfg,
                                 view=view, steps=cfg.steps, batch_size=cfg.batch_size, lr=cfg.lr, seed=seed,
-                                data_seed=0, tests=tests, label=f"{arm} seed {seed}")
+                                data_seed=0, tests=tests, label=f"{arm} seed {seed}", device=cfg.device)
             runs[arm].append(summary)
             log(f"{arm:6s} seed {seed}: test rel L2 {summary['test']['test']['rel_l2']:.4f}"
                 + (f", shifted {summary['test']['shifted']['rel_l2']:.4f}" if shifted else "")

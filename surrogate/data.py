@@ -18,6 +18,34 @@ RESERVOIR_SETTINGS = {"capacity", "max_reuse", "warmup", "eviction", "draw", "so
                       "workers", "scheduler", "inflight", "proposal", "proposal_kwargs", "sim_budget", "target_reuse"}
 
 
+def to_device(batch: dict, device: torch.device | str) -> dict:
+    """The batch's tensors on ``device`` (a stream whose solver runs on that GPU already delivers them there:
+    then nothing is copied); other entries unchanged."""
+    return {k: (v.to(device, non_blocking=True) if isinstance(v, torch.Tensor) else v) for k, v in batch.items()}
+
+
+def check_device(device: str) -> torch.device:
+    """torch.device for a --device value; one line when it is malformed or not there."""
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"--device={device!r} not allowed; use cpu, cuda or cuda:N") from None
+    if dev.type not in ("cpu", "cuda"):
+        raise ValueError(f"--device={device!r} not allowed; use cpu, cuda or cuda:N")
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError(f"--device={device}: torch sees no GPU here (a CPU-only torch build or no driver); "
+                             "use --device cpu")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ValueError(f"--device={device}: torch sees {torch.cuda.device_count()} GPU(s)")
+    return dev
+
+
+def model_device(model: torch.nn.Module) -> torch.device:
+    """Where the model's parameters live (the training loop moves batches there)."""
+    return next(model.parameters()).device
+
+
 def check_cache_matches(cached, pde, explicit: dict | None = None) -> None:
     """ValueError when the cache holds another PDE, or differs from settings the user set explicitly."""
     name = cached.config.get("pde")

@@ -14,6 +14,7 @@ from datasets.views import NextStep, Operator, collate, examples
 from .metrics import nrmse, rel_l2, summarize
 from datasets.normalize import Normalization
 
+from .data import model_device, to_device
 from .train import predict
 
 
@@ -37,7 +38,7 @@ def evaluate(model: nn.Module, norm: Normalization, test: list[dict], view, chun
     model.train(False)  # evaluation mode
     errors = {"rel_l2": [], "nrmse": []}
     for batch in test:
-        p = pairs(view, batch)
+        p = to_device(pairs(view, batch), model_device(model))
         for s in range(0, len(p["x"]), chunk):
             x, y, params = p["x"][s:s + chunk], p["y"][s:s + chunk], p["params"][s:s + chunk]
             pred = predict(model, norm, x, params, model.ndim, y.shape)  # [b, (k_out,) C, *space]
@@ -71,6 +72,7 @@ def rollout_error(model: nn.Module, norm: Normalization, test: list[dict], k_in:
     ndim = model.ndim
     per_frame = []
     for batch in test:
+        batch = to_device(batch, model_device(model))
         u = batch["u"]  # [B, T, C, *space]
         h = u.shape[1] - k_in if horizon is None else horizon
         if not 1 <= h <= u.shape[1] - k_in:
@@ -78,6 +80,6 @@ def rollout_error(model: nn.Module, norm: Normalization, test: list[dict], k_in:
         pred = rollout(model, norm, norm.normalize(u[:, :k_in]), norm.normalize_params(batch["params"]), h)
         pred = norm.denormalize(pred)  # [B, h, C, *space]
         truth = u[:, k_in:k_in + h]
-        per_frame.append(torch.stack([rel_l2(pred[:, j], truth[:, j]) for j in range(h)], dim=1))  # [B, h]
+        per_frame.append(torch.stack([rel_l2(pred[:, j], truth[:, j]) for j in range(h)], dim=1).cpu())  # [B, h]
     model.train()
     return torch.cat(per_frame).mean(0).tolist()

@@ -15,7 +15,7 @@ import torch
 import datasets
 
 from .budget_plot import plot_reservoir_run
-from .data import test_set, train_loader
+from .data import check_device, test_set, train_loader
 from .evaluate import evaluate, rollout_error
 from .models import build_model
 from .train import CHECKPOINT, atomic_write, check_train_settings, load_train_state, train
@@ -49,13 +49,15 @@ def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict 
               steps: int = 1000, batch_size: int = 32, lr: float = 1e-3, schedule: str = "cosine", seed: int = 0,
               data_seed: int | None = None, tests: dict[str, list[dict]] | None = None, n_test: int = 32,
               explicit: dict | None = None, label: str = "train", checkpoint_every: int = 100,
-              data_cfg: dict | None = None) -> dict:
+              data_cfg: dict | None = None, device: str = "cpu") -> dict:
     """Train ``model`` on ``source`` ("stream" or a cache path) for ``steps`` optimizer steps; evaluate.
 
     seed: model initialization and cache shuffling; data_seed: the stream's sample seed (default: seed).
     tests: named held-out sets (whole trajectories); default {"test": n_test trajectories of a held-out seed}
     (a resumed run rebuilds only the default). checkpoint_every: steps between checkpoints (0: only at the end).
     data_cfg: settings of the data source (a JSON-able dict), passed to ``surrogate.data.train_loader``.
+    device: where the model trains ("cpu", "cuda", "cuda:1"); a stream's JAX solver runs on the GPU when JAX
+    sees one, and hands its batches to torch there without a host copy.
     Writes run.json, checkpoint.pt, metrics.csv, model.pt and metrics.json (with the test errors) to out_dir;
     returns the summary.
     """
@@ -64,7 +66,7 @@ def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict 
                 "model_cfg": dict(model_cfg or {}), "view": view.name, "view_args": dict(vars(view)),
                 "steps": steps, "batch_size": batch_size, "lr": lr, "schedule": schedule, "seed": seed,
                 "data_seed": seed if data_seed is None else data_seed, "n_test": n_test,
-                "checkpoint_every": checkpoint_every, "data_cfg": data_cfg, "label": label}
+                "checkpoint_every": checkpoint_every, "data_cfg": data_cfg, "label": label, "device": device}
     return _run(pde, settings, Path(out_dir), tests=tests, explicit=explicit)
 
 
@@ -119,6 +121,7 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     c_in, c_out = model_channels(data_pde, view)
     torch.manual_seed(s["seed"])  # same initial weights for every source with the same seed
     net = build_model(s["model"], data_pde.NDIM, c_in, c_out, len(data_pde.PARAMS), **s["model_cfg"])
+    net.to(check_device(s.get("device", "cpu")))  # runs from before --device trained on the CPU
     if resume is None:
         s = {**s, "pde": data_pde.config()}  # the data's PDE: a cache's own settings
         try:

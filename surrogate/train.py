@@ -37,6 +37,7 @@ from tqdm import tqdm
 
 from datasets.normalize import Normalization
 
+from .data import model_device, to_device
 from .models import build_model, model_spec
 
 
@@ -185,7 +186,7 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
     check_train_settings(steps, lr, schedule, checkpoint_every)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    ndim = model.ndim
+    ndim, device = model.ndim, model_device(model)
     opt = torch.optim.Adam(model.parameters(), lr=lr)
     sched = make_schedule(opt, schedule, steps, lr)
     start = time.perf_counter()
@@ -210,7 +211,7 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
     model.train()
     for step in range(progress.step + 1, steps + 1):
         t0 = time.perf_counter()
-        batch = next(batches)
+        batch = to_device(next(batches), device)  # a copy to the GPU counts as waiting for data
         t1 = time.perf_counter()
         if normalizer is None:  # the data source offers none: calibrate on the first batch
             normalizer = Normalization.from_batch(batch, ndim)
