@@ -160,7 +160,7 @@ def _foreign(path: Path) -> str | None:
     if fmt == "zarr":  # files a user added inside our store would be lost with it
         attrs = json.loads((path / "zarr.json").read_text())["attributes"]
         variables = f"{attrs['pdestream_fields']} {attrs['pdestream_params']}".split()
-        known = {"zarr.json", "sample", "time", "x", "y", "redraws", "complete", *variables}
+        known = {"zarr.json", "sample", "time", *schema.SPACE, "redraws", "complete", *variables}
         extra = sorted(p.name for p in path.iterdir() if p.name not in known)
         if extra:
             return f"a pdestream cache with other files in it ({', '.join(extra[:3])}{', ...' if len(extra) > 3 else ''})"
@@ -271,7 +271,7 @@ def solve_block(pde, seed: int, lo: int, hi: int, block: int, on_blowup: str):
 def write_block(store, pde, lo: int, hi: int, u, params, redraws) -> None:
     """Write one block's data, then its ``complete`` flags (the flags vouch for data already written)."""
     for c, name in enumerate(pde.FIELDS):
-        store[name][lo:hi] = u[:, :, c]
+        store[name][lo:hi] = schema.to_disk(u[:, :, c], pde.NDIM)  # stored (z,) y, x: see datasets.schema
     for name, values in params.items():
         store[name][lo:hi] = values
     store["redraws"][lo:hi] = redraws
@@ -286,8 +286,8 @@ def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, 
                 block: int | None = None, on_blowup: str = "raise", progress: bool = True) -> WriteSummary:
     """Write samples 0..n_samples-1 of ``pde`` under ``seed`` to ``path`` (.h5/.hdf5 or .zarr).
 
-    Fields are float32 [sample, time, x(, y)] (schema in ``datasets.schema``). ``block`` samples are
-    solved per batch (default: ~32 MiB); ``resume`` finishes an interrupted cache of the same set-up
+    Fields are float32 [sample, time, (z,) (y,) x] on disk (schema and axis order in ``datasets.schema``).
+    ``block`` samples are solved per batch (default: ~32 MiB); ``resume`` finishes an interrupted cache of the same set-up
     (bit-identical to an uninterrupted run); ``overwrite`` replaces an existing pdestream cache (the new one
     is built beside it and swapped in only once complete). ``progress`` shows a tqdm bar when stderr is a
     terminal.
@@ -507,6 +507,12 @@ def open_cache(path, complete_only: bool = False):
     if missing:
         ds.close()
         raise ValueError(f"{path} is not a pdestream cache (missing {', '.join(missing)})")
+    stored = [f for f in str(ds.attrs["pdestream_fields"]).split() if f in ds.variables]
+    try:  # a schema-1 cache of 2D fields stored them (x, y): refused rather than read the wrong way round
+        schema.check_readable(path, ds.attrs, ds[stored[0]].dims if stored else ())
+    except ValueError:
+        ds.close()
+        raise
     if ds.sizes["sample"] != ds.attrs["pdestream_n_samples"]:
         ds.close()
         raise ValueError(f"{path} is damaged: {ds.sizes['sample']} samples stored, {ds.attrs['pdestream_n_samples']} expected")

@@ -55,6 +55,7 @@ class CachedTrajectories(torch.utils.data.Dataset):
                 raise self._damaged(bad)
             self.t = torch.from_numpy(ds["time"].values.astype(np.float32))
             nbytes = len(self.rows) * len(self.fields) * int(np.prod(ds[self.fields[0]].shape[1:])) * 4
+            self._ndim = schema.space_ndim(ds[self.fields[0]].dims)  # raw reads go through schema.from_disk
         finally:
             ds.close()
         n_frames = len(self.t)
@@ -108,11 +109,12 @@ class CachedTrajectories(torch.utils.data.Dataset):
         from .normalize import Moments
 
         store = self._open()
-        moments = Moments(len(store[self.fields[0]].shape) - 2)  # stored as [sample, time, *space]
+        moments = Moments(self._ndim)
         for s in range(0, len(self.rows), chunk):
             rows = self.rows[s:s + chunk]
             lo = int(rows[0])
-            u = np.stack([np.asarray(store[f][lo:int(rows[-1]) + 1])[rows - lo] for f in self.fields], axis=2)
+            u = np.stack([schema.from_disk(np.asarray(store[f][lo:int(rows[-1]) + 1])[rows - lo], self._ndim)
+                          for f in self.fields], axis=2)
             bad = np.flatnonzero(~np.isfinite(u.reshape(len(u), -1)).all(1))
             if len(bad):
                 raise self._damaged(s + bad)
@@ -131,7 +133,8 @@ class CachedTrajectories(torch.utils.data.Dataset):
         if self._memory is None or self._pid != os.getpid():
             store = self._open()
             try:
-                self._memory = np.stack([np.asarray(store[f][:])[self.rows] for f in self.fields], axis=2)
+                self._memory = np.stack([schema.from_disk(np.asarray(store[f][:])[self.rows], self._ndim)
+                                         for f in self.fields], axis=2)
             except Exception as err:  # a corrupted chunk anywhere: name the file (in_memory=False names the sample)
                 raise ValueError(f"{self.path}: cannot read its samples: {err}") from None
             bad = np.flatnonzero(~np.isfinite(self._memory.reshape(len(self._memory), -1)).all(1))
@@ -144,7 +147,8 @@ class CachedTrajectories(torch.utils.data.Dataset):
         """Frames lo:hi of readable sample j straight from the file: float32 [hi - lo, C, *space]."""
         store = self._open()
         try:
-            u = np.stack([np.asarray(store[f][int(self.rows[j]), lo:hi]) for f in self.fields], axis=1)
+            u = np.stack([schema.from_disk(np.asarray(store[f][int(self.rows[j]), lo:hi]), self._ndim)
+                          for f in self.fields], axis=1)
         except Exception as err:  # a corrupted chunk or a file changed under us: name the file and sample
             raise ValueError(f"{self.path}: cannot read sample {self.indices[j]}: {err}") from None
         if not np.isfinite(u).all():  # a deleted chunk reads as NaN

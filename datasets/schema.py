@@ -2,11 +2,18 @@
 
 Readable by plain xarray (``xr.open_dataset(path, engine="h5netcdf")``, ``xr.open_zarr(path)``)::
 
-    dims         sample (N), time (T), x (n)[, y (n)]
-    data vars    one per field of the PDE (PDE.FIELDS), float32 [sample, time, x(, y)]
-    coords       time [T] float32, x [n], y [n] float32 (cell-left points), sample [N] int64 (global index),
-                 one float32 [sample] per PDE parameter (units, long_name), redraws int8 [sample]
+    dims         sample (N), time (T), then space in plotting order: x (1D), y x (2D), z y x (3D)
+    data vars    one per field of the PDE (PDE.FIELDS), float32 [sample, time, (z,) (y,) x]
+    coords       time [T] float32, x [n], y [n], z [n] float32 (cell-left points), sample [N] int64 (global
+                 index), one float32 [sample] per PDE parameter (units, long_name), redraws int8 [sample]
                  (blow-up redraws used), complete int8 [sample] (1 once the sample is written)
+
+Axis order: the generator's arrays are [..., x, y(, z)] (u[i, j] = u(x_i, y_j)); a cache stores the space
+axes reversed, [..., (z,) y, x], because xarray (and matplotlib's imshow/pcolormesh) put the last dim on the
+horizontal axis: ``ds.vorticity.isel(sample=0, time=-1).plot()`` then shows x across, y up. The mapping lives
+here only: ``to_disk`` on write, ``from_disk`` on every raw read, so readers get the generator's tensors bit
+for bit. Schema 1 stored the generator's order; a schema-1 cache with 2+ space dims is refused
+(``check_readable``), a 1D one (same layout) is read.
     attributes   pde, equation, pdestream_config (full resolved config, JSON), pdestream_config_hash,
                  pdestream_fields, pdestream_params (names in PDE order, space-separated),
                  pdestream_seed, pdestream_n_samples, pdestream_block, pdestream_on_blowup,
@@ -31,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: space axes stored reversed ((y, x), (z, y, x)); 1: generator order
+SPACE = ("x", "y", "z")  # the generator's space axes, in its array order
 SUFFIXES = {".h5": "hdf5", ".hdf5": "hdf5", ".zarr": "zarr"}
 CONFIG_ATTR = "pdestream_config"
 CHUNK_BYTES = 256 * 2**10  # target Zarr chunk size (see chunk_samples)
@@ -61,22 +69,25 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
     """The layout of a cache of samples 0..n_samples-1 of ``pde`` under ``seed``."""
     from importlib.metadata import version
 
-    space = ("x", "y")[: pde.NDIM]
+    space = disk_space_dims(pde.NDIM)
     dims = {"sample": n_samples, "time": pde.n_frames, **{d: pde.n for d in space}}
+    # long_name and units are what xarray's plots print as axis and colourbar labels ("x [length]")
     coords = {
-        "sample": (("sample",), np.arange(n_samples, dtype=np.int64), {"long_name": "global sample index"}),
-        "time": (("time",), pde.times(), {"long_name": "time", "units": "1", "axis": "T"}),
+        "sample": (("sample",), np.arange(n_samples, dtype=np.int64), {"long_name": "sample index"}),
+        "time": (("time",), pde.times(), {"long_name": "t", "units": "time", "axis": "T"}),
     }
     for d in space:
-        coords[d] = ((d,), pde.grid.coords(), {"long_name": f"{d} (cell-left grid point)", "units": "1",
-                                               "axis": d.upper()})
-    per_sample = {name: ("float32", {"long_name": p.description, "units": p.units, "domain": str(getattr(pde, name))})
+        coords[d] = ((d,), pde.grid.coords(), {"long_name": d, "units": "length", "axis": d.upper(),
+                                               "comment": "cell-left grid points of a periodic domain"})
+    per_sample = {name: ("float32", {"long_name": p.description, "units": p.units,
+                                     "domain": str(getattr(pde, name))})
                   for name, p in pde.PARAMS.items()}
     per_sample["redraws"] = ("int8", {"long_name": "blow-up redraws used for this sample", "units": "1"})
     per_sample["complete"] = ("int8", {"long_name": "sample fully written", "flag_values": [0, 1],
                                        "flag_meanings": "missing written"})
     link = " ".join(per_sample)  # CF: the per-sample coordinates of every field
-    fields = {f: {"long_name": f"{f} ({pde.NAME})", "units": "1", "coordinates": link} for f in pde.FIELDS}
+    # fields: a name, no units (the PDE definitions do not declare them; "1" would claim dimensionless)
+    fields = {f: {"long_name": f, "coordinates": link} for f in pde.FIELDS}
     attrs = {
         "Conventions": "CF-1.10",
         "title": f"pdestream cache: {pde.NAME}, samples 0..{n_samples - 1}, seed {seed}",
@@ -96,6 +107,53 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
         "pdestream_complete": 0,
     }
     return Layout(dims, coords, per_sample, fields, ("sample", "time", *space), attrs)
+
+
+def disk_space_dims(ndim: int) -> tuple[str, ...]:
+    """The space dims of a cache, in stored order: ("x",), ("y", "x"), ("z", "y", "x")."""
+    if not 1 <= ndim <= len(SPACE):
+        raise ValueError(f"a cache holds 1 to {len(SPACE)} space dims, not {ndim}")
+    return SPACE[:ndim][::-1]
+
+
+def _reverse_space(a, ndim: int):
+    """``a`` with its last ``ndim`` axes in reverse order (a view; its own inverse)."""
+    if ndim < 2:
+        return a
+    lead = a.ndim - ndim
+    return a.transpose(*range(lead), *range(a.ndim - 1, lead - 1, -1))
+
+
+def to_disk(u: np.ndarray, ndim: int) -> np.ndarray:
+    """A field in the generator's order [..., x, y(, z)] -> the stored order [..., (z,) y, x] (a view)."""
+    return _reverse_space(u, ndim)
+
+
+def from_disk(a: np.ndarray, ndim: int) -> np.ndarray:
+    """A field read raw from a cache, [..., (z,) y, x] -> the generator's order [..., x, y(, z)] (a view).
+    ``ndim``: the space dims among the last axes of ``a`` (``space_ndim`` of the stored field's dims)."""
+    return _reverse_space(a, ndim)
+
+
+def space_ndim(dims) -> int:
+    """How many of ``dims`` (a stored field's dim names) are space dims."""
+    return sum(d in SPACE for d in dims)
+
+
+def check_readable(path, attrs, field_dims) -> None:
+    """ValueError (one line) for a cache whose stored axis order this version cannot read: a schema-1 cache
+    with 2+ space dims (its fields were stored (x, y)), or one from a newer schema."""
+    version = attrs.get("pdestream_schema")
+    version = int(version) if isinstance(version, (int, np.integer)) else version
+    if version == SCHEMA_VERSION or (version == 1 and space_ndim(field_dims) < 2):
+        return
+    if version == 1:
+        raise ValueError(f"{path} was written by an older pdestream (cache schema 1, fields stored as "
+                         f"({', '.join(field_dims)})); this version reads schema {SCHEMA_VERSION} (stored as "
+                         f"({', '.join(('sample', 'time', *disk_space_dims(space_ndim(field_dims))))})): "
+                         "regenerate it with `pdestream generate ... --overwrite`")
+    raise ValueError(f"{path} has cache schema {version!r}; this pdestream reads schema {SCHEMA_VERSION} "
+                     "(and schema 1 for 1D): regenerate it, or use the pdestream that wrote it")
 
 
 # --- HDF5 ------------------------------------------------------------------------------------------

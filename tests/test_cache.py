@@ -120,11 +120,11 @@ def test_two_dimensional_two_fields(tmp_path):
     path = tmp_path / "gs.zarr"
     datasets.write_cache(pde, path, 3, seed=1, progress=False)
     ds = xr.open_zarr(path)
-    assert list(ds.data_vars) == ["u", "v"] and ds["v"].dims == ("sample", "time", "x", "y")
+    assert list(ds.data_vars) == ["u", "v"] and ds["v"].dims == ("sample", "time", "y", "x")  # plots x across
     assert {"y", "F", "k", "Du", "Dv"} <= set(ds.coords)
     traj = generator.sample(pde, [2], 1)
     u = np.array(traj.u[0])  # [T, C=2, 16, 16]
-    np.testing.assert_array_equal(ds["v"].values[2], u[:, 1])
+    np.testing.assert_array_equal(ds["v"].values[2], u[:, 1].transpose(0, 2, 1))  # stored (y, x)
     loader = datasets.CachedTrajectories(path, view="operator")
     assert loader.param_names == ["F", "k", "Du", "Dv"]
     assert torch.equal(loader[2]["y"], torch.from_numpy(u[-1]))
