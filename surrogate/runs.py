@@ -18,6 +18,7 @@ from .budget_plot import plot_reservoir_run
 from .data import check_device, test_set, train_loader
 from .evaluate import evaluate, rollout_error
 from .models import build_model
+from .modes import OneStep, check_fits, make_mode, mode_test_errors, training_view
 from .train import CHECKPOINT, atomic_write, check_train_settings, load_train_state, train
 
 RUN_FILE = "run.json"
@@ -49,7 +50,7 @@ def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict 
               steps: int = 1000, batch_size: int = 32, lr: float = 1e-3, schedule: str = "cosine", seed: int = 0,
               data_seed: int | None = None, tests: dict[str, list[dict]] | None = None, n_test: int = 32,
               explicit: dict | None = None, label: str = "train", checkpoint_every: int = 100,
-              data_cfg: dict | None = None, device: str = "cpu") -> dict:
+              data_cfg: dict | None = None, device: str = "cpu", mode: dict | None = None) -> dict:
     """Train ``model`` on ``source`` ("stream" or a cache path) for ``steps`` optimizer steps; evaluate.
 
     seed: model initialization and cache shuffling; data_seed: the stream's sample seed (default: seed).
@@ -58,15 +59,19 @@ def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict 
     data_cfg: settings of the data source (a JSON-able dict), passed to ``surrogate.data.train_loader``.
     device: where the model trains ("cpu", "cuda", "cuda:1"); a stream's JAX solver runs on the GPU when JAX
     sees one, and hands its batches to torch there without a host copy.
+    mode: the training mode's settings ({"name", "unroll", "coarse_n"}, see ``surrogate.modes``; None:
+    one-step); a mode that unrolls trains on the view with k_out = the frames it needs.
     Writes run.json, checkpoint.pt, metrics.csv, model.pt and metrics.json (with the test errors) to out_dir;
     returns the summary.
     """
-    view = datasets.make_view(view)
+    mode = make_mode(mode).settings()  # checked and normalized before anything is built
+    view = training_view(make_mode(mode), datasets.make_view(view))
     settings = {"format": RUN_FORMAT, "pde": None, "source": str(source), "model": model,
                 "model_cfg": dict(model_cfg or {}), "view": view.name, "view_args": dict(vars(view)),
                 "steps": steps, "batch_size": batch_size, "lr": lr, "schedule": schedule, "seed": seed,
                 "data_seed": seed if data_seed is None else data_seed, "n_test": n_test,
-                "checkpoint_every": checkpoint_every, "data_cfg": data_cfg, "label": label, "device": device}
+                "checkpoint_every": checkpoint_every, "data_cfg": data_cfg, "label": label, "device": device,
+                "mode": mode}
     return _run(pde, settings, Path(out_dir), tests=tests, explicit=explicit)
 
 
@@ -117,8 +122,11 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     view = datasets.make_view(s["view"], **s["view_args"])
     loader, data_pde = train_loader(pde, s["source"], view, s["batch_size"], seed=s["seed"], data_seed=s["data_seed"],
                                     explicit=explicit, data_cfg=s["data_cfg"])
+    mode = make_mode(s.get("mode"))  # run.json of runs before modes existed: one-step
+    check_fits(mode, view, data_pde)
     view.check(data_pde.n_frames)
-    c_in, c_out = model_channels(data_pde, view)
+    mode.bind(data_pde, s["seed"])
+    c_in, c_out = mode.channels(data_pde, view)
     torch.manual_seed(s["seed"])  # same initial weights for every source with the same seed
     net = build_model(s["model"], data_pde.NDIM, c_in, c_out, len(data_pde.PARAMS), **s["model_cfg"])
     net.to(check_device(s.get("device", "cpu")))  # runs from before --device trained on the CPU
@@ -133,16 +141,19 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
             (out / name).unlink(missing_ok=True)
         atomic_write(out / RUN_FILE, text.encode())
     meta = {"pde": data_pde.config(), "source": s["source"], "view": view.name, "view_args": dict(vars(view)),
-            "seed": s["seed"], "data_seed": s["data_seed"], "batch_size": s["batch_size"]}
+            "seed": s["seed"], "data_seed": s["data_seed"], "batch_size": s["batch_size"], "mode": mode.settings()}
 
     def finish(model, normalizer) -> dict:
         sets = tests if tests is not None else {"test": test_set(data_pde, s["data_seed"], s["n_test"])}
-        return {"test": {name: test_errors(model, normalizer, view, t) for name, t in sets.items()}}
+        if isinstance(mode, OneStep):
+            return {"test": {name: test_errors(model, normalizer, view, t) for name, t in sets.items()}}
+        return {"test": {name: mode_test_errors(mode, model, normalizer, view, t) for name, t in sets.items()}}
 
     dataset = loader.dataset
     try:
         summary = train(net, loader, s["steps"], out, lr=s["lr"], schedule=s["schedule"], meta=meta,
-                        label=s["label"], checkpoint_every=s["checkpoint_every"], resume=resume, finish=finish)
+                        label=s["label"], checkpoint_every=s["checkpoint_every"], resume=resume, finish=finish,
+                        mode=mode)
         if hasattr(dataset, "report"):  # a reservoir: its reuse and where it simulated, as data and a picture
             report = dataset.report()
             atomic_write(out / "reservoir.json", json.dumps(report, indent=2).encode())

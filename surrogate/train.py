@@ -30,7 +30,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 from torch.utils.data import DataLoader
 from tqdm import tqdm
@@ -172,7 +171,8 @@ def _plain(stats: dict) -> dict:
 
 def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, schedule: str = "cosine",
           normalizer: Normalization | None = None, log_every: int = 10, meta: dict | None = None,
-          label: str = "train", checkpoint_every: int = 0, resume: dict | None = None, finish=None) -> dict:
+          label: str = "train", checkpoint_every: int = 0, resume: dict | None = None, finish=None,
+          mode=None) -> dict:
     """Train ``model`` for ``steps`` optimizer steps on batches from ``loader``; returns the summary dict.
 
     Works the same for an IterableDataset stream (DataLoader(stream, batch_size=None)) and a map-style cache
@@ -181,9 +181,14 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
     checkpoint_every: write checkpoint.pt every that many steps (0: only at the end). resume: a checkpoint.pt
     dict (``load_train_state``) to continue from, with the same model architecture, loader and steps; the
     result is the uninterrupted run's, bit for bit on the CPU. finish: ``finish(model, normalizer) -> dict``,
-    merged into the summary before metrics.json is written (e.g. test errors).
+    merged into the summary before metrics.json is written (e.g. test errors). mode: how a batch becomes a
+    loss (``surrogate.modes``: one-step, pushforward, oracle, solver-in-the-loop; None: one-step).
     """
     check_train_settings(steps, lr, schedule, checkpoint_every)
+    if mode is None:
+        from .modes import OneStep  # modes imports this module
+
+        mode = OneStep()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ndim, device = model.ndim, model_device(model)
@@ -215,10 +220,8 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
         t1 = time.perf_counter()
         if normalizer is None:  # the data source offers none: calibrate on the first batch
             normalizer = Normalization.from_batch(batch, ndim)
-        x, y = batch["x"], batch["y"]  # [B, (k,) C, *space]
-        target = stack_frames(normalizer.normalize(y), ndim)  # [B, k_out*C, *space]
-        pred = model(stack_frames(normalizer.normalize(x), ndim), normalizer.normalize_params(batch["params"]))
-        loss = F.mse_loss(pred, target)
+        x = batch["x"]  # [B, (k,) C, *space]
+        loss, per_example = mode.step_loss(model, batch, normalizer, step)  # per_example: float64 CPU [B]
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -228,7 +231,7 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
         if not math.isfinite(loss_value):
             raise ValueError(f"{label}: training diverged at step {step} (loss={loss_value}); lower --lr")
         if report_losses is not None:  # from this step's forward pass: no extra model evaluation
-            report_losses(batch, relative_errors(pred, target))
+            report_losses(batch, per_example)
         progress.step = step
         progress.t_data, progress.t_compute = progress.t_data + t1 - t0, progress.t_compute + t2 - t1
         progress.examples += len(x)

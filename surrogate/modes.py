@@ -1,0 +1,390 @@
+"""Training modes: how one optimizer step of the training loop turns a batch into a loss.
+
+Every mode trains on a stream or cache batch {"x": [B, k_in, C, *space], "y": [B, k_out, C, *space],
+"params": [B, P], ...} and implements the same small interface (``Mode``), so the loop in ``train.py`` has no
+per-mode branches:
+
+- ``OneStep``: the model maps the input frames to the view's k_out next frames (any view; today's training).
+- ``Pushforward(k)``: unroll the network k-1 steps without gradient from the input frames, train the last
+  step against the frame k ahead (Brandstetter et al. 2022, "Message passing neural PDE solvers").
+- ``Oracle(k)``: per example draw j ~ U{1..k}, unroll the network j steps without gradient from the stream
+  state, ask the PDE's solver (``datasets.SolverOracle``) for the true next frame from the state reached, and
+  train on (reached state, solver answer): the network's own distribution, labelled by the solver.
+- ``SolverInTheLoop(k, coarse_n)``: a correction network applied after each step of a coarse differentiable
+  solver (``datasets.SolverStep`` on a coarse grid of the same PDE), unrolled k steps with gradients through
+  the solver; the target is the fine solve of the same sample, subsampled (Um et al. 2020).
+
+Modes that unroll predict one frame per network call and read ``frames_ahead`` frames from a next-step view
+(``training_view`` sets k_out to that). All of them work in normalized units (``datasets.Normalization``).
+Randomness (the oracle's j) is a pure function of (seed, step), so a resumed run draws what the
+uninterrupted one drew.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar, Protocol
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+import datasets
+from datasets.normalize import Normalization
+
+from .data import model_device, to_device
+from .metrics import nrmse, rel_l2
+from .train import predict, relative_errors, stack_frames
+
+MODE_NAMES = ("one-step", "pushforward", "oracle", "solver-in-the-loop")
+
+
+class Mode(Protocol):
+    """What the training loop and the evaluation need of a mode."""
+
+    name: ClassVar[str]
+
+    def settings(self) -> dict:
+        """JSON-able settings (run.json's "mode"): {"name": ..., "unroll": k, ...}."""
+
+    def bind(self, pde, seed: int = 0) -> "Mode":
+        """Attach what the mode needs of the training PDE (a solver); returns self."""
+
+    def frames_ahead(self, view) -> int:
+        """Target frames per example the mode reads from a next-step view."""
+
+    def channels(self, pde, view) -> tuple[int, int]:
+        """(in_channels, out_channels) of the network."""
+
+    def step_loss(self, model: nn.Module, batch: dict, norm: Normalization, step: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """(scalar loss with graph, per-example relative L2 error float64 CPU [B]) for optimizer step ``step``."""
+
+    def rollout(self, model: nn.Module | None, norm: Normalization, u: torch.Tensor, params: torch.Tensor,
+                k_in: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Autoregressive prediction of whole trajectories u [B, T, C, *space] (physical units) from their first
+        k_in frames: (prediction, truth), both [B, T - k_in, C, *space'] in physical units on the grid the mode
+        predicts on."""
+
+
+def _next_step(view, mode: str) -> None:
+    if not isinstance(view, datasets.NextStep):
+        raise ValueError(f"--mode {mode} needs the next_step view, not {view.name!r}; use --view next_step")
+
+
+def _net_step(model: nn.Module, window: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+    """One network step in normalized units: window [B, k_in, C, *space] -> next frame [B, 1, C, *space]."""
+    out = model(window.flatten(1, 2), p)  # [B, C, *space]
+    return out.reshape(window.shape[0], 1, *window.shape[2:])
+
+
+@torch.no_grad()
+def _net_rollout(model: nn.Module, norm: Normalization, u: torch.Tensor, params: torch.Tensor, k_in: int):
+    from .evaluate import rollout
+
+    h = u.shape[1] - k_in
+    pred = rollout(model, norm, norm.normalize(u[:, :k_in]), norm.normalize_params(params), h)
+    return norm.denormalize(pred), u[:, k_in:]
+
+
+@dataclass
+class OneStep:
+    """The model maps k_in frames to the view's k_out frames (or an operator view's x to y) in one call."""
+
+    name: ClassVar[str] = "one-step"
+    unroll: int = 1
+
+    def settings(self) -> dict:
+        return {"name": self.name}
+
+    def bind(self, pde, seed: int = 0) -> "OneStep":
+        return self
+
+    def frames_ahead(self, view) -> int:
+        return view.k_out if isinstance(view, datasets.NextStep) else 1
+
+    def channels(self, pde, view) -> tuple[int, int]:
+        from .runs import model_channels
+
+        return model_channels(pde, view)
+
+    def step_loss(self, model, batch, norm, step):
+        target = stack_frames(norm.normalize(batch["y"]), model.ndim)  # [B, k_out*C, *space]
+        pred = model(stack_frames(norm.normalize(batch["x"]), model.ndim), norm.normalize_params(batch["params"]))
+        return F.mse_loss(pred, target), relative_errors(pred, target)
+
+    def rollout(self, model, norm, u, params, k_in):
+        return _net_rollout(model, norm, u, params, k_in)
+
+
+@dataclass
+class Pushforward:
+    """Unroll k-1 network steps without gradient, train the k-th against the frame k ahead."""
+
+    unroll: int = 2
+    name: ClassVar[str] = "pushforward"
+
+    def settings(self) -> dict:
+        return {"name": self.name, "unroll": self.unroll}
+
+    def bind(self, pde, seed: int = 0) -> "Pushforward":
+        return self
+
+    def frames_ahead(self, view) -> int:
+        return self.unroll
+
+    def channels(self, pde, view) -> tuple[int, int]:
+        return view.k_in * len(pde.FIELDS), len(pde.FIELDS)
+
+    def step_loss(self, model, batch, norm, step):
+        p = norm.normalize_params(batch["params"])
+        window = norm.normalize(batch["x"])  # [B, k_in, C, *space]
+        with torch.no_grad():  # the pushforward trick: the unrolled steps carry no gradient
+            for _ in range(self.unroll - 1):
+                window = torch.cat([window[:, 1:], _net_step(model, window, p)], dim=1)
+        pred = _net_step(model, window, p)[:, 0]  # [B, C, *space]
+        target = norm.normalize(batch["y"][:, self.unroll - 1])
+        return F.mse_loss(pred, target), relative_errors(pred, target)
+
+    def rollout(self, model, norm, u, params, k_in):
+        return _net_rollout(model, norm, u, params, k_in)
+
+
+@dataclass
+class Oracle:
+    """Train on states the network reaches (j ~ U{1..k} unrolled steps), labelled by the solver.
+
+    solver: ``datasets.SolverOracle`` of the training PDE (or any callable (u [B, C, *space], params [B, P],
+    frames) -> [B, C, *space] in physical units). Examples whose solver answer is not finite (the network
+    reached a state the solver cannot advance) are left out of the loss and counted in ``dropped``.
+    """
+
+    unroll: int = 2
+    solver: object = None
+    seed: int = 0
+    dropped: int = 0
+    name: ClassVar[str] = "oracle"
+
+    def settings(self) -> dict:
+        return {"name": self.name, "unroll": self.unroll}
+
+    def bind(self, pde, seed: int = 0) -> "Oracle":
+        """The solver of the training PDE; seed: the run's seed (the draws of j)."""
+        self.solver, self.seed = datasets.SolverOracle(pde), seed
+        return self
+
+    def frames_ahead(self, view) -> int:
+        return 1  # the targets come from the solver; the view only supplies start states
+
+    def channels(self, pde, view) -> tuple[int, int]:
+        return view.k_in * len(pde.FIELDS), len(pde.FIELDS)
+
+    def draws(self, step: int, batch: int) -> torch.Tensor:
+        """Unrolled steps per example, int64 [batch] in 1..unroll: a pure function of (seed, step)."""
+        gen = torch.Generator().manual_seed(self.seed * 1_000_003 + step)
+        return torch.randint(1, self.unroll + 1, (batch,), generator=gen)
+
+    def reached(self, model, norm, batch, step) -> torch.Tensor:
+        """The windows the network reaches, normalized [B, k_in, C, *space] (no gradient)."""
+        p = norm.normalize_params(batch["params"])
+        window = norm.normalize(batch["x"])
+        j = self.draws(step, len(window)).to(window.device)
+        out = window.clone()
+        with torch.no_grad():
+            for i in range(1, int(j.max()) + 1):
+                window = torch.cat([window[:, 1:], _net_step(model, window, p)], dim=1)
+                out[j == i] = window[j == i]
+        return out
+
+    def step_loss(self, model, batch, norm, step):
+        start = self.reached(model, norm, batch, step)
+        answer = self.solver(norm.denormalize(start[:, -1]), batch["params"], frames=1)  # [B, C, *space]
+        ok = torch.isfinite(answer.flatten(1)).all(dim=1)
+        if not bool(ok.all()):
+            self.dropped += int((~ok).sum())
+            if not bool(ok.any()):
+                raise ValueError(f"oracle: at step {step} the solver blew up from every state the network reached; "
+                                 "lower --lr or --unroll")
+            start, answer, batch = start[ok], answer[ok], {**batch, "params": batch["params"][ok]}
+        target = norm.normalize(answer)
+        pred = _net_step(model, start, norm.normalize_params(batch["params"]))[:, 0]
+        per = relative_errors(pred, target)
+        if not bool(ok.all()):  # report_losses wants a value per example: the dropped count as the worst kept
+            full = torch.full((len(ok),), float(per.max()), dtype=torch.float64)
+            full[ok.cpu()] = per
+            per = full
+        return F.mse_loss(pred, target), per
+
+    def rollout(self, model, norm, u, params, k_in):
+        return _net_rollout(model, norm, u, params, k_in)
+
+
+def subsample(u: torch.Tensor, factor: int, ndim: int) -> torch.Tensor:
+    """Every ``factor``-th grid point in each of the last ndim dims: [..., *fine] -> [..., *fine/factor]. On a
+    periodic grid x_i = i L / n, fine point factor*i is coarse point i exactly."""
+    return u[(Ellipsis, *[slice(None, None, factor)] * ndim)]
+
+
+@dataclass
+class SolverInTheLoop:
+    """A correction network after each step of a coarse differentiable solver, unrolled k steps.
+
+    Built with ``bind(pde)`` from the fine training PDE: the coarse solver is the same PDE config with
+    n = coarse_n (its own stable step), ``factor`` = n / coarse_n. A step is
+    s <- S(s) + std * net(normalize(S(s)), params): the network outputs the correction in normalized units.
+    The loss is the MSE over the k unrolled states against the fine trajectory subsampled, gradients through
+    the solver (``datasets.SolverStep``). unroll=1 is training on precomputed (coarse step, fine) pairs.
+    """
+
+    unroll: int = 4
+    coarse_n: int = 64
+    step: nn.Module | None = None
+    factor: int = 0
+    name: ClassVar[str] = "solver-in-the-loop"
+
+    def settings(self) -> dict:
+        return {"name": self.name, "unroll": self.unroll, "coarse_n": self.coarse_n}
+
+    def frames_ahead(self, view) -> int:
+        return self.unroll
+
+    def channels(self, pde, view) -> tuple[int, int]:
+        return len(pde.FIELDS), len(pde.FIELDS)
+
+    def bind(self, pde, seed: int = 0) -> "SolverInTheLoop":
+        """The coarse solver of the fine PDE ``pde``; ValueError (one line) when the sizes do not fit."""
+        n = pde.n
+        if isinstance(self.coarse_n, bool) or not isinstance(self.coarse_n, int) or not (
+                0 < self.coarse_n < n and n % self.coarse_n == 0):
+            raise ValueError(f"solver-in-the-loop: coarse n={self.coarse_n!r} does not fit the fine grid n={n}; "
+                             f"allowed: a proper divisor of {n}, e.g. {n // 8 if n % 8 == 0 and n // 8 >= 8 else n // 2}")
+        self.factor = n // self.coarse_n
+        self.step = datasets.SolverStep({**pde.config(), "n": self.coarse_n}, frames=1)
+        return self
+
+    def correct(self, model: nn.Module, norm: Normalization, s: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        """The corrected state after a coarse solver step: s [B, C, *coarse] physical -> same."""
+        z = norm.normalize(s)
+        return norm.denormalize(z + model(z, p))
+
+    def step_loss(self, model, batch, norm, step):
+        ndim = model.ndim
+        params, p = batch["params"], norm.normalize_params(batch["params"])
+        s = subsample(batch["x"][:, -1], self.factor, ndim)  # [B, C, *coarse]
+        states = []
+        for _ in range(self.unroll):
+            s = self.correct(model, norm, self.step(s, params), p)
+            states.append(s)
+        pred = norm.normalize(torch.stack(states, dim=1))  # [B, k, C, *coarse]
+        target = norm.normalize(subsample(batch["y"][:, : self.unroll], self.factor, ndim))
+        return F.mse_loss(pred, target), relative_errors(pred, target)
+
+    @torch.no_grad()
+    def rollout(self, model, norm, u, params, k_in=1):
+        """The corrected coarse solver (model=None: the coarse solver alone) from u[:, 0] subsampled."""
+        ndim = u.ndim - 3
+        truth = subsample(u, self.factor, ndim)  # [B, T, C, *coarse]
+        p = norm.normalize_params(params) if model is not None else None
+        s, out = truth[:, 0], []
+        for _ in range(u.shape[1] - 1):
+            s = self.step(s, params)
+            if model is not None:
+                s = self.correct(model, norm, s, p)
+            out.append(s)
+        return torch.stack(out, dim=1), truth[:, 1:]
+
+
+MODES = {"one-step": OneStep, "pushforward": Pushforward, "oracle": Oracle, "solver-in-the-loop": SolverInTheLoop}
+
+
+def check_mode_settings(name: str, unroll: int = 1, coarse_n: int | None = None) -> None:
+    """ValueError (one line) naming a bad mode name, unroll or coarse grid."""
+    if name not in MODES:
+        raise ValueError(f"unknown mode {name!r}; allowed: {', '.join(MODES)}")
+    if isinstance(unroll, bool) or not isinstance(unroll, int) or unroll < 1:
+        raise ValueError(f"--unroll={unroll!r} not allowed; must be an integer >= 1")
+    if name != "solver-in-the-loop" and coarse_n is not None:
+        raise ValueError(f"--coarse-n goes with --mode solver-in-the-loop, not --mode {name}")
+
+
+def make_mode(settings: dict | None) -> Mode:
+    """The mode of run.json's "mode" settings ({"name", "unroll", "coarse_n"}; None: one-step), not yet bound
+    to a PDE: ``mode.bind(pde, seed)`` gives it its solver."""
+    s = dict(settings or {"name": "one-step"})
+    name = s.pop("name", "one-step")
+    unroll, coarse_n = s.pop("unroll", 1), s.pop("coarse_n", None)
+    if s:
+        raise ValueError(f"unknown mode setting(s) {sorted(s)}; allowed: name, unroll, coarse_n")
+    check_mode_settings(name, unroll, coarse_n)
+    if name == "one-step":
+        if unroll != 1:
+            raise ValueError(f"--unroll={unroll} goes with pushforward, oracle or solver-in-the-loop, not one-step")
+        return OneStep()
+    if name == "pushforward":
+        return Pushforward(unroll)
+    if name == "oracle":
+        return Oracle(unroll)
+    return SolverInTheLoop(unroll, 64 if coarse_n is None else coarse_n)
+
+
+def training_view(mode: Mode, view):
+    """The view a mode trains on: one-step keeps ``view``; the others need a next-step view and get
+    k_out = ``mode.frames_ahead``. ValueError (one line) for another view or a window that does not fit."""
+    if isinstance(mode, OneStep):
+        return view
+    _next_step(view, mode.name)
+    if isinstance(mode, SolverInTheLoop) and view.k_in != 1:
+        raise ValueError(f"--mode solver-in-the-loop corrects one state at a time: --k-in={view.k_in} not allowed; use 1")
+    return datasets.NextStep(view.k_in, mode.frames_ahead(view), view.windows)
+
+
+def check_fits(mode: Mode, view, pde) -> None:
+    """ValueError (one line) when the mode's window is longer than the PDE's trajectories."""
+    if isinstance(view, datasets.NextStep) and view.k_in + view.k_out > pde.n_frames:
+        raise ValueError(f"--mode {mode.name} with --unroll {mode.unroll} and --k-in {view.k_in} needs "
+                         f"{view.k_in + view.k_out} frames per window but the trajectories have {pde.n_frames}; "
+                         f"allowed: --unroll <= {pde.n_frames - view.k_in}")
+
+
+@torch.no_grad()
+def rollout_errors(mode: Mode, model, norm: Normalization, test: list[dict], k_in: int) -> torch.Tensor:
+    """Relative L2 per test trajectory and predicted frame, float64 [N, T - k_in] (physical units)."""
+    if model is not None:
+        model.train(False)
+    errs, device = [], model_device(model) if model is not None else torch.device("cpu")
+    for batch in test:
+        batch = to_device(batch, device)
+        pred, truth = mode.rollout(model, norm, batch["u"], batch["params"], k_in)
+        errs.append(torch.stack([rel_l2(pred[:, j], truth[:, j]) for j in range(pred.shape[1])], dim=1).double().cpu())
+    if model is not None:
+        model.train()
+    return torch.cat(errs)
+
+
+@torch.no_grad()
+def mode_test_errors(mode: Mode, model, norm: Normalization, view, test: list[dict]) -> dict:
+    """{"rel_l2", "nrmse", "rollout" (mean per frame), "rollout_final"} of a mode that predicts one frame per
+    step: one-step errors on every (frame, next frame) pair, and the whole rollout from the first k_in frames."""
+    k_in = view.k_in
+    rel, nr = [], []
+    model.train(False)
+    for batch in test:
+        batch = to_device(batch, model_device(model))
+        u, params = batch["u"], batch["params"]
+        if isinstance(mode, SolverInTheLoop):
+            B, T = u.shape[:2]
+            starts = u[:, :-1].reshape(B * (T - 1), 1, *u.shape[2:])
+            p = params.repeat_interleave(T - 1, 0)
+            pred, truth = mode.rollout(model, norm, torch.cat([starts, u[:, 1:].reshape(starts.shape)], 1), p)
+            pred, truth = pred[:, 0], truth[:, 0]
+        else:
+            from .evaluate import pairs
+
+            pp = pairs(datasets.NextStep(k_in, 1), batch)
+            truth = pp["y"]
+            pred = predict(model, norm, pp["x"], pp["params"], model.ndim, truth.shape)
+        rel.append(rel_l2(pred, truth).cpu())
+        nr.append(nrmse(pred, truth, model.ndim).cpu())
+    model.train()
+    curve = rollout_errors(mode, model, norm, test, k_in).mean(0).tolist()
+    return {"rel_l2": float(torch.cat(rel).mean()), "nrmse": float(torch.cat(nr).mean()), "rollout": curve,
+            "rollout_final": curve[-1]}
