@@ -1,12 +1,12 @@
 """The PDE catalog: one file per PDE, one line each in PDES."""
 
-from .advection1d import Advection1D
+from .advection import Advection1D
 from .base import PDE, Param
-from .burgers1d import Burgers1D
-from .diffusion1d import Diffusion1D
-from .grayscott2d import GrayScott2D
+from .burgers import Burgers1D
+from .diffusion import Diffusion1D
+from .grayscott import GrayScott2D
 from .kdv1d import KdV1D
-from .ks1d import KS1D
+from .ks import KS1D
 from .ns2d import NS2D
 
 PDES: dict[str, type[PDE]] = {
