@@ -81,48 +81,127 @@ def summary(path) -> str:
 
 
 def plot(path, out, n_show: int = 4) -> str:
-    """A PNG of up to ``n_show`` complete samples: space-time images (1D) or first/middle/last snapshots
-    (2D) of the first field. Returns the path written."""
+    """Write ``figure(path, n_show)`` as a PNG to ``out``; returns the path written."""
+    import matplotlib.pyplot as plt
+
+    fig = figure(path, n_show)
+    try:
+        fig.savefig(out, dpi=80)
+    except OSError as err:
+        raise ValueError(f"cannot write plot {out}: {err.strerror or err}") from None
+    finally:
+        plt.close(fig)
+    return str(out)
+
+
+def figure(path, n_show: int = 4):
+    """A matplotlib Figure of up to ``n_show`` complete samples of the cache at ``path`` (``draw``)."""
+    ds = open_cache(path, complete_only=True)
+    try:
+        if ds.sizes["sample"] == 0:
+            raise ValueError(f"{path}: no complete samples to plot")
+        return draw(ds, n_show)
+    finally:
+        ds.close()
+
+
+def draw(ds, n_show: int = 4):
+    """Every field of the first ``n_show`` samples of a cache's Dataset, as a Figure (Agg backend).
+
+    1D: space-time images (x across, t up), one row per field, one column per sample. 2D: first/middle/last
+    frames (x across, y up, origin lower, aspect equal), one row per sample, one group of columns per field,
+    frame times in the titles; 3D: the same for the middle z slice. Each field has one colour range over all
+    its panels and one colourbar labelled with its name (and units when the cache has them): diverging and
+    centred on zero for a signed field, sequential for a one-signed one (``colour_scale``). Axis labels come
+    from the coordinates' long_name/units attrs, as in xarray's own plots.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ds = open_cache(path, complete_only=True)
-    try:
-        if ds.sizes["sample"] == 0:
-            raise ValueError(f"{path}: no complete samples to plot")
-        name = ds.attrs["pdestream_fields"].split()[0]
-        show = min(n_show, ds.sizes["sample"])
-        u = ds[name].isel(sample=slice(0, show)).values  # [S, T, x(, y)]
-        t, x = ds.time.values, ds.x.values
-        params = ds.attrs["pdestream_params"].split()
-        label = [", ".join(f"{p}={float(ds[p][i]):.3g}" for p in params) for i in range(show)]
-        index = ds["sample"].values[:show]
-        if u.ndim == 3:
-            fig, axes = plt.subplots(1, show, figsize=(3.2 * show, 3), squeeze=False)
-            for i, ax in enumerate(axes[0]):
-                im = ax.imshow(u[i], aspect="auto", origin="lower", cmap="RdBu_r",
-                               extent=[x[0], x[-1], t[0], t[-1]])
-                ax.set(title=f"#{index[i]} {label[i]}", xlabel="x", ylabel="t" if i == 0 else None)
-                fig.colorbar(im, ax=ax)
-        else:
-            frames = sorted({0, u.shape[1] // 2, u.shape[1] - 1})
-            fig, axes = plt.subplots(show, len(frames), figsize=(3 * len(frames), 2.8 * show), squeeze=False)
-            for i in range(show):
-                for j, f in enumerate(frames):
-                    ax = axes[i, j]
-                    ax.imshow(u[i, f].T, origin="lower", cmap="RdBu_r")
-                    ax.set(title=f"#{index[i]} t={t[f]:.3g}", xticks=[], yticks=[])
-                axes[i, 0].set_ylabel(label[i])
-        fig.suptitle(f"{ds.attrs['pde']}: {name}")
-        fig.tight_layout()
-        try:
-            fig.savefig(out, dpi=100)
-        except OSError as err:
-            raise ValueError(f"cannot write plot {out}: {err.strerror or err}") from None
-        finally:
-            plt.close(fig)
-        return str(out)
-    finally:
-        ds.close()
+    fields = ds.attrs["pdestream_fields"].split()
+    show = min(n_show, ds.sizes["sample"])
+    params = ds.attrs["pdestream_params"].split()
+    label = [", ".join(f"{p}={float(ds[p][i]):.3g}" for p in params) for i in range(show)]
+    index = ds["sample"].values[:show]
+    space = [d for d in ds[fields[0]].dims if d in schema.SPACE]  # stored order: (z,) (y,) x
+    panels = _space_time if len(space) == 1 else _snapshots
+    fig = panels(plt, ds, fields, show, index, label, space)
+    fig.suptitle(f"{ds.attrs['pde']}: {ds.attrs['equation']}", fontsize=9)
+    return fig
+
+
+def colour_scale(values: np.ndarray) -> dict:
+    """imshow keywords (cmap, vmin, vmax) shared by every panel of one field: a diverging map centred on zero
+    when the values take both signs, a sequential one when they keep one sign (e.g. concentrations). Values
+    reaching less than 5% of the largest magnitude to the other side of zero (Gibbs ringing of a spectral solver
+    around a concentration's sharp edges) do not make a field signed."""
+    finite = values[np.isfinite(values)]
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    span = max(abs(lo), abs(hi)) or 1.0
+    if lo < -0.05 * span and hi > 0.05 * span:
+        return {"cmap": "RdBu_r", "vmin": -span, "vmax": span}
+    return {"cmap": "viridis", "vmin": lo, "vmax": hi if hi > lo else lo + 1.0}
+
+
+def axis_label(var) -> str:
+    """An xarray variable's label from its attrs, as xarray prints it: "long_name [units]" (name if unset)."""
+    name = var.attrs.get("long_name", var.name)
+    units = var.attrs.get("units")
+    return f"{name} [{units}]" if units else str(name)
+
+
+def _edges(coord: np.ndarray, cell_left: bool) -> tuple[float, float]:
+    """The extent of an image over ``coord``: cells [c_j, c_j + d) for grid points, centred cells for times."""
+    d = float(coord[1] - coord[0]) if len(coord) > 1 else 1.0
+    return (float(coord[0]), float(coord[-1]) + d) if cell_left else (float(coord[0]) - d / 2, float(coord[-1]) + d / 2)
+
+
+def _space_time(plt, ds, fields, show, index, label, space):
+    """1D: one row per field, one column per sample, t up, x across; one colourbar per row."""
+    x, t = ds[space[0]].values, ds.time.values
+    extent = [*_edges(x, True), *_edges(t, False)]
+    fig, axes = plt.subplots(len(fields), show, figsize=(2.6 * show + 1.0, 2.4 * len(fields) + 0.5), squeeze=False,
+                             layout="constrained")
+    for r, name in enumerate(fields):
+        u = ds[name].isel(sample=slice(0, show)).transpose("sample", "time", *space).values  # [S, T, x]
+        scale = colour_scale(u)
+        for i, ax in enumerate(axes[r]):
+            im = ax.imshow(u[i], origin="lower", aspect="auto", extent=extent, interpolation="nearest", **scale)
+            ax.set_title(f"#{index[i]} {label[i]}", fontsize=8)
+            ax.set_xlabel(axis_label(ds[space[0]]) if r == len(fields) - 1 else "")
+            ax.set_ylabel(axis_label(ds.time) if i == 0 else "")
+        fig.colorbar(im, ax=list(axes[r]), label=axis_label(ds[name]), shrink=0.9)
+    return fig
+
+
+def _snapshots(plt, ds, fields, show, index, label, space):
+    """2D (3D: the middle z slice): one row per sample, first/middle/last frame of each field, x across, y up;
+    one colourbar per field."""
+    n_frames = ds.sizes["time"]
+    frames = sorted({0, n_frames // 2, n_frames - 1})
+    across, up = space[-1], space[-2]  # stored (z,) y, x
+    slab = {space[0]: ds.sizes[space[0]] // 2} if len(space) == 3 else {}
+    where = f", {space[0]}={float(ds[space[0]][slab[space[0]]]):.3g}" if slab else ""
+    extent = [*_edges(ds[across].values, True), *_edges(ds[up].values, True)]
+    cols = len(fields) * len(frames)
+    fig, axes = plt.subplots(show, cols, figsize=(2.2 * cols + 0.8 * len(fields), 2.2 * show + 0.5), squeeze=False,
+                             layout="constrained")
+    for c, name in enumerate(fields):
+        u = (ds[name].isel(sample=slice(0, show), time=frames, **slab)
+             .transpose("sample", "time", up, across).values)  # [S, F, y, x]: row y, column x
+        scale = colour_scale(u)
+        block = axes[:, c * len(frames):(c + 1) * len(frames)]
+        for i in range(show):
+            for j, f in enumerate(frames):
+                ax = block[i, j]
+                im = ax.imshow(u[i, j], origin="lower", aspect="equal", extent=extent, interpolation="nearest",
+                               **scale)
+                title = f"{name} #{index[i]} t={float(ds.time[f]):.4g}{where}"
+                ax.set_title(title + (f"\n{label[i]}" if j == 0 and label[i] else ""), fontsize=7)
+                ax.set_xlabel(axis_label(ds[across]) if i == show - 1 else "", fontsize=8)
+                ax.set_ylabel(axis_label(ds[up]) if c == 0 and j == 0 else "", fontsize=8)
+                ax.tick_params(labelsize=7)
+        fig.colorbar(im, ax=list(block.ravel()), label=axis_label(ds[name]), shrink=0.8)
+    return fig
