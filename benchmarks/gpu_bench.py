@@ -79,7 +79,7 @@ def zero_copy() -> None:
           f"torch tensor on {u.device} {'shares' if same else 'does NOT share'} JAX's buffer (DLPack, no copy)")
 
 
-def training(seconds: float, quick: bool) -> None:
+def training(seconds: float, quick: bool, solve_batch: int) -> None:
     import generator
     import datasets
     from surrogate.budget import BudgetConfig, run_arm, stratified_test_set
@@ -87,12 +87,12 @@ def training(seconds: float, quick: bool) -> None:
     n, model_cfg = (256, {"width": 32, "modes": 12, "layers": 3}) if quick else (1024, {"width": 64, "modes": 16, "layers": 4})
     pde = generator.get_pde("burgers1d", n=n, nu=0.1, t_end=1.0, n_frames=2)
     cfg = BudgetConfig(budget_s=seconds, model_cfg=model_cfg, batch_size=20, lr=1e-3, capacity=1000, max_reuse=50,
-                       n_test=64, snapshots=1, device="cuda")
+                       n_test=64, snapshots=1, device="cuda", solve_batch=solve_batch)
     tests = {"test": stratified_test_set(pde, cfg.n_test, 0)}
     datasets.sample_tensors(pde, list(range(cfg.solve_batch)), 0)  # compile first: neither arm pays for it
     view = datasets.make_view("operator")
     print(f"\nburgers1d n={n}, nu=0.1, u0 -> u(1); FNO {model_cfg}, batch 20, trained on {torch.cuda.get_device_name()}"
-          f"; {seconds:g} s per arm; solver on the same GPU")
+          f"; {seconds:g} s per arm; solver on the same GPU, {solve_batch} trajectories per solve")
     print("| arm | wait share | steps | steps/s | trajectories solved | solver traj/s | mean reuse | test rel L2 |")
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     with tempfile.TemporaryDirectory() as tmp:
@@ -109,6 +109,7 @@ def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="python -m benchmarks.gpu_bench", description=__doc__.splitlines()[0])
     p.add_argument("--seconds", type=float, default=60.0, help="wall-clock budget per training arm")
     p.add_argument("--quick", action="store_true", help="one batch size per PDE, a small FNO, 15 s per arm")
+    p.add_argument("--solve-batch", type=int, default=16, help="trajectories per solve in the training arms")
     p.add_argument("--skip", default="", help="comma list of parts to skip: solver, zero_copy, training")
     args = p.parse_args(argv)
     import jax
@@ -124,7 +125,7 @@ def main(argv: list[str] | None = None) -> None:
     if "zero_copy" not in skip:
         zero_copy()
     if "training" not in skip:
-        training(min(args.seconds, 15.0) if args.quick else args.seconds, args.quick)
+        training(min(args.seconds, 15.0) if args.quick else args.seconds, args.quick, args.solve_batch)
 
 
 if __name__ == "__main__":
