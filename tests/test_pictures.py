@@ -1,0 +1,212 @@
+"""Pictures a person can read: a cache's 2D fields plot x across and y up with plain xarray, coordinates carry
+labels, and ``pdestream inspect --plot`` draws labelled colourbars over one colour range per field."""
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
+import xarray as xr  # noqa: E402
+
+import datasets  # noqa: E402
+import generator  # noqa: E402
+from datasets import inspect, schema  # noqa: E402
+from datasets.cache import open_cache  # noqa: E402
+
+N = 3
+# Kolmogorov forcing depends on y only (f = -A k cos(k y)): started (nearly) from rest, the vorticity stays a function
+# of y alone (up to the 1e-6 IC), so the picture's orientation is fixed by the physics, not by the solver's array order.
+NS = {"n": 16, "n_frames": 3, "t_end": 1.0, "ic.sigma": 1e-6}
+
+
+def _plain_open(path):
+    return xr.open_zarr(path) if str(path).endswith(".zarr") else xr.open_dataset(path, engine="h5netcdf")
+
+
+@pytest.fixture(scope="module", params=["zarr", "h5"])
+def ns_cache(request, tmp_path_factory):
+    pde = generator.get_pde("ns2d", **NS)
+    path = tmp_path_factory.mktemp("pictures") / f"ns.{request.param}"
+    datasets.write_cache(pde, path, N, seed=0, progress=False)
+    return pde, path
+
+
+@pytest.fixture(scope="module")
+def gs_cache(tmp_path_factory):
+    pde = generator.get_pde("grayscott2d", n=16, n_frames=3, t_end=200.0)
+    path = tmp_path_factory.mktemp("pictures") / "gs.zarr"
+    datasets.write_cache(pde, path, 2, seed=1, progress=False)
+    return pde, path
+
+
+@pytest.fixture(scope="module")
+def burgers_cache(tmp_path_factory):
+    pde = generator.get_pde("burgers1d", n=32, n_frames=5, t_end=0.2)
+    path = tmp_path_factory.mktemp("pictures") / "b.h5"
+    datasets.write_cache(pde, path, 3, seed=0, progress=False)
+    return pde, path
+
+
+def test_a_2d_cache_is_stored_y_then_x(ns_cache):
+    pde, path = ns_cache
+    ds = _plain_open(path)
+    assert ds["vorticity"].dims == ("sample", "time", "y", "x")
+    w = ds["vorticity"].isel(sample=0, time=-1)
+    # forced from rest: varies along y only (an (x, y) store would show it varying along the plot's x)
+    assert float(w.std("x").max()) < 1e-4 * float(w.std("y").max()) and float(w.std("y").max()) > 1e-3
+    # one point, by name: the cache at (x_i, y_j) is the generator's u[..., i, j]
+    traj = generator.sample(pde, [1], 0)
+    i, j = 3, 11
+    assert float(ds["vorticity"].isel(sample=1, time=-1, x=i, y=j)) == float(traj.u[0, -1, 0, i, j])
+
+
+def test_readers_get_the_generators_tensors_bit_for_bit(ns_cache):
+    pde, path = ns_cache
+    u = torch.from_numpy(np.array(generator.sample(pde, range(N), 0).u))  # [N, T, C, x, y]
+    for in_memory in (True, False):
+        whole = datasets.CachedTrajectories(path, view="whole", in_memory=in_memory)
+        for k in range(N):
+            assert torch.equal(whole[k]["u"], u[k])
+        pairs = datasets.CachedTrajectories(path, view="next_step", in_memory=in_memory)
+        assert torch.equal(pairs[1]["x"], u[0, 1:2]) and torch.equal(pairs[1]["y"], u[0, 2:3])
+    norm = datasets.CachedTrajectories(path, view="whole").normalization()
+    assert norm.mean.shape[0] == 1 and torch.isfinite(norm.std).all()
+
+
+def test_plain_xarray_plot_puts_x_across_and_y_up(ns_cache):
+    _, path = ns_cache
+    ds = _plain_open(path)
+    fig = plt.figure()
+    try:
+        ds["vorticity"].isel(sample=0, time=-1).plot()
+        ax = fig.axes[0]
+        assert ax.get_xlabel().startswith("x [length]") and ax.get_ylabel().startswith("y [length]")
+        assert fig.axes[1].get_ylabel() == "vorticity"  # the colourbar: the field's name
+    finally:
+        plt.close(fig)
+
+
+def test_coordinates_carry_labels(ns_cache):
+    pde, path = ns_cache
+    ds = _plain_open(path)
+    for d in ("x", "y"):
+        assert (ds[d].attrs["long_name"], ds[d].attrs["units"]) == (d, "length")
+    assert (ds["time"].attrs["long_name"], ds["time"].attrs["units"]) == ("t", "time")
+    assert ds["nu"].attrs["long_name"] == pde.PARAMS["nu"].description
+    assert ds["nu"].attrs["units"] == pde.PARAMS["nu"].units
+    assert ds["vorticity"].attrs["long_name"] == "vorticity" and "units" not in ds["vorticity"].attrs
+    assert ds.attrs["pdestream_schema"] == schema.SCHEMA_VERSION == 2
+
+
+def _images(fig):
+    return [im for ax in fig.axes for im in ax.get_images()]
+
+
+def test_inspect_1d_shared_zero_centred_colour_range(burgers_cache):
+    _, path = burgers_cache
+    fig = inspect.figure(path, n_show=3)
+    try:
+        ims = _images(fig)
+        assert len(ims) == 3 and len(fig.axes) > len(ims)  # panels plus a colourbar
+        lo, hi = ims[0].get_clim()
+        assert all(im.get_clim() == (lo, hi) for im in ims)  # one range over every panel
+        u = open_cache(path)["u"].values[:3]
+        assert lo == -hi == -np.abs(u).max()  # signed field: centred on zero, covering the data
+        assert ims[0].get_cmap().name == "RdBu_r"
+        panel = ims[0].axes
+        assert panel.get_xlabel() == "x [length]" and panel.get_ylabel() == "t [time]"
+        bars = [ax for ax in fig.axes if not ax.get_images()]
+        assert [ax.get_ylabel() for ax in bars] == ["u"]
+    finally:
+        plt.close(fig)
+
+
+def test_inspect_2d_panels_have_axes_and_colourbars(ns_cache, gs_cache):
+    for path, n_fields in ((ns_cache[1], 1), (gs_cache[1], 2)):
+        fig = inspect.figure(path, n_show=2)
+        try:
+            ims = _images(fig)
+            assert len(ims) == 2 * 3 * n_fields and len(fig.axes) == len(ims) + n_fields  # a colourbar per field
+            for im in ims:
+                ax = im.axes
+                assert im.origin == "lower" and ax.get_aspect() == 1.0 and " t=" in ax.get_title()
+            assert ims[-1].axes.get_xlabel() == "x [length]" and ims[0].axes.get_ylabel() == "y [length]"
+            ds = open_cache(path)
+            for c, name in enumerate(ds.attrs["pdestream_fields"].split()):
+                mine = [im for im in ims if im.axes.get_title().startswith(f"{name} #")]
+                assert len(mine) == 6 and len({im.get_clim() for im in mine}) == 1  # shared per field
+                # the image is the stored (y, x) frame itself: row = y, column = x
+                first = next(im for im in mine if im.axes.get_title().startswith(f"{name} #0 t=0"))
+                np.testing.assert_array_equal(first.get_array(), ds[name].values[0, 0])
+        finally:
+            plt.close(fig)
+
+
+def test_inspect_one_signed_field_gets_a_sequential_map(gs_cache):
+    _, path = gs_cache
+    fig = inspect.figure(path, n_show=2)
+    try:
+        u = [im for im in _images(fig) if im.axes.get_title().startswith("u #")]
+        assert u[0].get_cmap().name == "viridis" and u[0].get_clim()[0] > 0  # concentration u in (0, 1]
+    finally:
+        plt.close(fig)
+
+
+def test_colour_scale():
+    assert inspect.colour_scale(np.array([-1.0, 3.0])) == {"cmap": "RdBu_r", "vmin": -3.0, "vmax": 3.0}
+    assert inspect.colour_scale(np.array([0.2, 0.9])) == {"cmap": "viridis", "vmin": 0.2, "vmax": 0.9}
+    ringing = inspect.colour_scale(np.array([-0.02, 0.66]))  # Gibbs undershoot of a concentration
+    assert ringing["cmap"] == "viridis" and ringing["vmin"] == -0.02
+    assert inspect.colour_scale(np.array([np.nan, 1.0, 1.0]))["vmax"] > 1.0  # constant: a non-empty range
+
+
+def test_3d_fields_round_trip_and_plot_the_middle_slice():
+    u = np.arange(2 * 3 * 4 * 4 * 4, dtype=np.float32).reshape(2, 3, 4, 4, 4) - 100  # [S, T, x, y, z]
+    disk = schema.to_disk(u, 3)
+    assert disk[1, 2, 3, 1, 0] == u[1, 2, 0, 1, 3]  # stored (z, y, x)
+    assert np.array_equal(schema.from_disk(np.ascontiguousarray(disk), 3), u)
+    grid = np.arange(4, dtype=np.float32)
+    coords = {d: (d, grid, {"long_name": d, "units": "length"}) for d in "xyz"}
+    ds = xr.Dataset({"u": (("sample", "time", "z", "y", "x"), disk)},
+                    coords={**coords, "time": ("time", np.arange(3.0), {"long_name": "t", "units": "time"}),
+                            "sample": ("sample", np.arange(2))},
+                    attrs={"pdestream_fields": "u", "pdestream_params": "", "pde": "fake3d", "equation": "-"})
+    fig = inspect.draw(ds, n_show=2)
+    try:
+        ims = _images(fig)
+        assert len(ims) == 6 and all("z=2" in im.axes.get_title() for im in ims)
+        np.testing.assert_array_equal(ims[0].get_array(), u[0, 0, :, :, 2].T)  # row y, column x at z = 2
+    finally:
+        plt.close(fig)
+
+
+def test_a_schema_1_2d_cache_is_refused_in_one_line(tmp_path, ns_cache, capsys):
+    import h5py
+
+    import cli
+
+    pde, _ = ns_cache
+    old = tmp_path / "old.h5"
+    datasets.write_cache(pde, old, 1, progress=False)
+    with h5py.File(old, "r+") as f:
+        f.attrs["pdestream_schema"] = np.int64(1)  # as written by schema 1 (then stored (x, y))
+    with pytest.raises(ValueError, match=r"older pdestream \(cache schema 1.*regenerate"):
+        datasets.CachedTrajectories(old)
+    code = cli.main(["inspect", str(old)])
+    err = capsys.readouterr().err.strip()
+    assert code != 0 and len(err.splitlines()) == 1 and "schema 1" in err and "Traceback" not in err
+
+
+def test_a_schema_1_1d_cache_still_reads(tmp_path):
+    import h5py
+
+    pde = generator.get_pde("burgers1d", n=16, n_frames=3, t_end=0.1)
+    path = tmp_path / "old1d.h5"
+    datasets.write_cache(pde, path, 2, progress=False)
+    with h5py.File(path, "r+") as f:
+        f.attrs["pdestream_schema"] = np.int64(1)  # 1D layout is the same in both schemas
+    u = torch.from_numpy(np.array(generator.sample(pde, [1], 0).u[0]))
+    assert torch.equal(datasets.CachedTrajectories(path)[1]["u"], u)
