@@ -6,9 +6,10 @@ from .cache import WriteSummary, open_cache, write_cache
 from .loader import CachedTrajectories
 from .normalize import Normalization, compute_normalization
 from .reservoir import Reservoir, ReservoirStream
+from .solver import SolverOracle, SolverStep
 from .stream import StreamLoader, TrajectoryStream, stream_loader
 from .views import VIEWS, NextStep, Operator, Whole, collate, examples, gather, make_view
 
 __all__ = [
-    "Normalization", "Reservoir", "param_domains", "sample_tensors", "ReservoirStream", "StreamLoader", "TrajectoryStream", "compute_normalization", "gather", "stream_loader",
+    "Normalization", "Reservoir", "param_domains", "sample_tensors", "ReservoirStream", "SolverOracle", "SolverStep", "StreamLoader", "TrajectoryStream", "compute_normalization", "gather", "stream_loader",
     "CachedTrajectories", "WriteSummary", "open_cache", "write_cache", "VIEWS", "NextStep", "Operator", "Whole", "collate", "examples", "make_view"]

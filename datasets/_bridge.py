@@ -162,3 +162,133 @@ def max_index() -> int:
     from generator.sampler import MAX_INDEX
 
     return MAX_INDEX
+
+
+# --- the solver as a function of torch states (generator.interactive) ----------------------------------------
+
+def solver_pde(pde):
+    """A generator PDE from a catalog name, a generator PDE or a ``PDE.config()`` dict."""
+    if isinstance(pde, dict):
+        return pde_from_config(pde)
+    return resolve_pde(pde)
+
+
+def _jax_device(device):
+    """The JAX device for a torch device: the CPU, or the GPU of the same index (one line if JAX has none)."""
+    import jax
+
+    if device.type == "cpu":
+        return jax.devices("cpu")[0]
+    if device.type == "cuda":
+        try:
+            gpus = jax.devices("gpu")
+        except RuntimeError:
+            gpus = []
+        index = device.index or 0
+        match = [d for d in gpus if d.id == index]
+        if match:
+            return match[0]
+        have = ", ".join(sorted({d.platform for d in jax.devices()}))
+        raise ValueError(f"state is on {device} but JAX has no such device (JAX devices: {have}); install JAX's "
+                         "CUDA build (pip install -U 'jax[cuda12]') or pass CPU tensors")
+    raise ValueError(f"state is on {device}; allowed: cpu, or cuda with JAX's CUDA build")
+
+
+def to_jax(t, device):
+    """Contiguous torch tensor -> JAX array on JAX device ``device``: a copy through numpy on the CPU,
+    DLPack (zero-copy, shares the tensor's memory: read-only use) on a GPU."""
+    import jax
+
+    t = t.detach().contiguous()
+    if t.device.type == "cpu":
+        return jax.device_put(t.numpy(), device)
+    return jax.dlpack.from_dlpack(t)
+
+
+def _solver_inputs(pde, u, params, frames: int):
+    """Checks a torch state [B, C, *space] and params [B, P] against ``pde`` (one-line ValueError naming the bad
+    value and what is allowed); returns (u, {name: [B]}) as JAX arrays on the JAX twin of u's device."""
+    import jax
+    import numpy as np
+    import torch
+
+    if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
+        raise ValueError(f"{pde.NAME}: frames={frames!r} not allowed: need an integer >= 1")
+    grid, names = pde.grid, list(pde.PARAMS)
+    want = f"[B, {len(pde.FIELDS)}, {', '.join(map(str, grid.shape))}]"
+    if not isinstance(u, torch.Tensor):
+        raise ValueError(f"{pde.NAME}: state must be a torch.Tensor {want}, got {type(u).__name__}")
+    if u.ndim != 2 + grid.ndim or tuple(u.shape[1:]) != (len(pde.FIELDS), *grid.shape) or u.shape[0] < 1:
+        raise ValueError(f"{pde.NAME}: state has shape {list(u.shape)}; expected {want} (fields "
+                         f"{', '.join(pde.FIELDS)}; grid n={grid.n})")
+    wide = u.dtype == torch.float64 and jax.config.jax_enable_x64
+    if u.dtype != torch.float32 and not wide:
+        raise ValueError(f"{pde.NAME}: state dtype {u.dtype} not allowed: float32 (float64 only with "
+                         "jax_enable_x64 on)")
+    batch = u.shape[0]
+    if params is None and not names:
+        params = u.new_zeros((batch, 0))
+    if not isinstance(params, torch.Tensor) or tuple(params.shape) != (batch, len(names)):
+        shape = list(params.shape) if isinstance(params, torch.Tensor) else type(params).__name__
+        raise ValueError(f"{pde.NAME}: params {shape} not allowed: need a tensor [{batch}, {len(names)}] with "
+                         f"columns {names}")
+    if params.device != u.device:
+        raise ValueError(f"{pde.NAME}: params are on {params.device} but the state is on {u.device}; put both on "
+                         "one device")
+    device = _jax_device(u.device)
+    if not bool(torch.isfinite(u).all()):
+        bad = torch.nonzero(~torch.isfinite(u.reshape(batch, -1)).all(1)).flatten()[:10].tolist()
+        raise ValueError(f"{pde.NAME}: state has NaN/Inf in batch entries {bad}; allowed: finite values")
+    host = params.detach().cpu().double().numpy()
+    check_params(pde, {n: host[:, j] for j, n in enumerate(names)}, batch)
+    dtype = np.float64 if wide else np.float32
+    return to_jax(u, device), {n: jax.device_put(host[:, j].astype(dtype), device) for j, n in enumerate(names)}
+
+
+def _blown_up(pde, finite, frames: int) -> None:
+    import numpy as np
+
+    import generator
+
+    bad = np.flatnonzero(~np.asarray(finite))
+    if bad.size:
+        raise generator.BlowUpError(
+            f"{pde.NAME}: the solver blew up (NaN/Inf) advancing batch entries {bad[:10].tolist()} by {frames} "
+            f"frame(s) with step {pde.step_dt:.4g}: those states or parameters are outside what the step resolves")
+
+
+def solver_advance(pde, u, params, frames: int = 1):
+    """torch u [B, C, *space], params [B, P] (PARAMS order) -> u advanced ``frames`` frames, torch, on u's device.
+
+    BlowUpError if a result is NaN/Inf. The output may share memory with JAX's result buffer (not kept by JAX).
+    """
+    from generator import interactive
+
+    u_j, p_j = _solver_inputs(pde, u, params, frames)
+    out, finite = interactive.advance(pde, u_j, p_j, int(frames))
+    _blown_up(pde, finite, frames)
+    return to_torch(out)
+
+
+def solver_advance_vjp(pde, u, params, frames: int = 1, wrt_params: bool = True):
+    """``solver_advance`` and its backward: (out torch [B, C, *space], backward).
+
+    backward(g torch [B, C, *space]) -> (g_u [B, C, *space], g_params [B, P] or None), torch on u's device.
+    """
+    import torch
+
+    from generator import interactive
+
+    u_j, p_j = _solver_inputs(pde, u, params, frames)
+    out, finite, vjp = interactive.advance_vjp(pde, u_j, p_j, int(frames), wrt_params)
+    _blown_up(pde, finite, frames)
+    device, names = u_j.devices().pop(), list(pde.PARAMS)
+
+    def backward(g):
+        g_u, g_p = vjp(to_jax(g, device))
+        if g_p is None:
+            return to_torch(g_u), None
+        cols = [to_torch(g_p[n]) for n in names]
+        return to_torch(g_u), (torch.stack(cols, 1) if cols else torch.zeros_like(params))
+
+    return to_torch(out), backward

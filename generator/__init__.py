@@ -6,6 +6,7 @@ JAX only (never imports torch). Public API::
     get_pde(name, **overrides)        a configured PDE (overrides may be strings, e.g. nu="loguniform(1e-3, 1e-2)")
     sample(pde, indices, seed=0)      Trajectory with u [B, T, C, *space] float32, t [T], params {name: [B]}
     solve(pde, u0, params)            trajectory from a caller's initial condition
+    interactive.advance(pde, u, params, frames) / advance_vjp(...)   a caller's states [B, C, *space] advanced k frames
     enable_compilation_cache(path)    JAX's persistent compilation cache, so a new process skips compiling
                                       (not used, with a warning, if another user owns or may write it)
 """
@@ -16,6 +17,7 @@ from .pdes import PDE, PDES, Param
 from .pdes.base import make_ic
 from .sampler import BlowUpError, Trajectory, draw_params, get_pde, sample, sample_keys, solve
 from .spectral import Grid
+from . import interactive  # after sampler: it builds on it
 
 
 _REFUSED_CACHE_DIRS: set[str] = set()
@@ -72,5 +74,5 @@ def from_config(config: dict) -> PDE:
 __all__ = [
     "BlowUpError", "Choice", "Domain", "Fixed", "FourierSeries", "GaussianRandomField", "Grid", "IC_KINDS",
     "LogUniform", "PDE", "PDES", "Param", "Trajectory", "Uniform", "draw_params", "enable_compilation_cache", "from_config", "get_pde",
-    "make_ic", "parse_domain", "sample", "sample_keys", "solve",
+    "interactive", "make_ic", "parse_domain", "sample", "sample_keys", "solve",
 ]

@@ -109,11 +109,16 @@ def etdrk4_coefficients(linear: jax.Array, h: float | jax.Array) -> ETDRK4Coeffi
     a complex state by a real array; complex operators (advection, dispersion) give complex ones.
     """
     real = not jnp.iscomplexobj(linear)
-    hl = (h * linear).astype(jnp.complex64)
+    hl = h * linear
+    # complex64 for float32 operators (the solver's data); complex128 only for float64 ones (jax_enable_x64),
+    # so the float64 gradient checks of generator.interactive see float64 coefficients
+    wide = jax.config.jax_enable_x64 and jnp.dtype(hl.dtype) in (jnp.float64, jnp.complex128)
+    ctype = jnp.complex128 if wide else jnp.complex64
+    hl = hl.astype(ctype)
     roots = np.exp(2j * np.pi * (np.arange(1, CONTOUR_POINTS + 1) - 0.5) / CONTOUR_POINTS)  # full circle
     if real:  # f(conj z) = conj f(z): the upper half circle's mean has the same real part, at half the cost
         roots = roots[: CONTOUR_POINTS // 2]
-    z = hl[..., None] + jnp.asarray(roots, jnp.complex64)  # [..., M] points around each h*L
+    z = hl[..., None] + jnp.asarray(roots, ctype)  # [..., M] points around each h*L
     ez, ez2, z3 = jnp.exp(z), jnp.exp(z / 2), z**3
 
     def mean(f):

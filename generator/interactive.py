@@ -1,0 +1,184 @@
+"""The solver as a function of a caller's state: advance states by k frames, and the VJP of that map.
+
+JAX only. A state is u [B, C, *space] (the PDE's fields on its grid), parameters are {name: [B]}. One frame is
+the PDE's ``frame_dt``, taken as its own ``steps_per_frame`` ETDRK4 steps of ``step_dt`` with the PDE's linear
+and nonlinear parts, through ``spectral.rollout`` (the sampler's stepping loop), so advancing frame i of a
+sampled trajectory by one frame gives frame i+1 up to float32 rounding (the state re-enters Fourier space).
+
+    advance(pde, u, params, frames)             -> (u_k [B, C, *space], finite bool [B])
+    advance_vjp(pde, u, params, frames, wrt)    -> (u_k, finite, vjp); vjp(g) -> (g_u, g_params {name: [B]} | None)
+
+Batch invariance: the ETDRK4 coefficients are computed in fixed chunks of ``sampler.SETUP_CHUNK`` samples, one
+compiled program per chunk, and the stepping is vmapped FFTs and real arithmetic, as in the sampler; so
+``advance`` gives an element the same bits alone or in any batch (tested on CPU). ``advance_vjp`` is a
+different program: its output equals ``advance`` to float32 rounding, not bit for bit.
+
+Differentiability: every parameter is differentiable, through the ETDRK4 coefficients (the contour-integral
+phi functions) and through the nonlinear term; the step size is not a function of the parameters (it comes
+from the parameter *domain*). Under ``jax_enable_x64`` with float64 inputs the whole map runs in float64,
+except constants a PDE file builds in complex64 (e.g. kdv1d's dispersion operator, whose beta derivative
+then has float32 accuracy). Programs are compiled once per (PDE config, frames, batch shape, dtype).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Mapping
+
+import jax
+import jax.numpy as jnp
+
+from .pdes import PDE
+from .sampler import SETUP_CHUNK, _coefficients
+from .spectral import rollout
+
+
+def _advance_one(pde: PDE, frames: int, u: jax.Array, p: Mapping[str, jax.Array], coeffs) -> jax.Array:
+    """One state u [C, *space] advanced ``frames`` frames -> [C, *space] (dtype of u)."""
+    grid = pde.grid
+    mask = grid.dealias_mask()
+    nonlinear = pde.nonlinear(grid, p)
+    masked = None if nonlinear is None else (lambda v: mask * nonlinear(v))
+    v0 = mask * grid.rfft(u)  # the sampler's start: the dealiased state
+    # a linear system diagonal in other variables than its fields (wave) steps in its own basis, as the sampler
+    basis = getattr(pde, "state_basis", lambda *_: None)(grid, p)
+    to_state, from_state = basis if basis is not None else (lambda v: v, lambda v: v)
+    # frames + 1 recorded frames (0..frames); the recorded buffer costs one inverse FFT per frame
+    return rollout(to_state(v0), coeffs, masked, frames + 1, pde.steps_per_frame,
+                   lambda v: grid.irfft(from_state(v)))[-1]
+
+
+def _finite(u: jax.Array) -> jax.Array:
+    return jnp.all(jnp.isfinite(u.reshape(u.shape[0], -1)), axis=1)
+
+
+@functools.lru_cache(maxsize=64)
+def _setup(pde: PDE):
+    """jit of params {name: [K]} -> ETDRK4 coefficients [K, ...], K = SETUP_CHUNK, one sample per loop step."""
+    return jax.jit(lambda p: jax.lax.map(functools.partial(_coefficients, pde), p))
+
+
+@functools.lru_cache(maxsize=64)
+def _setup_vjp(pde: PDE):
+    """jit of params chunk -> (coefficients, VJP closure over the chunk's residuals)."""
+    return jax.jit(lambda p: jax.vjp(lambda q: jax.lax.map(functools.partial(_coefficients, pde), q), p))
+
+
+@functools.lru_cache(maxsize=64)
+def _evolve(pde: PDE, frames: int):
+    """jit of (u [B, C, *space], params {name: [B]}, coefficients) -> (u_k, finite [B])."""
+    step = jax.vmap(functools.partial(_advance_one, pde, frames))
+
+    def run(u, p, c):
+        out = step(u, p, c)
+        return out, _finite(out)
+
+    return jax.jit(run)
+
+
+@functools.lru_cache(maxsize=128)
+def _evolve_vjp(pde: PDE, frames: int, wrt_params: bool):
+    """jit of (u, params, coefficients) -> (u_k, finite, VJP closure) w.r.t. u (and params, coefficients)."""
+    step = jax.vmap(functools.partial(_advance_one, pde, frames))
+
+    def run(u, p, c):
+        if wrt_params:
+            out, vjp = jax.vjp(step, u, p, c)
+        else:
+            out, vjp = jax.vjp(lambda x: step(x, p, c), u)
+        return out, _finite(out), vjp
+
+    return jax.jit(run)
+
+
+@jax.jit
+def _apply(vjp, g):
+    """A VJP closure returned by a compiled program, applied to the cotangent g (compiled once per closure)."""
+    return vjp(g)
+
+
+def _chunks(params: Mapping[str, jax.Array], batch: int) -> list[dict[str, jax.Array]]:
+    """params {name: [B]} -> chunks of SETUP_CHUNK samples (the last padded by repeating sample 0)."""
+    pad = (-batch) % SETUP_CHUNK
+    padded = {k: jnp.concatenate([v, jnp.repeat(v[:1], pad)]) for k, v in params.items()}
+    return [{k: v[i : i + SETUP_CHUNK] for k, v in padded.items()} for i in range(0, batch + pad, SETUP_CHUNK)]
+
+
+def _join(parts, batch: int):
+    return jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:batch], *parts)
+
+
+def _check(pde: PDE, u: jax.Array, params: Mapping[str, jax.Array], frames: int) -> None:
+    grid, n_fields = pde.grid, len(pde.FIELDS)
+    if getattr(pde, "STEADY", False):
+        raise ValueError(f"{pde.NAME}: a steady PDE has no frames to advance; allowed: time-dependent PDEs")
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+        raise ValueError(f"{pde.NAME}: frames={frames!r} not allowed: need an integer >= 1")
+    if u.ndim != 2 + grid.ndim or u.shape[1:] != (n_fields, *grid.shape):
+        raise ValueError(f"{pde.NAME}: state has shape {tuple(u.shape)}; expected [B, {n_fields}, "
+                         f"{', '.join(map(str, grid.shape))}]")
+    if set(params) != set(pde.PARAMS):
+        raise ValueError(f"{pde.NAME}: params must be exactly {list(pde.PARAMS)}, got {sorted(params)}")
+    for name, v in params.items():
+        if v.shape != (u.shape[0],):
+            raise ValueError(f"{pde.NAME}: params[{name!r}] has shape {tuple(v.shape)}; expected [{u.shape[0]}]")
+
+
+def _inputs(pde: PDE, u, params: Mapping, frames: int):
+    """u and params as arrays of u's float dtype (float32 unless float64 under jax_enable_x64), checked."""
+    u = jnp.asarray(u)
+    if u.dtype not in (jnp.float32, jnp.float64):
+        u = u.astype(jnp.float32)
+    params = {k: jnp.asarray(v, u.dtype) for k, v in params.items()}
+    _check(pde, u, params, frames)
+    return u, params
+
+
+def advance(pde: PDE, u, params: Mapping[str, jax.Array], frames: int = 1):
+    """States u [B, C, *space] with parameters {name: [B]} advanced ``frames`` frames of ``pde.frame_dt``.
+
+    Returns (u_k [B, C, *space] of u's dtype, finite bool [B]); the caller decides what a non-finite row means.
+    An element gets the same bits alone or in any batch (see the module docstring).
+    """
+    u, params = _inputs(pde, u, params, frames)
+    batch = u.shape[0]
+    coeffs = _join([_setup(pde)(c) for c in _chunks(params, batch)], batch)
+    return _evolve(pde, frames)(u, params, coeffs)
+
+
+def advance_vjp(pde: PDE, u, params: Mapping[str, jax.Array], frames: int = 1, wrt_params: bool = True):
+    """``advance`` with its vector-Jacobian product: (u_k [B, C, *space], finite [B], vjp).
+
+    vjp(g [B, C, *space]) -> (g_u [B, C, *space], g_params {name: [B]} or None when wrt_params is False):
+    the gradient of sum(g * u_k) w.r.t. u and the parameters (through the ETDRK4 coefficients and the
+    nonlinear term). Between the call and vjp only the residuals jax.vjp needs are kept (in the closure).
+    """
+    u, params = _inputs(pde, u, params, frames)
+    batch = u.shape[0]
+    chunks = _chunks(params, batch)
+    if not wrt_params:
+        coeffs = _join([_setup(pde)(c) for c in chunks], batch)
+        out, finite, evolve_vjp = _evolve_vjp(pde, frames, False)(u, params, coeffs)
+        return out, finite, lambda g: (_apply(evolve_vjp, _cotangent(g, out))[0], None)
+    parts = [_setup_vjp(pde)(c) for c in chunks]
+    coeffs = _join([c for c, _ in parts], batch)
+    out, finite, evolve_vjp = _evolve_vjp(pde, frames, True)(u, params, coeffs)
+
+    def vjp(g):
+        g_u, g_p, g_c = _apply(evolve_vjp, _cotangent(g, out))
+        pad = len(parts) * SETUP_CHUNK - batch
+        g_c = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, jnp.zeros((pad, *x.shape[1:]), x.dtype)]), g_c)
+        through = [_apply(fn, jax.tree_util.tree_map(lambda x: x[i * SETUP_CHUNK : (i + 1) * SETUP_CHUNK], g_c))[0]
+                   for i, (_, fn) in enumerate(parts)]
+        through = _join(through, batch)
+        return g_u, {k: g_p[k] + through[k] for k in pde.PARAMS}
+
+    return out, finite, vjp
+
+
+def _cotangent(g, out: jax.Array) -> jax.Array:
+    g = jnp.asarray(g, out.dtype)
+    if g.shape != out.shape:
+        raise ValueError(f"cotangent has shape {tuple(g.shape)}; expected {tuple(out.shape)}")
+    return g
+
