@@ -135,12 +135,12 @@ def draw(ds, n_show: int = 4):
 def colour_scale(values: np.ndarray) -> dict:
     """imshow keywords (cmap, vmin, vmax) shared by every panel of one field: a diverging map centred on zero
     when the values take both signs, a sequential one when they keep one sign (e.g. concentrations). Values
-    reaching less than 5% of the largest magnitude to the other side of zero (Gibbs ringing of a spectral solver
-    around a concentration's sharp edges) do not make a field signed."""
+    reaching less than 10% of the largest magnitude to the other side of zero do not make a field signed: a
+    spectral solver's Gibbs ringing undershoots a concentration's sharp edge by up to ~9% of the jump."""
     finite = values[np.isfinite(values)]
     lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
     span = max(abs(lo), abs(hi)) or 1.0
-    if lo < -0.05 * span and hi > 0.05 * span:
+    if lo < -0.1 * span and hi > 0.1 * span:
         return {"cmap": "RdBu_r", "vmin": -span, "vmax": span}
     return {"cmap": "viridis", "vmin": lo, "vmax": hi if hi > lo else lo + 1.0}
 
@@ -162,7 +162,7 @@ def _space_time(plt, ds, fields, show, index, label, space):
     """1D: one row per field, one column per sample, t up, x across; one colourbar per row."""
     x, t = ds[space[0]].values, ds.time.values
     extent = [*_edges(x, True), *_edges(t, False)]
-    fig, axes = plt.subplots(len(fields), show, figsize=(2.6 * show + 1.0, 2.4 * len(fields) + 0.5), squeeze=False,
+    fig, axes = plt.subplots(len(fields), show, figsize=(2.6 * show + 0.8, 2.4 * len(fields) + 0.6), squeeze=False,
                              layout="constrained")
     for r, name in enumerate(fields):
         u = ds[name].isel(sample=slice(0, show)).transpose("sample", "time", *space).values  # [S, T, x]
@@ -172,7 +172,7 @@ def _space_time(plt, ds, fields, show, index, label, space):
             ax.set_title(f"#{index[i]} {label[i]}", fontsize=8)
             ax.set_xlabel(axis_label(ds[space[0]]) if r == len(fields) - 1 else "")
             ax.set_ylabel(axis_label(ds.time) if i == 0 else "")
-        fig.colorbar(im, ax=list(axes[r]), label=axis_label(ds[name]), shrink=0.9)
+        fig.colorbar(im, ax=list(axes[r]), label=axis_label(ds[name]), fraction=0.04, pad=0.01)
     return fig
 
 
@@ -186,7 +186,7 @@ def _snapshots(plt, ds, fields, show, index, label, space):
     where = f", {space[0]}={float(ds[space[0]][slab[space[0]]]):.3g}" if slab else ""
     extent = [*_edges(ds[across].values, True), *_edges(ds[up].values, True)]
     cols = len(fields) * len(frames)
-    fig, axes = plt.subplots(show, cols, figsize=(2.2 * cols + 0.8 * len(fields), 2.2 * show + 0.5), squeeze=False,
+    fig, axes = plt.subplots(show, cols, figsize=(2.2 * cols + 0.8 * len(fields), 2.4 * show + 0.7), squeeze=False,
                              layout="constrained")
     for c, name in enumerate(fields):
         u = (ds[name].isel(sample=slice(0, show), time=frames, **slab)
@@ -203,5 +203,5 @@ def _snapshots(plt, ds, fields, show, index, label, space):
                 ax.set_xlabel(axis_label(ds[across]) if i == show - 1 else "", fontsize=8)
                 ax.set_ylabel(axis_label(ds[up]) if c == 0 and j == 0 else "", fontsize=8)
                 ax.tick_params(labelsize=7)
-        fig.colorbar(im, ax=list(block.ravel()), label=axis_label(ds[name]), shrink=0.8)
+        fig.colorbar(im, ax=list(block.ravel()), label=axis_label(ds[name]), shrink=0.8, fraction=0.06, pad=0.02)
     return fig

@@ -149,8 +149,10 @@ def test_inspect_one_signed_field_gets_a_sequential_map(gs_cache):
     _, path = gs_cache
     fig = inspect.figure(path, n_show=2)
     try:
-        u = [im for im in _images(fig) if im.axes.get_title().startswith("u #")]
-        assert u[0].get_cmap().name == "viridis" and u[0].get_clim()[0] > 0  # concentration u in (0, 1]
+        for name in ("u", "v"):  # concentrations (v: its Gibbs undershoot stays small)
+            ims = [im for im in _images(fig) if im.axes.get_title().startswith(f"{name} #")]
+            assert {im.get_cmap().name for im in ims} == {"viridis"}
+        assert ims[0].get_clim()[1] > 10 * -ims[0].get_clim()[0]
     finally:
         plt.close(fig)
 
@@ -158,8 +160,8 @@ def test_inspect_one_signed_field_gets_a_sequential_map(gs_cache):
 def test_colour_scale():
     assert inspect.colour_scale(np.array([-1.0, 3.0])) == {"cmap": "RdBu_r", "vmin": -3.0, "vmax": 3.0}
     assert inspect.colour_scale(np.array([0.2, 0.9])) == {"cmap": "viridis", "vmin": 0.2, "vmax": 0.9}
-    ringing = inspect.colour_scale(np.array([-0.02, 0.66]))  # Gibbs undershoot of a concentration
-    assert ringing["cmap"] == "viridis" and ringing["vmin"] == -0.02
+    ringing = inspect.colour_scale(np.array([-0.05, 0.66]))  # Gibbs undershoot of a concentration
+    assert ringing["cmap"] == "viridis" and ringing["vmin"] == -0.05
     assert inspect.colour_scale(np.array([np.nan, 1.0, 1.0]))["vmax"] > 1.0  # constant: a non-empty range
 
 
