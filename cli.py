@@ -251,6 +251,78 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
     return {k: v for k, v in cfg.items() if v is not None}
 
 
+MODE_NAMES = ("one-step", "pushforward", "oracle", "solver-in-the-loop")
+
+
+def _add_mode_args(p: argparse.ArgumentParser, train: bool) -> None:
+    g = p.add_argument_group("interactive training modes (see surrogate/modes.py)")
+    if train:
+        g.add_argument("--mode", default="one-step", choices=MODE_NAMES,
+                       help="one-step: frames -> next frames; pushforward: unroll the network K-1 steps without "
+                            "gradient, train the K-th; oracle: train on states the network reaches in 0..K steps, "
+                            "labelled by the solver; solver-in-the-loop: a correction network on a coarse "
+                            "differentiable solver, unrolled K steps, against the fine solve (the PDE's n)")
+    else:
+        g.add_argument("--modes", metavar="M1,M2,...",
+                       help="compare training modes at equal steps (rollout error against time): a comma-separated "
+                            f"subset of {', '.join(MODE_NAMES)}")
+        g.add_argument("--fine-n", type=int, metavar="N",
+                       help="solver-in-the-loop: the fine grid (default: the PDE's n)")
+    g.add_argument("--unroll", type=int, default=None, metavar="K",
+                   help="steps unrolled by pushforward, oracle and solver-in-the-loop (default: 4 with --mode(s))")
+    g.add_argument("--coarse-n", type=int, metavar="N",
+                   help="solver-in-the-loop: grid of the coarse solver, a divisor of the fine n (default 64)")
+
+
+def mode_cfg(args: argparse.Namespace) -> dict:
+    """The `train --mode` settings for train_run (one line for options that do not fit the mode)."""
+    from surrogate.modes import check_mode_settings
+
+    if args.mode == "one-step":
+        if args.unroll not in (None, 1) or args.coarse_n is not None:
+            raise ValueError(f"--unroll {args.unroll} and --coarse-n go with --mode pushforward, oracle or "
+                             "solver-in-the-loop, not one-step")
+        return {"name": "one-step"}
+    if args.k_out != 1:
+        raise ValueError(f"--k-out={args.k_out} goes with --mode one-step; --mode {args.mode} predicts one frame per "
+                         "step and reads --unroll frames ahead")
+    cfg = {"name": args.mode, "unroll": 4 if args.unroll is None else args.unroll}
+    if args.mode == "solver-in-the-loop":
+        cfg["coarse_n"] = 64 if args.coarse_n is None else args.coarse_n
+    check_mode_settings(cfg["name"], cfg["unroll"], cfg.get("coarse_n"))
+    return cfg
+
+
+def _interactive_compare(args: argparse.Namespace) -> None:
+    """`compare PDE --modes ...`: training modes at equal steps (surrogate.interactive_compare)."""
+    from pathlib import Path
+
+    from surrogate.interactive_compare import InteractiveConfig, interactive_compare
+
+    if args.budget is not None or args.sim_budget is not None:
+        raise ValueError("--modes compares at equal --steps; --budget and --sim-budget go with the data-route comparison")
+    modes = tuple(m.strip() for m in args.modes.split(",") if m.strip())
+    if args.quick:  # a tiny scale for tests and a first look
+        args.set = ["n=32", "n_frames=11"] + list(args.set)
+    pde = pde_from_args(args.pde, args)
+    _set_threads(1 if args.threads is None else args.threads)
+    model_cfg = ({"width": 8, "modes": 4, "layers": 2} if args.quick else {"width": 32, "modes": 12, "layers": 3}) \
+        if args.model.startswith("fno") else {}
+    model_cfg.update(_parse_sets(args.model_set))
+    quick = args.quick and args.steps == 1000  # --quick without --steps: a few steps
+    cfg = InteractiveConfig(modes=modes, unroll=4 if args.unroll is None else args.unroll,
+                            steps=20 if quick else args.steps, batch_size=8 if quick else args.batch_size, lr=args.lr,
+                            model=args.model, model_cfg=model_cfg, k_in=args.k_in, seed=0,
+                            n_test=4 if args.quick and args.test_samples == 128 else args.test_samples,
+                            coarse_n=(16 if args.quick else 64) if args.coarse_n is None else args.coarse_n,
+                            fine_n=args.fine_n, device=args.device)
+    if args.k_out != 1:
+        raise ValueError(f"--k-out={args.k_out} not allowed with --modes: every mode predicts one frame per step")
+    interactive_compare(pde, args.out, cfg)
+    print((Path(args.out) / "compare.md").read_text(), end="")
+    print(f"table: {args.out}/compare.md, compare.csv, compare.json; figure: {args.out}/compare.png")
+
+
 def default_threads(source: str) -> int | None:
     """torch CPU threads for `train` without --threads: for the stream, the cores this process may use minus one
     (at least 1), since torch's threads fighting the solver thread ran 6x slower on 2 cores; for a cache, None
@@ -292,6 +364,7 @@ def add_train(sub) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an existing run in RUN_DIR")
     _add_model_args(p, steps=1000, batch_size=32, lr=1e-3)
     _add_reservoir_args(p, train=True)
+    _add_mode_args(p, train=True)
     _add_pde_config_args(p)
     p.set_defaults(func=cmd_train)
 
@@ -331,7 +404,8 @@ def cmd_train(args: argparse.Namespace) -> None:
     s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
                   view=_view_from_args(args, "next_step"), steps=args.steps, batch_size=args.batch_size, lr=args.lr,
                   seed=args.seed, n_test=args.test_samples, explicit=settings_from_args(args.pde, args)[1],
-                  checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args), device=args.device)
+                  checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args), device=args.device,
+                  mode=mode_cfg(args))
     _print_run(s, args.model, args.source, args.test_samples, args.out)
 
 
@@ -397,6 +471,7 @@ def add_compare(sub) -> None:
                    help="a small scale for tests and a first look (n=64, 11 frames, small FNO, 20 s per arm)")
     _add_model_args(p, steps=1000, batch_size=32, lr=3e-3)
     _add_reservoir_args(p, train=False)
+    _add_mode_args(p, train=False)
     _add_pde_config_args(p)
     p.set_defaults(func=cmd_compare)
 
@@ -434,6 +509,8 @@ def cmd_compare(args: argparse.Namespace) -> None:
     from surrogate.compare import CompareConfig, compare
 
     check_compare_out(args.out, args.overwrite)
+    if args.modes is not None:
+        return _interactive_compare(args)
     if args.budget is not None or args.sim_budget is not None or args.quick:
         return _budget_compare(args)
     args.set = [f"{k}={v}" for k, v in COMPARE_DEFAULTS.items()] + list(args.set)

@@ -7,9 +7,12 @@ per-mode branches:
 - ``OneStep``: the model maps the input frames to the view's k_out next frames (any view; today's training).
 - ``Pushforward(k)``: unroll the network k-1 steps without gradient from the input frames, train the last
   step against the frame k ahead (Brandstetter et al. 2022, "Message passing neural PDE solvers").
-- ``Oracle(k)``: per example draw j ~ U{1..k}, unroll the network j steps without gradient from the stream
+- ``Oracle(k)``: per example draw j ~ U{0..k}, unroll the network j steps without gradient from the stream
   state, ask the PDE's solver (``datasets.SolverOracle``) for the true next frame from the state reached, and
-  train on (reached state, solver answer): the network's own distribution, labelled by the solver.
+  train on (reached state, solver answer): the network's own distribution, labelled by the solver. j = 0 (the
+  stream state itself) is kept on purpose: with j >= 1 only, an untrained network's states collapse to nearly
+  constant fields whose solver answer is the same field, and the network learns that fixed point (burgers1d
+  n=32, 20 steps: training loss 7e-6, held-out rollout error 1.0).
 - ``SolverInTheLoop(k, coarse_n)``: a correction network applied after each step of a coarse differentiable
   solver (``datasets.SolverStep`` on a coarse grid of the same PDE), unrolled k steps with gradients through
   the solver; the target is the fine solve of the same sample, subsampled (Um et al. 2020).
@@ -151,7 +154,7 @@ class Pushforward:
 
 @dataclass
 class Oracle:
-    """Train on states the network reaches (j ~ U{1..k} unrolled steps), labelled by the solver.
+    """Train on states the network reaches (j ~ U{0..k} unrolled steps), labelled by the solver.
 
     solver: ``datasets.SolverOracle`` of the training PDE (or any callable (u [B, C, *space], params [B, P],
     frames) -> [B, C, *space] in physical units). Examples whose solver answer is not finite (the network
@@ -172,6 +175,10 @@ class Oracle:
         self.solver, self.seed = datasets.SolverOracle(pde), seed
         return self
 
+    def stats(self) -> dict:
+        """What the mode did beyond the loss: examples left out because the solver's answer was not finite."""
+        return {"oracle_dropped": self.dropped}
+
     def frames_ahead(self, view) -> int:
         return 1  # the targets come from the solver; the view only supplies start states
 
@@ -179,9 +186,9 @@ class Oracle:
         return view.k_in * len(pde.FIELDS), len(pde.FIELDS)
 
     def draws(self, step: int, batch: int) -> torch.Tensor:
-        """Unrolled steps per example, int64 [batch] in 1..unroll: a pure function of (seed, step)."""
+        """Unrolled steps per example, int64 [batch] in 0..unroll: a pure function of (seed, step)."""
         gen = torch.Generator().manual_seed(self.seed * 1_000_003 + step)
-        return torch.randint(1, self.unroll + 1, (batch,), generator=gen)
+        return torch.randint(0, self.unroll + 1, (batch,), generator=gen)
 
     def reached(self, model, norm, batch, step) -> torch.Tensor:
         """The windows the network reaches, normalized [B, k_in, C, *space] (no gradient)."""
@@ -195,9 +202,26 @@ class Oracle:
                 out[j == i] = window[j == i]
         return out
 
+    def answer(self, u: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """The solver's next frame from each state u [B, C, *space] (physical units); NaN rows where the state is
+        not finite or the solver blew up from it (then each state is solved alone, to keep the others)."""
+        ok = torch.isfinite(u.flatten(1)).all(dim=1)
+        out = torch.full_like(u, float("nan"))
+        if not bool(ok.any()):
+            return out
+        try:
+            out[ok] = self.solver(u[ok], params[ok], frames=1)
+        except ValueError:  # BlowUpError is one: find the states it came from
+            for i in torch.flatnonzero(ok).tolist():
+                try:
+                    out[i] = self.solver(u[i : i + 1], params[i : i + 1], frames=1)[0]
+                except ValueError:
+                    pass
+        return out
+
     def step_loss(self, model, batch, norm, step):
         start = self.reached(model, norm, batch, step)
-        answer = self.solver(norm.denormalize(start[:, -1]), batch["params"], frames=1)  # [B, C, *space]
+        answer = self.answer(norm.denormalize(start[:, -1]), batch["params"])  # [B, C, *space]
         ok = torch.isfinite(answer.flatten(1)).all(dim=1)
         if not bool(ok.all()):
             self.dropped += int((~ok).sum())

@@ -120,9 +120,11 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     s = settings
     check_train_settings(s["steps"], s["lr"], s["schedule"], s["checkpoint_every"])
     view = datasets.make_view(s["view"], **s["view_args"])
+    mode = make_mode(s.get("mode"))  # run.json of runs before modes existed: one-step
+    if s["source"] == "stream":
+        check_fits(mode, view, pde)  # the mode's own words, before the stream checks the window
     loader, data_pde = train_loader(pde, s["source"], view, s["batch_size"], seed=s["seed"], data_seed=s["data_seed"],
                                     explicit=explicit, data_cfg=s["data_cfg"])
-    mode = make_mode(s.get("mode"))  # run.json of runs before modes existed: one-step
     check_fits(mode, view, data_pde)
     view.check(data_pde.n_frames)
     mode.bind(data_pde, s["seed"])

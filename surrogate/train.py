@@ -261,6 +261,9 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
                **(meta or {})}
     if progress.data_stats is not None:
         summary["data_stats"] = progress.data_stats
+    summary["mode"] = mode.settings()
+    if hasattr(mode, "stats"):  # e.g. the oracle's examples dropped for a non-finite solver answer
+        summary["mode_stats"] = mode.stats()
     if finish is not None:
         summary.update(finish(model, normalizer))
     save_checkpoint(out / "model.pt", model, normalizer, step=steps, meta=meta)

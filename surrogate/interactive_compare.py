@@ -1,0 +1,213 @@
+"""Interactive training modes compared at equal optimizer steps: rollout error against time per mode.
+
+Network modes (``one-step``, ``pushforward``, ``oracle``): the same model, from the same initial weights, trained
+on the same stream (next-step windows of the PDE) for the same number of steps, each with its own mode
+(``surrogate.modes``); then rolled out autoregressively from the first frame of held-out trajectories (a Latin
+hypercube over the parameter box, ICs from a held-out seed: ``budget.stratified_test_set``) over all their
+frames. Reported per mode: relative L2 per frame (mean over trajectories), the error at the last frame (mean,
+p95, max over trajectories) and the training wall time.
+
+``solver-in-the-loop``: the PDE on a coarse grid (``coarse_n``) against the same PDE on a fine grid (``fine_n``,
+default the PDE's own n), three arms rolled out over the whole trajectory from the fine IC subsampled and
+compared with the fine solution subsampled: the coarse solver alone, the coarse solver with a correction trained
+on (coarse step, fine) pairs (unroll 1: no unrolling, the precomputed-pairs baseline), and with a correction
+trained unrolled ``unroll`` steps through the differentiable coarse solver.
+
+Outputs in out_dir: compare.md, compare.csv, compare.json, compare.png and one run directory per arm.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import datasets
+
+from .budget import stratified_test_set
+from .data import check_device
+from .modes import MODE_NAMES, check_mode_settings, make_mode, rollout_errors
+from .runs import train_run
+from .train import load_checkpoint
+
+NETWORK_MODES = ("one-step", "pushforward", "oracle")
+
+
+@dataclass
+class InteractiveConfig:
+    """What every arm shares. unroll: k of pushforward, oracle and solver-in-the-loop (sitl_unroll overrides the
+    last); coarse_n / fine_n: the solver-in-the-loop grids (fine_n None: the PDE's n)."""
+
+    modes: tuple = NETWORK_MODES
+    unroll: int = 4
+    sitl_unroll: int | None = None
+    steps: int = 2000
+    batch_size: int = 32
+    lr: float = 1e-3
+    model: str = "fno"
+    model_cfg: dict = field(default_factory=lambda: {"width": 32, "modes": 12, "layers": 3})
+    k_in: int = 1
+    seed: int = 0
+    n_test: int = 32
+    coarse_n: int = 64
+    fine_n: int | None = None
+    device: str = "cpu"
+
+    def check(self, pde) -> None:
+        """ValueError (one line) naming the bad setting, before any work."""
+        unknown = [m for m in self.modes if m not in MODE_NAMES]
+        if unknown or not self.modes:
+            raise ValueError(f"--modes {','.join(self.modes)} not allowed; choose from {', '.join(MODE_NAMES)}")
+        for name in self.modes:
+            check_mode_settings(name, self.unroll if name != "one-step" else 1)
+        if self.sitl_unroll is not None:
+            check_mode_settings("solver-in-the-loop", self.sitl_unroll)
+        for name, value in (("steps", self.steps), ("batch size", self.batch_size), ("test samples", self.n_test),
+                            ("k_in", self.k_in)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name}={value!r} not allowed; must be an integer >= 1")
+        if pde.n_frames < self.k_in + max(self.unroll, 1) + 1:
+            raise ValueError(f"--unroll {self.unroll} needs trajectories of at least {self.k_in + self.unroll + 1} "
+                             f"frames; {pde.NAME} has n_frames={pde.n_frames}")
+        check_device(self.device)
+
+
+def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict:
+    """Train and roll out every arm; write compare.md/csv/json and compare.png; return the result dict."""
+    cfg.check(pde)
+    out = Path(out_dir)
+    net_modes = [m for m in cfg.modes if m in NETWORK_MODES]
+    sitl = "solver-in-the-loop" in cfg.modes
+    fine = pde.replace({"n": cfg.fine_n}) if sitl and cfg.fine_n not in (None, pde.n) else pde
+    if sitl:
+        make_mode({"name": "solver-in-the-loop", "unroll": 1, "coarse_n": cfg.coarse_n}).bind(fine)  # sizes fit?
+    out.mkdir(parents=True, exist_ok=True)
+    arms = []
+    if net_modes:
+        t0 = time.perf_counter()
+        test = stratified_test_set(pde, cfg.n_test, cfg.seed)
+        log(f"test set: {cfg.n_test} trajectories of {pde.n_frames} frames in {time.perf_counter() - t0:.1f} s")
+        for name in net_modes:
+            settings = {"name": name} if name == "one-step" else {"name": name, "unroll": cfg.unroll}
+            arms.append(_train_arm(name, pde, settings, test, cfg, out / name, log))
+    if sitl:
+        test = stratified_test_set(fine, cfg.n_test, cfg.seed)
+        k = cfg.sitl_unroll or cfg.unroll
+        coarse = make_mode({"name": "solver-in-the-loop", "unroll": 1, "coarse_n": cfg.coarse_n}).bind(fine)
+        t0 = time.perf_counter()
+        errors = rollout_errors(coarse, None, _identity_norm(fine), test, 1).numpy()
+        arms.append(_record("coarse solver", "none", errors, 0.0, None, cfg.coarse_n))
+        log(f"coarse solver (n={cfg.coarse_n}): end error {arms[-1]['end_mean']:.4f} ({time.perf_counter() - t0:.1f} s)")
+        for label, unroll in (("pairs (unroll 1)", 1), (f"solver-in-the-loop (unroll {k})", k)):
+            settings = {"name": "solver-in-the-loop", "unroll": unroll, "coarse_n": cfg.coarse_n}
+            arms.append(_train_arm(label, fine, settings, test, cfg, out / f"sitl_unroll{unroll}", log))
+    result = {"pde": pde.config(), "fine_pde": fine.config() if sitl else None, "config": asdict(cfg),
+              "frame_dt": pde.frame_dt, "arms": arms}
+    (out / "compare.json").write_text(json.dumps(result, indent=2))
+    _write_tables(out, result, pde, cfg)
+    plot(out / "compare.png", result)
+    return result
+
+
+def _identity_norm(pde) -> datasets.Normalization:
+    """A do-nothing normalization (mean 0, std 1) for rolling out the coarse solver alone."""
+    import torch
+
+    c, p = len(pde.FIELDS), len(pde.PARAMS)
+    return datasets.Normalization(tuple(pde.FIELDS), torch.zeros(c), torch.ones(c), tuple(pde.PARAMS),
+                                  torch.zeros(p), torch.ones(p), pde.NDIM)
+
+
+def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: InteractiveConfig, run_dir: Path, log) -> dict:
+    """Train one arm through ``train_run`` (stream, same seed and initial weights) and roll it out on ``test``."""
+    summary = train_run(pde, "stream", run_dir, model=cfg.model, model_cfg=cfg.model_cfg,
+                        view=datasets.NextStep(cfg.k_in, 1), steps=cfg.steps, batch_size=cfg.batch_size, lr=cfg.lr,
+                        seed=cfg.seed, data_seed=cfg.seed, tests={}, label=label, checkpoint_every=0,
+                        device=cfg.device, mode=settings)
+    model, norm, _ = load_checkpoint(run_dir / "model.pt")
+    model.to(check_device(cfg.device))
+    mode = make_mode(settings).bind(pde, cfg.seed)
+    errors = rollout_errors(mode, model, norm, test, cfg.k_in).numpy()  # [N, T - k_in]
+    rec = _record(label, settings["name"], errors, summary["wall"], summary, settings.get("coarse_n", pde.n))
+    rec["unroll"] = settings.get("unroll", 1)
+    rec["mode_stats"] = summary.get("mode_stats", {})
+    log(f"{label:32s} end error mean {rec['end_mean']:.4f} p95 {rec['end_p95']:.4f} max {rec['end_max']:.4f}; "
+        f"rollout mean {rec['rollout_mean']:.4f}; train loss {summary['final_loss']:.3g}; {summary['wall']:.0f} s")
+    return rec
+
+
+def _record(label: str, mode: str, errors: np.ndarray, wall: float, summary: dict | None, n: int) -> dict:
+    """One arm's figures from its per-trajectory, per-frame errors [N, h]; n: the grid it predicts on."""
+    end = errors[:, -1]
+    return {"arm": label, "mode": mode, "n": n, "wall_s": wall, "steps": summary["steps"] if summary else 0,
+            "final_loss": summary["final_loss"] if summary else None,
+            "end_mean": float(end.mean()), "end_p95": float(np.percentile(end, 95)), "end_max": float(end.max()),
+            "rollout_mean": float(errors.mean()), "curve": errors.mean(0).tolist(),
+            "curve_p95": np.percentile(errors, 95, axis=0).tolist(), "frames": errors.shape[1]}
+
+
+COLUMNS = ("end_mean", "end_p95", "end_max", "rollout_mean", "wall_s", "steps", "final_loss")
+
+
+def _write_tables(out: Path, result: dict, pde, cfg: InteractiveConfig) -> None:
+    rows = [{"arm": a["arm"], "mode": a["mode"], "n": a["n"], **{c: a[c] for c in COLUMNS}} for a in result["arms"]]
+    with open(out / "compare.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    frames = result["arms"][0]["frames"]
+    lines = [f"{pde.NAME} ({', '.join(f'{k} ~ {v}' for k, v in pde.param_domains.items())}), {cfg.model} "
+             f"{cfg.model_cfg}, {cfg.steps} optimizer steps x batch {cfg.batch_size} per trained arm, lr {cfg.lr}, "
+             f"unroll {cfg.unroll}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "
+             f"(Latin hypercube over the parameters), rolled out {frames} frames from the first; end: the last "
+             "frame (mean, p95, max over trajectories); rollout mean: over all frames and trajectories; wall: "
+             "training time of the arm (solver calls included)", "",
+             "| arm | grid n | end mean | end p95 | end max | rollout mean | wall s | steps | final train loss |",
+             "|" + " --- |" * 9]
+    for r in rows:
+        loss = "-" if r["final_loss"] is None else f"{r['final_loss']:.3g}"
+        lines.append(f"| {r['arm']} | {r['n']} | {r['end_mean']:.4f} | {r['end_p95']:.4f} | {r['end_max']:.4f} | "
+                     f"{r['rollout_mean']:.4f} | {r['wall_s']:.0f} | {r['steps']} | {loss} |")
+    by = {a["mode"]: a for a in result["arms"] if a["mode"] in NETWORK_MODES}
+    if "one-step" in by:
+        for name in ("pushforward", "oracle"):
+            if name in by:
+                lines.append(f"\n{name}: end error {by['one-step']['end_mean'] / by[name]['end_mean']:.2f}x lower "
+                             "than one-step (>1: better)")
+    sitl = [a for a in result["arms"] if a["mode"] in ("none", "solver-in-the-loop")]
+    if len(sitl) == 3:
+        base, pairs, loop = sitl
+        lines.append(f"\nsolver-in-the-loop end error: {base['end_mean'] / loop['end_mean']:.2f}x lower than the "
+                     f"coarse solver alone, {pairs['end_mean'] / loop['end_mean']:.2f}x lower than the correction "
+                     "trained on pairs")
+    (out / "compare.md").write_text("\n".join(lines) + "\n")
+
+
+def plot(path: Path, result: dict) -> None:
+    """Rollout error (mean over trajectories) against time, one panel per group (network modes, solver-in-the-loop)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    groups = [[a for a in result["arms"] if a["mode"] in NETWORK_MODES],
+              [a for a in result["arms"] if a["mode"] not in NETWORK_MODES]]
+    groups = [g for g in groups if g]
+    fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 4), squeeze=False)
+    dt = result["frame_dt"]
+    for ax, group in zip(axes[0], groups):
+        for a in group:
+            t = dt * (1 + np.arange(a["frames"]))
+            ax.plot(t, a["curve"], label=f"{a['arm']} (end {a['end_mean']:.3f})")
+        ax.set(yscale="log", xlabel="time (rolled out from t=0)", ylabel="relative L2 error (mean over trajectories)")
+        fine = result["fine_pde"]["n"] if result["fine_pde"] else None
+        ax.set_title("network modes" if group[0]["mode"] in NETWORK_MODES else
+                     f"coarse solver n={group[0]['n']} vs fine n={fine} (subsampled)")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,235 @@
+"""Training modes (surrogate/modes.py): one-step, pushforward, oracle, solver-in-the-loop; their CLI and resume.
+
+Tiny grids (burgers1d n=32, 11 frames) and tiny FNOs, so the whole file runs in seconds.
+"""
+
+import json
+
+import pytest
+import torch
+
+import cli
+import datasets
+import generator
+import surrogate.train as T
+from surrogate import build_model
+from surrogate.modes import (Oracle, Pushforward, SolverInTheLoop, check_fits, make_mode, subsample, training_view)
+from surrogate.runs import resume_run, train_run
+
+torch.set_num_threads(1)
+
+PDE = generator.get_pde("burgers1d", n=32, n_frames=11)
+FINE = generator.get_pde("burgers1d", n=64, n_frames=11)
+TINY = {"width": 8, "modes": 4, "layers": 2}
+
+
+def batch_of(pde, k_out: int, size: int = 6) -> dict:
+    stream = datasets.TrajectoryStream(pde, seed=0, view=datasets.NextStep(1, k_out), batch_size=size, solve_batch=4)
+    return next(iter(stream))
+
+
+def norm_of(batch: dict) -> datasets.Normalization:
+    return datasets.Normalization.from_batch(batch, 1)
+
+
+def net(c_in: int = 1, c_out: int = 1, seed: int = 0):
+    torch.manual_seed(seed)
+    return build_model("fno", 1, c_in, c_out, 1, **TINY)
+
+
+def bound(settings: dict, pde=PDE):
+    return make_mode(settings).bind(pde, 0)
+
+
+def train_steps(mode, pde, k_out: int, steps: int = 12) -> tuple[list[float], torch.nn.Module]:
+    """A few Adam steps of ``mode`` on one fixed batch; the losses and the model."""
+    batch = batch_of(pde, k_out)
+    norm, model = norm_of(batch), net()
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    losses = []
+    for step in range(1, steps + 1):
+        loss, per = mode.step_loss(model, batch, norm, step)
+        assert per.shape == (len(batch["x"]),) and per.dtype == torch.float64 and torch.isfinite(per).all()
+        opt.zero_grad()
+        loss.backward()
+        if step == 1:  # every parameter of the network gets a finite, not all-zero gradient
+            grads = [p.grad for p in model.parameters()]
+            assert all(g is not None and torch.isfinite(g).all() for g in grads)
+            assert sum(float(g.abs().sum()) for g in grads) > 0
+        opt.step()
+        losses.append(loss.item())
+    return losses, model
+
+
+@pytest.mark.parametrize("settings, pde, k_out", [
+    ({"name": "one-step"}, PDE, 1),
+    ({"name": "pushforward", "unroll": 3}, PDE, 3),
+    ({"name": "oracle", "unroll": 3}, PDE, 1),
+    ({"name": "solver-in-the-loop", "unroll": 3, "coarse_n": 16}, FINE, 3),
+])
+def test_each_mode_trains(settings, pde, k_out):
+    losses, _ = train_steps(bound(settings, pde), pde, k_out)
+    assert all(torch.isfinite(torch.tensor(losses)))
+    assert min(losses[-3:]) < losses[0]  # fitting one batch: the loss goes down
+
+
+def test_pushforward_gradient_skips_the_unrolled_steps():
+    batch = batch_of(PDE, 3)
+    norm, model = norm_of(batch), net()
+    loss, _ = Pushforward(3).step_loss(model, batch, norm, 1)
+    loss.backward()
+    got = [p.grad.clone() for p in model.parameters()]
+    # the same loss with the unrolled window detached by hand: equal gradients; back-propagating through the two
+    # unrolled steps would add terms
+    model.zero_grad()
+    p = norm.normalize_params(batch["params"])
+    w = norm.normalize(batch["x"])
+    for _ in range(2):
+        w = torch.cat([w[:, 1:], model(w.flatten(1, 2), p)[:, None]], 1).detach()
+    torch.nn.functional.mse_loss(model(w.flatten(1, 2), p), norm.normalize(batch["y"][:, 2])).backward()
+    assert all(torch.equal(a, b.grad) for a, b in zip(got, model.parameters()))
+    model.zero_grad()  # and with the gradient through the unroll they differ (the check above can fail)
+    w = norm.normalize(batch["x"])
+    for _ in range(2):
+        w = torch.cat([w[:, 1:], model(w.flatten(1, 2), p)[:, None]], 1)
+    torch.nn.functional.mse_loss(model(w.flatten(1, 2), p), norm.normalize(batch["y"][:, 2])).backward()
+    assert not all(torch.allclose(a, b.grad) for a, b in zip(got, model.parameters()))
+
+
+def test_oracle_pairs_are_the_solvers_answers():
+    batch = batch_of(PDE, 1, size=8)
+    norm, model = norm_of(batch), net()
+    mode = bound({"name": "oracle", "unroll": 3})
+    step = 5
+    j = mode.draws(step, 8)
+    assert set(j.tolist()) <= {0, 1, 2, 3} and torch.equal(j, mode.draws(step, 8))  # a pure function of the step
+    reached = mode.reached(model, norm, batch, step)
+    p = norm.normalize_params(batch["params"])
+    with torch.no_grad():  # the network unrolled j steps by hand
+        w = norm.normalize(batch["x"])
+        for i in range(8):
+            for _ in range(int(j[i])):
+                w[i : i + 1] = model(w[i : i + 1, 0], p[i : i + 1])[:, None]
+    assert torch.allclose(reached, w, atol=1e-6)
+    solver = datasets.SolverOracle(PDE)
+    states = norm.denormalize(reached[:, -1])
+    answer = solver(states, batch["params"])
+    # from the stream's own state (j = 0) the solver's answer is the stream's next frame
+    zero = j == 0
+    assert zero.any() and (~zero).any()
+    assert torch.allclose(answer[zero], batch["y"][zero, 0], rtol=1e-4, atol=1e-5)
+    # the loss is the network's error on (reached state, solver answer)
+    loss, _ = mode.step_loss(model, batch, norm, step)
+    want = torch.nn.functional.mse_loss(model(reached[:, 0], p), norm.normalize(answer))
+    assert torch.allclose(loss, want, rtol=1e-5)
+
+
+def test_oracle_drops_states_the_solver_cannot_advance():
+    batch = batch_of(PDE, 1, size=4)
+    norm, model = norm_of(batch), net()
+    mode = Oracle(1, solver=datasets.SolverOracle(PDE))
+    u = batch["x"][:, 0].clone()
+    u[1] = float("nan")
+    out = mode.answer(u, batch["params"])
+    assert torch.isnan(out[1]).all() and torch.isfinite(out[[0, 2, 3]]).all()
+
+
+def test_solver_in_the_loop_differentiates_through_the_coarse_solver():
+    batch = batch_of(FINE, 2)
+    norm, model = norm_of(batch), net()
+    mode = bound({"name": "solver-in-the-loop", "unroll": 2, "coarse_n": 16}, FINE)
+    assert mode.factor == 4
+    loss, _ = mode.step_loss(model, batch, norm, 1)
+    loss.backward()
+    through = [p.grad.clone() for p in model.parameters()]
+    model.zero_grad()
+    solver = mode.step
+    mode.step = lambda s, params: solver(s.detach(), params)  # the solver as a constant: other gradients
+    mode.step_loss(model, batch, norm, 1)[0].backward()
+    assert not all(torch.allclose(a, b.grad) for a, b in zip(through, model.parameters()))
+    # the coarse solver alone follows the fine solution subsampled (its rollout is what the network corrects)
+    u = torch.cat([batch["x"], batch["y"]], 1)
+    pred, truth = mode.rollout(None, norm, u, batch["params"])
+    assert pred.shape == truth.shape == (6, 2, 1, 16)
+    assert torch.equal(truth, subsample(u[:, 1:], 4, 1))
+    assert float(((pred - truth).norm() / truth.norm())) < 0.05
+
+
+def test_bad_settings_are_one_line():
+    cases = [
+        (lambda: make_mode({"name": "dagger"}), "unknown mode 'dagger'; allowed: one-step, pushforward"),
+        (lambda: make_mode({"name": "pushforward", "unroll": 0}), "--unroll=0 not allowed"),
+        (lambda: make_mode({"name": "one-step", "unroll": 3}), "--unroll=3 goes with"),
+        (lambda: make_mode({"name": "oracle", "unroll": 2, "coarse_n": 16}), "--coarse-n goes with"),
+        (lambda: bound({"name": "solver-in-the-loop", "unroll": 2, "coarse_n": 24}, FINE),
+         "coarse n=24 does not fit the fine grid n=64"),
+        (lambda: training_view(Pushforward(2), datasets.Operator()), "needs the next_step view, not 'operator'"),
+        (lambda: training_view(SolverInTheLoop(2), datasets.NextStep(2, 1)), "--k-in=2 not allowed"),
+        (lambda: check_fits(Pushforward(11), datasets.NextStep(1, 11), PDE), "allowed: --unroll <= 10"),
+    ]
+    for call, message in cases:
+        with pytest.raises(ValueError, match=None) as err:
+            call()
+        assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--mode", "one-step", "--unroll", "3"], "--unroll 3 and --coarse-n go with"),
+    (["--mode", "pushforward", "--k-out", "2"], "--k-out=2 goes with --mode one-step"),
+    (["--mode", "oracle", "--unroll", "0"], "--unroll=0 not allowed"),
+    (["--mode", "pushforward", "--view", "operator"], "needs the next_step view"),
+    (["--mode", "pushforward", "--unroll", "11"], "allowed: --unroll <= 10"),
+    (["--mode", "solver-in-the-loop", "--coarse-n", "12"], "coarse n=12 does not fit the fine grid n=32"),
+])
+def test_cli_refuses_bad_modes_in_one_line(tmp_path, capsys, argv, message):
+    out = tmp_path / "run"
+    rc = cli.main(["train", "burgers1d", "--set", "n=32", "--set", "n_frames=11", "--steps", "2", "--out", str(out),
+                   *argv])
+    err = capsys.readouterr().err
+    assert rc == 2 and message in err and err.count("\n") == 1 and "Traceback" not in err, err
+    assert not (out / "run.json").exists()
+
+
+def test_resume_continues_a_mode_run_exactly(tmp_path, monkeypatch):
+    kw = dict(model_cfg=TINY, steps=6, batch_size=4, n_test=2, checkpoint_every=3,
+              mode={"name": "oracle", "unroll": 2})
+    whole = train_run(PDE, "stream", tmp_path / "whole", **kw)
+    real = T.forever
+
+    def dying(loader):
+        for n, batch in enumerate(real(loader), 1):
+            if n == 5:
+                raise KeyboardInterrupt
+            yield batch
+
+    monkeypatch.setattr(T, "forever", dying)
+    with pytest.raises(KeyboardInterrupt):
+        train_run(PDE, "stream", tmp_path / "cut", **kw)
+    monkeypatch.setattr(T, "forever", real)
+    settings = json.loads((tmp_path / "cut" / "run.json").read_text())
+    assert settings["mode"] == {"name": "oracle", "unroll": 2} and settings["view_args"]["k_out"] == 1
+    resumed, step = resume_run(tmp_path / "cut")
+    assert step == 3 and resumed["mode"] == whole["mode"] == {"name": "oracle", "unroll": 2}
+    a = torch.load(tmp_path / "whole" / "model.pt", weights_only=True)["model"]
+    b = torch.load(tmp_path / "cut" / "model.pt", weights_only=True)["model"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_cli_compare_modes_quick(tmp_path, capsys):
+    out = tmp_path / "cmp"
+    rc = cli.main(["compare", "burgers1d", "--modes", "one-step,pushforward,oracle,solver-in-the-loop", "--quick",
+                   "--unroll", "2", "--out", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    for name in ("compare.md", "compare.csv", "compare.json", "compare.png"):
+        assert (out / name).is_file()
+    result = json.loads((out / "compare.json").read_text())
+    arms = [a["arm"] for a in result["arms"]]
+    assert arms == ["one-step", "pushforward", "oracle", "coarse solver", "pairs (unroll 1)",
+                    "solver-in-the-loop (unroll 2)"]
+    for a in result["arms"]:
+        assert len(a["curve"]) == 10 and all(v == v for v in a["curve"])  # 10 frames rolled out, no NaN
+        assert a["steps"] == (0 if a["arm"] == "coarse solver" else 20)
+    assert "| oracle | 32 |" in text and "| coarse solver | 16 |" in text
+    # a second run into the same directory is refused
+    assert cli.main(["compare", "--modes", "one-step", "--quick", "--out", str(out)]) == 2
