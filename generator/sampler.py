@@ -30,8 +30,10 @@ class BlowUpError(ValueError):
 class Trajectory:
     """A batch of solutions.
 
-    u: float32 [B, T, C, *space] (jax array); t: float32 [T]; params: {name: float32 [B]};
-    indices: int64 [B] global sample indices (None for ``solve``); redraws: int [B] blow-up redraws used.
+    u: float32 [B, T, C, *space] (jax array), or [B, C, *space] for a steady PDE (``pde.STEADY``: no time
+    axis, t is empty); t: float32 [T]; params: {name: float32 [B]}; indices: int64 [B] global sample indices
+    (None for ``solve``); redraws: int [B] blow-up redraws used; inputs: float32 [B, C_in, *space], the
+    random input fields ``pde.INPUTS`` of a steady PDE (darcy2d's coefficient a), else None.
     """
 
     u: jax.Array
@@ -40,6 +42,7 @@ class Trajectory:
     pde: PDE
     indices: np.ndarray | None = None
     redraws: np.ndarray | None = field(default=None)
+    inputs: jax.Array | None = None
 
     def __len__(self) -> int:
         return int(self.u.shape[0])
@@ -132,7 +135,8 @@ def _join(parts, batch: int):
 
 
 def _run_keys(pde: PDE, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
-    """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, C, *space], params {name: [B]}, finite [B])."""
+    """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, C, *space], params {name: [B]}, finite [B]).
+    The time-dependent PDEs' ``PDE.run_keys``."""
     batch = keys.shape[0]
     pad = (-batch) % SETUP_CHUNK
     padded = jnp.concatenate([keys, jnp.repeat(keys[:1], pad, axis=0)])
@@ -236,7 +240,8 @@ def sample(
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     idx = _check_indices(indices)
     explicit, given = explicit_params(pde, params, len(idx))
-    u, params, finite = _run_keys(pde, sample_keys(int(seed), idx), explicit, given)
+    # each kind of PDE solves its samples its own way (time-dependent: ETDRK4 rollouts; steady: PCG)
+    u, params, finite, inputs = pde.run_keys(sample_keys(int(seed), idx), explicit, given)
     redraws = np.zeros(len(idx), np.int64)
     attempt = 0
     bad = np.flatnonzero(~np.asarray(finite))
@@ -244,9 +249,10 @@ def sample(
         attempt += 1
         # rerun the full batch shape (failed keys padded by repetition) so no new compile is needed
         retry = np.resize(bad, len(idx))
-        u2, p2, f2 = _run_keys(pde, sample_keys(int(seed), idx[retry], attempt), explicit[retry], given[retry])
+        u2, p2, f2, in2 = pde.run_keys(sample_keys(int(seed), idx[retry], attempt), explicit[retry], given[retry])
         sel = jnp.asarray(bad)
         u = u.at[sel].set(u2[: bad.size])
+        inputs = None if inputs is None else inputs.at[sel].set(in2[: bad.size])
         params = {k: v.at[sel].set(p2[k][: bad.size]) for k, v in params.items()}
         redraws[bad] = attempt
         bad = bad[~np.asarray(f2[: bad.size])]
@@ -255,11 +261,9 @@ def sample(
             f"index {idx[b]}: " + ", ".join(f"{k}={float(v[b]):.4g}" for k, v in params.items()) for b in bad[:5]
         )
         hint = "" if on_blowup == "redraw" else " (on_blowup='redraw' draws replacements)"
-        raise BlowUpError(
-            f"{pde.NAME}: {bad.size} of {len(idx)} trajectories blew up (NaN/Inf) with step {pde.step_dt:.4g}: "
-            f"{detail}{hint}; a smaller dt or a narrower parameter domain avoids this"
-        )
-    return Trajectory(u=u, t=pde.times(), params=params, pde=pde, indices=idx, redraws=redraws)
+        what, remedy = pde.failure()
+        raise BlowUpError(f"{pde.NAME}: {bad.size} of {len(idx)} {what}: {detail}{hint}; {remedy}")
+    return Trajectory(u=u, t=pde.times(), params=params, pde=pde, indices=idx, redraws=redraws, inputs=inputs)
 
 
 def solve(pde: PDE | str, u0, params: Mapping[str, float | Sequence[float]]) -> Trajectory:

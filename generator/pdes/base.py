@@ -74,6 +74,24 @@ class PDE:
         """One initial condition, float32 [C, *space]."""
         return self.ic.sample(key, self.grid, len(self.FIELDS))
 
+    # --- what the sampler, cache, stream and views use: shared with steady PDEs (darcy2d) --------------
+    # A sample is u [T, C, *space] here; a STEADY PDE's is u [C, *space] (no time axis) with its random input
+    # fields INPUTS [C_in, *space] (stored beside u). INPUTS is empty for time-dependent PDEs (the IC is frame 0).
+    STEADY: ClassVar[bool] = False
+    INPUTS: ClassVar[tuple[str, ...]] = ()
+
+    def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
+        """Solve one sample per key [B] (explicit float32 [B, P] parameter values where given bool [B, P]):
+        (u [B, T, C, *space], params {name: [B]}, ok bool [B] (finite), inputs None). ETDRK4 rollouts."""
+        from ..sampler import _run_keys  # the sampler imports the catalog: a module-level import would cycle
+
+        return (*_run_keys(self, keys, explicit, given), None)
+
+    def failure(self) -> tuple[str, str]:
+        """(what a failed sample did, how to avoid it), for BlowUpError's message."""
+        return (f"trajectories blew up (NaN/Inf) with step {self.step_dt:.4g}",
+                "a smaller dt or a narrower parameter domain avoids this")
+
     # --- derived -----------------------------------------------------------------------------------
     @property
     def grid(self) -> Grid:

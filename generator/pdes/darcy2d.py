@@ -1,0 +1,261 @@
+"""Steady Darcy flow on the unit square (the FNO paper's set-up): a random coefficient field in, a pressure out.
+
+-div(a grad u) = f on (0, L)^2, u = 0 on the boundary, with a = a_pos where a Gaussian random field
+g ~ N(0, (-Laplacian + tau^2 I)^(-alpha)) is positive and a_neg elsewhere (defaults: tau = 3, alpha = 2,
+a_pos = 12, a_neg = 3, f = 1, as in Li et al. 2021). Solved by second-order finite differences with
+harmonic-mean face coefficients and Jacobi-preconditioned CG (generator/elliptic.py).
+
+A sample has no time axis: it is (a [1, n, n], u [1, n, n]) on the n x n nodes x_i = i L / (n - 1) including
+the boundary (FNO's 421 x 421 data has n = 421). Sample identity follows the sampler's key discipline: the
+key of (seed, index) is split into a parameter key and a field key; the set-up and the solve each run as a
+fixed-size compiled program per chunk of samples, and each CG solve stops on its own residual, so a sample
+is bit-identical alone and in any batch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import elliptic
+from ..domains import Fixed, parse_domain
+from .base import PDE, Param
+
+# Samples per compiled set-up / solve call: a fixed program shape makes a sample independent of its batch.
+CHUNK = 8
+# The FNO threshold field's contrast (a_pos / a_neg = 4) needs ~2.6 n CG iterations on an n x n grid;
+# non-convergence within max_iter is reported like a blow-up (BlowUpError, or a redraw).
+MAX_BACKWARD_ERROR = 1e-5  # ~100 float32 epsilons: a returned u solves the discrete system to this backward error
+
+
+@dataclass(frozen=True)
+class NodeGrid:
+    """n x n nodes x_i = i h, h = length / (n - 1), boundary nodes included (not periodic)."""
+
+    ndim: int
+    n: int
+    length: float
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return (self.n,) * self.ndim
+
+    @property
+    def spacing(self) -> float:
+        return self.length / (self.n - 1)
+
+    def coords(self) -> np.ndarray:
+        """Node positions along one axis, float32 [n] (0 and length included)."""
+        return np.linspace(0.0, self.length, self.n).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class NeumannGRF:
+    """g ~ N(0, (-Laplacian + tau^2 I)^(-alpha)) on [0, length]^2 with zero-flux boundaries, mean mode dropped.
+
+    g = sum_k sqrt(lambda_k) xi_k phi_k over k = (k1, k2) in {0..n-1}^2 minus (0, 0), with the L2-orthonormal
+    cosine modes phi_k(x, y) = c_k1 c_k2 cos(pi k1 x / L) cos(pi k2 y / L) / L (c_0 = 1, c_k = sqrt 2),
+    lambda_k = (pi^2 |k|^2 / L^2 + tau^2)^(-alpha) and xi_k independent standard normals. Only the sign of g
+    matters to Darcy's coefficient, so no overall scale is offered.
+    """
+
+    tau: float = 3.0
+    alpha: float = 2.0
+    kind = "neumann_grf"
+    field_count = 1
+
+    def check(self, grid) -> None:
+        if not self.tau >= 0:
+            raise ValueError(f"ic.tau={self.tau} not allowed: must be >= 0")
+        if not self.alpha > 0:
+            raise ValueError(f"ic.alpha={self.alpha} not allowed: must be > 0")
+
+    def eigenvalues(self, grid: NodeGrid) -> np.ndarray:
+        """lambda_k, float64 [n, n] over (k1, k2); 0 at k = (0, 0)."""
+        k = np.arange(grid.n)
+        k2 = (np.pi / grid.length) ** 2 * (k[:, None] ** 2 + k[None, :] ** 2)
+        with np.errstate(divide="ignore"):  # k = 0 with tau = 0; that mode is dropped
+            lam = (k2 + self.tau**2) ** (-self.alpha)
+        lam[0, 0] = 0.0
+        return lam
+
+    def modes(self, grid: NodeGrid) -> np.ndarray:
+        """phi's 1D factors at the nodes: float64 [n points, n modes], c_k cos(pi k x / L) / sqrt(L)."""
+        x, k = grid.coords().astype(np.float64), np.arange(grid.n)
+        c = np.where(k == 0, 1.0, np.sqrt(2.0))
+        return c * np.cos(np.pi * np.outer(x, k) / grid.length) / np.sqrt(grid.length)
+
+    def covariance(self, grid: NodeGrid, p: tuple[int, int], q: tuple[int, int]) -> float:
+        """E[g(p) g(q)] for node index pairs p, q, from the definition (the sum over modes)."""
+        phi = self.modes(grid)
+        return float(np.sum(self.eigenvalues(grid) * np.outer(phi[p[0]], phi[p[1]]) * np.outer(phi[q[0]], phi[q[1]])))
+
+    def sample(self, key: jax.Array, grid: NodeGrid, n_fields: int = 1) -> jax.Array:
+        """float32 [n_fields, n, n]: Phi (sqrt(lambda) * xi) Phi^T per field."""
+        phi = jnp.asarray(self.modes(grid), jnp.float32)
+        scale = jnp.asarray(np.sqrt(self.eigenvalues(grid)), jnp.float32)
+        xi = jax.random.normal(key, (n_fields, grid.n, grid.n), jnp.float32)
+        return jnp.einsum("ik,fkl,jl->fij", phi, scale * xi, phi)
+
+    def bound(self, grid) -> float:
+        return 1.0  # only the sign is used: a is a_pos or a_neg
+
+
+@dataclass(frozen=True)
+class Darcy2D(PDE):
+    """-div(a grad u) = f on (0, length)^2, u = 0 on the boundary; a = a_pos where g > 0, a_neg elsewhere.
+
+    ``ic`` is the distribution of the random field g (a NeumannGRF); n counts nodes per side, boundary
+    included; tol is CG's relative-residual tolerance and max_iter its iteration limit. Parameters a_pos,
+    a_neg, f are per-sample coefficients (fixed by default, any domain allowed); a sample is
+    (a [1, n, n], u [1, n, n]) float32, no time axis.
+    """
+
+    NAME: ClassVar[str] = "darcy2d"
+    EQUATION: ClassVar[str] = "-div(a grad u) = f on (0,1)^2, u = 0 on the boundary; a = a_pos where g > 0 else a_neg"
+    FIELDS: ClassVar[tuple] = ("u",)
+    INPUTS: ClassVar[tuple] = ("a",)  # random input fields stored per sample beside the solution
+    STEADY: ClassVar[bool] = True  # no time axis
+    NDIM: ClassVar[int] = 2
+    PARAMS: ClassVar[dict] = {
+        "a_pos": Param("coefficient a where the random field is positive", "1", positive=True),
+        "a_neg": Param("coefficient a where the random field is <= 0", "1", positive=True),
+        "f": Param("source term (constant over the square)", "1"),
+    }
+    UNUSED: ClassVar[frozenset] = frozenset({"t_end", "n_frames", "dt"})  # the base's time settings: not settings here
+
+    n: int = 64
+    length: float = 1.0
+    n_frames: int = 1
+    ic: Any = NeumannGRF()
+    tol: float = 1e-5
+    max_iter: int = 5000
+    a_pos: Any = Fixed(12.0)
+    a_neg: Any = Fixed(3.0)
+    f: Any = Fixed(1.0)
+
+    def __post_init__(self):
+        self._check_fields()
+        for name, spec in self.PARAMS.items():
+            try:
+                domain = parse_domain(getattr(self, name))
+            except ValueError as err:
+                raise ValueError(f"{self.NAME}: parameter {name}: {err}") from None
+            object.__setattr__(self, name, domain)
+            if spec.positive and not min(domain.bounds) > 0:
+                raise ValueError(f"{self.NAME}: {name}={domain} not allowed: {spec.description} must be > 0")
+        if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < 5:
+            raise ValueError(f"{self.NAME}: n={self.n!r} not allowed: nodes per side (boundary included) must be an integer >= 5")
+        if not (self.length > 0 and math.isfinite(self.length)):
+            raise ValueError(f"{self.NAME}: length={self.length} not allowed: must be a finite number > 0")
+        if not 0 < self.tol < 1:
+            raise ValueError(f"{self.NAME}: tol={self.tol} not allowed: the relative residual tolerance must be in (0, 1)")
+        if not self.max_iter >= 1:
+            raise ValueError(f"{self.NAME}: max_iter={self.max_iter} not allowed: must be an integer >= 1")
+        self._check_size()
+        if not isinstance(self.ic, NeumannGRF):
+            raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed: the coefficient field comes from "
+                             f"ic={NeumannGRF.kind!r} (set ic.tau, ic.alpha)")
+        try:
+            self.ic.check(self.grid)
+        except ValueError as err:
+            raise ValueError(f"{self.NAME}: {err}") from None
+
+    @classmethod
+    def config_fields(cls) -> list[str]:
+        return [name for name in super().config_fields() if name not in cls.UNUSED]
+
+    @property
+    def grid(self) -> NodeGrid:
+        return NodeGrid(self.NDIM, self.n, self.length)
+
+    def times(self) -> np.ndarray:
+        return np.zeros(0, np.float32)  # steady: no time axis
+
+    def stable_dt(self) -> float:
+        return math.inf
+
+    def describe(self) -> str:
+        lines = [f"{self.NAME}: {self.EQUATION}",
+                 f"  fields: {', '.join(self.INPUTS)} (input) -> {', '.join(self.FIELDS)}   grid: {self.n}x{self.n} nodes "
+                 f"on [0, {self.length:g}]^2 (boundary included)   steady: PCG to relative residual {self.tol:g} "
+                 f"(at most {self.max_iter} iterations)"]
+        for name, spec in self.PARAMS.items():
+            domain = getattr(self, name)
+            how = f"= {domain} (fixed)" if isinstance(domain, Fixed) else f"~ {domain}"
+            lines.append(f"  {name} {how}   {spec.description} [{spec.units}]")
+        lines.append(f"  ic (random field g): {self.ic}")
+        return "\n".join(lines)
+
+    def failure(self) -> tuple[str, str]:
+        """(what a failed sample did, how to avoid it), for BlowUpError's message."""
+        return (f"solves did not converge (PCG relative residual > tol={self.tol:g} after max_iter={self.max_iter} "
+                f"iterations, or a backward error > {MAX_BACKWARD_ERROR:g}, or NaN)",
+                "a larger max_iter, a larger tol or a milder coefficient contrast avoids this")
+
+    # The time-stepping interface of the base does not apply: a steady PDE is solved through run_keys.
+    def linear(self, grid, p):
+        raise TypeError(f"{self.NAME} is steady: it has no time-stepping operator (it is solved by run_keys)")
+
+    def nonlinear(self, grid, p):
+        raise TypeError(f"{self.NAME} is steady: it has no time-stepping operator (it is solved by run_keys)")
+
+    def coefficient(self, g: jax.Array, p) -> jax.Array:
+        """a from the random field g [..., n, n]: a_pos where g > 0, a_neg elsewhere."""
+        return jnp.where(g > 0, p["a_pos"], p["a_neg"]).astype(jnp.float32)
+
+    def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
+        """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, 1, n, n], params {name: [B]},
+        ok bool [B] (converged), inputs [B, 1, n, n] (the coefficient a)): the sampler's interface."""
+        u, params, ok, a, _ = self.solve_keys(keys, explicit, given)
+        return u, params, ok, a
+
+    def solve_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
+        """``run_keys`` plus the CG iterations each sample took, int32 [B]."""
+        batch = keys.shape[0]
+        pad = (-batch) % CHUNK
+        keys = jnp.concatenate([keys, jnp.repeat(keys[:1], pad, axis=0)])
+        explicit = np.concatenate([explicit, np.repeat(explicit[:1], pad, axis=0)])
+        given = np.concatenate([given, np.repeat(given[:1], pad, axis=0)])
+        setup, solve = _compiled_setup(self), _compiled_solve(self)
+        outs = []
+        for i in range(0, keys.shape[0], CHUNK):  # dispatched asynchronously: set-up and solves overlap
+            params, a = setup(keys[i : i + CHUNK], explicit[i : i + CHUNK], given[i : i + CHUNK])
+            outs.append((params, a, *solve(a, params["f"])))
+        params, a, u, ok, iters = jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:batch], *outs)
+        return u[:, None], params, ok, a[:, None], iters
+
+
+def _draw(pde: Darcy2D, key, explicit, given):
+    from ..sampler import draw_params  # the sampler imports the catalog: a module-level import would cycle
+
+    k_param, k_field = jax.random.split(key)
+    drawn = draw_params(pde, k_param)
+    p = {name: jnp.where(given[j], explicit[j], drawn[name]) for j, name in enumerate(pde.PARAMS)}
+    return p, pde.coefficient(pde.ic.sample(k_field, pde.grid)[0], p)
+
+
+@functools.lru_cache(maxsize=32)
+def _compiled_setup(pde: Darcy2D):
+    """jit of (keys [K], explicit [K, P], given [K, P]) -> (params {name: [K]}, a [K, n, n]), one key per
+    loop iteration (like the sampler's set-up: the matrix products round the same whatever the batch)."""
+    return jax.jit(lambda keys, explicit, given: jax.lax.map(lambda t: _draw(pde, *t), (keys, explicit, given)))
+
+
+@functools.lru_cache(maxsize=32)
+def _compiled_solve(pde: Darcy2D):
+    """jit(vmap) of (a [K, n, n], f [K]) -> (u [K, n, n], converged [K], iterations [K])."""
+
+    def one(a, f):
+        sol = elliptic.solve(a, jnp.full(a.shape, f, a.dtype), pde.grid.spacing, pde.tol, pde.max_iter)
+        ok = sol.reached & (sol.backward_error <= MAX_BACKWARD_ERROR) & jnp.all(jnp.isfinite(sol.u))
+        return sol.u, ok, sol.iterations
+
+    return jax.jit(jax.vmap(one))
