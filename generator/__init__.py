@@ -2,7 +2,7 @@
 
 JAX only (never imports torch). Public API::
 
-    PDES                              registry {name: PDE class}
+    PDES                              the catalog {name: PDE class} (generator.catalog: entries, groups)
     get_pde(name, **overrides)        a configured PDE (overrides may be strings, e.g. nu="loguniform(1e-3, 1e-2)")
     sample(pde, indices, seed=0)      Trajectory with u [B, T, C, *space] float32, t [T], params {name: [B]}
     solve(pde, u0, params)            trajectory from a caller's initial condition
@@ -12,10 +12,10 @@ JAX only (never imports torch). Public API::
 """
 
 from .domains import Choice, Domain, Fixed, LogUniform, Uniform, parse_domain
-from .ics import IC_KINDS, FourierSeries, GaussianRandomField
-from .pdes import PDE, PDES, Param
-from .pdes.base import make_ic
-from .sampler import BlowUpError, Trajectory, draw_params, get_pde, sample, sample_keys, solve
+from .catalog import GROUP, GROUPS, PDES, get_pde
+from .ics import IC_KINDS, FourierSeries, GaussianRandomField, GrayScottSpots, InitialCondition, make_ic
+from .pdes import PDE, LinearPDE, Param
+from .sampler import BlowUpError, Trajectory, draw_params, sample, sample_keys, solve
 from .spectral import Grid
 from . import interactive  # after sampler: it builds on it
 
@@ -72,7 +72,7 @@ def from_config(config: dict) -> PDE:
 
 
 __all__ = [
-    "BlowUpError", "Choice", "Domain", "Fixed", "FourierSeries", "GaussianRandomField", "Grid", "IC_KINDS",
-    "LogUniform", "PDE", "PDES", "Param", "Trajectory", "Uniform", "draw_params", "enable_compilation_cache", "from_config", "get_pde",
+    "BlowUpError", "Choice", "Domain", "Fixed", "FourierSeries", "GROUP", "GROUPS", "GaussianRandomField",
+    "GrayScottSpots", "Grid", "IC_KINDS", "InitialCondition", "LinearPDE", "LogUniform", "PDE", "PDES", "Param", "Trajectory", "Uniform", "draw_params", "enable_compilation_cache", "from_config", "get_pde",
     "interactive", "make_ic", "parse_domain", "sample", "sample_keys", "solve",
 ]

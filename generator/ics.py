@@ -1,19 +1,48 @@
-"""Initial-condition distributions on periodic grids, in 1D and 2D.
+"""Initial-condition distributions on periodic grids in 1D, 2D and 3D, one protocol for all, and their parsing.
 
-Every distribution is band-limited to the solver's 2/3-rule modes, so the field the solver starts from
-is exactly the field it was given (frame 0 of a trajectory is the initial condition, bit for bit).
-``sample(key, grid, n_fields)`` returns float32 ``[n_fields, *grid.shape]``, one independent draw per field.
+Every distribution follows ``InitialCondition``: ``kind`` (its name in IC_KINDS), ``field_count`` (the
+number of PDE fields it makes, or None for any), ``sample(key, grid, n_fields)`` -> float32
+``[n_fields, *grid.shape]``, ``check(grid)`` (ValueError if it cannot be represented on the grid) and
+``bound(grid)`` (max|u0|, for stability rules). The smooth ones are band-limited to the solver's 2/3-rule
+modes, so the field the solver starts from is the field it was given (frame 0 of a trajectory is the IC).
+
+IC_KINDS is declared here, complete: no module adds to it at import time. ``make_ic`` turns a kind name or
+a dict {"kind": ..., field: value} into a distribution; ``coerce`` / ``check_value`` turn a setting's
+value (possibly text from ``--set``) into the kind of its default.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Any, Mapping, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .spectral import Grid
+
+# The spot loop is unrolled into the compiled set-up program (written out for bit-identity), so its size
+# bounds compile time and memory: 256 spots cover a 64^2 box many times over.
+MAX_SPOTS = 256
+
+
+@runtime_checkable
+class InitialCondition(Protocol):
+    """What every initial-condition distribution provides (a frozen dataclass whose fields are its settings)."""
+
+    kind: str  # its name in IC_KINDS
+    field_count: int | None  # PDE fields it makes (None: any; one independent draw per field)
+
+    def sample(self, key: jax.Array, grid: Grid, n_fields: int) -> jax.Array:
+        """One draw, float32 [n_fields, *grid.shape]."""
+
+    def check(self, grid: Grid) -> None:
+        """Raise ValueError (one line naming the setting and what is allowed) if not representable on ``grid``."""
+
+    def bound(self, grid: Grid) -> float:
+        """A bound on max|u0| (used by stability rules and the float32 limit)."""
 
 
 def _white_noise_hat(key: jax.Array, grid: Grid, n_fields: int) -> jax.Array:
@@ -126,4 +155,128 @@ class GaussianRandomField:
         return abs(self.mean) + 4.0 * self.pointwise_std(grid)
 
 
-IC_KINDS = {"fourier": FourierSeries, "grf": GaussianRandomField}
+@dataclass(frozen=True)
+class GrayScottSpots:
+    """u = 1 - 2 s, v = s for a sum s of n_spots Gaussian bumps (periodic distance, width ``radius``,
+    peak ``height``) at uniform random centres, plus ``noise``-sized white noise on both fields.
+
+    Two fields (Gray-Scott's u, v), any dimension. Not band-limited: frame 0 is its 2/3-rule projection.
+    """
+
+    n_spots: int = 6
+    radius: float = 0.03
+    height: float = 0.25
+    noise: float = 0.01
+    kind = "spots"
+    field_count = 2  # (u, v) = (1 - 2 s, s): Gray-Scott's two fields
+
+    def check(self, grid: Grid) -> None:
+        if not 1 <= self.n_spots <= MAX_SPOTS:
+            raise ValueError(f"ic.n_spots={self.n_spots} not allowed: need 1 <= n_spots <= {MAX_SPOTS}")
+        if not self.radius > 0:
+            raise ValueError(f"ic.radius={self.radius} not allowed: must be > 0")
+
+    def sample(self, key: jax.Array, grid: Grid, n_fields: int = 2) -> jax.Array:
+        k_centre, k_noise = jax.random.split(key)
+        centres = jax.random.uniform(k_centre, (self.n_spots, grid.ndim), jnp.float32, 0.0, grid.length)
+        x = jnp.asarray(grid.coords())
+        mesh = jnp.meshgrid(*([x] * grid.ndim), indexing="ij")
+        # Sums are written out term by term: XLA may reassociate a reduce differently per batch size,
+        # which would break bit-identity of a sample across batches.
+        s = jnp.zeros(grid.shape, jnp.float32)
+        for i in range(self.n_spots):
+            d2 = jnp.zeros(grid.shape, jnp.float32)
+            for axis in range(grid.ndim):
+                # chord distance on the circle: smooth and periodic, ~ |x - c| for nearby points
+                d2 = d2 + (grid.length / jnp.pi * jnp.sin(jnp.pi * (mesh[axis] - centres[i, axis]) / grid.length)) ** 2
+            s = s + self.height * jnp.exp(-d2 / (2 * self.radius**2))
+        noise = self.noise * jax.random.normal(k_noise, (2, *grid.shape), jnp.float32)
+        return jnp.stack([1.0 - 2.0 * s, s]) + noise
+
+    def bound(self, grid: Grid) -> float:
+        return 1.0
+
+
+IC_KINDS: Mapping[str, type] = {"fourier": FourierSeries, "grf": GaussianRandomField, "spots": GrayScottSpots}
+
+
+# --- parsing: kind names, dicts and setting values ---------------------------------------------------------
+def make_ic(value: Any) -> InitialCondition:
+    """An IC distribution from an object, a kind name (defaults) or a dict {"kind": ..., field: ...}."""
+    if isinstance(value, str):
+        value = {"kind": value}
+    if isinstance(value, Mapping):
+        fields = dict(value)
+        kind = fields.pop("kind", None)
+        if not isinstance(kind, str) or kind not in IC_KINDS:
+            raise ValueError(f"unknown ic kind {show(kind)}; allowed: {', '.join(IC_KINDS)}")
+        cls = IC_KINDS[kind]
+        defaults = cls()
+        try:
+            return cls(**{k: coerce(f"ic.{k}", v, getattr(defaults, k)) for k, v in fields.items()})
+        except AttributeError as err:
+            raise ValueError(f"ic kind {kind!r}: {err}") from None
+    if isinstance(value, InitialCondition):
+        return value
+    raise ValueError(f"bad ic {show(value)}: expected a kind name ({', '.join(IC_KINDS)}) or a dict with 'kind'")
+
+
+def coerce(name: str, value: Any, current: Any) -> Any:
+    """Convert a (possibly string) override to the kind of the field's current value, then check it."""
+    if isinstance(value, str):
+        value = _parse_text(name, value, current)
+    return check_value(name, value, current)
+
+
+def _parse_text(name: str, value: str, current: Any) -> Any:
+    """A setting's text (as from ``--set``) as the kind of ``current``: true/false, an integer, a number or None."""
+    text = value.strip()
+    try:
+        if isinstance(current, bool):
+            if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError
+            return text.lower() in ("true", "1", "yes")
+        if isinstance(current, int):
+            return int(text)
+        if isinstance(current, float) or current is None:
+            return None if text.lower() == "none" else float(text)
+    except ValueError:
+        raise ValueError(f"bad value for {name}: {value!r} is not {_kind(current)}") from None
+    return text
+
+
+def _kind(default: Any) -> str:
+    """What a setting whose default is ``default`` must be, in words."""
+    if isinstance(default, bool):
+        return "true or false"
+    if isinstance(default, int):
+        return "an integer"
+    if isinstance(default, str):
+        return "a name (a string)"
+    return "a number" if default is not None else "a number or none"
+
+
+def check_value(name: str, value: Any, default: Any) -> Any:
+    """``value`` as a plain Python scalar of the kind of the field's ``default`` (bool, int, number, name; None
+    where the default is None), finite if a number; ValueError naming the setting otherwise."""
+    if isinstance(value, np.generic):
+        value = value.item()  # numpy scalars become plain values: clean JSON configs and messages
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+    else:
+        ok = number or (value is None and default is None)
+    if not ok:
+        raise ValueError(f"bad value for {name}: {show(value)} is not {_kind(default)}")
+    if number and not math.isfinite(value):
+        raise ValueError(f"{name}={value} not allowed: must be a finite number")
+    return value
+
+
+def show(value: Any) -> str:
+    """repr for messages, without numpy's wrappers (np.float64(0.1) -> 0.1)."""
+    return repr(value.item() if isinstance(value, np.generic) else value)

@@ -15,7 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .pdes import PDE, PDES
+from .catalog import get_pde
+from .pdes import PDE
 from .spectral import etdrk4_coefficients, rollout
 
 OnBlowup = Literal["raise", "redraw"]
@@ -48,17 +49,6 @@ class Trajectory:
         return int(self.u.shape[0])
 
 
-def get_pde(name: str, overrides: Mapping | None = None, **kwargs) -> PDE:
-    """The catalog PDE ``name`` with its defaults, changed by ``overrides`` / keyword arguments.
-
-    Values may be strings (parsed: domains like "loguniform(1e-3, 1e-1)", numbers, ic kinds).
-    """
-    if name not in PDES:
-        raise ValueError(f"unknown PDE {name!r}; allowed: {', '.join(PDES)}")
-    pde = PDES[name]()
-    return pde.replace(overrides, **kwargs) if (overrides or kwargs) else pde
-
-
 def _coefficients(pde: PDE, p: Mapping[str, jax.Array]):
     return etdrk4_coefficients(pde.linear(pde.grid, p), pde.step_dt)
 
@@ -70,7 +60,11 @@ def _evolve(pde: PDE, u0: jax.Array, p: Mapping[str, jax.Array], coeffs) -> jax.
     nonlinear = pde.nonlinear(grid, p)
     masked = None if nonlinear is None else (lambda v: mask * nonlinear(v))
     v0 = mask * grid.rfft(u0.astype(jnp.float32))
-    return rollout(v0, coeffs, masked, pde.n_frames, pde.steps_per_frame, grid.irfft)
+    basis = pde.state_basis(grid, p)  # a linear system diagonal in other variables than its fields (wave)
+    if basis is None:
+        return rollout(v0, coeffs, masked, pde.n_frames, pde.steps_per_frame, grid.irfft)
+    to_state, from_state = basis
+    return rollout(to_state(v0), coeffs, masked, pde.n_frames, pde.steps_per_frame, lambda v: grid.irfft(from_state(v)))
 
 
 def draw_params(pde: PDE, key: jax.Array) -> dict[str, jax.Array]:

@@ -1,5 +1,7 @@
 """Sampler contract: determinism, no recompilation, registry-wide sanity, initial conditions, bad input."""
 
+import functools
+
 import jax
 import numpy as np
 import pytest
@@ -7,20 +9,24 @@ import pytest
 import generator as g
 from generator.sampler import compiled_evolve, compiled_setup, compiled_solver
 
-# Small but non-trivial versions of every PDE (a short time window keeps the registry sweep fast).
-SMALL = {
-    "advection1d": dict(n=32, n_frames=5),
-    "diffusion1d": dict(n=32, n_frames=5),
-    "burgers1d": dict(n=64, n_frames=5, t_end=0.2),
-    "kdv1d": dict(n=64, n_frames=5, t_end=1.0),
-    "ks1d": dict(n=64, length=40.0, n_frames=5, t_end=5.0),
-    "ns2d": dict(n=32, n_frames=4, t_end=1.0),
-    "grayscott2d": dict(n=32, length=0.32, n_frames=4, t_end=60.0),
-}
+# Small but non-trivial versions of every catalog entry, by one rule (no per-PDE code): a coarser grid with the
+# same spacing (length shrinks with n, so CFL steps and resolution stay those of the default), 4 frames, and at
+# most ~40 internal steps.
+SMALL_N = {1: 64, 2: 32, 3: 16}
 
 
-def test_every_registered_pde_has_a_small_config():
-    assert set(SMALL) == set(g.PDES)
+@functools.lru_cache(maxsize=None)
+def small(name):
+    pde = g.get_pde(name)
+    n = min(pde.n, SMALL_N[pde.NDIM])
+    coarse = pde.replace(n=n, length=pde.length * n / pde.n, n_frames=4)
+    return coarse.replace(t_end=min(coarse.t_end, 40 * coarse.stable_dt()))
+
+
+def test_every_catalog_entry_has_a_small_version():
+    for name in g.PDES:
+        pde = small(name)
+        assert pde.n <= SMALL_N[pde.NDIM] and pde.steps_per_frame * (pde.n_frames - 1) <= 45, name
 
 
 def dealiased(pde, field):
@@ -30,9 +36,9 @@ def dealiased(pde, field):
     return np.fft.irfftn(f * pde.grid.dealias_mask(), s=pde.grid.shape, axes=axes)
 
 
-@pytest.mark.parametrize("name", sorted(SMALL))
+@pytest.mark.parametrize("name", list(g.PDES))
 def test_registry_sweep_shapes_finite_first_frame_and_params(name):
-    pde = g.get_pde(name, **SMALL[name])
+    pde = small(name)
     traj = g.sample(pde, [0, 7, 3], seed=11)
     u = np.asarray(traj.u)
     assert u.shape == (3, pde.n_frames, len(pde.FIELDS), *pde.grid.shape) and u.dtype == np.float32
@@ -50,9 +56,9 @@ def test_registry_sweep_shapes_finite_first_frame_and_params(name):
     assert np.abs(u[:, -1] - u[:, 0]).max() > 0  # it evolved
 
 
-@pytest.mark.parametrize("name", sorted(SMALL))
+@pytest.mark.parametrize("name", list(g.PDES))
 def test_sample_is_bit_identical_alone_and_in_any_batch(name):
-    pde = g.get_pde(name, **SMALL[name])
+    pde = small(name)
     alone = np.asarray(g.sample(pde, [5], seed=3).u[0])
     in_batch = np.asarray(g.sample(pde, [9, 5, 2], seed=3).u[1])
     in_bigger = np.asarray(g.sample(pde, list(range(12)), seed=3).u[5])
@@ -61,27 +67,60 @@ def test_sample_is_bit_identical_alone_and_in_any_batch(name):
     assert not np.array_equal(alone, other_seed)
 
 
-def test_default_grids_resolve_their_defaults():
+@pytest.mark.parametrize("name", list(g.PDES))
+def test_default_grids_resolve_their_defaults(name):
     # the top fifth of the retained (2/3-rule) modes holds a small share of the peak amplitude at every frame
-    for name in g.PDES:
-        pde = g.get_pde(name)
-        u = np.asarray(g.sample(pde, range(4), seed=0).u)
-        uh = np.abs(np.fft.rfftn(u, axes=tuple(range(3, u.ndim))))
-        m = pde.grid.max_abs_mode()
-        band = (m > 0.8 * pde.n / 3) & (m <= pde.n // 3)
-        tail = uh[..., band].max(-1) / uh.reshape(*uh.shape[:3], -1).max(-1)
-        assert tail.max() < 0.05, (name, tail.max())
+    pde = g.get_pde(name)
+    u = np.asarray(g.sample(pde, range(4), seed=0).u)
+    uh = np.abs(np.fft.rfftn(u, axes=tuple(range(3, u.ndim))))
+    m = pde.grid.max_abs_mode()
+    band = (m > 0.8 * pde.n / 3) & (m <= pde.n // 3)
+    tail = uh[..., band].max(-1) / uh.reshape(*uh.shape[:3], -1).max(-1)
+    assert tail.max() < 0.05, (name, tail.max())
 
 
-def test_new_parameters_never_recompile():
+@pytest.mark.parametrize("name", list(g.PDES))
+def test_new_parameters_never_recompile(name):
+    pde = small(name)
+    g.sample(pde, [7, 8, 11], seed=5)
+    sizes = compiled_setup(pde)._cache_size(), compiled_evolve(pde)._cache_size()  # (other tests share the cache)
+    for seed, idx in ((0, [0, 1, 2]), (1, [5, 6, 9]), (2, [100, 3, 4])):
+        g.sample(pde, idx, seed=seed)
+    # explicit values (a point of each domain) go through the same programs
+    point = {k: float(np.mean(d.bounds)) if not isinstance(d, g.Choice) else d.options[0]
+             for k, d in pde.param_domains.items()}
+    g.sample(pde, [0, 1, 2], seed=0, params=point)
+    assert (compiled_setup(pde)._cache_size(), compiled_evolve(pde)._cache_size()) == sizes
+
+
+def test_solve_never_recompiles_for_new_parameters():
     pde = g.get_pde("burgers1d", n=32, n_frames=3, t_end=0.1)
     x = pde.grid.coords()
     for nu in (0.01, 0.03, 0.09):
         g.solve(pde, np.sin(2 * np.pi * x)[None, None].repeat(2, 0), {"nu": [nu, nu / 2]})
     assert compiled_solver(pde)._cache_size() == 1
-    for seed, idx in ((0, [0, 1]), (1, [5, 6]), (2, [100, 3])):
-        g.sample(pde, idx, seed=seed)
-    assert compiled_setup(pde)._cache_size() == 1 and compiled_evolve(pde)._cache_size() == 1
+
+
+@pytest.mark.parametrize("name", list(g.PDES))
+def test_bad_values_of_every_entry_are_refused_in_one_line(name):
+    pde = g.PDES[name]()
+    bad = {"n": 7, "t_end": -1.0, "n_frames": 1, "length": 0.0}
+    for key, value in bad.items():
+        with pytest.raises(ValueError) as err:
+            g.get_pde(name, **{key: value})
+        msg = str(err.value)
+        assert msg.startswith(f"{name}: ") and f"{key}=" in msg and "\n" not in msg, msg
+    for pname, domain in pde.param_domains.items():
+        outside = max(domain.bounds) + 1.0 + abs(max(domain.bounds))
+        with pytest.raises(ValueError) as err:
+            g.sample(pde, [0], params={pname: outside})
+        msg = str(err.value)
+        assert f"{pname}=" in msg and str(domain) in msg and "\n" not in msg, msg
+        if pde.PARAMS[pname].positive:
+            with pytest.raises(ValueError, match=f"{pname}=.*> 0"):
+                g.get_pde(name, **{pname: "uniform(-1, 1)"})
+    with pytest.raises(ValueError, match=f"{name}: unknown setting 'no_such_setting'; allowed: n, "):
+        g.get_pde(name, no_such_setting=1)
 
 
 def test_grf_has_the_declared_pointwise_variance():

@@ -37,7 +37,7 @@ def numeric_settings():
     for name, cls in g.PDES.items():
         pde = cls()
         for f in dataclasses.fields(cls):
-            if f.name not in (*cls.PARAMS, "ic") and not isinstance(f.default, (bool, str)):
+            if f.name in cls.config_fields() and f.name not in cls.PARAMS and not isinstance(f.default, (bool, str)):
                 yield name, f.name
         for f in dataclasses.fields(pde.ic):
             if not isinstance(f.default, bool):

@@ -3,13 +3,20 @@ distribution, periodic grid, time window and stable-step rule.
 
 A PDE is a frozen dataclass (hashable, so a compiled sampler is cached per configuration). Its fields are
 the configuration; ``PARAMS`` names the fields that are random coefficients (each a Domain). A subclass
-supplies ``linear`` (diagonal operator L) and optionally ``nonlinear`` (N) of ``dv/dt = L v + N(v)`` in
-Fourier space, and ``stable_dt``.
+must supply ``linear`` (diagonal operator L), ``nonlinear`` (N, or None) of ``dv/dt = L v + N(v)`` in
+Fourier space, and ``stable_dt`` (abstract: a class missing one cannot be built). ``LinearPDE`` supplies
+the last two for PDEs whose step is the exact exponential.
+
+One class may serve several dimensions (diffusion in 1D/2D/3D): it lists them in ``DIMENSIONS`` with
+the setting defaults each one changes, and ``for_dimension`` gives the class attributes that depend on
+the dimension. The catalog (generator.catalog) makes one entry per dimension, named with it.
 """
 
 from __future__ import annotations
 
+import abc
 import dataclasses
+import functools
 import hashlib
 import json
 import math
@@ -17,10 +24,11 @@ from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Mapping
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ..domains import Domain, Fixed, parse_domain
-from ..ics import IC_KINDS
+from ..ics import IC_KINDS, check_value, coerce, make_ic
 from ..spectral import Grid
 
 # Limits that keep one configuration's frame/step arithmetic and memory sane; a setting beyond them is refused
@@ -41,7 +49,7 @@ class Param:
 
 
 @dataclass(frozen=True)
-class PDE:
+class PDE(abc.ABC):
     """Base configuration shared by every PDE (subclasses set their own defaults)."""
 
     NAME: ClassVar[str] = ""
@@ -49,6 +57,12 @@ class PDE:
     FIELDS: ClassVar[tuple[str, ...]] = ("u",)
     NDIM: ClassVar[int] = 1
     PARAMS: ClassVar[dict[str, Param]] = {}
+    # A class serving several dimensions: {ndim: setting defaults that differ in that dimension}, e.g.
+    # {1: {}, 2: {"n": 64}, 3: {"n": 32}}. Empty: the class is one PDE of dimension NDIM.
+    DIMENSIONS: ClassVar[Mapping[int, Mapping[str, Any]]] = {}
+    # Fields of a dimension-generic class that an entry of lower dimension does not use (c_z in 2D):
+    # not part of its configuration (set by for_dimension).
+    UNUSED: ClassVar[frozenset] = frozenset()
 
     n: int = 128  # grid points per dimension
     length: float = 1.0  # domain [0, length)^ndim
@@ -58,17 +72,29 @@ class PDE:
     ic: Any = None  # initial-condition distribution (see generator.ics)
 
     # --- what subclasses provide -------------------------------------------------------------------
+    @abc.abstractmethod
     def linear(self, grid: Grid, p: Mapping[str, jax.Array]) -> jax.Array:
         """Diagonal operator L, [C, *kshape] (real or complex); p holds one traced scalar per parameter."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def nonlinear(self, grid: Grid, p: Mapping[str, jax.Array]) -> Callable[[jax.Array], jax.Array] | None:
         """N(v_hat) as a function of the Fourier state [C, *kshape], or None for a linear PDE."""
-        return None
 
+    @abc.abstractmethod
     def stable_dt(self) -> float:
         """Largest internal step (time units) that is stable for every parameter in the domain."""
-        return math.inf
+
+    def state_basis(self, grid: Grid, p: Mapping[str, jax.Array]):
+        """(to_state, from_state): maps between the Fourier transforms of the fields [C, *kshape] and the
+        variables in which ``linear`` is diagonal, or None when those are the fields themselves (all PDEs but
+        a few linear systems such as the wave equation)."""
+        return None
+
+    @classmethod
+    def for_dimension(cls, ndim: int) -> dict[str, Any]:
+        """Class attributes of this class's ``ndim``-dimensional entry that depend on the dimension
+        (PARAMS, FIELDS, EQUATION, UNUSED); only for classes with DIMENSIONS."""
+        return {}
 
     def sample_ic(self, key: jax.Array) -> jax.Array:
         """One initial condition, float32 [C, *space]."""
@@ -125,6 +151,9 @@ class PDE:
 
     # --- validation and configuration --------------------------------------------------------------
     def __post_init__(self):
+        if self.DIMENSIONS and not self.NAME:
+            raise TypeError(f"{type(self).__name__} serves {sorted(self.DIMENSIONS)}D: build it as a catalog entry "
+                            "(generator.get_pde(name), names ending in the dimension)")
         self._check_fields()
         for name, spec in self.PARAMS.items():
             try:
@@ -156,6 +185,7 @@ class PDE:
                     f"allowed dt <= {stable:.4g} (or leave dt unset to derive it)"
                 )
         self._check_steps()
+        check_operators(self)
 
     def check_settings(self) -> None:
         """Subclass hook: refuse values of the PDE's own settings (types and finiteness are already checked)."""
@@ -235,7 +265,7 @@ class PDE:
             elif key == "ic":
                 changes["ic"] = make_ic(value)
             elif key in self.config_fields():
-                changes[key] = value if key in self.PARAMS else _coerce(key, value, self.default(key))
+                changes[key] = value if key in self.PARAMS else coerce(key, value, self.default(key))
             else:
                 allowed = ", ".join([*self.config_fields(), "ic", "ic.<field>"])
                 raise ValueError(f"{self.NAME}: unknown setting {key!r}; allowed: {allowed}")
@@ -246,13 +276,14 @@ class PDE:
                 if key not in ic_fields:
                     raise ValueError(f"{self.NAME}: unknown setting 'ic.{key}' for ic kind {ic.kind!r}; allowed: "
                                      + ", ".join(f"ic.{f}" for f in ic_fields))
-                ic_changes[key] = _coerce(f"ic.{key}", value, getattr(ic, key))
+                ic_changes[key] = coerce(f"ic.{key}", value, getattr(ic, key))
             changes["ic"] = dataclasses.replace(ic, **ic_changes)
         return dataclasses.replace(self, **changes)
 
     @classmethod
     def config_fields(cls) -> list[str]:
-        return [f.name for f in dataclasses.fields(cls) if f.name != "ic"]
+        """The settings of this PDE (its dataclass fields but the IC and the ones its dimension does not use)."""
+        return [f.name for f in dataclasses.fields(cls) if f.name != "ic" and f.name not in cls.UNUSED]
 
     def config(self) -> dict[str, Any]:
         """The full resolved configuration as plain JSON-able values (domains as strings)."""
@@ -284,85 +315,46 @@ class PDE:
         return "\n".join(lines)
 
 
-def make_ic(value: Any):
-    """An IC distribution from an object, a kind name (defaults) or a dict {"kind": ..., field: ...}."""
-    if isinstance(value, str):
-        value = {"kind": value}
-    if isinstance(value, Mapping):
-        fields = dict(value)
-        kind = fields.pop("kind", None)
-        if not isinstance(kind, str) or kind not in IC_KINDS:
-            raise ValueError(f"unknown ic kind {_show(kind)}; allowed: {', '.join(IC_KINDS)}")
-        cls = IC_KINDS[kind]
-        defaults = cls()
+@dataclass(frozen=True)
+class LinearPDE(PDE):
+    """A PDE with no nonlinear part: every step is the exact exponential e^{hL}, so no step limit."""
+
+    def nonlinear(self, grid, p):
+        return None
+
+    def stable_dt(self):
+        return math.inf
+
+
+@functools.lru_cache(maxsize=256)
+def check_operators(pde: PDE) -> None:
+    """L (and N's output, and the state basis) have the state's shape [C, *kshape]; a ValueError naming the PDE
+    otherwise. Shapes only (jax.eval_shape: nothing is computed), once per configuration."""
+    grid, n_fields = pde.grid, len(pde.FIELDS)
+    want = (n_fields, *grid.kshape)
+    p = {name: jax.ShapeDtypeStruct((), jnp.float32) for name in pde.PARAMS}
+    state = jax.ShapeDtypeStruct(want, jnp.complex64)
+
+    def shape_of(what, fn, *args):
         try:
-            return cls(**{k: _coerce(f"ic.{k}", v, getattr(defaults, k)) for k, v in fields.items()})
-        except AttributeError as err:
-            raise ValueError(f"ic kind {kind!r}: {err}") from None
-    if hasattr(value, "sample") and hasattr(value, "kind"):
-        return value
-    raise ValueError(f"bad ic {_show(value)}: expected a kind name ({', '.join(IC_KINDS)}) or a dict with 'kind'")
+            got = tuple(jax.eval_shape(fn, *args).shape)
+        except Exception as err:  # a bug in the PDE class: say which PDE and which part
+            raise ValueError(f"{pde.NAME}: {what} cannot be evaluated on a {want} state: {err}") from None
+        if got != want:
+            raise ValueError(f"{pde.NAME}: {what} has shape {got}; the state is [C, *kshape] = {want} "
+                             f"({n_fields} field(s) {', '.join(pde.FIELDS)} on a {'x'.join(map(str, grid.shape))} grid)")
+
+    shape_of("linear(grid, p)", lambda p: jnp.asarray(pde.linear(grid, p)), p)
+    shape_of("nonlinear(grid, p)(v)", lambda p, v: _call_nonlinear(pde, grid, p, v), p, state)
+    basis = pde.state_basis(grid, {name: jnp.float32(1.0) for name in pde.PARAMS})
+    if basis is not None:
+        shape_of("state_basis(grid, p)[0](v)", lambda v: basis[0](v), state)
+        shape_of("state_basis(grid, p)[1](v)", lambda v: basis[1](v), state)
 
 
-def _coerce(name: str, value: Any, current: Any) -> Any:
-    """Convert a (possibly string) override to the kind of the field's current value, then check it."""
-    if isinstance(value, str):
-        value = _parse_text(name, value, current)
-    return check_value(name, value, current)
-
-
-def _parse_text(name: str, value: str, current: Any) -> Any:
-    """A setting's text (as from ``--set``) as the kind of ``current``: true/false, an integer, a number or None."""
-    text = value.strip()
-    try:
-        if isinstance(current, bool):
-            if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
-                raise ValueError
-            return text.lower() in ("true", "1", "yes")
-        if isinstance(current, int):
-            return int(text)
-        if isinstance(current, float) or current is None:
-            return None if text.lower() == "none" else float(text)
-    except ValueError:
-        raise ValueError(f"bad value for {name}: {value!r} is not {_kind(current)}") from None
-    return text
-
-
-def _kind(default: Any) -> str:
-    """What a setting whose default is ``default`` must be, in words."""
-    if isinstance(default, bool):
-        return "true or false"
-    if isinstance(default, int):
-        return "an integer"
-    if isinstance(default, str):
-        return "a name (a string)"
-    return "a number" if default is not None else "a number or none"
-
-
-def check_value(name: str, value: Any, default: Any) -> Any:
-    """``value`` as a plain Python scalar of the kind of the field's ``default`` (bool, int, number, name; None
-    where the default is None), finite if a number; ValueError naming the setting otherwise."""
-    if isinstance(value, np.generic):
-        value = value.item()  # numpy scalars become plain values: clean JSON configs and messages
-    number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if isinstance(default, bool):
-        ok = isinstance(value, bool)
-    elif isinstance(default, int):
-        ok = isinstance(value, int) and not isinstance(value, bool)
-    elif isinstance(default, str):
-        ok = isinstance(value, str)
-    else:
-        ok = number or (value is None and default is None)
-    if not ok:
-        raise ValueError(f"bad value for {name}: {_show(value)} is not {_kind(default)}")
-    if number and not math.isfinite(value):
-        raise ValueError(f"{name}={value} not allowed: must be a finite number")
-    return value
-
-
-def _show(value: Any) -> str:
-    """repr for messages, without numpy's wrappers (np.float64(0.1) -> 0.1)."""
-    return repr(value.item() if isinstance(value, np.generic) else value)
+def _call_nonlinear(pde: PDE, grid: Grid, p, v):
+    nonlinear = pde.nonlinear(grid, p)
+    return v if nonlinear is None else nonlinear(v)
 
 
 def _root(limit: int, ndim: int) -> int:

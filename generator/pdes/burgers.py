@@ -10,7 +10,7 @@ from .common import CFL, conservative_quadratic
 
 
 @dataclass(frozen=True)
-class Burgers1D(PDE):
+class Burgers(PDE):
     """Periodic viscous Burgers.
 
     Default initial condition is the FNO paper's GRF N(0, 625(-Laplacian + 25 I)^-2) on [0, 1); the
@@ -19,7 +19,7 @@ class Burgers1D(PDE):
     Stable step: advective CFL, dt <= CFL * dx / max|u0| (max|u| never grows for Burgers).
     """
 
-    NAME: ClassVar[str] = "burgers1d"
+    DIMENSIONS: ClassVar[dict] = {1: {}}  # 2D (vector) and 3D: see the nonlinear family
     EQUATION: ClassVar[str] = "u_t + u u_x = nu u_xx"
     PARAMS: ClassVar[dict] = {"nu": Param("viscosity", "length^2/time", positive=True)}
 

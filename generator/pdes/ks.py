@@ -17,14 +17,14 @@ ATTRACTOR_BOUND_NU1 = 4.0
 
 
 @dataclass(frozen=True)
-class KS1D(PDE):
+class KS(PDE):
     """Periodic Kuramoto-Sivashinsky on [0, 32 pi): spatio-temporal chaos after t ~ 50.
 
     nu scales the hyperviscosity (nu = 1 is the standard form). Linear part k^2 - nu k^4 is integrated
     exactly; the step obeys the advective CFL with the attractor bound.
     """
 
-    NAME: ClassVar[str] = "ks1d"
+    DIMENSIONS: ClassVar[dict] = {1: {}}
     EQUATION: ClassVar[str] = "u_t + u u_x + u_xx + nu u_xxxx = 0"
     PARAMS: ClassVar[dict] = {"nu": Param("hyperviscosity", "length^4/time", positive=True)}
 

@@ -1,0 +1,92 @@
+"""The PDE catalog: every entry declared once in ENTRIES (name, class, fixed settings, group), and the lookup.
+
+A class that serves several dimensions (``PDE.DIMENSIONS``) gets one entry per dimension; the entry's name
+carries the dimension (diffusion1d, diffusion2d, ...) and its fixed ``ndim`` picks the class attributes and
+setting defaults of that dimension. Each entry becomes a class of its own (``PDES[name]``), named like
+``Diffusion2D`` and importable from this module (so a PDE pickles by reference, like any other class).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+from .pdes.advection import Advection
+from .pdes.base import PDE
+from .pdes.burgers import Burgers
+from .pdes.diffusion import Diffusion
+from .pdes.grayscott import GrayScott
+from .pdes.kdv1d import KdV1D
+from .pdes.ks import KS
+from .pdes.ns2d import NS2D
+
+# How `pdestream list` and the README group the catalog.
+GROUPS = ("linear", "nonlinear", "reaction-diffusion", "fluids", "steady")
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One catalog entry: its name, the class defining its equation, the settings fixed for this entry
+    ({"ndim": d} for a class serving several dimensions; {} for a class of one dimension), and its group."""
+
+    name: str
+    pde: type[PDE]
+    fixed: Mapping[str, Any]
+    group: str
+
+
+ENTRIES: tuple[Entry, ...] = (
+    Entry("advection1d", Advection, {"ndim": 1}, "linear"),
+    Entry("advection2d", Advection, {"ndim": 2}, "linear"),
+    Entry("advection3d", Advection, {"ndim": 3}, "linear"),
+    Entry("diffusion1d", Diffusion, {"ndim": 1}, "linear"),
+    Entry("diffusion2d", Diffusion, {"ndim": 2}, "linear"),
+    Entry("diffusion3d", Diffusion, {"ndim": 3}, "linear"),
+    Entry("burgers1d", Burgers, {"ndim": 1}, "nonlinear"),
+    Entry("kdv1d", KdV1D, {}, "nonlinear"),
+    Entry("ks1d", KS, {"ndim": 1}, "nonlinear"),
+    Entry("grayscott2d", GrayScott, {"ndim": 2}, "reaction-diffusion"),
+    Entry("ns2d", NS2D, {}, "fluids"),
+)
+
+
+def entry_class(entry: Entry) -> type[PDE]:
+    """The class of one entry: a dimension-generic class specialised to the entry's ndim (its defaults and
+    dimension-dependent class attributes), or a one-dimension class as it is (named ``entry.name``)."""
+    cls = entry.pde
+    if entry.group not in GROUPS:
+        raise TypeError(f"catalog entry {entry.name}: group {entry.group!r} is not one of {GROUPS}")
+    if not cls.DIMENSIONS:
+        if entry.fixed or cls.NAME != entry.name:
+            raise TypeError(f"catalog entry {entry.name}: {cls.__name__} is the one-dimension PDE {cls.NAME!r} "
+                            "and takes no fixed settings")
+        return cls
+    if set(entry.fixed) != {"ndim"} or entry.fixed["ndim"] not in cls.DIMENSIONS:
+        raise TypeError(f"catalog entry {entry.name}: {cls.__name__} needs fixed={{'ndim': d}} with d in "
+                        f"{sorted(cls.DIMENSIONS)}, got {dict(entry.fixed)}")
+    ndim = entry.fixed["ndim"]
+    defaults = dict(cls.DIMENSIONS[ndim])
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    name = f"{cls.__name__}{ndim}D"
+    namespace = {"NAME": entry.name, "NDIM": ndim, **cls.for_dimension(ndim), **defaults,
+                 "__annotations__": {k: fields[k].type for k in defaults},
+                 "__module__": __name__, "__qualname__": name, "__doc__": cls.__doc__}
+    return dataclass(frozen=True)(type(name, (cls,), namespace))
+
+
+PDES: dict[str, type[PDE]] = {e.name: entry_class(e) for e in ENTRIES}
+GROUP: dict[str, str] = {e.name: e.group for e in ENTRIES}
+# The specialised classes by their own names (Diffusion2D, ...), so pickle finds them in this module.
+globals().update({cls.__name__: cls for cls in PDES.values() if cls.__module__ == __name__})
+
+
+def get_pde(name: str, overrides: Mapping | None = None, **kwargs) -> PDE:
+    """The catalog PDE ``name`` with its defaults, changed by ``overrides`` / keyword arguments.
+
+    Values may be strings (parsed: domains like "loguniform(1e-3, 1e-1)", numbers, ic kinds).
+    """
+    if not isinstance(name, str) or name not in PDES:
+        raise ValueError(f"unknown PDE {name!r}; allowed: {', '.join(PDES)}")
+    pde = PDES[name]()
+    return pde.replace(overrides, **kwargs) if (overrides or kwargs) else pde
