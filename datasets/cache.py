@@ -7,13 +7,11 @@ and crash-safety scheme are in ``datasets.schema``. The map-style loader is ``da
 
 from __future__ import annotations
 
-import ctypes
 import errno
 import fcntl
 import glob
-import json
+import hashlib
 import os
-import shutil
 import sys
 import time
 from contextlib import contextmanager
@@ -24,6 +22,7 @@ import numpy as np
 
 from . import schema
 from ._prefetch import prefetch
+from .store import CacheFormat, CacheSettings, format_of, plain, remove_any
 
 TARGET_BLOCK_BYTES = 32 * 2**20  # default block: ~32 MiB of samples (bounded memory, few block writes)
 
@@ -58,13 +57,15 @@ def _check_int(name: str, value, low: int, high: int | None = None) -> None:
     ok = not isinstance(value, bool) and isinstance(value, (int, np.integer)) and value >= low
     if not ok or (high is not None and value > high):
         allowed = f"an integer >= {low}" if high is None else f"an integer in [{low}, {high}]"
-        raise ValueError(f"{name}={_plain(value)!r} not allowed: need {allowed}")
+        raise ValueError(f"{name}={plain(value)!r} not allowed: need {allowed}")
 
 
-def _plain(value):
-    """A value read back from HDF5/Zarr attributes as a plain Python value, for messages (no np.int64(0))."""
-    value = value.item() if isinstance(value, np.generic) else value
-    return value.decode() if isinstance(value, bytes) else value
+def _name_max(directory: Path) -> int:
+    """The longest file name (bytes) the filesystem of ``directory`` allows."""
+    try:
+        return os.pathconf(directory, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        return 255
 
 
 def _check_writable(path: Path) -> None:
@@ -75,32 +76,34 @@ def _check_writable(path: Path) -> None:
         raise FileNotFoundError(f"cannot write {path}: directory {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise PermissionError(f"cannot write {path}: directory {parent} is not writable")
+    length, allowed = len(os.fsencode(path.name)), _name_max(parent)
+    if length > allowed:
+        raise ValueError(f"cannot write {path}: its name is {length} bytes long, the filesystem allows at most "
+                         f"{allowed}; choose a shorter name")
+
+
+def _hidden_stem(path: Path) -> str:
+    """The stem of ``path``'s hidden siblings (lock, work copies): its own name, or a digest of a name so long
+    (yet legal) that ``.NAME.PID.TAG.SUFFIX`` would pass the filesystem's limit on names."""
+    name = path.name
+    if len(os.fsencode(name)) + 32 <= _name_max(path.parent if str(path.parent) else Path(".")):  # 32: the additions
+        return name
+    return "pdestream-" + hashlib.sha256(os.fsencode(name)).hexdigest()[:24]
 
 
 def _hidden(path: Path, tag: str) -> Path:
     """A hidden sibling of ``path`` for this process, keeping the suffix (the format is read from it)."""
-    return path.with_name(f".{path.name}.{os.getpid()}.{tag}{path.suffix}")
+    return path.with_name(f".{_hidden_stem(path)}.{os.getpid()}.{tag}{path.suffix}")
 
 
-def _rmtree_or_unlink(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path)
-    elif path.exists() or path.is_symlink():
-        path.unlink()
-
-
-def _make(path: Path, fmt: str, lay: schema.Layout, block: int) -> None:
-    schema.create_hdf5(str(path), lay) if fmt == "hdf5" else schema.create_zarr(str(path), lay, block)
-
-
-def _create(path: Path, fmt: str, lay: schema.Layout, block: int) -> None:
+def _create(path: Path, fmt: CacheFormat, lay: schema.Layout, block: int) -> None:
     """Create under a temporary name and rename: a kill during creation leaves no half-made cache."""
     tmp = _hidden(path, "new")
     try:
-        _make(tmp, fmt, lay, block)
+        fmt.create(tmp, lay, block)
         os.replace(tmp, path)
     except BaseException:
-        _rmtree_or_unlink(tmp)
+        remove_any(tmp)
         raise
 
 
@@ -108,7 +111,7 @@ def _create(path: Path, fmt: str, lay: schema.Layout, block: int) -> None:
 def write_lock(path: Path):
     """One writer per cache, whatever the format: an exclusive ``flock`` on the hidden sidecar ``.NAME.lock``,
     held while the block runs and removed after. FileExistsError naming the holder's pid otherwise."""
-    lock = path.with_name(f".{path.name}.lock")
+    lock = path.with_name(f".{_hidden_stem(path)}.lock")
     while True:
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
@@ -141,39 +144,33 @@ def _foreign(path: Path) -> str | None:
     """None when ``path`` is a pdestream cache (ours to replace); otherwise what is there, in words."""
     if path.is_symlink():
         return f"a symlink to {os.readlink(path)}"
-    fmt = schema.cache_format(path)
-    if fmt == "zarr" and not path.is_dir():
-        return "a file, not a Zarr store (a directory)"
-    if fmt == "hdf5" and not path.is_file():
-        return "a directory, not an HDF5 file" if path.is_dir() else "not a regular file"
+    fmt = format_of(path)
+    if what := fmt.kind_problem(path):
+        return what
     try:
-        names = schema.root_attr_names(path)
+        attrs = fmt.root_attrs(path)
     except (OSError, ValueError):
-        if fmt == "zarr":
+        if path.is_dir():
             held = sorted(p.name for p in path.iterdir())
             return f"a directory that is not a Zarr store (holds {', '.join(held[:3]) or 'nothing'}" + \
                 (", ..." if len(held) > 3 else "") + ")"
         return "a file that is not a readable HDF5 file (if it is a damaged cache, remove it yourself)"
-    ours = {schema.CONFIG_ATTR, "pdestream_schema", "pdestream_fields", "pdestream_params"}
-    if not ours <= names:
-        return f"{'a Zarr store' if fmt == 'zarr' else 'an HDF5 file'} without pdestream's attributes"
-    if fmt == "zarr":  # files a user added inside our store would be lost with it
-        attrs = json.loads((path / "zarr.json").read_text())["attributes"]
-        variables = f"{attrs['pdestream_fields']} {attrs['pdestream_params']}".split()
-        known = {"zarr.json", "sample", "time", *schema.SPACE, "redraws", "complete", *variables}
-        extra = sorted(p.name for p in path.iterdir() if p.name not in known)
-        if extra:
-            return f"a pdestream cache with other files in it ({', '.join(extra[:3])}{', ...' if len(extra) > 3 else ''})"
+    if not {schema.CONFIG_ATTR, "pdestream_schema", "pdestream_fields", "pdestream_params"} <= set(attrs):
+        return f"{'a Zarr store' if fmt.name == 'zarr' else 'an HDF5 file'} without pdestream's attributes"
+    extra = fmt.extra_entries(path, attrs)  # a user's files inside our store would be lost with it
+    if extra:
+        return f"a pdestream cache with other files in it ({', '.join(extra[:3])}{', ...' if len(extra) > 3 else ''})"
     return None
 
 
 def _remove_stale(path: Path) -> None:
     """Remove hidden work copies of ``path`` left by pdestream writers that were killed (their pid is gone).
     Called under the write lock, so no live writer of ``path`` owns one."""
-    for p in path.parent.glob(f".{glob.escape(path.name)}.*.*{glob.escape(path.suffix)}"):
-        pid, _, tag = p.name[len(path.name) + 2 : len(p.name) - len(path.suffix)].partition(".")
+    stem = _hidden_stem(path)
+    for p in path.parent.glob(f".{glob.escape(stem)}.*.*{glob.escape(path.suffix)}"):
+        pid, _, tag = p.name[len(stem) + 2 : len(p.name) - len(path.suffix)].partition(".")
         if tag in ("new", "tmp") and pid.isdigit() and not _alive(int(pid)):
-            _rmtree_or_unlink(p)
+            remove_any(p)
 
 
 def _alive(pid: int) -> bool:
@@ -186,75 +183,31 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def _exchange(a: Path, b: Path) -> bool:
-    """Swap two paths in one atomic step (Linux renameat2 RENAME_EXCHANGE); False where unsupported."""
-    try:
-        fn = ctypes.CDLL(None, use_errno=True).renameat2
-    except (OSError, AttributeError):
-        return False
-    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
-    at_fdcwd, rename_exchange = -100, 2
-    if fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
-        return True
-    err = ctypes.get_errno()
-    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOTSUP):
-        return False
-    raise OSError(err, os.strerror(err), str(b))
-
-
-def _swap_in(new: Path, path: Path) -> None:
-    """Put the finished cache ``new`` at ``path`` in place of the old one, then delete the old one."""
-    if new.is_file() or not path.exists():
-        os.replace(new, path)  # one atomic rename over the old file (or into a place left empty)
-        return
-    if _exchange(new, path):  # the old store now sits at ``new``
-        shutil.rmtree(new)
-        return
-    aside = _hidden(path, "old")  # a kill between the two renames leaves the old store here, not lost
-    os.rename(path, aside)
-    try:
-        os.rename(new, path)
-    except BaseException:
-        os.rename(aside, path)
-        raise
-    shutil.rmtree(aside)
-
-
-def _check_resume(path: Path, attrs: dict, lay: schema.Layout) -> None:
+def _check_resume(path: Path, cached: CacheSettings, asked: CacheSettings) -> None:
     """Refuse to finish a cache that another configuration (or JAX PRNG set-up) started."""
-    keys = ("pdestream_config_hash", "pdestream_seed", "pdestream_n_samples", "pdestream_on_blowup",
-            "jax_version", "jax_threefry_partitionable", "pdestream_schema")
-    diff = []
-    for k in keys:
-        cached, asked = _plain(attrs.get(k)), _plain(lay.attrs[k])
-        if cached == asked:
-            continue
-        line = f"{k[10:] if k.startswith('pdestream_') else k}: cache {cached!r} vs asked {asked!r}"
-        if k == "pdestream_config_hash":  # name the settings behind the hash
-            settings = _config_diff(attrs.get(schema.CONFIG_ATTR), lay.attrs[schema.CONFIG_ATTR])
-            line += f" (settings that differ: {'; '.join(settings)})" if settings else ""
-        diff.append(line)
+    diff = cached.differences(asked)
     if diff:
         raise ValueError(f"cannot resume {path}: it was written with a different set-up ({'; '.join(diff)}); "
                          "use the same PDE settings, seed and --n, or --overwrite to start again")
 
 
-def _config_diff(cached_json, asked_json) -> list[str]:
-    """The PDE settings that differ between two stored configs (JSON), as "name: cache X vs asked Y"."""
-    try:
-        cached, asked = _flat(json.loads(_plain(cached_json))), _flat(json.loads(asked_json))
-    except (TypeError, ValueError):
-        return []  # an unreadable stored config: the caller names the config as a whole
-    return [f"{k}: cache {cached.get(k, '(unset)')} vs asked {asked.get(k, '(unset)')}"
-            for k in sorted(set(cached) | set(asked)) if cached.get(k) != asked.get(k)]
+def _cause(err: OSError) -> str:
+    """An OS error in words, without the library's wrapping (h5py puts a whole report in its message)."""
+    code = getattr(err, "errno", None)
+    if code is None and "errno = " in str(err):  # h5py: "... errno = 28, error message = ..."
+        digits = str(err).split("errno = ", 1)[1].split(",", 1)[0]
+        code = int(digits) if digits.isdigit() else None
+    if code in (errno.ENOSPC, errno.EDQUOT):
+        return os.strerror(code).lower()
+    if code is not None and (err.strerror is None or "(" in str(err.strerror)):
+        return os.strerror(code).lower()
+    text = err.strerror or str(err)
+    return text.splitlines()[0] if text else type(err).__name__
 
 
-def _flat(config: dict, prefix: str = "") -> dict:
-    """{"ic": {"alpha": 2}} -> {"ic.alpha": 2}: the names --set uses."""
-    out = {}
-    for k, v in config.items():
-        out.update(_flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
-    return out
+class CacheWriteError(ValueError):
+    """Writing a block or the completion flag failed at the OS level (disk full, I/O error): one line naming the
+    cache and the cause; ``writing`` adds what was kept."""
 
 
 def solve_block(pde, seed: int, lo: int, hi: int, block: int, on_blowup: str):
@@ -275,22 +228,22 @@ def write_block(store, pde, lo: int, hi: int, u, params, redraws) -> None:
     for name, values in params.items():
         store[name][lo:hi] = values
     store["redraws"][lo:hi] = redraws
-    if hasattr(store, "flush"):
-        store.flush()  # data reaches the file before the flags that vouch for it
+    store.flush()  # data reaches the file before the flags that vouch for it
     store["complete"][lo:hi] = np.ones(hi - lo, np.int8)
-    if hasattr(store, "flush"):
-        store.flush()
+    store.flush()
 
 
 def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, overwrite: bool = False,
                 block: int | None = None, on_blowup: str = "raise", progress: bool = True) -> WriteSummary:
-    """Write samples 0..n_samples-1 of ``pde`` under ``seed`` to ``path`` (.h5/.hdf5 or .zarr).
+    """Write samples 0..n_samples-1 of ``pde`` (a generator PDE or a catalog name) under ``seed`` to ``path``
+    (.h5/.hdf5 or .zarr).
 
-    Fields are float32 [sample, time, (z,) (y,) x] on disk (schema and axis order in ``datasets.schema``).
-    ``block`` samples are solved per batch (default: ~32 MiB); ``resume`` finishes an interrupted cache of the same set-up
+    Fields are float32 [sample, time, x(, y)] (schema in ``datasets.schema``). ``block`` samples are
+    solved per batch (default: ~32 MiB); ``resume`` finishes an interrupted cache of the same set-up
     (bit-identical to an uninterrupted run); ``overwrite`` replaces an existing pdestream cache (the new one
     is built beside it and swapped in only once complete). ``progress`` shows a tqdm bar when stderr is a
-    terminal.
+    terminal. An OS failure while writing (disk full) is one ValueError line naming the path, the cause and
+    what was kept.
     """
     from ._bridge import resolve_pde
 
@@ -305,13 +258,18 @@ def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, 
 @dataclass
 class Job:
     """A cache being written: ``path`` (where it ends up), ``work`` (where blocks are written: ``path``, or a
-    hidden sibling when replacing an old cache), its layout and block."""
+    hidden sibling when replacing an old cache), its format, settings and layout."""
 
     path: Path
     work: Path
+    fmt: CacheFormat
+    settings: CacheSettings
     lay: schema.Layout
-    block: int
     repaired: int = 0  # damaged samples of a resumed cache, reopened to be recomputed
+
+    @property
+    def block(self) -> int:
+        return self.settings.block
 
 
 @contextmanager
@@ -327,7 +285,7 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
 
     # every argument is checked before anything is created: a refused run leaves nothing behind
     path = Path(path)
-    fmt = schema.cache_format(path)
+    fmt = format_of(path)
     pde = resolve_pde(pde)  # a generator PDE (its config was checked when it was built) or a catalog name
     _check_int("n_samples", n_samples, 1, max_index() + 1)
     _check_int("seed", seed, 0, 2**63 - 1)
@@ -351,40 +309,54 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
             raise ValueError(f"refusing to overwrite {path}: it is {what}; --overwrite replaces only a pdestream "
                              "cache (remove it yourself or choose another path)")
         configure_jax()
-        stored = None
-        if resume and exists:
-            info = open_cache(path)  # clear error if it is not a cache
-            stored, info = dict(info.attrs), info.close()
+        stored = cache_settings(path) if resume and exists else None  # clear error if it is not a cache
         if block is None:
-            block = stored["pdestream_block"] if stored else default_block(pde, n_samples)
-        block = int(min(block, n_samples))
-        lay = schema.layout(pde, int(n_samples), int(seed), block, on_blowup, jax_provenance())
+            block = stored.block if stored else default_block(pde, n_samples)
+        settings = CacheSettings.of(pde, n_samples, seed, min(block, n_samples), on_blowup, jax_provenance())
         if stored:
-            _check_resume(path, stored, lay)
-            if stored["pdestream_block"] != block:
-                raise ValueError(f"cannot resume {path} with block={block}: it was started with block="
-                                 f"{stored['pdestream_block']} (leave --block out to use it)")
+            _check_resume(path, stored, settings)
+            if stored.block != settings.block:
+                raise ValueError(f"cannot resume {path} with block={settings.block}: it was started with block="
+                                 f"{stored.block} (leave --block out to use it)")
+        lay = schema.layout(pde, settings.n_samples, settings.seed, settings.block, settings.on_blowup,
+                            settings.provenance)
         _remove_stale(path)
-        repaired = _reopen_damaged(path, lay, block) if stored else 0
-        job = Job(path, _hidden(path, "tmp") if exists and overwrite else path, lay, block, repaired)
+        repaired = _reopen_damaged(path, fmt, settings) if stored else 0
+        job = Job(path, _hidden(path, "tmp") if exists and overwrite else path, fmt, settings, lay, repaired)
         created = not stored
         try:
             if created:
                 try:  # a replacement is built at its hidden work path, a new cache made whole then renamed
-                    _make(job.work, fmt, lay, block) if job.work != path else _create(path, fmt, lay, block)
+                    fmt.create(job.work, lay, settings.block) if job.work != path else _create(path, fmt, lay,
+                                                                                              settings.block)
                 except OSError as err:
-                    raise ValueError(f"cannot create {path}: {err}") from None
+                    raise CacheWriteError(f"cannot create {path}: {_cause(err)}") from None
             yield job
             if job.work != path:
                 if path.exists() and (what := _foreign(path)):  # replaced by someone else while we wrote
                     raise ValueError(f"refusing to overwrite {path}: it became {what} during the run")
-                _swap_in(job.work, path)
-        except BaseException:
+                fmt.replace(job.work, path, _hidden(path, "old"))
+        except BaseException as err:
             if job.work != path:
-                _rmtree_or_unlink(job.work)  # ours: the old cache at ``path`` was never touched
-            elif created and not _any_written(path):
-                _rmtree_or_unlink(path)  # ours, and nothing in it to resume: a rerun needs no --overwrite
+                remove_any(job.work)  # ours: the old cache at ``path`` was never touched
+                kept = "the old cache is unchanged"
+            elif created and not _any_written(path, fmt):
+                remove_any(path)  # ours, and nothing in it to resume: a rerun needs no --overwrite
+                kept = "nothing was kept"
+            else:
+                kept = "the samples written so far are kept: free space and finish it with --resume"
+            if isinstance(err, CacheWriteError):
+                raise CacheWriteError(f"{err}; {kept}") from None
             raise
+
+
+def cache_settings(path) -> CacheSettings:
+    """The settings of the cache at ``path`` (one-line ValueError when it is not a readable pdestream cache)."""
+    ds = open_cache(path)
+    try:
+        return CacheSettings.from_attrs(ds.attrs, path)
+    finally:
+        ds.close()
 
 
 def damaged_samples(store, names, block: int = 64) -> np.ndarray:
@@ -407,30 +379,29 @@ def damaged_samples(store, names, block: int = 64) -> np.ndarray:
     return np.asarray(bad, np.int64)
 
 
-def _reopen_damaged(path: Path, lay: schema.Layout, block: int) -> int:
+def _reopen_damaged(path: Path, fmt: CacheFormat, settings: CacheSettings) -> int:
     """Resume: clear the flags of damaged samples (and the global flag) so they are solved again."""
-    store = schema.open_store(str(path), "r+")
+    store = fmt.open(path, writable=True)
     try:
-        bad = damaged_samples(store, [*lay.fields, *(p for p in lay.per_sample if p not in ("redraws", "complete"))],
-                              block)
+        bad = damaged_samples(store, [*settings.fields, *settings.params], settings.block)
         if len(bad):
-            schema.mark_complete(store, str(path), value=0)  # no longer complete until they are rewritten
+            fmt.mark_complete(store, value=0)  # no longer complete until they are rewritten
             flags = np.asarray(store["complete"][:])
             flags[bad] = 0
             store["complete"][:] = flags
     finally:
-        schema.close(store)
+        store.close()
     return len(bad)
 
 
-def _any_written(path: Path) -> bool:
+def _any_written(path: Path, fmt: CacheFormat) -> bool:
     """True when a sample of the cache at ``path`` is flagged complete (or it cannot be read: keep it)."""
     try:
-        store = schema.open_store(str(path), "r")
+        store = fmt.open(path)
         try:
             return bool((np.asarray(store["complete"][:]) == 1).any())
         finally:
-            schema.close(store)
+            store.close()
     except Exception:
         return True
 
@@ -445,21 +416,22 @@ def _fill(pde, job: Job, progress: bool) -> int:
     """Solve and write every pending block of ``job``, then mark it complete; returns the samples written."""
     from tqdm import tqdm
 
-    lay, block = job.lay, job.block
-    n = lay.dims["sample"]
-    store = schema.open_store(str(job.work), "r+")
+    s, block = job.settings, job.block
+    store = job.fmt.open(job.work, writable=True)
     written = 0
     try:
         todo = pending_blocks(store, block)
-        bar = tqdm(total=n, initial=n - sum(hi - lo for lo, hi in todo), unit="sample", desc=pde.NAME, smoothing=0.1,
-                   disable=not progress or not sys.stderr.isatty())
-        seed, on_blowup = lay.attrs["pdestream_seed"], lay.attrs["pdestream_on_blowup"]
+        bar = tqdm(total=s.n_samples, initial=s.n_samples - sum(hi - lo for lo, hi in todo), unit="sample",
+                   desc=pde.NAME, smoothing=0.1, disable=not progress or not sys.stderr.isatty())
         # one block solved ahead of the one being written; each padded to ``block`` samples (one compile)
-        solved = prefetch(lambda: ((lo, hi, *solve_block(pde, seed, lo, hi, block, on_blowup)) for lo, hi in todo))
+        solved = prefetch(lambda: ((lo, hi, *solve_block(pde, s.seed, lo, hi, block, s.on_blowup)) for lo, hi in todo))
         try:
             for item in solved:
                 lo, hi = item[:2]
-                write_block(store, pde, *item)
+                try:
+                    write_block(store, pde, *item)
+                except OSError as err:  # disk full, I/O error: one line, not the library's report
+                    raise CacheWriteError(f"cannot write {job.path} (samples {lo}..{hi - 1}): {_cause(err)}") from None
                 written += hi - lo
                 bar.update(hi - lo)
         finally:
@@ -468,54 +440,63 @@ def _fill(pde, job: Job, progress: bool) -> int:
             bar.close()
         if not (np.asarray(store["complete"][:]) == 1).all():
             raise RuntimeError(f"{job.path}: blocks missing after writing (a bug)")
-        schema.mark_complete(store, str(job.work))
+        try:
+            job.fmt.mark_complete(store)
+        except OSError as err:
+            raise CacheWriteError(f"cannot mark {job.path} complete: {_cause(err)}") from None
     finally:
-        schema.close(store)
+        store.close()
     return written
 
 
 def open_cache(path, complete_only: bool = False):
-    """The cache at ``path`` as an xarray.Dataset (lazy); ``complete_only`` keeps written samples only.
+    """The cache at ``path`` as an xarray.Dataset (lazy fields; the per-sample coordinates are read now);
+    ``complete_only`` keeps written samples only.
 
-    ValueError (one line) for a missing path, a file that is not a pdestream cache, or an unreadable one.
+    ValueError (one line naming the path and the cause) for a missing path, a file that is not a pdestream
+    cache, one held open by a writer, or a damaged one (unreadable, a variable or attribute missing or garbled).
     """
-    import xarray as xr
-
     path = Path(path)
-    fmt = schema.cache_format(path)
+    fmt = format_of(path)
     if not path.exists():
         raise ValueError(f"no cache at {path}: the path does not exist")
     try:
-        if fmt == "hdf5":
-            ds = xr.open_dataset(path, engine="h5netcdf", phony_dims="access")  # foreign files too
-        else:
-            try:
-                ds = xr.open_zarr(path, consolidated=True)
-            except ValueError as err:  # no consolidated entry (a writer cut by an older pdestream): read the parts
-                if "onsolidated metadata" not in str(err):
-                    raise
-                ds = xr.open_zarr(path, consolidated=False)
+        ds = fmt.dataset(path)
     except Exception as err:  # h5py / zarr / json errors of every kind: name the file, not the library
         detail = str(err).splitlines()[0] if str(err) else type(err).__name__
         if "unable to lock file" in detail:
             raise ValueError(f"{path} is open for writing by another process (HDF5 locks it while a "
                              "generate runs); wait for it to finish or stop it") from None
-        raise ValueError(f"{path} is not a readable {fmt} cache (truncated or corrupted?): {detail}") from None
-    missing = [k for k in (schema.CONFIG_ATTR, "pdestream_n_samples", "pdestream_fields", "pdestream_params")
-               if k not in ds.attrs]
-    missing += [v for v in ("complete", "sample") if v not in ds.variables]
-    if missing:
-        ds.close()
-        raise ValueError(f"{path} is not a pdestream cache (missing {', '.join(missing)})")
-    stored = [f for f in str(ds.attrs["pdestream_fields"]).split() if f in ds.variables]
-    try:  # a schema-1 cache of 2D fields stored them (x, y): refused rather than read the wrong way round
-        schema.check_readable(path, ds.attrs, ds[stored[0]].dims if stored else ())
-    except ValueError:
+        raise ValueError(f"{path} is not a readable {fmt.name} cache (truncated or corrupted?): {detail}") from None
+    try:
+        missing = [k for k in (schema.CONFIG_ATTR, "pdestream_n_samples", "pdestream_fields", "pdestream_params")
+                   if k not in ds.attrs]
+        missing += [v for v in ("complete", "sample") if v not in ds.variables]
+        if missing:
+            raise ValueError(f"{path} is not a pdestream cache (missing {', '.join(missing)})")
+        settings = CacheSettings.from_attrs(ds.attrs, path)
+        store = fmt.open(path)  # the arrays themselves: consolidated metadata lists a deleted Zarr array too
+        try:
+            gone = [v for v in (*settings.fields, *settings.params, "redraws") if v not in ds.variables or v not in store]
+        finally:
+            store.close()
+        if gone:
+            raise ValueError(f"{path} is damaged: variable{'s' if len(gone) > 1 else ''} {', '.join(gone)} "
+                             "missing (deleted?); regenerate it with --overwrite")
+        # a schema-1 cache of 2D fields stored them (x, y): refused rather than read the wrong way round
+        schema.check_readable(path, ds.attrs, ds[settings.fields[0]].dims)
+        if ds.sizes["sample"] != settings.n_samples:
+            raise ValueError(f"{path} is damaged: {ds.sizes['sample']} samples stored, {settings.n_samples} expected")
+        for name in ("sample", "complete", "redraws", *settings.params):  # small: read now, so a damaged one
+            try:  # is named here rather than failing later in a reader
+                ds[name].load()
+            except Exception as err:
+                detail = str(err).splitlines()[0] if str(err) else type(err).__name__
+                raise ValueError(f"{path} is damaged: cannot read {name} ({detail}); regenerate it with "
+                                 "--overwrite") from None
+    except BaseException:
         ds.close()
         raise
-    if ds.sizes["sample"] != ds.attrs["pdestream_n_samples"]:
-        ds.close()
-        raise ValueError(f"{path} is damaged: {ds.sizes['sample']} samples stored, {ds.attrs['pdestream_n_samples']} expected")
     if complete_only:
         ds = ds.isel(sample=np.flatnonzero(ds["complete"].values == 1))
     return ds

@@ -19,7 +19,6 @@ shared filesystem, then pass the scheduler's address (``--scheduler tcp://host:8
 from __future__ import annotations
 
 import importlib.util
-import json
 import logging
 import os
 import re
@@ -28,8 +27,10 @@ import struct
 import sys
 import time
 from contextlib import contextmanager
+from pathlib import Path
 
 from . import cache, schema
+from .store import format_of
 
 # Embedded workers: JAX on the CPU, one XLA thread each (processes, not threads, give the parallelism).
 SINGLE_THREAD_XLA = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
@@ -137,23 +138,27 @@ def _block_task(config: dict, seed: int, path: str, lo: int, hi: int, block: int
     configure_jax()  # persistent compilation cache: a (re)started worker does not recompile from scratch
     pde = pde_from_config(config)
     data = cache.solve_block(pde, seed, lo, hi, block, on_blowup)
-    cache.write_block(schema.open_store(path, "r+"), pde, lo, hi, *data)
+    store = format_of(path).open(Path(path), writable=True)
+    try:
+        cache.write_block(store, pde, lo, hi, *data)
+    finally:
+        store.close()
     return lo, hi
 
 
-def _run_blocks(client, name: str, lay, path: str, todo, block: int, progress: bool) -> None:
+def _run_blocks(client, name: str, settings, path: str, todo, block: int, progress: bool) -> None:
     """One task per (lo, hi) block; raises the first task error after cancelling the rest."""
     from tqdm import tqdm
 
     if progress and "dashboard" in client.scheduler_info().get("services", {}):
         hint = "" if importlib.util.find_spec("bokeh") else " (install bokeh to see its plots)"
         print(f"dask dashboard: {client.dashboard_link}{hint}", file=sys.stderr)
-    seed, on_blowup = lay.attrs["pdestream_seed"], lay.attrs["pdestream_on_blowup"]
-    config = json.loads(lay.attrs[schema.CONFIG_ATTR])  # tasks rebuild the PDE from it: plain data travels
-    tag = f"pdestream-{lay.attrs['pdestream_config_hash']}-s{seed}"  # readable task names on the dashboard
+    seed, on_blowup = settings.seed, settings.on_blowup
+    config = settings.config  # tasks rebuild the PDE from it: plain data travels
+    tag = f"pdestream-{settings.config_hash}-s{seed}"  # readable task names on the dashboard
     futures = [client.submit(_block_task, config, seed, path, lo, hi, block, on_blowup, key=f"{tag}-{lo}-{hi}",
                              pure=False) for lo, hi in todo]
-    n = lay.dims["sample"]
+    n = settings.n_samples
     bar = tqdm(total=n, initial=n - sum(hi - lo for lo, hi in todo), unit="sample", desc=f"{name} (dask)",
                smoothing=0.1, disable=not progress or not sys.stderr.isatty())
     try:
@@ -176,7 +181,7 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
     of a running Dask scheduler; None: an embedded LocalCluster) and ``workers`` (its process count).
     ``progress``: a tqdm bar over finished blocks (on a terminal) and the dashboard address on stderr.
     """
-    if schema.cache_format(path) != "zarr":
+    if not format_of(path).parallel_writers:
         raise ValueError(f"the dask executor writes Zarr only (got {str(path)!r}): HDF5 allows one writer per file; "
                          "use a .zarr path, or --executor local for HDF5")
     _distributed()  # before anything is created on disk
@@ -184,10 +189,13 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
         check_scheduler(scheduler)  # a malformed address: one line, nothing created (reachability: dask_client)
     if not scheduler and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise ValueError(f"workers={workers!r} not allowed: need an integer >= 1")
+    from ._bridge import resolve_pde
+
+    pde = resolve_pde(pde)  # a catalog name or a generator PDE, like write_cache
     start = time.perf_counter()
     with cache.writing(pde, path, n_samples, seed, resume, overwrite, block, on_blowup) as job:
         lay, block, work = job.lay, job.block, job.work  # work: a hidden sibling when replacing an old cache
-        store = schema.open_store(str(work), "r+")
+        store = job.fmt.open(work, writable=True)
         for name in (*lay.fields, *lay.per_sample):  # blocks cover whole chunks: no two tasks share a chunk
             if block % store[name].chunks[0]:
                 raise ValueError(f"{path}: {name} chunks {store[name].chunks} along sample do not tile block={block}")
@@ -195,10 +203,10 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
         if todo:  # a finished cache needs no cluster
             with dask_client(scheduler, workers) as client:
                 # an absolute path: remote workers run in another directory (of a shared filesystem)
-                _run_blocks(client, pde.NAME, lay, str(work.resolve()), todo, block, progress)
+                _run_blocks(client, pde.NAME, job.settings, str(work.resolve()), todo, block, progress)
         if not (store["complete"][:] == 1).all():
             raise RuntimeError(f"{path}: blocks missing after the Dask run (a bug)")
-        schema.mark_complete(store, str(work))
+        job.fmt.mark_complete(store)
     written, seconds = sum(hi - lo for lo, hi in todo), time.perf_counter() - start
-    return cache.WriteSummary(str(job.path), lay.dims["sample"], written, seconds, schema.disk_bytes(job.path),
+    return cache.WriteSummary(str(job.path), job.settings.n_samples, written, seconds, schema.disk_bytes(job.path),
                               job.repaired)

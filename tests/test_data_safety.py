@@ -21,6 +21,7 @@ import cli
 import datasets
 from datasets import cache as cache_mod
 from datasets import schema
+from datasets import store as store_mod
 from datasets.cache import is_complete
 
 SMALL = ["--set", "n=32", "--set", "n_frames=5"]
@@ -126,7 +127,7 @@ def test_overwrite_with_unreachable_scheduler_keeps_the_old_cache(tmp_path, caps
 def test_successful_overwrite_replaces_and_leaves_nothing_else(old_cache, capsys, monkeypatch, exchange):
     path, sha = old_cache
     if exchange == "two renames":  # where the atomic exchange is unsupported: old aside, new in, old deleted
-        monkeypatch.setattr(cache_mod, "_exchange", lambda a, b: False)
+        monkeypatch.setattr(store_mod, "_exchange", lambda a, b: False)
     code, out, err = generate(capsys, path, "--overwrite", n=6, seed=1)
     assert code == 0 and "wrote 6 samples" in out, err
     assert digest(path) != sha and listing(path.parent) == [path.name]
