@@ -82,6 +82,9 @@ def summary(path) -> str:
 
 def plot(path, out, n_show: int = 4) -> str:
     """Write ``figure(path, n_show)`` as a PNG to ``out``; returns the path written."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # a file, no window (and no display needed)
     import matplotlib.pyplot as plt
 
     fig = figure(path, n_show)
@@ -106,7 +109,7 @@ def figure(path, n_show: int = 4):
 
 
 def draw(ds, n_show: int = 4):
-    """Every field of the first ``n_show`` samples of a cache's Dataset, as a Figure (Agg backend).
+    """Every field of the first ``n_show`` samples of a cache's Dataset, as a Figure (current backend).
 
     1D: space-time images (x across, t up), one row per field, one column per sample. 2D: first/middle/last
     frames (x across, y up, origin lower, aspect equal), one row per sample, one group of columns per field,
@@ -115,9 +118,6 @@ def draw(ds, n_show: int = 4):
     centred on zero for a signed field, sequential for a one-signed one (``colour_scale``). Axis labels come
     from the coordinates' long_name/units attrs, as in xarray's own plots.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fields = ds.attrs["pdestream_fields"].split()
