@@ -63,6 +63,16 @@ def test_a_2d_cache_is_stored_y_then_x(ns_cache):
     assert float(ds["vorticity"].isel(sample=1, time=-1, x=i, y=j)) == float(traj.u[0, -1, 0, i, j])
 
 
+def test_the_cache_dim_named_x_is_the_pdes_x(tmp_path):
+    # advection by c = (0.25, 0) for t = 1 on [0, 1)^2, n = 16: an exact shift by 4 cells along x, none along y
+    pde = generator.get_pde("advection2d", n=16, c_x=0.25, c_y=0.0, t_end=1.0, n_frames=2)
+    datasets.write_cache(pde, tmp_path / "adv.h5", 1, progress=False)
+    u = _plain_open(tmp_path / "adv.h5")["u"].isel(sample=0)
+    assert u.dims == ("time", "y", "x")
+    assert float(abs(u.isel(time=-1) - u.isel(time=0).roll(x=4)).max()) < 1e-5
+    assert float(abs(u.isel(time=-1) - u.isel(time=0).roll(y=4)).max()) > 0.1
+
+
 def test_readers_get_the_generators_tensors_bit_for_bit(ns_cache):
     pde, path = ns_cache
     u = torch.from_numpy(np.array(generator.sample(pde, range(N), 0).u))  # [N, T, C, x, y]
