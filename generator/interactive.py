@@ -23,13 +23,16 @@ then has float32 accuracy). Programs are compiled once per (PDE config, frames, 
 from __future__ import annotations
 
 import functools
+import threading
+from collections import OrderedDict
 from typing import Mapping
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .pdes import PDE
-from .sampler import SETUP_CHUNK, _coefficients
+from .sampler import SETUP_CHUNK, _coefficients, _join
 from .spectral import rollout
 
 
@@ -52,16 +55,70 @@ def _finite(u: jax.Array) -> jax.Array:
     return jnp.all(jnp.isfinite(u.reshape(u.shape[0], -1)), axis=1)
 
 
+def _chunk_coefficients(pde: PDE, chunk):
+    """(params {name: [K]}, index [K]) -> coefficients [K, ...]: one sample per loop step (the index makes a
+    PDE without parameters loop too)."""
+    return jax.lax.map(lambda a: _coefficients(pde, a[0]), chunk)
+
+
 @functools.lru_cache(maxsize=64)
 def _setup(pde: PDE):
-    """jit of params {name: [K]} -> ETDRK4 coefficients [K, ...], K = SETUP_CHUNK, one sample per loop step."""
-    return jax.jit(lambda p: jax.lax.map(functools.partial(_coefficients, pde), p))
+    """jit of a chunk of K = SETUP_CHUNK samples -> their ETDRK4 coefficients [K, ...]."""
+    return jax.jit(functools.partial(_chunk_coefficients, pde))
 
 
 @functools.lru_cache(maxsize=64)
 def _setup_vjp(pde: PDE):
-    """jit of params chunk -> (coefficients, VJP closure over the chunk's residuals)."""
-    return jax.jit(lambda p: jax.vjp(lambda q: jax.lax.map(functools.partial(_coefficients, pde), q), p))
+    """jit of a chunk -> (coefficients, VJP closure over the chunk's residuals)."""
+    return jax.jit(lambda chunk: jax.vjp(functools.partial(_chunk_coefficients, pde), chunk))
+
+
+# The coefficients cost more than a frame of stepping (ns2d 64^2: ~4 ms per sample for the contour integrals
+# on a CPU core, against ~1 ms of stepping), and a loop that unrolls k steps asks for the same parameters k
+# times: chunks are kept by their exact parameter values, up to COEFFICIENT_CACHE_BYTES. Same bits either way.
+COEFFICIENT_CACHE_BYTES = 2**26
+_cache: OrderedDict = OrderedDict()
+_cache_lock = threading.Lock()
+
+
+def _host_chunks(params: Mapping[str, jax.Array], batch: int) -> list[dict[str, np.ndarray]]:
+    """params {name: [B]} -> host chunks of SETUP_CHUNK samples (the last padded by repeating sample 0)."""
+    pad = (-batch) % SETUP_CHUNK
+    host = {k: np.asarray(v) for k, v in params.items()}
+    host = {k: np.concatenate([v, np.repeat(v[:1], pad)]) for k, v in host.items()}
+    return [{k: v[i : i + SETUP_CHUNK] for k, v in host.items()} for i in range(0, batch + pad, SETUP_CHUNK)]
+
+
+def _on(device, chunk: dict[str, np.ndarray]):
+    return jax.device_put((chunk, np.arange(SETUP_CHUNK, dtype=np.int32)), device)
+
+
+def _coefficients_for(pde: PDE, params: Mapping[str, jax.Array], batch: int, device):
+    """ETDRK4 coefficients [B, ...] for params {name: [B]} on ``device``, chunk by chunk (memoised)."""
+    parts = []
+    for chunk in _host_chunks(params, batch):
+        key = (pde, str(device), tuple((k, v.dtype.str, v.tobytes()) for k, v in sorted(chunk.items())))
+        with _cache_lock:
+            hit = _cache.get(key)
+            if hit is not None:
+                _cache.move_to_end(key)
+        if hit is None:
+            hit = _setup(pde)(_on(device, chunk))
+            _remember(key, hit)
+        parts.append(hit)
+    return _join(parts, batch)
+
+
+def _nbytes(tree) -> int:
+    return sum(x.nbytes for x in jax.tree_util.tree_leaves(tree))
+
+
+def _remember(key, coeffs) -> None:
+    with _cache_lock:
+        _cache[key] = coeffs
+        total = sum(_nbytes(c) for c in _cache.values())
+        while len(_cache) > 1 and total > COEFFICIENT_CACHE_BYTES:
+            total -= _nbytes(_cache.popitem(last=False)[1])
 
 
 @functools.lru_cache(maxsize=64)
@@ -97,17 +154,6 @@ def _apply(vjp, g):
     return vjp(g)
 
 
-def _chunks(params: Mapping[str, jax.Array], batch: int) -> list[dict[str, jax.Array]]:
-    """params {name: [B]} -> chunks of SETUP_CHUNK samples (the last padded by repeating sample 0)."""
-    pad = (-batch) % SETUP_CHUNK
-    padded = {k: jnp.concatenate([v, jnp.repeat(v[:1], pad)]) for k, v in params.items()}
-    return [{k: v[i : i + SETUP_CHUNK] for k, v in padded.items()} for i in range(0, batch + pad, SETUP_CHUNK)]
-
-
-def _join(parts, batch: int):
-    return jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:batch], *parts)
-
-
 def _check(pde: PDE, u: jax.Array, params: Mapping[str, jax.Array], frames: int) -> None:
     grid, n_fields = pde.grid, len(pde.FIELDS)
     if getattr(pde, "STEADY", False):
@@ -141,8 +187,7 @@ def advance(pde: PDE, u, params: Mapping[str, jax.Array], frames: int = 1):
     An element gets the same bits alone or in any batch (see the module docstring).
     """
     u, params = _inputs(pde, u, params, frames)
-    batch = u.shape[0]
-    coeffs = _join([_setup(pde)(c) for c in _chunks(params, batch)], batch)
+    coeffs = _coefficients_for(pde, params, u.shape[0], _device(u))
     return _evolve(pde, frames)(u, params, coeffs)
 
 
@@ -154,13 +199,12 @@ def advance_vjp(pde: PDE, u, params: Mapping[str, jax.Array], frames: int = 1, w
     nonlinear term). Between the call and vjp only the residuals jax.vjp needs are kept (in the closure).
     """
     u, params = _inputs(pde, u, params, frames)
-    batch = u.shape[0]
-    chunks = _chunks(params, batch)
+    batch, device = u.shape[0], _device(u)
     if not wrt_params:
-        coeffs = _join([_setup(pde)(c) for c in chunks], batch)
+        coeffs = _coefficients_for(pde, params, batch, device)
         out, finite, evolve_vjp = _evolve_vjp(pde, frames, False)(u, params, coeffs)
         return out, finite, lambda g: (_apply(evolve_vjp, _cotangent(g, out))[0], None)
-    parts = [_setup_vjp(pde)(c) for c in chunks]
+    parts = [_setup_vjp(pde)(_on(device, c)) for c in _host_chunks(params, batch)]
     coeffs = _join([c for c, _ in parts], batch)
     out, finite, evolve_vjp = _evolve_vjp(pde, frames, True)(u, params, coeffs)
 
@@ -168,12 +212,17 @@ def advance_vjp(pde: PDE, u, params: Mapping[str, jax.Array], frames: int = 1, w
         g_u, g_p, g_c = _apply(evolve_vjp, _cotangent(g, out))
         pad = len(parts) * SETUP_CHUNK - batch
         g_c = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, jnp.zeros((pad, *x.shape[1:]), x.dtype)]), g_c)
-        through = [_apply(fn, jax.tree_util.tree_map(lambda x: x[i * SETUP_CHUNK : (i + 1) * SETUP_CHUNK], g_c))[0]
+        through = [_apply(fn, jax.tree_util.tree_map(lambda x: x[i * SETUP_CHUNK : (i + 1) * SETUP_CHUNK], g_c))[0][0]
                    for i, (_, fn) in enumerate(parts)]
         through = _join(through, batch)
         return g_u, {k: g_p[k] + through[k] for k in pde.PARAMS}
 
     return out, finite, vjp
+
+
+def _device(x: jax.Array):
+    (device,) = x.devices()
+    return device
 
 
 def _cotangent(g, out: jax.Array) -> jax.Array:

@@ -77,6 +77,16 @@ def test_new_parameters_and_states_never_recompile():
     assert (interactive._evolve(pde, 1)._cache_size(), interactive._setup(pde)._cache_size()) == before
 
 
+def test_memoised_coefficients_give_the_bits_of_fresh_ones():
+    pde, t = trajectories("kdv1d", KDV, 3)
+    oracle = SolverOracle(pde)
+    again = oracle(t["u"][:, 1], t["params"])  # coefficients of these parameters now memoised
+    interactive._cache.clear()
+    fresh = oracle(t["u"][:, 1], t["params"])
+    assert torch.equal(again, fresh) and torch.equal(oracle(t["u"][:, 1], t["params"]), fresh)
+    assert any(key[0] == pde for key in interactive._cache)
+
+
 def independent_scalar(pde, frames, g):
     """sum(g * u_k) composed without generator.interactive's chunking or its VJP plumbing: jax.grad's reference."""
     def f(u, p):
