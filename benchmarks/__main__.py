@@ -2,7 +2,8 @@
 
 Each family is a module ``benchmarks/<family>_bench.py`` with ``main(argv)``; the families present are run in
 order (generator: pdestream vs Exponax; stream: TrajectoryStream delivered vs raw; cache: write/read;
-dask: distributed generation). ``--json`` goes to the generator benchmark. Figures, not pass/fail.
+dask: distributed generation; reservoir: reservoir vs FIFO; interactive: the solver as oracle
+and differentiable step vs a plain solve). ``--json`` goes to the generator benchmark. Figures, not pass/fail.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import importlib
 import importlib.util
 import sys
 
-FAMILIES = ("generator", "stream", "cache", "dask", "reservoir")
+FAMILIES = ("generator", "stream", "cache", "dask", "reservoir", "interactive")
 
 
 def available() -> list[str]:

@@ -76,6 +76,12 @@ def _check_writable(path: Path) -> None:
         raise FileNotFoundError(f"cannot write {path}: directory {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise PermissionError(f"cannot write {path}: directory {parent} is not writable")
+
+
+def _check_name(path: Path) -> None:
+    """ValueError when the name of ``path`` is longer than its filesystem allows (checked before any other use
+    of the path, which would fail with the OS's bare "File name too long")."""
+    parent = path.parent if str(path.parent) else Path(".")
     length, allowed = len(os.fsencode(path.name)), _name_max(parent)
     if length > allowed:
         raise ValueError(f"cannot write {path}: its name is {length} bytes long, the filesystem allows at most "
@@ -286,6 +292,7 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
     # every argument is checked before anything is created: a refused run leaves nothing behind
     path = Path(path)
     fmt = format_of(path)
+    _check_name(path)
     pde = resolve_pde(pde)  # a generator PDE (its config was checked when it was built) or a catalog name
     _check_int("n_samples", n_samples, 1, max_index() + 1)
     _check_int("seed", seed, 0, 2**63 - 1)
@@ -340,7 +347,7 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
             if job.work != path:
                 remove_any(job.work)  # ours: the old cache at ``path`` was never touched
                 kept = "the old cache is unchanged"
-            elif created and not _any_written(path, fmt):
+            elif not path.exists() or (created and not _any_written(path, fmt)):
                 remove_any(path)  # ours, and nothing in it to resume: a rerun needs no --overwrite
                 kept = "nothing was kept"
             else:
@@ -383,7 +390,7 @@ def _reopen_damaged(path: Path, fmt: CacheFormat, settings: CacheSettings) -> in
     """Resume: clear the flags of damaged samples (and the global flag) so they are solved again."""
     store = fmt.open(path, writable=True)
     try:
-        bad = damaged_samples(store, [*settings.fields, *settings.params], settings.block)
+        bad = damaged_samples(store, settings.variables, settings.block)
         if len(bad):
             fmt.mark_complete(store, value=0)  # no longer complete until they are rewritten
             flags = np.asarray(store["complete"][:])
@@ -477,7 +484,7 @@ def open_cache(path, complete_only: bool = False):
         settings = CacheSettings.from_attrs(ds.attrs, path)
         store = fmt.open(path)  # the arrays themselves: consolidated metadata lists a deleted Zarr array too
         try:
-            gone = [v for v in (*settings.fields, *settings.params, "redraws") if v not in ds.variables or v not in store]
+            gone = [v for v in (*settings.variables, "redraws") if v not in ds.variables or v not in store]
         finally:
             store.close()
         if gone:
@@ -489,7 +496,7 @@ def open_cache(path, complete_only: bool = False):
             raise ValueError(f"{path} is damaged: {ds.sizes['sample']} samples stored, {settings.n_samples} expected")
         for name in ("sample", "complete", "redraws", *settings.params):  # small: read now, so a damaged one
             try:  # is named here rather than failing later in a reader
-                ds[name].load()
+                ds.variables[name].load()  # the variable alone (a DataArray would load its coordinates)
             except Exception as err:
                 detail = str(err).splitlines()[0] if str(err) else type(err).__name__
                 raise ValueError(f"{path} is damaged: cannot read {name} ({detail}); regenerate it with "

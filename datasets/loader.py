@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import torch
 
 from . import schema
 from .cache import is_complete, open_cache
+from .store import format_of, identity
 from .views import NextStep, examples, make_view
 
 IN_MEMORY_BYTES = 512 * 2**20
@@ -35,6 +37,8 @@ class CachedTrajectories(torch.utils.data.Dataset):
                  **view_kwargs):
         self.path = str(path)
         self.view = make_view(view, **view_kwargs)
+        self._fmt = format_of(self.path)
+        self._pin = _pin(self.path)
         ds = open_cache(self.path)
         try:
             self.config = json.loads(ds.attrs[schema.CONFIG_ATTR])
@@ -58,6 +62,10 @@ class CachedTrajectories(torch.utils.data.Dataset):
             self._ndim = schema.space_ndim(ds[self.fields[0]].dims)  # raw reads go through schema.from_disk
         finally:
             ds.close()
+        # the cache read above is the one pinned: what is at the path now, and whose inode ``_pin`` keeps from
+        # being reused while this reader lives; every read checks the path still leads to it
+        self._identity = identity(self._pin) if self._pin is not None else None
+        self._check_same()
         n_frames = len(self.t)
         self.view.check(n_frames)
         self._window = None
@@ -75,7 +83,10 @@ class CachedTrajectories(torch.utils.data.Dataset):
         """The cached PDE (rebuilt from the stored config; imports generator, hence JAX, on first use)."""
         from ._bridge import pde_from_config
 
-        return pde_from_config(self.config)
+        try:
+            return pde_from_config(self.config)
+        except (ValueError, TypeError, KeyError) as err:  # a config no PDE of this version accepts
+            raise ValueError(f"{self.path}: its stored PDE config cannot be used: {err}") from None
 
     def __len__(self) -> int:
         return len(self.rows) * self.per_sample
@@ -84,22 +95,37 @@ class CachedTrajectories(torch.utils.data.Dataset):
         state = dict(self.__dict__)
         state["_store"], state["_pid"] = None, None  # a file handle never crosses processes
         state["_memory"] = None  # each process reads its own copy
+        state["_pin"] = None  # the creating process's pin keeps the inode; other processes compare identities
         return state
+
+    def _check_same(self) -> None:
+        """ValueError when the path no longer leads to the cache this reader opened (an --overwrite builds the
+        new cache beside the old one and renames it into place): data read by path could be either's."""
+        try:
+            same = identity(self.path) == self._identity
+        except OSError:
+            same = False
+        if not same:
+            raise ValueError(f"the cache at {self.path} was replaced while open; reopen it")
 
     def _open(self):
         if self._store is None or self._pid != os.getpid():
-            self._store, self._pid = schema.open_store(self.path, "r"), os.getpid()
+            self._store, self._pid = self._fmt.open(Path(self.path)), os.getpid()
+            self._check_same()  # a process opening after a replacement would read the new cache
         return self._store
 
     def close(self) -> None:
         """Close this process's file handle (reopened by the next read); a forked copy's is left alone."""
         store, self._store = self._store, None
         if store is not None and self._pid == os.getpid():
-            schema.close(store)
+            store.close()
 
     def __del__(self):
         try:
             self.close()
+            if getattr(self, "_pin", None) is not None:
+                os.close(self._pin)
+                self._pin = None
         except Exception:  # at interpreter exit h5py may already be torn down
             pass
 
@@ -113,8 +139,14 @@ class CachedTrajectories(torch.utils.data.Dataset):
         for s in range(0, len(self.rows), chunk):
             rows = self.rows[s:s + chunk]
             lo = int(rows[0])
-            u = np.stack([schema.from_disk(np.asarray(store[f][lo:int(rows[-1]) + 1])[rows - lo], self._ndim)
-                          for f in self.fields], axis=2)
+            try:
+                u = np.stack([schema.from_disk(np.asarray(store[f][lo:int(rows[-1]) + 1])[rows - lo], self._ndim)
+                              for f in self.fields], axis=2)
+            except Exception as err:  # a corrupted chunk: name the file and the samples read
+                self._check_same()
+                raise ValueError(f"{self.path}: cannot read samples {self.indices[s]}..{self.indices[s + len(rows) - 1]}: "
+                                 f"{_first_line(err)}; recompute them with `pdestream generate ... --resume`") from None
+            self._check_same()
             bad = np.flatnonzero(~np.isfinite(u.reshape(len(u), -1)).all(1))
             if len(bad):
                 raise self._damaged(s + bad)
@@ -136,7 +168,14 @@ class CachedTrajectories(torch.utils.data.Dataset):
                 self._memory = np.stack([schema.from_disk(np.asarray(store[f][:])[self.rows], self._ndim)
                                          for f in self.fields], axis=2)
             except Exception as err:  # a corrupted chunk anywhere: name the file (in_memory=False names the sample)
-                raise ValueError(f"{self.path}: cannot read its samples: {err}") from None
+                self._memory = None
+                self._check_same()
+                raise ValueError(f"{self.path}: cannot read its samples: {_first_line(err)}") from None
+            try:
+                self._check_same()  # read by path: after a replacement it would be the new cache's data
+            except ValueError:
+                self._memory = None
+                raise
             bad = np.flatnonzero(~np.isfinite(self._memory.reshape(len(self._memory), -1)).all(1))
             if len(bad):
                 self._memory = None
@@ -150,7 +189,9 @@ class CachedTrajectories(torch.utils.data.Dataset):
             u = np.stack([schema.from_disk(np.asarray(store[f][int(self.rows[j]), lo:hi]), self._ndim)
                           for f in self.fields], axis=1)
         except Exception as err:  # a corrupted chunk or a file changed under us: name the file and sample
-            raise ValueError(f"{self.path}: cannot read sample {self.indices[j]}: {err}") from None
+            self._check_same()
+            raise ValueError(f"{self.path}: cannot read sample {self.indices[j]}: {_first_line(err)}") from None
+        self._check_same()  # read by path: after a replacement it would be the new cache's data
         if not np.isfinite(u).all():  # a deleted chunk reads as NaN
             raise self._damaged([j])
         return u
@@ -168,3 +209,18 @@ class CachedTrajectories(torch.utils.data.Dataset):
         u = self._samples()[j, lo:hi] if self.in_memory else self._read(j, lo, hi)  # [T', C, *space]
         return examples(view, torch.from_numpy(u), self.t[lo:hi], self.params[j], int(self.indices[j]))[0]
 
+
+
+def _pin(path: str) -> int | None:
+    """A read-only descriptor of the cache file or directory at ``path``: while it is open the inode cannot be
+    freed and reused, so an identity check cannot take a later cache for this one. None when ``path`` cannot
+    be opened (``open_cache`` then names the problem)."""
+    try:
+        return os.open(path, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return None
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err)
+    return text.splitlines()[0] if text else type(err).__name__

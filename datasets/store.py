@@ -34,7 +34,8 @@ def plain(value):
 class CacheSettings:
     """The settings a cache is written with: the resolved PDE config (a JSON-able dict) and its hash, the seed,
     the sample count, samples per block, the blow-up policy, field and parameter names (PDE order), and the
-    JAX provenance that makes samples reproducible (``PROVENANCE`` attributes)."""
+    JAX provenance that makes samples reproducible (``PROVENANCE`` attributes). ``inputs``: a steady PDE's
+    random input fields, stored as variables before its fields (empty otherwise)."""
 
     config: dict
     config_hash: str
@@ -45,12 +46,14 @@ class CacheSettings:
     fields: tuple[str, ...]
     params: tuple[str, ...]
     provenance: dict
+    inputs: tuple[str, ...] = ()
 
     @classmethod
     def of(cls, pde, n_samples: int, seed: int, block: int, on_blowup: str, provenance: dict) -> CacheSettings:
         """The settings of a new cache of ``pde`` (a generator PDE)."""
         return cls(pde.config(), pde.config_hash(), int(seed), int(n_samples), int(block), on_blowup,
-                   tuple(pde.FIELDS), tuple(pde.PARAMS), {**provenance, "pdestream_schema": schema.SCHEMA_VERSION})
+                   tuple(pde.FIELDS), tuple(pde.PARAMS), {**provenance, "pdestream_schema": schema.SCHEMA_VERSION},
+                   tuple(getattr(pde, "INPUTS", ())))
 
     @classmethod
     def from_attrs(cls, attrs, path) -> CacheSettings:
@@ -82,7 +85,14 @@ class CacheSettings:
                              "a space-separated list of field names").split()),
             params=tuple(get("pdestream_params", lambda v: isinstance(v, str), "a space-separated list").split()),
             provenance={k: plain(attrs.get(k)) for k in PROVENANCE},
+            inputs=tuple(plain(attrs.get("pdestream_inputs", "")).split())
+            if isinstance(plain(attrs.get("pdestream_inputs", "")), str) else (),
         )
+
+    @property
+    def variables(self) -> tuple[str, ...]:
+        """Every per-sample data variable: the input fields (steady PDEs), the fields, the parameters."""
+        return (*self.inputs, *self.fields, *self.params)
 
     def differences(self, other: CacheSettings) -> list[str]:
         """What differs from ``other`` that makes samples differ, as "name: cache X vs asked Y" (self: the cache)."""
@@ -232,7 +242,11 @@ class Hdf5Format:
     def root_attrs(self, path):
         import h5py
 
-        with h5py.File(path, "r", locking=False) as f:  # read-only; another process may hold it open
+        try:
+            f = h5py.File(path, "r", locking=False)  # read-only; another process may hold it open (and locked)
+        except OSError:  # HDF5 refuses a second open with other locking flags: this process holds it open
+            f = h5py.File(path, "r")
+        with f:
             return dict(f.attrs)
 
     def extra_entries(self, path, attrs):
@@ -316,7 +330,7 @@ class ZarrFormat:
         return attrs
 
     def extra_entries(self, path, attrs):
-        names = f"{attrs.get('pdestream_fields', '')} {attrs.get('pdestream_params', '')}".split()
+        names = " ".join(str(attrs.get(f"pdestream_{k}", "")) for k in ("inputs", "fields", "params")).split()
         known = {"zarr.json", "sample", "time", "x", "y", "z", "redraws", "complete", *names}
         return sorted(p.name for p in path.iterdir() if p.name not in known)
 
