@@ -199,9 +199,13 @@ def to_jax(t, device):
     DLPack (zero-copy, shares the tensor's memory: read-only use) on a GPU."""
     import jax
 
+    import torch
+
     t = t.detach().contiguous()
     if t.device.type == "cpu":
         return jax.device_put(t.numpy(), device)
+    # torch may still be writing t on its own stream, and JAX reads on another one: wait for torch's first
+    torch.cuda.current_stream(t.device).synchronize()
     return jax.dlpack.from_dlpack(t)
 
 
@@ -275,6 +279,7 @@ def solver_advance_vjp(pde, u, params, frames: int = 1, wrt_params: bool = True)
 
     backward(g torch [B, C, *space]) -> (g_u [B, C, *space], g_params [B, P] or None), torch on u's device.
     """
+    import jax
     import torch
 
     from generator import interactive
@@ -285,7 +290,7 @@ def solver_advance_vjp(pde, u, params, frames: int = 1, wrt_params: bool = True)
     device, names = u_j.devices().pop(), list(pde.PARAMS)
 
     def backward(g):
-        g_u, g_p = vjp(to_jax(g, device))
+        g_u, g_p = jax.block_until_ready(vjp(to_jax(g, device)))  # finished before torch reads the buffers
         if g_p is None:
             return to_torch(g_u), None
         cols = [to_torch(g_p[n]) for n in names]
