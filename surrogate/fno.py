@@ -107,10 +107,14 @@ def check_input(x: torch.Tensor, ndim: int, in_channels: int, name: str) -> None
 class FNO(nn.Module):
     """FNO: lift (1x1) -> ``layers`` Fourier layers -> project (1x1, 1x1)."""
 
+    name = "fno"  # its name in surrogate.models.MODELS and in checkpoints
+    Config = FNOConfig
+
     def __init__(self, ndim: int, in_channels: int, out_channels: int, n_params: int = 0,
                  config: FNOConfig = FNOConfig()):
         super().__init__()
-        self.ndim, self.in_channels, self.n_params, self.config = ndim, in_channels, n_params, config
+        self.ndim, self.in_channels, self.out_channels, self.n_params = ndim, in_channels, out_channels, n_params
+        self.config = config
         width = config.width
         self.lift = pointwise(ndim, in_channels + n_params + ndim, width)
         self.spectral = nn.ModuleList(SpectralConv(ndim, width, width, config.modes) for _ in range(config.layers))
@@ -128,9 +132,4 @@ class FNO(nn.Module):
         return self.project(v)  # [B, C_out, *space]
 
 
-def n_parameters(model: nn.Module) -> int:
-    """Number of trainable scalars (a complex weight counts as 2)."""
-    return sum(p.numel() for p in model.parameters() if p.requires_grad)
-
-
-__all__ = ["FNO", "FNOConfig", "SpectralConv", "condition", "check_input", "n_parameters", "pointwise"]
+__all__ = ["FNO", "FNOConfig", "SpectralConv", "condition", "check_input", "pointwise"]

@@ -1,15 +1,35 @@
-"""Model registry: ``MODELS`` and ``build_model``, with clear errors for unknown names and settings."""
+"""Model registry: ``MODELS`` (name -> class) and ``build_model``, with clear errors for unknown names and
+settings; ``model_spec`` describes a built model so that ``build_model(**spec)`` rebuilds it.
+
+Every model class declares what the registry and checkpoints need (the ``Surrogate`` interface): its ``name``,
+its config dataclass ``Config``, and on each instance ndim, in_channels, out_channels, n_params and config.
+"""
 
 from __future__ import annotations
 
 import dataclasses
+from typing import Protocol
 
 from torch import nn
 
-from .fno import FNO, FNOConfig
-from .unet import UNet, UNetConfig
+from .fno import FNO
+from .unet import UNet
 
-MODELS = {"fno": (FNO, FNOConfig), "unet": (UNet, UNetConfig)}
+
+class Surrogate(Protocol):
+    """What a model class declares: ``forward(x [B, in_channels, *space], params [B, n_params]) -> [B,
+    out_channels, *space]``, built as ``cls(ndim, in_channels, out_channels, n_params, cls.Config(...))``."""
+
+    name: str
+    Config: type
+    ndim: int
+    in_channels: int
+    out_channels: int
+    n_params: int
+    config: object
+
+
+MODELS: dict[str, type[Surrogate]] = {cls.name: cls for cls in (FNO, UNet)}
 
 
 def parse_model_name(name: str) -> tuple[str, int | None]:
@@ -34,7 +54,8 @@ def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_par
         raise ValueError(f"model {name!r}: ndim={ndim} not supported; allowed: 1, 2")
     if pinned is not None and pinned != ndim:
         raise ValueError(f"model {name!r} is {pinned}D but the PDE is {ndim}D; use {base!r} or {base}{ndim}d")
-    cls, config_cls = MODELS[base]
+    cls = MODELS[base]
+    config_cls = cls.Config
     fields = [f.name for f in dataclasses.fields(config_cls)]
     unknown = sorted(set(cfg) - set(fields))
     if unknown:
@@ -48,13 +69,8 @@ def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_par
     return cls(ndim, in_channels, out_channels, n_params, config_cls(**values))
 
 
-def model_spec(model: nn.Module) -> dict:
-    """Plain dict that ``build_model(**spec)`` turns back into the same architecture (for checkpoints)."""
-    name = "fno" if isinstance(model, FNO) else "unet"
-    return {"name": name, "ndim": model.ndim, "in_channels": model.in_channels,
-            "out_channels": _out_channels(model), "n_params": model.n_params, **dataclasses.asdict(model.config)}
-
-
-def _out_channels(model: nn.Module) -> int:
-    last = model.project[-1] if isinstance(model, FNO) else model.head
-    return last.out_channels
+def model_spec(model: Surrogate) -> dict:
+    """Plain dict that ``build_model(**spec)`` turns back into the same architecture (for checkpoints): the
+    model's own name, its shape (ndim, channels, n_params) and its config's fields."""
+    return {"name": model.name, "ndim": model.ndim, "in_channels": model.in_channels,
+            "out_channels": model.out_channels, "n_params": model.n_params, **dataclasses.asdict(model.config)}

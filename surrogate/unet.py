@@ -53,10 +53,14 @@ class Block(nn.Module):
 class UNet(nn.Module):
     """Encoder (Block, avg-pool) x depth -> bottleneck -> decoder (upsample, concat skip, Block) x depth."""
 
+    name = "unet"  # its name in surrogate.models.MODELS and in checkpoints
+    Config = UNetConfig
+
     def __init__(self, ndim: int, in_channels: int, out_channels: int, n_params: int = 0,
                  config: UNetConfig = UNetConfig()):
         super().__init__()
-        self.ndim, self.in_channels, self.n_params, self.config = ndim, in_channels, n_params, config
+        self.ndim, self.in_channels, self.out_channels, self.n_params = ndim, in_channels, out_channels, n_params
+        self.config = config
         widths = [config.channels * 2**i for i in range(config.depth + 1)]  # per level, finest first
         self.stem = Block(ndim, in_channels + n_params, widths[0])
         self.down = nn.ModuleList(Block(ndim, widths[i], widths[i + 1]) for i in range(config.depth))
