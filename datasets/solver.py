@@ -69,6 +69,7 @@ class SolverStep(torch.nn.Module):
         self.param_names = self.oracle.param_names
 
     def forward(self, u: torch.Tensor, params: torch.Tensor | None = None) -> torch.Tensor:
+        """u [B, C, *space], params [B, P] -> u ``frames`` frames (of frame_dt) later, [B, C, *space] on u's device."""
         if params is None and not self.param_names and isinstance(u, torch.Tensor):
             params = u.new_zeros((u.shape[0], 0))
         grads = torch.is_grad_enabled() and any(isinstance(t, torch.Tensor) and t.requires_grad for t in (u, params))

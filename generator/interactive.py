@@ -199,21 +199,19 @@ def advance_vjp(pde: PDE, u, params: Mapping[str, jax.Array], frames: int = 1, w
     nonlinear term). Between the call and vjp only the residuals jax.vjp needs are kept (in the closure).
     """
     u, params = _inputs(pde, u, params, frames)
-    batch, device = u.shape[0], _device(u)
+    batch, device, shape = u.shape[0], _device(u), u.shape
     if not wrt_params:
         coeffs = _coefficients_for(pde, params, batch, device)
         out, finite, evolve_vjp = _evolve_vjp(pde, frames, False)(u, params, coeffs)
-        return out, finite, lambda g: (_apply(evolve_vjp, _cotangent(g, out))[0], None)
+        return out, finite, lambda g: (_apply(evolve_vjp, _cotangent(g, shape, out.dtype))[0], None)
     parts = [_setup_vjp(pde)(_on(device, c)) for c in _host_chunks(params, batch)]
     coeffs = _join([c for c, _ in parts], batch)
     out, finite, evolve_vjp = _evolve_vjp(pde, frames, True)(u, params, coeffs)
 
     def vjp(g):
-        g_u, g_p, g_c = _apply(evolve_vjp, _cotangent(g, out))
-        pad = len(parts) * SETUP_CHUNK - batch
-        g_c = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, jnp.zeros((pad, *x.shape[1:]), x.dtype)]), g_c)
-        through = [_apply(fn, jax.tree_util.tree_map(lambda x: x[i * SETUP_CHUNK : (i + 1) * SETUP_CHUNK], g_c))[0][0]
-                   for i, (_, fn) in enumerate(parts)]
+        g_u, g_p, g_c = _apply(evolve_vjp, _cotangent(g, shape, out.dtype))
+        # the coefficients' cotangent goes back through each chunk's own VJP (params part of its input)
+        through = [_apply(fn, c)[0][0] for (_, fn), c in zip(parts, _split(g_c, len(parts)))]
         through = _join(through, batch)
         return g_u, {k: g_p[k] + through[k] for k in pde.PARAMS}
 
@@ -225,9 +223,18 @@ def _device(x: jax.Array):
     return device
 
 
-def _cotangent(g, out: jax.Array) -> jax.Array:
-    g = jnp.asarray(g, out.dtype)
-    if g.shape != out.shape:
-        raise ValueError(f"cotangent has shape {tuple(g.shape)}; expected {tuple(out.shape)}")
+@functools.partial(jax.jit, static_argnums=1)
+def _split(tree, n_chunks: int):
+    """[B, ...] leaves -> n_chunks trees of SETUP_CHUNK rows (zero rows after B), in one dispatch."""
+    def pad(x):
+        return jnp.concatenate([x, jnp.zeros((n_chunks * SETUP_CHUNK - x.shape[0], *x.shape[1:]), x.dtype)])
+    padded = jax.tree_util.tree_map(pad, tree)
+    return [jax.tree_util.tree_map(lambda x: x[i * SETUP_CHUNK : (i + 1) * SETUP_CHUNK], padded) for i in range(n_chunks)]
+
+
+def _cotangent(g, shape: tuple, dtype) -> jax.Array:
+    g = jnp.asarray(g, dtype)
+    if g.shape != tuple(shape):
+        raise ValueError(f"cotangent has shape {tuple(g.shape)}; expected {tuple(shape)}")
     return g
 
