@@ -11,13 +11,18 @@ from .cache import is_complete, open_cache
 
 
 def field_stats(ds, name: str, rows: np.ndarray, block: int = 64) -> dict:
-    """mean / std / min / max of field ``name`` over samples ``rows``, read ``block`` samples at a time, and
+    """mean / std / min / max of field ``name`` over samples ``rows`` (every frame and grid point), read ``block``
+    samples at a time and accumulated in float64 by ``normalize.Moments`` (as normalization statistics are), and
     "damaged": the rows whose data is non-finite or unreadable (left out of the statistics)."""
-    total, total_sq, count, lo, hi, damaged = 0.0, 0.0, 0, np.inf, -np.inf, []
+    import torch
+
+    from .normalize import Moments
+
+    moments, lo, hi, damaged = Moments(0), np.inf, -np.inf, []  # ndim 0: every value of the field is one channel
     for k in range(0, len(rows), block):
         part = rows[k : k + block]
         try:
-            a = ds[name].isel(sample=part).values.astype(np.float64)
+            a = ds[name].isel(sample=part).values
         except Exception:  # a corrupted chunk: every sample of this read is suspect
             damaged.extend(part)
             continue
@@ -25,13 +30,13 @@ def field_stats(ds, name: str, rows: np.ndarray, block: int = 64) -> dict:
         damaged.extend(part[~finite])
         a = a[finite]
         if a.size:
-            total, total_sq, count = total + a.sum(), total_sq + (a * a).sum(), count + a.size
-            lo, hi = min(lo, a.min()), max(hi, a.max())
-    if count == 0:
+            moments.add(torch.from_numpy(a.reshape(-1, 1)))  # [values, 1 channel]
+            lo, hi = min(lo, float(a.min())), max(hi, float(a.max()))
+    if moments.count == 0:
         return {"mean": np.nan, "std": np.nan, "min": np.nan, "max": np.nan, "damaged": damaged}
-    mean = total / count
-    return {"mean": mean, "std": np.sqrt(max(total_sq / count - mean * mean, 0.0)), "min": lo, "max": hi,
-            "damaged": damaged}
+    mean = float(moments.s1[0]) / moments.count  # the raw moments: a constant field reports std 0, not 1
+    return {"mean": mean, "std": np.sqrt(max(float(moments.s2[0]) / moments.count - mean * mean, 0.0)), "min": lo,
+            "max": hi, "damaged": damaged}
 
 
 def summary(path) -> str:

@@ -362,3 +362,20 @@ def test_reader_during_an_overwrite_in_another_process(tmp_path, capsys):
     finally:
         assert writer.wait(timeout=120) == 0
     assert served >= len(reader)
+
+
+# --- inspect's statistics -------------------------------------------------------------------------------------
+def test_field_stats_are_the_float64_moments_of_the_finite_samples():
+    import xarray as xr
+
+    from datasets.inspect import field_stats
+
+    a = (np.random.default_rng(0).normal(size=(10, 5, 16)) * 3 + 1).astype(np.float32)
+    a[4, 2, 3] = np.nan  # a damaged sample: left out, and named
+    ds = xr.Dataset({"u": (("sample", "time", "x"), a)})
+    s = field_stats(ds, "u", np.arange(10), block=3)
+    good = np.delete(a, 4, axis=0).astype(np.float64)
+    assert s["damaged"] == [4] and s["min"] == good.min() and s["max"] == good.max()
+    assert abs(s["mean"] - good.mean()) < 1e-12 and abs(s["std"] - good.std()) < 1e-12
+    const = field_stats(xr.Dataset({"u": (("sample", "x"), np.full((3, 4), 2.0, np.float32))}), "u", np.arange(3))
+    assert (const["mean"], const["std"]) == (2.0, 0.0)
