@@ -80,9 +80,13 @@ def pde_from_args(name: str | None, args: argparse.Namespace):
 def cmd_list(args: argparse.Namespace) -> None:
     import generator
 
-    for name in generator.PDES:
-        print(generator.get_pde(name).describe())
-        print()
+    for group in generator.GROUPS:  # the catalog's groups, in order; each entry says its dimension
+        names = [name for name in generator.PDES if generator.GROUP[name] == group]
+        if names:
+            print(f"== {group} ({len(names)}) ==\n")
+        for name in names:
+            pde = generator.get_pde(name)
+            print(f"[{pde.NDIM}D] {pde.describe()}\n")
 
 
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):

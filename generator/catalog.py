@@ -13,13 +13,17 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 from .pdes.advection import Advection
+from .pdes.advection_diffusion import AdvectionDiffusion
 from .pdes.base import PDE
 from .pdes.burgers import Burgers
 from .pdes.diffusion import Diffusion
+from .pdes.dispersion import Dispersion
 from .pdes.grayscott import GrayScott
+from .pdes.hyper_diffusion import HyperDiffusion
 from .pdes.kdv1d import KdV1D
 from .pdes.ks import KS
 from .pdes.ns2d import NS2D
+from .pdes.wave import Wave
 
 # How `pdestream list` and the README group the catalog.
 GROUPS = ("linear", "nonlinear", "reaction-diffusion", "fluids", "steady")
@@ -43,6 +47,13 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("diffusion1d", Diffusion, {"ndim": 1}, "linear"),
     Entry("diffusion2d", Diffusion, {"ndim": 2}, "linear"),
     Entry("diffusion3d", Diffusion, {"ndim": 3}, "linear"),
+    Entry("advection_diffusion1d", AdvectionDiffusion, {"ndim": 1}, "linear"),
+    Entry("advection_diffusion2d", AdvectionDiffusion, {"ndim": 2}, "linear"),
+    Entry("dispersion1d", Dispersion, {"ndim": 1}, "linear"),
+    Entry("hyper_diffusion1d", HyperDiffusion, {"ndim": 1}, "linear"),
+    Entry("hyper_diffusion2d", HyperDiffusion, {"ndim": 2}, "linear"),
+    Entry("wave1d", Wave, {"ndim": 1}, "linear"),
+    Entry("wave2d", Wave, {"ndim": 2}, "linear"),
     Entry("burgers1d", Burgers, {"ndim": 1}, "nonlinear"),
     Entry("kdv1d", KdV1D, {}, "nonlinear"),
     Entry("ks1d", KS, {"ndim": 1}, "nonlinear"),

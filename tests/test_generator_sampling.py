@@ -7,12 +7,17 @@ import numpy as np
 import pytest
 
 import generator as g
-from generator.sampler import compiled_evolve, compiled_setup, compiled_solver
+from generator.sampler import compiled_setup, compiled_solver, compiled_stages
 
 # Small but non-trivial versions of every catalog entry, by one rule (no per-PDE code): a coarser grid with the
 # same spacing (length shrinks with n, so CFL steps and resolution stay those of the default), 4 frames, and at
 # most ~40 internal steps.
 SMALL_N = {1: 64, 2: 32, 3: 16}
+
+
+# The time-dependent entries; a steady one (darcy2d: no frames, no IC) has the same contract checked in
+# tests/test_darcy.py (shapes, key discipline, bit-identity, no recompilation, refusals).
+TIMED = [name for name, cls in g.PDES.items() if not cls.STEADY]
 
 
 @functools.lru_cache(maxsize=None)
@@ -24,7 +29,7 @@ def small(name):
 
 
 def test_every_catalog_entry_has_a_small_version():
-    for name in g.PDES:
+    for name in TIMED:
         pde = small(name)
         assert pde.n <= SMALL_N[pde.NDIM] and pde.steps_per_frame * (pde.n_frames - 1) <= 45, name
 
@@ -36,7 +41,7 @@ def dealiased(pde, field):
     return np.fft.irfftn(f * pde.grid.dealias_mask(), s=pde.grid.shape, axes=axes)
 
 
-@pytest.mark.parametrize("name", list(g.PDES))
+@pytest.mark.parametrize("name", TIMED)
 def test_registry_sweep_shapes_finite_first_frame_and_params(name):
     pde = small(name)
     traj = g.sample(pde, [0, 7, 3], seed=11)
@@ -56,7 +61,7 @@ def test_registry_sweep_shapes_finite_first_frame_and_params(name):
     assert np.abs(u[:, -1] - u[:, 0]).max() > 0  # it evolved
 
 
-@pytest.mark.parametrize("name", list(g.PDES))
+@pytest.mark.parametrize("name", TIMED)
 def test_sample_is_bit_identical_alone_and_in_any_batch(name):
     pde = small(name)
     alone = np.asarray(g.sample(pde, [5], seed=3).u[0])
@@ -67,7 +72,7 @@ def test_sample_is_bit_identical_alone_and_in_any_batch(name):
     assert not np.array_equal(alone, other_seed)
 
 
-@pytest.mark.parametrize("name", list(g.PDES))
+@pytest.mark.parametrize("name", TIMED)
 def test_default_grids_resolve_their_defaults(name):
     # the top fifth of the retained (2/3-rule) modes holds a small share of the peak amplitude at every frame
     pde = g.get_pde(name)
@@ -79,18 +84,23 @@ def test_default_grids_resolve_their_defaults(name):
     assert tail.max() < 0.05, (name, tail.max())
 
 
-@pytest.mark.parametrize("name", list(g.PDES))
+@pytest.mark.parametrize("name", TIMED)
 def test_new_parameters_never_recompile(name):
     pde = small(name)
     g.sample(pde, [7, 8, 11], seed=5)
-    sizes = compiled_setup(pde)._cache_size(), compiled_evolve(pde)._cache_size()  # (other tests share the cache)
+    sizes = compiled_setup(pde)._cache_size(), _stages_compiled(pde)  # (other tests share the cache)
     for seed, idx in ((0, [0, 1, 2]), (1, [5, 6, 9]), (2, [100, 3, 4])):
         g.sample(pde, idx, seed=seed)
     # explicit values (a point of each domain) go through the same programs
     point = {k: float(np.mean(d.bounds)) if not isinstance(d, g.Choice) else d.options[0]
              for k, d in pde.param_domains.items()}
     g.sample(pde, [0, 1, 2], seed=0, params=point)
-    assert (compiled_setup(pde)._cache_size(), compiled_evolve(pde)._cache_size()) == sizes
+    assert (compiled_setup(pde)._cache_size(), _stages_compiled(pde)) == sizes
+
+
+def _stages_compiled(pde):
+    """Programs compiled so far for the rollout's bounded calls (generator.sampler.compiled_stages)."""
+    return sum(f._cache_size() for f in compiled_stages(pde))
 
 
 def test_solve_never_recompiles_for_new_parameters():
@@ -101,7 +111,7 @@ def test_solve_never_recompiles_for_new_parameters():
     assert compiled_solver(pde)._cache_size() == 1
 
 
-@pytest.mark.parametrize("name", list(g.PDES))
+@pytest.mark.parametrize("name", TIMED)
 def test_bad_values_of_every_entry_are_refused_in_one_line(name):
     pde = g.PDES[name]()
     bad = {"n": 7, "t_end": -1.0, "n_frames": 1, "length": 0.0}

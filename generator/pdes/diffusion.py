@@ -13,7 +13,7 @@ class Diffusion(LinearPDE):
     """Periodic diffusion on the unit box. Linear, so each step is the exact exponential: no step limit.
 
     nu ~ loguniform(1e-3, 1e-2) length^2/time: by t = 1 the slowest IC mode (|k| = 2 pi) keeps 67%..96% of its
-    amplitude and the fastest (|m| = 5) 0.1%..37%, so trajectories neither freeze nor vanish.
+    amplitude and the fastest (|m| = 5) 0.005%..37%, so trajectories neither freeze nor vanish.
     """
 
     EQUATION: ClassVar[str] = "u_t = nu u_xx"
