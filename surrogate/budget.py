@@ -131,7 +131,7 @@ def per_trajectory_errors(model, norm, view, test: list[dict]) -> np.ndarray:
         if isinstance(view, datasets.NextStep):
             k = view.k_in
             u = batch["u"]  # [b, T, C, *space]
-            pred = rollout(model, norm, norm.normalize(u[:, :k]), norm.normalize_params(batch["params"]), u.shape[1] - k)
+            pred = rollout(model, norm.normalize(u[:, :k]), norm.normalize_params(batch["params"]), u.shape[1] - k)
             errs.append(rel_l2(norm.denormalize(pred), u[:, k:]))
         else:
             p = pairs(view, batch)

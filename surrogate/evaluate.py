@@ -49,8 +49,9 @@ def evaluate(model: nn.Module, norm: Normalization, test: list[dict], view, chun
 
 
 @torch.no_grad()
-def rollout(model: nn.Module, norm: Normalization, u0: torch.Tensor, params: torch.Tensor, n_frames: int) -> torch.Tensor:
-    """Feed predictions back, in normalized units: u0 [B, k_in, C, *space] -> [B, n_frames, C, *space]."""
+def rollout(model: nn.Module, u0: torch.Tensor, params: torch.Tensor, n_frames: int) -> torch.Tensor:
+    """Feed predictions back, in normalized units (the caller normalizes u0 and params, and denormalizes the
+    result): u0 [B, k_in, C, *space], params [B, P] -> [B, n_frames, C, *space]."""
     k_in, frames, done = u0.shape[1], [], 0
     window = u0
     while done < n_frames:
@@ -77,7 +78,7 @@ def rollout_error(model: nn.Module, norm: Normalization, test: list[dict], k_in:
         h = u.shape[1] - k_in if horizon is None else horizon
         if not 1 <= h <= u.shape[1] - k_in:
             raise ValueError(f"rollout horizon={h} not allowed; must be in 1..{u.shape[1] - k_in} for {u.shape[1]} frames")
-        pred = rollout(model, norm, norm.normalize(u[:, :k_in]), norm.normalize_params(batch["params"]), h)
+        pred = rollout(model, norm.normalize(u[:, :k_in]), norm.normalize_params(batch["params"]), h)
         pred = norm.denormalize(pred)  # [B, h, C, *space]
         truth = u[:, k_in:k_in + h]
         per_frame.append(torch.stack([rel_l2(pred[:, j], truth[:, j]) for j in range(h)], dim=1).cpu())  # [B, h]

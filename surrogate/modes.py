@@ -85,7 +85,7 @@ def _net_rollout(model: nn.Module, norm: Normalization, u: torch.Tensor, params:
     from .evaluate import rollout
 
     h = u.shape[1] - k_in
-    pred = rollout(model, norm, norm.normalize(u[:, :k_in]), norm.normalize_params(params), h)
+    pred = rollout(model, norm.normalize(u[:, :k_in]), norm.normalize_params(params), h)
     return norm.denormalize(pred), u[:, k_in:]
 
 
