@@ -67,11 +67,12 @@ def read_config(path: str) -> dict:
         raise ValueError(f"config {path} is not valid TOML: {err}") from None
 
 
-def pde_from_args(name: str | None, args: argparse.Namespace):
-    """The PDE named on the command line with --config then --set applied."""
+def pde_from_args(name: str | None, args: argparse.Namespace, named: tuple[str | None, dict] | None = None):
+    """The PDE named on the command line with --config then --set applied (``named``: the result of
+    ``settings_from_args`` when the caller has it already, so the config file is read once)."""
     import generator
 
-    name, settings = settings_from_args(name, args)
+    name, settings = settings_from_args(name, args) if named is None else named
     if name is None:
         raise ValueError("no PDE named: give one (see `pdestream list`) or a config with pde = NAME")
     return generator.get_pde(name, settings)
@@ -399,7 +400,8 @@ def cmd_train(args: argparse.Namespace) -> None:
                               "continue it, --overwrite to replace it, or choose another --out")
     if args.source != "stream" and not Path(args.source).exists():
         raise FileNotFoundError(f"--source {args.source}: no such cache (or use --source stream)")
-    pde = pde_from_args(args.pde, args)
+    named = settings_from_args(args.pde, args)  # the --config file, read once
+    pde = pde_from_args(args.pde, args, named)
     _set_threads(default_threads(args.source) if args.threads is None else args.threads)
     if args.test_samples < 1:
         raise ValueError(f"--test-samples={args.test_samples} not allowed; must be >= 1")
@@ -407,7 +409,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         raise ValueError(f"--checkpoint-every={args.checkpoint_every} not allowed; must be >= 0 (0: only at the end)")
     s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
                   view=_view_from_args(args, "next_step"), steps=args.steps, batch_size=args.batch_size, lr=args.lr,
-                  seed=args.seed, n_test=args.test_samples, explicit=settings_from_args(args.pde, args)[1],
+                  seed=args.seed, n_test=args.test_samples, explicit=named[1],
                   checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args), device=args.device,
                   mode=mode_cfg(args))
     _print_run(s, args.model, args.source, args.test_samples, args.out)

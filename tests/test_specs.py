@@ -59,3 +59,18 @@ def test_a_newly_registered_model_keeps_its_name(tmp_path, monkeypatch):
     assert ckpt["spec"] == {"name": "tiny", "ndim": 1, "in_channels": 2, "out_channels": 2, "n_params": 0, "scale": 3}
     assert isinstance(loaded, Tiny) and loaded.config.scale == 3
     assert "isinstance" not in open(models.__file__).read()  # the registry switches on nothing
+
+
+def test_train_reads_its_config_file_once(tmp_path, monkeypatch):
+    import cli
+    import surrogate.runs
+
+    reads, runs = [], []
+    real = cli.read_config
+    monkeypatch.setattr(cli, "read_config", lambda path: reads.append(path) or real(path))
+    monkeypatch.setattr(surrogate.runs, "train_run", lambda pde, source, out, **kw: runs.append((pde, kw)) or {})
+    monkeypatch.setattr(cli, "_print_run", lambda *a: None)
+    config = tmp_path / "b.toml"
+    config.write_text('pde = "burgers1d"\nn = 32\nn_frames = 5\n')
+    assert cli.main(["train", "--config", str(config), "--out", str(tmp_path / "run")]) == 0
+    assert reads == [str(config)] and runs[0][0].n == 32 and runs[0][1]["explicit"] == {"n": 32, "n_frames": 5}
