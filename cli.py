@@ -522,7 +522,9 @@ def cmd_compare(args: argparse.Namespace) -> None:
     args.set = [f"{k}={v}" for k, v in COMPARE_DEFAULTS.items()] + list(args.set)
     pde = pde_from_args(args.pde, args)
     _set_threads(1 if args.threads is None else args.threads)
-    model_cfg = {"width": 32, "modes": 12, "layers": 3} if args.model.startswith("fno") else {}
+    from surrogate.fno import COMPARE_FNO
+
+    model_cfg = dict(COMPARE_FNO) if args.model.startswith("fno") else {}
     model_cfg.update(_parse_sets(args.model_set))
     args.seeds = 3 if args.seeds is None else args.seeds
     if args.seeds < 1 or args.cache_samples < 1 or args.test_samples < 1:
@@ -548,7 +550,9 @@ def _budget_compare(args: argparse.Namespace) -> None:
             args.budget = 20.0
     pde = pde_from_args(args.pde, args)
     _set_threads(1 if args.threads is None else args.threads)
-    small = {"width": 32, "modes": 12, "layers": 3}
+    from surrogate.fno import COMPARE_FNO
+
+    small = dict(COMPARE_FNO)
     model_cfg = (small if args.quick else {"width": 64, "modes": 16, "layers": 4}) if args.model.startswith("fno") else {}
     model_cfg.update(_parse_sets(args.model_set))
     arms = tuple(a.strip() for a in args.arms.split(",") if a.strip())

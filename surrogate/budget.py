@@ -46,6 +46,7 @@ from datasets.proposal import ParamProposal
 from .compare import shifted_pde
 from .data import TEST_SEED_OFFSET, EpochBatchSampler, check_device, model_device, to_device
 from .evaluate import pairs, rollout
+from .fno import COMPARE_FNO
 from .metrics import rel_l2
 from .models import build_model
 from .runs import model_channels
@@ -62,7 +63,7 @@ class BudgetConfig:
     sim_budget: int | None = None
     arms: tuple = ARMS
     model: str = "fno"
-    model_cfg: dict = field(default_factory=lambda: {"width": 32, "modes": 12, "layers": 3})
+    model_cfg: dict = field(default_factory=lambda: dict(COMPARE_FNO))
     view: object = "operator"
     batch_size: int = 32
     lr: float = 3e-3

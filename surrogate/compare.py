@@ -21,6 +21,7 @@ from pathlib import Path
 import datasets
 
 from .data import test_set
+from .fno import COMPARE_FNO
 from .runs import train_run
 
 
@@ -29,7 +30,7 @@ class CompareConfig:
     """What both arms share; ``cache_samples`` is M, the size of the fixed training set."""
 
     model: str = "fno"
-    model_cfg: dict = field(default_factory=lambda: {"width": 32, "modes": 12, "layers": 3})
+    model_cfg: dict = field(default_factory=lambda: dict(COMPARE_FNO))
     view: object = "operator"  # a view name or object (datasets.make_view)
     steps: int = 1000
     batch_size: int = 32
