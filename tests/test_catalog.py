@@ -108,3 +108,18 @@ def test_no_module_fills_a_registry_at_import_time():
             "assert dict(ics.IC_KINDS) == before, (before, ics.IC_KINDS); print(sorted(before))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "['fourier', 'grf', 'spots']"
+
+
+def test_list_groups_the_catalog_and_says_each_dimension(capsys):
+    import cli
+
+    assert cli.main(["list"]) == 0
+    out = capsys.readouterr().out
+    headers = [line for line in out.splitlines() if line.startswith("== ")]
+    groups = [h.split()[1] for h in headers]
+    assert groups == [grp for grp in g.GROUPS if grp in g.GROUP.values()]
+    for name, cls in g.PDES.items():
+        line = f"[{cls.NDIM}D] {name}: "
+        assert out.count(line) == 1, name
+        # under its own group's header
+        assert out.rfind("== ", 0, out.index(line)) == out.index(f"== {g.GROUP[name]} ")
