@@ -13,6 +13,10 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 from .pdes.advection import Advection
+from .pdes.allen_cahn import AllenCahn
+from .pdes.cahn_hilliard import CahnHilliard
+from .pdes.fisher_kpp import FisherKPP
+from .pdes.swift_hohenberg import SwiftHohenberg
 from .pdes.advection_diffusion import AdvectionDiffusion
 from .pdes.base import PDE
 from .pdes.burgers import Burgers
@@ -58,6 +62,16 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("kdv1d", KdV1D, {}, "nonlinear"),
     Entry("ks1d", KS, {"ndim": 1}, "nonlinear"),
     Entry("grayscott2d", GrayScott, {"ndim": 2}, "reaction-diffusion"),
+    Entry("burgers2d", Burgers, {"ndim": 2}, "nonlinear"),
+    Entry("burgers3d", Burgers, {"ndim": 3}, "nonlinear"),
+    Entry("ks2d", KS, {"ndim": 2}, "nonlinear"),
+    Entry("fisher_kpp1d", FisherKPP, {"ndim": 1}, "reaction-diffusion"),
+    Entry("fisher_kpp2d", FisherKPP, {"ndim": 2}, "reaction-diffusion"),
+    Entry("allen_cahn1d", AllenCahn, {"ndim": 1}, "reaction-diffusion"),
+    Entry("allen_cahn2d", AllenCahn, {"ndim": 2}, "reaction-diffusion"),
+    Entry("cahn_hilliard2d", CahnHilliard, {"ndim": 2}, "reaction-diffusion"),
+    Entry("swift_hohenberg2d", SwiftHohenberg, {"ndim": 2}, "reaction-diffusion"),
+    Entry("grayscott3d", GrayScott, {"ndim": 3}, "reaction-diffusion"),
     Entry("ns2d", NS2D, {}, "fluids"),
 )
 

@@ -1,25 +1,43 @@
-"""Viscous Burgers: u_t + u u_x = nu u_xx, written as u_t = nu u_xx - (u^2 / 2)_x."""
+"""Viscous Burgers: u_t + u u_x = nu u_xx (1D, written as u_t = nu u_xx - (u^2 / 2)_x); in 2D/3D the vector
+equation u_t + (u . grad) u = nu Laplacian(u) for the velocity u = (u, v[, w])."""
 
 from dataclasses import dataclass
 from typing import Any, ClassVar
+
+import jax.numpy as jnp
 
 from ..domains import LogUniform
 from ..ics import GaussianRandomField
 from .base import PDE, Param
 from .common import CFL, conservative_quadratic
+from .terms import advection_of_velocity
+
+VELOCITY_FIELDS = ("u", "v", "w")
 
 
 @dataclass(frozen=True)
 class Burgers(PDE):
-    """Periodic viscous Burgers.
+    """Periodic viscous Burgers; velocity in length/time, nu in length^2/time, on [0, 1)^d.
 
-    Default initial condition is the FNO paper's GRF N(0, 625(-Laplacian + 25 I)^-2) on [0, 1); the
+    1D: default initial condition is the FNO paper's GRF N(0, 625(-Laplacian + 25 I)^-2) on [0, 1); the
     default viscosity range loguniform(0.01, 0.1) keeps shocks at least ~4 grid cells wide at n = 256.
     The FNO set-up is ``get_pde("burgers1d", n=1024, nu=0.1, t_end=1.0, n_frames=2)``.
-    Stable step: advective CFL, dt <= CFL * dx / max|u0| (max|u| never grows for Burgers).
+    2D/3D: the vector equation in advective form, fields u, v(, w) (velocity components), each component an
+    independent GRF (2D: n = 64, N(0, 625(-Laplacian + 25 I)^-2.5), max|u0| ~ 1.4; 3D: n = 32,
+    N(0, 225(-Laplacian + 25 I)^-2.5), ~1.3), nu ~ loguniform(0.02, 0.1) (2D) / loguniform(0.04, 0.1) (3D):
+    shocks >= ~3 cells. Same equation as Exponax's Burgers (diffusivity nu, convection_scale 1, not
+    conservative). The mean velocity is conserved for potential flows u = grad(phi) (then (u . grad) u =
+    grad |u|^2 / 2), not in general. Good ranges: nu >= ~3 dx max|u0| / 2.
+    Stable step: advective CFL, dt <= CFL * dx / (d max|u0|) (each component obeys a maximum principle).
     """
 
-    DIMENSIONS: ClassVar[dict] = {1: {}}  # 2D (vector) and 3D: see the nonlinear family
+    DIMENSIONS: ClassVar[dict] = {
+        1: {},
+        2: {"n": 64, "t_end": 0.5, "ic": GaussianRandomField(sigma=25.0, tau=5.0, alpha=2.5),
+            "nu": LogUniform(0.02, 0.1)},
+        3: {"n": 32, "t_end": 0.5, "n_frames": 26, "ic": GaussianRandomField(sigma=15.0, tau=5.0, alpha=2.5),
+            "nu": LogUniform(0.04, 0.1)},
+    }
     EQUATION: ClassVar[str] = "u_t + u u_x = nu u_xx"
     PARAMS: ClassVar[dict] = {"nu": Param("viscosity", "length^2/time", positive=True)}
 
@@ -31,10 +49,17 @@ class Burgers(PDE):
     nu: Any = LogUniform(0.01, 0.1)
 
     def linear(self, grid, p):
-        return (p["nu"] * grid.laplacian())[None]
+        op = (p["nu"] * grid.laplacian())[None]
+        return op if self.NDIM == 1 else jnp.broadcast_to(op, (self.NDIM, *grid.kshape))  # one per component
+
+    @classmethod
+    def for_dimension(cls, ndim):
+        if ndim == 1:
+            return {}
+        return {"FIELDS": VELOCITY_FIELDS[:ndim], "EQUATION": "u_t + (u . grad) u = nu Laplacian(u)"}
 
     def nonlinear(self, grid, p):
-        return conservative_quadratic(grid, -0.5)
+        return conservative_quadratic(grid, -0.5) if self.NDIM == 1 else advection_of_velocity(grid)
 
     def stable_dt(self):
-        return CFL * self.grid.dx / self.ic.bound(self.grid)
+        return CFL * self.grid.dx / (self.NDIM * self.ic.bound(self.grid))

@@ -25,7 +25,7 @@ class CahnHilliard(PDE):
     Field u: concentration difference of two phases (-1 and 1). gamma [length^2]: interface energy, width
     ~ sqrt(2 gamma); M [length^2/time]: mobility. Defaults as Exponax's CahnHilliard (M = 1e-2,
     gamma ~ loguniform(1e-3, 4e-3) around its 1e-3): interfaces >= 3 cells at n = 64; a symmetric quench
-    (max|u0| = 0.1 noise up to mode 16) separates in t ~ 5 and coarsens after. Good ranges: gamma >= (2 dx)^2.
+    (max|u0| = 0.1 noise up to mode 10) separates in t ~ 5 and coarsens after. Good ranges: gamma >= (2 dx)^2.
     Stable step: dt <= 2 gamma_min / (9 M_max b^4), b = max(1.2, max|u0|).
     """
 
@@ -40,7 +40,7 @@ class CahnHilliard(PDE):
     length: float = 1.0
     t_end: float = 20.0
     n_frames: int = 51
-    ic: Any = FourierSeries(max_mode=16, decay=0.0, amplitude=0.1)
+    ic: Any = FourierSeries(max_mode=10, decay=0.0, amplitude=0.1)
     gamma: Any = LogUniform(1e-3, 4e-3)
     M: Any = Fixed(1e-2)
 

@@ -27,7 +27,8 @@ class SwiftHohenberg(PDE):
     The gradient flow of E(u) = int -r u^2/2 + ((1 + Laplacian) u)^2 / 2 - g u^3/3 + u^4/4 dx: E never increases.
     Field u: pattern amplitude (dimensionless). r: distance above onset (patterns for r > 0); g: quadratic
     coefficient (g = 0: stripes; larger g: hexagons). Lengths in units of 1/k_c, time in units of the
-    linear relaxation. Defaults: r ~ uniform(0.1, 0.5), g ~ uniform(0, 1), small random IC (max|u0| = 0.1).
+    linear relaxation. Defaults: r ~ uniform(0.1, 0.5), g ~ uniform(0, 1), n = 128, small random IC (max|u0| = 0.1,
+    modes up to 10, i.e. |k| <= 1).
     Same equation as Exponax's SwiftHohenberg (reactivity r, critical_number 1, polynomial (0, 0, g, -1)).
     Stable step: dt <= 1 / (2 g b + 3 b^2), b = max(max|u0|, pattern_bound(r_max, g_max)).
     """
@@ -43,7 +44,7 @@ class SwiftHohenberg(PDE):
     length: float = 20 * math.pi
     t_end: float = 50.0
     n_frames: int = 51
-    ic: Any = FourierSeries(max_mode=20, decay=0.0, amplitude=0.1)
+    ic: Any = FourierSeries(max_mode=10, decay=0.0, amplitude=0.1)
     r: Any = Uniform(0.1, 0.5)
     g: Any = Uniform(0.0, 1.0)
 
