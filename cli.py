@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
+import threading
 
 
 def _parse_sets(pairs: list[str] | None) -> dict[str, str]:
@@ -158,9 +160,34 @@ def add_generate(sub) -> None:
 
 
 def cmd_generate(args: argparse.Namespace) -> None:
+    pde = pde_from_args(args.pde, args)
+    try:
+        _generate(pde, args)
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(_left_after_interrupt(args.out, args.resume)) from None
+
+
+def _left_after_interrupt(out: str, resume: bool) -> str:
+    """What an interrupted `generate` left at ``out``, in words (the writer has cleaned up by now)."""
+    from pathlib import Path
+
+    from datasets.cache import is_complete, open_cache
+
+    if not Path(out).exists():
+        return "nothing was written"
+    try:
+        with open_cache(out) as ds:
+            done, total, complete = int((ds["complete"].values == 1).sum()), ds.sizes["sample"], is_complete(ds)
+    except (ValueError, OSError):
+        return f"{out} is left as it was"
+    if complete:  # --overwrite: the old cache, untouched (its replacement was removed)
+        return f"{out} is unchanged"
+    return f"{out} holds {done} of {total} samples; run the command with --resume{'' if resume else ' added'} to finish it"
+
+
+def _generate(pde, args: argparse.Namespace) -> None:
     import datasets
 
-    pde = pde_from_args(args.pde, args)
     kw = dict(seed=args.seed, resume=args.resume, overwrite=args.overwrite, block=args.block, on_blowup=args.on_blowup)
     if args.executor == "dask":
         from datasets.distributed import write_cache_dask
@@ -607,19 +634,45 @@ def cmd_bench(args: argparse.Namespace) -> None:
 USER_ERRORS = (ValueError, FileExistsError, FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError)
 
 
+def _first_interrupt(signum, frame) -> None:
+    """SIGINT handler: the first Ctrl-C raises KeyboardInterrupt; later ones are ignored, so the clean-up it
+    starts (removing a half-made cache, stopping solver threads) runs to its end and a second Ctrl-C cannot
+    tear the interpreter down inside a JAX call ("terminate called ...", exit 134)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
+def _leave(code: int, command_line: bool) -> None:
+    """After an interrupt's clean-up (caches, producers and clusters closed by then), the `pdestream` command
+    exits at once: a solver thread may still be inside a call or a compile, and interpreter shutdown would
+    wait for it (seconds) or tear it down inside JAX (an abort). Called in-process (tests, argv given), it
+    does so only when such a thread is still alive."""
+    busy = any(t.is_alive() and t.name.startswith("pdestream-") for t in threading.enumerate())
+    if command_line or busy:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, _first_interrupt) if in_main else None
     try:
         args.func(args)
     except USER_ERRORS as err:
         print(f"pdestream: error: {err}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("pdestream: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as err:
+        print(f"pdestream: interrupted{f'; {err}' if str(err) else ''}", file=sys.stderr)
+        _leave(130, command_line=argv is None)
         return 130
     except BrokenPipeError:  # output piped into `head`
         sys.stderr.close()
         return 0
+    finally:
+        if in_main:
+            signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
     return 0
 
 

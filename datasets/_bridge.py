@@ -104,6 +104,14 @@ def sample_tensors(pde, indices, seed: int = 0, on_blowup: str = "raise", params
     return trajectory_tensors(generator.sample(pde, indices, seed, on_blowup=on_blowup, params=params))
 
 
+def cancel_solves_on(event) -> None:
+    """Solves in the calling thread stop at their next bounded call (raising generator.sampler.Cancelled) once
+    the threading.Event ``event`` is set: how a producer thread learns that its consumer has gone."""
+    from generator.sampler import cancel_on
+
+    cancel_on(event)
+
+
 def sample_numpy(pde, indices, seed: int = 0, on_blowup: str = "raise", params: dict | None = None):
     """``generator.sample`` as numpy: (u float32 [B, T, C, *space], {param: float32 [B]}, redraws int64 [B])."""
     import generator

@@ -2,6 +2,10 @@
 
 Shared by the cache writer (solve block k+1 while block k is written) and the stream (solve batch k+1
 while batch k is trained on). JAX releases the GIL while it computes, so the two overlap.
+
+Stopping is prompt: the producer's solves stop at their next bounded call once the consumer has gone
+(``generator.sampler.cancel_on``), and the consumer waits at most JOIN_S for that, so a Ctrl-C is not held up
+by a long solve in flight.
 """
 
 from __future__ import annotations
@@ -13,13 +17,15 @@ from collections.abc import Callable, Iterable, Iterator
 
 _DONE = object()
 _LIVE: set = set()  # (stop event, thread) of every running producer
+JOIN_S = 1.5  # how long closing waits for the producer's call in flight (a compile can take longer)
 
 
 @atexit.register
 def _stop_all() -> None:
     # A script may exit with a stream still open (break out of the loop, never close it). Daemon threads
     # are killed at interpreter exit, and one killed inside a JAX call aborts the process ("terminate
-    # called..."): stop every producer and let its call in flight finish first.
+    # called..."): stop every producer and let its call in flight finish first (one bounded call, or a
+    # compile; a CLI that must leave sooner ends with os._exit after its clean-up, see cli.main).
     for stop, thread in list(_LIVE):
         stop.set()
         thread.join()
@@ -37,8 +43,9 @@ def prefetch(make: Callable[[], Iterable], depth: int = 1, name: str = "pdestrea
 
     The producer's exception (e.g. generator.BlowUpError) is raised in the consumer. Closing the generator
     (``.close()``, or an error or Ctrl-C in the consumer) stops the producer: every hand-over waits on the
-    stop flag, never blocking forever, and the close waits for the item in flight to finish (a JAX call
-    torn down at interpreter exit aborts the process instead of exiting cleanly).
+    stop flag, never blocking forever, its solves stop at their next bounded call (``cancel_on``), and the
+    close waits up to JOIN_S for that; a producer still busy then (compiling) finishes on its own and is
+    waited for at interpreter exit (a JAX call torn down at exit aborts the process).
     """
     if isinstance(depth, bool) or not isinstance(depth, int) or depth < 1:
         raise ValueError(f"depth={depth!r} not allowed: need an integer >= 1")
@@ -55,12 +62,15 @@ def prefetch(make: Callable[[], Iterable], depth: int = 1, name: str = "pdestrea
         return False
 
     def work() -> None:
+        from . import _bridge
+
         try:
+            _bridge.cancel_solves_on(stop)  # a solve of this thread stops at its next call once we are closed
             for item in make():
                 if not put(item):
                     return
             put(_DONE)
-        except BaseException as err:  # re-raised by the consumer
+        except BaseException as err:  # re-raised by the consumer (nobody reads it once stopped: no-op then)
             put(_Raised(err))
 
     thread = threading.Thread(target=work, daemon=True, name=name)
@@ -73,5 +83,6 @@ def prefetch(make: Callable[[], Iterable], depth: int = 1, name: str = "pdestrea
             yield item
     finally:
         stop.set()
-        thread.join()
-        _LIVE.discard((stop, thread))
+        thread.join(JOIN_S)
+        if not thread.is_alive():
+            _LIVE.discard((stop, thread))

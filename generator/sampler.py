@@ -8,6 +8,7 @@ depend on which other samples share its batch. A redrawn sample (after a blow-up
 from __future__ import annotations
 
 import functools
+import threading
 from dataclasses import dataclass, field
 from typing import Literal, Mapping, Sequence
 
@@ -17,7 +18,7 @@ import numpy as np
 
 from .catalog import get_pde
 from .pdes import PDE
-from .spectral import etdrk4_coefficients, rollout
+from .spectral import advance_frames, etdrk4_coefficients, etdrk4_step, rollout
 
 OnBlowup = Literal["raise", "redraw"]
 MAX_INDEX = 2**32 - 1
@@ -53,18 +54,27 @@ def _coefficients(pde: PDE, p: Mapping[str, jax.Array]):
     return etdrk4_coefficients(pde.linear(pde.grid, p), pde.step_dt)
 
 
-def _evolve(pde: PDE, u0: jax.Array, p: Mapping[str, jax.Array], coeffs) -> jax.Array:
-    """One trajectory [T, C, *space] from u0 [C, *space]; frame 0 is the dealiased u0 the solver evolves."""
+def _stepping(pde: PDE, p: Mapping[str, jax.Array]):
+    """(u0 [C, *space] -> initial state, masked nonlinear part or None, state -> fields [C, *space]) of a rollout."""
     grid = pde.grid
     mask = grid.dealias_mask()
     nonlinear = pde.nonlinear(grid, p)
     masked = None if nonlinear is None else (lambda v: mask * nonlinear(v))
-    v0 = mask * grid.rfft(u0.astype(jnp.float32))
+
+    def dealiased(u0):
+        return mask * grid.rfft(u0.astype(jnp.float32))
+
     basis = pde.state_basis(grid, p)  # a linear system diagonal in other variables than its fields (wave)
     if basis is None:
-        return rollout(v0, coeffs, masked, pde.n_frames, pde.steps_per_frame, grid.irfft)
+        return dealiased, masked, grid.irfft
     to_state, from_state = basis
-    return rollout(to_state(v0), coeffs, masked, pde.n_frames, pde.steps_per_frame, lambda v: grid.irfft(from_state(v)))
+    return (lambda u0: to_state(dealiased(u0))), masked, (lambda v: grid.irfft(from_state(v)))
+
+
+def _evolve(pde: PDE, u0: jax.Array, p: Mapping[str, jax.Array], coeffs) -> jax.Array:
+    """One trajectory [T, C, *space] from u0 [C, *space]; frame 0 is the dealiased u0 the solver evolves."""
+    to_state, masked, to_physical = _stepping(pde, p)
+    return rollout(to_state(u0), coeffs, masked, pde.n_frames, pde.steps_per_frame, to_physical)
 
 
 def draw_params(pde: PDE, key: jax.Array) -> dict[str, jax.Array]:
@@ -122,6 +132,93 @@ def evolve_chunk(pde: PDE) -> int:
     return max(1, EVOLVE_BYTES // (16 * len(pde.FIELDS) * pde.n**pde.NDIM))
 
 
+# A rollout runs as a series of compiled calls, each advancing the batch by at most about DISPATCH_WORK
+# grid-point steps (~0.1-0.3 s on one core here), with a host sync between them: a Ctrl-C in the thread that
+# waits, or a consumer that has gone (``cancel_on``), then stops a solve within one call instead of after the
+# whole rollout (41 s with a long t_end). Every call runs the loop body of the one-call rollout: same bits.
+# A step also costs a fixed ~25 us whatever its size, counted as STEP_OVERHEAD points (small grids).
+DISPATCH_WORK = 2**22
+STEP_OVERHEAD = 2**13
+_CANCEL = threading.local()
+
+
+class Cancelled(Exception):
+    """A solve stopped between two calls because its thread's cancel event was set (see ``cancel_on``)."""
+
+
+def cancel_on(event: threading.Event | None) -> None:
+    """Solves in the calling thread stop at their next call boundary, raising Cancelled, once ``event`` is set
+    (None: never). A producer thread sets it to its stop flag so that closing its consumer stops a solve."""
+    _CANCEL.event = event
+
+
+def _sync(states) -> None:
+    """Wait for the calls in flight (a Ctrl-C is seen here), then stop if this thread's solve was cancelled."""
+    jax.block_until_ready([s[0] for s in states])
+    event = getattr(_CANCEL, "event", None)
+    if event is not None and event.is_set():
+        raise Cancelled("solve cancelled: its consumer stopped")
+
+
+@functools.lru_cache(maxsize=64)
+def compiled_stages(pde: PDE):
+    """The jit(vmap) programs of a rollout in bounded calls (``frames`` buffers are donated: updated in place):
+    start (u0 [B, C, *space], params) -> (state, frames float32 [B, T, C, *space]);
+    frames (state, frames, params, coefficients, lo, hi) -> (state at frame hi, frames lo..hi-1 written);
+    record (state, frames, params, i) -> frames with frame i written;
+    steps (state, params, coefficients, k) -> state k steps later;
+    finish (state, frames, params) -> (u [B, T, C, *space], finite [B]) with the last frame written."""
+    spf, last = pde.steps_per_frame, pde.n_frames - 1
+
+    def start(u0, p):
+        v0 = _stepping(pde, p)[0](u0)
+        return v0, jnp.zeros((pde.n_frames, *u0.shape), jnp.float32)
+
+    def frames(v, buf, p, coeffs, lo, hi):
+        _, masked, to_physical = _stepping(pde, p)
+        return advance_frames(v, buf, lo, hi, coeffs, masked, spf, to_physical)
+
+    def record(v, buf, p, i):
+        return jax.lax.dynamic_update_index_in_dim(buf, _stepping(pde, p)[2](v), i, 0)
+
+    def steps(v, p, coeffs, k):
+        masked = _stepping(pde, p)[1]
+        return jax.lax.fori_loop(0, k, lambda _, w: etdrk4_step(w, coeffs, masked), v)
+
+    def finish(v, buf, p):
+        u = jax.lax.dynamic_update_index_in_dim(buf, _stepping(pde, p)[2](v), last, 0)
+        return u, jnp.all(jnp.isfinite(u))
+
+    return (jax.jit(jax.vmap(start)),
+            jax.jit(jax.vmap(frames, in_axes=(0, 0, 0, 0, None, None)), donate_argnums=1),
+            jax.jit(jax.vmap(record, in_axes=(0, 0, 0, None)), donate_argnums=1),
+            jax.jit(jax.vmap(steps, in_axes=(0, 0, 0, None))),
+            jax.jit(jax.vmap(finish), donate_argnums=1))
+
+
+def _evolve_bounded(pde: PDE, parts):
+    """``compiled_evolve`` of each (u0, params, coefficients) part, in calls of at most ~DISPATCH_WORK
+    point-steps for all parts together: [(u [b, T, C, *space], finite [b])] per part, bit-identical."""
+    start, frames, record, steps, finish = compiled_stages(pde)
+    states = [(*start(u0, p), p, c) for u0, p, c in parts]
+    batch = sum(int(u0.shape[0]) for u0, _, _ in parts)
+    spf, last = pde.steps_per_frame, pde.n_frames - 1
+    per_step = batch * len(pde.FIELDS) * pde.n**pde.NDIM + len(parts) * STEP_OVERHEAD
+    if per_step * spf <= DISPATCH_WORK:  # whole frames per call
+        k = DISPATCH_WORK // (per_step * spf)
+        for lo in range(0, last, k):
+            states = [(*frames(v, buf, p, c, lo, min(lo + k, last)), p, c) for v, buf, p, c in states]
+            _sync(states)
+    else:  # a frame takes longer than one call: record it, then its steps in pieces
+        k = max(1, DISPATCH_WORK // per_step)
+        for i in range(last):
+            states = [(v, record(v, buf, p, i), p, c) for v, buf, p, c in states]
+            for done in range(0, spf, k):
+                states = [(steps(v, p, c, min(k, spf - done)), buf, p, c) for v, buf, p, c in states]
+                _sync(states)
+    return [finish(v, buf, p) for v, buf, p, _ in states]
+
+
 @functools.partial(jax.jit, static_argnums=1)
 def _join(parts, batch: int):
     """Set-up chunks -> one batch of ``batch`` samples, in one dispatch (copies only: bits unchanged)."""
@@ -140,9 +237,9 @@ def _run_keys(pde: PDE, keys: jax.Array, explicit: np.ndarray, given: np.ndarray
     parts = [setup(padded[i : i + SETUP_CHUNK], explicit[i : i + SETUP_CHUNK], given[i : i + SETUP_CHUNK])
              for i in range(0, padded.shape[0], SETUP_CHUNK)]
     params, u0, coeffs = _join(parts, batch)
-    evolve, size = compiled_evolve(pde), evolve_chunk(pde)
-    chunks = [evolve(u0, params, coeffs)] if batch <= size else [
-        evolve(*jax.tree_util.tree_map(lambda x: x[i : i + size], (u0, params, coeffs))) for i in range(0, batch, size)]
+    size = evolve_chunk(pde)
+    chunks = _evolve_bounded(pde, [(u0, params, coeffs)] if batch <= size else [
+        jax.tree_util.tree_map(lambda x: x[i : i + size], (u0, params, coeffs)) for i in range(0, batch, size)])
     u, finite = chunks[0] if len(chunks) == 1 else jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *chunks)
     return u, params, finite
 

@@ -186,6 +186,15 @@ def rollout(
     """
     first = to_physical(v0)
     frames = jnp.zeros((n_frames, *first.shape), first.dtype)
+    v, frames = advance_frames(v0, frames, 0, n_frames - 1, coeffs, nonlinear, steps_per_frame, to_physical)
+    return jax.lax.dynamic_update_index_in_dim(frames, to_physical(v), n_frames - 1, 0)
+
+
+def advance_frames(v, frames, lo, hi, coeffs: ETDRK4Coefficients, nonlinear: Nonlinear | None,
+                   steps_per_frame: int, to_physical: Callable[[jax.Array], jax.Array]):
+    """Frames lo..hi-1 of a rollout: each is written into ``frames`` [T, ...] from the state ``v``, which then
+    takes ``steps_per_frame`` steps. Returns (state at frame hi, frames). ``lo``/``hi`` may be traced, so one
+    compiled program runs any range: the sampler splits a long rollout into bounded calls with it."""
 
     def step(_, v):
         return etdrk4_step(v, coeffs, nonlinear)
@@ -195,5 +204,4 @@ def rollout(
         frames = jax.lax.dynamic_update_index_in_dim(frames, to_physical(v), i, 0)
         return jax.lax.fori_loop(1, steps_per_frame, step, step(0, v)), frames
 
-    v, frames = jax.lax.fori_loop(0, n_frames - 1, advance, (v0, frames))
-    return jax.lax.dynamic_update_index_in_dim(frames, to_physical(v), n_frames - 1, 0)
+    return jax.lax.fori_loop(lo, hi, advance, (v, frames))

@@ -103,7 +103,7 @@ def test_overwrite_failing_mid_run_keeps_the_old_cache(old_cache, capsys, monkey
     code, _, err = generate(capsys, path, "--overwrite", "--block", "2", seed=1)
     assert len(calls) >= 2
     if failure == "ctrl_c":
-        assert code == 130 and err == "pdestream: interrupted\n"
+        assert code == 130 and err == f"pdestream: interrupted; {path} is unchanged\n"
     else:
         assert code == 2 and "blew up" in err
     assert_untouched(path, sha)
@@ -183,7 +183,7 @@ def test_signal_during_overwrite_keeps_the_old_cache(tmp_path, capsys, sig):
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == (130 if sig == signal.SIGINT else -sig), "the writer finished first: use a slower config"
     if sig == signal.SIGINT:
-        assert err == "pdestream: interrupted\n"
+        assert err == f"pdestream: interrupted; {path} is unchanged\n"
         assert_untouched(path, sha)
         return
     assert digest(path) == sha  # kill -9 cannot clean up: the new cache stays hidden beside the old one ...

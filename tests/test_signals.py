@@ -1,0 +1,172 @@
+"""Interrupts: a rollout runs in bounded calls (bit-identical to one call), a cancelled producer stops at the
+next call, and a real Ctrl-C (or two) stops `pdestream generate` within seconds, with one line and exit 130,
+leaving a cache that does not read as complete and that --resume finishes."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import zarr
+
+import datasets
+import generator
+from datasets.cache import is_complete
+from generator import sampler
+
+
+def _setup(pde, batch):
+    """(params, u0, coefficients) of samples 0..batch-1, as the sampler builds them."""
+    keys = sampler.sample_keys(0, np.arange(batch))
+    pad = sampler.SETUP_CHUNK - batch
+    p = len(pde.PARAMS)
+    part = sampler.compiled_setup(pde)(jnp.concatenate([keys, jnp.repeat(keys[:1], pad, 0)]),
+                                       np.zeros((sampler.SETUP_CHUNK, p), np.float32),
+                                       np.zeros((sampler.SETUP_CHUNK, p), bool))
+    return sampler._join([part], batch)
+
+
+@pytest.mark.parametrize("name, overrides", [
+    ("burgers1d", {"n": 32, "n_frames": 5, "t_end": 0.2}),  # nonlinear, 1D
+    ("ns2d", {"n": 16, "n_frames": 4, "t_end": 0.3}),  # nonlinear, 2D
+    ("grayscott2d", {"n": 16, "n_frames": 3, "t_end": 10}),  # two fields
+    ("diffusion1d", {"n": 32, "n_frames": 5}),  # linear: exact exponential steps
+])
+def test_bounded_calls_give_the_bits_of_one_call(monkeypatch, name, overrides):
+    pde = generator.get_pde(name, overrides)
+    params, u0, coeffs = _setup(pde, 3)
+    ref, ref_finite = sampler.compiled_evolve(pde)(u0, params, coeffs)  # the whole rollout in one call
+    per_step = 3 * len(pde.FIELDS) * pde.n**pde.NDIM
+    # a frame per call; then pieces of a frame (1 step, 2 steps per call); then everything in one call
+    for work, overhead in [(per_step * pde.steps_per_frame, 0), (per_step, 0), (2 * per_step, 0), (2**40, 2**13)]:
+        monkeypatch.setattr(sampler, "DISPATCH_WORK", work)
+        monkeypatch.setattr(sampler, "STEP_OVERHEAD", overhead)
+        [(u, finite)] = sampler._evolve_bounded(pde, [(u0, params, coeffs)])
+        assert u.shape == ref.shape
+        assert bool(jnp.array_equal(u, ref)), f"{name}: bounded calls ({work} point-steps each) changed the bits"
+        assert np.array_equal(finite, ref_finite)
+    if pde.NDIM > 1:
+        return
+    # and through sample(): split into 1-step calls == one call
+    monkeypatch.setattr(sampler, "DISPATCH_WORK", 2**40)
+    whole = generator.sample(pde, [0, 5, 7], seed=3)
+    monkeypatch.setattr(sampler, "DISPATCH_WORK", 1)
+    monkeypatch.setattr(sampler, "STEP_OVERHEAD", 0)
+    np.testing.assert_array_equal(np.asarray(generator.sample(pde, [0, 5, 7], seed=3).u), np.asarray(whole.u))
+
+
+# burgers1d on 32 points with a long t_end: ~1500 steps per frame; the whole batch in one call would take
+# tens of seconds, each bounded call a small fraction of a second.
+LONG = {"n": 32, "n_frames": 3, "t_end": 8000}
+
+
+def test_a_cancelled_solve_stops_at_the_next_call():
+    pde = generator.get_pde("burgers1d", LONG)
+    generator.sample(generator.get_pde("burgers1d", {**LONG, "t_end": 1}), np.arange(8))  # compile first
+    stop, result = threading.Event(), {}
+
+    def solve():
+        sampler.cancel_on(stop)
+        t0 = time.monotonic()
+        try:
+            generator.sample(pde, np.arange(8))
+            result["outcome"] = "finished"
+        except sampler.Cancelled:
+            result["outcome"] = "cancelled"
+        result["seconds"] = time.monotonic() - t0
+
+    thread = threading.Thread(target=solve)
+    thread.start()
+    time.sleep(1.0)
+    stop.set()
+    t_stop = time.monotonic()
+    thread.join(30)
+    assert result["outcome"] == "cancelled", result
+    assert time.monotonic() - t_stop < 5  # one bounded call, not the rest of the rollout
+
+
+def test_prefetch_close_cancels_its_producer():
+    from datasets._prefetch import _LIVE, prefetch
+
+    short, long = generator.get_pde("burgers1d", {**LONG, "t_end": 1}), generator.get_pde("burgers1d", LONG)
+    generator.sample(short, np.arange(4))  # compiled
+    items = prefetch(lambda: (generator.sample(pde, np.arange(4)) for pde in (short, long, long)))
+    next(items)  # the producer now solves the long one
+    time.sleep(1.0)
+    t0 = time.monotonic()
+    items.close()
+    while any(t.name == "pdestream-prefetch" and t.is_alive() for t in threading.enumerate()):
+        assert time.monotonic() - t0 < 10, "the producer kept solving after its consumer closed it"
+        time.sleep(0.05)
+    assert not _LIVE or all(not t.is_alive() for _, t in _LIVE)
+
+
+def _generate(out, *extra):
+    return subprocess.Popen([sys.executable, "-m", "cli", "generate", "burgers1d", "--n", "8", "--block", "8",
+                             *(f"--set={k}={v}" for k, v in LONG.items()), "--out", str(out), *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for_solving(proc, out, seconds=3.0):
+    """Return once ``out`` exists (the cache is created right before the first solve) and ``seconds`` more."""
+    deadline = time.monotonic() + 120
+    while not out.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(seconds)  # the compile (~1 s) and then the first bounded calls
+    assert proc.poll() is None, "the writer ended before the interrupt"
+
+
+@pytest.mark.parametrize("signals", [1, 2])
+def test_ctrl_c_stops_generate_within_seconds(tmp_path, signals):
+    out = tmp_path / "a.zarr"
+    proc = _generate(out)
+    _wait_for_solving(proc, out)
+    t0 = time.monotonic()
+    for _ in range(signals):
+        proc.send_signal(signal.SIGINT)
+        time.sleep(0.2)
+    _, err = proc.communicate(timeout=60)
+    took = time.monotonic() - t0
+    assert proc.returncode == 130, err  # never 134 (abort) or -2 (killed by the second SIGINT)
+    assert err == "pdestream: interrupted; nothing was written\n"
+    assert took < 10, f"Ctrl-C took {took:.1f} s (the unbounded solve of this block takes much longer)"
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no cache, no hidden work copy, no lock file
+
+
+def test_ctrl_c_after_a_block_leaves_a_resumable_cache(tmp_path, capsys):
+    out = tmp_path / "a.zarr"
+    setting = ["--set=n=32", "--set=n_frames=3", "--set=t_end=300"]  # ~1 s per sample (block of 1)
+    args = ["generate", "burgers1d", "--n", "4", "--block", "1", *setting]
+    proc = subprocess.Popen([sys.executable, "-m", "cli", *args, "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while proc.poll() is None and time.monotonic() < deadline:
+        try:
+            if (zarr.open_group(out, mode="r")["complete"][:] == 1).sum() >= 1:
+                break
+        except Exception:  # not created yet
+            pass
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, "the writer finished before Ctrl-C: use a slower config"
+    assert err.startswith(f"pdestream: interrupted; {out} holds ") and err.endswith(
+        " of 4 samples; run the command with --resume added to finish it\n")
+    ds = datasets.open_cache(out)
+    assert not is_complete(ds)
+    ds.close()
+    import cli
+
+    assert cli.main([*args, "--out", str(out), "--resume"]) == 0
+    ref = tmp_path / "ref.zarr"
+    assert cli.main([*args, "--out", str(ref)]) == 0
+    a, b = datasets.open_cache(out), datasets.open_cache(ref)
+    assert is_complete(a)
+    np.testing.assert_array_equal(a["u"].values, b["u"].values)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.zarr", "ref.zarr"]
