@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+import threading
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 
 from . import _bridge
@@ -39,16 +40,30 @@ def open_producer(kind: str = "thread", workers: int = 1, scheduler: str | None 
         raise ValueError(f"a scheduler address goes with producer='dask' (got producer={kind!r})")
     closer = contextlib.ExitStack()
     if kind == "thread":
-        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pdestream-solver")
+        stop = threading.Event()  # set on close: the job in flight stops at its next bounded call
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pdestream-solver",
+                                  initializer=_bridge.cancel_solves_on, initargs=(stop,))
         closer.callback(pool.shutdown, wait=True, cancel_futures=True)
+        closer.callback(stop.set)  # (callbacks run last-in first-out: this one first)
         return pool, closer, 1
     if kind == "process":
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
                                    initializer=_bridge.configure_worker)
-        closer.callback(pool.shutdown, wait=True, cancel_futures=True)
+        closer.callback(_stop_processes, pool)
         return pool, closer, workers
-    from .distributed import dask_client
+    from .distributed import dask_client  # (a Dask cluster's workers are stopped by closing the client)
 
     client = closer.enter_context(dask_client(scheduler, workers))
     slots = sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()) or workers
     return client.get_executor(pure=False), closer, slots
+
+
+def _stop_processes(pool: ProcessPoolExecutor) -> None:
+    """Close a process producer at once: drop the queued jobs and end the workers, whose job in flight may be a
+    long solve whose result nobody will read (waiting for it held a Ctrl-C up for the whole solve)."""
+    workers = list((getattr(pool, "_processes", None) or {}).values())  # no public handle to them
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in workers:
+        proc.terminate()
+    for proc in workers:
+        proc.join(5)

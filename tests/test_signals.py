@@ -63,7 +63,7 @@ def test_bounded_calls_give_the_bits_of_one_call(monkeypatch, name, overrides):
 
 # burgers1d on 32 points with a long t_end: ~1500 steps per frame; the whole batch in one call would take
 # tens of seconds, each bounded call a small fraction of a second.
-LONG = {"n": 32, "n_frames": 3, "t_end": 8000}
+LONG = {"n": 32, "n_frames": 3, "t_end": 12000}
 
 
 def test_a_cancelled_solve_stops_at_the_next_call():
@@ -105,6 +105,20 @@ def test_prefetch_close_cancels_its_producer():
         assert time.monotonic() - t0 < 10, "the producer kept solving after its consumer closed it"
         time.sleep(0.05)
     assert not _LIVE or all(not t.is_alive() for _, t in _LIVE)
+
+
+@pytest.mark.parametrize("producer", ["thread", "process"])
+def test_closing_a_reservoir_stops_its_solves(producer):
+    from datasets.reservoir import ReservoirStream
+
+    stream = ReservoirStream(generator.get_pde("burgers1d", LONG), batch_size=4, capacity=8, solve_batch=4,
+                             producer=producer)
+    stream._start()  # submits solve jobs
+    time.sleep(3.0)  # (a process producer is still starting up, a thread solving)
+    t0 = time.monotonic()
+    stream.close()
+    assert time.monotonic() - t0 < 10, "close waited for the solve in flight"
+    assert not any(t.name.startswith("pdestream-solver") and t.is_alive() for t in threading.enumerate())
 
 
 def _generate(out, *extra):
