@@ -13,7 +13,7 @@ import importlib
 import importlib.util
 import sys
 
-FAMILIES = ("generator", "stream", "cache", "dask", "reservoir", "interactive")
+FAMILIES = ("generator", "stream", "cache", "dask", "reservoir", "interactive", "darcy")
 
 
 def available() -> list[str]:

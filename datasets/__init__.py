@@ -8,8 +8,8 @@ from .normalize import Normalization, compute_normalization
 from .reservoir import Reservoir, ReservoirStream
 from .solver import SolverOracle, SolverStep
 from .stream import StreamLoader, TrajectoryStream, stream_loader
-from .views import VIEWS, NextStep, Operator, Whole, collate, examples, gather, make_view
+from .views import VIEWS, NextStep, Operator, SteadyOperator, Whole, collate, examples, for_sample, gather, make_view
 
 __all__ = [
     "Normalization", "Reservoir", "param_domains", "sample_tensors", "ReservoirStream", "SolverOracle", "SolverStep", "StreamLoader", "TrajectoryStream", "compute_normalization", "gather", "stream_loader",
-    "CachedTrajectories", "WriteSummary", "open_cache", "write_cache", "VIEWS", "NextStep", "Operator", "Whole", "collate", "examples", "make_view"]
+    "CachedTrajectories", "WriteSummary", "open_cache", "write_cache", "VIEWS", "NextStep", "Operator", "SteadyOperator", "Whole", "collate", "examples", "for_sample", "make_view"]

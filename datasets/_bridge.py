@@ -45,8 +45,25 @@ def to_torch(x):
     return torch.from_dlpack(x)
 
 
+def sample_channels(pde) -> tuple[str, ...]:
+    """The one statement of a sample's layout on the torch/numpy side: the names along its channel axis.
+
+    A time-dependent PDE's sample is u [T, C, *space] over PDE.FIELDS. A steady PDE's (``PDE.STEADY``: no time
+    axis) is one array [C_in + C, *space] over PDE.INPUTS + PDE.FIELDS: its random input fields (darcy2d's
+    coefficient a), then its solution, so one tensor carries the operator's input and output through the
+    stream, the reservoir and the cache loader alike. A cache stores each channel as its own variable."""
+    return (*pde.INPUTS, *pde.FIELDS)
+
+
+def _joined(traj, concat, convert):
+    """traj.u, with a steady sample's input fields put in front along the channel axis (``sample_channels``)."""
+    u = convert(traj.u)
+    return u if traj.inputs is None else concat([convert(traj.inputs), u], 1)
+
+
 def trajectory_tensors(traj) -> dict:
-    """generator.Trajectory -> {"u": [B, T, C, *space], "t": [T], "params": [B, P], "index": [B]} (torch).
+    """generator.Trajectory -> {"u": [B, T, C, *space] (steady PDEs: [B, C_in + C, *space], see
+    ``sample_channels``), "t": [T], "params": [B, P], "index": [B]} (torch).
 
     Parameter columns follow the PDE's PARAMS order; "param_names" lists them.
     """
@@ -54,7 +71,7 @@ def trajectory_tensors(traj) -> dict:
     import torch
 
     names = list(traj.pde.PARAMS)
-    u = to_torch(traj.u)
+    u = _joined(traj, torch.cat, to_torch)
     if names:
         params = torch.stack([to_torch(traj.params[n]) for n in names], dim=1)
     else:
@@ -113,12 +130,14 @@ def cancel_solves_on(event) -> None:
 
 
 def sample_numpy(pde, indices, seed: int = 0, on_blowup: str = "raise", params: dict | None = None):
-    """``generator.sample`` as numpy: (u float32 [B, T, C, *space], {param: float32 [B]}, redraws int64 [B])."""
+    """``generator.sample`` as numpy: (u float32 [B, T, C, *space] (steady PDEs: [B, C_in + C, *space], see
+    ``sample_channels``), {param: float32 [B]}, redraws int64 [B])."""
     import generator
     import numpy as np
 
     traj = generator.sample(pde, indices, seed, on_blowup=on_blowup, params=params)
-    return np.asarray(traj.u), {k: np.asarray(v) for k, v in traj.params.items()}, np.asarray(traj.redraws)
+    u = _joined(traj, np.concatenate, np.asarray)
+    return u, {k: np.asarray(v) for k, v in traj.params.items()}, np.asarray(traj.redraws)
 
 
 def solve_job(config: dict, seed: int, indices, params: dict | None = None) -> dict:

@@ -48,7 +48,7 @@ class WriteSummary:
 
 def default_block(pde, n_samples: int) -> int:
     """Samples per block: ~TARGET_BLOCK_BYTES of float32 data (4 B x C x T x n**NDIM each), 1..256."""
-    per_sample = 4 * len(pde.FIELDS) * pde.n_frames * pde.n**pde.NDIM
+    per_sample = 4 * len((*pde.INPUTS, *pde.FIELDS)) * pde.n_frames * pde.n**pde.NDIM  # steady: n_frames is 1
     return max(1, min(n_samples, 256, TARGET_BLOCK_BYTES // per_sample))
 
 
@@ -229,8 +229,9 @@ def solve_block(pde, seed: int, lo: int, hi: int, block: int, on_blowup: str):
 
 def write_block(store, pde, lo: int, hi: int, u, params, redraws) -> None:
     """Write one block's data, then its ``complete`` flags (the flags vouch for data already written)."""
-    for c, name in enumerate(pde.FIELDS):
-        store[name][lo:hi] = schema.to_disk(u[:, :, c], pde.NDIM)  # stored (z,) y, x: see datasets.schema
+    axis = u.ndim - pde.NDIM - 1  # the channel axis: [B, T, C, *space], or [B, C_in + C, *space] when steady
+    for c, name in enumerate((*pde.INPUTS, *pde.FIELDS)):  # datasets._bridge.sample_channels
+        store[name][lo:hi] = schema.to_disk(np.take(u, c, axis=axis), pde.NDIM)  # stored (z,) y, x: see datasets.schema
     for name, values in params.items():
         store[name][lo:hi] = values
     store["redraws"][lo:hi] = redraws

@@ -53,7 +53,8 @@ def summary(path) -> str:
             f"{path}: pdestream cache ({schema.cache_format(path)}), {schema.disk_bytes(path):,} bytes on disk",
             f"  pde: {a['pde']}: {a['equation']}",
             f"  samples: {int(complete.sum())} of {complete.size} complete, {state}; seed {a['pdestream_seed']}",
-            f"  dims: {sizes}; time in [{float(ds.time[0]):g}, {float(ds.time[-1]):g}]",
+            f"  dims: {sizes}; " + (f"time in [{float(ds.time[0]):g}, {float(ds.time[-1]):g}]" if "time" in ds.dims
+                                    else "steady (no time axis)"),
             f"  config: {json.dumps(json.loads(a[schema.CONFIG_ATTR]), sort_keys=True)}",
             f"  provenance: hash {a['pdestream_config_hash']}, pdestream {a['pdestream_version']}, "
             f"jax {a['jax_version']} (threefry_partitionable={a['jax_threefry_partitionable']})",
@@ -70,7 +71,7 @@ def summary(path) -> str:
             redraws = ds["redraws"].values[rows]
             if redraws.any():
                 lines.append(f"  blow-up redraws: {int((redraws > 0).sum())} samples")
-        for name in a["pdestream_fields"].split():
+        for name in _fields(ds):
             s = field_stats(ds, name, rows)
             damaged.update(s["damaged"])
             lines.append(f"  field {name}: mean {s['mean']:.4g}  std {s['std']:.4g}  min {s['min']:.4g}  max {s['max']:.4g}")
@@ -125,7 +126,7 @@ def draw(ds, n_show: int = 4):
     """
     import matplotlib.pyplot as plt
 
-    fields = ds.attrs["pdestream_fields"].split()
+    fields = _fields(ds)
     show = min(n_show, ds.sizes["sample"])
     params = ds.attrs["pdestream_params"].split()
     label = [", ".join(f"{p}={float(ds[p][i]):.3g}" for p in params) for i in range(show)]
@@ -135,6 +136,11 @@ def draw(ds, n_show: int = 4):
     fig = panels(plt, ds, fields, show, index, label, space)
     fig.suptitle(f"{ds.attrs['pde']}: {ds.attrs['equation']}", fontsize=9)
     return fig
+
+
+def _fields(ds) -> list[str]:
+    """The cache's field variables: a steady PDE's input fields (darcy2d's coefficient a) first, then its fields."""
+    return ds.attrs.get("pdestream_inputs", "").split() + ds.attrs["pdestream_fields"].split()
 
 
 def colour_scale(values: np.ndarray) -> dict:
@@ -183,8 +189,9 @@ def _space_time(plt, ds, fields, show, index, label, space):
 
 def _snapshots(plt, ds, fields, show, index, label, space):
     """2D (3D: the middle z slice): one row per sample, first/middle/last frame of each field, x across, y up;
-    one colourbar per field."""
-    n_frames = ds.sizes["time"]
+    one colourbar per field. A steady PDE's cache (no time axis): one panel per field, input fields first."""
+    timed = "time" in ds.dims
+    n_frames = ds.sizes["time"] if timed else 1
     frames = sorted({0, n_frames // 2, n_frames - 1})
     across, up = space[-1], space[-2]  # stored (z,) y, x
     slab = {space[0]: ds.sizes[space[0]] // 2} if len(space) == 3 else {}
@@ -194,8 +201,9 @@ def _snapshots(plt, ds, fields, show, index, label, space):
     fig, axes = plt.subplots(show, cols, figsize=(2.2 * cols + 0.8 * len(fields), 2.4 * show + 0.7), squeeze=False,
                              layout="constrained")
     for c, name in enumerate(fields):
-        u = (ds[name].isel(sample=slice(0, show), time=frames, **slab)
-             .transpose("sample", "time", up, across).values)  # [S, F, y, x]: row y, column x
+        var = ds[name].isel(sample=slice(0, show), **slab)
+        var = var.isel(time=frames) if timed else var.expand_dims("time", axis=1)
+        u = var.transpose("sample", "time", up, across).values  # [S, F, y, x]: row y, column x
         scale = colour_scale(u)
         block = axes[:, c * len(frames):(c + 1) * len(frames)]
         for i in range(show):
@@ -203,7 +211,7 @@ def _snapshots(plt, ds, fields, show, index, label, space):
                 ax = block[i, j]
                 im = ax.imshow(u[i, j], origin="lower", aspect="equal", extent=extent, interpolation="nearest",
                                **scale)
-                title = f"{name} #{index[i]} t={float(ds.time[f]):.4g}{where}"
+                title = f"{name} #{index[i]}" + (f" t={float(ds.time[f]):.4g}" if timed else "") + where
                 ax.set_title(title + (f"\n{label[i]}" if j == 0 and label[i] else ""), fontsize=7)
                 ax.set_xlabel(axis_label(ds[across]) if i == show - 1 else "", fontsize=8)
                 ax.set_ylabel(axis_label(ds[up]) if c == 0 and j == 0 else "", fontsize=8)

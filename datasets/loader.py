@@ -19,7 +19,7 @@ import torch
 from . import schema
 from .cache import is_complete, open_cache
 from .store import format_of, identity
-from .views import NextStep, examples, make_view
+from .views import NextStep, examples, for_sample, make_view
 
 IN_MEMORY_BYTES = 512 * 2**20
 
@@ -43,7 +43,9 @@ class CachedTrajectories(torch.utils.data.Dataset):
         try:
             self.config = json.loads(ds.attrs[schema.CONFIG_ATTR])
             self.seed = int(ds.attrs["pdestream_seed"])
-            self.fields = ds.attrs["pdestream_fields"].split()
+            # the channels of a sample (datasets._bridge.sample_channels): a steady PDE's input fields, then its fields
+            self.fields = ds.attrs.get("pdestream_inputs", "").split() + ds.attrs["pdestream_fields"].split()
+            self.n_inputs = len(ds.attrs.get("pdestream_inputs", "").split())
             self.param_names = ds.attrs["pdestream_params"].split()
             complete = ds["complete"].values == 1
             if not is_complete(ds) and not allow_incomplete:
@@ -57,7 +59,9 @@ class CachedTrajectories(torch.utils.data.Dataset):
             bad = np.flatnonzero(~torch.isfinite(self.params).all(1).numpy())
             if len(bad):  # a deleted parameter chunk reads as NaN
                 raise self._damaged(bad)
-            self.t = torch.from_numpy(ds["time"].values.astype(np.float32))
+            timed = "time" in ds[self.fields[0]].dims  # a steady PDE's samples have no time axis
+            self.t = torch.from_numpy(ds["time"].values.astype(np.float32) if timed else np.zeros(0, np.float32))
+            self._axis = 2 if timed else 1  # the channel axis of [N, T, C, *space] / [N, C_in + C, *space]
             nbytes = len(self.rows) * len(self.fields) * int(np.prod(ds[self.fields[0]].shape[1:])) * 4
             self._ndim = schema.space_ndim(ds[self.fields[0]].dims)  # raw reads go through schema.from_disk
         finally:
@@ -67,7 +71,7 @@ class CachedTrajectories(torch.utils.data.Dataset):
         self._identity = identity(self._pin) if self._pin is not None else None
         self._check_same()
         n_frames = len(self.t)
-        self.view.check(n_frames)
+        self.view = for_sample(self.view, n_frames, self.n_inputs)
         self._window = None
         self.per_sample = 1
         if isinstance(self.view, NextStep):
@@ -141,7 +145,7 @@ class CachedTrajectories(torch.utils.data.Dataset):
             lo = int(rows[0])
             try:
                 u = np.stack([schema.from_disk(np.asarray(store[f][lo:int(rows[-1]) + 1])[rows - lo], self._ndim)
-                              for f in self.fields], axis=2)
+                              for f in self.fields], axis=self._axis)
             except Exception as err:  # a corrupted chunk: name the file and the samples read
                 self._check_same()
                 raise ValueError(f"{self.path}: cannot read samples {self.indices[s]}..{self.indices[s + len(rows) - 1]}: "
@@ -151,7 +155,7 @@ class CachedTrajectories(torch.utils.data.Dataset):
             if len(bad):
                 raise self._damaged(s + bad)
             moments.add(torch.from_numpy(u), self.params[s:s + chunk])  # [b, T, C, *space], [b, P]
-        return moments.result(self.fields, self.param_names, samples=len(self.rows))
+        return moments.result(self.fields, self.param_names, samples=len(self.rows), inputs=self.n_inputs)
 
     def _damaged(self, positions) -> ValueError:
         """The error for readable samples at ``positions`` whose data is non-finite (never true of a written one)."""
@@ -166,7 +170,7 @@ class CachedTrajectories(torch.utils.data.Dataset):
             store = self._open()
             try:
                 self._memory = np.stack([schema.from_disk(np.asarray(store[f][:])[self.rows], self._ndim)
-                                         for f in self.fields], axis=2)
+                                         for f in self.fields], axis=self._axis)
             except Exception as err:  # a corrupted chunk anywhere: name the file (in_memory=False names the sample)
                 self._memory = None
                 self._check_same()
@@ -182,12 +186,12 @@ class CachedTrajectories(torch.utils.data.Dataset):
                 raise self._damaged(bad)
         return self._memory
 
-    def _read(self, j: int, lo: int, hi: int) -> np.ndarray:
-        """Frames lo:hi of readable sample j straight from the file: float32 [hi - lo, C, *space]."""
+    def _read(self, j: int, frames: slice) -> np.ndarray:
+        """Frames of readable sample j straight from the file: float32 [frames, C, *space] ([C, *space] when steady)."""
         store = self._open()
         try:
-            u = np.stack([schema.from_disk(np.asarray(store[f][int(self.rows[j]), lo:hi]), self._ndim)
-                          for f in self.fields], axis=1)
+            u = np.stack([schema.from_disk(np.asarray(store[f][int(self.rows[j]), frames]), self._ndim)
+                          for f in self.fields], axis=self._axis - 1)
         except Exception as err:  # a corrupted chunk or a file changed under us: name the file and sample
             self._check_same()
             raise ValueError(f"{self.path}: cannot read sample {self.indices[j]}: {_first_line(err)}") from None
@@ -206,7 +210,8 @@ class CachedTrajectories(torch.utils.data.Dataset):
         if self._window is not None:
             start = sub if self.view.windows == "all" else int(torch.randint(self.view.n_starts(n_frames), ()))
             lo, hi, view = start, start + self.view.k_in + self.view.k_out, self._window
-        u = self._samples()[j, lo:hi] if self.in_memory else self._read(j, lo, hi)  # [T', C, *space]
+        frames = slice(lo, hi) if self._axis == 2 else slice(None)  # a steady sample: all of it, no frames
+        u = self._samples()[j, frames] if self.in_memory else self._read(j, frames)  # [T', C, *space] / [C, *space]
         return examples(view, torch.from_numpy(u), self.t[lo:hi], self.params[j], int(self.indices[j]))[0]
 
 

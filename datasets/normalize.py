@@ -7,6 +7,7 @@ fallback for other loaders, one batch (``Normalization.from_batch``).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,7 +21,9 @@ class Normalization:
     """mean/std: float32 [C] per field; params_mean/params_std: float32 [P]; ndim: spatial dimensions.
 
     ``normalize`` takes any tensor whose dimension -(ndim+1) is the field axis: [..., C, *space]
-    (every view's u, x and y have that layout).
+    (every view's u, x and y have that layout). ``inputs``: how many leading fields are a steady PDE's input
+    fields (0 otherwise; ``datasets._bridge.sample_channels``): an operator view's x holds those and y the
+    rest, so ``of_x`` / ``of_y`` give the statistics of each (both are the whole set when inputs is 0).
     """
 
     fields: tuple[str, ...]
@@ -31,6 +34,20 @@ class Normalization:
     params_std: torch.Tensor
     ndim: int
     samples: int = 0  # trajectories the statistics came from (0: unknown)
+    inputs: int = 0  # leading fields that are a steady PDE's input fields
+
+    def _part(self, part: slice) -> "Normalization":
+        return dataclasses.replace(self, fields=self.fields[part], mean=self.mean[part], std=self.std[part], inputs=0)
+
+    @property
+    def of_x(self) -> "Normalization":
+        """The statistics of a view's x: a steady PDE's input fields, else every field."""
+        return self._part(slice(0, self.inputs)) if self.inputs else self
+
+    @property
+    def of_y(self) -> "Normalization":
+        """The statistics of a view's y: a steady PDE's solution fields, else every field."""
+        return self._part(slice(self.inputs, None)) if self.inputs else self
 
     def _shape(self, stat: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
         return stat.to(like.device, like.dtype).reshape(-1, *([1] * self.ndim))
@@ -93,8 +110,8 @@ class Moments:
             p = params.double()
             self.p1, self.p2, self.n_params = self.p1 + p.sum(0), self.p2 + (p * p).sum(0), self.n_params + len(p)
 
-    def result(self, fields, params, samples: int = 0) -> Normalization:
-        """Population mean/std (std floored to 1 where ~0) as float32 Normalization."""
+    def result(self, fields, params, samples: int = 0, inputs: int = 0) -> Normalization:
+        """Population mean/std (std floored to 1 where ~0) as float32 Normalization (``inputs``: see there)."""
         if not self.count or not self.n_params:
             raise ValueError("no data to compute normalization statistics from (empty draw or batch)")
         mean, pmean = self.s1 / self.count, self.p1 / self.n_params
@@ -102,6 +119,7 @@ class Moments:
             fields=tuple(fields), mean=mean.float(), std=_safe_std(self.s2 / self.count - mean**2, mean).float(),
             params=tuple(params), params_mean=pmean.float(),
             params_std=_safe_std(self.p2 / self.n_params - pmean**2, pmean).float(), ndim=self.ndim, samples=int(samples),
+            inputs=int(inputs),
         )
 
 
@@ -117,4 +135,4 @@ def compute_normalization(pde, seed: int = 0, n: int = 64, solve_batch: int = 16
         indices = np.arange(lo, min(lo + solve_batch, n))
         data = _bridge.sample_tensors(pde, np.resize(indices, solve_batch), seed)
         moments.add(data["u"][: len(indices)], data["params"][: len(indices)])  # [B, T, C, *space], [B, P]
-    return moments.result(pde.FIELDS, pde.PARAMS, samples=n)
+    return moments.result(_bridge.sample_channels(pde), pde.PARAMS, samples=n, inputs=len(pde.INPUTS))

@@ -47,7 +47,7 @@ from . import _bridge
 from .producers import open_producer
 from .progress import Progress
 from .proposal import ParamProposal, _plain
-from .views import gather, make_view
+from .views import for_sample, gather, make_view
 
 MODES = ("async", "deterministic")
 DRAWS = ("uniform", "least_used")
@@ -197,8 +197,7 @@ class ReservoirStream(IterableDataset):
         self.pde = _bridge.resolve_pde(pde)
         if view_kwargs and not isinstance(view, str):
             raise ValueError(f"view options {sorted(view_kwargs)} only go with a view name, not a view object")
-        self.view = make_view(view, **view_kwargs)
-        self.view.check(self.pde.n_frames)
+        self.view = for_sample(make_view(view, **view_kwargs), self.pde.n_frames, len(self.pde.INPUTS))
         self.seed = _check_int("seed", seed, 0)
         self.batch_size = _check_int("batch_size", batch_size, 1)
         self.solve_batch = _check_int("solve_batch", solve_batch, 1)
@@ -232,7 +231,7 @@ class ReservoirStream(IterableDataset):
         # draws that pay for one solve batch: the deterministic schedule's step, and async mode's solver pacing
         self.uses_per_solve = self.cap_uses if target_reuse is None else max(1, round(target_reuse * self.per_trajectory))
         self.config = self.pde.config()
-        need = self.capacity * n_frames * len(self.pde.FIELDS) * self.pde.n ** self.pde.NDIM * 4
+        need = self.capacity * n_frames * len(_bridge.sample_channels(self.pde)) * self.pde.n ** self.pde.NDIM * 4
         have = _physical_memory()
         if have and need > have // 2:
             raise ValueError(f"capacity={capacity} not allowed: holding {capacity} trajectories takes "
@@ -490,8 +489,7 @@ class ReservoirStream(IterableDataset):
         return compute_normalization(self.pde, seed=self.seed, n=n, solve_batch=self.solve_batch)
 
     def close(self) -> None:
-        """Stop the producers (a thread's job in flight stops at its next bounded call, worker processes end at
-        once; stopped jobs are solved again on the next iteration); the stream can be iterated again afterwards."""
+        """Stop the producers (waits for the jobs in flight); the stream can be iterated again afterwards."""
         if self._closer is not None:
             closer, self._closer, self._executor = self._closer, None, None
             self.pending = collections.deque((i, p, None) for i, p, _f in self.pending)

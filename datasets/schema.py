@@ -3,7 +3,9 @@
 Readable by plain xarray (``xr.open_dataset(path, engine="h5netcdf")``, ``xr.open_zarr(path)``)::
 
     dims         sample (N), time (T), then space in plotting order: x (1D), y x (2D), z y x (3D)
-    data vars    one per field of the PDE (PDE.FIELDS), float32 [sample, time, (z,) (y,) x]
+    data vars    one per field of the PDE (PDE.FIELDS), float32 [sample, time, (z,) (y,) x]; a steady PDE
+                 (PDE.STEADY, e.g. darcy2d) has no time dim nor coord: its random input fields (PDE.INPUTS,
+                 darcy2d's coefficient a) and its solution fields are each float32 [sample, (z,) (y,) x]
     coords       time [T] float32, x [n], y [n], z [n] float32 (cell-left points), sample [N] int64 (global
                  index), one float32 [sample] per PDE parameter (units, long_name), redraws int8 [sample]
                  (blow-up redraws used), complete int8 [sample] (1 once the sample is written)
@@ -70,15 +72,17 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
     from importlib.metadata import version
 
     space = disk_space_dims(pde.NDIM)
-    dims = {"sample": n_samples, "time": pde.n_frames, **{d: pde.n for d in space}}
+    time = () if pde.STEADY else ("time",)  # a steady PDE's sample has no time axis
+    dims = {"sample": n_samples, **{d: pde.n_frames for d in time}, **{d: pde.n for d in space}}
     # long_name and units are what xarray's plots print as axis and colourbar labels ("x [length]")
     coords = {
         "sample": (("sample",), np.arange(n_samples, dtype=np.int64), {"long_name": "sample index"}),
-        "time": (("time",), pde.times(), {"long_name": "t", "units": "time", "axis": "T"}),
+        **{d: ((d,), pde.times(), {"long_name": "t", "units": "time", "axis": "T"}) for d in time},
     }
+    points = getattr(pde.grid, "POINTS", "cell-left grid points of a periodic domain")
     for d in space:
         coords[d] = ((d,), pde.grid.coords(), {"long_name": d, "units": "length", "axis": d.upper(),
-                                               "comment": "cell-left grid points of a periodic domain"})
+                                               "comment": points})
     per_sample = {name: ("float32", {"long_name": p.description, "units": p.units,
                                      "domain": str(getattr(pde, name))})
                   for name, p in pde.PARAMS.items()}
@@ -87,7 +91,7 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
                                        "flag_meanings": "missing written"})
     link = " ".join(per_sample)  # CF: the per-sample coordinates of every field
     # fields: a name, no units (the PDE definitions do not declare them; "1" would claim dimensionless)
-    fields = {f: {"long_name": f, "coordinates": link} for f in pde.FIELDS}
+    fields = {f: {"long_name": f, "coordinates": link} for f in (*pde.INPUTS, *pde.FIELDS)}
     attrs = {
         "Conventions": "CF-1.10",
         "title": f"pdestream cache: {pde.NAME}, samples 0..{n_samples - 1}, seed {seed}",
@@ -96,6 +100,7 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
         CONFIG_ATTR: json.dumps(pde.config(), sort_keys=True),
         "pdestream_config_hash": pde.config_hash(),
         "pdestream_fields": " ".join(pde.FIELDS),  # data variables, in PDE.FIELDS order
+        "pdestream_inputs": " ".join(pde.INPUTS),  # a steady PDE's input fields (variables too), else empty
         "pdestream_params": " ".join(pde.PARAMS),  # parameter coordinates, in PDE.PARAMS order
         "pdestream_seed": int(seed),
         "pdestream_n_samples": int(n_samples),
@@ -106,7 +111,7 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
         "pdestream_schema": SCHEMA_VERSION,
         "pdestream_complete": 0,
     }
-    return Layout(dims, coords, per_sample, fields, ("sample", "time", *space), attrs)
+    return Layout(dims, coords, per_sample, fields, ("sample", *time, *space), attrs)
 
 
 def disk_space_dims(ndim: int) -> tuple[str, ...]:

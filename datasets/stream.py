@@ -22,7 +22,7 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 from . import _bridge
 from ._prefetch import prefetch
 from .progress import MAX_WORKERS, Progress
-from .views import gather, make_view
+from .views import for_sample, gather, make_view
 
 
 def _int_arg(name: str, value, low: int) -> int:
@@ -54,8 +54,7 @@ class TrajectoryStream(IterableDataset):
         self.pde = _bridge.resolve_pde(pde)
         if view_kwargs and not isinstance(view, str):
             raise ValueError(f"view options {sorted(view_kwargs)} only go with a view name, not a view object")
-        self.view = make_view(view, **view_kwargs)
-        self.view.check(self.pde.n_frames)
+        self.view = for_sample(make_view(view, **view_kwargs), self.pde.n_frames, len(self.pde.INPUTS))
         self.seed = _int_arg("seed", seed, 0)
         self.batch_size = _int_arg("batch_size", batch_size, 1)
         self.solve_batch = _int_arg("solve_batch", solve_batch, 1)

@@ -9,6 +9,10 @@ into training examples (dicts of tensors):
   per trajectory (so one solve feeds many pairs)
 - ``Operator(t_in, t_out)``: {"x": [C, *space] at frame t_in, "y": [C, *space] at frame t_out}
 
+A steady PDE's sample (no time axis) is one tensor [C_in + C, *space] over its input fields then its solution
+fields (``datasets._bridge.sample_channels``); ``for_sample`` fits a view to it: ``operator`` becomes
+``SteadyOperator`` (input fields -> solution), ``whole`` gives the sample, ``next_step`` is refused.
+
 Every example also carries "params": [P] (conditioning) and "index": [] (global sample index).
 """
 
@@ -34,6 +38,9 @@ class Whole:
 
     def example(self, u: torch.Tensor, t: torch.Tensor, start: int) -> dict:
         return {"u": u, "t": t}
+
+    def steady(self, n_inputs: int) -> "Whole":
+        return self
 
     def gather(self, u: torch.Tensor, t: torch.Tensor, traj: torch.Tensor, start: torch.Tensor) -> dict:
         return {"u": u[traj], "t": t.repeat(len(traj), 1)}
@@ -63,6 +70,10 @@ class NextStep:
 
     def n_starts(self, n_frames: int) -> int:
         return n_frames - self.k_in - self.k_out + 1
+
+    def steady(self, n_inputs: int):
+        raise ValueError("next_step needs a time axis and the samples of a steady PDE have none; allowed: "
+                         "operator (input field -> solution) or whole")
 
     def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
         """Window starts: all of them, or ``windows`` drawn uniformly (with replacement) by ``generator``."""
@@ -105,14 +116,43 @@ class Operator:
     def gather(self, u: torch.Tensor, t: torch.Tensor, traj: torch.Tensor, start: torch.Tensor) -> dict:
         return {"x": u[traj, self.t_in], "y": u[traj, self.t_out]}
 
+    def steady(self, n_inputs: int) -> "SteadyOperator":
+        if (self.t_in, self.t_out) != (0, -1):
+            raise ValueError(f"operator: t_in={self.t_in}, t_out={self.t_out} not allowed: a steady PDE's samples have "
+                             "no frames; its operator maps the input field to the solution (leave t_in, t_out unset)")
+        return SteadyOperator(n_inputs)
 
-View = Union[Whole, NextStep, Operator]
+
+@dataclass(frozen=True)
+class SteadyOperator:
+    """A steady sample's input fields -> its solution: s [C_in + C, *space] -> {"x": s[:C_in], "y": s[C_in:]}."""
+
+    n_inputs: int
+    name = "operator"
+
+    def check(self, n_frames: int) -> None:
+        pass
+
+    def steady(self, n_inputs: int) -> "SteadyOperator":
+        return self
+
+    def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
+        return [0]
+
+    def example(self, u: torch.Tensor, t: torch.Tensor, start: int) -> dict:
+        return {"x": u[: self.n_inputs], "y": u[self.n_inputs :]}
+
+    def gather(self, u: torch.Tensor, t: torch.Tensor, traj: torch.Tensor, start: torch.Tensor) -> dict:
+        return {"x": u[traj, : self.n_inputs], "y": u[traj, self.n_inputs :]}
+
+
+View = Union[Whole, NextStep, Operator, SteadyOperator]
 VIEWS = {"whole": Whole, "next_step": NextStep, "operator": Operator}
 
 
 def make_view(view: View | str, **kwargs) -> View:
     """A view from an object or a name ("whole", "next_step", "operator") plus its keyword arguments."""
-    if isinstance(view, (Whole, NextStep, Operator)):
+    if isinstance(view, (Whole, NextStep, Operator, SteadyOperator)):
         return view
     if view not in VIEWS:
         raise ValueError(f"unknown view {view!r}; allowed: {', '.join(VIEWS)}")
@@ -120,6 +160,15 @@ def make_view(view: View | str, **kwargs) -> View:
         return VIEWS[view](**kwargs)
     except TypeError as err:
         raise ValueError(f"view {view!r}: {err}") from None
+
+
+def for_sample(view: View, n_frames: int, n_inputs: int = 0) -> View:
+    """``view`` fitted to the samples it will cut, and checked: trajectories of ``n_frames`` frames or, with
+    ``n_inputs`` > 0, a steady PDE's samples [n_inputs + C, *space] (no time axis; see the module docstring)."""
+    if n_inputs:
+        return view.steady(n_inputs)
+    view.check(n_frames)
+    return view
 
 
 def examples(view: View, u: torch.Tensor, t: torch.Tensor, params: torch.Tensor, index: int,

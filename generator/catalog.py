@@ -20,6 +20,7 @@ from .pdes.swift_hohenberg import SwiftHohenberg
 from .pdes.advection_diffusion import AdvectionDiffusion
 from .pdes.base import PDE
 from .pdes.burgers import Burgers
+from .pdes.darcy2d import Darcy2D
 from .pdes.diffusion import Diffusion
 from .pdes.dispersion import Dispersion
 from .pdes.grayscott import GrayScott
@@ -73,6 +74,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("swift_hohenberg2d", SwiftHohenberg, {"ndim": 2}, "reaction-diffusion"),
     Entry("grayscott3d", GrayScott, {"ndim": 3}, "reaction-diffusion"),
     Entry("ns2d", NS2D, {}, "fluids"),
+    Entry("darcy2d", Darcy2D, {}, "steady"),
 )
 
 

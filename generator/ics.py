@@ -201,16 +201,18 @@ IC_KINDS: Mapping[str, type] = {"fourier": FourierSeries, "grf": GaussianRandomF
 
 
 # --- parsing: kind names, dicts and setting values ---------------------------------------------------------
-def make_ic(value: Any) -> InitialCondition:
-    """An IC distribution from an object, a kind name (defaults) or a dict {"kind": ..., field: ...}."""
+def make_ic(value: Any, kinds: Mapping[str, type] | None = None) -> InitialCondition:
+    """An IC distribution from an object, a kind name (defaults) or a dict {"kind": ..., field: ...}; ``kinds``:
+    the vocabulary of kind names (default IC_KINDS; a PDE whose input is another kind of field has its own)."""
+    kinds = IC_KINDS if kinds is None else kinds
     if isinstance(value, str):
         value = {"kind": value}
     if isinstance(value, Mapping):
         fields = dict(value)
         kind = fields.pop("kind", None)
-        if not isinstance(kind, str) or kind not in IC_KINDS:
-            raise ValueError(f"unknown ic kind {show(kind)}; allowed: {', '.join(IC_KINDS)}")
-        cls = IC_KINDS[kind]
+        if not isinstance(kind, str) or kind not in kinds:
+            raise ValueError(f"unknown ic kind {show(kind)}; allowed: {', '.join(kinds)}")
+        cls = kinds[kind]
         defaults = cls()
         try:
             return cls(**{k: coerce(f"ic.{k}", v, getattr(defaults, k)) for k, v in fields.items()})
@@ -218,7 +220,7 @@ def make_ic(value: Any) -> InitialCondition:
             raise ValueError(f"ic kind {kind!r}: {err}") from None
     if isinstance(value, InitialCondition):
         return value
-    raise ValueError(f"bad ic {show(value)}: expected a kind name ({', '.join(IC_KINDS)}) or a dict with 'kind'")
+    raise ValueError(f"bad ic {show(value)}: expected a kind name ({', '.join(kinds)}) or a dict with 'kind'")
 
 
 def coerce(name: str, value: Any, current: Any) -> Any:

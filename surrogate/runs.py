@@ -34,6 +34,8 @@ def model_channels(pde, view) -> tuple[int, int]:
         return view.k_in * c, view.k_out * c
     if isinstance(view, datasets.Operator):
         return c, c
+    if isinstance(view, datasets.SteadyOperator):  # a steady PDE: its input fields -> its solution fields
+        return view.n_inputs, c
     raise ValueError(f"cannot train on the {view.name!r} view; allowed: next_step, operator")
 
 
@@ -126,7 +128,8 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     loader, data_pde = train_loader(pde, s["source"], view, s["batch_size"], seed=s["seed"], data_seed=s["data_seed"],
                                     explicit=explicit, data_cfg=s["data_cfg"])
     check_fits(mode, view, data_pde)
-    view.check(data_pde.n_frames)
+    view_args = dict(vars(view))  # as asked (run.json, model.pt); the view fitted to the samples is used below
+    view = datasets.for_sample(view, data_pde.n_frames, len(data_pde.INPUTS))
     mode.bind(data_pde, s["seed"])
     c_in, c_out = mode.channels(data_pde, view)
     torch.manual_seed(s["seed"])  # same initial weights for every source with the same seed
@@ -142,7 +145,7 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
         for name in RUN_FILES:
             (out / name).unlink(missing_ok=True)
         atomic_write(out / RUN_FILE, text.encode())
-    meta = {"pde": data_pde.config(), "source": s["source"], "view": view.name, "view_args": dict(vars(view)),
+    meta = {"pde": data_pde.config(), "source": s["source"], "view": view.name, "view_args": view_args,
             "seed": s["seed"], "data_seed": s["data_seed"], "batch_size": s["batch_size"], "mode": mode.settings()}
 
     def finish(model, normalizer) -> dict:

@@ -55,8 +55,8 @@ def stack_frames(u: torch.Tensor, ndim: int) -> torch.Tensor:
 def predict(model: nn.Module, norm: Normalization, x: torch.Tensor, params: torch.Tensor, ndim: int,
             y_shape: torch.Size) -> torch.Tensor:
     """Physical-unit prediction in the target's layout y_shape ([B, k_out, C, *space] or [B, C, *space])."""
-    out = model(stack_frames(norm.normalize(x), ndim), norm.normalize_params(params))  # [B, k_out*C, *space]
-    return norm.denormalize(out.reshape(y_shape))
+    out = model(stack_frames(norm.of_x.normalize(x), ndim), norm.normalize_params(params))  # [B, k_out*C, *space]
+    return norm.of_y.denormalize(out.reshape(y_shape))
 
 
 def make_schedule(opt: torch.optim.Optimizer, name: str, steps: int, lr: float):

@@ -105,6 +105,7 @@ class PDE(abc.ABC):
     # fields INPUTS [C_in, *space] (stored beside u). INPUTS is empty for time-dependent PDEs (the IC is frame 0).
     STEADY: ClassVar[bool] = False
     INPUTS: ClassVar[tuple[str, ...]] = ()
+    IC_KINDS: ClassVar[Mapping[str, type]] = IC_KINDS  # the ic kinds this PDE takes (darcy2d: its own field)
 
     def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
         """Solve one sample per key [B] (explicit float32 [B, P] parameter values where given bool [B, P]):
@@ -196,7 +197,7 @@ class PDE(abc.ABC):
             for name in self.config_fields():
                 if name not in self.PARAMS:
                     object.__setattr__(self, name, check_value(name, getattr(self, name), self.default(name)))
-            ic = make_ic(self.ic)
+            ic = make_ic(self.ic, self.IC_KINDS)
             if dataclasses.is_dataclass(ic):
                 fields = {f.name: check_value(f"ic.{f.name}", getattr(ic, f.name), f.default)
                           for f in dataclasses.fields(ic)}
@@ -215,7 +216,7 @@ class PDE(abc.ABC):
         """The IC fits this PDE: its kind's field count, its own rules on this grid, a float32-safe magnitude."""
         want = getattr(self.ic, "field_count", None)
         if want is not None and want != len(self.FIELDS):
-            fitting = [k for k, c in IC_KINDS.items() if getattr(c, "field_count", None) in (None, len(self.FIELDS))]
+            fitting = [k for k, c in self.IC_KINDS.items() if getattr(c, "field_count", None) in (None, len(self.FIELDS))]
             raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed: it makes {want} fields and {self.NAME} has "
                              f"{len(self.FIELDS)} ({', '.join(self.FIELDS)}); allowed: {', '.join(fitting)}")
         try:
@@ -263,7 +264,7 @@ class PDE(abc.ABC):
             elif key == "ic" and isinstance(value, Mapping) and "kind" not in value:
                 ic_changes.update(value)  # a TOML dotted key `ic.alpha = 2.5` arrives as {"ic": {"alpha": 2.5}}
             elif key == "ic":
-                changes["ic"] = make_ic(value)
+                changes["ic"] = make_ic(value, self.IC_KINDS)
             elif key in self.config_fields():
                 changes[key] = value if key in self.PARAMS else coerce(key, value, self.default(key))
             else:

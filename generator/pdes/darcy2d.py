@@ -39,6 +39,8 @@ MAX_BACKWARD_ERROR = 1e-5  # ~100 float32 epsilons: a returned u solves the disc
 class NodeGrid:
     """n x n nodes x_i = i h, h = length / (n - 1), boundary nodes included (not periodic)."""
 
+    POINTS = "grid nodes of [0, length], boundary included"  # what a cache's space coordinates are
+
     ndim: int
     n: int
     length: float
@@ -129,6 +131,7 @@ class Darcy2D(PDE):
         "a_neg": Param("coefficient a where the random field is <= 0", "1", positive=True),
         "f": Param("source term (constant over the square)", "1"),
     }
+    IC_KINDS: ClassVar[dict] = {NeumannGRF.kind: NeumannGRF}  # `--set ic=...` names this vocabulary
     UNUSED: ClassVar[frozenset] = frozenset({"t_end", "n_frames", "dt"})  # the base's time settings: not settings here
 
     n: int = 64
