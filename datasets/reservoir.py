@@ -489,7 +489,8 @@ class ReservoirStream(IterableDataset):
         return compute_normalization(self.pde, seed=self.seed, n=n, solve_batch=self.solve_batch)
 
     def close(self) -> None:
-        """Stop the producers (waits for the jobs in flight); the stream can be iterated again afterwards."""
+        """Stop the producers (a thread's job in flight stops at its next bounded call, worker processes end at
+        once; stopped jobs are solved again on the next iteration); the stream can be iterated again afterwards."""
         if self._closer is not None:
             closer, self._closer, self._executor = self._closer, None, None
             self.pending = collections.deque((i, p, None) for i, p, _f in self.pending)
