@@ -461,10 +461,16 @@ def _resume_train(args: argparse.Namespace) -> None:
 
 
 def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
-    print(f"trained {model} on {source} for {s['steps']} steps in {s['wall']:.1f} s "
+    mode = s.get("mode") or {"name": "one-step"}
+    how = "" if mode["name"] == "one-step" else f" ({', '.join(f'{k} {v}' for k, v in mode.items() if k != 'name')})"
+    if mode["name"] != "one-step":
+        how = f" --mode {mode['name']}{how}"
+    print(f"trained {model}{how} on {source} for {s['steps']} steps in {s['wall']:.1f} s "
           f"(waiting for data {s['t_data']:.1f} s, computing {s['t_compute']:.1f} s); "
           f"{s['trajectories_seen']} trajectories, final loss {s['final_loss']:.4g}")
     t = s["test"]["test"]
+    if mode["name"] == "solver-in-the-loop":  # the corrected coarse solver against the fine solution subsampled
+        print(f"(errors on the coarse grid n={mode['coarse_n']}, against the fine solution subsampled)")
     print(f"test ({n_test} held-out trajectories): rel L2 {t['rel_l2']:.4f}, nRMSE {t['nrmse']:.4f}"
           + (f", rollout rel L2 at the last frame {t['rollout_final']:.4f}" if "rollout_final" in t else ""))
     if "data_stats" in s and "reuse_mean" in s["data_stats"]:

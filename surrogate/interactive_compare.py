@@ -202,10 +202,12 @@ def plot(path: Path, result: dict) -> None:
     for ax, group in zip(axes[0], groups):
         for a in group:
             t = dt * (1 + np.arange(a["frames"]))
-            ax.plot(t, a["curve"], label=f"{a['arm']} (end {a['end_mean']:.3f})")
+            k = f", k={a['unroll']}" if a["mode"] in ("pushforward", "oracle") else ""
+            ax.plot(t, a["curve"], label=f"{a['arm']}{k} (end {a['end_mean']:.3f})")
         ax.set(yscale="log", xlabel="time (rolled out from t=0)", ylabel="relative L2 error (mean over trajectories)")
         fine = result["fine_pde"]["n"] if result["fine_pde"] else None
-        ax.set_title("network modes" if group[0]["mode"] in NETWORK_MODES else
+        steps = max(a["steps"] for a in group)
+        ax.set_title(f"network modes, {steps} steps each" if group[0]["mode"] in NETWORK_MODES else
                      f"coarse solver n={group[0]['n']} vs fine n={fine} (subsampled)")
         ax.legend(fontsize=8)
     fig.tight_layout()
