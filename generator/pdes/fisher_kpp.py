@@ -18,11 +18,13 @@ class FisherKPP(PDE):
     """Periodic Fisher-KPP: a population u in [0, 1] (fraction of the carrying capacity) diffuses with D and
     grows logistically at rate r; fronts of width ~ sqrt(D / r) invade the empty regions at speed 2 sqrt(D r).
 
-    Units: length of the box [0, 1)^d (n = 128 in 1D, 64 in 2D), time 1/r. 0 <= u0 <= 1 keeps 0 <= u <= 1 (maximum principle).
+    Units: length of the box [0, 1)^d (n = 128 in 1D, 64 in 2D), time of the box's time unit (r in 1/time).
+    0 <= u0 <= 1 keeps 0 <= u <= 1 (maximum principle).
     Defaults: D ~ loguniform(2e-3, 2e-2), r ~ uniform(0.5, 2) (fronts sqrt(D / r) >= 0.032 wide: >= 4 cells at
     n = 128, >= 2 in 2D at n = 64), IC a random Fourier series up to mode 4 on [0, 1] (amplitude 0.5 about 0.5):
-    the troughs are invaded while the rest saturates. Good ranges: sqrt(D / r) >= 2 dx. Same equation as Exponax's FisherKPP (diffusivity D, reactivity r).
-    Stable step: dt <= 0.7 / (r_max max|u0|) (diffusion is integrated exactly).
+    the troughs are invaded while the rest saturates. Good ranges: sqrt(D / r) >= 2 dx. Same equation as
+    Exponax's FisherKPP (diffusivity D, reactivity r).
+    Stable step: dt <= 0.7 / (r_max max(1, max|u0|)) (diffusion is integrated exactly).
     """
 
     EQUATION: ClassVar[str] = "u_t = D Laplacian(u) + r u (1 - u)"
