@@ -19,9 +19,34 @@ Every example also carries "params": [P] (conditioning) and "index": [] (global 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Union
+from typing import Protocol, Union
 
 import torch
+
+
+class ViewProtocol(Protocol):
+    """What every view declares, so that the loaders, training and evaluation never switch on its class."""
+
+    name: str  # its name in VIEWS (run.json, checkpoints)
+    rollout_k_in: int | None  # frames an autoregressive rollout starts from (next_step: k_in); None: no rollout
+
+    def check(self, n_frames: int) -> None:
+        """ValueError when trajectories of ``n_frames`` frames cannot give this view's examples."""
+
+    def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
+        """The frames where this trajectory's examples start."""
+
+    def example(self, u: torch.Tensor, t: torch.Tensor, start: int) -> dict:
+        """One example of u [T, C, *space] at ``start``."""
+
+    def gather(self, u: torch.Tensor, t: torch.Tensor, traj: torch.Tensor, start: torch.Tensor) -> dict:
+        """A batch of examples of u [B, T, C, *space] in one indexing pass."""
+
+    def channels(self, c: int) -> tuple[int, int]:
+        """(in, out) channels of a model trained on this view, for a PDE of ``c`` fields; ValueError if none."""
+
+    def evaluation(self) -> "ViewProtocol":
+        """The view held-out errors are computed under; ValueError when a model cannot be evaluated on this one."""
 
 
 @dataclass(frozen=True)
@@ -29,9 +54,17 @@ class Whole:
     """The whole trajectory as one example."""
 
     name = "whole"
+    rollout_k_in = None  # not a next-step view: no autoregressive rollout
 
     def check(self, n_frames: int) -> None:
         pass
+
+    def channels(self, c: int) -> tuple[int, int]:
+        raise ValueError(f"cannot train on the {self.name!r} view (it makes no input/target pairs); allowed: "
+                         "next_step, operator")
+
+    def evaluation(self):
+        raise ValueError(f"cannot evaluate a model on the {self.name!r} view; use next_step or operator")
 
     def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
         return [0]
@@ -91,6 +124,19 @@ class NextStep:
         y_frames = start[:, None] + self.k_in + torch.arange(self.k_out)  # [N, k_out]
         return {"x": u[traj[:, None], x_frames], "y": u[traj[:, None], y_frames], "t0": t[start]}
 
+    @property
+    def rollout_k_in(self) -> int:
+        """Frames an autoregressive rollout of a model trained on this view starts from."""
+        return self.k_in
+
+    def channels(self, c: int) -> tuple[int, int]:
+        """(in, out) model channels for c fields: k_in (k_out) frames stacked into channels."""
+        return self.k_in * c, self.k_out * c
+
+    def evaluation(self) -> "NextStep":
+        """The view held-out errors use: every window, not a random few."""
+        return NextStep(self.k_in, self.k_out, "all")
+
 
 @dataclass(frozen=True)
 class Operator:
@@ -99,6 +145,7 @@ class Operator:
     t_in: int = 0
     t_out: int = -1
     name = "operator"
+    rollout_k_in = None  # one map, no rollout
 
     def check(self, n_frames: int) -> None:
         for label, value in (("t_in", self.t_in), ("t_out", self.t_out)):
@@ -106,6 +153,13 @@ class Operator:
                 raise ValueError(f"operator: {label}={value} outside a trajectory of {n_frames} frames")
         if self.t_in % n_frames >= self.t_out % n_frames:
             raise ValueError(f"operator: t_in={self.t_in} must come before t_out={self.t_out}")
+
+    def channels(self, c: int) -> tuple[int, int]:
+        """(in, out) model channels for c fields: one frame in, one frame out."""
+        return c, c
+
+    def evaluation(self) -> "Operator":
+        return self
 
     def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
         return [0]
@@ -136,6 +190,15 @@ class SteadyOperator:
     def steady(self, n_inputs: int) -> "SteadyOperator":
         return self
 
+    rollout_k_in = None  # one map, no rollout
+
+    def channels(self, c: int) -> tuple[int, int]:
+        """(in, out) model channels: the input fields -> the c solution fields."""
+        return self.n_inputs, c
+
+    def evaluation(self) -> "SteadyOperator":
+        return self
+
     def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
         return [0]
 
@@ -152,7 +215,7 @@ VIEWS = {"whole": Whole, "next_step": NextStep, "operator": Operator}
 
 def make_view(view: View | str, **kwargs) -> View:
     """A view from an object or a name ("whole", "next_step", "operator") plus its keyword arguments."""
-    if isinstance(view, (Whole, NextStep, Operator, SteadyOperator)):
+    if not isinstance(view, str):  # a view object (see ViewProtocol) passes through
         return view
     if view not in VIEWS:
         raise ValueError(f"unknown view {view!r}; allowed: {', '.join(VIEWS)}")

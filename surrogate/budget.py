@@ -129,8 +129,8 @@ def per_trajectory_errors(model, norm, view, test: list[dict]) -> np.ndarray:
     errs = []
     for batch in test:
         batch = to_device(batch, model_device(model))
-        if isinstance(view, datasets.NextStep):
-            k = view.k_in
+        if view.rollout_k_in:  # a next-step model: its whole rollout
+            k = view.rollout_k_in
             u = batch["u"]  # [b, T, C, *space]
             pred = rollout(model, norm.normalize(u[:, :k]), norm.normalize_params(batch["params"]), u.shape[1] - k)
             errs.append(rel_l2(norm.denormalize(pred), u[:, k:]))

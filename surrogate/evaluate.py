@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from datasets.views import NextStep, Operator, SteadyOperator, collate, examples
+from datasets.views import collate, examples
 
 from .metrics import nrmse, rel_l2, summarize
 from datasets.normalize import Normalization
@@ -20,10 +20,7 @@ from .train import predict
 
 def pairs(view, batch: dict) -> dict:
     """Whole trajectories -> the view's (x, y) pairs, every window for next-step views."""
-    if isinstance(view, NextStep):
-        view = NextStep(view.k_in, view.k_out, "all")  # evaluate on every window, not a random few
-    if not isinstance(view, (NextStep, Operator, SteadyOperator)):
-        raise ValueError(f"cannot evaluate a model on the {view.name!r} view; use next_step or operator")
+    view = view.evaluation()  # a next-step view: every window, not a random few; ValueError for "whole"
     u, params, index = batch["u"], batch["params"], batch["index"]
     t = torch.zeros(u.shape[1])  # times are not model inputs
     out = []

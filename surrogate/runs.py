@@ -28,22 +28,16 @@ RUN_FILES = (RUN_FILE, CHECKPOINT, "model.pt", "metrics.json", "metrics.csv")
 
 
 def model_channels(pde, view) -> tuple[int, int]:
-    """(in_channels, out_channels): frames stacked into channels for next-step views."""
-    c = len(pde.FIELDS)
-    if isinstance(view, datasets.NextStep):
-        return view.k_in * c, view.k_out * c
-    if isinstance(view, datasets.Operator):
-        return c, c
-    if isinstance(view, datasets.SteadyOperator):  # a steady PDE: its input fields -> its solution fields
-        return view.n_inputs, c
-    raise ValueError(f"cannot train on the {view.name!r} view; allowed: next_step, operator")
+    """(in_channels, out_channels) of a model trained on ``view`` (the view says: frames stacked into channels for
+    next-step views); ValueError for a view that makes no input/target pairs."""
+    return view.channels(len(pde.FIELDS))
 
 
 def test_errors(model, normalizer, view, test: list[dict]) -> dict:
     """{"rel_l2", "nrmse"} on every pair of the test trajectories, plus "rollout" (per frame) for next-step."""
     out = evaluate(model, normalizer, test, view)
-    if isinstance(view, datasets.NextStep):
-        curve = rollout_error(model, normalizer, test, view.k_in)
+    if view.rollout_k_in:  # a next-step view: the model is also rolled out
+        curve = rollout_error(model, normalizer, test, view.rollout_k_in)
         out["rollout"], out["rollout_final"] = curve, curve[-1]
     return out
 

@@ -74,3 +74,35 @@ def test_train_reads_its_config_file_once(tmp_path, monkeypatch):
     config.write_text('pde = "burgers1d"\nn = 32\nn_frames = 5\n')
     assert cli.main(["train", "--config", str(config), "--out", str(tmp_path / "run")]) == 0
     assert reads == [str(config)] and runs[0][0].n == 32 and runs[0][1]["explicit"] == {"n": 32, "n_frames": 5}
+
+
+def test_views_describe_their_models_and_evaluation():
+    """Channels, the evaluation view and the rollout come from the view itself: a new view class needs no
+    isinstance branch elsewhere."""
+    from dataclasses import dataclass as dc
+
+    import datasets
+    from surrogate.evaluate import pairs
+    from surrogate.runs import model_channels
+
+    class Pde:
+        FIELDS = ("u", "v")
+
+    nxt, op = datasets.make_view("next_step", k_in=2, k_out=3, windows=1), datasets.make_view("operator")
+    assert model_channels(Pde, nxt) == (4, 6) and model_channels(Pde, op) == (2, 2)
+    assert nxt.evaluation() == datasets.NextStep(2, 3, "all") and op.evaluation() is op
+    assert (nxt.rollout_k_in, op.rollout_k_in) == (2, None)
+    for call in (lambda: model_channels(Pde, datasets.make_view("whole")), lambda: datasets.Whole().evaluation()):
+        with pytest.raises(ValueError, match="'whole' view"):
+            call()
+
+    @dc(frozen=True)
+    class LastFrame(datasets.Operator):  # a view of its own: first frame -> last frame, both fields
+        name = "last_frame"
+
+        def channels(self, c):
+            return c, 1
+
+    batch = {"u": torch.randn(2, 5, 2, 8), "params": torch.randn(2, 1), "index": torch.arange(2)}
+    assert datasets.make_view(LastFrame()) == LastFrame() and model_channels(Pde, LastFrame()) == (2, 1)
+    assert pairs(LastFrame(), batch)["x"].shape == (2, 2, 8)
