@@ -99,6 +99,17 @@ def test_plain_xarray_plot_puts_x_across_and_y_up(ns_cache):
         plt.close(fig)
 
 
+def test_plain_xarray_plot_of_a_1d_sample_is_space_time(burgers_cache):
+    _, path = burgers_cache
+    fig = plt.figure()
+    try:
+        _plain_open(path)["u"].isel(sample=0).plot()
+        ax = fig.axes[0]
+        assert ax.get_xlabel() == "x [length]" and ax.get_ylabel() == "t [time]"
+    finally:
+        plt.close(fig)
+
+
 def test_coordinates_carry_labels(ns_cache):
     pde, path = ns_cache
     ds = _plain_open(path)
