@@ -9,6 +9,11 @@ Readable by plain xarray (``xr.open_dataset(path, engine="h5netcdf")``, ``xr.ope
     coords       time [T] float32, x [n], y [n], z [n] float32 (cell-left points), sample [N] int64 (global
                  index), one float32 [sample] per PDE parameter (units, long_name), redraws int8 [sample]
                  (blow-up redraws used), complete int8 [sample] (1 once the sample is written)
+    attributes   pde, equation, pdestream_config (full resolved config, JSON), pdestream_config_hash,
+                 pdestream_fields, pdestream_params (names in PDE order, space-separated),
+                 pdestream_seed, pdestream_n_samples, pdestream_block, pdestream_on_blowup,
+                 pdestream_version, jax_version, jax_threefry_partitionable, pdestream_schema,
+                 pdestream_complete (0 until every block is written; set last)
 
 Axis order: the generator's arrays are [..., x, y(, z)] (u[i, j] = u(x_i, y_j)); a cache stores the space
 axes reversed, [..., (z,) y, x], because xarray (and matplotlib's imshow/pcolormesh) put the last dim on the
@@ -16,11 +21,6 @@ horizontal axis: ``ds.vorticity.isel(sample=0, time=-1).plot()`` then shows x ac
 here only: ``to_disk`` on write, ``from_disk`` on every raw read, so readers get the generator's tensors bit
 for bit. Schema 1 stored the generator's order; a schema-1 cache with 2+ space dims is refused
 (``check_readable``), a 1D one (same layout) is read.
-    attributes   pde, equation, pdestream_config (full resolved config, JSON), pdestream_config_hash,
-                 pdestream_fields, pdestream_params (names in PDE order, space-separated),
-                 pdestream_seed, pdestream_n_samples, pdestream_block, pdestream_on_blowup,
-                 pdestream_version, jax_version, jax_threefry_partitionable, pdestream_schema,
-                 pdestream_complete (0 until every block is written; set last)
 
 Crash safety: every array is fully laid out when the file is created (HDF5: contiguous, allocated
 early, the int8 flags zeroed; Zarr: chunks along ``sample`` that divide the write block, so a block
