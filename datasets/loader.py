@@ -9,7 +9,6 @@ per example, which dominates training time on small samples); larger ones are re
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -18,7 +17,7 @@ import torch
 
 from . import schema
 from .cache import is_complete, open_cache
-from .store import format_of, identity
+from .store import CacheSettings, format_of, identity
 from .views import NextStep, examples, for_sample, make_view
 
 IN_MEMORY_BYTES = 512 * 2**20
@@ -41,12 +40,12 @@ class CachedTrajectories(torch.utils.data.Dataset):
         self._pin = _pin(self.path)
         ds = open_cache(self.path)
         try:
-            self.config = json.loads(ds.attrs[schema.CONFIG_ATTR])
-            self.seed = int(ds.attrs["pdestream_seed"])
+            settings = CacheSettings.from_attrs(ds.attrs, self.path)  # the run settings, read in one place
+            self.config, self.seed = settings.config, settings.seed
             # the channels of a sample (datasets._bridge.sample_channels): a steady PDE's input fields, then its fields
-            self.fields = ds.attrs.get("pdestream_inputs", "").split() + ds.attrs["pdestream_fields"].split()
-            self.n_inputs = len(ds.attrs.get("pdestream_inputs", "").split())
-            self.param_names = ds.attrs["pdestream_params"].split()
+            self.fields = [*settings.inputs, *settings.fields]
+            self.n_inputs = len(settings.inputs)
+            self.param_names = list(settings.params)
             complete = ds["complete"].values == 1
             if not is_complete(ds) and not allow_incomplete:
                 raise ValueError(
