@@ -199,6 +199,9 @@ def _generate(pde, args: argparse.Namespace) -> None:
         raise ValueError("--scheduler and --workers go with --executor dask")
     else:
         done = datasets.write_cache(pde, args.out, args.n, **kw)
+    if args.resume and done.written == 0:
+        print(f"{args.out} is already complete: all {done.n_samples} samples were written; nothing to solve")
+        return
     print(done.line())
 
 

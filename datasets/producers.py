@@ -47,6 +47,9 @@ def open_producer(kind: str = "thread", workers: int = 1, scheduler: str | None 
         closer.callback(stop.set)  # (callbacks run last-in first-out: this one first)
         return pool, closer, 1
     if kind == "process":
+        from .stream import check_main_guard
+
+        check_main_guard(f"producer='process' with {workers} worker(s)")
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
                                    initializer=_bridge.configure_worker)
         closer.callback(_stop_processes, pool)

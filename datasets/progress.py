@@ -16,7 +16,8 @@ _LIMIT = 2**63  # counts are int64; larger values would wrap around in shared me
 def _count(name: str, value) -> int:
     """``value`` as a non-negative int64, or one line naming it."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 <= value < _LIMIT:
-        raise ValueError(f"{name}={value!r} not allowed; must be an integer in [0, 2**63)")
+        plain = value.item() if hasattr(value, "item") and not isinstance(value, (list, tuple)) else value
+        raise ValueError(f"{name}={plain!r} not allowed; must be an integer in [0, 2**63)")
     return int(value)
 
 
@@ -58,10 +59,14 @@ class Progress:
         """Worker counts recorded (0: none yet)."""
         return int(self._shared[1])
 
-    def check_workers(self, workers: int) -> None:
-        """Refuse to go on with ``workers`` workers when the state was recorded with another number."""
+    def check_workers(self, workers: int, num_workers: int | None = None) -> None:
+        """Refuse to go on with ``workers`` workers when the state was recorded with another number.
+        ``num_workers``: what the user set, for the message (0 where the main process is the one "worker")."""
         if self.workers and self.workers != workers:
-            raise ValueError(f"state saved with {self.workers} worker(s) per rank, resumed with {workers}")
+            saved = "0 or 1" if self.workers == 1 else self.workers  # one shard either way
+            now = workers if num_workers is None else num_workers
+            raise ValueError(f"state saved with num_workers={saved} per rank, resumed with num_workers={now}; "
+                             "resume with the same number of workers")
 
     def record_workers(self, workers: int) -> None:
         """Check (as ``check_workers``), then record ``workers`` as the worker count."""
@@ -104,14 +109,15 @@ class Progress:
         self._shared[2 : 2 + len(consumed)] = consumed
 
     # --- the iterator running in this process ----------------------------------------------------------
-    def start(self, worker: int, workers: int, share: bool) -> tuple[int, int]:
+    def start(self, worker: int, workers: int, share: bool, num_workers: int | None = None) -> tuple[int, int]:
         """Begin an iteration as worker ``worker`` of ``workers``: (epoch, units already consumed) to resume
         from, ``pending`` if a worker restored one, else the shared position. ``share``: this is the process
-        that owns the shared counts (the main one), so it records ``workers``."""
+        that owns the shared counts (the main one), so it records ``workers``; ``num_workers`` as in
+        ``check_workers``."""
         if self.pending is not None:
             (epoch, done), self.pending = self.pending, None
         else:
-            self.check_workers(workers)
+            self.check_workers(workers, num_workers)
             epoch, done = self.epoch, self.consumed(worker)
         if share:
             self._shared[1] = workers

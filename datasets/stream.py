@@ -15,6 +15,10 @@ that keeps it.
 
 from __future__ import annotations
 
+import ast
+import sys
+from pathlib import Path
+
 import numpy as np
 import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
@@ -29,6 +33,11 @@ def _int_arg(name: str, value, low: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
         raise ValueError(f"{name}={value!r} not allowed; must be an integer >= {low}")
     return int(value)
+
+
+def _plain(value):
+    """A numpy scalar as the plain Python value, for messages (``seed 0``, not ``np.int64(0)``)."""
+    return value.item() if isinstance(value, np.generic) else value
 
 
 def _derived_seed(*words: int) -> int:
@@ -127,9 +136,14 @@ class TrajectoryStream(IterableDataset):
     def load_state_dict(self, state: dict) -> None:
         """Resume from ``state_dict()`` output: the next batch is the one after the last consumed."""
         rank, world = self.placement()
+        missing = [k for k in ("epoch", "consumed") if not isinstance(state, dict) or k not in state]
+        if missing:
+            raise ValueError(f"not a TrajectoryStream state (no {', '.join(missing)}); pass stream.state_dict() output")
         for key, mine in (("seed", self.seed), ("n_samples", self.n_samples), ("rank", rank), ("world_size", world)):
             if state.get(key) != mine:
-                raise ValueError(f"state has {key}={state.get(key)!r} but this stream has {key}={mine!r}")
+                raise ValueError(f"state has {key}={_plain(state.get(key))!r} but this stream has {key}={mine!r}")
+        if not isinstance(state["consumed"], (list, tuple)):
+            raise ValueError(f"state has consumed={_plain(state['consumed'])!r}; must be a list of counts, one per worker")
         info = get_worker_info()
         if info is None:
             self._progress.restore(state["epoch"], state["consumed"])
@@ -149,7 +163,7 @@ class TrajectoryStream(IterableDataset):
         if not in_main and not self._progress.unpickled:
             raise ValueError("TrajectoryStream in a forked DataLoader worker: JAX is not fork-safe; use "
                              "datasets.stream_loader(stream, num_workers=N) or multiprocessing_context='spawn'")
-        epoch, skip = self._progress.start(wid, nw, share=in_main)
+        epoch, skip = self._progress.start(wid, nw, share=in_main, num_workers=0 if in_main else nw)
         return self._batches(epoch, skip, shard, stride, wid, in_main)
 
     def _batches(self, epoch, skip, shard, stride, wid, in_main):
@@ -239,11 +253,47 @@ class StreamLoader(DataLoader):
             stream.set_epoch(progress.epoch + 1)
 
 
+def check_main_guard(what: str) -> None:
+    """Refuse (one line) to start spawned processes from a script's top-level code that is not under
+    ``if __name__ == "__main__":``: each spawned process imports the script again, would run that code again,
+    and Python stops it with a screenful of RuntimeError. Scripts only; interactive use passes."""
+    import __main__
+
+    path = getattr(__main__, "__file__", None)
+    if not path or not str(path).endswith(".py"):
+        return
+    line, frame = None, sys._getframe(1)
+    while frame is not None:  # the script's top-level line that (through any calls) led here
+        if frame.f_globals is vars(__main__) and frame.f_code.co_name == "<module>":
+            line = frame.f_lineno
+        frame = frame.f_back
+    try:
+        tree = ast.parse(Path(path).read_text())
+    except (OSError, SyntaxError, ValueError, UnicodeDecodeError):
+        return
+    if line is None or any(isinstance(node, ast.If) and _is_main_test(node.test) and node.lineno <= line <= node.end_lineno
+                           for node in tree.body):
+        return
+    raise ValueError(f"{what} starts spawned worker processes, which import {Path(path).name} again: put the code "
+                     f"that runs it (line {line}) under `if __name__ == \"__main__\":`")
+
+
+def _is_main_test(test) -> bool:
+    """True for the test ``__name__ == "__main__"`` (either way round)."""
+    if not (isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], ast.Eq)):
+        return False
+    sides = {ast.dump(test.left), ast.dump(test.comparators[0])}
+    return sides == {ast.dump(ast.Name("__name__", ast.Load())), ast.dump(ast.Constant("__main__"))}
+
+
 def stream_loader(stream: TrajectoryStream, num_workers: int = 0, prefetch_factor: int = 2,
                   context: str = "spawn", **kwargs) -> StreamLoader:
     """A DataLoader for ``stream``: batch_size=None; with workers, a spawn (or forkserver) context since
     JAX is not fork-safe, persistent workers, and JAX on the CPU in each worker with the shared
-    compilation cache. Extra keyword arguments go to DataLoader (e.g. pin_memory=True)."""
+    compilation cache. Extra keyword arguments go to DataLoader (e.g. pin_memory=True).
+
+    Spawned workers import the calling script again: a script must run its training under
+    ``if __name__ == "__main__":`` (refused with one line otherwise, see ``check_main_guard``)."""
     num_workers = _int_arg("num_workers", num_workers, 0)
     if num_workers > MAX_WORKERS:
         raise ValueError(f"num_workers={num_workers} not allowed; at most {MAX_WORKERS}")
@@ -252,6 +302,7 @@ def stream_loader(stream: TrajectoryStream, num_workers: int = 0, prefetch_facto
     stream.num_workers = num_workers
     if num_workers == 0:
         return StreamLoader(stream, batch_size=None, **kwargs)
+    check_main_guard(f"stream_loader(num_workers={num_workers})")
     kwargs.setdefault("persistent_workers", True)
     return StreamLoader(stream, batch_size=None, num_workers=num_workers, multiprocessing_context=context,
                         prefetch_factor=prefetch_factor, worker_init_fn=_bridge.configure_worker, **kwargs)

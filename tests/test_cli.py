@@ -46,6 +46,14 @@ def test_generate_then_inspect(capsys, tmp_path):
     assert (tmp_path / "b.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_resume_of_a_complete_cache_says_so(capsys, tmp_path):
+    path = tmp_path / "b.h5"
+    args = ["generate", "burgers1d", "--n", "3", "--out", str(path), *SMALL]
+    assert run_cli(capsys, *args)[0] == 0
+    code, out, err = run_cli(capsys, *args, "--resume")
+    assert (code, err) == (0, "") and out == f"{path} is already complete: all 3 samples were written; nothing to solve\n"
+
+
 def test_generate_from_toml(capsys, tmp_path):
     (tmp_path / "c.toml").write_text('[pde]\nname = "diffusion1d"\nn = 32\nn_frames = 4\n')
     code, _, err = run_cli(capsys, "generate", "--config", str(tmp_path / "c.toml"), "--n", "2",

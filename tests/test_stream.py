@@ -208,8 +208,8 @@ def test_bad_loader_and_state_arguments(pde):
     with pytest.raises(ValueError, match="seed=6"):
         stream.load_state_dict({**stream.state_dict(), "seed": 6})
     stream.load_state_dict({**stream.state_dict(), "consumed": [1, 1]})
-    with pytest.raises(ValueError, match="saved with 2 worker"):
-        iter(stream)
+    with pytest.raises(ValueError, match=r"saved with num_workers=2 per rank, resumed with num_workers=0;"):
+        iter(stream)  # this process iterating: num_workers=0, as the user set it (not "1")
 
 
 def test_a_script_may_exit_with_a_stream_still_open(tmp_path):
@@ -243,7 +243,7 @@ def test_progress_counts_snapshots_and_pickles_to_a_copy():
     assert (p.consumed(1), copy.consumed(1)) == (8, 9) and copy.unpickled and not p.unpickled
     p.restore(3, [4, 5])
     assert p.snapshot(2) == (3, [4, 5]) and p.workers == 2
-    with pytest.raises(ValueError, match="saved with 2 worker"):
+    with pytest.raises(ValueError, match="saved with num_workers=2 per rank, resumed with num_workers=3"):
         p.record_workers(3)
     p.restore(0, [1, 2], worker=1, workers=2)  # inside worker 1: for its next iteration only
     assert p.start(1, 2, share=False) == (0, 2) and p.snapshot(2) == (3, [4, 5])
@@ -257,3 +257,35 @@ def test_out_of_range_state_is_refused_not_wrapped(pde):
         with pytest.raises(ValueError, match=f"{key}={value if key == 'epoch' else value[0]} not allowed"):
             stream.load_state_dict({**stream.state_dict(), key: value})
     assert stream.state_dict()["consumed"] == [0] and stream.epoch == 0
+    # numpy values read back from a saved state: plain numbers in the messages, no np.int64(...)
+    for key, value, words in (("seed", np.int64(6), "state has seed=6 but this stream has seed="),
+                              ("consumed", [np.uint64(2**63)], "consumed=9223372036854775808 not allowed"),
+                              ("consumed", 5, "consumed=5; must be a list of counts"),
+                              ("epoch", np.float64(1.0), "epoch=1.0 not allowed")):
+        with pytest.raises(ValueError) as err:
+            stream.load_state_dict({**stream.state_dict(), key: value})
+        assert words in str(err.value) and "np." not in str(err.value)
+    with pytest.raises(ValueError, match="not a TrajectoryStream state"):
+        stream.load_state_dict({"seed": SEED})
+
+
+def test_spawned_workers_need_the_main_guard(tmp_path):
+    """A script that starts spawn workers from unguarded top-level code gets one clear line, not the
+    multiprocessing RuntimeError wall; the same script under `if __name__ == "__main__":` runs."""
+    import subprocess
+    import sys
+
+    body = ("s = TrajectoryStream(generator.get_pde('burgers1d', n=32, n_frames=3), 0, view='whole', batch_size=2, "
+            "n_samples=2)\nprint(sum(len(b['u']) for b in stream_loader(s, num_workers=1)))\n")
+    head = "import generator\nfrom datasets import TrajectoryStream\nfrom datasets.stream import stream_loader\n"
+    bad, good = tmp_path / "bad.py", tmp_path / "good.py"
+    bad.write_text(head + body)
+    good.write_text(head + "def main():\n" + "".join("    " + line + "\n" for line in body.splitlines())
+                    + "if __name__ == '__main__':\n    main()\n")
+    res = subprocess.run([sys.executable, str(bad)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 1 and "RuntimeError" not in res.stderr and "bootstrapping" not in res.stderr
+    assert res.stderr.strip().splitlines()[-1] == (
+        "ValueError: stream_loader(num_workers=1) starts spawned worker processes, which import bad.py again: "
+        "put the code that runs it (line 5) under `if __name__ == \"__main__\":`")
+    res = subprocess.run([sys.executable, str(good)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0 and res.stdout.strip() == "2", res.stderr[-2000:]
