@@ -185,8 +185,31 @@ def _left_after_interrupt(out: str, resume: bool) -> str:
     return f"{out} holds {done} of {total} samples; run the command with --resume{'' if resume else ' added'} to finish it"
 
 
+def check_disk_room(pde, out: str, n: int) -> None:
+    """Refuse (one line) a new cache that cannot fit on its disk: --n x the bytes of one sample vs the free space
+    where it goes (a huge --n would otherwise run until the disk is full)."""
+    import shutil
+    from pathlib import Path
+
+    from datasets._bridge import max_index
+
+    parent = Path(out).absolute().parent
+    if not parent.is_dir() or isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= max_index() + 1:
+        return  # the writer names these
+    frames = 1 if getattr(pde, "STEADY", False) else pde.n_frames
+    channels = len(pde.FIELDS) + len(getattr(pde, "INPUTS", ()))
+    need = n * (4 * channels * frames * pde.n**pde.NDIM + 4 * len(pde.PARAMS) + 2)
+    free = shutil.disk_usage(parent).free
+    if need > free:
+        raise ValueError(f"--n {n} makes a cache of {need / 2**30:,.1f} GiB ({need / n / 2**10:,.1f} KiB per sample); "
+                         f"the disk at {parent} has {free / 2**30:,.1f} GiB free: lower --n or write elsewhere")
+
+
 def _generate(pde, args: argparse.Namespace) -> None:
     import datasets
+
+    if not args.resume:
+        check_disk_room(pde, args.out, args.n)
 
     kw = dict(seed=args.seed, resume=args.resume, overwrite=args.overwrite, block=args.block, on_blowup=args.on_blowup)
     if args.executor == "dask":

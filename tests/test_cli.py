@@ -54,6 +54,12 @@ def test_resume_of_a_complete_cache_says_so(capsys, tmp_path):
     assert (code, err) == (0, "") and out == f"{path} is already complete: all 3 samples were written; nothing to solve\n"
 
 
+def test_a_cache_larger_than_the_disk_is_refused_up_front(capsys, tmp_path):
+    code, out, err = run_cli(capsys, "generate", "burgers1d", "--n", str(2**32), "--out", str(tmp_path / "c.zarr"))
+    assert code == 2 and err.count("\n") == 1 and "--n 4294967296 makes a cache of " in err and " GiB free" in err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_generate_from_toml(capsys, tmp_path):
     (tmp_path / "c.toml").write_text('[pde]\nname = "diffusion1d"\nn = 32\nn_frames = 4\n')
     code, _, err = run_cli(capsys, "generate", "--config", str(tmp_path / "c.toml"), "--n", "2",
