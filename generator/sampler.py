@@ -364,6 +364,9 @@ def solve(pde: PDE | str, u0, params: Mapping[str, float | Sequence[float]]) -> 
     match the grid); params: {name: scalar or [B]} for every parameter of the PDE. Returns u [B, T, C, *space].
     """
     pde = get_pde(pde) if isinstance(pde, str) else pde
+    if pde.STEADY:
+        raise ValueError(f"{pde.NAME} is steady: it has no initial condition to evolve; use sample(pde, indices, seed, "
+                         "params=...) (its input field comes from the key of each index)")
     grid, n_fields = pde.grid, len(pde.FIELDS)
     u0 = jnp.asarray(u0, jnp.float32)
     if u0.shape == grid.shape:

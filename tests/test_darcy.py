@@ -165,6 +165,11 @@ def test_bad_settings_are_refused_with_one_line(setting, message):
     assert "\n" not in str(err.value)
 
 
+def test_solve_from_an_initial_condition_is_refused():
+    with pytest.raises(ValueError, match="darcy2d is steady: it has no initial condition to evolve; use sample"):
+        g.solve(darcy(n=16), np.zeros((1, 16, 16), np.float32), {"a_pos": 12.0, "a_neg": 3.0, "f": 1.0})
+
+
 def test_cache_stream_and_cli_end_to_end(capsys, tmp_path):
     """generate -> inspect -> train on the cache and on the stream; the cache holds a and u beside each other with
     no time axis, and its operator examples are the generator's (a, u) bit for bit."""
