@@ -674,36 +674,42 @@ def _first_interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
-def _leave(code: int, command_line: bool) -> None:
-    """After an interrupt's clean-up (caches, producers and clusters closed by then), the `pdestream` command
-    exits at once: a solver thread may still be inside a call or a compile, and interpreter shutdown would
-    wait for it (seconds) or tear it down inside JAX (an abort). Called in-process (tests, argv given), it
-    does so only when such a thread is still alive."""
-    busy = any(t.is_alive() and t.name.startswith("pdestream-") for t in threading.enumerate())
-    if command_line or busy:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)
+def _leave(code: int) -> None:
+    """The command's exit after an interrupt's clean-up (caches, producers and clusters closed by then): at
+    once, since a solver thread may still be inside a call or a compile, which interpreter shutdown would wait
+    for (seconds) or tear down inside JAX (an abort). multiprocessing's exit hook still runs, so semaphores
+    and child processes are released."""
+    import multiprocessing.util
+
+    multiprocessing.util._exit_function()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, _first_interrupt) if in_main else None
+    interrupted = False
     try:
         args.func(args)
     except USER_ERRORS as err:
         print(f"pdestream: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as err:
+        interrupted = True
         print(f"pdestream: interrupted{f'; {err}' if str(err) else ''}", file=sys.stderr)
-        _leave(130, command_line=argv is None)
+        if argv is None:  # the command itself, not an in-process call (tests)
+            _leave(130)
         return 130
     except BrokenPipeError:  # output piped into `head`
         sys.stderr.close()
         return 0
     finally:
-        if in_main:
+        # the command keeps ignoring SIGINT after an interrupt until it has exited (a Ctrl-C during interpreter
+        # shutdown would kill it or abort it); an in-process caller gets its handler back
+        if in_main and not (interrupted and argv is None):
             signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
     return 0
 

@@ -22,11 +22,13 @@ import importlib.util
 import logging
 import os
 import re
+import signal
 import socket
 import struct
 import sys
+import threading
 import time
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 from . import cache, schema
@@ -125,10 +127,28 @@ def dask_client(scheduler: str | None = None, workers: int = 2):
             yield client
         return
     # set_as_default=False: leave the caller's dask scheduler (e.g. for xarray's .compute()) untouched
-    with dist.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                      silence_logs=logging.ERROR, env=_worker_env()) as cluster:
-        with dist.Client(cluster, set_as_default=False) as client:
-            yield client
+    with ExitStack() as stack:
+        with _sigint_blocked():
+            cluster = stack.enter_context(dist.LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                silence_logs=logging.ERROR, env=_worker_env()))
+        yield stack.enter_context(dist.Client(cluster, set_as_default=False))
+
+
+@contextmanager
+def _sigint_blocked():
+    """SIGINT blocked in this thread while the cluster starts: its processes (and the thread that spawns them)
+    inherit the mask, so a terminal's Ctrl-C, which reaches the whole process group, is handled here alone (the
+    cluster is closed in order) instead of printing a KeyboardInterrupt traceback from every worker. A Ctrl-C
+    meanwhile is delivered when the block ends."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _block_task(config: dict, seed: int, path: str, lo: int, hi: int, block: int, on_blowup: str):
