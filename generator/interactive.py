@@ -113,12 +113,18 @@ def _nbytes(tree) -> int:
     return sum(x.nbytes for x in jax.tree_util.tree_leaves(tree))
 
 
+_cache_bytes = [0]  # bytes held by _cache, kept as entries come and go (summing them per insert grew with the cache)
+
+
 def _remember(key, coeffs) -> None:
     with _cache_lock:
+        if not _cache:
+            _cache_bytes[0] = 0  # emptied from outside (tests clear it)
+        old = _cache.pop(key, None)  # two threads may have solved the same chunk
+        _cache_bytes[0] += _nbytes(coeffs) - (0 if old is None else _nbytes(old))
         _cache[key] = coeffs
-        total = sum(_nbytes(c) for c in _cache.values())
-        while len(_cache) > 1 and total > COEFFICIENT_CACHE_BYTES:
-            total -= _nbytes(_cache.popitem(last=False)[1])
+        while len(_cache) > 1 and _cache_bytes[0] > COEFFICIENT_CACHE_BYTES:
+            _cache_bytes[0] -= _nbytes(_cache.popitem(last=False)[1])
 
 
 @functools.lru_cache(maxsize=64)
