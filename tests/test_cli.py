@@ -60,6 +60,14 @@ def test_a_cache_larger_than_the_disk_is_refused_up_front(capsys, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("name", [["burgers1d"], None, 3])
+def test_a_pde_name_that_is_not_a_string_is_one_line(name):
+    import generator
+
+    with pytest.raises(ValueError, match=r"^unknown PDE .*; allowed: .*burgers1d"):
+        generator.get_pde(name)
+
+
 def test_generate_from_toml(capsys, tmp_path):
     (tmp_path / "c.toml").write_text('[pde]\nname = "diffusion1d"\nn = 32\nn_frames = 4\n')
     code, _, err = run_cli(capsys, "generate", "--config", str(tmp_path / "c.toml"), "--n", "2",
