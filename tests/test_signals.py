@@ -153,6 +153,22 @@ def test_ctrl_c_stops_generate_within_seconds(tmp_path, signals):
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # no cache, no hidden work copy, no lock file
 
 
+def test_ctrl_c_stops_stream_training_within_seconds(tmp_path):
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "cli", "train", "burgers1d", "--source", "stream", "--steps", "5",
+                             "--batch-size", "4", "--test-samples", "1", *(f"--set={k}={v}" for k, v in LONG.items()),
+                             "--model-set", "width=4", "--model-set", "modes=2", "--model-set", "layers=1",
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _wait_for_solving(proc, out / "run.json", seconds=4.0)  # the stream's first solve (normalization) runs
+    t0 = time.monotonic()
+    for _ in range(2):
+        proc.send_signal(signal.SIGINT)
+        time.sleep(0.2)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and err == "pdestream: interrupted\n", err[-2000:]
+    assert time.monotonic() - t0 < 10
+
+
 def test_ctrl_c_after_a_block_leaves_a_resumable_cache(tmp_path, capsys):
     out = tmp_path / "a.zarr"
     setting = ["--set=n=32", "--set=n_frames=3", "--set=t_end=300"]  # ~1 s per sample (block of 1)
