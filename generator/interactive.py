@@ -32,23 +32,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from .pdes import PDE
-from .sampler import SETUP_CHUNK, _coefficients, _join
+from .sampler import SETUP_CHUNK, _coefficients, _join, _stepping
 from .spectral import rollout
 
 
 def _advance_one(pde: PDE, frames: int, u: jax.Array, p: Mapping[str, jax.Array], coeffs) -> jax.Array:
-    """One state u [C, *space] advanced ``frames`` frames -> [C, *space] (dtype of u)."""
-    grid = pde.grid
-    mask = grid.dealias_mask()
-    nonlinear = pde.nonlinear(grid, p)
-    masked = None if nonlinear is None else (lambda v: mask * nonlinear(v))
-    v0 = mask * grid.rfft(u)  # the sampler's start: the dealiased state
-    # a linear system diagonal in other variables than its fields (wave) steps in its own basis, as the sampler
-    basis = getattr(pde, "state_basis", lambda *_: None)(grid, p)
-    to_state, from_state = basis if basis is not None else (lambda v: v, lambda v: v)
-    # frames + 1 recorded frames (0..frames); the recorded buffer costs one inverse FFT per frame
-    return rollout(to_state(v0), coeffs, masked, frames + 1, pde.steps_per_frame,
-                   lambda v: grid.irfft(from_state(v)))[-1]
+    """One state u [C, *space] advanced ``frames`` frames -> [C, *space] (dtype of u): the sampler's rollout
+    of frames + 1 frames from u (the recorded buffer costs one inverse FFT per frame), its last frame."""
+    to_state, masked, to_physical = _stepping(pde, p)
+    return rollout(to_state(u), coeffs, masked, frames + 1, pde.steps_per_frame, to_physical)[-1]
 
 
 def _finite(u: jax.Array) -> jax.Array:
