@@ -89,6 +89,19 @@ def test_memoised_coefficients_give_the_bits_of_fresh_ones():
     assert any(key[0] == pde for key in interactive._cache)
 
 
+def test_the_coefficient_cache_stays_within_its_bytes(monkeypatch):
+    pde, t = trajectories("burgers1d", BURGERS, 8)
+    oracle = SolverOracle(pde)
+    interactive._cache.clear()
+    one_chunk = None
+    for i in range(6):  # new parameters each call: a new chunk each time
+        oracle(t["u"][:, 0], t["params"] * (1 + 0.01 * i))
+        one_chunk = one_chunk or interactive._cache_bytes[0]
+        monkeypatch.setattr(interactive, "COEFFICIENT_CACHE_BYTES", 3 * one_chunk)
+    held = sum(interactive._nbytes(c) for c in interactive._cache.values())
+    assert len(interactive._cache) == 3 and held == interactive._cache_bytes[0] <= 3 * one_chunk
+
+
 def independent_scalar(pde, frames, g):
     """sum(g * u_k) composed without generator.interactive's chunking or its VJP plumbing: jax.grad's reference."""
     def f(u, p):
