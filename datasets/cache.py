@@ -197,7 +197,7 @@ def _check_resume(path: Path, cached: CacheSettings, asked: CacheSettings) -> No
                          "use the same PDE settings, seed and --n, or --overwrite to start again")
 
 
-def _cause(err: OSError) -> str:
+def os_error_cause(err: OSError) -> str:
     """An OS error in words, without the library's wrapping (h5py puts a whole report in its message)."""
     code = getattr(err, "errno", None)
     if code is None and "errno = " in str(err):  # h5py: "... errno = 28, error message = ..."
@@ -338,7 +338,7 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
                     fmt.create(job.work, lay, settings.block) if job.work != path else _create(path, fmt, lay,
                                                                                               settings.block)
                 except OSError as err:
-                    raise CacheWriteError(f"cannot create {path}: {_cause(err)}") from None
+                    raise CacheWriteError(f"cannot create {path}: {os_error_cause(err)}") from None
             yield job
             if job.work != path:
                 if path.exists() and (what := _foreign(path)):  # replaced by someone else while we wrote
@@ -439,7 +439,7 @@ def _fill(pde, job: Job, progress: bool) -> int:
                 try:
                     write_block(store, pde, *item)
                 except OSError as err:  # disk full, I/O error: one line, not the library's report
-                    raise CacheWriteError(f"cannot write {job.path} (samples {lo}..{hi - 1}): {_cause(err)}") from None
+                    raise CacheWriteError(f"cannot write {job.path} (samples {lo}..{hi - 1}): {os_error_cause(err)}") from None
                 written += hi - lo
                 bar.update(hi - lo)
         finally:
@@ -451,7 +451,7 @@ def _fill(pde, job: Job, progress: bool) -> int:
         try:
             job.fmt.mark_complete(store)
         except OSError as err:
-            raise CacheWriteError(f"cannot mark {job.path} complete: {_cause(err)}") from None
+            raise CacheWriteError(f"cannot mark {job.path} complete: {os_error_cause(err)}") from None
     finally:
         store.close()
     return written

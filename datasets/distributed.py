@@ -220,13 +220,16 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
             if block % store[name].chunks[0]:
                 raise ValueError(f"{path}: {name} chunks {store[name].chunks} along sample do not tile block={block}")
         todo = cache.pending_blocks(store, block)
-        if todo:  # a finished cache needs no cluster
-            with dask_client(scheduler, workers) as client:
-                # an absolute path: remote workers run in another directory (of a shared filesystem)
-                _run_blocks(client, pde.NAME, job.settings, str(work.resolve()), todo, block, progress)
-        if not (store["complete"][:] == 1).all():
-            raise RuntimeError(f"{path}: blocks missing after the Dask run (a bug)")
-        job.fmt.mark_complete(store)
+        try:
+            if todo:  # a finished cache needs no cluster
+                with dask_client(scheduler, workers) as client:
+                    # an absolute path: remote workers run in another directory (of a shared filesystem)
+                    _run_blocks(client, pde.NAME, job.settings, str(work.resolve()), todo, block, progress)
+            if not (store["complete"][:] == 1).all():
+                raise RuntimeError(f"{path}: blocks missing after the Dask run (a bug)")
+            job.fmt.mark_complete(store)
+        except OSError as err:  # a task's write or the last flag failed (a full disk): one line, as write_cache
+            raise cache.CacheWriteError(f"cannot write {path}: {cache.os_error_cause(err)}") from None
     written, seconds = sum(hi - lo for lo, hi in todo), time.perf_counter() - start
     return cache.WriteSummary(str(job.path), job.settings.n_samples, written, seconds, schema.disk_bytes(job.path),
                               job.repaired)

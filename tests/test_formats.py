@@ -122,8 +122,8 @@ def test_disk_full_marking_complete(tmp_path, capsys, monkeypatch):
 def test_h5py_errors_are_reduced_to_their_cause():
     err = OSError(28, "Can't synchronously write data (file write failed: time = ..., errno = 28, error message = "
                       "'No space left on device', buf = 0x7f, total write size = 1077200)")
-    assert cache_mod._cause(err) == "no space left on device"
-    assert cache_mod._cause(OSError(errno.EIO, os.strerror(errno.EIO))) == os.strerror(errno.EIO)
+    assert cache_mod.os_error_cause(err) == "no space left on device"
+    assert cache_mod.os_error_cause(OSError(errno.EIO, os.strerror(errno.EIO))) == os.strerror(errno.EIO)
 
 
 # --- a file held open by another process ------------------------------------------------------------------
@@ -378,3 +378,18 @@ def test_field_stats_are_the_float64_moments_of_the_finite_samples():
     assert abs(s["mean"] - good.mean()) < 1e-12 and abs(s["std"] - good.std()) < 1e-12
     const = field_stats(xr.Dataset({"u": (("sample", "x"), np.full((3, 4), 2.0, np.float32))}), "u", np.arange(3))
     assert (const["mean"], const["std"]) == (2.0, 0.0)
+
+
+def test_dask_writer_disk_full_is_one_line(tmp_path, monkeypatch):
+    pytest.importorskip("distributed")
+    from distributed import LocalCluster
+
+    from datasets.distributed import write_cache_dask
+
+    _full_disk(monkeypatch)  # tasks run in this process (threads), so they see the patched write
+    with LocalCluster(n_workers=1, processes=False, dashboard_address=":0") as c:
+        with pytest.raises(ValueError, match=f"^cannot write {tmp_path / 'd.zarr'}: no space left on device; "
+                                             "nothing was kept$"):
+            write_cache_dask("burgers1d", tmp_path / "d.zarr", 2, scheduler=c.scheduler_address, block=1,
+                             progress=False)
+    assert listing(tmp_path) == []
