@@ -576,6 +576,8 @@ def cmd_compare(args: argparse.Namespace) -> None:
     check_compare_out(args.out, args.overwrite)
     if args.modes is not None:
         return _interactive_compare(args)
+    if args.unroll is not None or args.coarse_n is not None or args.fine_n is not None:
+        raise ValueError("--unroll, --coarse-n and --fine-n go with --modes (compare training modes)")
     if args.budget is not None or args.sim_budget is not None or args.quick:
         return _budget_compare(args)
     args.set = [f"{k}={v}" for k, v in COMPARE_DEFAULTS.items()] + list(args.set)

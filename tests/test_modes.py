@@ -236,5 +236,9 @@ def test_cli_compare_modes_quick(tmp_path, capsys):
         assert len(a["curve"]) == 10 and all(v == v for v in a["curve"])  # 10 frames rolled out, no NaN
         assert a["steps"] == (0 if a["arm"] == "coarse solver" else 20)
     assert "| oracle | 32 |" in text and "| coarse solver | 16 |" in text
-    # a second run into the same directory is refused
+    # a second run into the same directory is refused; mode options without --modes are refused
     assert cli.main(["compare", "--modes", "one-step", "--quick", "--out", str(out)]) == 2
+    assert cli.main(["compare", "--unroll", "3", "--out", str(tmp_path / "other")]) == 2
+    assert not (tmp_path / "other").exists()
+    assert cli.main(["compare", "--modes", "one-step,dagger", "--quick", "--out", str(tmp_path / "other")]) == 2
+    assert "--modes one-step,dagger not allowed; choose from one-step" in capsys.readouterr().err
