@@ -256,8 +256,8 @@ def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr:
     p.add_argument("--batch-size", type=int, default=batch_size, help="examples per optimizer step")
     p.add_argument("--lr", type=float, default=lr, help="peak learning rate (Adam, cosine decay)")
     p.add_argument("--threads", type=int, default=None,
-                   help="torch CPU threads (default: train --source stream: all cores but one, so the stream's "
-                        "solver thread keeps a core; train on a cache: torch's default; compare: 1)")
+                   help="torch CPU threads (default: train: all cores but one, so the stream's solver thread, or on "
+                        "a cache the loader and the OS, keep a core; compare: 1)")
     p.add_argument("--device", default="cpu",
                    help="where the model trains: cpu, cuda or cuda:N (the stream's JAX solver uses the GPU when "
                         "JAX's CUDA build is installed, and hands batches to torch there without a host copy)")
@@ -381,12 +381,12 @@ def _interactive_compare(args: argparse.Namespace) -> None:
     print(f"table: {args.out}/compare.md, compare.csv, compare.json; figure: {args.out}/compare.png")
 
 
-def default_threads(source: str) -> int | None:
-    """torch CPU threads for `train` without --threads: for the stream, the cores this process may use minus one
-    (at least 1), since torch's threads fighting the solver thread ran 6x slower on 2 cores; for a cache, None
-    (torch's default)."""
-    if source != "stream":
-        return None
+def default_threads(source: str) -> int:
+    """torch CPU threads for `train` without --threads: the cores this process may use minus one (at least 1).
+    On the stream the solver thread needs that core (torch's threads fighting it ran 6x slower on 2 cores). On a
+    cache the loader, the OS and other programs do: torch's spinning OpenMP threads on both cores of a busy
+    2-core machine trained 17-30x slower than one thread (50 FNO steps of the README's command: 72.4 s vs 4.2 s,
+    41.9 s vs 1.5 s), same losses. ``source`` ("stream" or a cache path) is kept for callers; both get this."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(1, cores - 1)
 
