@@ -31,7 +31,7 @@ from .views import for_sample, gather, make_view
 
 def _int_arg(name: str, value, low: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ValueError(f"{name}={value!r} not allowed; must be an integer >= {low}")
+        raise ValueError(f"{name}={_plain(value)!r} not allowed; must be an integer >= {low}")
     return int(value)
 
 
@@ -75,7 +75,7 @@ class TrajectoryStream(IterableDataset):
         if world_size is not None:
             world_size = _int_arg("world_size", world_size, 1)
             if not (isinstance(rank, (int, np.integer)) and 0 <= rank < world_size):
-                raise ValueError(f"rank={rank!r} not allowed; must be in [0, {world_size})")
+                raise ValueError(f"rank={_plain(rank)!r} not allowed; must be in [0, {world_size})")
         self.rank, self.world_size = rank, world_size
         if on_blowup not in ("raise", "redraw"):
             raise ValueError(f"on_blowup={on_blowup!r} not allowed; allowed: 'raise', 'redraw'")

@@ -269,6 +269,15 @@ def test_out_of_range_state_is_refused_not_wrapped(pde):
         stream.load_state_dict({"seed": SEED})
 
 
+def test_numpy_arguments_are_named_as_plain_numbers(pde):
+    for kwargs, words in (({"batch_size": np.int64(-1)}, "batch_size=-1 not allowed"),
+                          ({"rank": np.int64(5), "world_size": 2}, "rank=5 not allowed"),
+                          ({"seed": np.float32(1.5)}, "seed=1.5 not allowed")):
+        with pytest.raises(ValueError) as err:
+            TrajectoryStream(pde, **kwargs)
+        assert words in str(err.value) and "np." not in str(err.value)
+
+
 def test_spawned_workers_need_the_main_guard(tmp_path):
     """A script that starts spawn workers from unguarded top-level code gets one clear line, not the
     multiprocessing RuntimeError wall; the same script under `if __name__ == "__main__":` runs."""
