@@ -18,7 +18,7 @@ import torch
 from . import schema
 from .cache import is_complete, open_cache
 from .store import CacheSettings, format_of, identity
-from .views import NextStep, examples, for_sample, make_view
+from .views import examples, for_sample, make_view
 
 IN_MEMORY_BYTES = 512 * 2**20
 
@@ -71,13 +71,7 @@ class CachedTrajectories(torch.utils.data.Dataset):
         self._check_same()
         n_frames = len(self.t)
         self.view = for_sample(self.view, n_frames, self.n_inputs)
-        self._window = None
-        self.per_sample = 1
-        if isinstance(self.view, NextStep):
-            # read only the frames of one window; a one-window view gives the example at that start
-            self._window = NextStep(self.view.k_in, self.view.k_out, "all")
-            all_starts = self.view.windows == "all"
-            self.per_sample = self.view.n_starts(n_frames) if all_starts else int(self.view.windows)
+        self.per_sample = self.view.per_trajectory(n_frames)  # examples per stored sample
         self.in_memory = nbytes <= IN_MEMORY_BYTES if in_memory is None else bool(in_memory)
         self._store, self._pid, self._memory = None, None, None
 
@@ -204,11 +198,7 @@ class CachedTrajectories(torch.utils.data.Dataset):
             raise IndexError(f"index {k} out of range for {len(self)} examples")
         k %= len(self)
         j, sub = divmod(k, self.per_sample)
-        n_frames = len(self.t)
-        lo, hi, view = 0, n_frames, self.view
-        if self._window is not None:
-            start = sub if self.view.windows == "all" else int(torch.randint(self.view.n_starts(n_frames), ()))
-            lo, hi, view = start, start + self.view.k_in + self.view.k_out, self._window
+        lo, hi, view = self.view.cut(len(self.t), sub)  # read only the frames this example needs
         frames = slice(lo, hi) if self._axis == 2 else slice(None)  # a steady sample: all of it, no frames
         u = self._samples()[j, frames] if self.in_memory else self._read(j, frames)  # [T', C, *space] / [C, *space]
         return examples(view, torch.from_numpy(u), self.t[lo:hi], self.params[j], int(self.indices[j]))[0]

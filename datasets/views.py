@@ -48,6 +48,13 @@ class ViewProtocol(Protocol):
     def evaluation(self) -> "ViewProtocol":
         """The view held-out errors are computed under; ValueError when a model cannot be evaluated on this one."""
 
+    def per_trajectory(self, n_frames: int) -> int:
+        """Examples a map-style reader (``CachedTrajectories``) makes of one stored trajectory."""
+
+    def cut(self, n_frames: int, sub: int) -> tuple[int, int, "ViewProtocol"]:
+        """(lo, hi, view) for a map-style reader's example ``sub`` of a trajectory: it reads frames lo:hi only and
+        takes the first example ``view`` makes of them."""
+
 
 @dataclass(frozen=True)
 class Whole:
@@ -65,6 +72,12 @@ class Whole:
 
     def evaluation(self):
         raise ValueError(f"cannot evaluate a model on the {self.name!r} view; use next_step or operator")
+
+    def per_trajectory(self, n_frames: int) -> int:
+        return 1
+
+    def cut(self, n_frames: int, sub: int) -> tuple[int, int, "ViewProtocol"]:
+        return 0, n_frames, self
 
     def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
         return [0]
@@ -137,6 +150,15 @@ class NextStep:
         """The view held-out errors use: every window, not a random few."""
         return NextStep(self.k_in, self.k_out, "all")
 
+    def per_trajectory(self, n_frames: int) -> int:
+        """Every window, or ``windows`` random ones."""
+        return self.n_starts(n_frames) if self.windows == "all" else int(self.windows)
+
+    def cut(self, n_frames: int, sub: int) -> tuple[int, int, "NextStep"]:
+        """Window ``sub``, or one drawn by torch's RNG (random windows): only its k_in + k_out frames are read."""
+        start = sub if self.windows == "all" else int(torch.randint(self.n_starts(n_frames), ()))
+        return start, start + self.k_in + self.k_out, NextStep(self.k_in, self.k_out, "all")
+
 
 @dataclass(frozen=True)
 class Operator:
@@ -160,6 +182,12 @@ class Operator:
 
     def evaluation(self) -> "Operator":
         return self
+
+    def per_trajectory(self, n_frames: int) -> int:
+        return 1
+
+    def cut(self, n_frames: int, sub: int) -> tuple[int, int, "ViewProtocol"]:
+        return 0, n_frames, self
 
     def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
         return [0]
@@ -198,6 +226,12 @@ class SteadyOperator:
 
     def evaluation(self) -> "SteadyOperator":
         return self
+
+    def per_trajectory(self, n_frames: int) -> int:
+        return 1
+
+    def cut(self, n_frames: int, sub: int) -> tuple[int, int, "ViewProtocol"]:
+        return 0, n_frames, self
 
     def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
         return [0]
