@@ -162,7 +162,7 @@ def _foreign(path: Path) -> str | None:
                 (", ..." if len(held) > 3 else "") + ")"
         return "a file that is not a readable HDF5 file (if it is a damaged cache, remove it yourself)"
     if not {schema.CONFIG_ATTR, "pdestream_schema", "pdestream_fields", "pdestream_params"} <= set(attrs):
-        return f"{'a Zarr store' if fmt.name == 'zarr' else 'an HDF5 file'} without pdestream's attributes"
+        return f"{fmt.noun} without pdestream's attributes"
     extra = fmt.extra_entries(path, attrs)  # a user's files inside our store would be lost with it
     if extra:
         return f"a pdestream cache with other files in it ({', '.join(extra[:3])}{', ...' if len(extra) > 3 else ''})"

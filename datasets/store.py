@@ -147,6 +147,7 @@ class CacheFormat(Protocol):
     """One on-disk format of a cache (``HDF5``, ``ZARR``); paths are ``pathlib.Path``."""
 
     name: str  # "hdf5" / "zarr", as messages say it
+    noun: str  # "an HDF5 file" / "a Zarr store", for messages about what is at a path
     parallel_writers: bool  # several processes may write different blocks at once (the Dask executor)
 
     def kind_problem(self, path: Path) -> str | None:
@@ -208,6 +209,7 @@ class Hdf5Format:
     """One HDF5 file (netCDF4-compatible, through h5netcdf); HDF5 allows one writer per file."""
 
     name = "hdf5"
+    noun = "an HDF5 file"
     parallel_writers = False
 
     def kind_problem(self, path):
@@ -283,6 +285,7 @@ class ZarrFormat:
     may write different blocks at once."""
 
     name = "zarr"
+    noun = "a Zarr store"
     parallel_writers = True
 
     def kind_problem(self, path):
