@@ -22,13 +22,13 @@ per-mode branches:
 
 Modes that unroll predict one frame per network call and read ``frames_ahead`` frames from a next-step view
 (``training_view`` sets k_out to that). All of them work in normalized units (``datasets.Normalization``).
-Randomness (the oracle's j) is a pure function of (seed, step), so a resumed run draws what the
+Randomness (pushforward's n, the oracle's j) is a pure function of (seed, step), so a resumed run draws what the
 uninterrupted one drew.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import ClassVar, Protocol
 
 import torch
