@@ -169,6 +169,26 @@ def test_ctrl_c_stops_stream_training_within_seconds(tmp_path):
     assert time.monotonic() - t0 < 10
 
 
+def test_stale_work_copies_of_dead_writers_are_removed_by_the_next_run(tmp_path):
+    """kill -9 cannot clean up: a hidden ``.NAME.PID.new/tmp`` sibling stays until the next writer of NAME,
+    which removes those whose writer is gone, and leaves a live writer's and anything else alone."""
+    import os
+
+    import cli
+
+    dead = subprocess.Popen(["true"])
+    dead.wait()  # a pid that no longer runs
+    out = tmp_path / "a.zarr"
+    stale = [tmp_path / f".a.zarr.{dead.pid}.new.zarr", tmp_path / f".a.zarr.{dead.pid}.tmp.zarr"]
+    kept = [tmp_path / f".a.zarr.{os.getpid()}.tmp.zarr",  # a live writer's (this process)
+            tmp_path / f".a.zarr.{dead.pid}.notes.zarr", tmp_path / ".a.zarr.backup"]  # not a work copy
+    for p in stale + kept:
+        p.mkdir()
+        (p / "zarr.json").write_text("{}")
+    assert cli.main(["generate", "burgers1d", "--n", "1", "--set=n=32", "--set=n_frames=3", "--out", str(out)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["a.zarr", *(p.name for p in kept)])
+
+
 def test_ctrl_c_after_a_block_leaves_a_resumable_cache(tmp_path, capsys):
     out = tmp_path / "a.zarr"
     setting = ["--set=n=32", "--set=n_frames=3", "--set=t_end=300"]  # ~1 s per sample (block of 1)
