@@ -133,11 +133,12 @@ def evolve_chunk(pde: PDE) -> int:
 
 
 # A rollout runs as a series of compiled calls, each advancing the batch by at most about DISPATCH_WORK
-# grid-point steps (~0.1-0.3 s on one core here), with a host sync between them: a Ctrl-C in the thread that
+# grid-point steps (0.05-0.3 s per call on an idle 2-core CPU here, 0.5-2% slower in all than one call:
+# benchmarks/dispatch_bench.py; 2**22 cost 2-20%), with a host sync between them: a Ctrl-C in the thread that
 # waits, or a consumer that has gone (``cancel_on``), then stops a solve within one call instead of after the
 # whole rollout (41 s with a long t_end). Every call runs the loop body of the one-call rollout: same bits.
 # A step also costs a fixed ~25 us whatever its size, counted as STEP_OVERHEAD points (small grids).
-DISPATCH_WORK = 2**22
+DISPATCH_WORK = 2**24
 STEP_OVERHEAD = 2**13
 _CANCEL = threading.local()
 
