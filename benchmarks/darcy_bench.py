@@ -62,7 +62,7 @@ def bench(n: int, batch: int, repeats: int, direct_samples: int) -> dict:
     t0 = time.perf_counter()
     jax.block_until_ready(pde.solve_keys(keys, zeros, none))
     first = time.perf_counter() - t0
-    times, iters = [], []
+    times = []
     for r in range(repeats):
         t0 = time.perf_counter()
         traj = generator.sample(pde, np.arange(batch) + (r + 1) * batch, seed=0)

@@ -80,8 +80,8 @@ def zero_copy() -> None:
 
 
 def training(seconds: float, quick: bool, solve_batch: int) -> None:
-    import generator
     import datasets
+    import generator
     from surrogate.budget import BudgetConfig, run_arm, stratified_test_set
 
     n, model_cfg = (256, {"width": 32, "modes": 12, "layers": 3}) if quick else (1024, {"width": 64, "modes": 16, "layers": 4})

@@ -54,7 +54,7 @@ def throughput(pde, solve_batch: int, n_batches: int, rounds: int) -> dict:
             rates["raw"].append(timed(raw, n_batches))
             for _ in range(3 + 4 * workers):  # drain what was buffered while idle: time steady production
                 next(it)
-            rates[workers].append(timed(lambda: len(next(it)["index"]), n_batches))
+            rates[workers].append(timed(lambda: len(next(it)["index"]), n_batches))  # noqa: F821 (`it` is bound: the del below confuses ruff)
         del it, loader  # shuts persistent workers down
     # medians of alternating rounds: single rounds vary by +-15% on a 2-core machine, and a best-of
     # would reward whichever arm got the luckiest round

@@ -132,8 +132,9 @@ def cancel_solves_on(event) -> None:
 def sample_numpy(pde, indices, seed: int = 0, on_blowup: str = "raise", params: dict | None = None):
     """``generator.sample`` as numpy: (u float32 [B, T, C, *space] (steady PDEs: [B, C_in + C, *space], see
     ``sample_channels``), {param: float32 [B]}, redraws int64 [B])."""
-    import generator
     import numpy as np
+
+    import generator
 
     traj = generator.sample(pde, indices, seed, on_blowup=on_blowup, params=params)
     u = _joined(traj, np.concatenate, np.asarray)
@@ -225,7 +226,6 @@ def to_jax(t, device):
     """Contiguous torch tensor -> JAX array on JAX device ``device``: a copy through numpy on the CPU,
     DLPack (zero-copy, shares the tensor's memory: read-only use) on a GPU."""
     import jax
-
     import torch
 
     t = t.detach().contiguous()

@@ -11,14 +11,13 @@ JAX only (never imports torch). Public API::
                                       (not used, with a warning, if another user owns or may write it)
 """
 
-from .domains import Choice, Domain, Fixed, LogUniform, Uniform, parse_domain
+from . import interactive  # after sampler: it builds on it
 from .catalog import GROUP, GROUPS, PDES, get_pde
+from .domains import Choice, Domain, Fixed, LogUniform, Uniform, parse_domain
 from .ics import IC_KINDS, FourierSeries, GaussianRandomField, GrayScottSpots, InitialCondition, make_ic
 from .pdes import PDE, LinearPDE, Param
 from .sampler import BlowUpError, Trajectory, draw_params, sample, sample_keys, solve
 from .spectral import Grid
-from . import interactive  # after sampler: it builds on it
-
 
 _REFUSED_CACHE_DIRS: set[str] = set()
 

@@ -13,21 +13,21 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 from .pdes.advection import Advection
-from .pdes.allen_cahn import AllenCahn
-from .pdes.cahn_hilliard import CahnHilliard
-from .pdes.fisher_kpp import FisherKPP
-from .pdes.swift_hohenberg import SwiftHohenberg
 from .pdes.advection_diffusion import AdvectionDiffusion
+from .pdes.allen_cahn import AllenCahn
 from .pdes.base import PDE
 from .pdes.burgers import Burgers
+from .pdes.cahn_hilliard import CahnHilliard
 from .pdes.darcy2d import Darcy2D
 from .pdes.diffusion import Diffusion
 from .pdes.dispersion import Dispersion
+from .pdes.fisher_kpp import FisherKPP
 from .pdes.grayscott import GrayScott
 from .pdes.hyper_diffusion import HyperDiffusion
 from .pdes.kdv1d import KdV1D
 from .pdes.ks import KS
 from .pdes.ns2d import NS2D
+from .pdes.swift_hohenberg import SwiftHohenberg
 from .pdes.wave import Wave
 
 # How `pdestream list` and the README group the catalog.

@@ -9,12 +9,11 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from datasets.normalize import Normalization
 from datasets.views import collate, examples
 
-from .metrics import nrmse, rel_l2, summarize
-from datasets.normalize import Normalization
-
 from .data import model_device, to_device
+from .metrics import nrmse, rel_l2, summarize
 from .train import predict
 
 
@@ -67,7 +66,6 @@ def rollout_error(model: nn.Module, norm: Normalization, test: list[dict], k_in:
     horizon: frames to predict (default: the rest of the trajectory).
     """
     model.train(False)  # evaluation mode
-    ndim = model.ndim
     per_frame = []
     for batch in test:
         batch = to_device(batch, model_device(model))

@@ -16,12 +16,12 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from test_data_safety import SMALL, digest, generate, listing, run_cli
 
 import cli
 import datasets
 from datasets import cache as cache_mod
 from datasets.store import HDF5, ZARR, CacheSettings, format_of
-from test_data_safety import SMALL, digest, generate, listing, run_cli
 
 FORMATS = ["h5", "zarr"]
 
@@ -261,7 +261,7 @@ def test_config_of_an_unknown_pde(cache):
     path, _ = cache
     _set_attr(path, "pdestream_config", json.dumps({"pde": "nosuchpde"}))
     with pytest.raises(ValueError, match=f"^{path}: its stored PDE config cannot be used: .*nosuchpde"):
-        datasets.CachedTrajectories(path).pde
+        _ = datasets.CachedTrajectories(path).pde
 
 
 # --- file names -------------------------------------------------------------------------------------------

@@ -13,7 +13,7 @@ import datasets
 import generator
 import surrogate.train as T
 from surrogate import build_model
-from surrogate.modes import (Oracle, Pushforward, SolverInTheLoop, check_fits, make_mode, subsample, training_view)
+from surrogate.modes import Oracle, Pushforward, SolverInTheLoop, check_fits, make_mode, subsample, training_view
 from surrogate.runs import resume_run, train_run
 
 torch.set_num_threads(1)
@@ -131,7 +131,6 @@ def test_oracle_pairs_are_the_solvers_answers():
 
 def test_oracle_drops_states_the_solver_cannot_advance():
     batch = batch_of(PDE, 1, size=4)
-    norm, model = norm_of(batch), net()
     mode = Oracle(1, solver=datasets.SolverOracle(PDE))
     u = batch["x"][:, 0].clone()
     u[1] = float("nan")

@@ -156,7 +156,7 @@ def test_inspect_2d_panels_have_axes_and_colourbars(ns_cache, gs_cache):
                 assert im.origin == "lower" and ax.get_aspect() == 1.0 and " t=" in ax.get_title()
             assert ims[-1].axes.get_xlabel() == "x [length]" and ims[0].axes.get_ylabel() == "y [length]"
             ds = open_cache(path)
-            for c, name in enumerate(ds.attrs["pdestream_fields"].split()):
+            for _c, name in enumerate(ds.attrs["pdestream_fields"].split()):
                 mine = [im for im in ims if im.axes.get_title().startswith(f"{name} #")]
                 assert len(mine) == 6 and len({im.get_clim() for im in mine}) == 1  # shared per field
                 # the image is the stored (y, x) frame itself: row = y, column = x

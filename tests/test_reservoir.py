@@ -34,7 +34,7 @@ def test_store_never_exceeds_the_bound_and_never_serves_an_evicted_trajectory():
     rng = np.random.default_rng(0)
     res = Reservoir(capacity=6, cap_uses=3, n_windows=2, eviction="random", draw="uniform", rng=rng)
     held, uses, next_index = set(), collections.Counter(), 0
-    for step in range(400):
+    for _step in range(400):
         if rng.random() < 0.3 and res.room() >= 2:  # a producer inserts a batch of 2
             before = set(res.index[res.live()].tolist())
             res.insert(torch.zeros(2, 3, 1, 4), torch.zeros(2, 1), np.array([next_index, next_index + 1]))

@@ -251,7 +251,7 @@ def test_report_losses_and_stats_hooks(tmp_path):
     before = copy.deepcopy(model)
     summary = train(model, DataLoader(source, batch_size=None), 6, tmp_path, log_every=2)
     assert len(source.reports) == 6
-    for batch, per_example in source.reports:
+    for _batch, per_example in source.reports:
         assert per_example.dtype == torch.float64 and per_example.shape == (4,) and per_example.device.type == "cpu"
         assert not per_example.requires_grad and bool((per_example > 0).all())
     # the first report is the initial model's error on the first batch: ||pred - target|| / ||target||, normalized

@@ -4,9 +4,9 @@ Checked against things other than the code under test: frames the sampler produc
 -> frame i+1), jax.grad of an independently composed scalar function, and central finite differences in float64.
 """
 
-import numpy as np
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 import torch
 

@@ -6,9 +6,9 @@ import pytest
 import torch
 
 import cli
+from datasets.normalize import Normalization
 from surrogate import MODELS, build_model
 from surrogate.metrics import nrmse, rel_l2
-from datasets.normalize import Normalization
 from surrogate.train import load_checkpoint, train
 
 torch.set_num_threads(1)

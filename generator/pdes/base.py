@@ -188,7 +188,7 @@ class PDE(abc.ABC):
         self._check_steps()
         check_operators(self)
 
-    def check_settings(self) -> None:
+    def check_settings(self) -> None:  # noqa: B027 (an optional hook: most PDEs have nothing more to check)
         """Subclass hook: refuse values of the PDE's own settings (types and finiteness are already checked)."""
 
     def _check_fields(self) -> None:

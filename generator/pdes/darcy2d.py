@@ -14,7 +14,6 @@ is bit-identical alone and in any batch.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 from dataclasses import dataclass

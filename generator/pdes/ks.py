@@ -1,10 +1,9 @@
 """Kuramoto-Sivashinsky: u_t + u u_x + u_xx + nu u_xxxx = 0 in 1D; the scalar (combustion) form
 u_t + |grad u|^2 / 2 + Laplacian(u) + nu Laplacian^2(u) = 0 in 2D."""
 
+import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
-
-import math
 
 from ..domains import Uniform
 from ..ics import FourierSeries

@@ -1,17 +1,16 @@
 """Incompressible Navier-Stokes in vorticity form on the periodic square, decaying or Kolmogorov-forced."""
 
+import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
-
-import math
 
 import jax.numpy as jnp
 import numpy as np
 
 from ..domains import LogUniform
 from ..ics import GaussianRandomField
-from .base import PDE, Param
 from ..spectral import cmul
+from .base import PDE, Param
 from .common import CFL
 
 FORCINGS = ("none", "kolmogorov")
