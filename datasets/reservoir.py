@@ -448,6 +448,7 @@ class ReservoirStream(IterableDataset):
         for key, mine in (("seed", self.seed), ("config_hash", self.pde.config_hash()), ("mode", self.mode)):
             if state.get(key) != mine:
                 raise ValueError(f"reservoir state has {key}={state.get(key)!r} but this stream has {key}={mine!r}")
+        self._check_state(state)
         self.close()
         self._reset_state()
         res = self.res
@@ -481,6 +482,32 @@ class ReservoirStream(IterableDataset):
             params = None if job["params"] is None else {k: np.asarray(v, np.float64) for k, v in job["params"].items()}
             self.pending.append((np.asarray(job["indices"], np.int64), params, None))
         self.proposal.load_state_dict(state["proposal"])
+
+    def _check_state(self, state: dict) -> None:
+        """One line, before anything changes, for a state whose integers are out of range or whose lists
+        disagree in length (a hand-edited or corrupted checkpoint); JSON/torch give Python ints of any size."""
+        last = _bridge.max_index()
+
+        def ints(name: str, values, low: int, high: int) -> np.ndarray:
+            values = list(values) if isinstance(values, (list, tuple)) else [values]
+            bad = [v for v in values if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not low <= v <= high]
+            if bad:
+                raise ValueError(f"reservoir state: {name} holds {_plain(bad[0])!r}; allowed: integers in [{low}, {high}]")
+            return np.asarray(values, np.int64)
+
+        try:
+            n = len(ints("slots", state["slots"], 0, self.capacity - 1))
+            if len(set(state["slots"])) != n:
+                raise ValueError("reservoir state: slots repeat a slot")
+            for name, high in (("index", last), ("uses", 2**62), ("serial", 2**62)):
+                if len(ints(name, state[name], 0, high)) != n:
+                    raise ValueError(f"reservoir state: {name} has {len(state[name])} entries for {n} slots")
+            ints("window_uses", np.ravel(state["window_uses"]).tolist(), 0, 2**62)
+            for name, value in state["counters"].items():
+                ints(f"counters.{name}", value, 0, last + 1 if name == "next_index" else 2**62)
+            ints("evicted_counts", list(state["evicted_counts"]), 0, 2**62)
+        except (KeyError, TypeError) as err:
+            raise ValueError(f"reservoir state is incomplete or malformed ({type(err).__name__}: {err})") from None
 
     def normalization(self, n: int = 64):
         """Per-field mean/std from samples 0..n-1 of this seed (the same calibration as TrajectoryStream)."""

@@ -96,6 +96,26 @@ def test_deterministic_batches_repeat_and_resume_exactly():
     assert same(head + take(resumed, 7), full)
 
 
+@pytest.mark.parametrize("edit, message", [
+    (lambda s: s["counters"].update(next_index=2**64), "counters.next_index holds 18446744073709551616"),
+    (lambda s: s["serial"].__setitem__(0, -1), "serial holds -1"),
+    (lambda s: s["slots"].__setitem__(0, 10**6), "slots holds 1000000"),
+    (lambda s: s["index"].pop(), "index has"),
+    (lambda s: s.pop("uses"), "incomplete or malformed"),
+])
+def test_a_loaded_state_with_bad_integers_is_refused_in_one_line(edit, message):
+    first = stream(draw="uniform", eviction="random")
+    take(first, 3)
+    state = first.state_dict()
+    first.close()
+    edit(state)
+    resumed = stream(draw="uniform", eviction="random")
+    with pytest.raises(ValueError, match=f"^reservoir state.*{message}") as err:
+        resumed.load_state_dict(state)
+    assert "\n" not in str(err.value)
+    resumed.close()
+
+
 def test_examples_are_the_generator_samples_and_reuse_is_bounded():
     batches = take(stream(max_reuse=3, draw="least_used"), 20)
     counts = collections.Counter(i for b in batches for i in b["index"].tolist())
