@@ -443,7 +443,7 @@ def _fill(pde, job: Job, progress: bool) -> int:
                 written += hi - lo
                 bar.update(hi - lo)
         finally:
-            # stops the solver thread; Ctrl-C or a failed write waits at most for the solve in flight
+            # stops the solver thread: it ends at its next bounded compiled call (rollouts run in pieces)
             solved.close()
             bar.close()
         if not (np.asarray(store["complete"][:]) == 1).all():
