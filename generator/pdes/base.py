@@ -156,15 +156,7 @@ class PDE(abc.ABC):
             raise TypeError(f"{type(self).__name__} serves {sorted(self.DIMENSIONS)}D: build it as a catalog entry "
                             "(generator.get_pde(name), names ending in the dimension)")
         self._check_fields()
-        for name, spec in self.PARAMS.items():
-            try:
-                domain = parse_domain(getattr(self, name))
-            except ValueError as err:
-                raise ValueError(f"{self.NAME}: parameter {name}: {err}") from None
-            object.__setattr__(self, name, domain)
-            low = min(domain.bounds)
-            if spec.positive and not low > 0:
-                raise ValueError(f"{self.NAME}: {name}={domain} not allowed: {spec.description} must be > 0")
+        self._parse_params()
         if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < 8 or self.n % 2:
             raise ValueError(f"{self.NAME}: n={self.n!r} not allowed: resolution must be an even integer >= 8")
         if not (self.length > 0 and math.isfinite(self.length)):
@@ -187,6 +179,17 @@ class PDE(abc.ABC):
                 )
         self._check_steps()
         check_operators(self)
+
+    def _parse_params(self) -> None:
+        """Each random parameter's setting -> its Domain (a string, number or Domain), positivity checked."""
+        for name, spec in self.PARAMS.items():
+            try:
+                domain = parse_domain(getattr(self, name))
+            except ValueError as err:
+                raise ValueError(f"{self.NAME}: parameter {name}: {err}") from None
+            object.__setattr__(self, name, domain)
+            if spec.positive and not min(domain.bounds) > 0:
+                raise ValueError(f"{self.NAME}: {name}={domain} not allowed: {spec.description} must be > 0")
 
     def check_settings(self) -> None:  # noqa: B027 (an optional hook: most PDEs have nothing more to check)
         """Subclass hook: refuse values of the PDE's own settings (types and finiteness are already checked)."""

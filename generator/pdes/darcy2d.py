@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import elliptic
-from ..domains import Fixed, parse_domain
+from ..domains import Fixed
 from .base import PDE, Param
 
 # Samples per compiled set-up / solve call: a fixed program shape makes a sample independent of its batch.
@@ -145,14 +145,7 @@ class Darcy2D(PDE):
 
     def __post_init__(self):
         self._check_fields()
-        for name, spec in self.PARAMS.items():
-            try:
-                domain = parse_domain(getattr(self, name))
-            except ValueError as err:
-                raise ValueError(f"{self.NAME}: parameter {name}: {err}") from None
-            object.__setattr__(self, name, domain)
-            if spec.positive and not min(domain.bounds) > 0:
-                raise ValueError(f"{self.NAME}: {name}={domain} not allowed: {spec.description} must be > 0")
+        self._parse_params()
         if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < 5:
             raise ValueError(f"{self.NAME}: n={self.n!r} not allowed: nodes per side (boundary included) must be an integer >= 5")
         if not (self.length > 0 and math.isfinite(self.length)):
