@@ -244,37 +244,6 @@ def consolidate(path: str) -> None:
         zarr.consolidate_metadata(path)
 
 
-# --- one interface over both formats -----------------------------------------------------------------
-def open_store(path: str, mode: str = "r"):
-    """The raw h5py.File / zarr.Group of a cache (mode "r" or "r+"); both index arrays as store[name][...]."""
-    if cache_format(path) == "hdf5":
-        import h5py
-
-        return h5py.File(path, mode)
-    import zarr
-
-    return zarr.open_group(path, mode=mode, zarr_format=3, use_consolidated=False)
-
-
-def mark_complete(store, path: str, value: int = 1) -> None:
-    """Set the global completion flag (written last, after every block's data and flags); ``value=0`` clears
-    it (before damaged samples are rewritten).
-
-    Zarr: one atomic replace of the root ``zarr.json`` (attributes and consolidated metadata together), so a
-    kill at any point leaves either the old or the new file, both readable; never a half-marked cache."""
-    if cache_format(path) == "hdf5":
-        store.attrs["pdestream_complete"] = np.int64(value)
-        store.flush()
-        return
-    meta_path = Path(path) / "zarr.json"
-    meta = json.loads(meta_path.read_text())
-    if not meta.get("consolidated_metadata"):  # a cache cut by an older writer between its two steps
-        consolidate(path)
-        meta = json.loads(meta_path.read_text())
-    meta["attributes"]["pdestream_complete"] = int(value)
-    atomic_write(meta_path, json.dumps(meta, indent=2).encode())
-
-
 def atomic_write(path: Path, data: bytes) -> None:
     """Replace ``path`` with ``data`` in one rename: readers (and a kill) see the old or the new bytes."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -287,27 +256,6 @@ def atomic_write(path: Path, data: bytes) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-
-
-def root_attr_names(path) -> set[str]:
-    """The names of the root attributes of an HDF5 file or a Zarr v3 store, read without writing anything;
-    OSError / ValueError when ``path`` is not one."""
-    path = Path(path)
-    if cache_format(path) == "hdf5":
-        import h5py
-
-        with h5py.File(path, "r", locking=False) as f:  # read-only; another process may hold it open
-            return set(f.attrs.keys())
-    attrs = json.loads((path / "zarr.json").read_text()).get("attributes")
-    if not isinstance(attrs, dict):
-        raise ValueError(f"{path}/zarr.json has no attributes")
-    return set(attrs)
-
-
-def close(store) -> None:
-    """Close a store from ``open_store`` (an h5py.File; a zarr.Group needs nothing)."""
-    if hasattr(store, "close"):  # h5py.File; a zarr.Group holds no handle
-        store.close()
 
 
 def disk_bytes(path) -> int:

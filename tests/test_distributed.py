@@ -13,8 +13,9 @@ import pytest
 
 import cli
 import generator
-from datasets import open_cache, schema, write_cache
+from datasets import open_cache, write_cache
 from datasets.distributed import _worker_env, write_cache_dask
+from datasets.store import format_of
 
 try:
     import cloudpickle
@@ -104,11 +105,12 @@ def test_resume_redoes_only_missing_blocks_and_hdf5_is_refused(pde, reference, c
     assert not (tmp_path / "x.h5").exists()
     out = tmp_path / "resume.zarr"
     write_cache(pde, out, N, seed=SEED, block=BLOCK, progress=False)
-    store = schema.open_store(str(out), "r+")  # as if the run died while writing block [4, 8)
+    fmt = format_of(out)
+    store = fmt.open(out, writable=True)  # as if the run died while writing block [4, 8)
     store["u"][4:8] = np.zeros((4, pde.n_frames, pde.n), np.float32)
     store["complete"][4:8] = np.zeros(4, np.int8)
-    store.attrs["pdestream_complete"] = 0
-    schema.consolidate(str(out))
+    fmt.mark_complete(store, value=0)
+    store.close()
     with pytest.raises(FileExistsError):
         write_cache_dask(pde, out, N, seed=SEED, scheduler=cluster.scheduler_address, block=BLOCK)
     done = write_cache_dask(pde, out, N, seed=SEED, scheduler=cluster.scheduler_address, resume=True,
