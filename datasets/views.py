@@ -56,8 +56,30 @@ class ViewProtocol(Protocol):
         takes the first example ``view`` makes of them."""
 
 
+class _OneExample:
+    """Views that make one example of a whole trajectory (or steady sample), starting at frame 0."""
+
+    def per_trajectory(self, n_frames: int) -> int:
+        return 1
+
+    def cut(self, n_frames: int, sub: int) -> tuple[int, int, "ViewProtocol"]:
+        return 0, n_frames, self
+
+    def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
+        return [0]
+
+
+class _OneMap(_OneExample):
+    """A single input -> target map (no rollout), evaluated as it is trained."""
+
+    rollout_k_in = None  # one map, no rollout
+
+    def evaluation(self) -> "ViewProtocol":
+        return self
+
+
 @dataclass(frozen=True)
-class Whole:
+class Whole(_OneExample):
     """The whole trajectory as one example."""
 
     name = "whole"
@@ -72,15 +94,6 @@ class Whole:
 
     def evaluation(self):
         raise ValueError(f"cannot evaluate a model on the {self.name!r} view; use next_step or operator")
-
-    def per_trajectory(self, n_frames: int) -> int:
-        return 1
-
-    def cut(self, n_frames: int, sub: int) -> tuple[int, int, "ViewProtocol"]:
-        return 0, n_frames, self
-
-    def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
-        return [0]
 
     def example(self, u: torch.Tensor, t: torch.Tensor, start: int) -> dict:
         return {"u": u, "t": t}
@@ -161,13 +174,12 @@ class NextStep:
 
 
 @dataclass(frozen=True)
-class Operator:
+class Operator(_OneMap):
     """Frame t_in -> frame t_out (negative indices count from the end; default u(0) -> u(t_end))."""
 
     t_in: int = 0
     t_out: int = -1
     name = "operator"
-    rollout_k_in = None  # one map, no rollout
 
     def check(self, n_frames: int) -> None:
         for label, value in (("t_in", self.t_in), ("t_out", self.t_out)):
@@ -179,18 +191,6 @@ class Operator:
     def channels(self, c: int) -> tuple[int, int]:
         """(in, out) model channels for c fields: one frame in, one frame out."""
         return c, c
-
-    def evaluation(self) -> "Operator":
-        return self
-
-    def per_trajectory(self, n_frames: int) -> int:
-        return 1
-
-    def cut(self, n_frames: int, sub: int) -> tuple[int, int, "ViewProtocol"]:
-        return 0, n_frames, self
-
-    def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
-        return [0]
 
     def example(self, u: torch.Tensor, t: torch.Tensor, start: int) -> dict:
         return {"x": u[self.t_in], "y": u[self.t_out]}
@@ -206,7 +206,7 @@ class Operator:
 
 
 @dataclass(frozen=True)
-class SteadyOperator:
+class SteadyOperator(_OneMap):
     """A steady sample's input fields -> its solution: s [C_in + C, *space] -> {"x": s[:C_in], "y": s[C_in:]}."""
 
     n_inputs: int
@@ -218,23 +218,9 @@ class SteadyOperator:
     def steady(self, n_inputs: int) -> "SteadyOperator":
         return self
 
-    rollout_k_in = None  # one map, no rollout
-
     def channels(self, c: int) -> tuple[int, int]:
         """(in, out) model channels: the input fields -> the c solution fields."""
         return self.n_inputs, c
-
-    def evaluation(self) -> "SteadyOperator":
-        return self
-
-    def per_trajectory(self, n_frames: int) -> int:
-        return 1
-
-    def cut(self, n_frames: int, sub: int) -> tuple[int, int, "ViewProtocol"]:
-        return 0, n_frames, self
-
-    def starts(self, n_frames: int, generator: torch.Generator | None = None) -> list[int]:
-        return [0]
 
     def example(self, u: torch.Tensor, t: torch.Tensor, start: int) -> dict:
         return {"x": u[: self.n_inputs], "y": u[self.n_inputs :]}
