@@ -29,6 +29,7 @@ class ViewProtocol(Protocol):
 
     name: str  # its name in VIEWS (run.json, checkpoints)
     rollout_k_in: int | None  # frames an autoregressive rollout starts from (next_step: k_in); None: no rollout
+    frames_out: int  # target frames per example (next_step: k_out; a single map: 1)
 
     def check(self, n_frames: int) -> None:
         """ValueError when trajectories of ``n_frames`` frames cannot give this view's examples."""
@@ -48,6 +49,10 @@ class ViewProtocol(Protocol):
     def evaluation(self) -> "ViewProtocol":
         """The view held-out errors are computed under; ValueError when a model cannot be evaluated on this one."""
 
+    def ahead(self, k_out: int) -> "ViewProtocol":
+        """This view with ``k_out`` target frames per example (for training modes that unroll); ValueError (one
+        line) when the view has no frames ahead of its input (rollout_k_in is None)."""
+
     def per_trajectory(self, n_frames: int) -> int:
         """Examples a map-style reader (``CachedTrajectories``) makes of one stored trajectory."""
 
@@ -58,6 +63,11 @@ class ViewProtocol(Protocol):
 
 class _OneExample:
     """Views that make one example of a whole trajectory (or steady sample), starting at frame 0."""
+
+    frames_out = 1
+
+    def ahead(self, k_out: int) -> "ViewProtocol":
+        raise ValueError(f"the {self.name!r} view has no frames ahead of its input; allowed: next_step")
 
     def per_trajectory(self, n_frames: int) -> int:
         return 1
@@ -154,6 +164,15 @@ class NextStep:
     def rollout_k_in(self) -> int:
         """Frames an autoregressive rollout of a model trained on this view starts from."""
         return self.k_in
+
+    @property
+    def frames_out(self) -> int:
+        """Target frames per example."""
+        return self.k_out
+
+    def ahead(self, k_out: int) -> "NextStep":
+        """The same windows with ``k_out`` target frames each."""
+        return NextStep(self.k_in, k_out, self.windows)
 
     def channels(self, c: int) -> tuple[int, int]:
         """(in, out) model channels for c fields: k_in (k_out) frames stacked into channels."""

@@ -73,7 +73,7 @@ class Mode(Protocol):
 
 
 def _next_step(view, mode: str) -> None:
-    if not isinstance(view, datasets.NextStep):
+    if view.rollout_k_in is None:  # the view makes no windows of frames to unroll over
         raise ValueError(f"--mode {mode} needs the next_step view, not {view.name!r}; use --view next_step")
 
 
@@ -106,7 +106,7 @@ class OneStep:
         return self
 
     def frames_ahead(self, view) -> int:
-        return view.k_out if isinstance(view, datasets.NextStep) else 1
+        return view.frames_out
 
     def channels(self, pde, view) -> tuple[int, int]:
         from .runs import model_channels
@@ -161,7 +161,7 @@ class Pushforward:
         return self.unroll
 
     def channels(self, pde, view) -> tuple[int, int]:
-        return view.k_in * len(pde.FIELDS), len(pde.FIELDS)
+        return view.rollout_k_in * len(pde.FIELDS), len(pde.FIELDS)
 
     def step_loss(self, model, batch, norm, step):
         p = norm.normalize_params(batch["params"])
@@ -206,7 +206,7 @@ class Oracle:
         return 1  # the targets come from the solver; the view only supplies start states
 
     def channels(self, pde, view) -> tuple[int, int]:
-        return view.k_in * len(pde.FIELDS), len(pde.FIELDS)
+        return view.rollout_k_in * len(pde.FIELDS), len(pde.FIELDS)
 
     def draws(self, step: int, batch: int) -> torch.Tensor:
         """Unrolled steps per example, int64 [batch] in 0..unroll: a pure function of (seed, step)."""
@@ -371,9 +371,10 @@ def training_view(mode: Mode, view):
     if isinstance(mode, OneStep):
         return view
     _next_step(view, mode.name)
-    if isinstance(mode, SolverInTheLoop) and view.k_in != 1:
-        raise ValueError(f"--mode solver-in-the-loop corrects one state at a time: --k-in={view.k_in} not allowed; use 1")
-    return datasets.NextStep(view.k_in, mode.frames_ahead(view), view.windows)
+    if isinstance(mode, SolverInTheLoop) and view.rollout_k_in != 1:
+        raise ValueError(f"--mode solver-in-the-loop corrects one state at a time: --k-in={view.rollout_k_in} not allowed; "
+                         "use 1")
+    return view.ahead(mode.frames_ahead(view))
 
 
 def check_fits(mode: Mode, view, pde) -> None:
@@ -381,10 +382,11 @@ def check_fits(mode: Mode, view, pde) -> None:
     if pde.STEADY:  # no frames to fit: the view's own check says what a steady PDE's samples allow
         datasets.for_sample(view, pde.n_frames, len(pde.INPUTS))
         return
-    if isinstance(view, datasets.NextStep) and view.k_in + view.k_out > pde.n_frames:
-        raise ValueError(f"--mode {mode.name} with --unroll {mode.unroll} and --k-in {view.k_in} needs "
-                         f"{view.k_in + view.k_out} frames per window but the trajectories have {pde.n_frames}; "
-                         f"allowed: --unroll <= {pde.n_frames - view.k_in}")
+    k_in = view.rollout_k_in
+    if k_in is not None and k_in + view.frames_out > pde.n_frames:
+        raise ValueError(f"--mode {mode.name} with --unroll {mode.unroll} and --k-in {k_in} needs "
+                         f"{k_in + view.frames_out} frames per window but the trajectories have {pde.n_frames}; "
+                         f"allowed: --unroll <= {pde.n_frames - k_in}")
 
 
 @torch.no_grad()
@@ -406,7 +408,7 @@ def rollout_errors(mode: Mode, model, norm: Normalization, test: list[dict], k_i
 def mode_test_errors(mode: Mode, model, norm: Normalization, view, test: list[dict]) -> dict:
     """{"rel_l2", "nrmse", "rollout" (mean per frame), "rollout_final"} of a mode that predicts one frame per
     step: one-step errors on every (frame, next frame) pair, and the whole rollout from the first k_in frames."""
-    k_in = view.k_in
+    k_in = view.rollout_k_in
     rel, nr = [], []
     model.train(False)
     for batch in test:

@@ -177,6 +177,35 @@ def test_bad_settings_are_one_line():
         assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
 
 
+class Described:
+    """Any view object, seen only through what it declares (ViewProtocol): not a NextStep nor any view class."""
+
+    def __init__(self, view):
+        self.view = view
+
+    def __getattr__(self, name):
+        return getattr(self.view, name)
+
+
+def test_modes_ask_the_view_not_its_class():
+    windows = Described(datasets.NextStep(2, 1, 4))
+    assert training_view(Pushforward(3), windows) == datasets.NextStep(2, 3, 4)
+    assert training_view(Oracle(3), windows) == datasets.NextStep(2, 1, 4)
+    assert make_mode({"name": "one-step"}).frames_ahead(Described(datasets.NextStep(1, 3))) == 3
+    assert make_mode({"name": "one-step"}).frames_ahead(Described(datasets.Operator())) == 1
+    assert Pushforward(2).channels(PDE, windows) == (2, 1)
+    check_fits(Pushforward(8), Described(datasets.NextStep(1, 8)), PDE)  # 9 of 11 frames: fits
+    for call, message in [
+        (lambda: training_view(Oracle(2), Described(datasets.Operator())), "needs the next_step view, not 'operator'"),
+        (lambda: check_fits(Pushforward(11), Described(datasets.NextStep(1, 11)), PDE), "allowed: --unroll <= 10"),
+        (lambda: training_view(SolverInTheLoop(2), windows), "--k-in=2 not allowed"),
+        (lambda: datasets.Operator().ahead(2), "the 'operator' view has no frames ahead"),
+    ]:
+        with pytest.raises(ValueError) as err:
+            call()
+        assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--mode", "one-step", "--unroll", "3"], "--unroll 3 and --coarse-n go with"),
     (["--mode", "pushforward", "--k-out", "2"], "--k-out=2 goes with --mode one-step"),
