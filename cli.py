@@ -185,6 +185,38 @@ def _left_after_interrupt(out: str, resume: bool) -> str:
     return f"{out} holds {done} of {total} samples; run the command with --resume{'' if resume else ' added'} to finish it"
 
 
+def _snapshot(d) -> dict[str, tuple[int, int]] | None:
+    """{name: (inode, mtime ns)} of the entries of directory ``d``, or None when there is no such directory (the
+    command will create it): what was there before a command, so an interrupt removes only what it created."""
+    from pathlib import Path
+
+    d = Path(d)
+    if not d.is_dir():
+        return None
+    return {e.name: (e.stat().st_ino, e.stat().st_mtime_ns) for e in os.scandir(d)}
+
+
+def _remove_created(d, before: dict[str, tuple[int, int]] | None) -> None:
+    """Remove what the command created in directory ``d``: ``d`` itself if it did not exist before (``before`` is
+    None), else its new entries and the files replaced since (atomic writes make a new inode); entries that were
+    there and are unchanged, or directories that were there, stay."""
+    import shutil
+    from pathlib import Path
+
+    d = Path(d)
+    if before is None:
+        shutil.rmtree(d, ignore_errors=True)
+        return
+    for e in list(os.scandir(d)) if d.is_dir() else []:
+        if e.name in before and (e.is_dir(follow_symlinks=False) or before[e.name] == (e.stat().st_ino,
+                                                                                        e.stat().st_mtime_ns)):
+            continue
+        if e.is_dir(follow_symlinks=False):
+            shutil.rmtree(e.path, ignore_errors=True)
+        else:
+            Path(e.path).unlink(missing_ok=True)
+
+
 def check_disk_room(pde, out: str, n: int) -> None:
     """Refuse (one line) a new cache that cannot fit on its disk: --n x the bytes of one sample vs the free space
     where it goes (a huge --n would otherwise run until the disk is full)."""
@@ -460,12 +492,28 @@ def cmd_train(args: argparse.Namespace) -> None:
         raise ValueError(f"--test-samples={args.test_samples} not allowed; must be >= 1")
     if args.checkpoint_every < 0:
         raise ValueError(f"--checkpoint-every={args.checkpoint_every} not allowed; must be >= 0 (0: only at the end)")
-    s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
-                  view=_view_from_args(args, "next_step"), steps=args.steps, batch_size=args.batch_size, lr=args.lr,
-                  seed=args.seed, n_test=args.test_samples, explicit=named[1],
-                  checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args), device=args.device,
-                  mode=mode_cfg(args))
+    before = _snapshot(args.out)
+    try:
+        s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
+                      view=_view_from_args(args, "next_step"), steps=args.steps, batch_size=args.batch_size,
+                      lr=args.lr, seed=args.seed, n_test=args.test_samples, explicit=named[1],
+                      checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args), device=args.device,
+                      mode=mode_cfg(args))
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(_train_left(Path(args.out), before)) from None
     _print_run(s, args.model, args.source, args.test_samples, args.out)
+
+
+def _train_left(out, before) -> str:
+    """What an interrupted fresh `train` leaves, in words. With a checkpoint the run stays for --resume. Without
+    one nothing of the training is saved, so what the command created (run.json, the directory) is removed
+    rather than kept for a resume from step 0: the same command then starts again, with no --overwrite."""
+    if (out / "metrics.json").is_file():  # finished before the interrupt (or an old finished run, untouched)
+        return f"{out} holds a finished run"
+    if (out / "checkpoint.pt").is_file():
+        return f"{out} holds a checkpoint; pdestream train --resume {out} continues from it"
+    _remove_created(out, before)
+    return "nothing was kept (no checkpoint yet); run the command again to start over"
 
 
 def _resume_train(args: argparse.Namespace) -> None:
@@ -569,11 +617,38 @@ def check_compare_out(out: str, overwrite: bool) -> None:
 
 
 def cmd_compare(args: argparse.Namespace) -> None:
+    check_compare_out(args.out, args.overwrite)
+    before = _snapshot(args.out)
+    try:
+        _compare(args)
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(_compare_left(args.out, before)) from None
+
+
+def _compare_left(out: str, before) -> str:
+    """What an interrupted `compare` leaves, in words. Finished runs (and tables) are kept; without them nothing
+    of value was written (a rerun rewrites the cache too), so what the command created in --out is removed."""
+    from pathlib import Path
+
+    d = Path(out)
+    if not d.is_dir():
+        return "nothing was written"
+    tables = [n for n in ("compare.md", "compare.json") if (d / n).is_file()]
+    runs = sorted(p.name for p in d.iterdir() if p.is_dir() and ((p / "metrics.json").is_file()
+                                                                 or (p / "arm.json").is_file()))
+    if tables or runs:
+        kept = ", ".join(tables + [f"{r}/" for r in runs][:4]) + (", ..." if len(runs) > 4 else "")
+        return (f"{out} keeps {len(runs)} finished run{'' if len(runs) == 1 else 's'} ({kept}); "
+                "pass --overwrite to run the comparison again")
+    _remove_created(d, before)
+    return "nothing was kept (no run had finished)"
+
+
+def _compare(args: argparse.Namespace) -> None:
     from pathlib import Path
 
     from surrogate.compare import CompareConfig, compare
 
-    check_compare_out(args.out, args.overwrite)
     if args.modes is not None:
         return _interactive_compare(args)
     if args.unroll is not None or args.coarse_n is not None or args.fine_n is not None:

@@ -165,8 +165,80 @@ def test_ctrl_c_stops_stream_training_within_seconds(tmp_path):
         proc.send_signal(signal.SIGINT)
         time.sleep(0.2)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130 and err == "pdestream: interrupted\n", err[-2000:]
+    assert proc.returncode == 130, err[-2000:]
+    assert err == "pdestream: interrupted; nothing was kept (no checkpoint yet); run the command again to start over\n"
     assert time.monotonic() - t0 < 10
+    assert not out.exists()  # the run directory it created, with run.json: the same command starts again
+
+
+def test_ctrl_c_in_compare_removes_the_out_dir_it_created(tmp_path):
+    out = tmp_path / "cmp"
+    proc = subprocess.Popen([sys.executable, "-m", "cli", "compare", "burgers1d", "--modes", "one-step", "--quick",
+                             "--steps", "100000", "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    _wait_for_solving(proc, out / "one-step" / "run.json", seconds=1.0)  # the first arm is training
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-2000:]
+    assert err == "pdestream: interrupted; nothing was kept (no run had finished)\n"
+    assert sorted(tmp_path.iterdir()) == []  # no empty DIR that would need --overwrite
+
+
+def _interrupting(monkeypatch, module, name, at, files):
+    """Replace ``module.name`` (a run or a comparison writing to its positional argument ``at``, the output
+    directory) by one that writes ``files`` (paths under it) and is then interrupted."""
+    import importlib
+    from pathlib import Path
+
+    def interrupted(*args, **kwargs):
+        out = Path(args[at])
+        for f in files:
+            (out / f).parent.mkdir(parents=True, exist_ok=True)
+            (out / f).write_text("{}")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(importlib.import_module(module), name, interrupted)
+
+
+TRAIN = ["train", "burgers1d", "--set=n=32", "--set=n_frames=3", "--steps", "5"]
+
+
+def test_interrupted_train_keeps_a_checkpoint_and_only_what_it_did_not_create(tmp_path, monkeypatch, capsys):
+    import cli
+
+    out = tmp_path / "run"
+    _interrupting(monkeypatch, "surrogate.runs", "train_run", 2, ["run.json", "checkpoint.pt"])
+    assert cli.main([*TRAIN, "--out", str(out)]) == 130
+    assert capsys.readouterr().err == (f"pdestream: interrupted; {out} holds a checkpoint; pdestream train --resume "
+                                       f"{out} continues from it\n")
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoint.pt", "run.json"]
+    # no checkpoint yet, in a directory that was there: only what the command wrote goes (run.json replaced)
+    (out / "checkpoint.pt").unlink()
+    (out / "notes.txt").write_text("mine")
+    _interrupting(monkeypatch, "surrogate.runs", "train_run", 2, ["run.json", "metrics.csv"])
+    assert cli.main([*TRAIN, "--out", str(out), "--overwrite"]) == 130
+    assert "nothing was kept (no checkpoint yet)" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+
+
+def test_interrupted_compare_keeps_finished_runs_and_what_it_did_not_create(tmp_path, monkeypatch, capsys):
+    import cli
+
+    argv = ["compare", "burgers1d", "--modes", "one-step,pushforward", "--quick", "--out"]
+    out = tmp_path / "cmp"
+    _interrupting(monkeypatch, "surrogate.interactive_compare", "interactive_compare", 1,
+                  ["one-step/run.json", "one-step/metrics.json", "pushforward/run.json"])
+    assert cli.main([*argv, str(out)]) == 130
+    assert capsys.readouterr().err == (f"pdestream: interrupted; {out} keeps 1 finished run (one-step/); pass "
+                                       "--overwrite to run the comparison again\n")
+    assert sorted(p.name for p in out.iterdir()) == ["one-step", "pushforward"]
+    mine = tmp_path / "mine"  # a directory the user made: it stays, with what was in it
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    _interrupting(monkeypatch, "surrogate.interactive_compare", "interactive_compare", 1, ["one-step/run.json"])
+    assert cli.main([*argv, str(mine)]) == 130
+    assert capsys.readouterr().err == "pdestream: interrupted; nothing was kept (no run had finished)\n"
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
 
 
 def test_stale_work_copies_of_dead_writers_are_removed_by_the_next_run(tmp_path):
