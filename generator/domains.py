@@ -170,12 +170,13 @@ def parse_domain(spec: Domain | str | float | int) -> Domain:
     match = _CALL.match(spec)
     if match is None:
         try:
-            return Fixed(_number(spec, spec))
+            float(spec)
         except ValueError:
             raise ValueError(
                 f"bad domain {spec!r}: expected a number or one of "
                 "fixed(v), uniform(a, b), loguniform(a, b), choice(v1, v2, ...)"
             ) from None
+        return Fixed(_number(spec, spec))  # a number that float() reads but is not finite ('nan', '1e400') says so
     kind, args = match.group(1).lower(), match.group(2)
     if kind not in DOMAIN_KINDS:
         raise ValueError(f"bad domain {spec!r}: unknown kind {kind!r}; allowed: {', '.join(DOMAIN_KINDS)}")

@@ -201,17 +201,19 @@ IC_KINDS: Mapping[str, type] = {"fourier": FourierSeries, "grf": GaussianRandomF
 
 
 # --- parsing: kind names, dicts and setting values ---------------------------------------------------------
-def make_ic(value: Any, kinds: Mapping[str, type] | None = None) -> InitialCondition:
+def make_ic(value: Any, kinds: Mapping[str, type] | None = None, listed: list[str] | None = None) -> InitialCondition:
     """An IC distribution from an object, a kind name (defaults) or a dict {"kind": ..., field: ...}; ``kinds``:
-    the vocabulary of kind names (default IC_KINDS; a PDE whose input is another kind of field has its own)."""
+    the vocabulary of kind names (default IC_KINDS; a PDE whose input is another kind of field has its own);
+    ``listed``: the names a refusal offers (default all of ``kinds``; a PDE offers those that fit its fields)."""
     kinds = IC_KINDS if kinds is None else kinds
+    listed = list(kinds) if listed is None else listed
     if isinstance(value, str):
         value = {"kind": value}
     if isinstance(value, Mapping):
         fields = dict(value)
         kind = fields.pop("kind", None)
         if not isinstance(kind, str) or kind not in kinds:
-            raise ValueError(f"unknown ic kind {show(kind)}; allowed: {', '.join(kinds)}")
+            raise ValueError(f"unknown ic kind {show(kind)}; allowed: {', '.join(listed)}")
         cls = kinds[kind]
         defaults = cls()
         try:
@@ -220,7 +222,7 @@ def make_ic(value: Any, kinds: Mapping[str, type] | None = None) -> InitialCondi
             raise ValueError(f"ic kind {kind!r}: {err}") from None
     if isinstance(value, InitialCondition):
         return value
-    raise ValueError(f"bad ic {show(value)}: expected a kind name ({', '.join(kinds)}) or a dict with 'kind'")
+    raise ValueError(f"bad ic {show(value)}: expected a kind name ({', '.join(listed)}) or a dict with 'kind'")
 
 
 def coerce(name: str, value: Any, current: Any) -> Any:

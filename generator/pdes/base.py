@@ -215,11 +215,16 @@ class PDE(abc.ABC):
         """The declared default of setting ``name`` (it decides the setting's kind: int, number, name, ...)."""
         return next(f.default for f in dataclasses.fields(cls) if f.name == name)
 
+    @classmethod
+    def fitting_ic_kinds(cls) -> list[str]:
+        """The names in IC_KINDS whose distributions make as many fields as this PDE has (what `ic=` may name)."""
+        return [k for k, c in cls.IC_KINDS.items() if getattr(c, "field_count", None) in (None, len(cls.FIELDS))]
+
     def _check_ic(self) -> None:
         """The IC fits this PDE: its kind's field count, its own rules on this grid, a float32-safe magnitude."""
         want = getattr(self.ic, "field_count", None)
         if want is not None and want != len(self.FIELDS):
-            fitting = [k for k, c in self.IC_KINDS.items() if getattr(c, "field_count", None) in (None, len(self.FIELDS))]
+            fitting = self.fitting_ic_kinds()
             raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed: it makes {want} fields and {self.NAME} has "
                              f"{len(self.FIELDS)} ({', '.join(self.FIELDS)}); allowed: {', '.join(fitting)}")
         try:
@@ -267,7 +272,10 @@ class PDE(abc.ABC):
             elif key == "ic" and isinstance(value, Mapping) and "kind" not in value:
                 ic_changes.update(value)  # a TOML dotted key `ic.alpha = 2.5` arrives as {"ic": {"alpha": 2.5}}
             elif key == "ic":
-                changes["ic"] = make_ic(value, self.IC_KINDS)
+                try:
+                    changes["ic"] = make_ic(value, self.IC_KINDS, listed=self.fitting_ic_kinds())
+                except ValueError as err:
+                    raise ValueError(f"{self.NAME}: {err}") from None
             elif key in self.config_fields():
                 changes[key] = value if key in self.PARAMS else coerce(key, value, self.default(key))
             else:
