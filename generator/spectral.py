@@ -114,24 +114,29 @@ def etdrk4_coefficients(linear: jax.Array, h: float | jax.Array) -> ETDRK4Coeffi
     # so the float64 gradient checks of generator.interactive see float64 coefficients
     wide = jax.config.jax_enable_x64 and jnp.dtype(hl.dtype) in (jnp.float64, jnp.complex128)
     ctype = jnp.complex128 if wide else jnp.complex64
-    hl = hl.astype(ctype)
+    hl = hl if real else hl.astype(ctype)
     roots = np.exp(2j * np.pi * (np.arange(1, CONTOUR_POINTS + 1) - 0.5) / CONTOUR_POINTS)  # full circle
     if real:  # f(conj z) = conj f(z): the upper half circle's mean has the same real part, at half the cost
         roots = roots[: CONTOUR_POINTS // 2]
-    z = hl[..., None] + jnp.asarray(roots, ctype)  # [..., M] points around each h*L
-    ez, ez2, z3 = jnp.exp(z), jnp.exp(z / 2), z**3
+    # e^(hL + r) = e^(hL) e^r with e^r a constant: one exponential per wavenumber (a real one for real L) instead
+    # of one complex exponential per contour point, and one complex division (1/z, cubed) instead of four. The
+    # per-sample set-up of a 3D PDE (grayscott3d at 32^3: 2 x 17408 values x 16 points) took 14x longer the
+    # direct way, 40% of a 100-step sample; the coefficients agree with a float64 64-point reference as well.
+    exp_hl, exp_hl2 = jnp.exp(hl), jnp.exp(hl / 2)
+    z = hl.astype(ctype)[..., None] + jnp.asarray(roots, ctype)  # [..., M] points around each h*L
+    ez = exp_hl[..., None] * jnp.asarray(np.exp(roots), ctype)
+    ez2 = exp_hl2[..., None] * jnp.asarray(np.exp(roots / 2), ctype)
+    inv = 1 / z
+    inv3 = inv * inv * inv
 
     def mean(f):
         m = jnp.mean(f, axis=-1)
         return m.real if real else m
 
-    q = h * mean((ez2 - 1) / z)
-    f1 = h * mean((-4 - z + ez * (4 - 3 * z + z**2)) / z3)
-    f2 = h * mean((2 + z + ez * (z - 2)) / z3)
-    f3 = h * mean((-4 - 3 * z - z**2 + ez * (4 - z)) / z3)
-    exp_hl, exp_hl2 = jnp.exp(hl), jnp.exp(hl / 2)
-    if real:
-        exp_hl, exp_hl2 = exp_hl.real, exp_hl2.real
+    q = h * mean((ez2 - 1) * inv)
+    f1 = h * mean((-4 - z + ez * (4 - 3 * z + z**2)) * inv3)
+    f2 = h * mean((2 + z + ez * (z - 2)) * inv3)
+    f3 = h * mean((-4 - 3 * z - z**2 + ez * (4 - z)) * inv3)
     return ETDRK4Coefficients(exp_hl, exp_hl2, q, f1, f2, f3)
 
 
