@@ -1,7 +1,7 @@
 """Fisher-KPP travelling fronts: u_t = D Laplacian(u) + r u (1 - u), in 1D and 2D."""
 
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Mapping
 
 from ..domains import LogUniform, Uniform
 from ..ics import FourierSeries
@@ -29,6 +29,9 @@ class FisherKPP(PDE):
 
     EQUATION: ClassVar[str] = "u_t = D Laplacian(u) + r u (1 - u)"
     DIMENSIONS: ClassVar[dict] = {1: {}, 2: {"n": 64}}
+    # u0 must be >= 0: where u < 0 the reaction -r u^2 drives u to -infinity in finite time (the equation itself
+    # blows up, not the scheme), so a signed GRF is not offered and a Fourier series must sit above zero.
+    IC_KINDS: ClassVar[Mapping[str, type]] = {"fourier": FourierSeries}
     PARAMS: ClassVar[dict] = {
         "D": Param("diffusivity", "length^2/time", positive=True),
         "r": Param("growth rate", "1/time", positive=True),
@@ -41,6 +44,13 @@ class FisherKPP(PDE):
     ic: Any = FourierSeries(max_mode=4, decay=1.0, amplitude=0.5, offset=0.5)
     D: Any = LogUniform(2e-3, 2e-2)
     r: Any = Uniform(0.5, 2.0)
+
+    def check_settings(self):
+        offset, amplitude = getattr(self.ic, "offset", None), getattr(self.ic, "amplitude", None)
+        if offset is not None and amplitude is not None and offset < amplitude:
+            raise ValueError(f"{self.NAME}: ic.offset={offset:g} with ic.amplitude={amplitude:g} not allowed: u0 "
+                             f"reaches {offset - amplitude:g} < 0, where u (1 - u) blows up in finite time; "
+                             "need ic.offset >= ic.amplitude (default 0.5, 0.5)")
 
     def linear(self, grid, p):
         return (p["D"] * grid.laplacian() + p["r"])[None]
