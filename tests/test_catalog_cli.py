@@ -3,6 +3,7 @@
 Cheap checks (no solve) run for every entry; the few that solve use one entry per kind of failure found by the
 adversarial pass over the catalog."""
 
+import numpy as np
 import pytest
 
 import cli
@@ -76,3 +77,13 @@ def test_fisher_kpp_refuses_initial_conditions_that_go_negative(capsys, tmp_path
     err = refused_in_one_line(capsys, tmp_path, name, "ic.offset=0.2")
     assert "ic.offset=0.2 with ic.amplitude=0.5 not allowed" in err and "need ic.offset >= ic.amplitude" in err
     assert g.get_pde(name, **{"ic.offset": 0.6}).ic.offset == 0.6
+
+
+def test_grayscott3d_with_a_grf_initial_condition_takes_a_step_that_does_not_blow_up():
+    # the step was dt = 1 whatever the IC; a GRF reaches |u0| ~ 4-5 on this grid and all 8 trajectories blew up
+    pde = g.get_pde("grayscott3d", ic="grf", n=16, length=0.16, n_frames=3)
+    bound = pde.ic.bound(pde.grid)
+    assert bound > 2 and pde.stable_dt() <= 1 / bound**2
+    assert g.get_pde("grayscott3d").stable_dt() == 1.0  # the spots' step (and samples) unchanged
+    traj = g.sample(pde.replace(t_end=5 * pde.stable_dt()), range(4), seed=0)
+    assert np.isfinite(np.asarray(traj.u)).all()
