@@ -281,7 +281,9 @@ def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr:
     p.add_argument("--model-set", action="append", metavar="KEY=VALUE", default=[],
                    help="model setting, e.g. --model-set width=64 --model-set modes=16 (unet: channels, depth)")
     p.add_argument("--view", default=None, choices=["next_step", "operator"],
-                   help="training pairs: next_step (frames k -> k+1) or operator (u(t=0) -> u(t_end))")
+                   help="training pairs: next_step (frames k -> k+1) or operator (u(t=0) -> u(t_end); a steady "
+                        "PDE: input field -> solution) (default: train next_step, operator on a steady PDE; compare "
+                        "operator)")
     p.add_argument("--k-in", type=int, default=1, help="next_step: input frames stacked into channels")
     p.add_argument("--k-out", type=int, default=1, help="next_step: predicted frames")
     p.add_argument("--steps", type=int, default=steps, help="optimizer steps")
@@ -487,6 +489,9 @@ def cmd_train(args: argparse.Namespace) -> None:
         raise FileNotFoundError(f"--source {args.source}: no such cache (or use --source stream)")
     named = settings_from_args(args.pde, args)  # the --config file, read once
     pde = pde_from_args(args.pde, args, named)
+    if pde.STEADY and args.mode != "one-step":  # the modes' own refusal would send the user to --view next_step
+        raise ValueError(f"--mode {args.mode} unrolls over frames and {pde.NAME} is steady (no frames); allowed: "
+                         "--mode one-step")
     _set_threads(default_threads(args.source) if args.threads is None else args.threads)
     if args.test_samples < 1:
         raise ValueError(f"--test-samples={args.test_samples} not allowed; must be >= 1")
@@ -495,7 +500,8 @@ def cmd_train(args: argparse.Namespace) -> None:
     before = _snapshot(args.out)
     try:
         s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
-                      view=_view_from_args(args, "next_step"), steps=args.steps, batch_size=args.batch_size,
+                      view=_view_from_args(args, "operator" if pde.STEADY else "next_step"),  # steady: no frames
+                      steps=args.steps, batch_size=args.batch_size,
                       lr=args.lr, seed=args.seed, n_test=args.test_samples, explicit=named[1],
                       checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args), device=args.device,
                       mode=mode_cfg(args))

@@ -87,3 +87,22 @@ def test_grayscott3d_with_a_grf_initial_condition_takes_a_step_that_does_not_blo
     assert g.get_pde("grayscott3d").stable_dt() == 1.0  # the spots' step (and samples) unchanged
     traj = g.sample(pde.replace(t_end=5 * pde.stable_dt()), range(4), seed=0)
     assert np.isfinite(np.asarray(traj.u)).all()
+
+
+TINY_TRAIN = ["--steps", "2", "--batch-size", "2", "--test-samples", "1", "--checkpoint-every", "0"]
+
+
+def test_train_on_a_steady_entry_defaults_to_its_operator_view(capsys, tmp_path):
+    # the default view was next_step for every entry, so `pdestream train darcy2d` was refused until --view operator
+    code, out, err = run_cli(capsys, "train", "darcy2d", "--set", "n=17", *TINY_TRAIN, "--out", str(tmp_path / "r"))
+    assert code == 0, err
+    assert "rel L2" in out and (tmp_path / "r" / "model.pt").exists()
+
+
+@pytest.mark.parametrize("mode", ["pushforward", "oracle", "solver-in-the-loop"])
+def test_an_unrolling_mode_on_a_steady_entry_is_refused_without_pointing_at_next_step(capsys, tmp_path, mode):
+    code, _, err = run_cli(capsys, "train", "darcy2d", "--set", "n=17", "--mode", mode, *TINY_TRAIN,
+                           "--out", str(tmp_path / "r"))
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"--mode {mode} unrolls over frames and darcy2d is steady" in err and "--view next_step" not in err
+    assert list(tmp_path.iterdir()) == []
