@@ -601,6 +601,21 @@ BUDGET_ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")
 COMPARE_DEFAULTS = {"n": "64", "n_frames": "11"}  # small enough for ~10 min on 2 CPU cores
 
 
+def compare_sets(args: argparse.Namespace) -> list[str]:
+    """COMPARE_DEFAULTS as --set items ahead of the user's own: never a finer grid than the entry's default (a 3D
+    entry keeps its n=32; n=64 was 8x the points and a reservoir past the machine's memory) and only the settings
+    the entry has (a steady one has no frames: darcy2d was refused for an n_frames the user never set)."""
+    import generator
+
+    name, _ = settings_from_args(args.pde, args)
+    if name not in generator.PDES:
+        return list(args.set)  # pde_from_args refuses the name in its own words
+    base = generator.PDES[name]()
+    fields = base.config_fields()
+    defaults = {k: (str(min(int(v), base.n)) if k == "n" else v) for k, v in COMPARE_DEFAULTS.items() if k in fields}
+    return [f"{k}={v}" for k, v in defaults.items()] + list(args.set)
+
+
 COMPARE_OUTPUTS = ("compare.md", "compare.csv", "compare.json", "compare.png", "cache.h5", "cache.zarr")
 RUN_FILES = ("model.pt", "metrics.json", "arm.json", "run.json", "checkpoint.pt")
 
@@ -661,7 +676,7 @@ def _compare(args: argparse.Namespace) -> None:
         raise ValueError("--unroll, --coarse-n and --fine-n go with --modes (compare training modes)")
     if args.budget is not None or args.sim_budget is not None or args.quick:
         return _budget_compare(args)
-    args.set = [f"{k}={v}" for k, v in COMPARE_DEFAULTS.items()] + list(args.set)
+    args.set = compare_sets(args)
     pde = pde_from_args(args.pde, args)
     _set_threads(1 if args.threads is None else args.threads)
     from surrogate.fno import COMPARE_FNO
@@ -687,7 +702,7 @@ def _budget_compare(args: argparse.Namespace) -> None:
     from surrogate.budget import BudgetConfig, budget_compare
 
     if args.quick:
-        args.set = [f"{k}={v}" for k, v in COMPARE_DEFAULTS.items()] + list(args.set)
+        args.set = compare_sets(args)
         if args.budget is None and args.sim_budget is None:
             args.budget = 20.0
     pde = pde_from_args(args.pde, args)

@@ -106,3 +106,14 @@ def test_an_unrolling_mode_on_a_steady_entry_is_refused_without_pointing_at_next
     assert code == 2 and len(err.strip().splitlines()) == 1, err
     assert f"--mode {mode} unrolls over frames and darcy2d is steady" in err and "--view next_step" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_compare_defaults_never_refine_an_entry_and_fit_its_settings(name):
+    # compare put n=64, n_frames=11 on every entry: 8x the points of a 3D entry (a reservoir refused for 16.5 GiB),
+    # and an n_frames that darcy2d does not have ("unknown setting 'n_frames'", never typed by the user)
+    args = cli.build_parser().parse_args(["compare", name, "--quick", "--out", "x", "--set", "n=16"])
+    sets = cli.compare_sets(args)
+    assert sets[-1] == "n=16"  # the user's own --set comes last and wins
+    pde = g.get_pde(name, cli._parse_sets(sets[:-1]))
+    assert pde.n == min(64, g.get_pde(name).n)
