@@ -2,8 +2,9 @@
 
 JAX only. A state is u [B, C, *space] (the PDE's fields on its grid), parameters are {name: [B]}. One frame is
 the PDE's ``frame_dt``, taken as its own ``steps_per_frame`` ETDRK4 steps of ``step_dt`` with the PDE's linear
-and nonlinear parts, through ``spectral.rollout`` (the sampler's stepping loop), so advancing frame i of a
-sampled trajectory by one frame gives frame i+1 up to float32 rounding (the state re-enters Fourier space).
+and nonlinear parts, through the sampler's stepping loop (``advance`` in its bounded calls, so a Ctrl-C stops a
+long one; ``advance_vjp`` in one call), so advancing frame i of a sampled trajectory by one frame gives frame i+1
+up to float32 rounding (the state re-enters Fourier space).
 
     advance(pde, u, params, frames)             -> (u_k [B, C, *space], finite bool [B])
     advance_vjp(pde, u, params, frames, wrt)    -> (u_k, finite, vjp); vjp(g) -> (g_u, g_params {name: [B]} | None)
@@ -32,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .pdes import PDE
-from .sampler import SETUP_CHUNK, _coefficients, _join, _stepping
+from .sampler import SETUP_CHUNK, _coefficients, _join, _stepping, advance_bounded
 from .spectral import rollout
 
 
@@ -119,18 +120,6 @@ def _remember(key, coeffs) -> None:
             _cache_bytes[0] -= _nbytes(_cache.popitem(last=False)[1])
 
 
-@functools.lru_cache(maxsize=64)
-def _evolve(pde: PDE, frames: int):
-    """jit of (u [B, C, *space], params {name: [B]}, coefficients) -> (u_k, finite [B])."""
-    step = jax.vmap(functools.partial(_advance_one, pde, frames))
-
-    def run(u, p, c):
-        out = step(u, p, c)
-        return out, _finite(out)
-
-    return jax.jit(run)
-
-
 @functools.lru_cache(maxsize=128)
 def _evolve_vjp(pde: PDE, frames: int, wrt_params: bool):
     """jit of (u, params, coefficients) -> (u_k, finite, VJP closure) w.r.t. u (and params, coefficients)."""
@@ -182,11 +171,18 @@ def advance(pde: PDE, u, params: Mapping[str, jax.Array], frames: int = 1):
     """States u [B, C, *space] with parameters {name: [B]} advanced ``frames`` frames of ``pde.frame_dt``.
 
     Returns (u_k [B, C, *space] of u's dtype, finite bool [B]); the caller decides what a non-finite row means.
-    An element gets the same bits alone or in any batch (see the module docstring).
+    An element gets the same bits alone or in any batch (see the module docstring). The steps run in the
+    sampler's bounded calls (``sampler.advance_bounded``: a Ctrl-C stops a long advance between two), with the
+    bits of ``_advance_one`` in one call.
     """
     u, params = _inputs(pde, u, params, frames)
     coeffs = _coefficients_for(pde, params, u.shape[0], _device(u))
-    return _evolve(pde, frames)(u, params, coeffs)
+    return advance_bounded(pde, u, params, coeffs, frames * _steps_per_frame(pde))
+
+
+@functools.lru_cache(maxsize=64)
+def _steps_per_frame(pde: PDE) -> int:
+    return pde.steps_per_frame  # derived from the stable step each time (~30 us, a tenth of a small advance)
 
 
 def advance_vjp(pde: PDE, u, params: Mapping[str, jax.Array], frames: int = 1, wrt_params: bool = True):

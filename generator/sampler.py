@@ -165,6 +165,12 @@ def _sync(states) -> None:
         raise Cancelled("solve cancelled: its consumer stopped")
 
 
+def _steps(pde: PDE, v, p, coeffs, k):
+    """The state v advanced k ETDRK4 steps (k static or traced)."""
+    masked = _stepping(pde, p)[1]
+    return jax.lax.fori_loop(0, k, lambda _, w: etdrk4_step(w, coeffs, masked), v)
+
+
 @functools.lru_cache(maxsize=64)
 def compiled_stages(pde: PDE):
     """The jit(vmap) programs of a rollout in bounded calls (``frames`` buffers are donated: updated in place):
@@ -187,8 +193,7 @@ def compiled_stages(pde: PDE):
         return jax.lax.dynamic_update_index_in_dim(buf, _stepping(pde, p)[2](v), i, 0)
 
     def steps(v, p, coeffs, k):
-        masked = _stepping(pde, p)[1]
-        return jax.lax.fori_loop(0, k, lambda _, w: etdrk4_step(w, coeffs, masked), v)
+        return _steps(pde, v, p, coeffs, k)
 
     def finish(v, buf, p):
         u = jax.lax.dynamic_update_index_in_dim(buf, _stepping(pde, p)[2](v), last, 0)
@@ -215,13 +220,56 @@ def _evolve_bounded(pde: PDE, parts):
             states = [(*frames(v, buf, p, c, lo, min(lo + k, last)), p, c) for v, buf, p, c in states]
             _sync(states)
     else:  # a frame takes longer than one call: record it, then its steps in pieces
-        k = max(1, DISPATCH_WORK // per_step)
         for i in range(last):
             states = [(v, record(v, buf, p, i), p, c) for v, buf, p, c in states]
-            for done in range(0, spf, k):
-                states = [(steps(v, p, c, min(k, spf - done)), buf, p, c) for v, buf, p, c in states]
+            for k in _pieces(spf, per_step):
+                states = [(steps(v, p, c, k), buf, p, c) for v, buf, p, c in states]
                 _sync(states)
     return [finish(v, buf, p) for v, buf, p, _ in states]
+
+
+def _pieces(n_steps: int, per_step: int) -> list[int]:
+    """Steps per call for ``n_steps`` steps of ``per_step`` point-steps each: at most ~DISPATCH_WORK per call."""
+    k = max(1, DISPATCH_WORK // per_step)
+    return [min(k, n_steps - done) for done in range(0, n_steps, k)]
+
+
+@functools.lru_cache(maxsize=64)
+def compiled_state(pde: PDE):
+    """The jit(vmap) programs of steps that record no frames (``advance_bounded``):
+    enter (u [B, C, *space], params) -> state; leave (state, params) -> (u [B, C, *space], finite [B]);
+    whole (u, params, coefficients, k) -> leave of the state k steps after enter, in one call.
+    float64 stays float64 (generator.interactive's gradient checks under x64)."""
+
+    def enter(u, p):
+        return _stepping(pde, p)[0](u)
+
+    def leave(v, p):
+        u = _stepping(pde, p)[2](v)
+        return u, jnp.all(jnp.isfinite(u))
+
+    def whole(u, p, coeffs, k):
+        return leave(_steps(pde, enter(u, p), p, coeffs, k), p)
+
+    # whole's k is static (a loop of known length, as in the one-call rollout: a traced k cost ~20%)
+    return (jax.jit(jax.vmap(enter)), jax.jit(jax.vmap(leave)),
+            jax.jit(lambda u, p, coeffs, k: jax.vmap(lambda *a: whole(*a, k))(u, p, coeffs), static_argnums=3))
+
+
+def advance_bounded(pde: PDE, u: jax.Array, p: Mapping[str, jax.Array], coeffs, n_steps: int):
+    """States u [B, C, *space] (params {name: [B]}, coefficients [B, ...]) advanced ``n_steps`` ETDRK4 steps,
+    recording no frames, in calls of at most ~DISPATCH_WORK point-steps like a rollout (a Ctrl-C or
+    ``cancel_on`` stops between two): (u_k [B, C, *space], finite [B]), the bits of the steps in one call."""
+    enter, leave, whole = compiled_state(pde)
+    pieces = _pieces(n_steps, int(u.shape[0]) * len(pde.FIELDS) * pde.n**pde.NDIM + STEP_OVERHEAD)
+    if len(pieces) == 1:  # one program (three dispatches and a sync made a one-frame advance 20-40% slower)
+        return whole(u, p, coeffs, n_steps)
+    steps = compiled_stages(pde)[3]
+    v = enter(u, p)
+    for k in pieces:
+        v = steps(v, p, coeffs, k)
+        _sync([(v,)])
+    return leave(v, p)
 
 
 @functools.partial(jax.jit, static_argnums=1)
@@ -249,15 +297,11 @@ def _run_keys(pde: PDE, keys: jax.Array, explicit: np.ndarray, given: np.ndarray
     return u, params, finite
 
 
-def _solve_batch(pde: PDE, u0: jax.Array, params: Mapping[str, jax.Array]):
-    coeffs = jax.lax.map(functools.partial(_coefficients, pde), params)
-    return jax.vmap(functools.partial(_evolve, pde))(u0, params, coeffs)
-
-
 @functools.lru_cache(maxsize=64)
-def compiled_solver(pde: PDE):
-    """jit of (u0 [B, C, *space], params {name: [B]}) -> u; params are traced: new values never recompile."""
-    return jax.jit(functools.partial(_solve_batch, pde))
+def compiled_coefficients(pde: PDE):
+    """jit of params {name: [B]} -> ETDRK4 coefficients [B, ...], one sample per loop step (``solve``);
+    params are traced: new values never recompile."""
+    return jax.jit(lambda params: jax.lax.map(functools.partial(_coefficients, pde), params))
 
 
 @functools.partial(jax.jit, static_argnums=2)
@@ -391,8 +435,9 @@ def solve(pde: PDE | str, u0, params: Mapping[str, float | Sequence[float]]) -> 
     for name, spec in pde.PARAMS.items():
         if spec.positive and not bool(jnp.all(p[name] > 0)):
             raise ValueError(f"{pde.NAME}: {name}={np.asarray(p[name])} not allowed: {spec.description} must be > 0")
-    u = compiled_solver(pde)(u0, p)
-    bad = np.flatnonzero(~np.asarray(jnp.all(jnp.isfinite(u.reshape(batch, -1)), axis=1)))
+    # the sampler's rollout in bounded calls (a Ctrl-C stops it within one), from coefficients of their own program
+    [(u, finite)] = _evolve_bounded(pde, [(u0, p, compiled_coefficients(pde)(p))])
+    bad = np.flatnonzero(~np.asarray(finite))
     if bad.size:
         raise BlowUpError(f"{pde.NAME}: solve blew up (NaN/Inf) for batch entries {bad[:10].tolist()} with step {pde.step_dt:.4g}")
     return Trajectory(u=u, t=pde.times(), params=p, pde=pde)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import generator as g
-from generator.sampler import compiled_setup, compiled_solver, compiled_stages
+from generator.sampler import compiled_coefficients, compiled_setup, compiled_stages
 
 # Small but non-trivial versions of every catalog entry, by one rule (no per-PDE code): a coarser grid with the
 # same spacing (length shrinks with n, so CFL steps and resolution stay those of the default), 4 frames, and at
@@ -106,9 +106,11 @@ def _stages_compiled(pde):
 def test_solve_never_recompiles_for_new_parameters():
     pde = g.get_pde("burgers1d", n=32, n_frames=3, t_end=0.1)
     x = pde.grid.coords()
+    sizes = []
     for nu in (0.01, 0.03, 0.09):
         g.solve(pde, np.sin(2 * np.pi * x)[None, None].repeat(2, 0), {"nu": [nu, nu / 2]})
-    assert compiled_solver(pde)._cache_size() == 1
+        sizes.append((compiled_coefficients(pde)._cache_size(), _stages_compiled(pde)))
+    assert sizes[0][0] == 1 and sizes[0] == sizes[1] == sizes[2]
 
 
 @pytest.mark.parametrize("name", TIMED)

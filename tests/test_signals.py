@@ -61,6 +61,48 @@ def test_bounded_calls_give_the_bits_of_one_call(monkeypatch, name, overrides):
     np.testing.assert_array_equal(np.asarray(generator.sample(pde, [0, 5, 7], seed=3).u), np.asarray(whole.u))
 
 
+def test_solve_and_advance_run_in_bounded_calls_with_the_bits_of_one_call(monkeypatch):
+    """generator.solve and generator.interactive.advance use the rollout's bounded calls (a Ctrl-C or a cancel
+    stops them between two), and give the bits of the one-call programs they ran as before."""
+    import functools
+
+    import jax
+
+    from generator import interactive
+
+    pde = generator.get_pde("burgers1d", {"n": 32, "n_frames": 4, "t_end": 0.3})
+    x = pde.grid.coords()
+    u0 = jnp.asarray(np.stack([np.sin(2 * np.pi * x), np.cos(2 * np.pi * x) ** 3])[:, None], jnp.float32)
+    p = {"nu": jnp.asarray([0.02, 0.05], jnp.float32)}
+    whole = jax.jit(lambda u, q: jax.vmap(functools.partial(sampler._evolve, pde))(
+        u, q, jax.lax.map(functools.partial(sampler._coefficients, pde), q)))(u0, p)  # solve's one call
+    coeffs = interactive._coefficients_for(pde, p, 2, jax.devices("cpu")[0])
+    ahead = jax.jit(jax.vmap(functools.partial(interactive._advance_one, pde, 2)))(u0, p, coeffs)  # advance's
+    syncs = []
+    monkeypatch.setattr(sampler, "_sync", lambda states, sync=sampler._sync: syncs.append(1) or sync(states))
+    for work, overhead in [(2**40, 2**13), (1, 0), (2 * 32 * 3, 0)]:  # one call; a step per call; 3 steps
+        monkeypatch.setattr(sampler, "DISPATCH_WORK", work)
+        monkeypatch.setattr(sampler, "STEP_OVERHEAD", overhead)
+        syncs.clear()
+        assert bool(jnp.array_equal(generator.solve(pde, u0, p).u, whole))
+        solve_calls = len(syncs)
+        u2, finite = interactive.advance(pde, u0, p, frames=2)
+        assert bool(jnp.array_equal(u2, ahead)) and bool(finite.all())
+        steps = pde.steps_per_frame
+        assert (solve_calls, len(syncs) - solve_calls) == {2**40: (1, 0), 1: (3 * steps, 2 * steps),
+                                                           192: (3 * -(-steps // 3), -(-2 * steps // 3))}[work]
+    stop = threading.Event()
+    stop.set()
+    sampler.cancel_on(stop)  # a cancelled thread's solve and advance stop at their first call boundary
+    try:
+        with pytest.raises(sampler.Cancelled):
+            generator.solve(pde, u0, p)
+        with pytest.raises(sampler.Cancelled):
+            interactive.advance(pde, u0, p)
+    finally:
+        sampler.cancel_on(None)
+
+
 # burgers1d on 32 points with a long t_end: ~1500 steps per frame; the whole batch in one call would take
 # tens of seconds, each bounded call a small fraction of a second.
 LONG = {"n": 32, "n_frames": 3, "t_end": 12000}
