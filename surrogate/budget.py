@@ -357,4 +357,20 @@ def _write_tables(out: Path, result: dict, pde, cfg: BudgetConfig) -> None:
                  f"{r['reuse_mean']:.2f}" if r["reuse_mean"] != "" else "-",
                  f"{r['reuse_max']:.2f}" if r["reuse_max"] != "" else "-"]
         lines.append("| " + " | ".join(cells) + " |")
+    note = too_few_steps_note(result["arms"])
+    if note:
+        lines += ["", note]
     (out / "compare.md").write_text("\n".join(lines) + "\n")
+
+
+MIN_STEPS = 20  # below this an arm's errors are those of a barely trained network, whichever arm it is
+
+
+def too_few_steps_note(arms: list[dict]) -> str:
+    """A warning line naming the arms (records with "arm", "steps") that trained fewer than MIN_STEPS steps, or ""
+    (a slow solver at a small --budget, e.g. grayscott2d --quick: 0-1 steps per arm, ranked as if compared)."""
+    few = [f"{a['arm']} ({a['steps']})" for a in arms if a["steps"] < MIN_STEPS]
+    if not few:
+        return ""
+    return (f"**Not a comparison:** {', '.join(few)} trained fewer than {MIN_STEPS} optimizer steps in the budget; "
+            "their errors are those of nearly untrained networks. Raise --budget (or use a coarser grid).")

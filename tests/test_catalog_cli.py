@@ -117,3 +117,13 @@ def test_compare_defaults_never_refine_an_entry_and_fit_its_settings(name):
     assert sets[-1] == "n=16"  # the user's own --set comes last and wins
     pde = g.get_pde(name, cli._parse_sets(sets[:-1]))
     assert pde.n == min(64, g.get_pde(name).n)
+
+
+def test_a_budget_comparison_whose_arms_barely_trained_says_so():
+    # compare grayscott2d --quick: 20 s per arm trained 0-1 steps per arm and the table ranked them anyway
+    from surrogate.budget import MIN_STEPS, too_few_steps_note
+
+    note = too_few_steps_note([{"arm": "precomputed", "steps": 0}, {"arm": "fifo", "steps": MIN_STEPS},
+                               {"arm": "reservoir", "steps": 1}])
+    assert note.startswith("**Not a comparison:** precomputed (0), reservoir (1) trained fewer than")
+    assert too_few_steps_note([{"arm": "fifo", "steps": MIN_STEPS}]) == ""
