@@ -232,8 +232,9 @@ def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=
             continue
         batch = to_device(batch, cfg.device)  # a copy to the GPU counts as waiting for data
         t1 = time.perf_counter()
-        target = stack_frames(norm.normalize(batch["y"]), pde.NDIM)
-        pred = model(stack_frames(norm.normalize(batch["x"]), pde.NDIM), norm.normalize_params(batch["params"]))
+        # of_x / of_y: a steady entry's input field and solution have their own statistics (else both are all fields)
+        target = stack_frames(norm.of_y.normalize(batch["y"]), pde.NDIM)
+        pred = model(stack_frames(norm.of_x.normalize(batch["x"]), pde.NDIM), norm.normalize_params(batch["params"]))
         loss = F.mse_loss(pred, target)
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -275,8 +276,10 @@ def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=
 def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None = None, log=print) -> dict:
     """Run every arm at the budget; write compare.md/csv/json and compare.png; return the result dict."""
     cfg.check()
-    view = datasets.make_view(cfg.view)
-    view.check(pde.n_frames)
+    # fitted to the samples (a steady entry's operator view has no frames to check) and the model built once, so
+    # a 3D entry or a bad --model-set is refused before any solve (it was refused after the test sets and a cache)
+    view = datasets.for_sample(datasets.make_view(cfg.view), pde.n_frames, len(pde.INPUTS))
+    build_model(cfg.model, pde.NDIM, *model_channels(pde, view), len(pde.PARAMS), **cfg.model_cfg)
     datasets.ReservoirStream(pde, view=view, batch_size=cfg.batch_size, capacity=cfg.capacity,
                              solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode,
                              proposal_kwargs={"floor": cfg.proposal_floor})  # settings checked before any work

@@ -22,7 +22,8 @@ import datasets
 
 from .data import test_set
 from .fno import COMPARE_FNO
-from .runs import train_run
+from .models import build_model
+from .runs import model_channels, train_run
 
 
 @dataclass
@@ -75,11 +76,13 @@ def compare(pde, out_dir, cfg: CompareConfig = CompareConfig(), shift_overrides:
             log=print) -> dict:
     """Run both arms for every seed; write the table and the figure; return {"rows": [...], ...}."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     if cfg.cache_samples < 1 or not cfg.seeds:
         raise ValueError(f"compare needs cache_samples >= 1 and at least one seed (got {cfg.cache_samples}, {cfg.seeds})")
+    # fail before any work: the view fitted to the samples (a steady entry has no frames), the model buildable
     view = datasets.make_view(cfg.view)
-    view.check(pde.n_frames)  # fail before any work
+    fitted = datasets.for_sample(view, pde.n_frames, len(pde.INPUTS))
+    build_model(cfg.model, pde.NDIM, *model_channels(pde, fitted), len(pde.PARAMS), **cfg.model_cfg)
+    out.mkdir(parents=True, exist_ok=True)
     cache = out / f"cache.{cfg.cache_format}"
     written = datasets.write_cache(pde, cache, cfg.cache_samples, seed=0, overwrite=True)
     log(written.line())

@@ -127,3 +127,20 @@ def test_a_budget_comparison_whose_arms_barely_trained_says_so():
                                {"arm": "reservoir", "steps": 1}])
     assert note.startswith("**Not a comparison:** precomputed (0), reservoir (1) trained fewer than")
     assert too_few_steps_note([{"arm": "fifo", "steps": MIN_STEPS}]) == ""
+
+
+@pytest.mark.parametrize("extra", [["--quick"], ["--steps", "2", "--seeds", "1"]])
+def test_compare_on_a_3d_entry_is_refused_before_any_solve_leaving_nothing(capsys, tmp_path, extra):
+    # compare burgers3d --quick solved its test sets (40 s), wrote a 132 MiB cache, then refused the 3D model
+    code, _, err = run_cli(capsys, "compare", "advection3d", *extra, "--out", str(tmp_path / "c"))
+    assert code == 2 and "model 'fno': ndim=3 not supported" in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_compare_budget_runs_on_the_steady_entry(capsys, tmp_path):
+    # compare darcy2d --quick: refused for n_frames, then "operator: t_in=0 must come before t_out=-1", then the
+    # training loop normalized the input field with the solution's statistics and fed both fields to the model
+    code, out, err = run_cli(capsys, "compare", "darcy2d", "--quick", "--budget", "2", "--arms", "fifo,precomputed",
+                             "--set", "n=17", "--test-samples", "4", "--out", str(tmp_path / "c"))
+    assert code == 0, err
+    assert "| fifo |" in out and "| precomputed |" in out and (tmp_path / "c" / "compare.png").exists()
