@@ -297,7 +297,10 @@ class SolverInTheLoop:
             raise ValueError(f"solver-in-the-loop: coarse n={self.coarse_n!r} does not fit the fine grid n={n}; "
                              f"allowed: a proper divisor of {n}, e.g. {n // 8 if n % 8 == 0 and n // 8 >= 8 else n // 2}")
         self.factor = n // self.coarse_n
-        self.step = datasets.SolverStep({**pde.config(), "n": self.coarse_n}, frames=1)
+        try:
+            self.step = datasets.SolverStep({**pde.config(), "n": self.coarse_n}, frames=1)
+        except ValueError as err:  # the PDE's refusal speaks of n, which the user set as --coarse-n
+            raise ValueError(f"solver-in-the-loop: --coarse-n {self.coarse_n} not allowed: {err}") from None
         return self
 
     def correct(self, model: nn.Module, norm: Normalization, s: torch.Tensor, p: torch.Tensor) -> torch.Tensor:

@@ -144,3 +144,12 @@ def test_compare_budget_runs_on_the_steady_entry(capsys, tmp_path):
                              "--set", "n=17", "--test-samples", "4", "--out", str(tmp_path / "c"))
     assert code == 0, err
     assert "| fifo |" in out and "| precomputed |" in out and (tmp_path / "c" / "compare.png").exists()
+
+
+def test_a_coarse_grid_the_entry_refuses_is_named_as_coarse_n(capsys, tmp_path):
+    # the refusal spoke of ic.max_mode on n=16 while the user had set --coarse-n 16 (and n=32)
+    code, _, err = run_cli(capsys, "train", "ks1d", "--set", "n=32", "--set", "length=12.566", "--set", "n_frames=3",
+                           "--mode", "solver-in-the-loop", "--unroll", "1", "--coarse-n", "16", *TINY_TRAIN, "--out", str(tmp_path / "r"))
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "solver-in-the-loop: --coarse-n 16 not allowed: ks1d: ic.max_mode=8 not allowed on n=16" in err
+    assert list(tmp_path.iterdir()) == []
