@@ -153,3 +153,11 @@ def test_a_coarse_grid_the_entry_refuses_is_named_as_coarse_n(capsys, tmp_path):
     assert code == 2 and len(err.strip().splitlines()) == 1, err
     assert "solver-in-the-loop: --coarse-n 16 not allowed: ks1d: ic.max_mode=8 not allowed on n=16" in err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_a_domain_on_a_fixed_setting_names_the_entry_and_the_settings_that_take_domains(capsys, tmp_path, name):
+    err = refused_in_one_line(capsys, tmp_path, name, "n=uniform(8, 16)")
+    params = ", ".join(g.PDES[name].PARAMS)
+    assert err == (f"pdestream: error: {name}: bad value for n: 'uniform(8, 16)' is not an integer; n takes one value "
+                   f"for every sample, only the parameters ({params}) take domains"), err

@@ -202,7 +202,8 @@ def test_cache_stream_and_cli_end_to_end(capsys, tmp_path):
         code = cli.main(["train", "darcy2d", "--set", "n=16", "--source", source, "--view", "operator", "--steps",
                          "3", "--test-samples", "4", "--out", str(tmp_path / f"run-{source[-4:]}"), "--threads", "1"])
         assert code == 0, capsys.readouterr().err
-    code = cli.main(["train", "darcy2d", "--set", "n=16", "--steps", "3", "--out", str(tmp_path / "bad")])
+    code = cli.main(["train", "darcy2d", "--set", "n=16", "--view", "next_step", "--steps", "3", "--out",
+                     str(tmp_path / "bad")])  # without --view a steady entry trains on its operator view
     err = capsys.readouterr().err
     assert code == 2 and "next_step needs a time axis" in err and "Traceback" not in err
     assert not (tmp_path / "bad").exists()

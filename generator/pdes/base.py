@@ -276,8 +276,16 @@ class PDE(abc.ABC):
                     changes["ic"] = make_ic(value, self.IC_KINDS, listed=self.fitting_ic_kinds())
                 except ValueError as err:
                     raise ValueError(f"{self.NAME}: {err}") from None
+            elif key in self.PARAMS:
+                changes[key] = value
             elif key in self.config_fields():
-                changes[key] = value if key in self.PARAMS else coerce(key, value, self.default(key))
+                try:
+                    changes[key] = coerce(key, value, self.default(key))
+                except ValueError as err:
+                    domain = isinstance(value, str) and "(" in value  # e.g. n=uniform(8, 16): only parameters vary
+                    hint = (f"; {key} takes one value for every sample, only the parameters "
+                            f"({', '.join(self.PARAMS)}) take domains") if domain and self.PARAMS else ""
+                    raise ValueError(f"{self.NAME}: {err}{hint}") from None
             else:
                 allowed = ", ".join([*self.config_fields(), "ic", "ic.<field>"])
                 raise ValueError(f"{self.NAME}: unknown setting {key!r}; allowed: {allowed}")
