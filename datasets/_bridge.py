@@ -96,10 +96,14 @@ def configure_worker(worker_id: int = 0) -> None:
 
 
 def jax_provenance() -> dict:
-    """What decides the random bits of a sample besides (config, seed, index): JAX's version and PRNG mode."""
+    """What decides the bits of a sample besides (config, seed, index): JAX's version and PRNG mode, and the
+    revision of pdestream's numerics (``generator.NUMERICS``)."""
     import jax
 
-    return {"jax_version": jax.__version__, "jax_threefry_partitionable": int(jax.config.jax_threefry_partitionable)}
+    import generator
+
+    return {"jax_version": jax.__version__, "jax_threefry_partitionable": int(jax.config.jax_threefry_partitionable),
+            "pdestream_numerics": generator.NUMERICS}
 
 
 def resolve_pde(pde):

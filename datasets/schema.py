@@ -12,7 +12,7 @@ Readable by plain xarray (``xr.open_dataset(path, engine="h5netcdf")``, ``xr.ope
     attributes   pde, equation, pdestream_config (full resolved config, JSON), pdestream_config_hash,
                  pdestream_fields, pdestream_params (names in PDE order, space-separated),
                  pdestream_seed, pdestream_n_samples, pdestream_block, pdestream_on_blowup,
-                 pdestream_version, jax_version, jax_threefry_partitionable, pdestream_schema,
+                 pdestream_version, jax_version, jax_threefry_partitionable, pdestream_numerics, pdestream_schema,
                  pdestream_complete (0 until every block is written; set last)
 
 Axis order: the generator's arrays are [..., x, y(, z)] (u[i, j] = u(x_i, y_j)); a cache stores the space

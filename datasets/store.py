@@ -21,7 +21,7 @@ import numpy as np
 from . import schema
 
 # attributes that describe the run a cache came from, besides the PDE config (compared on --resume)
-PROVENANCE = ("jax_version", "jax_threefry_partitionable", "pdestream_schema")
+PROVENANCE = ("jax_version", "jax_threefry_partitionable", "pdestream_numerics", "pdestream_schema")
 
 
 def plain(value):

@@ -7,6 +7,7 @@ JAX only (never imports torch). Public API::
     sample(pde, indices, seed=0)      Trajectory with u [B, T, C, *space] float32, t [T], params {name: [B]}
     solve(pde, u0, params)            trajectory from a caller's initial condition
     interactive.advance(pde, u, params, frames) / advance_vjp(...)   a caller's states [B, C, *space] advanced k frames
+    NUMERICS                          revision of the numerics behind a sample's bits (recorded in caches)
     enable_compilation_cache(path)    JAX's persistent compilation cache, so a new process skips compiling
                                       (not used, with a warning, if another user owns or may write it)
 """
@@ -18,6 +19,11 @@ from .ics import IC_KINDS, FourierSeries, GaussianRandomField, GrayScottSpots, I
 from .pdes import PDE, LinearPDE, Param
 from .sampler import BlowUpError, Trajectory, draw_params, sample, sample_keys, solve
 from .spectral import Grid
+
+# The revision of the numerics that decide a sample's bits for a given (config, seed, index): bumped by every change
+# that alters them (2: ETDRK4 coefficients with one exponential per wavenumber). Caches record it and --resume
+# compares it, so a cache is never finished with samples of other bits.
+NUMERICS = 2
 
 _REFUSED_CACHE_DIRS: set[str] = set()
 
