@@ -772,6 +772,18 @@ def _first_interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
+def _redeliver_interrupt(unraisable) -> None:
+    """sys.unraisablehook: a Ctrl-C whose KeyboardInterrupt was raised where Python cannot raise (inside a gc
+    callback of JAX's, a __del__) is sent again, instead of being printed and lost while the SIGINTs after it
+    are ignored (a compare kept training); other unraisable errors go to the default hook."""
+    if issubclass(unraisable.exc_type, KeyboardInterrupt):
+        signal.signal(signal.SIGINT, _first_interrupt)
+        # from another thread, a little later: sent from here it would be handled in this hook, and dropped again
+        threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT)).start()
+        return
+    sys.__unraisablehook__(unraisable)
+
+
 def _leave(code: int) -> None:
     """The command's exit after an interrupt's clean-up (caches, producers and clusters closed by then): at
     once, since a solver thread may still be inside a call or a compile, which interpreter shutdown would wait
@@ -789,6 +801,9 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, _first_interrupt) if in_main else None
+    hook = sys.unraisablehook
+    if in_main:
+        sys.unraisablehook = _redeliver_interrupt
     interrupted = False
     try:
         args.func(args)
@@ -809,6 +824,7 @@ def main(argv: list[str] | None = None) -> int:
         # shutdown would kill it or abort it); an in-process caller gets its handler back
         if in_main and not (interrupted and argv is None):
             signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
+            sys.unraisablehook = hook
     return 0
 
 

@@ -226,6 +226,26 @@ def test_ctrl_c_in_compare_removes_the_out_dir_it_created(tmp_path):
     assert sorted(tmp_path.iterdir()) == []  # no empty DIR that would need --overwrite
 
 
+def test_an_interrupt_raised_where_python_cannot_raise_is_sent_again(monkeypatch):
+    """A Ctrl-C handled inside a gc callback (JAX has one) or a __del__ cannot raise there: Python prints the
+    KeyboardInterrupt and drops it, and the CLI then ignored every later Ctrl-C. Its unraisable hook sends it again."""
+    import cli
+
+    class Dies:
+        def __del__(self):
+            raise KeyboardInterrupt  # as _first_interrupt does when the signal arrives in here
+
+    previous = signal.signal(signal.SIGINT, cli._first_interrupt)
+    monkeypatch.setattr(sys, "unraisablehook", cli._redeliver_interrupt)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            Dies()  # dropped at once: its __del__ runs
+            for _ in range(200):
+                time.sleep(0.01)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _interrupting(monkeypatch, module, name, at, files):
     """Replace ``module.name`` (a run or a comparison writing to its positional argument ``at``, the output
     directory) by one that writes ``files`` (paths under it) and is then interrupted."""
