@@ -51,7 +51,8 @@ def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_par
     """
     base, pinned = parse_model_name(name)
     if ndim not in (1, 2):
-        raise ValueError(f"model {name!r}: ndim={ndim} not supported; allowed: 1, 2")
+        raise ValueError(f"model {name!r}: ndim={ndim} not supported; allowed: 1, 2 (no 3D surrogate yet: a 3D "
+                         "entry can be generated, cached, streamed and inspected, not trained)")
     if pinned is not None and pinned != ndim:
         raise ValueError(f"model {name!r} is {pinned}D but the PDE is {ndim}D; use {base!r} or {base}{ndim}d")
     cls = MODELS[base]
