@@ -220,6 +220,13 @@ class PDE(abc.ABC):
         """The names in IC_KINDS whose distributions make as many fields as this PDE has (what `ic=` may name)."""
         return [k for k, c in cls.IC_KINDS.items() if getattr(c, "field_count", None) in (None, len(cls.FIELDS))]
 
+    def _check_ic_on_grid(self) -> None:
+        """The IC's own rules on this PDE's grid, the error naming the PDE."""
+        try:
+            self.ic.check(self.grid)
+        except ValueError as err:
+            raise ValueError(f"{self.NAME}: {err}") from None
+
     def _check_ic(self) -> None:
         """The IC fits this PDE: its kind's field count, its own rules on this grid, a float32-safe magnitude."""
         want = getattr(self.ic, "field_count", None)
@@ -227,10 +234,7 @@ class PDE(abc.ABC):
             fitting = self.fitting_ic_kinds()
             raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed: it makes {want} fields and {self.NAME} has "
                              f"{len(self.FIELDS)} ({', '.join(self.FIELDS)}); allowed: {', '.join(fitting)}")
-        try:
-            self.ic.check(self.grid)
-        except ValueError as err:
-            raise ValueError(f"{self.NAME}: {err}") from None
+        self._check_ic_on_grid()
         bound = self.ic.bound(self.grid)
         if not bound <= MAX_IC_BOUND:
             raise ValueError(f"{self.NAME}: ic {self.ic} not allowed: its values reach ~{bound:.3g}; the limit is "

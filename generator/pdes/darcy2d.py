@@ -158,10 +158,7 @@ class Darcy2D(PDE):
         if not isinstance(self.ic, NeumannGRF):
             raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed: the coefficient field comes from "
                              f"ic={NeumannGRF.kind!r} (set ic.tau, ic.alpha)")
-        try:
-            self.ic.check(self.grid)
-        except ValueError as err:
-            raise ValueError(f"{self.NAME}: {err}") from None
+        self._check_ic_on_grid()
 
     @classmethod
     def config_fields(cls) -> list[str]:
