@@ -52,6 +52,7 @@ class ParamProposal:
         self.losses = np.zeros(0)  # their losses [W]
         self.proposed = []  # every proposed unit point (for the plot), list of [D] lists
         self.reports = 0
+        self.dropped = 0  # recorded rows refused for a non-finite loss or parameter
         self._w, self._w_at = None, 0  # pick probabilities of the recorded points, as of self._w_at reports
 
     # --- unit box <-> parameter values -------------------------------------------------------------
@@ -91,12 +92,16 @@ class ParamProposal:
 
     # --- the loop's feedback and the proposals -----------------------------------------------------
     def record(self, params: np.ndarray, losses: np.ndarray) -> None:
-        """Per-sample training losses [B] of samples with parameters [B, P] (PARAMS order); non-finite ignored."""
+        """Per-sample training losses [B] of samples with parameters [B, P] (PARAMS order). A row whose loss or
+        parameters are not finite (a diverged step, a NaN parameter) is dropped and counted in ``dropped``: one
+        such row would otherwise turn the pick weights, and then the proposals sent to the solver, into NaN."""
         losses = np.asarray(losses, np.float64).reshape(-1)
-        ok = np.isfinite(losses)
+        params = np.asarray(params, np.float64).reshape(len(losses), len(self.names))
+        ok = np.isfinite(losses) & np.isfinite(params).all(axis=1)
+        self.dropped += int((~ok).sum())
         if not ok.any() or not self.random:
             return
-        self.points = np.concatenate([self.points, self.to_unit(np.asarray(params)[ok])])[-self.window :]
+        self.points = np.concatenate([self.points, self.to_unit(params[ok])])[-self.window :]
         self.losses = np.concatenate([self.losses, losses[ok]])[-self.window :]
         self.reports += int(ok.sum())
 
@@ -124,8 +129,7 @@ class ParamProposal:
         """Pick probabilities of the recorded points [W]; recomputed once ``window // 2`` new losses have come
         in (the O(128 W) density would otherwise cost a cheap solver's loop a sixth of its time)."""
         if self._w is None or len(self._w) != len(self.losses) or self.reports - self._w_at >= max(1, self.window // 2):
-            w = np.maximum(self.losses, 0.0) ** self.power / self._crowding()
-            self._w = w / w.sum() if w.sum() > 0 else np.full(len(w), 1.0 / len(w))
+            self._w = pick_weights(self.losses, self._crowding(), self.power)
             self._w_at = self.reports
         return self._w
 
@@ -154,7 +158,7 @@ class ParamProposal:
     def state_dict(self) -> dict:
         """Everything the next proposals depend on (plain values; loads with torch.load(weights_only=True))."""
         return {"mode": self.mode, "rng": _plain(self.rng.bit_generator.state), "points": self.points.tolist(),
-                "losses": self.losses.tolist(), "proposed": list(self.proposed), "reports": self.reports,
+                "losses": self.losses.tolist(), "proposed": list(self.proposed), "reports": self.reports, "dropped": self.dropped,
                 "weights": None if self._w is None else self._w.tolist(), "weights_at": self._w_at}
 
     def load_state_dict(self, state: dict) -> None:
@@ -166,8 +170,24 @@ class ParamProposal:
         self.losses = np.asarray(state["losses"], np.float64)
         self.proposed = [list(p) for p in state["proposed"]]
         self.reports = int(state["reports"])
+        self.dropped = int(state.get("dropped", 0))  # states saved before the count existed have none
         self._w = None if state.get("weights") is None else np.asarray(state["weights"], np.float64)
         self._w_at = int(state.get("weights_at", 0))
+
+
+def pick_weights(losses: np.ndarray, crowding: np.ndarray, power: float) -> np.ndarray:
+    """Probabilities [W] proportional to max(loss, 0) ** power / crowding, computed in log space so that losses
+    of 1e300 (or 1e-300) neither overflow nor vanish; uniform when no loss is positive. Inputs are finite
+    (``record`` drops the rest); crowding > 0 (every point counts itself)."""
+    positive = losses > 0 if power > 0 else np.ones(len(losses), bool)  # loss ** 0 == 1, even for loss 0
+    if not positive.any():
+        return np.full(len(losses), 1.0 / len(losses))
+    logw = np.full(len(losses), -np.inf)
+    logw[positive] = -np.log(crowding[positive])
+    if power > 0:
+        logw[positive] += power * np.log(losses[positive])
+    w = np.exp(logw - logw.max())
+    return w / w.sum()
 
 
 def _plain(state):

@@ -282,3 +282,29 @@ def test_proposal_follows_the_loss_not_where_earlier_proposals_crowded():
     prop.record(z[:, None], np.where(z > 0.9, 2.0, 1.0))  # the loss there is only twice as high
     share = (prop.propose(4000)["nu"] > 0.9).mean()
     assert 0.1 < share < 0.3  # ~0.16 follows the loss; weighting by loss alone would give ~0.65
+
+
+def test_proposal_drops_non_finite_rows_and_never_proposes_nan_or_outside_the_box():
+    domains = {"nu": ("loguniform", 0.01, 0.1, ()), "c": ("uniform", -1.0, 1.0, ())}
+    prop = ParamProposal(domains, mode="loss", floor=0.25, seed=0)
+    rng = np.random.default_rng(0)
+    params = np.stack([np.exp(rng.uniform(np.log(0.01), np.log(0.1), 64)), rng.uniform(-1, 1, 64)], 1)
+    params[5] = [np.nan, 0.5]  # one NaN parameter row (the reported failure: 44 of 512 proposals became NaN)
+    losses = rng.uniform(0.1, 1.0, 64)
+    losses[7] = np.inf
+    prop.record(params, losses)
+    assert prop.dropped == 2 and len(prop.losses) == 62
+    out = prop.propose(512)
+    for name, (_, lo, hi, _) in domains.items():
+        assert np.isfinite(out[name]).all() and (out[name] >= lo).all() and (out[name] <= hi).all()
+
+
+def test_proposal_weights_survive_huge_and_tiny_losses():
+    prop = ParamProposal({"nu": ("uniform", 0.0, 1.0, ())}, mode="loss", floor=0.1, power=2.0, seed=0)
+    z = np.linspace(0.01, 0.99, 50)[:, None]
+    losses = np.full(50, 1e-300)
+    losses[40:] = 1e300  # squared: 1e600 overflows float64 ("Probabilities contain NaN" before)
+    prop.record(z, losses)
+    out = prop.propose(400)["nu"]
+    assert np.isfinite(out).all()
+    assert np.mean(out > 0.7) > 0.7  # the steered draws go where the loss is huge
