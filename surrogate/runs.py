@@ -24,6 +24,9 @@ from .train import CHECKPOINT, atomic_write, check_train_settings, load_train_st
 RUN_FILE = "run.json"
 RUN_FORMAT = 1
 # files of a run; a fresh run in a directory first removes these, so no stale checkpoint can be resumed
+# the settings every run.json holds (later additions, device and mode, default when absent)
+RUN_KEYS = ("pde", "source", "model", "model_cfg", "view", "view_args", "steps", "batch_size", "lr", "schedule",
+            "seed", "data_seed", "n_test", "checkpoint_every", "data_cfg", "label")
 RUN_FILES = (RUN_FILE, CHECKPOINT, "model.pt", "metrics.json", "metrics.csv")
 
 
@@ -103,6 +106,9 @@ def read_run(run_dir: Path) -> tuple[dict, dict]:
     if not isinstance(settings, dict) or settings.get("format") != RUN_FORMAT:
         raise ValueError(f"--resume {run_dir}: {RUN_FILE} is not a pdestream run file of format {RUN_FORMAT}")
     ckpt = load_train_state(run_dir / CHECKPOINT)
+    missing = [key for key in RUN_KEYS if key not in settings]
+    if missing:
+        raise ValueError(f"--resume {run_dir}: {RUN_FILE} is damaged: it lacks {', '.join(missing)}")
     if ckpt.get("step") == settings["steps"] and (run_dir / "metrics.json").is_file():
         raise ValueError(f"--resume {run_dir}: the run is already complete ({settings['steps']} of "
                          f"{settings['steps']} steps; see metrics.json)")

@@ -196,6 +196,7 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
     sched = make_schedule(opt, schedule, steps, lr)
     start = time.perf_counter()
     if resume is not None:
+        check_belongs(resume, meta or {})
         normalizer, progress = restore(resume, model, opt, sched, loader, steps)
     else:
         progress = Progress()
@@ -321,6 +322,27 @@ def restore(ckpt: dict, model: nn.Module, opt, sched, loader, steps: int) -> tup
     return Normalization.from_dict(ckpt["normalization"]), Progress.from_checkpoint(ckpt)
 
 
+# What a checkpoint belongs to (train's ``meta``): a resume with a checkpoint of another PDE, grid, view or mode
+# would train on with foreign weights and normalization, so each is compared before anything is loaded.
+BELONGS = {"pde": "PDE configuration", "view": "view", "view_args": "view settings", "mode": "training mode"}
+CHECKPOINT_KEYS = ("format", "step", "steps", "model", "spec", "optimizer", "scheduler", "torch_rng",
+                   "normalization", "rows", "counters", "data", "meta")
+
+
+def check_belongs(ckpt: dict, meta: dict) -> None:
+    """ValueError naming the first difference when checkpoint ``ckpt`` was saved by a run with other ``meta``
+    (PDE config, view, view settings, mode); a key missing on either side is not compared."""
+    saved = ckpt.get("meta") or {}
+    for key, what in BELONGS.items():
+        if key in saved and key in meta and saved[key] != meta[key]:
+            a, b = saved[key], meta[key]
+            if isinstance(a, dict) and isinstance(b, dict):  # name the settings that differ, not two whole dicts
+                diff = sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))
+                a, b = {k: a.get(k) for k in diff}, {k: b.get(k) for k in diff}
+            raise ValueError(f"the checkpoint belongs to another run: its {what} is {a}, this run's is {b}; "
+                             "resume it with its own run directory, or start this one afresh (--overwrite)")
+
+
 def atomic_write(path: Path, data: bytes) -> None:
     """Replace ``path`` with ``data`` all at once: a temp file in the same directory, fsync, os.replace; a
     crash leaves the old file or the new one, never half of one (at worst a stray ``.NAME.*.tmp``)."""
@@ -351,9 +373,15 @@ def save_train_state(out: Path, state: dict) -> None:
 def load_train_state(path) -> dict:
     """checkpoint.pt as a dict (weights_only: plain containers and tensors); ValueError when unreadable."""
     try:
-        return torch.load(path, map_location="cpu", weights_only=True)
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # truncated or foreign file: torch raises several kinds
         raise ValueError(f"{path} cannot be read as a pdestream checkpoint ({type(err).__name__}: {err})".splitlines()[0]) from None
+    if not isinstance(ckpt, dict):
+        raise ValueError(f"{path} is not a pdestream checkpoint: it holds a {type(ckpt).__name__}, not a dict")
+    missing = [key for key in CHECKPOINT_KEYS if key not in ckpt]
+    if missing:
+        raise ValueError(f"{path} is not a complete pdestream checkpoint: it lacks {', '.join(missing)}")
+    return ckpt
 
 
 def save_checkpoint(path, model: nn.Module, normalizer: Normalization, step: int, meta: dict | None = None) -> None:

@@ -283,3 +283,40 @@ def test_a_source_without_hooks_still_trains_and_checkpoints(tmp_path):
     assert "data_stats" not in summary and "reuse_mean" not in read_csv(tmp_path / "metrics.csv")[0]
     ckpt = load(tmp_path / "checkpoint.pt")
     assert ckpt["step"] == 4 and ckpt["data"] is None  # a plain IterableDataset has no state to save
+
+
+def test_a_damaged_checkpoint_or_run_file_is_one_line(tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "run.json").write_text(json.dumps({"format": 1, "steps": 5}))
+    torch.save([1, 2, 3], run / "checkpoint.pt")
+    assert cli.main(["train", "--resume", str(run)]) == 2
+    assert "holds a list, not a dict" in capsys.readouterr().err
+    torch.save({"format": 1, "step": 2}, run / "checkpoint.pt")
+    assert cli.main(["train", "--resume", str(run)]) == 2
+    assert "not a complete pdestream checkpoint: it lacks steps, model" in capsys.readouterr().err
+    model = build_model("fno", 1, 1, 1, 1, width=8, modes=4, layers=2)
+    train(model, DataLoader(FakeSource(), batch_size=None), 4, tmp_path / "ok", checkpoint_every=2)
+    (run / "checkpoint.pt").write_bytes((tmp_path / "ok" / "checkpoint.pt").read_bytes())
+    assert cli.main(["train", "--resume", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "run.json is damaged: it lacks pde, source, model" in err and "Traceback" not in err
+
+
+def test_resume_refuses_a_checkpoint_of_another_pde(tmp_path):
+    def fit(meta, resume=None):
+        torch.manual_seed(0)
+        model = build_model("fno", 1, 1, 1, 1, width=8, modes=4, layers=2)
+        return train(model, DataLoader(FakeSource(), batch_size=None), 4, tmp_path, checkpoint_every=2, meta=meta,
+                     resume=resume)
+
+    mine = {"pde": {"pde": "burgers1d", "n": 32, "nu": "0.01"}, "view": "next_step", "mode": {"name": "one-step"}}
+    fit(mine)
+    ckpt = load(tmp_path / "checkpoint.pt")
+    ckpt["step"] = 2  # as if killed after its first checkpoint
+    other = {**mine, "pde": {"pde": "burgers1d", "n": 64, "nu": "0.01"}}
+    with pytest.raises(ValueError, match=r"belongs to another run: its PDE configuration is \{'n': 32\}, this run's is "
+                                         r"\{'n': 64\}"):
+        fit(other, resume=ckpt)
+    with pytest.raises(ValueError, match="its training mode is"):
+        fit({**mine, "mode": {"name": "oracle"}}, resume=ckpt)
