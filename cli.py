@@ -477,7 +477,7 @@ def cmd_train(args: argparse.Namespace) -> None:
         return _resume_train(args)
     from pathlib import Path
 
-    from surrogate.runs import train_run
+    from surrogate.runs import remove_staging, replace_run, staging_dir, train_run
 
     if args.out is None:
         raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
@@ -497,17 +497,43 @@ def cmd_train(args: argparse.Namespace) -> None:
         raise ValueError(f"--test-samples={args.test_samples} not allowed; must be >= 1")
     if args.checkpoint_every < 0:
         raise ValueError(f"--checkpoint-every={args.checkpoint_every} not allowed; must be >= 0 (0: only at the end)")
-    before = _snapshot(args.out)
+    out = Path(args.out)
+    # --overwrite over a run: the new run is built beside it and moves in only when it finishes (or is interrupted
+    # with a checkpoint, which is then worth resuming); a refusal, a divergence or an early Ctrl-C leave the old one
+    target = staging_dir(out) if held else out
+    before = _snapshot(target)
     try:
-        s = train_run(pde, args.source, args.out, model=args.model, model_cfg=_parse_sets(args.model_set),
+        s = train_run(pde, args.source, target, model=args.model, model_cfg=_parse_sets(args.model_set),
                       view=_view_from_args(args, "operator" if pde.STEADY else "next_step"),  # steady: no frames
                       steps=args.steps, batch_size=args.batch_size,
                       lr=args.lr, seed=args.seed, n_test=args.test_samples, explicit=named[1],
                       checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args), device=args.device,
                       mode=mode_cfg(args))
     except KeyboardInterrupt:
-        raise KeyboardInterrupt(_train_left(Path(args.out), before)) from None
+        if target != out:
+            raise KeyboardInterrupt(_overwrite_left(target, out)) from None
+        raise KeyboardInterrupt(_train_left(out, before)) from None
+    except BaseException:  # refused or failed: the old run stays as it was, and a new one without a checkpoint goes
+        if target != out:
+            remove_staging(target)
+        else:
+            _train_left(out, before)
+        raise
+    if target != out:
+        replace_run(target, out)
     _print_run(s, args.model, args.source, args.test_samples, args.out)
+
+
+def _overwrite_left(staging, out) -> str:
+    """What an interrupted `train --overwrite` leaves, in words: the new run in place of the old one if it has a
+    checkpoint to resume from, else the old run untouched (and the new one's files removed)."""
+    from surrogate.runs import CHECKPOINT, remove_staging, replace_run
+
+    if (staging / CHECKPOINT).is_file():
+        replace_run(staging, out)
+        return f"{out} now holds the new run's checkpoint; pdestream train --resume {out} continues from it"
+    remove_staging(staging)
+    return f"nothing of the new run was kept (no checkpoint yet); {out} still holds the earlier run, untouched"
 
 
 def _train_left(out, before) -> str:

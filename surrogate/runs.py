@@ -8,6 +8,7 @@ A run directory holds ``run.json`` (written first: every setting ``resume_run`` 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import torch
@@ -28,6 +29,57 @@ RUN_FORMAT = 1
 RUN_KEYS = ("pde", "source", "model", "model_cfg", "view", "view_args", "steps", "batch_size", "lr", "schedule",
             "seed", "data_seed", "n_test", "checkpoint_every", "data_cfg", "label")
 RUN_FILES = (RUN_FILE, CHECKPOINT, "model.pt", "metrics.json", "metrics.csv")
+# every file a run may write (a reservoir run adds its report): what replacing a run may remove, nothing else
+RUN_OUTPUTS = (*RUN_FILES, "reservoir.json", "reservoir.png")
+STAGING = ".{name}.new.{pid}"  # where `train --overwrite` builds the new run, beside the old one
+
+
+def staging_dir(out: Path) -> Path:
+    """The hidden directory beside ``out`` in which a run that replaces ``out``'s is built (this process's), after
+    removing those of dead processes (a kill -9 left them; a live process's is kept)."""
+    out = Path(out)
+    for stale in out.parent.glob(STAGING.format(name=out.name, pid="*")):
+        pid = stale.name.rsplit(".", 1)[-1]
+        if pid.isdigit() and not _alive(int(pid)) and stale.is_dir():
+            remove_staging(stale)
+    return out.parent / STAGING.format(name=out.name, pid=os.getpid())
+
+
+def replace_run(staging: Path, out: Path) -> None:
+    """Move the run built in ``staging`` into ``out`` in place of the run there: the old finished-marker
+    (metrics.json) goes first and the new one comes last, so a crash in between never reads as a finished run;
+    the old run's other files are replaced or removed; files in ``out`` that are not run files stay."""
+    old_marker = out / "metrics.json"
+    old_marker.unlink(missing_ok=True)
+    names = [n for n in RUN_OUTPUTS if n != "metrics.json"] + ["metrics.json"]
+    for name in names:
+        if (staging / name).is_file():
+            os.replace(staging / name, out / name)
+        else:
+            (out / name).unlink(missing_ok=True)
+    remove_staging(staging)
+
+
+def remove_staging(d: Path) -> None:
+    """Remove a staging directory: its run files (and their temp files), then the directory if that left it empty."""
+    for name in RUN_OUTPUTS:
+        (d / name).unlink(missing_ok=True)
+        for stray in d.glob(f".{name}.*.tmp"):
+            stray.unlink(missing_ok=True)
+    try:
+        d.rmdir()
+    except OSError:
+        pass  # something else is in it: not ours to delete
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def model_channels(pde, view) -> tuple[int, int]:
@@ -142,7 +194,7 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
         except TypeError as err:
             raise ValueError(f"run settings must be JSON values (data_cfg, model_cfg): {err}") from None
         out.mkdir(parents=True, exist_ok=True)
-        for name in RUN_FILES:
+        for name in RUN_OUTPUTS:  # a fresh run in a directory (a staging one for --overwrite) leaves no stale file
             (out / name).unlink(missing_ok=True)
         atomic_write(out / RUN_FILE, text.encode())
     meta = {"pde": data_pde.config(), "source": s["source"], "view": view.name, "view_args": view_args,

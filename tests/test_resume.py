@@ -320,3 +320,55 @@ def test_resume_refuses_a_checkpoint_of_another_pde(tmp_path):
         fit(other, resume=ckpt)
     with pytest.raises(ValueError, match="its training mode is"):
         fit({**mine, "mode": {"name": "oracle"}}, resume=ckpt)
+
+
+def _tiny_train(out, *extra):
+    return ["train", "burgers1d", *TINY_PDE, *TINY_MODEL, "--steps", "4", "--batch-size", "4", "--test-samples", "2",
+            "--checkpoint-every", "2", "--threads", "1", "--out", str(out), *extra]
+
+
+def _files(d: Path) -> dict:
+    return {p.name: p.read_bytes() for p in sorted(d.iterdir()) if p.is_file()}
+
+
+def test_overwrite_never_loses_the_old_run_before_the_new_one_has_value(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "run"
+    assert cli.main(_tiny_train(out)) == 0
+    (out / "notes.txt").write_text("mine")  # not a run file: never removed
+    old = _files(out)
+    # a run that diverges: refused in one line, the old run byte for byte as it was, no staging directory left
+    assert cli.main(_tiny_train(out, "--overwrite", "--lr", "1e30")) == 2
+    assert "training diverged" in capsys.readouterr().err
+    assert _files(out) == old and sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+    # Ctrl-C before the new run's first checkpoint: the old run stays, the new one's files go
+    import surrogate.train as T
+
+    real = T.forever
+
+    def interrupted(loader):
+        for n, batch in enumerate(real(loader), 1):
+            if n == 2:
+                raise KeyboardInterrupt
+            yield batch
+
+    monkeypatch.setattr(T, "forever", interrupted)
+    assert cli.main(_tiny_train(out, "--overwrite", "--seed", "1")) != 0
+    assert "still holds the earlier run, untouched" in capsys.readouterr().err
+    assert _files(out) == old and sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    monkeypatch.setattr(T, "forever", real)
+
+    # a successful overwrite: the new run in place, the user's file kept, nothing beside it
+    assert cli.main(_tiny_train(out, "--overwrite", "--seed", "1")) == 0
+    new = _files(out)
+    assert new["notes.txt"] == b"mine" and new["checkpoint.pt"] != old["checkpoint.pt"] and "metrics.json" in new
+    assert json.loads(new["run.json"])["seed"] == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_a_refused_fresh_train_leaves_nothing(tmp_path, capsys):
+    out = tmp_path / "fresh"
+    # refused once the stream starts, after run.json was written (the corrected command was then refused)
+    assert cli.main(_tiny_train(out, "--reservoir", "--producer", "dask", "--scheduler", "tcp://127.0.0.1:9")) == 2
+    assert "cannot reach the Dask scheduler" in capsys.readouterr().err
+    assert not out.exists()
