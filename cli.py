@@ -329,10 +329,23 @@ def _add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                    help="parameters of the next solves: the domain's own draws, or steered toward high training loss")
 
 
+RESERVOIR_OPTIONS = ("capacity", "max_reuse", "reservoir_mode", "target_reuse", "proposal_floor", "solve_batch",
+                     "warmup", "eviction", "draw", "producer", "workers", "scheduler", "proposal")
+
+
 def reservoir_cfg(args: argparse.Namespace) -> dict | None:
-    """data_cfg for train_run from `train --reservoir ...` (None without --reservoir)."""
+    """data_cfg for train_run from `train --reservoir ...` (None without --reservoir; its options without it are
+    refused, naming them: they were silently ignored)."""
     if not args.reservoir:
+        defaults = vars(build_parser().parse_args(["train", "x"]))
+        given = [k for k in RESERVOIR_OPTIONS if getattr(args, k) != defaults[k]]
+        if given:
+            names = ", ".join("--" + k.replace("_", "-") for k in given)
+            raise ValueError(f"{names} {'goes' if len(given) == 1 else 'go'} with --reservoir (the training "
+                             "reservoir's settings); add --reservoir or drop them")
         return None
+    if args.workers < 1:
+        raise ValueError(f"--workers={args.workers} not allowed; must be >= 1 (solver processes or Dask workers)")
     if args.source != "stream":
         raise ValueError(f"--reservoir goes with --source stream (got --source {args.source})")
     cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,

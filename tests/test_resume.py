@@ -372,3 +372,12 @@ def test_a_refused_fresh_train_leaves_nothing(tmp_path, capsys):
     assert cli.main(_tiny_train(out, "--reservoir", "--producer", "dask", "--scheduler", "tcp://127.0.0.1:9")) == 2
     assert "cannot reach the Dask scheduler" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_reservoir_options_without_reservoir_and_zero_workers_are_refused(tmp_path, capsys):
+    out = tmp_path / "r"
+    assert cli.main(_tiny_train(out, "--capacity", "64", "--proposal", "loss")) == 2
+    assert "--capacity, --proposal go with --reservoir" in capsys.readouterr().err
+    assert cli.main(_tiny_train(out, "--reservoir", "--producer", "dask", "--workers", "0")) == 2
+    assert "--workers=0 not allowed; must be >= 1" in capsys.readouterr().err
+    assert not out.exists()
