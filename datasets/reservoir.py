@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import atexit
 import collections
+import copy
 import math
 import os
 import time
@@ -426,6 +427,8 @@ class ReservoirStream(IterableDataset):
         jobs = [(i, p) for i, p, _f in self.pending] + [(i, p) for i, p, _f in self.done]
         return {
             "kind": "reservoir", "seed": self.seed, "config_hash": self.pde.config_hash(), "mode": self.mode,
+            "capacity": self.capacity, "max_reuse": self.max_reuse, "view": self.view.name,
+            "n_windows": self.n_windows,
             "slots": live.tolist(), "index": res.index[live].tolist(),
             "params": res.params[live].tolist() if res.params is not None else [],
             "uses": res.uses[live].tolist(), "window_uses": res.window_uses[live].tolist(),
@@ -445,10 +448,17 @@ class ReservoirStream(IterableDataset):
         restore counts and generators, and queue the jobs that were in flight."""
         if state.get("kind") != "reservoir":
             raise ValueError("not a reservoir state (was it saved from a TrajectoryStream?)")
-        for key, mine in (("seed", self.seed), ("config_hash", self.pde.config_hash()), ("mode", self.mode)):
-            if state.get(key) != mine:
-                raise ValueError(f"reservoir state has {key}={state.get(key)!r} but this stream has {key}={mine!r}")
+        mine = {"seed": self.seed, "config_hash": self.pde.config_hash(), "mode": self.mode, "capacity": self.capacity,
+                "max_reuse": self.max_reuse, "view": self.view.name, "n_windows": self.n_windows}
+        for key, value in mine.items():
+            # states saved before capacity, max_reuse, view and n_windows were recorded are not compared on them
+            if (key in state or key in ("seed", "config_hash", "mode")) and state.get(key) != value:
+                raise ValueError(f"reservoir state has {key}={state.get(key)!r} but this stream has {key}={value!r}")
         self._check_state(state)
+        try:  # the proposal's part, on a scratch copy: a damaged one is refused before anything changes
+            copy.deepcopy(self.proposal).load_state_dict(state["proposal"])
+        except (KeyError, TypeError, ValueError) as err:
+            raise ValueError(f"reservoir state: its proposal entry is damaged ({type(err).__name__}: {err})") from None
         self.close()
         self._reset_state()
         res = self.res
@@ -502,7 +512,9 @@ class ReservoirStream(IterableDataset):
             for name, high in (("index", last), ("uses", 2**62), ("serial", 2**62)):
                 if len(ints(name, state[name], 0, high)) != n:
                     raise ValueError(f"reservoir state: {name} has {len(state[name])} entries for {n} slots")
-            ints("window_uses", np.ravel(state["window_uses"]).tolist(), 0, 2**62)
+            if len(ints("window_uses", np.ravel(state["window_uses"]).tolist(), 0, 2**62)) != n * self.n_windows:
+                raise ValueError(f"reservoir state: window_uses has {np.size(state['window_uses'])} entries for {n} "
+                                 f"slots of {self.n_windows} windows")
             for name, value in state["counters"].items():
                 ints(f"counters.{name}", value, 0, last + 1 if name == "next_index" else 2**62)
             ints("evicted_counts", list(state["evicted_counts"]), 0, 2**62)

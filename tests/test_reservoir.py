@@ -102,6 +102,10 @@ def test_deterministic_batches_repeat_and_resume_exactly():
     (lambda s: s["slots"].__setitem__(0, 10**6), "slots holds 1000000"),
     (lambda s: s["index"].pop(), "index has"),
     (lambda s: s.pop("uses"), "incomplete or malformed"),
+    (lambda s: s.update(max_reuse=16.0), "max_reuse=16.0 but this stream has max_reuse=2.0"),
+    (lambda s: s.update(view="next_step"), "view='next_step' but this stream has view='operator'"),
+    (lambda s: s["proposal"].pop("rng"), "proposal entry is damaged"),
+    (lambda s: s["window_uses"].append([0]), "window_uses has"),
 ])
 def test_a_loaded_state_with_bad_integers_is_refused_in_one_line(edit, message):
     first = stream(draw="uniform", eviction="random")
