@@ -1,0 +1,26 @@
+"""Every catalog entry keeps its configuration, hash, description and sample bits (tests/reference_samples.py
+recorded them; rewrite them only for a deliberate change of the numerics, with generator.NUMERICS bumped)."""
+
+import json
+
+import pytest
+
+import generator
+from tests import reference_samples as ref
+
+SAVED = json.loads(ref.PATH.read_text())
+
+
+def test_the_reference_covers_the_catalog_and_the_numerics_revision():
+    assert SAVED["numerics"] == generator.NUMERICS
+    assert set(SAVED["entries"]) <= set(generator.PDES)  # new entries may come; none of these may go
+
+
+@pytest.mark.parametrize("name", sorted(SAVED["entries"]))
+def test_entry_is_unchanged(name):
+    assert ref.record(name) == SAVED["entries"][name]
+
+
+@pytest.mark.parametrize("name", sorted(SAVED["dynamics"]))
+def test_solve_and_advance_are_unchanged(name):
+    assert ref.record_dynamics(name) == SAVED["dynamics"][name]
