@@ -1,5 +1,5 @@
 """What bounded calls cost: a rollout as one compiled call vs in calls of ~DISPATCH_WORK point-steps each
-(generator.sampler._evolve_bounded, which lets Ctrl-C and a closed consumer stop a solve within one call).
+(generator.rollout.evolve_bounded, which lets Ctrl-C and a closed consumer stop a solve within one call).
 
 Same process, same inputs, runs alternated, median of N: prints seconds per rollout both ways, their ratio,
 the number of calls and the median seconds per call (the interrupt latency). Figures, not pass/fail.
@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import generator
-from generator import sampler
+from generator import chunked, dispatch, rollout, sampler
 
 CASES = [  # (name, settings, batch): defaults of the catalog and two long rollouts
     ("burgers1d", {}, 64),
@@ -31,11 +31,11 @@ CASES = [  # (name, settings, batch): defaults of the catalog and two long rollo
 def _inputs(pde, batch):
     keys = sampler.sample_keys(0, np.arange(batch))
     p = len(pde.PARAMS)
-    parts = [sampler.compiled_setup(pde)(keys[i: i + sampler.SETUP_CHUNK],
-                                         np.zeros((sampler.SETUP_CHUNK, p), np.float32),
-                                         np.zeros((sampler.SETUP_CHUNK, p), bool))
-             for i in range(0, batch, sampler.SETUP_CHUNK)]
-    return sampler._join(parts, batch)
+    parts = [rollout.compiled_setup(pde)(keys[i: i + rollout.SETUP_CHUNK],
+                                         np.zeros((rollout.SETUP_CHUNK, p), np.float32),
+                                         np.zeros((rollout.SETUP_CHUNK, p), bool))
+             for i in range(0, batch, rollout.SETUP_CHUNK)]
+    return chunked.join(parts, batch)
 
 
 def run(quick: bool = False) -> list[dict]:
@@ -44,10 +44,10 @@ def run(quick: bool = False) -> list[dict]:
     for name, settings, batch in CASES[:3] if quick else CASES:
         pde = generator.get_pde(name, settings)
         params, u0, coeffs = _inputs(pde, batch)
-        one = sampler.compiled_evolve(pde)
+        one = rollout.compiled_evolve(pde)
 
         def bounded():
-            return jax.block_until_ready(sampler._evolve_bounded(pde, [(u0, params, coeffs)]))
+            return jax.block_until_ready(rollout.evolve_bounded(pde, [(u0, params, coeffs)]))
 
         jax.block_until_ready(one(u0, params, coeffs))  # compile both
         ref = bounded()[0][0]
@@ -60,9 +60,9 @@ def run(quick: bool = False) -> list[dict]:
             t0 = time.perf_counter()
             bounded()
             t_bounded.append(time.perf_counter() - t0)
-        per_step = batch * len(pde.FIELDS) * pde.n**pde.NDIM + sampler.STEP_OVERHEAD
+        per_step = batch * len(pde.FIELDS) * pde.n**pde.NDIM + dispatch.STEP_OVERHEAD
         steps = (pde.n_frames - 1) * pde.steps_per_frame
-        n_calls = max(1, -(-steps * per_step // sampler.DISPATCH_WORK))
+        n_calls = max(1, -(-steps * per_step // dispatch.DISPATCH_WORK))
         row = {"case": f"{name} {settings or 'defaults'} B={batch}", "one_call_s": statistics.median(t_one),
                "bounded_s": statistics.median(t_bounded), "calls": n_calls}
         row["ratio"] = row["bounded_s"] / row["one_call_s"]

@@ -112,7 +112,7 @@ def resolve_pde(pde):
 
     if isinstance(pde, str):
         return generator.get_pde(pde)
-    if not isinstance(pde, generator.PDE):
+    if not isinstance(pde, generator.ProblemBase):
         raise ValueError(f"pde must be a generator PDE or a catalog name ({', '.join(generator.PDES)}), got {pde!r}")
     return pde
 

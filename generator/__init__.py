@@ -2,7 +2,9 @@
 
 JAX only (never imports torch). Public API::
 
-    PDES                              the catalog {name: PDE class} (generator.catalog: entries, groups)
+    PDES                              the catalog {name: problem class} (generator.catalog: entries, groups)
+    Problem                           what every problem offers (generator.problem); families: PDE (spectral,
+                                      time-dependent), SteadyProblem (elliptic, no time axis)
     get_pde(name, **overrides)        a configured PDE (overrides may be strings, e.g. nu="loguniform(1e-3, 1e-2)")
     sample(pde, indices, seed=0)      Trajectory with u [B, T, C, *space] float32, t [T], params {name: [B]}
     solve(pde, u0, params)            trajectory from a caller's initial condition
@@ -12,11 +14,14 @@ JAX only (never imports torch). Public API::
                                       (not used, with a warning, if another user owns or may write it)
 """
 
-from . import interactive  # after sampler: it builds on it
+from . import interactive
 from .catalog import GROUP, GROUPS, PDES, get_pde
 from .domains import Choice, Domain, Fixed, LogUniform, Uniform, parse_domain
+from .grids import BC_TYPE, BOUNDARY_TYPES, NodeGrid
 from .ics import IC_KINDS, FourierSeries, GaussianRandomField, GrayScottSpots, InitialCondition, make_ic
 from .pdes import PDE, LinearPDE, Param
+from .pdes.steady import SteadyProblem
+from .problem import Problem, ProblemBase
 from .sampler import BlowUpError, Trajectory, draw_params, sample, sample_keys, solve
 from .spectral import Grid
 
@@ -77,7 +82,9 @@ def from_config(config: dict) -> PDE:
 
 
 __all__ = [
-    "BlowUpError", "Choice", "Domain", "Fixed", "FourierSeries", "GROUP", "GROUPS", "GaussianRandomField",
-    "GrayScottSpots", "Grid", "IC_KINDS", "InitialCondition", "LinearPDE", "LogUniform", "PDE", "PDES", "Param", "Trajectory", "Uniform", "draw_params", "enable_compilation_cache", "from_config", "get_pde",
+    "BC_TYPE", "BOUNDARY_TYPES", "BlowUpError", "Choice", "Domain", "Fixed", "FourierSeries", "GROUP", "GROUPS",
+    "GaussianRandomField", "GrayScottSpots", "Grid", "IC_KINDS", "InitialCondition", "LinearPDE", "LogUniform",
+    "NodeGrid", "PDE", "PDES", "Param", "Problem", "ProblemBase", "SteadyProblem", "Trajectory", "Uniform",
+    "draw_params", "enable_compilation_cache", "from_config", "get_pde",
     "interactive", "make_ic", "parse_domain", "sample", "sample_keys", "solve",
 ]

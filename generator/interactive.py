@@ -2,15 +2,15 @@
 
 JAX only. A state is u [B, C, *space] (the PDE's fields on its grid), parameters are {name: [B]}. One frame is
 the PDE's ``frame_dt``, taken as its own ``steps_per_frame`` ETDRK4 steps of ``step_dt`` with the PDE's linear
-and nonlinear parts, through the sampler's stepping loop (``advance`` in its bounded calls, so a Ctrl-C stops a
+and nonlinear parts, through the rollout's stepping loop (``advance`` in its bounded calls, so a Ctrl-C stops a
 long one; ``advance_vjp`` in one call), so advancing frame i of a sampled trajectory by one frame gives frame i+1
 up to float32 rounding (the state re-enters Fourier space).
 
     advance(pde, u, params, frames)             -> (u_k [B, C, *space], finite bool [B])
     advance_vjp(pde, u, params, frames, wrt)    -> (u_k, finite, vjp); vjp(g) -> (g_u, g_params {name: [B]} | None)
 
-Batch invariance: the ETDRK4 coefficients are computed in fixed chunks of ``sampler.SETUP_CHUNK`` samples, one
-compiled program per chunk, and the stepping is vmapped FFTs and real arithmetic, as in the sampler; so
+Batch invariance: the ETDRK4 coefficients are computed in fixed chunks of ``rollout.SETUP_CHUNK`` samples (generator.chunked), one
+compiled program per chunk, and the stepping is vmapped FFTs and real arithmetic, as in the rollouts; so
 ``advance`` gives an element the same bits alone or in any batch (tested on CPU). ``advance_vjp`` is a
 different program: its output equals ``advance`` to float32 rounding, not bit for bit.
 
@@ -32,8 +32,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .chunked import join as _join
+from .chunked import split
 from .pdes import PDE
-from .sampler import SETUP_CHUNK, _coefficients, _join, _stepping, advance_bounded
+from .rollout import SETUP_CHUNK, _coefficients, _stepping, advance_bounded
 from .spectral import rollout
 
 
@@ -76,10 +78,8 @@ _cache_lock = threading.Lock()
 
 def _host_chunks(params: Mapping[str, jax.Array], batch: int) -> list[dict[str, np.ndarray]]:
     """params {name: [B]} -> host chunks of SETUP_CHUNK samples (the last padded by repeating sample 0)."""
-    pad = (-batch) % SETUP_CHUNK
-    host = {k: np.asarray(v) for k, v in params.items()}
-    host = {k: np.concatenate([v, np.repeat(v[:1], pad)]) for k, v in host.items()}
-    return [{k: v[i : i + SETUP_CHUNK] for k, v in host.items()} for i in range(0, batch + pad, SETUP_CHUNK)]
+    names = list(params)
+    return [dict(zip(names, part)) for part in split([np.asarray(params[k]) for k in names], SETUP_CHUNK)]
 
 
 def _on(device, chunk: dict[str, np.ndarray]):
@@ -172,7 +172,7 @@ def advance(pde: PDE, u, params: Mapping[str, jax.Array], frames: int = 1):
 
     Returns (u_k [B, C, *space] of u's dtype, finite bool [B]); the caller decides what a non-finite row means.
     An element gets the same bits alone or in any batch (see the module docstring). The steps run in the
-    sampler's bounded calls (``sampler.advance_bounded``: a Ctrl-C stops a long advance between two), with the
+    rollout's bounded calls (``rollout.advance_bounded``: a Ctrl-C stops a long advance between two), with the
     bits of ``_advance_one`` in one call.
     """
     u, params = _inputs(pde, u, params, frames)

@@ -11,26 +11,29 @@ mean of Kassam & Trefethen (2005), which avoids the cancellation of the direct f
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, ClassVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .grids import GridBase
+
 CONTOUR_POINTS = 32  # points on a circle of radius 1 around each h*L (Kassam & Trefethen 2005)
 
 
 @dataclass(frozen=True)
-class Grid:
+class Grid(GridBase):
     """A periodic grid of ``n`` points per dimension on [0, length)^ndim."""
 
-    ndim: int
-    n: int
-    length: float
+    POINTS: ClassVar[str] = "cell-left grid points of a periodic domain"
 
     @property
-    def shape(self) -> tuple[int, ...]:
-        return (self.n,) * self.ndim
+    def bc(self) -> tuple[str, ...]:
+        return ("periodic",) * self.ndim
+
+    def describe(self) -> str:
+        return f"{'x'.join(map(str, self.shape))} on [0, {self.length:g})^{self.ndim}"
 
     @property
     def kshape(self) -> tuple[int, ...]:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import generator as g
-from generator.sampler import compiled_coefficients, compiled_setup, compiled_stages
+from generator.rollout import compiled_coefficients, compiled_setup, compiled_stages
 
 # Small but non-trivial versions of every catalog entry, by one rule (no per-PDE code): a coarser grid with the
 # same spacing (length shrinks with n, so CFL steps and resolution stay those of the default), 4 frames, and at
@@ -99,7 +99,7 @@ def test_new_parameters_never_recompile(name):
 
 
 def _stages_compiled(pde):
-    """Programs compiled so far for the rollout's bounded calls (generator.sampler.compiled_stages)."""
+    """Programs compiled so far for the rollout's bounded calls (generator.rollout.compiled_stages)."""
     return sum(f._cache_size() for f in compiled_stages(pde))
 
 

@@ -16,7 +16,7 @@ import pytest
 
 import cli
 import generator as g
-from generator.pdes import base
+from generator import problem as base  # the limits every problem obeys
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -18,18 +18,18 @@ import zarr
 import datasets
 import generator
 from datasets.cache import is_complete
-from generator import sampler
+from generator import chunked, dispatch, rollout, sampler
 
 
 def _setup(pde, batch):
     """(params, u0, coefficients) of samples 0..batch-1, as the sampler builds them."""
     keys = sampler.sample_keys(0, np.arange(batch))
-    pad = sampler.SETUP_CHUNK - batch
+    pad = rollout.SETUP_CHUNK - batch
     p = len(pde.PARAMS)
-    part = sampler.compiled_setup(pde)(jnp.concatenate([keys, jnp.repeat(keys[:1], pad, 0)]),
-                                       np.zeros((sampler.SETUP_CHUNK, p), np.float32),
-                                       np.zeros((sampler.SETUP_CHUNK, p), bool))
-    return sampler._join([part], batch)
+    part = rollout.compiled_setup(pde)(jnp.concatenate([keys, jnp.repeat(keys[:1], pad, 0)]),
+                                       np.zeros((rollout.SETUP_CHUNK, p), np.float32),
+                                       np.zeros((rollout.SETUP_CHUNK, p), bool))
+    return chunked.join([part], batch)
 
 
 @pytest.mark.parametrize("name, overrides", [
@@ -41,23 +41,23 @@ def _setup(pde, batch):
 def test_bounded_calls_give_the_bits_of_one_call(monkeypatch, name, overrides):
     pde = generator.get_pde(name, overrides)
     params, u0, coeffs = _setup(pde, 3)
-    ref, ref_finite = sampler.compiled_evolve(pde)(u0, params, coeffs)  # the whole rollout in one call
+    ref, ref_finite = rollout.compiled_evolve(pde)(u0, params, coeffs)  # the whole rollout in one call
     per_step = 3 * len(pde.FIELDS) * pde.n**pde.NDIM
     # a frame per call; then pieces of a frame (1 step, 2 steps per call); then everything in one call
     for work, overhead in [(per_step * pde.steps_per_frame, 0), (per_step, 0), (2 * per_step, 0), (2**40, 2**13)]:
-        monkeypatch.setattr(sampler, "DISPATCH_WORK", work)
-        monkeypatch.setattr(sampler, "STEP_OVERHEAD", overhead)
-        [(u, finite)] = sampler._evolve_bounded(pde, [(u0, params, coeffs)])
+        monkeypatch.setattr(dispatch, "DISPATCH_WORK", work)
+        monkeypatch.setattr(dispatch, "STEP_OVERHEAD", overhead)
+        [(u, finite)] = rollout.evolve_bounded(pde, [(u0, params, coeffs)])
         assert u.shape == ref.shape
         assert bool(jnp.array_equal(u, ref)), f"{name}: bounded calls ({work} point-steps each) changed the bits"
         assert np.array_equal(finite, ref_finite)
     if pde.NDIM > 1:
         return
     # and through sample(): split into 1-step calls == one call
-    monkeypatch.setattr(sampler, "DISPATCH_WORK", 2**40)
+    monkeypatch.setattr(dispatch, "DISPATCH_WORK", 2**40)
     whole = generator.sample(pde, [0, 5, 7], seed=3)
-    monkeypatch.setattr(sampler, "DISPATCH_WORK", 1)
-    monkeypatch.setattr(sampler, "STEP_OVERHEAD", 0)
+    monkeypatch.setattr(dispatch, "DISPATCH_WORK", 1)
+    monkeypatch.setattr(dispatch, "STEP_OVERHEAD", 0)
     np.testing.assert_array_equal(np.asarray(generator.sample(pde, [0, 5, 7], seed=3).u), np.asarray(whole.u))
 
 
@@ -74,15 +74,15 @@ def test_solve_and_advance_run_in_bounded_calls_with_the_bits_of_one_call(monkey
     x = pde.grid.coords()
     u0 = jnp.asarray(np.stack([np.sin(2 * np.pi * x), np.cos(2 * np.pi * x) ** 3])[:, None], jnp.float32)
     p = {"nu": jnp.asarray([0.02, 0.05], jnp.float32)}
-    whole = jax.jit(lambda u, q: jax.vmap(functools.partial(sampler._evolve, pde))(
-        u, q, jax.lax.map(functools.partial(sampler._coefficients, pde), q)))(u0, p)  # solve's one call
+    whole = jax.jit(lambda u, q: jax.vmap(functools.partial(rollout._evolve, pde))(
+        u, q, jax.lax.map(functools.partial(rollout._coefficients, pde), q)))(u0, p)  # solve's one call
     coeffs = interactive._coefficients_for(pde, p, 2, jax.devices("cpu")[0])
     ahead = jax.jit(jax.vmap(functools.partial(interactive._advance_one, pde, 2)))(u0, p, coeffs)  # advance's
     syncs = []
-    monkeypatch.setattr(sampler, "_sync", lambda states, sync=sampler._sync: syncs.append(1) or sync(states))
+    monkeypatch.setattr(dispatch, "sync", lambda states, sync=dispatch.sync: syncs.append(1) or sync(states))
     for work, overhead in [(2**40, 2**13), (1, 0), (2 * 32 * 3, 0)]:  # one call; a step per call; 3 steps
-        monkeypatch.setattr(sampler, "DISPATCH_WORK", work)
-        monkeypatch.setattr(sampler, "STEP_OVERHEAD", overhead)
+        monkeypatch.setattr(dispatch, "DISPATCH_WORK", work)
+        monkeypatch.setattr(dispatch, "STEP_OVERHEAD", overhead)
         syncs.clear()
         assert bool(jnp.array_equal(generator.solve(pde, u0, p).u, whole))
         solve_calls = len(syncs)
@@ -93,14 +93,14 @@ def test_solve_and_advance_run_in_bounded_calls_with_the_bits_of_one_call(monkey
                                                            192: (3 * -(-steps // 3), -(-2 * steps // 3))}[work]
     stop = threading.Event()
     stop.set()
-    sampler.cancel_on(stop)  # a cancelled thread's solve and advance stop at their first call boundary
+    dispatch.cancel_on(stop)  # a cancelled thread's solve and advance stop at their first call boundary
     try:
-        with pytest.raises(sampler.Cancelled):
+        with pytest.raises(dispatch.Cancelled):
             generator.solve(pde, u0, p)
-        with pytest.raises(sampler.Cancelled):
+        with pytest.raises(dispatch.Cancelled):
             interactive.advance(pde, u0, p)
     finally:
-        sampler.cancel_on(None)
+        dispatch.cancel_on(None)
 
 
 # burgers1d on 32 points with a long t_end: ~1500 steps per frame; the whole batch in one call would take
@@ -114,12 +114,12 @@ def test_a_cancelled_solve_stops_at_the_next_call():
     stop, result = threading.Event(), {}
 
     def solve():
-        sampler.cancel_on(stop)
+        dispatch.cancel_on(stop)
         t0 = time.monotonic()
         try:
             generator.sample(pde, np.arange(8))
             result["outcome"] = "finished"
-        except sampler.Cancelled:
+        except dispatch.Cancelled:
             result["outcome"] = "cancelled"
         result["seconds"] = time.monotonic() - t0
 
@@ -274,11 +274,18 @@ def test_interrupted_train_keeps_a_checkpoint_and_only_what_it_did_not_create(tm
     assert capsys.readouterr().err == (f"pdestream: interrupted; {out} holds a checkpoint; pdestream train --resume "
                                        f"{out} continues from it\n")
     assert sorted(p.name for p in out.iterdir()) == ["checkpoint.pt", "run.json"]
-    # no checkpoint yet, in a directory that was there: only what the command wrote goes (run.json replaced)
+    # --overwrite, no checkpoint yet: the new run (built beside the old one) goes, the old run and the user's file stay
     (out / "checkpoint.pt").unlink()
     (out / "notes.txt").write_text("mine")
     _interrupting(monkeypatch, "surrogate.runs", "train_run", 2, ["run.json", "metrics.csv"])
     assert cli.main([*TRAIN, "--out", str(out), "--overwrite"]) == 130
+    assert "nothing of the new run was kept (no checkpoint yet)" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt", "run.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    # a fresh run in a directory that was there: only what the command wrote goes
+    (out / "run.json").unlink()
+    _interrupting(monkeypatch, "surrogate.runs", "train_run", 2, ["run.json", "metrics.csv"])
+    assert cli.main([*TRAIN, "--out", str(out)]) == 130
     assert "nothing was kept (no checkpoint yet)" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
 

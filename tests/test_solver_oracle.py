@@ -12,8 +12,8 @@ import torch
 
 import generator
 from datasets import SolverOracle, SolverStep, _bridge
-from generator import interactive, sampler
-from generator.sampler import _coefficients
+from generator import interactive, rollout
+from generator.rollout import _coefficients
 
 # tiny, quick configurations: few frames, few internal steps per frame
 BURGERS = dict(n=64, t_end=0.1, n_frames=6)
@@ -80,8 +80,8 @@ def test_new_parameters_and_states_never_recompile():
 
 
 def _advance_compiled(pde) -> int:
-    """Programs compiled so far for ``interactive.advance``'s bounded calls (generator.sampler.advance_bounded)."""
-    return sum(f._cache_size() for f in (*sampler.compiled_state(pde), sampler.compiled_stages(pde)[3]))
+    """Programs compiled so far for ``interactive.advance``'s bounded calls (generator.rollout.advance_bounded)."""
+    return sum(f._cache_size() for f in (*rollout.compiled_state(pde), rollout.compiled_stages(pde)[3]))
 
 
 def test_memoised_coefficients_give_the_bits_of_fresh_ones():

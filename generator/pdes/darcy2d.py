@@ -15,7 +15,6 @@ is bit-identical alone and in any batch.
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -24,37 +23,17 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import elliptic
+from ..chunked import chunked_map
 from ..domains import Fixed
-from .base import PDE, Param
+from ..grids import NodeGrid
+from ..problem import Param, resolve_params
+from .steady import SteadyProblem
 
 # Samples per compiled set-up / solve call: a fixed program shape makes a sample independent of its batch.
 CHUNK = 8
 # The FNO threshold field's contrast (a_pos / a_neg = 4) needs ~2.6 n CG iterations on an n x n grid;
 # non-convergence within max_iter is reported like a blow-up (BlowUpError, or a redraw).
 MAX_BACKWARD_ERROR = 1e-5  # ~100 float32 epsilons: a returned u solves the discrete system to this backward error
-
-
-@dataclass(frozen=True)
-class NodeGrid:
-    """n x n nodes x_i = i h, h = length / (n - 1), boundary nodes included (not periodic)."""
-
-    POINTS = "grid nodes of [0, length], boundary included"  # what a cache's space coordinates are
-
-    ndim: int
-    n: int
-    length: float
-
-    @property
-    def shape(self) -> tuple[int, ...]:
-        return (self.n,) * self.ndim
-
-    @property
-    def spacing(self) -> float:
-        return self.length / (self.n - 1)
-
-    def coords(self) -> np.ndarray:
-        """Node positions along one axis, float32 [n] (0 and length included)."""
-        return np.linspace(0.0, self.length, self.n).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -110,7 +89,7 @@ class NeumannGRF:
 
 
 @dataclass(frozen=True)
-class Darcy2D(PDE):
+class Darcy2D(SteadyProblem):
     """-div(a grad u) = f on (0, length)^2, u = 0 on the boundary; a = a_pos where g > 0, a_neg elsewhere.
 
     ``ic`` is the distribution of the random field g (a NeumannGRF); n counts nodes per side, boundary
@@ -123,7 +102,6 @@ class Darcy2D(PDE):
     EQUATION: ClassVar[str] = "-div(a grad u) = f on (0,1)^2, u = 0 on the boundary; a = a_pos where g > 0 else a_neg"
     FIELDS: ClassVar[tuple] = ("u",)
     INPUTS: ClassVar[tuple] = ("a",)  # random input fields stored per sample beside the solution
-    STEADY: ClassVar[bool] = True  # no time axis
     NDIM: ClassVar[int] = 2
     PARAMS: ClassVar[dict] = {
         "a_pos": Param("coefficient a where the random field is positive", "1", positive=True),
@@ -131,11 +109,10 @@ class Darcy2D(PDE):
         "f": Param("source term (constant over the square)", "1"),
     }
     IC_KINDS: ClassVar[dict] = {NeumannGRF.kind: NeumannGRF}  # `--set ic=...` names this vocabulary
-    UNUSED: ClassVar[frozenset] = frozenset({"t_end", "n_frames", "dt"})  # the base's time settings: not settings here
+    IC_LABEL: ClassVar[str] = "ic (random field g)"
 
     n: int = 64
     length: float = 1.0
-    n_frames: int = 1
     ic: Any = NeumannGRF()
     tol: float = 1e-5
     max_iter: int = 5000
@@ -143,61 +120,23 @@ class Darcy2D(PDE):
     a_neg: Any = Fixed(3.0)
     f: Any = Fixed(1.0)
 
-    def __post_init__(self):
-        self._check_fields()
-        self._parse_params()
-        if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < 5:
-            raise ValueError(f"{self.NAME}: n={self.n!r} not allowed: nodes per side (boundary included) must be an integer >= 5")
-        if not (self.length > 0 and math.isfinite(self.length)):
-            raise ValueError(f"{self.NAME}: length={self.length} not allowed: must be a finite number > 0")
+    def check_settings(self) -> None:
         if not 0 < self.tol < 1:
             raise ValueError(f"{self.NAME}: tol={self.tol} not allowed: the relative residual tolerance must be in (0, 1)")
         if not self.max_iter >= 1:
             raise ValueError(f"{self.NAME}: max_iter={self.max_iter} not allowed: must be an integer >= 1")
-        self._check_size()
         if not isinstance(self.ic, NeumannGRF):
             raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed: the coefficient field comes from "
                              f"ic={NeumannGRF.kind!r} (set ic.tau, ic.alpha)")
-        self._check_ic_on_grid()
 
-    @classmethod
-    def config_fields(cls) -> list[str]:
-        return [name for name in super().config_fields() if name not in cls.UNUSED]
-
-    @property
-    def grid(self) -> NodeGrid:
-        return NodeGrid(self.NDIM, self.n, self.length)
-
-    def times(self) -> np.ndarray:
-        return np.zeros(0, np.float32)  # steady: no time axis
-
-    def stable_dt(self) -> float:
-        return math.inf
-
-    def describe(self) -> str:
-        lines = [f"{self.NAME}: {self.EQUATION}",
-                 f"  fields: {', '.join(self.INPUTS)} (input) -> {', '.join(self.FIELDS)}   grid: {self.n}x{self.n} nodes "
-                 f"on [0, {self.length:g}]^2 (boundary included)   steady: PCG to relative residual {self.tol:g} "
-                 f"(at most {self.max_iter} iterations)"]
-        for name, spec in self.PARAMS.items():
-            domain = getattr(self, name)
-            how = f"= {domain} (fixed)" if isinstance(domain, Fixed) else f"~ {domain}"
-            lines.append(f"  {name} {how}   {spec.description} [{spec.units}]")
-        lines.append(f"  ic (random field g): {self.ic}")
-        return "\n".join(lines)
+    def describe_solver(self) -> str:
+        return f"PCG to relative residual {self.tol:g} (at most {self.max_iter} iterations)"
 
     def failure(self) -> tuple[str, str]:
         """(what a failed sample did, how to avoid it), for BlowUpError's message."""
         return (f"solves did not converge (PCG relative residual > tol={self.tol:g} after max_iter={self.max_iter} "
                 f"iterations, or a backward error > {MAX_BACKWARD_ERROR:g}, or NaN)",
                 "a larger max_iter, a larger tol or a milder coefficient contrast avoids this")
-
-    # The time-stepping interface of the base does not apply: a steady PDE is solved through run_keys.
-    def linear(self, grid, p):
-        raise TypeError(f"{self.NAME} is steady: it has no time-stepping operator (it is solved by run_keys)")
-
-    def nonlinear(self, grid, p):
-        raise TypeError(f"{self.NAME} is steady: it has no time-stepping operator (it is solved by run_keys)")
 
     def coefficient(self, g: jax.Array, p) -> jax.Array:
         """a from the random field g [..., n, n]: a_pos where g > 0, a_neg elsewhere."""
@@ -211,26 +150,19 @@ class Darcy2D(PDE):
 
     def solve_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
         """``run_keys`` plus the CG iterations each sample took, int32 [B]."""
-        batch = keys.shape[0]
-        pad = (-batch) % CHUNK
-        keys = jnp.concatenate([keys, jnp.repeat(keys[:1], pad, axis=0)])
-        explicit = np.concatenate([explicit, np.repeat(explicit[:1], pad, axis=0)])
-        given = np.concatenate([given, np.repeat(given[:1], pad, axis=0)])
         setup, solve = _compiled_setup(self), _compiled_solve(self)
-        outs = []
-        for i in range(0, keys.shape[0], CHUNK):  # dispatched asynchronously: set-up and solves overlap
-            params, a = setup(keys[i : i + CHUNK], explicit[i : i + CHUNK], given[i : i + CHUNK])
-            outs.append((params, a, *solve(a, params["f"])))
-        params, a, u, ok, iters = jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:batch], *outs)
+
+        def chunk(keys, explicit, given):  # dispatched asynchronously: set-up and solves overlap
+            params, a = setup(keys, explicit, given)
+            return (params, a, *solve(a, params["f"]))
+
+        params, a, u, ok, iters = chunked_map(chunk, CHUNK, keys, explicit, given)
         return u[:, None], params, ok, a[:, None], iters
 
 
 def _draw(pde: Darcy2D, key, explicit, given):
-    from ..sampler import draw_params  # the sampler imports the catalog: a module-level import would cycle
-
     k_param, k_field = jax.random.split(key)
-    drawn = draw_params(pde, k_param)
-    p = {name: jnp.where(given[j], explicit[j], drawn[name]) for j, name in enumerate(pde.PARAMS)}
+    p = resolve_params(pde, k_param, explicit, given)
     return p, pde.coefficient(pde.ic.sample(k_field, pde.grid)[0], p)
 
 

@@ -1,0 +1,44 @@
+"""Bounded calls: a long solve runs as a series of compiled calls with a host sync between them, so that a
+Ctrl-C in the waiting thread, or a consumer that has gone (``cancel_on``), stops it within one call.
+
+Each call advances a batch by at most about DISPATCH_WORK grid-point steps (0.05-0.3 s per call on an idle
+2-core CPU here, 0.5-2% slower in all than one call: benchmarks/dispatch_bench.py; 2**22 cost 2-20%). A step
+also costs a fixed ~25 us whatever its size, counted as STEP_OVERHEAD points (small grids). Every family that
+solves in steps (the spectral rollouts, interactive advances) splits its work with ``pieces`` and waits with
+``sync``; read DISPATCH_WORK through this module at call time (tests and benchmarks change it).
+"""
+
+from __future__ import annotations
+
+import threading
+
+import jax
+
+DISPATCH_WORK = 2**24
+STEP_OVERHEAD = 2**13
+_CANCEL = threading.local()
+
+
+class Cancelled(Exception):
+    """A solve stopped between two calls because its thread's cancel event was set (see ``cancel_on``)."""
+
+
+def cancel_on(event: threading.Event | None) -> None:
+    """Solves in the calling thread stop at their next call boundary, raising Cancelled, once ``event`` is set
+    (None: never). A producer thread sets it to its stop flag so that closing its consumer stops a solve."""
+    _CANCEL.event = event
+
+
+def sync(states) -> None:
+    """Wait for the calls in flight (a Ctrl-C is seen here), then stop if this thread's solve was cancelled.
+    states: a list of tuples whose first item is an array of the call."""
+    jax.block_until_ready([s[0] for s in states])
+    event = getattr(_CANCEL, "event", None)
+    if event is not None and event.is_set():
+        raise Cancelled("solve cancelled: its consumer stopped")
+
+
+def pieces(n_steps: int, per_step: int) -> list[int]:
+    """Steps per call for ``n_steps`` steps of ``per_step`` point-steps each: at most ~DISPATCH_WORK per call."""
+    k = max(1, DISPATCH_WORK // per_step)
+    return [min(k, n_steps - done) for done in range(0, n_steps, k)]

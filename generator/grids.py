@@ -1,0 +1,68 @@
+"""What every grid of a problem states: dimension, points per axis, domain size, its points and its boundaries.
+
+``bc`` gives each axis's boundary condition, one of ``BOUNDARY_TYPES``; a cache records it (and The Well's
+``bc_type`` word for it, ``BC_TYPE``), and a model builder pads non-periodic axes accordingly. The periodic
+spectral grid is ``generator.spectral.Grid``; the node grid of the elliptic family (boundary nodes included)
+is ``NodeGrid`` here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+BOUNDARY_TYPES = ("periodic", "dirichlet", "neumann")
+# The Well's per-axis vocabulary: a Dirichlet (given-value) boundary is a wall, a zero-gradient one is open.
+BC_TYPE = {"periodic": "periodic", "dirichlet": "wall", "neumann": "open"}
+
+
+@dataclass(frozen=True)
+class GridBase:
+    """``n`` points per axis on a box of side ``length`` in ``ndim`` dimensions."""
+
+    POINTS: ClassVar[str] = ""  # what the points are, in words (a cache's space coordinates say it)
+
+    ndim: int
+    n: int
+    length: float
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return (self.n,) * self.ndim
+
+    @property
+    def bc(self) -> tuple[str, ...]:
+        """Per-axis boundary condition, each one of BOUNDARY_TYPES."""
+        raise NotImplementedError
+
+    def coords(self) -> np.ndarray:
+        """Point positions along one axis, float32 [n] (length units)."""
+        raise NotImplementedError
+
+    def describe(self) -> str:
+        """The grid in words, e.g. '64x64 on [0, 1)^2'."""
+        raise NotImplementedError
+
+
+@dataclass(frozen=True)
+class NodeGrid(GridBase):
+    """n x n nodes x_i = i h, h = length / (n - 1), boundary nodes included (not periodic): u = 0 held there."""
+
+    POINTS: ClassVar[str] = "grid nodes of [0, length], boundary included"
+
+    @property
+    def spacing(self) -> float:
+        return self.length / (self.n - 1)
+
+    @property
+    def bc(self) -> tuple[str, ...]:
+        return ("dirichlet",) * self.ndim
+
+    def coords(self) -> np.ndarray:
+        """Node positions along one axis, float32 [n] (0 and length included)."""
+        return np.linspace(0.0, self.length, self.n).astype(np.float32)
+
+    def describe(self) -> str:
+        return f"{'x'.join(map(str, self.shape))} nodes on [0, {self.length:g}]^{self.ndim} (boundary included)"
