@@ -60,7 +60,7 @@ def _draw(pde: PDE, key: jax.Array, explicit: jax.Array, given: jax.Array):
     """
     k_param, k_ic = jax.random.split(key)
     p = resolve_params(pde, k_param, explicit, given)
-    return p, pde.sample_ic(k_ic), _coefficients(pde, p)
+    return p, pde.sample_ic(k_ic, p), _coefficients(pde, p)
 
 
 # Per-sample set-up (parameters, initial condition, ETDRK4 coefficients) runs as its own compiled program over

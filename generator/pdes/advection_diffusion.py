@@ -6,7 +6,7 @@ from typing import Any, ClassVar
 from ..domains import LogUniform, Uniform
 from ..ics import FourierSeries
 from .base import LinearPDE, Param
-from .common import drift, velocity_params
+from .common import CFL, drift, velocity_params
 
 
 @dataclass(frozen=True)
@@ -22,6 +22,7 @@ class AdvectionDiffusion(LinearPDE):
     EQUATION: ClassVar[str] = "u_t + c u_x = nu u_xx"
     PARAMS: ClassVar[dict] = {}  # set per dimension by for_dimension
     DIMENSIONS: ClassVar[dict] = {1: {}, 2: {"n": 64}}
+    BOUNDARIES: ClassVar[tuple] = ("periodic", "dirichlet", "neumann")  # `--set bc=...` (generator.pdes.walls)
 
     n: int = 128
     length: float = 1.0
@@ -42,3 +43,18 @@ class AdvectionDiffusion(LinearPDE):
 
     def linear(self, grid, p):
         return (drift(grid, p, self.NDIM) + p["nu"] * grid.laplacian())[None]
+
+    # --- on walls: c . grad(u) is not diagonal in a sine / cosine basis, so it goes into the explicit part ---
+    def _velocity(self):
+        return ["c"] if self.NDIM == 1 else [f"c_{a}" for a in "xyz"[: self.NDIM]]
+
+    def wall_linear(self, grid, p):
+        return (p["nu"] * grid.laplacian())[None]
+
+    def wall_terms(self, grid, p):
+        names = self._velocity()
+        return lambda u, grad: -sum(p[name] * grad(axis) for axis, name in enumerate(names))
+
+    def wall_stable_dt(self):
+        """Explicit advection: the advective CFL, dt <= CFL * dx / sum of max|c| over the axes."""
+        return CFL * self.grid.dx / max(sum(self.param_upper(name) for name in self._velocity()), 1e-12)

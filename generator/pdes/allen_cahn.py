@@ -27,6 +27,7 @@ class AllenCahn(PDE):
     """
 
     EQUATION: ClassVar[str] = "u_t = nu Laplacian(u) + u - u^3"
+    BOUNDARIES: ClassVar[tuple] = ("periodic", "dirichlet", "neumann")  # `--set bc=...` (generator.pdes.walls)
     DIMENSIONS: ClassVar[dict] = {1: {}, 2: {"n": 64, "nu": LogUniform(2e-3, 1e-2)}}
     PARAMS: ClassVar[dict] = {"nu": Param("interface diffusivity (width^2 / 2)", "length^2/time", positive=True)}
 
@@ -46,3 +47,12 @@ class AllenCahn(PDE):
 
     def stable_dt(self):
         return REACTION_CFL / max(1.0, self.ic.bound(self.grid)) ** 2
+
+    def wall_terms(self, grid, p):
+        return lambda u, grad: -u * u * u
+
+    def lift_rate(self, p):
+        return 1.0  # L = nu Laplacian + 1
+
+    def damping_rate(self):
+        return 2.0

@@ -16,7 +16,7 @@ import abc
 import functools
 import math
 from dataclasses import dataclass
-from typing import Callable, Mapping
+from typing import Any, Callable, ClassVar, Mapping
 
 import jax
 import jax.numpy as jnp
@@ -25,6 +25,7 @@ import numpy as np
 from .. import rollout
 from ..problem import MAX_IC_BOUND, MAX_STEPS, Param, ProblemBase
 from ..spectral import Grid
+from .walls import with_bc
 
 __all__ = ["LinearPDE", "PDE", "Param", "check_operators"]
 
@@ -58,9 +59,48 @@ class PDE(ProblemBase):
         a few linear systems such as the wave equation)."""
         return None
 
-    def sample_ic(self, key: jax.Array) -> jax.Array:
-        """One initial condition, float32 [C, *space]."""
+    def sample_ic(self, key: jax.Array, p: Mapping[str, jax.Array] | None = None) -> jax.Array:
+        """One initial condition, float32 [C, *space] (p: the sample's parameters, for ICs that depend on them)."""
         return self.ic.sample(key, self.grid, len(self.FIELDS))
+
+    # --- walls (generator.pdes.walls): what a class that takes `bc` beyond periodic declares ---------------
+    BOUNDARIES: ClassVar[tuple[str, ...]] = ("periodic",)  # the bc values this class supports
+
+    def wall_linear(self, grid, p):
+        """The diagonal operator on a grid with walls, or None when ``linear`` already is (a Laplacian polynomial)."""
+        return None
+
+    def wall_terms(self, grid, p):
+        """The non-diagonal part on walls as f(u, grad) -> [C, *space] in physical space (u [C, *space] and
+        grad(axis) -> du/dx_axis), or None when there is none."""
+        return None
+
+    def lift_rate(self, p) -> float:
+        """The constant part of the linear operator (L applied to an affine lifting g is lift_rate * g)."""
+        return 0.0
+
+    def damping_rate(self) -> float:
+        """Rate of the Hermitian-part damping a growing linear part needs on a grid with a periodic axis (0: none)."""
+        return 0.0
+
+    def wall_drops_mean(self, grid) -> bool:
+        """Whether the explicit part's constant mode is dropped on walls (where the basis has one: no Dirichlet axis)."""
+        return False
+
+    def wall_stable_dt(self):
+        """The stable step on walls, or None when ``stable_dt`` holds there too."""
+        return None
+
+    def replace(self, overrides: Mapping[str, Any] | None = None, **kwargs) -> "PDE":
+        """``ProblemBase.replace``, plus ``bc`` (all axes, or 'x=dirichlet,y=periodic') and ``bc.x`` (one axis):
+        those make the entry's class for the walls asked (generator.pdes.walls), then the rest is applied."""
+        changes = {**(overrides or {}), **kwargs}
+        walls = {k: v for k, v in changes.items() if k == "bc" or k.startswith("bc.")}
+        if not walls:
+            return super().replace(changes)
+        rest = {k: v for k, v in changes.items() if k not in walls}
+        walled = with_bc(self, walls)
+        return walled.replace(rest) if rest else walled
 
     # --- the problem protocol ----------------------------------------------------------------------
     @property
@@ -169,7 +209,8 @@ def check_operators(pde: PDE) -> None:
     grid, n_fields = pde.grid, len(pde.FIELDS)
     want = (n_fields, *grid.kshape)
     p = {name: jax.ShapeDtypeStruct((), jnp.float32) for name in pde.PARAMS}
-    state = jax.ShapeDtypeStruct(want, jnp.complex64)
+    real = not getattr(grid, "periodic_axes", True)  # a grid with walls only has real coefficients
+    state = jax.ShapeDtypeStruct(want, jnp.float32 if real else jnp.complex64)
 
     def shape_of(what, fn, *args):
         try:

@@ -39,6 +39,7 @@ class Burgers(PDE):
             "nu": LogUniform(0.04, 0.1)},
     }
     EQUATION: ClassVar[str] = "u_t + u u_x = nu u_xx"
+    BOUNDARIES: ClassVar[tuple] = ("periodic", "dirichlet", "neumann")  # `--set bc=...` (generator.pdes.walls)
     PARAMS: ClassVar[dict] = {"nu": Param("viscosity", "length^2/time", positive=True)}
 
     n: int = 256
@@ -63,3 +64,7 @@ class Burgers(PDE):
 
     def stable_dt(self):
         return CFL * self.grid.dx / (self.NDIM * self.ic.bound(self.grid))
+
+    def wall_terms(self, grid, p):
+        """-(u . grad) u in physical space (1D: -u u_x; no-slip walls on a Dirichlet axis)."""
+        return lambda u, grad: -sum(u[j] * grad(j) for j in range(self.NDIM))

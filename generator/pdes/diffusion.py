@@ -19,6 +19,7 @@ class Diffusion(LinearPDE):
     EQUATION: ClassVar[str] = "u_t = nu u_xx"
     PARAMS: ClassVar[dict] = {"nu": Param("diffusivity", "length^2/time", positive=True)}
     DIMENSIONS: ClassVar[dict] = {1: {}, 2: {"n": 64}, 3: {"n": 32, "n_frames": 26}}
+    BOUNDARIES: ClassVar[tuple] = ("periodic", "dirichlet", "neumann")  # `--set bc=...` (generator.pdes.walls)
 
     n: int = 128
     length: float = 1.0

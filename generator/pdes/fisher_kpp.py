@@ -28,6 +28,8 @@ class FisherKPP(PDE):
     """
 
     EQUATION: ClassVar[str] = "u_t = D Laplacian(u) + r u (1 - u)"
+    # zero-flux (Neumann) walls; a Dirichlet wall u = 0 would need an IC >= 0 that vanishes there (not offered)
+    BOUNDARIES: ClassVar[tuple] = ("periodic", "neumann")
     DIMENSIONS: ClassVar[dict] = {1: {}, 2: {"n": 64}}
     # u0 must be >= 0: where u < 0 the reaction -r u^2 drives u to -infinity in finite time (the equation itself
     # blows up, not the scheme), so a signed GRF is not offered and a Fourier series must sit above zero.
@@ -62,3 +64,12 @@ class FisherKPP(PDE):
 
     def stable_dt(self):
         return REACTION_CFL / (self.param_upper("r") * max(1.0, self.ic.bound(self.grid)))
+
+    def wall_terms(self, grid, p):
+        return lambda u, grad: -p["r"] * u * u
+
+    def lift_rate(self, p):
+        return p["r"]  # L = D Laplacian + r
+
+    def damping_rate(self):
+        return 2 * self.param_upper("r")

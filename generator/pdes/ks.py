@@ -46,7 +46,15 @@ class KS(PDE):
 
     @classmethod
     def for_dimension(cls, ndim):
-        return {} if ndim == 1 else {"EQUATION": "u_t + |grad u|^2 / 2 + Laplacian(u) + nu Laplacian^2(u) = 0"}
+        # walls (`--set bc=...`, generator.pdes.walls). 1D: Dirichlet walls are hinged (u = u_xx = 0: the sine
+        # basis); Neumann is not offered (u u_x moves the mean through the walls, and it blew up). 2D (the scalar
+        # form): Neumann walls (u_x = u_xxx = 0: the cosine basis), whose constant mode carries the mean that is
+        # dropped as on the periodic box; Dirichlet is not offered (no constant mode: -|grad u|^2 / 2 drives u down
+        # without bound, every trajectory blew up).
+        if ndim == 1:
+            return {"BOUNDARIES": ("periodic", "dirichlet")}
+        return {"EQUATION": "u_t + |grad u|^2 / 2 + Laplacian(u) + nu Laplacian^2(u) = 0",
+                "BOUNDARIES": ("periodic", "neumann")}
 
     def linear(self, grid, p):
         if self.NDIM == 1:
@@ -69,3 +77,14 @@ class KS(PDE):
             return CFL * self.grid.dx / max(bound, self.NDIM * ic_slope)
         bound = ATTRACTOR_BOUND_NU1 / math.sqrt(min(self.nu.bounds))
         return CFL * self.grid.dx / max(bound, self.ic.bound(self.grid))
+
+    def wall_terms(self, grid, p):
+        if self.NDIM == 1:
+            return lambda u, grad: -u * grad(0)
+        return lambda u, grad: -0.5 * sum(grad(a) * grad(a) for a in range(self.NDIM))
+
+    def wall_drops_mean(self, grid) -> bool:
+        return self.NDIM > 1  # as on the periodic box: the mean of |grad u|^2 / 2 would drift u without bound
+
+    def damping_rate(self):
+        return 0.0 if self.NDIM == 1 else 2 / (4 * min(self.nu.bounds))
