@@ -80,9 +80,11 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
         **{d: ((d,), pde.times(), {"long_name": "t", "units": "time", "axis": "T"}) for d in time},
     }
     points = getattr(pde.grid, "POINTS", "cell-left grid points of a periodic domain")
+    bcs, types = boundaries(pde), tuple(pde.grid.bc_type)
     for d in space:
-        coords[d] = ((d,), pde.grid.coords(), {"long_name": d, "units": "length", "axis": d.upper(),
-                                               "comment": points})
+        axis = SPACE.index(d)  # x, y, z are the sample's space axes 0, 1, 2 (stored in reverse)
+        coords[d] = ((d,), pde.grid.coords(axis), {"long_name": d, "units": "length", "axis": d.upper(),
+                                                   "comment": points, "bc": bcs[axis], "bc_type": types[axis]})
     per_sample = {name: ("float32", {"long_name": p.description, "units": p.units,
                                      "domain": str(getattr(pde, name))})
                   for name, p in pde.PARAMS.items()}
@@ -100,6 +102,9 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
         CONFIG_ATTR: json.dumps(pde.config(), sort_keys=True),
         "pdestream_config_hash": pde.config_hash(),
         "pdestream_fields": " ".join(pde.FIELDS),  # data variables, in PDE.FIELDS order
+        # per space axis x, y, z: the boundary condition, and The Well's word for it (periodic / wall / open)
+        "bc": " ".join(bcs),
+        "bc_type": " ".join(types),
         "pdestream_inputs": " ".join(pde.INPUTS),  # a steady PDE's input fields (variables too), else empty
         "pdestream_params": " ".join(pde.PARAMS),  # parameter coordinates, in PDE.PARAMS order
         "pdestream_seed": int(seed),
@@ -112,6 +117,18 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
         "pdestream_complete": 0,
     }
     return Layout(dims, coords, per_sample, fields, ("sample", *time, *space), attrs)
+
+
+def boundaries(pde) -> tuple[str, ...]:
+    """Per-axis boundary conditions (x, y, z order) of a problem's grid: 'periodic', 'dirichlet' or 'neumann'."""
+    return tuple(pde.grid.bc)
+
+
+def cache_boundaries(attrs: dict, ndim: int) -> tuple[str, ...]:
+    """Per-axis boundary conditions recorded in a cache's root attributes; a cache written before they were
+    recorded is periodic (every pdestream domain was)."""
+    text = attrs.get("bc")
+    return tuple(str(text).split()) if text else ("periodic",) * ndim
 
 
 def disk_space_dims(ndim: int) -> tuple[str, ...]:

@@ -37,8 +37,13 @@ class GridBase:
         """Per-axis boundary condition, each one of BOUNDARY_TYPES."""
         raise NotImplementedError
 
-    def coords(self) -> np.ndarray:
-        """Point positions along one axis, float32 [n] (length units)."""
+    @property
+    def bc_type(self) -> tuple[str, ...]:
+        """Per-axis boundary type in The Well's vocabulary (periodic / wall / open)."""
+        return tuple(BC_TYPE[b] for b in self.bc)
+
+    def coords(self, axis: int = 0) -> np.ndarray:
+        """Point positions along ``axis``, float32 [n] (length units)."""
         raise NotImplementedError
 
     def describe(self) -> str:
@@ -60,8 +65,8 @@ class NodeGrid(GridBase):
     def bc(self) -> tuple[str, ...]:
         return ("dirichlet",) * self.ndim
 
-    def coords(self) -> np.ndarray:
-        """Node positions along one axis, float32 [n] (0 and length included)."""
+    def coords(self, axis: int = 0) -> np.ndarray:
+        """Node positions along ``axis``, float32 [n] (0 and length included; the same on every axis)."""
         return np.linspace(0.0, self.length, self.n).astype(np.float32)
 
     def describe(self) -> str:

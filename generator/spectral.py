@@ -43,8 +43,8 @@ class Grid(GridBase):
     def dx(self) -> float:
         return self.length / self.n
 
-    def coords(self) -> np.ndarray:
-        """Cell-left coordinates x_j = j * length / n, float32 [n]."""
+    def coords(self, axis: int = 0) -> np.ndarray:
+        """Cell-left coordinates x_j = j * length / n, float32 [n] (the same on every axis)."""
         return (np.arange(self.n) * self.dx).astype(np.float32)
 
     def integer_wavenumbers(self) -> tuple[np.ndarray, ...]:
