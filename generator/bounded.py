@@ -35,9 +35,21 @@ def _along(x: jax.Array, axis: int, fn) -> jax.Array:
     return jnp.moveaxis(fn(jnp.moveaxis(x, axis, -1)), -1, axis)
 
 
-def _twiddles(n: int, dtype) -> tuple[jax.Array, jax.Array]:
+# The twiddle arithmetic runs on rows padded to a multiple of LANES values: XLA's CPU loops round a multiply-add
+# differently in their vector body and their scalar remainder, so with rows of n/2 + 1 values a sample's bits
+# depended on its batch (which elements fall in the remainder); whole vectors only, they do not (tested).
+LANES = 16
+
+
+def _padded(x: jax.Array) -> jax.Array:
+    pad = (-x.shape[-1]) % LANES
+    return jnp.pad(x, [(0, 0)] * (x.ndim - 1) + [(0, pad)]) if pad else x
+
+
+def _twiddles(n: int, dtype, scale: float = 1.0) -> tuple[jax.Array, jax.Array]:
+    """scale * cos, scale * sin of pi k / 2n for k = 0..n/2, zero-padded to whole LANES: [ceil((n/2+1)/LANES) LANES]."""
     theta = np.pi * np.arange(n // 2 + 1) / (2 * n)
-    return jnp.asarray(np.cos(theta), dtype), jnp.asarray(np.sin(theta), dtype)
+    return _padded(jnp.asarray(scale * np.cos(theta), dtype)), _padded(jnp.asarray(scale * np.sin(theta), dtype))
 
 
 def cos_analysis(u: jax.Array) -> jax.Array:
@@ -47,9 +59,10 @@ def cos_analysis(u: jax.Array) -> jax.Array:
     v = jnp.concatenate([u[..., ::2], u[..., 1::2][..., ::-1]], axis=-1)
     spec = jnp.fft.rfft(v, axis=-1)  # V_k, k = 0..n/2
     c, s = _twiddles(n, u.dtype)
-    half = c * spec.real + s * spec.imag  # Re(e^{-i pi k / 2n} V_k), k = 0..n/2
+    re, im = _padded(spec.real), _padded(spec.imag)
+    half = (c * re + s * im)[..., : n // 2 + 1]  # Re(e^{-i pi k / 2n} V_k), k = 0..n/2
     # k > n/2: Re(e^{-i pi k/2n} V_k) with V_k = conj(V_{n-k}): -(sin(pi (n-k)/2n) Re V_{n-k} - cos(.) Im V_{n-k})
-    upper = (s * spec.real - c * spec.imag)[..., 1 : (n + 1) // 2][..., ::-1]
+    upper = (s * re - c * im)[..., 1 : (n + 1) // 2][..., ::-1]
     dct = jnp.concatenate([half, upper], axis=-1)[..., :n]  # sum_j u_j cos(pi k (2j+1) / 2n)
     scale = np.full(n, 2.0 / n)
     scale[0] = 1.0 / n
@@ -60,13 +73,13 @@ def cos_synthesis(a: jax.Array) -> jax.Array:
     """Cell-centred values u [..., n] of cosine amplitudes a [..., n] (last axis); inverse of ``cos_analysis``."""
     n = a.shape[-1]
     # Makhoul's inverse: V_k = e^{i pi k/2n} (X_k - i X_{n-k}) / 2 with X the DCT-II (X_n = 0), k = 0..n/2
-    x = a * jnp.asarray(np.where(np.arange(n) == 0, 1.0, 0.5) * n, a.dtype)  # X_k = n a_0, n a_k / 2 ... as DCT-II
-    head = x[..., : n // 2 + 1]
-    tail = jnp.concatenate([jnp.zeros_like(x[..., :1]), x[..., ::-1][..., : n // 2]], axis=-1)  # X_{n-k}
-    c, s = _twiddles(n, a.dtype)
-    re = 0.5 * (c * head + s * tail)
-    im = 0.5 * (s * head - c * tail)
-    v = jnp.fft.irfft(jax.lax.complex(re, im), n=n, axis=-1) * 2  # v = IFFT(V) scaled to the DCT-III
+    x = a * jnp.asarray(np.where(np.arange(n) == 0, 1.0, 0.5) * n, a.dtype)  # X_k: the DCT-II of the values
+    head = _padded(x[..., : n // 2 + 1])
+    tail = _padded(jnp.concatenate([jnp.zeros_like(x[..., :1]), x[..., ::-1][..., : n // 2]], axis=-1))  # X_{n-k}
+    c, s = _twiddles(n, a.dtype, scale=1.0)
+    re = (c * head + s * tail)[..., : n // 2 + 1]
+    im = (s * head - c * tail)[..., : n // 2 + 1]
+    v = jnp.fft.irfft(jax.lax.complex(re, im), n=n, axis=-1)  # v = IFFT(2 V): the DCT-III's reordered values
     out = jnp.zeros_like(v)
     out = out.at[..., ::2].set(v[..., : (n + 1) // 2])
     return out.at[..., 1::2].set(v[..., (n + 1) // 2 :][..., ::-1])

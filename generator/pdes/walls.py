@@ -129,10 +129,19 @@ class Walls:
         return Grid(self.NDIM, 2 * self.n, 2 * self.length)
 
     def _check_ic_on_grid(self) -> None:
+        """The IC's rules on the doubled box it is drawn on; on Dirichlet walls its constant part is refused (the
+        folded draw is odd about the walls, so an offset or mean would be silently dropped: bc_lo/bc_hi set values)."""
         try:
             self.ic.check(self.box)
         except ValueError as err:
             raise ValueError(f"{self.NAME}: {err}") from None
+        if "dirichlet" in self.BCS:
+            for name in ("offset", "mean"):
+                value = getattr(self.ic, name, 0.0)
+                if value:
+                    values = " (set the wall values with bc_lo, bc_hi)" if "bc_lo" in self.PARAMS else ""
+                    raise ValueError(f"{self.NAME}: ic.{name}={value:g} not allowed on Dirichlet walls: u = 0 there and "
+                                     f"the IC is drawn odd about them; allowed: ic.{name}=0{values}")
 
     def sample_ic(self, key: jax.Array, p=None) -> jax.Array:
         """One initial condition float32 [C, *space] satisfying the walls (the folded draw), plus the lifting."""

@@ -1,0 +1,119 @@
+"""A walled (Dirichlet / Neumann) entry through everything pdestream does with samples: stream == cache (Zarr and
+HDF5, bc recorded where xarray shows it), the reservoir, the solver oracle, the differentiable step's gradients
+(float64 finite differences), pickling for spawned workers, and the one-line refusals of bad boundary settings."""
+
+import pickle
+
+import jax
+import numpy as np
+import pytest
+import torch
+import xarray as xr
+
+import datasets
+import generator
+from datasets import _bridge
+from datasets.reservoir import ReservoirStream
+from datasets.solver import SolverOracle, SolverStep
+
+torch.set_num_threads(1)
+SETTINGS = {"n": 32, "n_frames": 5, "t_end": 0.2, "bc": "dirichlet", "bc_lo": "uniform(0, 1)", "bc_hi": "-0.5"}
+
+
+@pytest.fixture(scope="module")
+def pde():
+    return generator.get_pde("burgers1d", **SETTINGS)
+
+
+@pytest.mark.parametrize("fmt", ["zarr", "h5"])
+def test_stream_and_cache_give_the_same_bits_and_the_cache_records_the_walls(pde, tmp_path, fmt):
+    path = tmp_path / f"walls.{fmt}"
+    datasets.write_cache(pde, path, n_samples=6, seed=2, block=4)
+    ds = datasets.open_cache(path)
+    assert ds.attrs["bc"] == "dirichlet" and ds.attrs["bc_type"] == "wall"
+    assert ds["x"].attrs["bc"] == "dirichlet" and ds["x"].attrs["bc_type"] == "wall"
+    np.testing.assert_allclose(ds["x"].values, (np.arange(32) + 0.5) / 32, rtol=1e-6)  # cell centres
+    plain = xr.open_zarr(path) if fmt == "zarr" else xr.open_dataset(path, engine="h5netcdf")
+    assert plain.attrs["bc_type"] == "wall" and plain["x"].attrs["bc"] == "dirichlet"
+    stream = datasets.TrajectoryStream(pde, seed=2, view="whole", batch_size=6, n_samples=6, shuffle=False,
+                                       resample=False, solve_batch=4)
+    batch = next(iter(torch.utils.data.DataLoader(stream, batch_size=None)))
+    cached = datasets.CachedTrajectories(path, view="whole")
+    assert cached.pde.config() == pde.config() and type(cached.pde).__name__ == "Burgers1D_d"
+    for k, i in enumerate(batch["index"].tolist()):
+        assert torch.equal(cached[i]["u"], batch["u"][k]) and torch.equal(cached[i]["params"], batch["params"][k])
+    # the lifted walls: u at the cell centres next to the walls approaches bc_lo and bc_hi
+    u = ds["u"].values[:, 0]  # [sample, x] at t = 0 (0 1 ... stored in x order)
+    lo = ds["bc_lo"].values
+    assert np.all(np.abs(u[:, 0] - lo) < 0.5) and np.all(np.abs(u[:, -1] + 0.5) < 0.5)
+
+
+def test_samples_are_bit_identical_alone_in_batches_and_with_explicit_params(pde):
+    batch = generator.sample(pde, [0, 1, 2, 3, 4], seed=1)
+    alone = generator.sample(pde, [3], seed=1)
+    np.testing.assert_array_equal(np.asarray(batch.u[3]), np.asarray(alone.u[0]))
+    given = generator.sample(pde, [3], seed=1, params={k: np.asarray(v[3:4]) for k, v in batch.params.items()})
+    np.testing.assert_array_equal(np.asarray(given.u[0]), np.asarray(alone.u[0]))
+
+
+def test_a_walled_pde_pickles_and_rebuilds_from_its_config(pde):
+    again = pickle.loads(pickle.dumps(pde))
+    assert again == pde and type(again) is type(pde) and hash(again) == hash(pde)
+    assert generator.from_config(pde.config()) == pde
+    assert generator.get_pde("burgers1d", bc="dirichlet").replace(bc="periodic") == generator.get_pde("burgers1d")
+
+
+def test_reservoir_serves_walled_samples(pde):
+    stream = ReservoirStream(pde, seed=3, view="operator", batch_size=4, capacity=8, max_reuse=2, solve_batch=4,
+                             mode="deterministic")
+    batches = []
+    for batch in torch.utils.data.DataLoader(stream, batch_size=None):
+        batches.append(batch)
+        if len(batches) == 3:
+            break
+    stream.close()
+    index = sorted({int(i) for b in batches for i in b["index"]})
+    ref = _bridge.sample_tensors(pde, index, seed=3)
+    for b in batches:
+        for k, i in enumerate(b["index"].tolist()):
+            assert torch.equal(b["x"][k].reshape(-1), ref["u"][index.index(i), 0].reshape(-1))  # operator view: frame 0
+
+
+def test_the_oracle_advances_a_sampled_frame_to_the_next_one(pde):
+    t = _bridge.sample_tensors(pde, range(3), seed=3)
+    oracle = SolverOracle(pde)
+    for i in range(pde.n_frames - 1):
+        got, want = oracle(t["u"][:, i], t["params"]), t["u"][:, i + 1]
+        assert float((got - want).abs().max() / want.abs().max()) < 2e-6
+
+
+def test_solver_step_gradients_match_float64_finite_differences():
+    pde = generator.get_pde("burgers1d", n=16, t_end=0.02, n_frames=2, bc="dirichlet", bc_lo="uniform(0, 1)",
+                            bc_hi="uniform(-1, 1)")  # every parameter column is perturbed: give each a domain
+    t = _bridge.sample_tensors(pde, range(2), seed=3)
+    with jax.enable_x64(True):
+        step = SolverStep(pde)
+        u = t["u"][:, 0].double().requires_grad_(True)
+        params = t["params"].double().requires_grad_(True)
+        assert torch.autograd.gradcheck(step, (u, params), eps=1e-6, atol=1e-9, rtol=1e-6, fast_mode=False)
+    assert not jax.config.jax_enable_x64
+
+
+@pytest.mark.parametrize("settings, message", [
+    ({"bc": "dirichlet"}, "fisher_kpp1d: bc='dirichlet' not allowed (dirichlet is not among this entry's boundaries); "
+                          "allowed: periodic, neumann"),
+    ({"bc": "wall"}, "bc='wall' not allowed; allowed: periodic, neumann"),
+    ({"bc.z": "neumann"}, "bc.z not allowed: the axes of a 1D entry are x"),
+    ({"bc_lo": "1"}, "unknown setting 'bc_lo'"),
+])
+def test_bad_boundary_settings_are_one_line(settings, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")) as err:
+        generator.get_pde("fisher_kpp1d", **settings)
+    assert "\n" not in str(err.value)
+
+
+def test_boundary_values_on_a_periodic_axis_and_offsets_on_dirichlet_walls_are_refused():
+    with pytest.raises(ValueError, match="unknown setting 'bc_lo'"):
+        generator.get_pde("diffusion1d", bc="neumann", bc_lo="1")
+    with pytest.raises(ValueError, match=r"ic.offset=0.5 not allowed on Dirichlet walls"):
+        generator.get_pde("diffusion1d", bc="dirichlet", **{"ic.offset": 0.5})
