@@ -89,7 +89,10 @@ def cmd_list(args: argparse.Namespace) -> None:
             print(f"== {group} ({len(names)}) ==\n")
         for name in names:
             pde = generator.get_pde(name)
-            print(f"[{pde.NDIM}D] {pde.describe()}\n")
+            offered = getattr(pde, "BOUNDARIES", pde.grid.bc[:1])  # what `--set bc=` takes (a steady grid: its own)
+            walls = (f"  bc: {', '.join(offered)} (--set bc={offered[1]}, or one axis: --set bc.x={offered[-1]})"
+                     if len(offered) > 1 else f"  bc: {pde.grid.bc[0]} on every axis (fixed)")
+            print(f"[{pde.NDIM}D] {pde.describe()}\n{walls}\n")
 
 
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):

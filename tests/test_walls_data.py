@@ -117,3 +117,21 @@ def test_boundary_values_on_a_periodic_axis_and_offsets_on_dirichlet_walls_are_r
         generator.get_pde("diffusion1d", bc="neumann", bc_lo="1")
     with pytest.raises(ValueError, match=r"ic.offset=0.5 not allowed on Dirichlet walls"):
         generator.get_pde("diffusion1d", bc="dirichlet", **{"ic.offset": 0.5})
+
+
+def test_the_cli_lists_generates_and_refuses_walls(tmp_path, capsys):
+    import cli
+
+    assert cli.main(["list"]) == 0
+    out = capsys.readouterr().out
+    assert "bc: periodic, dirichlet, neumann (--set bc=dirichlet, or one axis: --set bc.x=neumann)" in out
+    assert "bc: dirichlet on every axis (fixed)" in out  # darcy2d
+    path = tmp_path / "d.zarr"
+    assert cli.main(["generate", "diffusion2d", "--n", "2", "--set", "n=16", "--set", "bc.y=neumann",
+                     "--out", str(path)]) == 0
+    capsys.readouterr()
+    assert xr.open_zarr(path).attrs["bc"] == "periodic neumann"
+    assert cli.main(["generate", "grayscott2d", "--n", "2", "--set", "bc=dirichlet", "--out", str(tmp_path / "g")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "bc='dirichlet' not allowed" in err and "allowed: periodic" in err
+    assert not (tmp_path / "g").exists()
