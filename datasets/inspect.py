@@ -39,6 +39,14 @@ def field_stats(ds, name: str, rows: np.ndarray, block: int = 64) -> dict:
             "max": hi, "damaged": damaged}
 
 
+def boundary_line(attrs: dict, ndim: int) -> str:
+    """'x dirichlet (wall), y periodic (periodic)': each space axis's boundary condition and The Well's word."""
+    bcs = schema.cache_boundaries(attrs, ndim)
+    types = str(attrs.get("bc_type") or " ".join(["periodic"] * ndim)).split()
+    recorded = "" if attrs.get("bc") else " (not recorded: a cache written before boundaries were)"
+    return ", ".join(f"{schema.SPACE[i]} {b} ({t})" for i, (b, t) in enumerate(zip(bcs, types))) + recorded
+
+
 def summary(path) -> str:
     """Several lines: PDE, equation, config, samples complete of total, parameter ranges, field statistics,
     bytes on disk."""
@@ -55,6 +63,7 @@ def summary(path) -> str:
             f"  samples: {int(complete.sum())} of {complete.size} complete, {state}; seed {a['pdestream_seed']}",
             f"  dims: {sizes}; " + (f"time in [{float(ds.time[0]):g}, {float(ds.time[-1]):g}]" if "time" in ds.dims
                                     else "steady (no time axis)"),
+            "  boundaries: " + boundary_line(a, sum(d in ds.dims for d in schema.SPACE)),
             f"  config: {json.dumps(json.loads(a[schema.CONFIG_ATTR]), sort_keys=True)}",
             f"  provenance: hash {a['pdestream_config_hash']}, pdestream {a['pdestream_version']}, "
             f"jax {a['jax_version']} (threefry_partitionable={a['jax_threefry_partitionable']})",

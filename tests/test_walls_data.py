@@ -131,6 +131,8 @@ def test_the_cli_lists_generates_and_refuses_walls(tmp_path, capsys):
                      "--out", str(path)]) == 0
     capsys.readouterr()
     assert xr.open_zarr(path).attrs["bc"] == "periodic neumann"
+    assert cli.main(["inspect", str(path)]) == 0
+    assert "  boundaries: x periodic (periodic), y neumann (open)" in capsys.readouterr().out
     assert cli.main(["generate", "grayscott2d", "--n", "2", "--set", "bc=dirichlet", "--out", str(tmp_path / "g")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "bc='dirichlet' not allowed" in err and "allowed: periodic" in err
