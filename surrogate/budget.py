@@ -207,7 +207,8 @@ def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=
     norm = source_normalization(loader)
     c_in, c_out = model_channels(pde, view)
     torch.manual_seed(seed)  # the same initial weights in every arm
-    model = build_model(cfg.model, pde.NDIM, c_in, c_out, len(pde.PARAMS), **cfg.model_cfg).to(cfg.device)
+    model = build_model(cfg.model, pde.NDIM, c_in, c_out, len(pde.PARAMS), bc=pde.grid.bc,
+                        **cfg.model_cfg).to(cfg.device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     report = getattr(dataset, "report_losses", None)
     snapshots, steps, examples, t_data, t_compute = [], 0, 0, 0.0, 0.0
@@ -279,7 +280,7 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
     # fitted to the samples (a steady entry's operator view has no frames to check) and the model built once, so
     # a 3D entry or a bad --model-set is refused before any solve (it was refused after the test sets and a cache)
     view = datasets.for_sample(datasets.make_view(cfg.view), pde.n_frames, len(pde.INPUTS))
-    build_model(cfg.model, pde.NDIM, *model_channels(pde, view), len(pde.PARAMS), **cfg.model_cfg)
+    build_model(cfg.model, pde.NDIM, *model_channels(pde, view), len(pde.PARAMS), bc=pde.grid.bc, **cfg.model_cfg)
     datasets.ReservoirStream(pde, view=view, batch_size=cfg.batch_size, capacity=cfg.capacity,
                              solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode,
                              proposal_kwargs={"floor": cfg.proposal_floor})  # settings checked before any work

@@ -81,7 +81,7 @@ def compare(pde, out_dir, cfg: CompareConfig = CompareConfig(), shift_overrides:
     # fail before any work: the view fitted to the samples (a steady entry has no frames), the model buildable
     view = datasets.make_view(cfg.view)
     fitted = datasets.for_sample(view, pde.n_frames, len(pde.INPUTS))
-    build_model(cfg.model, pde.NDIM, *model_channels(pde, fitted), len(pde.PARAMS), **cfg.model_cfg)
+    build_model(cfg.model, pde.NDIM, *model_channels(pde, fitted), len(pde.PARAMS), bc=pde.grid.bc, **cfg.model_cfg)
     out.mkdir(parents=True, exist_ok=True)
     cache = out / f"cache.{cfg.cache_format}"
     written = datasets.write_cache(pde, cache, cfg.cache_samples, seed=0, overwrite=True)

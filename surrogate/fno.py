@@ -1,9 +1,13 @@
-"""Fourier Neural Operator (Li et al., 2021) for periodic 1D and 2D fields.
+"""Fourier Neural Operator (Li et al., 2021) for 1D and 2D fields, periodic or with walls.
 
 Input ``x: [B, C_in, *space]`` (frames stacked into channels), optional conditioning ``params: [B, P]``
 (broadcast over space as P extra input channels), output ``[B, C_out, *space]``. Normalized grid
 coordinates are appended as input channels, as in the paper. Each layer is
 ``gelu(SpectralConv(v) + Conv1x1(v))``; the spectral convolution keeps the lowest ``modes`` Fourier modes.
+
+The FFT treats every axis as periodic. On an axis with walls (``bc`` not 'periodic') the lifted field is padded
+with zeros by PAD_FRACTION of its size at the far end before the Fourier layers and cropped after them (domain
+padding, as neuraloperator's DomainPadding does), so the operator does not wrap one wall onto the other.
 """
 
 from __future__ import annotations
@@ -28,6 +32,29 @@ class FNOConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"fno: {name}={value!r} not allowed; must be an integer >= 1")
+
+
+PAD_FRACTION = 1 / 8  # domain padding on an axis with walls, as a share of its size (at least MIN_PAD points)
+MIN_PAD = 4
+
+
+def wall_padding(bc: tuple[str, ...] | None, space: tuple[int, ...]) -> tuple[int, ...]:
+    """Points of zero padding per spatial axis: 0 on periodic axes, max(MIN_PAD, PAD_FRACTION n) on the others."""
+    if bc is None:
+        return (0,) * len(space)
+    return tuple(0 if b == "periodic" else max(MIN_PAD, round(PAD_FRACTION * n)) for b, n in zip(bc, space))
+
+
+def check_bc(bc, ndim: int, name: str) -> tuple[str, ...] | None:
+    """None for all-periodic (the model as it always was), else the per-axis boundary conditions; ValueError
+    for a wrong count or word."""
+    if bc is None:
+        return None
+    bc = tuple(str(b) for b in bc)
+    allowed = ("periodic", "dirichlet", "neumann")
+    if len(bc) != ndim or any(b not in allowed for b in bc):
+        raise ValueError(f"{name}: bc={list(bc)} not allowed: need {ndim} of {', '.join(allowed)} (one per axis)")
+    return None if all(b == "periodic" for b in bc) else bc
 
 
 # the FNO of the compare commands (model_cfg), small enough for a comparison in ~10 minutes on 2 CPU cores
@@ -115,10 +142,11 @@ class FNO(nn.Module):
     Config = FNOConfig
 
     def __init__(self, ndim: int, in_channels: int, out_channels: int, n_params: int = 0,
-                 config: FNOConfig = FNOConfig()):
+                 config: FNOConfig = FNOConfig(), bc: tuple[str, ...] | None = None):
         super().__init__()
         self.ndim, self.in_channels, self.out_channels, self.n_params = ndim, in_channels, out_channels, n_params
         self.config = config
+        self.bc = check_bc(bc, ndim, "fno")  # None: every axis periodic
         width = config.width
         self.lift = pointwise(ndim, in_channels + n_params + ndim, width)
         self.spectral = nn.ModuleList(SpectralConv(ndim, width, width, config.modes) for _ in range(config.layers))
@@ -129,11 +157,18 @@ class FNO(nn.Module):
         check_input(x, self.ndim, self.in_channels, "fno")
         x = condition(x, params, self.n_params)  # [B, C_in + P, *space]
         v = self.lift(torch.cat([x, grid_channels(x, self.ndim)], dim=1))  # [B, width, *space]
+        space = v.shape[2:]
+        pads = wall_padding(self.bc, tuple(space))
+        if any(pads):  # zeros after each wall axis's far end: F.pad takes the last axis first
+            v = F.pad(v, [q for pad in reversed(pads) for q in (0, pad)])  # [B, width, *(space + pads)]
         for i, (spec, skip) in enumerate(zip(self.spectral, self.skip)):
-            v = spec(v) + skip(v)  # [B, width, *space]
+            v = spec(v) + skip(v)  # [B, width, *padded space]
             if i < len(self.spectral) - 1:  # no activation after the last layer, as in the paper
                 v = F.gelu(v)
+        if any(pads):
+            v = v[(..., *(slice(0, n) for n in space))]  # [B, width, *space]
         return self.project(v)  # [B, C_out, *space]
 
 
-__all__ = ["COMPARE_FNO", "FNO", "FNOConfig", "SpectralConv", "condition", "check_input", "pointwise"]
+__all__ = ["COMPARE_FNO", "FNO", "FNOConfig", "SpectralConv", "check_bc", "check_input", "condition", "pointwise",
+           "wall_padding"]

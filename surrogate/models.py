@@ -18,7 +18,8 @@ from .unet import UNet
 
 class Surrogate(Protocol):
     """What a model class declares: ``forward(x [B, in_channels, *space], params [B, n_params]) -> [B,
-    out_channels, *space]``, built as ``cls(ndim, in_channels, out_channels, n_params, cls.Config(...))``."""
+    out_channels, *space]``, built as ``cls(ndim, in_channels, out_channels, n_params, cls.Config(...), bc=...)``
+    (bc: per-axis boundary conditions, None when every axis is periodic; kept as ``model.bc``)."""
 
     name: str
     Config: type
@@ -27,6 +28,7 @@ class Surrogate(Protocol):
     out_channels: int
     n_params: int
     config: object
+    bc: tuple[str, ...] | None
 
 
 MODELS: dict[str, type[Surrogate]] = {cls.name: cls for cls in (FNO, UNet)}
@@ -43,9 +45,12 @@ def parse_model_name(name: str) -> tuple[str, int | None]:
     return base, ndim
 
 
-def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_params: int = 0, **cfg) -> nn.Module:
+def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_params: int = 0,
+                bc: tuple[str, ...] | None = None, **cfg) -> nn.Module:
     """A model for inputs [B, in_channels, *space] with ndim space dims, params [B, n_params] -> [B, out_channels, *space].
 
+    bc: the data's per-axis boundary conditions (``pde.grid.bc``: periodic / dirichlet / neumann), from the data
+    source; the model pads each axis accordingly (None or all periodic: the periodic model, as it always was).
     ``cfg`` sets the model's config dataclass (FNOConfig: width, modes, layers; UNetConfig: channels, depth);
     string values (from ``--model-set``) are converted to int.
     """
@@ -67,11 +72,12 @@ def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_par
             values[key] = int(value)
         except (TypeError, ValueError):
             raise ValueError(f"model {base!r}: {key}={value!r} is not an integer") from None
-    return cls(ndim, in_channels, out_channels, n_params, config_cls(**values))
+    return cls(ndim, in_channels, out_channels, n_params, config_cls(**values), bc=bc)
 
 
 def model_spec(model: Surrogate) -> dict:
     """Plain dict that ``build_model(**spec)`` turns back into the same architecture (for checkpoints): the
     model's own name, its shape (ndim, channels, n_params) and its config's fields."""
+    walls = {} if model.bc is None else {"bc": list(model.bc)}  # a periodic model's spec is what it always was
     return {"name": model.name, "ndim": model.ndim, "in_channels": model.in_channels,
-            "out_channels": model.out_channels, "n_params": model.n_params, **dataclasses.asdict(model.config)}
+            "out_channels": model.out_channels, "n_params": model.n_params, **walls, **dataclasses.asdict(model.config)}

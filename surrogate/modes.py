@@ -257,10 +257,19 @@ class Oracle:
         return _net_rollout(model, norm, u, params, k_in)
 
 
-def subsample(u: torch.Tensor, factor: int, ndim: int) -> torch.Tensor:
-    """Every ``factor``-th grid point in each of the last ndim dims: [..., *fine] -> [..., *fine/factor]. On a
-    periodic grid x_i = i L / n, fine point factor*i is coarse point i exactly."""
-    return u[(Ellipsis, *[slice(None, None, factor)] * ndim)]
+def subsample(u: torch.Tensor, factor: int, ndim: int, bc: tuple[str, ...] | None = None) -> torch.Tensor:
+    """The fine field at the coarse grid's points, [..., *fine] -> [..., *fine/factor] over the last ndim dims.
+    On a periodic axis (x_i = i L / n) fine point factor*i is coarse point i exactly. On an axis with walls the
+    points are cell centres: coarse centre i is fine point factor*i + (factor-1)/2, which for an even factor lies
+    midway between two fine points, whose mean is taken (second order in the fine spacing)."""
+    for axis, b in enumerate(bc or ("periodic",) * ndim):
+        dim = u.ndim - ndim + axis
+        if b == "periodic":
+            u = u[(slice(None),) * dim + (slice(None, None, factor),)]
+        else:
+            lo, hi = (factor - 1) // 2, factor // 2  # the same point for an odd factor
+            u = 0.5 * (u.unfold(dim, factor, factor).select(-1, lo) + u.unfold(dim, factor, factor).select(-1, hi))
+    return u
 
 
 @dataclass
@@ -278,6 +287,7 @@ class SolverInTheLoop:
     coarse_n: int = 64
     step: nn.Module | None = None
     factor: int = 0
+    walls: tuple[str, ...] | None = None  # the PDE's per-axis bc (None: periodic), for the fine -> coarse points
     name: ClassVar[str] = "solver-in-the-loop"
 
     def settings(self) -> dict:
@@ -297,6 +307,7 @@ class SolverInTheLoop:
             raise ValueError(f"solver-in-the-loop: coarse n={self.coarse_n!r} does not fit the fine grid n={n}; "
                              f"allowed: a proper divisor of {n}, e.g. {n // 8 if n % 8 == 0 and n // 8 >= 8 else n // 2}")
         self.factor = n // self.coarse_n
+        self.walls = tuple(pde.grid.bc)
         try:
             self.step = datasets.SolverStep({**pde.config(), "n": self.coarse_n}, frames=1)
         except ValueError as err:  # the PDE's refusal speaks of n, which the user set as --coarse-n
@@ -311,20 +322,20 @@ class SolverInTheLoop:
     def step_loss(self, model, batch, norm, step):
         ndim = model.ndim
         params, p = batch["params"], norm.normalize_params(batch["params"])
-        s = subsample(batch["x"][:, -1], self.factor, ndim)  # [B, C, *coarse]
+        s = subsample(batch["x"][:, -1], self.factor, ndim, self.walls)  # [B, C, *coarse]
         states = []
         for _ in range(self.unroll):
             s = self.correct(model, norm, self.step(s, params), p)
             states.append(s)
         pred = norm.normalize(torch.stack(states, dim=1))  # [B, k, C, *coarse]
-        target = norm.normalize(subsample(batch["y"][:, : self.unroll], self.factor, ndim))
+        target = norm.normalize(subsample(batch["y"][:, : self.unroll], self.factor, ndim, self.walls))
         return F.mse_loss(pred, target), relative_errors(pred, target)
 
     @torch.no_grad()
     def rollout(self, model, norm, u, params, k_in=1):
         """The corrected coarse solver (model=None: the coarse solver alone) from u[:, 0] subsampled."""
         ndim = u.ndim - 3
-        truth = subsample(u, self.factor, ndim)  # [B, T, C, *coarse]
+        truth = subsample(u, self.factor, ndim, self.walls)  # [B, T, C, *coarse]
         p = norm.normalize_params(params) if model is not None else None
         s, out = truth[:, 0], []
         for _ in range(u.shape[1] - 1):

@@ -185,7 +185,8 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     mode.bind(data_pde, s["seed"])
     c_in, c_out = mode.channels(data_pde, view)
     torch.manual_seed(s["seed"])  # same initial weights for every source with the same seed
-    net = build_model(s["model"], data_pde.NDIM, c_in, c_out, len(data_pde.PARAMS), **s["model_cfg"])
+    net = build_model(s["model"], data_pde.NDIM, c_in, c_out, len(data_pde.PARAMS), bc=data_pde.grid.bc,
+                      **s["model_cfg"])  # the walls of the data (a cache's own, or the stream's PDE)
     net.to(check_device(s.get("device", "cpu")))  # runs from before --device trained on the CPU
     if resume is None:
         s = {**s, "pde": data_pde.config()}  # the data's PDE: a cache's own settings

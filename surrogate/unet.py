@@ -1,9 +1,11 @@
-"""A small U-Net for periodic 1D and 2D fields.
+"""A small U-Net for 1D and 2D fields, periodic or with walls.
 
 Input ``x: [B, C_in, *space]`` (frames stacked into channels), optional conditioning ``params: [B, P]``
-(broadcast over space as P extra input channels), output ``[B, C_out, *space]``. Convolutions pad
-circularly because every pdestream domain is periodic. Each level halves the resolution and doubles the
-channels, so every spatial size must be divisible by ``2**depth``.
+(broadcast over space as P extra input channels), output ``[B, C_out, *space]``. Convolutions pad each axis by
+its boundary condition: circularly on a periodic axis, with zeros on a Dirichlet one (a wall of given value: the
+normalized field's wall value is a constant the convolution learns around), by replication on a Neumann one
+(zero gradient across the wall). Each level halves the resolution and doubles the channels, so every spatial
+size must be divisible by ``2**depth``.
 """
 
 from __future__ import annotations
@@ -14,7 +16,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .fno import check_input, condition, pointwise
+from .fno import check_bc, check_input, condition, pointwise
+
+PAD_MODE = {"periodic": "circular", "dirichlet": "constant", "neumann": "replicate"}
 
 
 @dataclass(frozen=True)
@@ -31,19 +35,38 @@ class UNetConfig:
                 raise ValueError(f"unet: {name}={value!r} not allowed; must be an integer >= 1")
 
 
-def conv(ndim: int, c_in: int, c_out: int) -> nn.Module:
-    """3-point (1D) or 3x3 (2D) convolution with periodic padding."""
-    return (nn.Conv1d if ndim == 1 else nn.Conv2d)(c_in, c_out, 3, padding=1, padding_mode="circular")
+class WallConv(nn.Module):
+    """A 3-point / 3x3 convolution after padding each axis by one point in its boundary condition's mode."""
+
+    def __init__(self, ndim: int, c_in: int, c_out: int, bc: tuple[str, ...]):
+        super().__init__()
+        self.conv = (nn.Conv1d if ndim == 1 else nn.Conv2d)(c_in, c_out, 3)
+        self.modes = [PAD_MODE[b] for b in bc]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        ndim = len(self.modes)
+        for axis, mode in enumerate(self.modes):  # one axis at a time; F.pad lists the last axis first
+            pad = [0, 0] * ndim
+            pad[2 * (ndim - 1 - axis) : 2 * (ndim - axis)] = [1, 1]
+            x = F.pad(x, pad, mode=mode)
+        return self.conv(x)  # [B, C_out, *space]
+
+
+def conv(ndim: int, c_in: int, c_out: int, bc: tuple[str, ...] | None = None) -> nn.Module:
+    """3-point (1D) or 3x3 (2D) convolution: periodic padding (bc None), else padded per axis (WallConv)."""
+    if bc is None:
+        return (nn.Conv1d if ndim == 1 else nn.Conv2d)(c_in, c_out, 3, padding=1, padding_mode="circular")
+    return WallConv(ndim, c_in, c_out, bc)
 
 
 class Block(nn.Module):
     """Two convolutions with GroupNorm and GELU, plus a 1x1 residual path."""
 
-    def __init__(self, ndim: int, c_in: int, c_out: int):
+    def __init__(self, ndim: int, c_in: int, c_out: int, bc: tuple[str, ...] | None = None):
         super().__init__()
         groups = 4 if c_out % 4 == 0 else 1
-        self.body = nn.Sequential(conv(ndim, c_in, c_out), nn.GroupNorm(groups, c_out), nn.GELU(),
-                                  conv(ndim, c_out, c_out), nn.GroupNorm(groups, c_out), nn.GELU())
+        self.body = nn.Sequential(conv(ndim, c_in, c_out, bc), nn.GroupNorm(groups, c_out), nn.GELU(),
+                                  conv(ndim, c_out, c_out, bc), nn.GroupNorm(groups, c_out), nn.GELU())
         self.skip = pointwise(ndim, c_in, c_out)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -57,14 +80,16 @@ class UNet(nn.Module):
     Config = UNetConfig
 
     def __init__(self, ndim: int, in_channels: int, out_channels: int, n_params: int = 0,
-                 config: UNetConfig = UNetConfig()):
+                 config: UNetConfig = UNetConfig(), bc: tuple[str, ...] | None = None):
         super().__init__()
         self.ndim, self.in_channels, self.out_channels, self.n_params = ndim, in_channels, out_channels, n_params
         self.config = config
+        self.bc = bc = check_bc(bc, ndim, "unet")  # None: every axis periodic
         widths = [config.channels * 2**i for i in range(config.depth + 1)]  # per level, finest first
-        self.stem = Block(ndim, in_channels + n_params, widths[0])
-        self.down = nn.ModuleList(Block(ndim, widths[i], widths[i + 1]) for i in range(config.depth))
-        self.up = nn.ModuleList(Block(ndim, widths[i + 1] + widths[i], widths[i]) for i in reversed(range(config.depth)))
+        self.stem = Block(ndim, in_channels + n_params, widths[0], bc)
+        self.down = nn.ModuleList(Block(ndim, widths[i], widths[i + 1], bc) for i in range(config.depth))
+        self.up = nn.ModuleList(Block(ndim, widths[i + 1] + widths[i], widths[i], bc)
+                                for i in reversed(range(config.depth)))
         self.head = pointwise(ndim, widths[0], out_channels)
 
     def forward(self, x: torch.Tensor, params: torch.Tensor | None = None) -> torch.Tensor:
