@@ -27,6 +27,7 @@ from .pdes.hyper_diffusion import HyperDiffusion
 from .pdes.kdv1d import KdV1D
 from .pdes.ks import KS
 from .pdes.ns2d import NS2D
+from .pdes.poisson import Helmholtz, Poisson
 from .pdes.swift_hohenberg import SwiftHohenberg
 from .pdes.wave import Wave
 
@@ -75,6 +76,10 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("grayscott3d", GrayScott, {"ndim": 3}, "reaction-diffusion"),
     Entry("ns2d", NS2D, {}, "fluids"),
     Entry("darcy2d", Darcy2D, {}, "steady"),
+    Entry("poisson1d", Poisson, {"ndim": 1}, "steady"),
+    Entry("poisson2d", Poisson, {"ndim": 2}, "steady"),
+    Entry("helmholtz1d", Helmholtz, {"ndim": 1}, "steady"),
+    Entry("helmholtz2d", Helmholtz, {"ndim": 2}, "steady"),
 )
 
 

@@ -8,6 +8,7 @@ its config dataclass ``Config``, and on each instance ndim, in_channels, out_cha
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from typing import Protocol
 
 from torch import nn
@@ -72,12 +73,17 @@ def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_par
             values[key] = int(value)
         except (TypeError, ValueError):
             raise ValueError(f"model {base!r}: {key}={value!r} is not an integer") from None
-    return cls(ndim, in_channels, out_channels, n_params, config_cls(**values), bc=bc)
+    walls = bc is not None and any(b != "periodic" for b in bc)  # a periodic model is built as it always was
+    if walls and "bc" not in inspect.signature(cls).parameters:
+        raise ValueError(f"model {base!r} has no padding for walls (its class takes no bc); the data's boundaries are "
+                         f"{', '.join(bc)}; allowed: {', '.join(n for n, c in MODELS.items() if 'bc' in inspect.signature(c).parameters)}")
+    return cls(ndim, in_channels, out_channels, n_params, config_cls(**values), **({"bc": tuple(bc)} if walls else {}))
 
 
 def model_spec(model: Surrogate) -> dict:
     """Plain dict that ``build_model(**spec)`` turns back into the same architecture (for checkpoints): the
     model's own name, its shape (ndim, channels, n_params) and its config's fields."""
-    walls = {} if model.bc is None else {"bc": list(model.bc)}  # a periodic model's spec is what it always was
+    bc = getattr(model, "bc", None)
+    walls = {} if bc is None else {"bc": list(bc)}  # a periodic model's spec is what it always was
     return {"name": model.name, "ndim": model.ndim, "in_channels": model.in_channels,
             "out_channels": model.out_channels, "n_params": model.n_params, **walls, **dataclasses.asdict(model.config)}

@@ -40,11 +40,11 @@ LIFT_PARAMS = {
 }
 
 
-def parse_bc(pde, spec: Mapping[str, Any]) -> tuple[str, ...]:
+def parse_bc(pde, spec: Mapping[str, Any], current: tuple[str, ...] | None = None) -> tuple[str, ...]:
     """The per-axis boundary conditions after applying ``spec`` ({"bc": "dirichlet" | "x=dirichlet,y=periodic" |
     {"x": ...}, "bc.x": "neumann", ...}) to those of ``pde``; ValueError naming a bad value and what is allowed."""
     ndim, allowed = pde.NDIM, pde.BOUNDARIES
-    bcs = list(getattr(pde, "BCS", ("periodic",) * ndim))
+    bcs = list(current or getattr(pde, "BCS", ("periodic",) * ndim))
     axes = AXES[:ndim]
 
     def put(axis: str, value: Any, shown: str) -> None:
@@ -110,6 +110,21 @@ def rebuild(base: type, bcs: tuple[str, ...], fields: dict):
     return wall_class(base, bcs)(**fields)
 
 
+def fold(u: jax.Array, bcs: tuple[str, ...], n: int) -> jax.Array:
+    """A field drawn on the periodic box of twice the side, [C, *(2n,)], folded to [C, *(n,)] on walls ``bcs``: its
+    odd part about the walls on a Dirichlet axis (a sine series), its even part on a Neumann axis (a cosine
+    series), the mean of its two halves on a periodic axis (L-periodic). Band limits and means carry over."""
+    for axis, bc in enumerate(bcs):
+        a = axis + 1  # the field axis comes first
+        first = jax.lax.slice_in_dim(u, 0, n, axis=a)
+        if bc == "periodic":  # the two halves of a 2L-periodic field sum to an L-periodic one
+            u = 0.5 * (first + jax.lax.slice_in_dim(u, n, 2 * n, axis=a))
+        else:  # the mirror image about x = 0 of point j is point 2n-1-j (points at cell centres)
+            mirror = jax.lax.slice_in_dim(jnp.flip(u, a), 0, n, axis=a)
+            u = 0.5 * (first - mirror) if bc == "dirichlet" else 0.5 * (first + mirror)
+    return u
+
+
 class Walls:
     """The methods of a walled entry class (first in its bases: they take over from the periodic class's)."""
 
@@ -145,15 +160,7 @@ class Walls:
 
     def sample_ic(self, key: jax.Array, p=None) -> jax.Array:
         """One initial condition float32 [C, *space] satisfying the walls (the folded draw), plus the lifting."""
-        u = self.ic.sample(key, self.box, len(self.FIELDS))
-        for axis, bc in enumerate(self.BCS):
-            a = axis + 1  # the field axis comes first
-            first = jax.lax.slice_in_dim(u, 0, self.n, axis=a)
-            if bc == "periodic":  # the two halves of a 2L-periodic field sum to an L-periodic one
-                u = 0.5 * (first + jax.lax.slice_in_dim(u, self.n, 2 * self.n, axis=a))
-            else:  # the mirror image about x = 0 of point j is point 2n-1-j (points at cell centres)
-                mirror = jax.lax.slice_in_dim(jnp.flip(u, a), 0, self.n, axis=a)
-                u = 0.5 * (first - mirror) if bc == "dirichlet" else 0.5 * (first + mirror)
+        u = fold(self.ic.sample(key, self.box, len(self.FIELDS)), self.BCS, self.n)
         return u if p is None or "bc_lo" not in self.PARAMS else u + self.lift(p)[None]
 
     # --- the lifting of Dirichlet values ----------------------------------------------------------------
