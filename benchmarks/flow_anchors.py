@@ -2,6 +2,7 @@
 process, against which pdestream's flow solver (``generator.flow``) is to be timed.
 
     nice python -m benchmarks.flow_anchors [--grids 128x64,64x32] [--steps 1600] [--batch 4] [--reps 3]
+        [--arms phiflow,jaxcfd,pdestream] [--scheme mac_cormack|semi_lagrangian] [--re 100]
 
 The case (``VortexCase``) is the shared truth: a channel [0, lx] x [0, ly], uniform inflow ``u_in`` through the
 left side, open outflow on the right (zero-gradient velocity, p = 0), no-penetration walls top and bottom, a
@@ -16,7 +17,8 @@ Arms (each: compile/warm-up run first, then the median of ``reps`` timed traject
 - ``jaxcfd_trajectory``: jax-cfd 0.2 cannot express this case: its advection (``convect_linear``, van Leer,
   semi-Lagrangian) raises NotImplementedError for any non-periodic velocity, and it has no obstacles. Its closest
   case is timed and labelled so: the same grid, lengths, nu, dt and steps in a doubly periodic box (van Leer
-  advection, CG pressure to ``tol``), started from a perturbed shear flow. Batches with ``jax.vmap``.
+  advection, CG pressure to ``tol``), started from a perturbed shear flow, with its own stable step (forward
+  Euler: k substeps of dt, Courant 0.5; steps/s counts case steps). Batches with ``jax.vmap``.
 - ``pdestream_trajectory``: the hook for ``generator.flow`` (see its docstring).
 
 Physics sanity printed per arm: max |div u| on fluid cells after the last projection (times dx / u_in, so
@@ -146,9 +148,12 @@ def jaxcfd_trajectory(case: VortexCase, batch: int = 0):
 
     v0 = cfd.initial_conditions.initial_velocity_field((ux, uy), grid, (bc, bc))
     solve = functools.partial(cfd.pressure.solve_cg, atol=case.tol, rtol=case.tol)
+    # Its explicit (forward Euler, van Leer) step blows up at dt = 0.01 on 128x64 (inf by t = 3): take its own
+    # stable step (Courant 0.5 at speed 2 u_in) as k substeps of case.dt, so the time window is the same.
+    k = int(np.ceil(case.dt / cfd.equations.stable_time_step(2 * case.u_in, 0.5, case.nu, grid)))
     step = cfd.equations.semi_implicit_navier_stokes(
-        density=1.0, viscosity=case.nu, dt=case.dt, grid=grid, pressure_solve=solve)
-    traj = cfd.funcutils.trajectory(cfd.funcutils.repeated(step, case.steps // case.frames), case.frames)
+        density=1.0, viscosity=case.nu, dt=case.dt / k, grid=grid, pressure_solve=solve)
+    traj = cfd.funcutils.trajectory(cfd.funcutils.repeated(step, k * (case.steps // case.frames)), case.frames)
     if batch:
         v0 = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (batch, *jnp.shape(a))), v0)
         traj = jax.vmap(traj)
@@ -162,7 +167,11 @@ def jaxcfd_trajectory(case: VortexCase, batch: int = 0):
         u, v = (c.data for c in last)  # faces (i+1/2, j) and (i, j+1/2), periodic: div at centres by rolls
         div = (u - jnp.roll(u, 1, axis=0)) / dx + (v - jnp.roll(v, 1, axis=1)) / (case.ly / case.ny)
         err = float(jnp.abs(div).max()) * dx / case.u_in
+        if not np.isfinite(err):
+            raise FloatingPointError(f"jax-cfd blew up at dt = {case.dt / k:g}")
         return None, err
+
+    run.substeps = k
 
     return run
 
@@ -187,7 +196,7 @@ def bench(arm, case: VortexCase, batch: int, reps: int) -> dict:
         probe, div = run()
         times.append(time.perf_counter() - t0)
     med, n = statistics.median(times), max(batch, 1)
-    out = dict(first_s=warm, median_s=med, traj_per_s=n / med, steps_per_s=n * case.steps / med, div=div)
+    out = dict(substeps=getattr(run, "substeps", 1), first_s=warm, median_s=med, traj_per_s=n / med, steps_per_s=n * case.steps / med, div=div)
     if probe is not None:
         out["probe_rms"] = float(np.sqrt(np.mean(probe[len(probe) // 2:] ** 2)))
         out["St"] = strouhal(probe, case.dt * case.steps / case.frames, case)
@@ -202,6 +211,8 @@ def main(argv=None) -> None:
     ap.add_argument("--batch", type=int, default=4)
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--arms", default="phiflow,jaxcfd,pdestream")
+    ap.add_argument("--scheme", default="mac_cormack", choices=("mac_cormack", "semi_lagrangian"))
+    ap.add_argument("--re", type=float, default=100.0)
     a = ap.parse_args(argv)
     import jax
 
@@ -209,16 +220,17 @@ def main(argv=None) -> None:
     arms = dict(phiflow=phiflow_trajectory, jaxcfd=jaxcfd_trajectory, pdestream=pdestream_trajectory)
     for g in a.grids.split(","):
         nx, ny = (int(s) for s in g.split("x"))
-        case = VortexCase(nx=nx, ny=ny, steps=a.steps, frames=a.frames)
+        case = VortexCase(nx=nx, ny=ny, steps=a.steps, frames=a.frames, scheme=a.scheme, re=a.re)
         print(f"case {case} nu={case.nu:g} cfl={case.u_in * case.dt * nx / case.lx:.2f}")
         for name in a.arms.split(","):
             for b in (0, a.batch) if a.batch else (0,):
                 try:
                     r = bench(arms[name], case, b, a.reps)
-                except NotImplementedError as e:
+                except (NotImplementedError, FloatingPointError) as e:
                     print(f"  {name:9s} batch={b:3d}  not run: {e}")
                     break
-                extra = f"  probe_rms={r['probe_rms']:.3f} St={r['St']:.3f}" if "St" in r else ""
+                sub = f"  ({r['substeps']} substeps of dt/{r['substeps']})" if r["substeps"] > 1 else ""
+                extra = sub + f"  probe_rms={r['probe_rms']:.3f} St={r['St']:.3f}" if "St" in r else sub
                 print(f"  {name:9s} batch={b:3d}  first {r['first_s']:.2f} s  median {r['median_s']:.3f} s  "
                       f"{r['traj_per_s']:.3f} traj/s  {r['steps_per_s']:.0f} steps/s  "
                       f"max|div|dx/U={r['div']:.1e}{extra}", flush=True)
