@@ -162,6 +162,9 @@ def solve(pde: PDE | str, u0, params: Mapping[str, float | Sequence[float]]) -> 
 
     u0: [C, *space] or [B, C, *space] (C may be omitted for one-field PDEs when unbatched 1D/2D arrays
     match the grid); params: {name: scalar or [B]} for every parameter of the PDE. Returns u [B, T, C, *space].
+    On a grid with walls u0 is read in the walls' basis: minus the lifting of its boundary values, projected onto
+    the sine (Dirichlet) / cosine (Neumann) series at the cell centres and dealiased like any state, so frame 0 is
+    that projection (which holds the walls) rather than u0 itself.
     """
     pde = get_pde(pde) if isinstance(pde, str) else pde
     if pde.STEADY:

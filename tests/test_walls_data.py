@@ -137,3 +137,27 @@ def test_the_cli_lists_generates_and_refuses_walls(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "bc='dirichlet' not allowed" in err and "allowed: periodic" in err
     assert not (tmp_path / "g").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["one-step", "pushforward", "oracle", "solver-in-the-loop"])
+def test_every_training_mode_trains_and_resumes_on_walls(tmp_path, capsys, mode):
+    import cli
+
+    out = tmp_path / "run"
+    argv = ["train", "burgers1d", "--set", "n=64", "--set", "n_frames=6", "--set", "bc=dirichlet", "--set",
+            "bc_lo=uniform(0, 1)", "--steps", "4", "--batch-size", "4", "--test-samples", "2", "--checkpoint-every",
+            "2", "--model-set", "width=8", "--model-set", "modes=4", "--model-set", "layers=2", "--threads", "1",
+            "--mode", mode, "--out", str(out)]
+    if mode != "one-step":
+        argv += ["--unroll", "2"]
+    if mode == "solver-in-the-loop":
+        argv += ["--coarse-n", "32"]
+    assert cli.main(argv) == 0, capsys.readouterr().err
+    ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
+    assert ckpt["spec"]["bc"] == ["dirichlet"]  # the model padded for the walls, recorded for a resume
+    (out / "metrics.json").unlink()  # as if killed after its last checkpoint
+    ckpt["step"] = 2
+    torch.save(ckpt, out / "checkpoint.pt")
+    assert cli.main(["train", "--resume", str(out)]) == 0, capsys.readouterr().err
+    assert "resumed" in capsys.readouterr().out
