@@ -75,6 +75,11 @@ class PDE(ProblemBase):
         grad(axis) -> du/dx_axis), or None when there is none."""
         return None
 
+    def wall_flux(self, grid, p):
+        """A conservative part of the explicit term on walls, -div F(u): F as u [C, *space] -> one flux [C, *space]
+        per axis (each differentiated in coefficient space: one transform fewer than forming grad u), or None."""
+        return None
+
     def lift_rate(self, p) -> float:
         """The constant part of the linear operator (L applied to an affine lifting g is lift_rate * g)."""
         return 0.0

@@ -80,8 +80,11 @@ class KS(PDE):
 
     def wall_terms(self, grid, p):
         if self.NDIM == 1:
-            return lambda u, grad: -u * grad(0)
+            return None  # wall_flux: -(u^2 / 2)_x between its (Dirichlet) walls
         return lambda u, grad: -0.5 * sum(grad(a) * grad(a) for a in range(self.NDIM))
+
+    def wall_flux(self, grid, p):
+        return (lambda u: [0.5 * u * u]) if self.NDIM == 1 else None
 
     def wall_drops_mean(self, grid) -> bool:
         return self.NDIM > 1  # as on the periodic box: the mean of |grad u|^2 / 2 would drift u without bound
