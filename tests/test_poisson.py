@@ -65,7 +65,8 @@ def test_neumann_walls_conserve_and_refuse_a_source_without_solution():
     with pytest.raises(ValueError, match="whose source has a nonzero mean has no solution") as err:
         generator.get_pde("poisson2d", bc="neumann", **{"ic.mean": 1.0})
     assert "\n" not in str(err.value)
-    generator.get_pde("poisson2d", bc="x=dirichlet,y=neumann", **{"ic.mean": 1.0})  # a Dirichlet wall: solvable
+    with pytest.raises(ValueError, match="ic.mean=1 not allowed on Dirichlet walls: the field is drawn odd about them"):
+        generator.get_pde("poisson2d", bc="x=dirichlet,y=neumann", **{"ic.mean": 1.0})  # the fold would drop it
 
 
 @pytest.mark.parametrize("settings, message", [

@@ -29,21 +29,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..bounded import AXES, BoundedGrid
+from ..bounded import AXES
 from ..chunked import chunked_map
 from ..domains import Fixed, Uniform
 from ..ics import FourierSeries, GaussianRandomField
 from ..problem import Param, resolve_params
-from ..spectral import Grid
 from .steady import SteadyProblem
-from .walls import LIFT_PARAMS, fold, parse_bc
+from .walls import LIFT_PARAMS, WallGrid, fold, parse_bc
 
 CHUNK = 8  # samples per compiled call (generator.chunked)
 RESONANCE_GAP = 0.02  # |kappa^2 - k^2| >= gap * (pi / length)^2 for every eigenvalue kappa^2 of the walls
 
 
 @dataclass(frozen=True)
-class Poisson(SteadyProblem):
+class Poisson(WallGrid, SteadyProblem):
     """-Laplacian(u) = f with a random source f and walls per axis (``bc``); see the module docstring."""
 
     EQUATION: ClassVar[str] = "-Laplacian(u) = f"
@@ -67,14 +66,6 @@ class Poisson(SteadyProblem):
     def BCS(self) -> tuple[str, ...]:  # noqa: N802 (the walls, as the spectral family's walled classes name them)
         return parse_bc(self, {"bc": self.bc}, current=("periodic",) * self.NDIM)
 
-    @property
-    def grid(self) -> BoundedGrid:
-        return BoundedGrid(self.NDIM, self.n, self.length, self.BCS)
-
-    @property
-    def box(self) -> Grid:
-        return Grid(self.NDIM, 2 * self.n, 2 * self.length)
-
     def k2(self, p) -> jax.Array:
         """The Helmholtz shift k^2 (0 for Poisson)."""
         return jnp.float32(0.0)
@@ -95,12 +86,6 @@ class Poisson(SteadyProblem):
             raise ValueError(f"{self.NAME}: a Neumann/periodic problem whose source has a nonzero mean has no solution "
                              f"(the integral of f must equal the zero wall flux); allowed: a source of mean 0 "
                              f"(ic.mean=0 with ic.zero_mean=true, or ic.offset=0), or bc=dirichlet on an axis")
-
-    def _check_ic_on_grid(self) -> None:
-        try:
-            self.ic.check(self.box)
-        except ValueError as err:
-            raise ValueError(f"{self.NAME}: {err}") from None
 
     def describe_solver(self) -> str:
         walls = ", ".join(f"{AXES[a]} {b}" for a, b in enumerate(self.BCS))

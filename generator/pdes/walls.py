@@ -125,14 +125,12 @@ def fold(u: jax.Array, bcs: tuple[str, ...], n: int) -> jax.Array:
     return u
 
 
-class Walls:
-    """The methods of a walled entry class (first in its bases: they take over from the periodic class's)."""
+class WallGrid:
+    """What every problem on walls shares (the walled spectral entries, poisson, helmholtz): its grid from its
+    per-axis ``BCS``, the doubled periodic box its random fields are drawn on (then ``fold``-ed), and the check
+    of that distribution."""
 
     BCS: tuple[str, ...]
-    PERIODIC: type
-
-    def __reduce__(self):
-        return rebuild, (self.PERIODIC, self.BCS, {f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
 
     @property
     def grid(self) -> BoundedGrid:
@@ -155,8 +153,17 @@ class Walls:
                 value = getattr(self.ic, name, 0.0)
                 if value:
                     values = " (set the wall values with bc_lo, bc_hi)" if "bc_lo" in self.PARAMS else ""
-                    raise ValueError(f"{self.NAME}: ic.{name}={value:g} not allowed on Dirichlet walls: u = 0 there and "
-                                     f"the IC is drawn odd about them; allowed: ic.{name}=0{values}")
+                    raise ValueError(f"{self.NAME}: ic.{name}={value:g} not allowed on Dirichlet walls: the field is "
+                                     f"drawn odd about them (0 there); allowed: ic.{name}=0{values}")
+
+
+class Walls(WallGrid):
+    """The methods of a walled entry class (first in its bases: they take over from the periodic class's)."""
+
+    PERIODIC: type
+
+    def __reduce__(self):
+        return rebuild, (self.PERIODIC, self.BCS, {f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
 
     def sample_ic(self, key: jax.Array, p=None) -> jax.Array:
         """One initial condition float32 [C, *space] satisfying the walls (the folded draw), plus the lifting."""
