@@ -1,5 +1,5 @@
 """More walled-entry checks, each against something other than the code under test: two 2D nonlinear entries
-(Allen-Cahn on Neumann walls, Burgers with Dirichlet x and periodic y) against independent float64 DOP853 solvers of
+(Allen-Cahn on Neumann walls, Burgers with Dirichlet x and periodic y) and KS between hinged walls against independent float64 DOP853 solvers of
 their sine / cosine / Fourier coefficients written on scipy's transforms; Burgers with non-zero wall values against
 finite differences; what zero-flux walls must conserve
 (exact ODE solutions of spatially constant states, the mean's balance law, Allen-Cahn's energy, KS's dropped mean);
@@ -96,6 +96,38 @@ def test_burgers2d_with_dirichlet_x_and_periodic_y_matches_an_independent_float6
     errors = [rel(u[i], ref[i]) for i in range(1, pde.n_frames)]
     assert max(errors) < 1e-5, errors
     assert rel(u[-1], u[0]) > 0.05
+
+
+def ks1d_hinged_reference(u0: np.ndarray, nu: float, length: float, times: np.ndarray) -> np.ndarray:
+    """u_t + u u_x + u_xx + nu u_xxxx = 0 on [0, length] with u = u_xx = 0 on the walls (hinged), float64: sine
+    amplitudes (scipy's DST-II), linear symbol k^2 - nu k^4 with k = pi m / length, u u_x formed at the points from
+    the cosine series of u_x (scipy's DCT-III), 2/3 rule, DOP853 at rtol 1e-10. Returns [T, n]."""
+    n = u0.size
+    m = np.arange(1, n + 1)
+    k = np.pi * m / length
+    keep = m <= 2 * n // 3
+    last = np.where(m == n, 2.0, 1.0)
+
+    def to_u(b):
+        return sf.idst(b * last * n, type=2)
+
+    def rhs(t, b):
+        a = np.concatenate([[0.0], (k * b)[:-1]])  # d/dx: cosine amplitudes k_m b_m at index m
+        ux = sf.idct(a * np.where(np.arange(n) == 0, 2.0, 1.0) * n, type=2)
+        return keep * ((k**2 - nu * k**4) * b + sf.dst(-to_u(b) * ux, type=2) / n / last)
+
+    b0 = keep * sf.dst(u0, type=2) / n / last
+    sol = solve_ivp(rhs, (0, times[-1]), b0, method="DOP853", t_eval=times, rtol=1e-10, atol=1e-12)
+    return np.stack([to_u(sol.y[:, i]) for i in range(len(times))])
+
+
+def test_ks1d_on_hinged_dirichlet_walls_matches_an_independent_float64_solver():
+    pde = generator.get_pde("ks1d", n=64, bc="dirichlet", nu=1.0, t_end=10.0, n_frames=6)
+    u = np.asarray(generator.sample(pde, [0], seed=2).u[0, :, 0], np.float64)
+    ref = ks1d_hinged_reference(u[0], 1.0, pde.length, pde.times().astype(np.float64))
+    errors = [rel(u[i], ref[i]) for i in range(1, pde.n_frames)]
+    assert max(errors) < 1e-5, errors
+    assert rel(u[-1], u[0]) > 0.1
 
 
 # --- what zero-flux walls conserve ----------------------------------------------------------------------------------
