@@ -108,5 +108,7 @@ def solve(a: jax.Array, f: jax.Array, h: float, tol: float, max_iter: int) -> So
     r = b - apply_operator(faces, x)
     r_norm = jnp.sqrt(_dot(r, r))
     a_norm = 2 * jnp.max(diagonal(faces))  # ||h^2 A||_inf: diagonal plus the off-diagonals, which sum to it
-    backward = r_norm / (a_norm * jnp.sqrt(_dot(x, x)) + jnp.sqrt(b_norm2))
-    return Solution(jnp.pad(x, 1), k, r_norm2 <= stop2, r_norm / jnp.sqrt(b_norm2), backward)
+    zero = b_norm2 == 0  # f = 0: u = 0 is the exact solution (0 / 0 would read as a failed solve)
+    backward = jnp.where(zero, 0.0, r_norm / (a_norm * jnp.sqrt(_dot(x, x)) + jnp.sqrt(b_norm2)))
+    residual = jnp.where(zero, 0.0, r_norm / jnp.sqrt(b_norm2))
+    return Solution(jnp.pad(x, 1), k, r_norm2 <= stop2, residual, backward)

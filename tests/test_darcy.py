@@ -221,3 +221,8 @@ def test_new_parameters_never_recompile_and_domains_are_checked():
     assert (_compiled_setup(pde)._cache_size(), _compiled_solve(pde)._cache_size()) == sizes
     with pytest.raises(ValueError, match=r"f=3 not allowed: outside its domain uniform\(0.5, 2"):
         g.sample(pde, [0], params={"f": 3.0})
+
+
+def test_a_zero_source_gives_the_exact_zero_solution():
+    t = g.sample(darcy(n=17, f=0), [0, 1], seed=0)  # was reported as non-convergence with advice that cannot help
+    assert np.all(np.asarray(t.u) == 0.0)
