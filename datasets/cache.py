@@ -391,6 +391,11 @@ def _reopen_damaged(path: Path, fmt: CacheFormat, settings: CacheSettings) -> in
     """Resume: clear the flags of damaged samples (and the global flag) so they are solved again."""
     store = fmt.open(path, writable=True)
     try:
+        try:
+            store["complete"]
+        except KeyError:  # without the flags, which samples were written is unknown: say so, touch nothing
+            raise ValueError(f"cannot resume {path}: its 'complete' flags are missing (deleted?), so which samples "
+                             "were written is unknown; regenerate it with --overwrite") from None
         bad = damaged_samples(store, settings.variables, settings.block)
         if len(bad):
             fmt.mark_complete(store, value=0)  # no longer complete until they are rewritten

@@ -356,3 +356,19 @@ def test_in_memory_and_per_example_reads_give_the_same_examples(tmp_path, suffix
     for k in range(len(whole)):
         a, b = whole[k], per_example[k]
         assert a.keys() == b.keys() and all(torch.equal(a[key], b[key]) for key in a)
+
+
+def test_resume_of_a_zarr_cache_without_its_complete_flags_says_what_to_do(tmp_path, capsys):
+    import shutil
+
+    import cli
+
+    path = tmp_path / "c.zarr"
+    argv = ["generate", "burgers1d", "--n", "4", "--set", "n=32", "--set", "n_frames=3", "--out", str(path)]
+    assert cli.main(argv) == 0
+    shutil.rmtree(path / "complete")
+    before = sorted(p.name for p in path.iterdir())
+    assert cli.main([*argv, "--resume"]) == 2  # it crashed with KeyError: 'complete'
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "its 'complete' flags are missing" in err and "--overwrite" in err
+    assert sorted(p.name for p in path.iterdir()) == before
