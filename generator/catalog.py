@@ -9,6 +9,7 @@ setting defaults of that dimension. Each entry becomes a class of its own (``PDE
 from __future__ import annotations
 
 import dataclasses
+import difflib
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -119,6 +120,9 @@ def get_pde(name: str, overrides: Mapping | None = None, **kwargs) -> PDE:
     Values may be strings (parsed: domains like "loguniform(1e-3, 1e-1)", numbers, ic kinds).
     """
     if not isinstance(name, str) or name not in PDES:
-        raise ValueError(f"unknown PDE {name!r}; allowed: {', '.join(PDES)}")
+        near = [n for n in PDES if isinstance(name, str) and name and n.startswith(name)]
+        near = near or (difflib.get_close_matches(name, list(PDES), n=3) if isinstance(name, str) else [])
+        hint = f"; did you mean {' or '.join(near)}" if near else ""
+        raise ValueError(f"unknown PDE {name!r}{hint}; allowed: {', '.join(PDES)}")
     pde = PDES[name]()
     return pde.replace(overrides, **kwargs) if (overrides or kwargs) else pde

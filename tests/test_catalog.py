@@ -34,11 +34,14 @@ def test_every_entry_pickles_by_reference_and_rebuilds_from_its_config():
 
 
 def test_a_non_string_or_unknown_name_gets_one_line():
-    for bad in (3, None, ["burgers1d"], "burgers4d"):
+    for bad in (3, None, ["burgers1d"], "nosuchpde"):
         with pytest.raises(ValueError) as err:
             g.get_pde(bad)
         msg = str(err.value)
         assert msg.startswith(f"unknown PDE {bad!r}; allowed: advection1d, ") and "\n" not in msg
+    for bad, near in (("burgers", "burgers1d or burgers2d or burgers3d"), ("burgers4d", "burgers3d or burgers2d or burgers1d")):
+        with pytest.raises(ValueError, match=f"^unknown PDE '{bad}'; did you mean {near}.*; allowed: advection1d"):
+            g.get_pde(bad)
 
 
 def test_settings_of_other_dimensions_are_not_settings_of_an_entry():
