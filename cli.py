@@ -83,6 +83,11 @@ def pde_from_args(name: str | None, args: argparse.Namespace, named: tuple[str |
 def cmd_list(args: argparse.Namespace) -> None:
     import generator
 
+    if args.name is not None:
+        return _list_entry(generator.get_pde(args.name), args.json)
+    if args.json:
+        raise ValueError("--json goes with an entry name: pdestream list NAME --json")
+
     for group in generator.GROUPS:  # the catalog's groups, in order; each entry says its dimension
         names = [name for name in generator.PDES if generator.GROUP[name] == group]
         if names:
@@ -93,6 +98,29 @@ def cmd_list(args: argparse.Namespace) -> None:
             walls = (f"  bc: {', '.join(offered)} (--set bc={offered[1]}, or one axis: --set bc.x={offered[-1]})"
                      if len(offered) > 1 else f"  bc: {pde.grid.bc[0]} on every axis (fixed)")
             print(f"[{pde.NDIM}D] {pde.describe()}\n{walls}\n")
+
+
+def _list_entry(pde, as_json: bool) -> None:
+    """Every setting of one entry: its value (the default), and for parameters their domain, meaning and units."""
+    import json
+
+    config = pde.config()
+    rows = {key: {"default": value} for key, value in config.items() if key not in ("pde", "ic")}
+    for name, spec in pde.PARAMS.items():
+        rows[name].update(meaning=spec.description, units=spec.units)  # the default is its domain
+    rows.update({f"ic.{k}": {"default": v} for k, v in config["ic"].items() if k != "kind"})
+    rows["ic"] = {"default": config["ic"]["kind"], "allowed": pde.fitting_ic_kinds()}
+    offered = getattr(pde, "BOUNDARIES", None)
+    if offered:
+        rows.setdefault("bc", {"default": "periodic"})["allowed"] = list(offered)
+    if as_json:
+        print(json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, "settings": rows}, indent=2))
+        return
+    print(pde.describe())
+    print("\nsettings (--set KEY=VALUE; parameters take uniform(a, b), loguniform(a, b), choice(...)):")
+    for key, row in rows.items():
+        extra = "".join(f"  {k}: {', '.join(v) if isinstance(v, list) else v}" for k, v in row.items() if k != "default")
+        print(f"  {key} = {row['default']}{extra}")
 
 
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -128,7 +156,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("list", help="every PDE with its equation, fields, parameters and domains")
+    p = sub.add_parser("list", help="every PDE with its equation, fields, parameters and domains; with a NAME, "
+                                    "every setting of that entry")
+    p.add_argument("name", nargs="?", help="one entry: all its settings with their defaults, domains and units")
+    p.add_argument("--json", action="store_true", help="with NAME: the settings as JSON")
     p.set_defaults(func=cmd_list)
 
     for add in (add_generate, add_inspect, add_train, add_compare, add_bench):

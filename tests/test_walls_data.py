@@ -161,3 +161,18 @@ def test_every_training_mode_trains_and_resumes_on_walls(tmp_path, capsys, mode)
     torch.save(ckpt, out / "checkpoint.pt")
     assert cli.main(["train", "--resume", str(out)]) == 0, capsys.readouterr().err
     assert "resumed" in capsys.readouterr().out
+
+
+def test_list_name_shows_every_setting_and_json(capsys):
+    import json
+
+    import cli
+
+    assert cli.main(["list", "ns2d"]) == 0
+    out = capsys.readouterr().out
+    assert "  drag = 0.1" in out and "  forcing_wavenumber = 4" in out and "  ic.sigma = 12.0" in out
+    assert cli.main(["list", "burgers1d", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["settings"]["nu"]["units"] == "length^2/time"
+    assert data["settings"]["bc"]["allowed"] == ["periodic", "dirichlet", "neumann"]
+    assert cli.main(["list", "--json"]) == 2
