@@ -493,7 +493,8 @@ def add_train(sub) -> None:
     p.add_argument("pde", nargs="?", help="PDE name (see `pdestream list`); may come from --config instead")
     p.add_argument("--source", default="stream", metavar="stream|PATH",
                    help="'stream' (solve on the fly) or a cache written by `pdestream generate`")
-    p.add_argument("--out", metavar="RUN_DIR", help="run directory: run.json, checkpoint.pt, metrics.csv/json, model.pt")
+    p.add_argument("--out", metavar="RUN_DIR", help="run directory (required for a new run; a resumed run keeps its own): run.json, "
+                   "checkpoint.pt, metrics.csv/json, model.pt")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run from its checkpoint.pt, with the "
                                                        "settings of its run.json (only --threads may go with it)")
     p.add_argument("--seed", type=int, default=0, help="model initialization and data seed")
