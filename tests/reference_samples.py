@@ -25,6 +25,8 @@ def small(name: str) -> dict:
     if name in SMALL:
         return SMALL[name]
     pde = generator.get_pde(name)
+    if pde.STEADY:
+        return {"n": 16}
     for n in (16, 24, 32, 48):  # the smallest grid the entry's IC allows
         try:
             generator.get_pde(name, n=n)
@@ -44,11 +46,19 @@ def digest(*arrays) -> str:
     return h.hexdigest()[:16]
 
 
-def record(name: str) -> dict:
-    """Configuration, hash, description and sample digests of entry ``name``: its defaults and a small
-    configuration, samples 0..2 of seed 0 at the small one (u, parameters, inputs)."""
-    default = generator.get_pde(name)
-    pde = generator.get_pde(name, small(name))
+# walled configurations recorded too (keys "name[bc]"): their bits are a promise from now on, like the entries'
+WALLED = {"burgers1d[dirichlet]": ("burgers1d", {"bc": "dirichlet", "bc_lo": "uniform(0, 1)"}),
+          "allen_cahn2d[x=dirichlet,y=neumann]": ("allen_cahn2d", {"bc": "x=dirichlet,y=neumann"}),
+          "ks1d[dirichlet]": ("ks1d", {"bc": "dirichlet"}),
+          "diffusion2d[neumann]": ("diffusion2d", {"bc": "neumann"})}
+
+
+def record(key: str) -> dict:
+    """Configuration, hash, description and sample digests of entry ``key`` (a catalog name or a WALLED key): its
+    defaults and a small configuration, samples 0..2 of seed 0 at the small one (u, parameters, inputs)."""
+    name, walls = WALLED.get(key, (key, {}))
+    default = generator.get_pde(name, walls)
+    pde = generator.get_pde(name, {**small(name), **walls})
     traj = generator.sample(pde, [0, 1, 2], seed=0, on_blowup="redraw")  # a coarse grid may blow up: redraws too
     arrays = [traj.u, traj.redraws, *(traj.params[k] for k in sorted(traj.params))]
     if traj.inputs is not None:
@@ -72,7 +82,7 @@ def record_dynamics(name: str) -> dict:
 
 
 def main() -> None:
-    out = {"numerics": generator.NUMERICS, "entries": {name: record(name) for name in generator.PDES},
+    out = {"numerics": generator.NUMERICS, "entries": {name: record(name) for name in [*generator.PDES, *WALLED]},
            "dynamics": {name: record_dynamics(name) for name in DYNAMICS}}
     PATH.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
     print(f"wrote {PATH} ({len(out['entries'])} entries)")
