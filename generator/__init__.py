@@ -5,7 +5,9 @@ JAX only (never imports torch). Public API::
     PDES                              the catalog {name: problem class} (generator.catalog: entries, groups)
     Problem                           what every problem offers (generator.problem); families: PDE (spectral,
                                       time-dependent), SteadyProblem (elliptic, no time axis)
-    get_pde(name, **overrides)        a configured PDE (overrides may be strings, e.g. nu="loguniform(1e-3, 1e-2)")
+    get_pde(name, **overrides)        a configured PDE (overrides may be strings, e.g. nu="loguniform(1e-3, 1e-2)";
+                                      bc="dirichlet" / "x=dirichlet,y=periodic" puts walls on the spectral entries
+                                      that take them: generator.pdes.walls, generator.bounded)
     sample(pde, indices, seed=0)      Trajectory with u [B, T, C, *space] float32, t [T], params {name: [B]}
     solve(pde, u0, params)            trajectory from a caller's initial condition
     interactive.advance(pde, u, params, frames) / advance_vjp(...)   a caller's states [B, C, *space] advanced k frames

@@ -68,7 +68,7 @@ class Problem(Protocol):
     @property
     def param_domains(self) -> dict[str, Domain]: ...
 
-    def times(self) -> np.ndarray: ...  # float32 [T] frame times ([0] for a steady problem: no time axis)
+    def times(self) -> np.ndarray: ...  # float32 [T] frame times (empty for a steady problem: no time axis)
 
     def config(self) -> dict[str, Any]: ...  # every setting, JSON-able; ``generator.from_config`` rebuilds it
 
