@@ -211,9 +211,10 @@ class Walls(WallGrid):
         terms = self.wall_terms(grid, p)
         rate = self.lift_rate(p) if "bc_lo" in self.PARAMS else 0.0
         damping = wall_hermitian_damping(grid, self.damping_rate()) if self.damping_rate() else None
-        if terms is None and self.wall_flux(grid, p) is None and "bc_lo" not in self.PARAMS and damping is None:
-            return None
         flux = self.wall_flux(grid, p)  # a conservative part, -div F(u), differentiated in coefficient space
+        physical = terms is not None or not (isinstance(rate, float) and rate == 0.0)
+        if not physical and flux is None and damping is None:
+            return None  # no explicit part (diffusion: L g = 0 for the affine lifting g)
         g = self.lift(p)[None]
         keep = None
         if self.wall_drops_mean(grid) and "dirichlet" not in grid.bc:  # a constant mode exists: index 0 on all axes
@@ -226,10 +227,13 @@ class Walls(WallGrid):
             def grad(axis):
                 return grid.gradient(v, axis) + self.lift_slope(p, axis)
 
-            out = (0.0 if terms is None else terms(u, grad)) + rate * g
-            out = grid.rfft(jnp.broadcast_to(out, u.shape).astype(u.dtype))
+            out = None
+            if physical:  # the part formed in physical space (skipped when a flux is all there is: no wasted transform)
+                out = (0.0 if terms is None else terms(u, grad)) + rate * g
+                out = grid.rfft(jnp.broadcast_to(out, u.shape).astype(u.dtype))
             if flux is not None:
-                out = out - sum(grid.derivative_of(f, axis) for axis, f in enumerate(flux(u)))
+                div = sum(grid.derivative_of(f, axis) for axis, f in enumerate(flux(u)))
+                out = -div if out is None else out - div
             out = out if keep is None else keep * out
             return out if damping is None else out + damping(v)
 
