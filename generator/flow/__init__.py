@@ -15,8 +15,7 @@ step (advection, viscosity, buoyancy, projection, step/run, derived fields).
 """
 
 from generator.flow.grid import Geometry, Params, box_solid, circle_solid, ellipse_solid
-from generator.flow.step import (State, divergence, initial_state, is_finite, project, run, stable_dt, step,
-                                 vorticity)
+from generator.flow.step import State, divergence, initial_state, is_finite, project, run, stable_dt, step, vorticity
 
 __all__ = ["Geometry", "Params", "State", "box_solid", "circle_solid", "ellipse_solid", "divergence",
            "initial_state", "is_finite", "project", "run", "stable_dt", "step", "vorticity"]
