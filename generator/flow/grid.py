@@ -1,0 +1,135 @@
+"""Staggered MAC grid, side boundary kinds and masked obstacles (JAX).
+
+Cells: nx x ny on [0, lx] x [0, ly], square cells h = lx / nx = ly / ny. Arrays are [y, x]:
+p [ny, nx] at centres, u [ny, nx+1] on vertical faces, v [ny+1, nx] on horizontal faces.
+Sides (left, right, bottom, top) are each one of SIDE_KINDS: 'wall' (no-slip, top may move at params.lid),
+'inflow' (normal velocity params.inflow * parabolic profile; left side only), 'outflow' (zero-gradient
+velocity, pressure 0: the only Dirichlet pressure side) or 'periodic' (left/right or bottom/top pairs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+SIDE_KINDS = ("wall", "inflow", "outflow", "periodic")
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Static part of a flow problem (shapes and boundary kinds; hashable, so jit-static)."""
+
+    nx: int
+    ny: int
+    lx: float
+    ly: float
+    left: str = "wall"
+    right: str = "wall"
+    bottom: str = "wall"
+    top: str = "wall"
+
+    def __post_init__(self):
+        for name in ("left", "right", "bottom", "top"):
+            if getattr(self, name) not in SIDE_KINDS:
+                raise ValueError(f"{name}={getattr(self, name)!r}: allowed side kinds are {SIDE_KINDS}")
+        if (self.left == "periodic") != (self.right == "periodic"):
+            raise ValueError(f"left={self.left!r}, right={self.right!r}: periodic sides come in pairs")
+        if (self.bottom == "periodic") != (self.top == "periodic"):
+            raise ValueError(f"bottom={self.bottom!r}, top={self.top!r}: periodic sides come in pairs")
+        if abs(self.lx / self.nx - self.ly / self.ny) > 1e-9 * self.lx / self.nx:
+            raise ValueError(f"lx/nx={self.lx / self.nx} != ly/ny={self.ly / self.ny}: cells must be square")
+
+    @property
+    def h(self) -> float:
+        return self.lx / self.nx
+
+    @property
+    def periodic_x(self) -> bool:
+        return self.left == "periodic"
+
+    @property
+    def periodic_y(self) -> bool:
+        return self.bottom == "periodic"
+
+    @property
+    def singular(self) -> bool:
+        """True when no side fixes the pressure level (no outflow): the pressure is defined up to a constant."""
+        return "outflow" not in (self.left, self.right, self.bottom, self.top)
+
+
+class Params(NamedTuple):
+    """Traced values (changing them does not recompile): kinematic viscosity nu [m^2/s], lid speed of a top
+    wall, inflow peak speed, circle obstacle (cx, cy, r) [m] (r <= 0: none), buoyancy [m/s^2 per unit smoke]."""
+
+    nu: float = 0.01
+    lid: float = 0.0
+    inflow: float = 0.0
+    circle: tuple = (0.0, 0.0, 0.0)
+    buoyancy: float = 0.0
+
+
+def centres(geom: Geometry, dtype=jnp.float32):
+    """Cell-centre coordinates (x [ny, nx], y [ny, nx]) in m."""
+    h = geom.h
+    x = (jnp.arange(geom.nx, dtype=dtype) + 0.5) * h
+    y = (jnp.arange(geom.ny, dtype=dtype) + 0.5) * h
+    return jnp.meshgrid(x, y)
+
+
+def circle_solid(geom: Geometry, cx, cy, r, dtype=jnp.float32):
+    """Boolean solid mask [ny, nx]: cell centres inside the circle (traced cx, cy, r; r <= 0 gives none)."""
+    x, y = centres(geom, dtype)
+    return (x - cx) ** 2 + (y - cy) ** 2 < r * r
+
+
+def box_solid(geom: Geometry, x0, y0, x1, y1, dtype=jnp.float32):
+    """Boolean solid mask [ny, nx]: cell centres inside the box [x0, x1] x [y0, y1]."""
+    x, y = centres(geom, dtype)
+    return (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
+
+
+def ellipse_solid(geom: Geometry, cx, cy, ax, ay, dtype=jnp.float32):
+    """Boolean solid mask [ny, nx]: cell centres inside the axis-aligned ellipse with semi-axes ax, ay."""
+    x, y = centres(geom, dtype)
+    return ((x - cx) / ax) ** 2 + ((y - cy) / ay) ** 2 < 1
+
+
+class Faces(NamedTuple):
+    """Pressure-operator face coefficients: cx [ny, nx+1], cy [ny+1, nx] (1 open, 0 closed; a boundary face
+    with 1 is a Dirichlet p = 0 side), solid [ny, nx] (1 in solid cells, an identity row there)."""
+
+    cx: jnp.ndarray
+    cy: jnp.ndarray
+    solid: jnp.ndarray
+
+
+def faces(geom: Geometry, solid) -> Faces:
+    """Face coefficients from a boolean solid mask [ny, nx]."""
+    f = 1.0 - solid.astype(jnp.float32)
+    inner_x = f[:, :-1] * f[:, 1:]
+    inner_y = f[:-1] * f[1:]
+    if geom.periodic_x:
+        wrap = f[:, -1:] * f[:, :1]
+        lx, rx = wrap, wrap
+    else:
+        lx = f[:, :1] * float(geom.left == "outflow")
+        rx = f[:, -1:] * float(geom.right == "outflow")
+    if geom.periodic_y:
+        wrap = f[-1:] * f[:1]
+        by, ty = wrap, wrap
+    else:
+        by = f[:1] * float(geom.bottom == "outflow")
+        ty = f[-1:] * float(geom.top == "outflow")
+    cx = jnp.concatenate([lx, inner_x, rx], axis=1)
+    cy = jnp.concatenate([by, inner_y, ty], axis=0)
+    return Faces(cx, cy, 1.0 - f)
+
+
+def velocity_masks(geom: Geometry, solid):
+    """Faces that may carry velocity: mu [ny, nx+1], mv [ny+1, nx] (0 on faces touching a solid cell)."""
+    f = 1.0 - solid.astype(jnp.float32)
+    fx = jnp.pad(f, ((0, 0), (1, 1)), constant_values=1.0)
+    fy = jnp.pad(f, ((1, 1), (0, 0)), constant_values=1.0)
+    return fx[:, :-1] * fx[:, 1:], fy[:-1] * fy[1:]
