@@ -1,5 +1,12 @@
 """Incompressible 2D Navier-Stokes on a staggered MAC grid (JAX; float32, float64 under x64; jit/vmap-able).
 
+DRAFT for issue 18, not yet a catalog entry: semi-Lagrangian advection (first order overall), explicit viscosity,
+a multigrid-preconditioned CG projection. Checked so far: divergence-free after a projection, closed wall and
+obstacle faces, a sample's bits alone and in batches when run one per loop step (jax.lax.map, as the sampler
+does; vmap over samples rounds differently), the finite flag. Not yet: Poiseuille/Couette/Taylor-Green orders, the
+cavity (Ghia 1982) and cylinder (Schaefer-Turek 1996) benchmarks, iteration counts within 1.5x over refinements
+(13/18/24 at 32^2/64^2/128^2 cavity: ~1.35x per refinement), the karman2d/cavity2d/channel2d/smoke2d entries.
+
 API (geom is static, params traced: changing Reynolds number, inflow, lid or circle does not recompile)::
 
     from generator.flow import Geometry, Params, initial_state, step, run, stable_dt, vorticity, is_finite
