@@ -4,7 +4,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from generator.flow import Geometry, Params, divergence, initial_state, is_finite, project, run
+from generator.flow import Geometry, Params, divergence, initial_state, is_finite, project
+from generator.flow.batch import run_batch
 from generator.flow.step import State
 
 
@@ -33,11 +34,14 @@ def test_projection_divergence_free_and_closed_faces():
 
 def test_batch_bits_and_finite_flag():
     geom = Geometry(16, 16, 1.0, 1.0)
-    lids = jnp.array([0.5, 1.0, 2.0])
-    f = jax.jit(lambda lid: run(geom, initial_state(geom, Params(lid=lid)), Params(lid=lid), 0.01, 5))
-    batch = jax.vmap(f)(lids)
-    alone = f(lids[1])
-    np.testing.assert_array_equal(np.asarray(batch.u[1]), np.asarray(alone.u))
-    assert bool(is_finite(alone))
-    bad = State(alone.u.at[0, 0].set(jnp.nan), alone.v, alone.p, alone.smoke, alone.t, alone.iterations)
+    lids = jnp.array([0.5, 1.0, 2.0, 1.5, 0.7])
+    alone = run_batch(geom, Params(lid=lids[1:2]), 0.01, 5)
+    for b in (3, 5):
+        batch = run_batch(geom, Params(lid=lids[:b]), 0.01, 5)
+        for field in ("u", "v", "p"):
+            np.testing.assert_array_equal(np.asarray(getattr(batch, field)[1]), np.asarray(getattr(alone, field)[0]))
+    one = jax.tree_util.tree_map(lambda a: a[0], alone)
+    assert float(jnp.abs(one.u).max()) > 0.1  # the lid really drove the flow
+    assert bool(is_finite(one))
+    bad = State(one.u.at[0, 0].set(jnp.nan), one.v, one.p, one.smoke, one.t, one.iterations)
     assert not bool(is_finite(bad))

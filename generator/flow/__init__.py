@@ -9,13 +9,15 @@ API (geom is static, params traced: changing Reynolds number, inflow, lid or cir
     dt = 0.5 * stable_dt(geom, params, umax=1.5)
     s = jax.jit(run, static_argnums=(0, 4))(geom, s, params, dt, 100)
     w = vorticity(geom, s); p = s.p; ok = is_finite(s)
+    sb = run_batch(geom, Params(nu=1e-3, inflow=jnp.array([0.5, 1.0])), dt, 100)  # bit-identical per sample
 
 Modules: grid (Geometry, Params, obstacle masks, face coefficients), pressure (multigrid-preconditioned CG),
-step (advection, viscosity, buoyancy, projection, step/run, derived fields).
+batch (run_batch: lax.map over fixed chunks, batch-invariant bits), step (advection, viscosity, buoyancy, projection, step/run, derived fields).
 """
 
+from generator.flow.batch import run_batch
 from generator.flow.grid import Geometry, Params, box_solid, circle_solid, ellipse_solid
 from generator.flow.step import State, divergence, initial_state, is_finite, project, run, stable_dt, step, vorticity
 
 __all__ = ["Geometry", "Params", "State", "box_solid", "circle_solid", "ellipse_solid", "divergence",
-           "initial_state", "is_finite", "project", "run", "stable_dt", "step", "vorticity"]
+           "initial_state", "is_finite", "project", "run", "run_batch", "stable_dt", "step", "vorticity"]
