@@ -1,13 +1,14 @@
 """Flow solver numerics (generator/flow, a draft for issue 18): projection divergence, wall/obstacle faces,
-bit-identity alone and in batches (per-sample programs under jax.lax.map, the house's way), blow-up flag. Slow:
-the multigrid-preconditioned CG compiles for about a minute on 2 cores."""
+bit-identity alone and in batches (run_batch: per-sample programs under jax.lax.map, the house's way), blow-up
+flag. Slow: the multigrid-preconditioned CG compiles for about a minute on 2 cores."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from generator.flow import Geometry, Params, divergence, initial_state, is_finite, project, run
+from generator.flow import Geometry, Params, divergence, initial_state, is_finite, project
+from generator.flow.batch import run_batch
 from generator.flow.step import State
 
 
@@ -16,7 +17,9 @@ def _random_field(geom, key):
     return (jax.random.normal(k1, (geom.ny, geom.nx + 1)), jax.random.normal(k2, (geom.ny + 1, geom.nx)))
 
 
-@pytest.mark.slow
+pytestmark = pytest.mark.slow
+
+
 def test_projection_divergence_free_and_closed_faces():
     geom = Geometry(32, 16, 2.0, 1.0, left="inflow", right="outflow")
     params = Params(nu=0.01, inflow=1.0, circle=(0.6, 0.5, 0.2))
@@ -35,16 +38,16 @@ def test_projection_divergence_free_and_closed_faces():
     assert s.u.shape == (16, 33)
 
 
-@pytest.mark.slow
 def test_batch_bits_and_finite_flag():
     geom = Geometry(16, 16, 1.0, 1.0)
-    def one(lid):
-        return run(geom, initial_state(geom, Params(lid=lid)), Params(lid=lid), 0.01, 5)
-
-    mapped = jax.jit(lambda lids: jax.lax.map(one, lids))  # one sample per loop step: its bits whatever the batch
-    alone, five = mapped(jnp.array([1.0])), mapped(jnp.array([0.3, 0.5, 1.0, 2.0, 0.7]))
-    np.testing.assert_array_equal(np.asarray(five.u[2]), np.asarray(alone.u[0]))
-    alone = jax.tree_util.tree_map(lambda x: x[0], alone)
-    assert bool(is_finite(alone))
-    bad = State(alone.u.at[0, 0].set(jnp.nan), alone.v, alone.p, alone.smoke, alone.t, alone.iterations)
+    lids = jnp.array([0.5, 1.0, 2.0, 1.5, 0.7])
+    alone = run_batch(geom, Params(lid=lids[1:2]), 0.01, 5)
+    for b in (3, 5):
+        batch = run_batch(geom, Params(lid=lids[:b]), 0.01, 5)
+        for field in ("u", "v", "p"):
+            np.testing.assert_array_equal(np.asarray(getattr(batch, field)[1]), np.asarray(getattr(alone, field)[0]))
+    one = jax.tree_util.tree_map(lambda a: a[0], alone)
+    assert float(jnp.abs(one.u).max()) > 0.1  # the lid really drove the flow
+    assert bool(is_finite(one))
+    bad = State(one.u.at[0, 0].set(jnp.nan), one.v, one.p, one.smoke, one.t, one.iterations)
     assert not bool(is_finite(bad))
