@@ -8,6 +8,7 @@ import pytest
 
 from generator.flow import Geometry, Params, divergence, initial_state, is_finite, run, step
 from generator.flow.step import apply_bc, project, solid_mask
+
 pytestmark = pytest.mark.slow  # each compiles the flow solver (~1 min on 2 cores)
 
 
