@@ -100,6 +100,17 @@ def sin_synthesis(b: jax.Array) -> jax.Array:
     return cos_synthesis(b[..., ::-1]) * _alternating(b.shape[-1], b.dtype)
 
 
+def _mode_up(y: jax.Array) -> jax.Array:
+    """Amplitudes moved one index up the last axis (index k -> k + 1, a zero first): sine m -> cosine k = m, where
+    the cosine of index 0 gets none and the last sine mode drops (it vanishes at the cell centres)."""
+    return jnp.concatenate([jnp.zeros_like(y[..., :1]), y[..., :-1]], -1)
+
+
+def _mode_down(y: jax.Array) -> jax.Array:
+    """Amplitudes moved one index down the last axis (k -> k - 1, a zero last): cosine k -> sine m = k."""
+    return jnp.concatenate([y[..., 1:], jnp.zeros_like(y[..., :1])], -1)
+
+
 ANALYSIS = {"dirichlet": sin_analysis, "neumann": cos_analysis}
 SYNTHESIS = {"dirichlet": sin_synthesis, "neumann": cos_synthesis}
 DERIVATIVE = {"dirichlet": ("neumann", 1), "neumann": ("dirichlet", -1)}  # d/dx: the other basis, and the sign
@@ -220,9 +231,9 @@ class BoundedGrid(GridBase):
         other, _ = DERIVATIVE[bc]
         x = _along(w, axis - self.ndim, ANALYSIS[other])
         if bc == "dirichlet":  # cosine amplitudes a_k -> sine b_m = -a_m pi m / L at m = k (m = n: none)
-            x = _along(x, axis - self.ndim, lambda y: jnp.concatenate([y[..., 1:], jnp.zeros_like(y[..., :1])], -1))
+            x = _along(x, axis - self.ndim, _mode_down)
         else:  # sine amplitudes b_m (m = 1..n) -> cosine a_k = b_k pi k / L at k = m (k = 0: none; m = n vanishes)
-            x = _along(x, axis - self.ndim, lambda y: jnp.concatenate([jnp.zeros_like(y[..., :1]), y[..., :-1]], -1))
+            x = _along(x, axis - self.ndim, _mode_up)
         x = (-k if bc == "dirichlet" else k) * x
         x = self._walls(x, ANALYSIS, skip=axis)
         axes = tuple(a - self.ndim for a in self.periodic_axes)
@@ -239,8 +250,8 @@ class BoundedGrid(GridBase):
         x = sign * k * x  # b_m (pi m / L) cos(.) for a sine series; -a_k (pi k / L) sin(.) for a cosine one
         # re-index to the other basis: sine m = 1..n <-> cosine k = m; cosine k = 0..n-1 <-> sine m = k
         if other == "neumann":  # sine amplitudes at m = 1..n -> cosine at k = 0..n-1 (k = m; m = n vanishes)
-            x = _along(x, axis - self.ndim, lambda y: jnp.concatenate([jnp.zeros_like(y[..., :1]), y[..., :-1]], -1))
+            x = _along(x, axis - self.ndim, _mode_up)
         else:  # cosine at k = 0..n-1 -> sine at m = 1..n (m = k; k = 0 has no derivative)
-            x = _along(x, axis - self.ndim, lambda y: jnp.concatenate([y[..., 1:], jnp.zeros_like(y[..., :1])], -1))
+            x = _along(x, axis - self.ndim, _mode_down)
         x = _along(x, axis - self.ndim, SYNTHESIS[other])
         return self._walls(x, SYNTHESIS, skip=axis)

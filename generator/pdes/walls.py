@@ -210,7 +210,8 @@ class Walls(WallGrid):
     def nonlinear(self, grid, p):
         terms = self.wall_terms(grid, p)
         rate = self.lift_rate(p) if "bc_lo" in self.PARAMS else 0.0
-        damping = wall_hermitian_damping(grid, self.damping_rate()) if self.damping_rate() else None
+        rate_h = self.damping_rate()
+        damping = wall_hermitian_damping(grid, rate_h) if rate_h else None
         flux = self.wall_flux(grid, p)  # a conservative part, -div F(u), differentiated in coefficient space
         physical = terms is not None or not (isinstance(rate, float) and rate == 0.0)
         if not physical and flux is None and damping is None:
