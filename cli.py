@@ -7,6 +7,7 @@ print one line ``pdestream: error: ...`` and exit with status 2; no traceback.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import sys
@@ -264,7 +265,7 @@ def check_disk_room(pde, out: str, n: int) -> None:
         return  # the writer names these
     frames = 1 if getattr(pde, "STEADY", False) else pde.n_frames
     channels = len(pde.FIELDS) + len(getattr(pde, "INPUTS", ()))
-    need = n * (4 * channels * frames * pde.n**pde.NDIM + 4 * len(pde.PARAMS) + 2)
+    need = n * (4 * channels * frames * math.prod(pde.grid.shape) + 4 * len(pde.PARAMS) + 2)
     free = shutil.disk_usage(parent).free
     if need > free:
         raise ValueError(f"--n {n} makes a cache of {need / 2**30:,.1f} GiB ({need / n / 2**10:,.1f} KiB per sample); "

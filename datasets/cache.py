@@ -11,6 +11,7 @@ import errno
 import fcntl
 import glob
 import hashlib
+import math
 import os
 import sys
 import time
@@ -48,7 +49,7 @@ class WriteSummary:
 
 def default_block(pde, n_samples: int) -> int:
     """Samples per block: ~TARGET_BLOCK_BYTES of float32 data (4 B x C x T x n**NDIM each), 1..256."""
-    per_sample = 4 * len((*pde.INPUTS, *pde.FIELDS)) * pde.n_frames * pde.n**pde.NDIM  # steady: n_frames is 1
+    per_sample = 4 * len((*pde.INPUTS, *pde.FIELDS)) * pde.n_frames * math.prod(pde.grid.shape)  # steady: n_frames is 1
     return max(1, min(n_samples, 256, TARGET_BLOCK_BYTES // per_sample))
 
 

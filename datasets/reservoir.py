@@ -232,7 +232,7 @@ class ReservoirStream(IterableDataset):
         # draws that pay for one solve batch: the deterministic schedule's step, and async mode's solver pacing
         self.uses_per_solve = self.cap_uses if target_reuse is None else max(1, round(target_reuse * self.per_trajectory))
         self.config = self.pde.config()
-        need = self.capacity * n_frames * len(_bridge.sample_channels(self.pde)) * self.pde.n ** self.pde.NDIM * 4
+        need = self.capacity * n_frames * len(_bridge.sample_channels(self.pde)) * math.prod(self.pde.grid.shape) * 4
         have = _physical_memory()
         if have and need > have // 2:
             raise ValueError(f"capacity={capacity} not allowed: holding {capacity} trajectories takes "

@@ -73,7 +73,7 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
 
     space = disk_space_dims(pde.NDIM)
     time = () if pde.STEADY else ("time",)  # a steady PDE's sample has no time axis
-    dims = {"sample": n_samples, **{d: pde.n_frames for d in time}, **{d: pde.n for d in space}}
+    dims = {"sample": n_samples, **{d: pde.n_frames for d in time}, **{d: pde.grid.shape[SPACE.index(d)] for d in space}}
     # long_name and units are what xarray's plots print as axis and colourbar labels ("x [length]")
     coords = {
         "sample": (("sample",), np.arange(n_samples, dtype=np.int64), {"long_name": "sample index"}),

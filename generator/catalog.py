@@ -23,6 +23,7 @@ from .pdes.darcy2d import Darcy2D
 from .pdes.diffusion import Diffusion
 from .pdes.dispersion import Dispersion
 from .pdes.fisher_kpp import FisherKPP
+from .pdes.flows import Cavity2D, Channel2D, Karman2D, Smoke2D
 from .pdes.grayscott import GrayScott
 from .pdes.hyper_diffusion import HyperDiffusion
 from .pdes.kdv1d import KdV1D
@@ -76,6 +77,10 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("swift_hohenberg2d", SwiftHohenberg, {"ndim": 2}, "reaction-diffusion"),
     Entry("grayscott3d", GrayScott, {"ndim": 3}, "reaction-diffusion"),
     Entry("ns2d", NS2D, {}, "fluids"),
+    Entry("karman2d", Karman2D, {}, "fluids"),
+    Entry("cavity2d", Cavity2D, {}, "fluids"),
+    Entry("channel2d", Channel2D, {}, "fluids"),
+    Entry("smoke2d", Smoke2D, {}, "fluids"),
     Entry("darcy2d", Darcy2D, {}, "steady"),
     Entry("poisson1d", Poisson, {"ndim": 1}, "steady"),
     Entry("poisson2d", Poisson, {"ndim": 2}, "steady"),

@@ -212,7 +212,7 @@ class ProblemBase(abc.ABC):
 
     def _check_size(self) -> None:
         """Grid points and bytes of one sample within MAX_GRID_POINTS and MAX_TRAJECTORY_BYTES."""
-        points = self.n**self.NDIM
+        points = math.prod(self.grid.shape)
         if points > MAX_GRID_POINTS:
             most = _root(MAX_GRID_POINTS, self.NDIM)
             raise ValueError(f"{self.NAME}: n={self.n} not allowed: {points} grid points per field; the limit is "

@@ -10,7 +10,7 @@ velocity, pressure 0: the only Dirichlet pressure side) or 'periodic' (left/righ
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
@@ -61,13 +61,24 @@ class Geometry:
 
 class Params(NamedTuple):
     """Traced values (changing them does not recompile): kinematic viscosity nu [m^2/s], lid speed of a top
-    wall, inflow peak speed, circle obstacle (cx, cy, r) [m] (r <= 0: none), buoyancy [m/s^2 per unit smoke]."""
+    wall, inflow peak speed, circle obstacle (cx, cy, r) [m] (r <= 0: none), buoyancy [m/s^2 per unit smoke];
+    plug: the inflow profile's blend of a plug into the parabola (0 parabolic, 1 uniform; the mean flux is
+    2/3 * inflow * ly either way); obstacles: more solid primitives, an array [K, 5] of rows
+    (kind, cx, cy, a, b) [m] with kind one of OBSTACLE_KINDS' codes (None: none); source: a smoke source disc
+    (sx, sy, r [m], rate [smoke/s]) (rate 0: none)."""
 
     nu: float = 0.01
     lid: float = 0.0
     inflow: float = 0.0
     circle: tuple = (0.0, 0.0, 0.0)
     buoyancy: float = 0.0
+    plug: float = 0.0
+    obstacles: Any = None
+    source: tuple = (0.0, 0.0, 0.0, 0.0)
+
+
+# Obstacle primitives of Params.obstacles rows (kind, cx, cy, a, b): code -> what a and b are.
+OBSTACLE_KINDS = {0: "none", 1: "circle (radius a)", 2: "box (half-widths a, b)", 3: "ellipse (semi-axes a, b)"}
 
 
 def centres(geom: Geometry, dtype=jnp.float32):
@@ -94,6 +105,21 @@ def ellipse_solid(geom: Geometry, cx, cy, ax, ay, dtype=jnp.float32):
     """Boolean solid mask [ny, nx]: cell centres inside the axis-aligned ellipse with semi-axes ax, ay."""
     x, y = centres(geom, dtype)
     return ((x - cx) / ax) ** 2 + ((y - cy) / ay) ** 2 < 1
+
+
+def obstacles_solid(geom: Geometry, rows, dtype=jnp.float32):
+    """Boolean solid mask [ny, nx] of obstacle rows [K, 5] (kind, cx, cy, a, b) (traced; kind 0 adds nothing)."""
+    x, y = centres(geom, dtype)
+    solid = jnp.zeros((geom.ny, geom.nx), bool)
+    for k in range(rows.shape[0]):
+        kind, cx, cy, a, b = (rows[k, i] for i in range(5))
+        a, b = jnp.maximum(a, 1e-12), jnp.maximum(b, 1e-12)
+        dx, dy = x - cx, y - cy
+        circle = dx * dx + dy * dy < a * a
+        box = (jnp.abs(dx) <= a) & (jnp.abs(dy) <= b)
+        ellipse = (dx / a) ** 2 + (dy / b) ** 2 < 1
+        solid = solid | ((kind == 1) & circle) | ((kind == 2) & box) | ((kind == 3) & ellipse)
+    return solid
 
 
 class Faces(NamedTuple):

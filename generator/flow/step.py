@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from generator.flow import pressure
-from generator.flow.grid import Geometry, Params, circle_solid, faces, velocity_masks
+from generator.flow.grid import Geometry, Params, circle_solid, faces, obstacles_solid, velocity_masks
 
 
 class State(NamedTuple):
@@ -31,15 +31,17 @@ class State(NamedTuple):
 
 
 def solid_mask(geom: Geometry, params: Params):
-    """Solid cells [ny, nx] of the circle obstacle in params (traced)."""
+    """Solid cells [ny, nx] of the circle obstacle and the obstacle rows in params (traced)."""
     cx, cy, r = params.circle
-    return circle_solid(geom, cx, cy, r)
+    solid = circle_solid(geom, cx, cy, r)
+    return solid if params.obstacles is None else solid | obstacles_solid(geom, jnp.asarray(params.obstacles))
 
 
 def inflow_profile(geom: Geometry, params: Params, dtype=jnp.float32):
-    """Left-side inflow u [ny]: parabolic, peak params.inflow at mid-height (zero at walls)."""
+    """Left-side inflow u [ny]: parabolic with peak params.inflow at mid-height (zero at walls), blended with
+    a plug of the same flux by params.plug (0: parabola; 1: uniform 2/3 * inflow)."""
     y = (jnp.arange(geom.ny, dtype=dtype) + 0.5) / geom.ny
-    return params.inflow * 4 * y * (1 - y)
+    return params.inflow * ((1 - params.plug) * 4 * y * (1 - y) + params.plug * (2.0 / 3.0))
 
 
 def initial_state(geom: Geometry, params: Params, dtype=jnp.float32) -> State:
@@ -66,6 +68,12 @@ def apply_bc(geom: Geometry, params: Params, u, v):
         v = v.at[-1].set(v[-2] if geom.top == "outflow" else 0.0)
     mu, mv = velocity_masks(geom, solid_mask(geom, params))
     return u * mu, v * mv
+
+
+def source_rate(geom: Geometry, params: Params, dtype=jnp.float32):
+    """Smoke added per second [ny, nx]: params.source's rate inside its disc (sx, sy, r), zero elsewhere."""
+    sx, sy, r, rate = params.source
+    return rate * circle_solid(geom, sx, sy, r, dtype).astype(dtype)
 
 
 def _sample(a, x, y, per_x: int, per_y: int):
@@ -169,7 +177,7 @@ def step(geom: Geometry, state: State, params: Params, dt, tol=1e-5, max_iter=20
     lu, lv = viscous(geom, params, u, v)
     un = advect(geom, u, v, u, 0.0, 0.5, dt) + dt * lu
     vn = advect(geom, u, v, v, 0.5, 0.0, dt) + dt * lv
-    smoke = advect(geom, u, v, state.smoke, 0.5, 0.5, dt)
+    smoke = advect(geom, u, v, state.smoke, 0.5, 0.5, dt) + dt * source_rate(geom, params, state.smoke.dtype)
     sm = jnp.concatenate([smoke[:1], 0.5 * (smoke[1:] + smoke[:-1]), smoke[-1:]], 0)
     vn = vn + dt * params.buoyancy * sm
     un, vn = apply_bc(geom, params, un, vn)
@@ -177,9 +185,10 @@ def step(geom: Geometry, state: State, params: Params, dt, tol=1e-5, max_iter=20
     return State(un, vn, p, smoke, state.t + dt, it)
 
 
-def run(geom: Geometry, state: State, params: Params, dt, n_steps: int) -> State:
-    """n_steps steps of dt in a lax.scan (jit this with geom and n_steps static)."""
-    return jax.lax.scan(lambda s, _: (step(geom, s, params, dt), None), state, None, length=n_steps)[0]
+def run(geom: Geometry, state: State, params: Params, dt, n_steps: int, tol=1e-5, max_iter=200) -> State:
+    """n_steps steps of dt in a lax.scan (jit this with geom and n_steps static); tol, max_iter: step's."""
+    return jax.lax.scan(lambda s, _: (step(geom, s, params, dt, tol, max_iter), None), state, None,
+                        length=n_steps)[0]
 
 
 def vorticity(geom: Geometry, state: State):

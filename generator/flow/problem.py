@@ -1,0 +1,305 @@
+"""The incompressible-flow family: a ``generator.problem.Problem`` whose samples are rolled out by the MAC-grid
+solver of this package (walls, inflow, outflow, obstacles, smoke).
+
+A sample is u [T, C, nx, ny] float32 over FIELDS at ``times()`` (generator order: x first), every field at cell
+centres: u, v the velocity components averaged from the faces (m/s), p the pressure over density of the last
+projection (m^2/s^2), and per entry ``solid`` (1 in obstacle cells, 0 in fluid: the mask, constant in time) or
+``smoke`` (a passive density). The box is ``aspect * n`` x ``n`` square cells on [0, aspect * length] x
+[0, length]; each side is a wall, inflow, outflow or periodic (``SIDES``), and the grid states its per-axis
+``bc`` (both sides walls: dirichlet; any open side: neumann; periodic) plus ``sides`` for the record.
+
+Time: the flow starts at rest (inflow and lid switched on) and is advanced ``t_start`` (a warm-up, not recorded,
+so that a vortex street has formed), then frames are recorded at ``times()`` = linspace(t_start, t_end,
+n_frames). The step is one fixed dt per configuration (the CFL number ``cfl`` at the largest speed the parameter
+domains allow, and the explicit viscous limit), so the compiled program never depends on a sample's parameters.
+
+Identity: the key of (seed, index) splits into a parameter key (``resolve_params``) and a geometry key (random
+obstacles, sources); each sample runs the same unbatched program inside ``jax.lax.map`` over a fixed chunk
+(``generator.chunked``), so its bits are the same alone and in any batch, and the rollout advances in bounded
+calls (``generator.dispatch``: a Ctrl-C or a gone consumer stops it between two).
+"""
+
+from __future__ import annotations
+
+import abc
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import dispatch
+from ..chunked import join, split
+from ..grids import GridBase
+from ..problem import MAX_STEPS, ProblemBase, resolve_params
+from .grid import SIDE_KINDS, Geometry, Params
+from .step import State, initial_state, run, solid_mask
+
+CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
+# Work of one flow step per cell, in the spectral family's point-steps (generator.dispatch): a projection's
+# ~20 multigrid-preconditioned CG iterations cost ~200x a spectral point-step here (2-core CPU, 64x32 cells).
+STEP_WORK_PER_CELL = 256
+BLOW_UP_FACTOR = 100.0  # a speed above this many times the largest inflow/lid speed counts as blown up
+
+
+@dataclass(frozen=True)
+class FlowGrid(GridBase):
+    """``aspect * n`` x ``n`` square cells of side h = length / n on [0, aspect * length] x [0, length]; sides
+    (left, right, bottom, top) each one of SIDE_KINDS. ``shape`` is (nx, ny), the generator's axis order."""
+
+    POINTS: ClassVar[str] = "cell centres of a MAC grid (velocities averaged from the faces)"
+
+    aspect: int = 1
+    sides: tuple = ("wall", "wall", "wall", "wall")
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return (self.aspect * self.n, self.n)
+
+    @property
+    def bc(self) -> tuple[str, ...]:
+        """Per axis (x, y): periodic; dirichlet where both sides are walls; neumann where a side is open."""
+        left, right, bottom, top = self.sides
+        return tuple("periodic" if lo == "periodic" else "dirichlet" if lo == hi == "wall" else "neumann"
+                     for lo, hi in ((left, right), (bottom, top)))
+
+    def coords(self, axis: int = 0) -> np.ndarray:
+        """Cell-centre positions along ``axis`` (0: x, 1: y), float32 (length units)."""
+        h = self.length / self.n
+        return ((np.arange(self.shape[axis]) + 0.5) * h).astype(np.float32)
+
+    def geometry(self) -> Geometry:
+        """The solver's static geometry (its arrays are [y, x])."""
+        nx, ny = self.shape
+        return Geometry(nx, ny, self.aspect * self.length, self.length, *self.sides)
+
+    def describe(self) -> str:
+        nx, ny = self.shape
+        named = ", ".join(f"{s}={k}" for s, k in zip(("left", "right", "bottom", "top"), self.sides))
+        return f"{nx}x{ny} cells on [0, {self.aspect * self.length:g}] x [0, {self.length:g}] ({named})"
+
+
+@dataclass(frozen=True)
+class AtRest:
+    """The flow's initial condition: fluid at rest, inflow and lid on, no smoke (nothing random)."""
+
+    kind = "rest"
+    field_count = None
+
+    def sample(self, key: jax.Array, grid, n_fields: int) -> jax.Array:
+        """float32 [n_fields, *grid.shape] zeros (the velocity at rest; boundary values are the solver's)."""
+        return jnp.zeros((n_fields, *grid.shape), jnp.float32)
+
+    def check(self, grid) -> None:
+        return None
+
+    def bound(self, grid) -> float:
+        return 0.0
+
+    def __str__(self) -> str:
+        return "fluid at rest (inflow and lid switched on at t = 0)"
+
+
+@dataclass(frozen=True)
+class FlowProblem(ProblemBase):
+    """Base of the incompressible flows. A subclass sets SIDES, FIELDS, PARAMS and supplies ``flow_params``
+    (the solver's traced Params of one sample), ``speed_bound`` and ``viscosity_bound`` (over the domains),
+    and may check its own settings in ``check_flow``."""
+
+    NDIM: ClassVar[int] = 2
+    SIDES: ClassVar[tuple] = ("wall", "wall", "wall", "wall")  # left, right, bottom, top
+    IC_KINDS: ClassVar[Mapping[str, type]] = {AtRest.kind: AtRest}
+    MIN_CELLS: ClassVar[int] = 8
+    # cell Reynolds number u_max h / nu above which the grid does not resolve the flow (its boundary layers are
+    # thinner than a cell); semi-Lagrangian advection stays stable there but the data would be numerical noise
+    MAX_CELL_REYNOLDS: ClassVar[float] = 40.0
+
+    n: int = 32  # cells across the box (y)
+    aspect: int = 1  # nx = aspect * n
+    length: float = 1.0  # box height (m)
+    ic: Any = AtRest()
+    t_start: float = 0.0  # warm-up before the first frame (s), not recorded
+    t_end: float = 2.0  # last frame time (s)
+    n_frames: int = 21
+    cfl: float = 0.5  # u_max dt / h at the largest speed the domains allow
+    tol: float = 1e-5  # pressure solve: relative residual
+    max_iter: int = 100  # pressure solve: CG iterations per step at most
+
+    # --- what an entry provides --------------------------------------------------------------------
+    @abc.abstractmethod
+    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array) -> Params:
+        """The solver's Params of one sample from its parameters p {name: traced scalar} and a geometry key."""
+
+    @abc.abstractmethod
+    def speed_bound(self) -> float:
+        """Largest boundary speed (inflow peak, lid) any sample can have (m/s): sets dt and the blow-up bound."""
+
+    @abc.abstractmethod
+    def viscosity_range(self) -> tuple[float, float]:
+        """(smallest, largest) kinematic viscosity any sample can have (m^2/s)."""
+
+    def check_flow(self) -> None:  # noqa: B027 (an optional hook)
+        """Subclass hook: refuse settings of the entry's own geometry (obstacles, sources)."""
+
+    def describe_geometry(self) -> str:
+        """Subclass hook: describe()'s line on random geometry drawn per sample (obstacles), or ''."""
+        return ""
+
+    # --- the grid and the time window --------------------------------------------------------------
+    @property
+    def grid(self) -> FlowGrid:
+        return FlowGrid(2, self.n, self.length, self.aspect, self.SIDES)
+
+    @property
+    def h(self) -> float:
+        return self.length / self.n
+
+    def times(self) -> np.ndarray:
+        """Frame times, float32 [n_frames] (s)."""
+        return np.linspace(self.t_start, self.t_end, self.n_frames).astype(np.float32)
+
+    def stable_dt(self) -> float:
+        """Largest step (s): ``cfl`` h / u_max and the explicit viscous limit h^2 / (4 nu_max), at the domains'
+        extremes (the semi-Lagrangian advection is stable beyond CFL 1 but loses accuracy as h^2 / dt grows)."""
+        return min(self.cfl * self.h / self.speed_bound(), 0.9 * self.h**2 / (4 * self.viscosity_range()[1]))
+
+    @property
+    def frame_dt(self) -> float:
+        return (self.t_end - self.t_start) / (self.n_frames - 1)
+
+    @property
+    def steps_per_frame(self) -> int:
+        return max(1, math.ceil(self.frame_dt / self.stable_dt() * (1 - 1e-9)))
+
+    @property
+    def step_dt(self) -> float:
+        return self.frame_dt / self.steps_per_frame
+
+    @property
+    def warmup_steps(self) -> int:
+        """Steps of the warm-up (each t_start / warmup_steps <= stable_dt)."""
+        return math.ceil(self.t_start / self.stable_dt() * (1 - 1e-9)) if self.t_start > 0 else 0
+
+    # --- validation --------------------------------------------------------------------------------
+    def validate(self) -> None:
+        if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < self.MIN_CELLS or self.n % 2:
+            raise ValueError(f"{self.NAME}: n={self.n!r} not allowed: cells across the box must be an even integer "
+                             f">= {self.MIN_CELLS}")
+        if not 1 <= self.aspect <= 16:
+            raise ValueError(f"{self.NAME}: aspect={self.aspect} not allowed: the box is aspect * n x n cells with "
+                             "aspect an integer in 1..16")
+        self._check_length()
+        if not 0 <= self.t_start < self.t_end:
+            raise ValueError(f"{self.NAME}: t_start={self.t_start:g}, t_end={self.t_end:g} not allowed: need "
+                             "0 <= t_start < t_end")
+        if self.n_frames < 2:
+            raise ValueError(f"{self.NAME}: n_frames={self.n_frames} not allowed: must be >= 2")
+        if not 0 < self.cfl <= 2:
+            raise ValueError(f"{self.NAME}: cfl={self.cfl:g} not allowed: the CFL number u_max dt / h must be in (0, 2]")
+        if not 0 < self.tol < 1:
+            raise ValueError(f"{self.NAME}: tol={self.tol:g} not allowed: the relative residual must be in (0, 1)")
+        if not self.max_iter >= 1:
+            raise ValueError(f"{self.NAME}: max_iter={self.max_iter} not allowed: must be an integer >= 1")
+        self._check_size()
+        self.check_flow()
+        nu_min = self.viscosity_range()[0]
+        cell_re = self.speed_bound() * self.h / nu_min
+        if not cell_re <= self.MAX_CELL_REYNOLDS:
+            raise ValueError(f"{self.NAME}: the grid cannot resolve this flow: cell Reynolds number u_max h / nu = "
+                             f"{self.speed_bound():g} * {self.h:.4g} / {nu_min:.3g} = {cell_re:.3g}; the limit is "
+                             f"{self.MAX_CELL_REYNOLDS:g} (a finer grid n, or a smaller Reynolds number domain)")
+        steps = self.warmup_steps + (self.n_frames - 1) * self.frame_dt / self.stable_dt()
+        if not steps <= MAX_STEPS:
+            raise ValueError(f"{self.NAME}: t_end={self.t_end:g} with step {self.stable_dt():.3g} would take ~{steps:.3g}"
+                             f" steps per trajectory; the limit is {MAX_STEPS} (a shorter time window or a coarser grid)")
+
+    def describe_setup(self) -> str:
+        start = "after a warm-up from rest" if self.t_start > 0 else "from rest"
+        return (f"  fields: {', '.join(self.FIELDS)}   grid: {self.grid.describe()}\n"
+                f"  t in [{self.t_start:g}, {self.t_end:g}] {start}, {self.n_frames} frames, "
+                f"step {self.step_dt:.4g} s ({self.steps_per_frame}/frame, CFL {self.cfl:g} at "
+                f"{self.speed_bound():g} m/s); MAC grid, semi-Lagrangian advection, multigrid-CG projection"
+                + (f"\n  {self.describe_geometry()}" if self.describe_geometry() else ""))
+
+    def failure(self) -> tuple[str, str]:
+        return (f"flows blew up (NaN/Inf, or a speed above {BLOW_UP_FACTOR:g}x the largest boundary speed) with "
+                f"step {self.step_dt:.4g} s", "a smaller cfl or a narrower parameter domain avoids this")
+
+    # --- a sample ------------------------------------------------------------------------------------
+    def frame_fields(self, geom: Geometry, state: State, fp: Params) -> jax.Array:
+        """One frame [C, nx, ny] over FIELDS at cell centres from a solver state (arrays [y, x])."""
+        made = {
+            "u": lambda: 0.5 * (state.u[:, 1:] + state.u[:, :-1]),
+            "v": lambda: 0.5 * (state.v[1:] + state.v[:-1]),
+            "p": lambda: state.p,
+            "solid": lambda: solid_mask(geom, fp).astype(state.u.dtype),
+            "smoke": lambda: state.smoke,
+        }
+        return jnp.stack([made[f]().T for f in self.FIELDS])
+
+    def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
+        """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, C, nx, ny], params {name: [B]},
+        ok bool [B] (finite and below the blow-up speed), None): the sampler's interface."""
+        start, advance, frame = _programs(self)
+        speed_cap = BLOW_UP_FACTOR * self.speed_bound()
+        cells = math.prod(self.grid.shape)
+        per_step = CHUNK * cells * STEP_WORK_PER_CELL + dispatch.STEP_OVERHEAD
+        results = []
+        for part in split([jnp.asarray(keys), jnp.asarray(explicit), jnp.asarray(given)], CHUNK):
+            p, fp, state = start(*part)
+            state = _advance(advance, state, fp, self.t_start / max(self.warmup_steps, 1), self.warmup_steps,
+                             per_step)
+            frames = []
+            for i in range(self.n_frames):
+                frames.append(frame(state, fp))
+                if i < self.n_frames - 1:
+                    state = _advance(advance, state, fp, self.step_dt, self.steps_per_frame, per_step)
+            u = jnp.stack(frames, axis=1)
+            ok = jnp.all(jnp.isfinite(u), axis=tuple(range(1, u.ndim))) & jnp.all(
+                jnp.abs(u[:, :, :2]) <= speed_cap, axis=tuple(range(1, u.ndim)))
+            results.append((u, p, ok))
+        u, params, ok = join(results, int(keys.shape[0]))
+        return u, params, ok, None
+
+
+def _advance(advance, state, fp, dt: float, n_steps: int, per_step: int):
+    """state advanced n_steps steps of dt in calls of at most ~DISPATCH_WORK point-steps (a sync between two)."""
+    if n_steps == 0:
+        return state
+    for k in dispatch.pieces(n_steps, per_step):
+        state = advance(k)(state, fp, jnp.float32(dt))
+        dispatch.sync([(state.u,)])
+    return state
+
+
+@functools.lru_cache(maxsize=16)
+def _programs(problem: FlowProblem):
+    """(start, advance(k), frame): compiled per-chunk programs, each sample the same unbatched program inside
+    jax.lax.map. start: (keys [K], explicit [K, P], given [K, P]) -> (params {name: [K]}, Params [K], State [K]);
+    advance(k): (State, Params, dt) -> State k steps later; frame: (State, Params) -> [K, C, nx, ny]."""
+    geom = problem.grid.geometry()
+
+    def start_one(key, explicit, given):
+        k_param, k_geom = jax.random.split(key)
+        p = resolve_params(problem, k_param, explicit, given)
+        fp = problem.flow_params(p, k_geom)
+        return p, fp, initial_state(geom, fp)
+
+    start = jax.jit(lambda keys, ex, gv: jax.lax.map(lambda t: start_one(*t), (keys, ex, gv)))
+
+    @functools.lru_cache(maxsize=8)
+    def advance(k: int):
+        def one(t):
+            state, fp, dt = t
+            return run(geom, state, fp, dt, k, tol=problem.tol, max_iter=problem.max_iter)
+
+        return jax.jit(lambda states, fps, dt: jax.lax.map(one, (states, fps, jnp.broadcast_to(dt, (CHUNK,)))))
+
+    frame = jax.jit(lambda states, fps: jax.lax.map(lambda t: problem.frame_fields(geom, *t), (states, fps)))
+    return start, advance, frame
+
+
+__all__ = ["AtRest", "FlowGrid", "FlowProblem", "SIDE_KINDS"]

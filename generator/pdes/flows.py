@@ -1,0 +1,250 @@
+"""The incompressible-flow entries: a vortex street behind a cylinder, the lid-driven cavity, a channel with
+random obstacles and a buoyant smoke plume (the family and the sample layout: ``generator.flow.problem``).
+
+Each entry states its box (sides, aspect), its random parameters with units and the Reynolds number's
+definition, how a sample's solver parameters follow from them, and the geometry it refuses: an obstacle outside
+the box, touching a wall or the inflow, too small for the grid, or a set of obstacles that could close the
+channel; a Reynolds number the grid cannot resolve is refused by the family (cell Reynolds limit).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping
+
+import jax
+import jax.numpy as jnp
+
+from ..domains import Fixed
+from ..flow.grid import Params
+from ..flow.problem import FlowProblem
+from ..problem import Param
+
+MIN_CELLS_ACROSS = 4.0  # an obstacle narrower than this many cells is a staircase of a few cells, not a body
+CLEARANCE_CELLS = 2.0  # cells of fluid kept between an obstacle and a wall or the inflow
+
+
+def _bounds(problem, name: str) -> tuple[float, float]:
+    return tuple(getattr(problem, name).bounds)
+
+
+@dataclass(frozen=True)
+class Karman2D(FlowProblem):
+    """Flow past a cylinder in a channel: parabolic (or blunter) inflow on the left, outflow on the right, no-slip
+    walls at the bottom and top. Re = U D / nu with U the mean inflow speed and D = 2 radius; a vortex street
+    forms for Re above ~47. The cylinder sits off the centre line at random, which starts the shedding early."""
+
+    NAME: ClassVar[str] = "karman2d"
+    EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u, div u = 0; cylinder in a channel, "
+                               "nu = U D / Re")
+    FIELDS: ClassVar[tuple] = ("u", "v", "p", "solid")
+    SIDES: ClassVar[tuple] = ("inflow", "outflow", "wall", "wall")
+    PARAMS: ClassVar[dict] = {
+        "re": Param("Reynolds number U D / nu", "1", positive=True),
+        "radius": Param("cylinder radius", "m", positive=True),
+        "cx": Param("cylinder centre x", "m", positive=True),
+        "cy": Param("cylinder centre y", "m", positive=True),
+        "speed": Param("mean inflow speed U", "m/s", positive=True),
+        "plug": Param("inflow profile: 0 parabolic, 1 uniform (same flux)", "1"),
+    }
+
+    n: int = 32
+    aspect: int = 2
+    t_start: float = 4.0
+    t_end: float = 8.0
+    n_frames: int = 21
+    re: Any = "uniform(60, 120)"
+    radius: Any = "uniform(0.08, 0.12)"
+    cx: Any = "uniform(0.4, 0.6)"
+    cy: Any = "uniform(0.42, 0.58)"
+    speed: Any = Fixed(1.0)
+    plug: Any = "uniform(0, 0.3)"
+
+    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array) -> Params:
+        nu = p["speed"] * 2 * p["radius"] / p["re"]
+        return Params(nu=nu, inflow=1.5 * p["speed"], plug=p["plug"], circle=(p["cx"], p["cy"], p["radius"]))
+
+    def speed_bound(self) -> float:
+        return 1.5 * _bounds(self, "speed")[1]
+
+    def viscosity_range(self) -> tuple[float, float]:
+        (u0, u1), (r0, r1), (re0, re1) = _bounds(self, "speed"), _bounds(self, "radius"), _bounds(self, "re")
+        return u0 * 2 * r0 / re1, u1 * 2 * r1 / re0
+
+    def check_flow(self) -> None:
+        lo, hi = _bounds(self, "plug")
+        if not 0 <= lo <= hi <= 1:
+            raise ValueError(f"{self.NAME}: plug={self.plug} not allowed: the profile blend must lie in [0, 1]")
+        _check_disc(self, "cylinder", _bounds(self, "cx"), _bounds(self, "cy"), _bounds(self, "radius"))
+
+
+@dataclass(frozen=True)
+class Cavity2D(FlowProblem):
+    """The lid-driven cavity: a closed square box whose top wall slides at the lid speed U. Re = U L / nu."""
+
+    NAME: ClassVar[str] = "cavity2d"
+    EQUATION: ClassVar[str] = "u_t + (u.grad)u = -grad p + nu lap u, div u = 0; lid-driven cavity, nu = U L / Re"
+    FIELDS: ClassVar[tuple] = ("u", "v", "p")
+    SIDES: ClassVar[tuple] = ("wall", "wall", "wall", "wall")
+    PARAMS: ClassVar[dict] = {
+        "re": Param("Reynolds number U L / nu", "1", positive=True),
+        "lid": Param("lid speed U (top wall, towards +x)", "m/s", positive=True),
+    }
+
+    n: int = 32
+    aspect: int = 1
+    t_end: float = 4.0
+    re: Any = "uniform(100, 1000)"
+    lid: Any = Fixed(1.0)
+
+    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array) -> Params:
+        return Params(nu=p["lid"] * self.length / p["re"], lid=p["lid"])
+
+    def speed_bound(self) -> float:
+        return _bounds(self, "lid")[1]
+
+    def viscosity_range(self) -> tuple[float, float]:
+        (u0, u1), (re0, re1) = _bounds(self, "lid"), _bounds(self, "re")
+        return u0 * self.length / re1, u1 * self.length / re0
+
+
+@dataclass(frozen=True)
+class Channel2D(FlowProblem):
+    """A channel (inflow left, outflow right, walls bottom and top) with ``obstacles`` random bodies: each a
+    circle, box or ellipse (equally likely) of half-sizes in [size_min, size_max] at a random position in its
+    own slot of the channel's length (so bodies never overlap and none alone closes the channel). Re = U H / nu
+    with U the mean inflow speed and H the channel height. The bodies come from the sample's geometry key."""
+
+    NAME: ClassVar[str] = "channel2d"
+    EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u, div u = 0; channel with random obstacles, "
+                               "nu = U H / Re")
+    FIELDS: ClassVar[tuple] = ("u", "v", "p", "solid")
+    SIDES: ClassVar[tuple] = ("inflow", "outflow", "wall", "wall")
+    PARAMS: ClassVar[dict] = {
+        "re": Param("Reynolds number U H / nu", "1", positive=True),
+        "speed": Param("mean inflow speed U", "m/s", positive=True),
+    }
+
+    n: int = 32
+    aspect: int = 3
+    t_start: float = 2.0
+    t_end: float = 6.0
+    obstacles: int = 2  # bodies per sample
+    size_min: float = 0.07  # half-size range of a body (m)
+    size_max: float = 0.14
+    re: Any = "uniform(200, 600)"
+    speed: Any = Fixed(1.0)
+
+    def slots(self) -> tuple[float, float]:
+        """(x of the first slot's left end, slot width) (m): bodies sit in equal slots of [0.3, lx - 0.3]."""
+        lx = self.aspect * self.length
+        return 0.3 * self.length, (lx - 0.6 * self.length) / self.obstacles
+
+    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array) -> Params:
+        x0, width = self.slots()
+        k = self.obstacles
+        u = jax.random.uniform(key, (k, 5), jnp.float32)
+        kind = 1 + jnp.floor(3 * u[:, 0]).clip(0, 2)
+        a = self.size_min + (self.size_max - self.size_min) * u[:, 3]
+        b = self.size_min + (self.size_max - self.size_min) * u[:, 4]
+        b = jnp.where(kind == 1, a, b)
+        margin = self.size_max + CLEARANCE_CELLS * self.h
+        cx = x0 + width * jnp.arange(k) + margin + (width - 2 * margin) * u[:, 1]
+        cy = margin + (self.length - 2 * margin) * u[:, 2]
+        rows = jnp.stack([kind, cx, cy, a, b], axis=1)
+        return Params(nu=p["speed"] * self.length / p["re"], inflow=1.5 * p["speed"], obstacles=rows)
+
+    def describe_geometry(self) -> str:
+        return (f"obstacles: {self.obstacles} per sample, each a circle, box or ellipse of half-sizes in "
+                f"[{self.size_min:g}, {self.size_max:g}] m, one per slot of {self.slots()[1]:.3g} m from x = "
+                f"{self.slots()[0]:g} m (drawn from the sample's key)")
+
+    def speed_bound(self) -> float:
+        return 1.5 * _bounds(self, "speed")[1]
+
+    def viscosity_range(self) -> tuple[float, float]:
+        (u0, u1), (re0, re1) = _bounds(self, "speed"), _bounds(self, "re")
+        return u0 * self.length / re1, u1 * self.length / re0
+
+    def check_flow(self) -> None:
+        if not 1 <= self.obstacles <= 8:
+            raise ValueError(f"{self.NAME}: obstacles={self.obstacles} not allowed: bodies per sample must be 1..8")
+        cells = 2 * self.size_min / self.h
+        if not 0 < self.size_min <= self.size_max:
+            raise ValueError(f"{self.NAME}: size_min={self.size_min:g}, size_max={self.size_max:g} not allowed: need "
+                             "0 < size_min <= size_max")
+        if cells < MIN_CELLS_ACROSS:
+            raise ValueError(f"{self.NAME}: size_min={self.size_min:g} not allowed: a body {cells:.2g} cells across is "
+                             f"below {MIN_CELLS_ACROSS:g} cells on this grid (h={self.h:.4g}); a finer n or larger bodies")
+        margin = self.size_max + CLEARANCE_CELLS * self.h
+        if 2 * margin >= self.length:
+            raise ValueError(f"{self.NAME}: size_max={self.size_max:g} not allowed: a body could close the channel "
+                             f"(height {self.length:g}); size_max must be < {self.length / 2 - CLEARANCE_CELLS * self.h:.3g}")
+        if 2 * margin >= self.slots()[1]:
+            raise ValueError(f"{self.NAME}: obstacles={self.obstacles} with size_max={self.size_max:g} not allowed: "
+                             f"each body gets a slot {self.slots()[1]:.3g} m long and needs {2 * margin:.3g} m "
+                             "(fewer obstacles, smaller bodies or a larger aspect)")
+
+
+@dataclass(frozen=True)
+class Smoke2D(FlowProblem):
+    """A buoyant smoke plume: a source disc near the floor emits smoke at ``rate``; smoke pushes the fluid up with
+    acceleration buoyancy * smoke. Walls left, right and at the bottom, an open (outflow) top."""
+
+    NAME: ClassVar[str] = "smoke2d"
+    EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u + b s e_y, div u = 0, s_t + u.grad s = "
+                               "source; buoyant plume")
+    FIELDS: ClassVar[tuple] = ("u", "v", "p", "smoke")
+    SIDES: ClassVar[tuple] = ("wall", "wall", "wall", "outflow")
+    PARAMS: ClassVar[dict] = {
+        "buoyancy": Param("buoyancy b per unit smoke", "m/s^2", positive=True),
+        "sx": Param("source centre x", "m", positive=True),
+        "radius": Param("source radius", "m", positive=True),
+        "nu": Param("kinematic viscosity", "m^2/s", positive=True),
+    }
+
+    n: int = 32
+    aspect: int = 1
+    t_end: float = 3.0
+    source_y: float = 0.2  # source centre height (m)
+    rate: float = 2.0  # smoke emitted per second inside the source disc
+    buoyancy: Any = "uniform(0.5, 1.5)"
+    sx: Any = "uniform(0.3, 0.7)"
+    radius: Any = "uniform(0.07, 0.12)"
+    nu: Any = Fixed(2e-3)
+
+    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array) -> Params:
+        return Params(nu=p["nu"], buoyancy=p["buoyancy"], source=(p["sx"], self.source_y, p["radius"], self.rate))
+
+    def speed_bound(self) -> float:
+        # a plume of unit smoke rises at ~ sqrt(b L) (free fall over the box height against its own drag); the
+        # semi-Lagrangian step stays stable above it, so this only sets the accuracy of the step
+        return math.sqrt(_bounds(self, "buoyancy")[1] * self.length)
+
+    def viscosity_range(self) -> tuple[float, float]:
+        return _bounds(self, "nu")
+
+    def check_flow(self) -> None:
+        if not self.rate >= 0:
+            raise ValueError(f"{self.NAME}: rate={self.rate:g} not allowed: must be >= 0")
+        _check_disc(self, "source", _bounds(self, "sx"), (self.source_y, self.source_y), _bounds(self, "radius"),
+                    inflow=False)
+
+
+def _check_disc(problem: FlowProblem, what: str, xs, ys, rs, inflow: bool = True) -> None:
+    """Refuse a disc domain that reaches outside the box, within CLEARANCE_CELLS of a wall (or of the inflow),
+    or narrower than MIN_CELLS_ACROSS cells."""
+    h, lx, ly = problem.h, problem.aspect * problem.length, problem.length
+    gap = CLEARANCE_CELLS * h
+    name = problem.NAME
+    if 2 * rs[0] / h < MIN_CELLS_ACROSS:
+        raise ValueError(f"{name}: radius={problem.radius} not allowed: a {what} {2 * rs[0] / h:.2g} cells across is "
+                         f"below {MIN_CELLS_ACROSS:g} cells on this grid (h={h:.4g}); a finer n or a larger radius")
+    if not (xs[0] - rs[1] >= gap and xs[1] + rs[1] <= lx - gap):
+        side = "blocks the inflow" if inflow and xs[0] - rs[1] < gap else "reaches outside the box"
+        raise ValueError(f"{name}: the {what} {side}: x in [{xs[0]:g}, {xs[1]:g}] with radius up to {rs[1]:g} must "
+                         f"stay within [{gap:.3g}, {lx - gap:.3g}] ({CLEARANCE_CELLS:g} cells from the sides)")
+    if not (ys[0] - rs[1] >= gap and ys[1] + rs[1] <= ly - gap):
+        raise ValueError(f"{name}: the {what} touches a wall or closes the channel: y in [{ys[0]:g}, {ys[1]:g}] with "
+                         f"radius up to {rs[1]:g} must stay within [{gap:.3g}, {ly - gap:.3g}]")
