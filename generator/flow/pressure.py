@@ -4,7 +4,8 @@ Operator (h^2-scaled, symmetric positive semi-definite): (A p)_P = sum over the 
 + solid_P p_P, where a closed face has c = 0 (walls, inflow, obstacle faces: Neumann), an open boundary face
 is Dirichlet p = 0 (ghost = -p_P) and a periodic face wraps. Coarse levels are Galerkin P^T A P with
 piecewise-constant P over 2x2 blocks: the coarse face coefficient is the sum of the two fine ones, so the
-V-cycle (damped Jacobi, nu1 = nu2, the same sweeps before and after) is a symmetric preconditioner.
+V-cycle (damped Jacobi, nu1 = nu2, the same sweeps before and after; the coarsest level, at most COARSE_CELLS
+cells, solved by a dense pseudo-inverse prepared once per rollout) is a symmetric preconditioner.
 Without a Dirichlet side A is singular: the rhs and each preconditioned residual have their mean projected
 out. Each sample stops on its own relative residual (a masked while loop), so batches don't change bits.
 """
@@ -56,31 +57,63 @@ def coarsen(fc: Faces) -> Faces:
     return Faces(cx, cy, s[0::2, 0::2] + s[1::2, 0::2] + s[0::2, 1::2] + s[1::2, 1::2])
 
 
-def hierarchy(fc: Faces, min_cells: int = 4) -> list:
-    """Coefficient levels, finest first, halving while both dims stay even and >= min_cells."""
+COARSE_CELLS = 128  # the coarsest level holds at most this many cells: solved exactly by a dense pseudo-inverse
+
+
+def hierarchy(fc: Faces, coarse_cells: int = COARSE_CELLS) -> list:
+    """Coefficient levels, finest first, halving while both dims stay even and the level has more than
+    ``coarse_cells`` cells."""
     levels = [fc]
-    while all(n % 2 == 0 and n // 2 >= min_cells for n in levels[-1].solid.shape):
+    while all(n % 2 == 0 for n in levels[-1].solid.shape) and levels[-1].solid.size > coarse_cells:
         levels.append(coarsen(levels[-1]))
     return levels
 
 
-def vcycle(levels, r, px, py, sweeps=2, coarse_sweeps=40, omega=0.8):
-    """One V-cycle approximating A^-1 r from zero (damped Jacobi smoothing): [ny, nx]."""
-    fc = levels[0]
-    inv_d = omega / jnp.maximum(diagonal(fc, px, py), 1e-30)
-    n = coarse_sweeps if len(levels) == 1 else sweeps
-    x = inv_d * r
-    for _ in range(n - 1):
-        x = x + inv_d * (r - apply(fc, x, px, py))
-    if len(levels) == 1:
-        return x
-    res = r - apply(fc, x, px, py)
-    rc = res[0::2, 0::2] + res[1::2, 0::2] + res[0::2, 1::2] + res[1::2, 1::2]
-    xc = vcycle(levels[1:], rc, px, py, sweeps, coarse_sweeps, omega)
-    x = x + jnp.repeat(jnp.repeat(xc, 2, 0), 2, 1)
-    for _ in range(n):
+class Operator(NamedTuple):
+    """What a pressure solve needs of one geometry, computed once per rollout (not per step): the coefficient
+    levels (finest first) and the coarsest level's dense pseudo-inverse [m, m] (m = its cell count)."""
+
+    levels: list
+    coarse_inverse: jax.Array
+
+
+def prepare(fc: Faces, periodic_x: bool, periodic_y: bool) -> Operator:
+    """The multigrid hierarchy of ``fc`` and the pseudo-inverse of its coarsest operator (eigen-decomposition of
+    the symmetric matrix, eigenvalues below 1e-5 of the largest dropped: the singular constant mode of a box
+    without an open side, and cells cut off by obstacles)."""
+    levels = hierarchy(fc)
+    coarse = levels[-1]
+    shape = coarse.solid.shape
+    m = coarse.solid.size
+    eye = jnp.eye(m, dtype=coarse.solid.dtype).reshape(m, *shape)
+    a = jax.vmap(lambda e: apply(coarse, e, periodic_x, periodic_y).reshape(m))(eye)
+    a = 0.5 * (a + a.T)
+    w, q = jnp.linalg.eigh(a)
+    keep = w > 1e-5 * jnp.max(w)
+    inv_w = jnp.where(keep, 1.0 / jnp.where(keep, w, 1.0), 0.0)
+    return Operator(levels, (q * inv_w) @ q.T)
+
+
+def _jacobi(fc: Faces, x, r, inv_d, px, py, sweeps: int):
+    for _ in range(sweeps):
         x = x + inv_d * (r - apply(fc, x, px, py))
     return x
+
+
+def vcycle(op: Operator, r, px, py, sweeps=2, omega=0.8, level: int = 0):
+    """One V-cycle approximating A^-1 r from zero: damped-Jacobi smoothing (``sweeps`` before and after) on each
+    level, the coarsest solved exactly; a symmetric preconditioner. r [ny, nx] -> [ny, nx]."""
+    levels = op.levels
+    if level == len(levels) - 1:
+        return (op.coarse_inverse @ r.reshape(-1)).reshape(r.shape)
+    fc = levels[level]
+    inv_d = omega / jnp.maximum(diagonal(fc, px, py), 1e-30)
+    x = _jacobi(fc, inv_d * r, r, inv_d, px, py, sweeps - 1)
+    res = r - apply(fc, x, px, py)
+    rc = res[0::2, 0::2] + res[1::2, 0::2] + res[0::2, 1::2] + res[1::2, 1::2]
+    xc = vcycle(op, rc, px, py, sweeps, omega, level + 1)
+    x = x + jnp.repeat(jnp.repeat(xc, 2, 0), 2, 1)
+    return _jacobi(fc, x, r, inv_d, px, py, sweeps)
 
 
 class Solve(NamedTuple):
@@ -92,9 +125,10 @@ class Solve(NamedTuple):
 
 
 def solve(fc: Faces, b, periodic_x: bool, periodic_y: bool, singular: bool, tol: float = 1e-5,
-          max_iter: int = 200) -> Solve:
-    """Solve A p = b (b [ny, nx], zero in solid cells) by multigrid-preconditioned CG from p = 0."""
-    levels = hierarchy(fc)
+          max_iter: int = 200, op: Operator | None = None) -> Solve:
+    """Solve A p = b (b [ny, nx], zero in solid cells) by multigrid-preconditioned CG from p = 0; ``op``: the
+    prepared operator of fc (computed here when None)."""
+    op = prepare(fc, periodic_x, periodic_y) if op is None else op
     fluid = 1.0 - fc.solid
     nfl = jnp.maximum(jnp.sum(fluid), 1.0)
 
@@ -106,7 +140,7 @@ def solve(fc: Faces, b, periodic_x: bool, periodic_y: bool, singular: bool, tol:
     stop2 = tol * tol * bn2
 
     def prec(r):
-        return proj(vcycle(levels, r, periodic_x, periodic_y))
+        return proj(vcycle(op, r, periodic_x, periodic_y))
 
     def cond(s):
         return (s[0] < max_iter) & (s[5] > stop2)

@@ -152,13 +152,20 @@ def divergence(geom: Geometry, u, v):
     return (u[:, 1:] - u[:, :-1] + v[1:] - v[:-1]) / geom.h
 
 
-def project(geom: Geometry, params: Params, u, v, dt, tol=1e-5, max_iter=200):
-    """Make (u, v) discretely divergence-free: returns u, v, pressure p [ny, nx] (m^2/s^2), iterations."""
-    solid = solid_mask(geom, params)
-    fc = faces(geom, solid)
+def operator(geom: Geometry, params: Params) -> pressure.Operator:
+    """The pressure operator of params' obstacles (multigrid levels, coarse pseudo-inverse): computed once per
+    rollout by ``run`` and handed to every step."""
+    return pressure.prepare(faces(geom, solid_mask(geom, params)), geom.periodic_x, geom.periodic_y)
+
+
+def project(geom: Geometry, params: Params, u, v, dt, tol=1e-5, max_iter=200, op: pressure.Operator | None = None):
+    """Make (u, v) discretely divergence-free: returns u, v, pressure p [ny, nx] (m^2/s^2), iterations.
+    op: ``operator(geom, params)`` when already computed."""
+    op = operator(geom, params) if op is None else op
+    fc = op.levels[0]
     h = geom.h
     b = -h * (u[:, 1:] - u[:, :-1] + v[1:] - v[:-1]) * (1 - fc.solid)
-    sol = pressure.solve(fc, b, geom.periodic_x, geom.periodic_y, geom.singular, tol, max_iter)
+    sol = pressure.solve(fc, b, geom.periodic_x, geom.periodic_y, geom.singular, tol, max_iter, op)
     g = pressure._ghost_pad(sol.p, geom.periodic_x, geom.periodic_y)
     u = u - fc.cx * (g[1:-1, 1:] - g[1:-1, :-1]) / h
     v = v - fc.cy * (g[1:, 1:-1] - g[:-1, 1:-1]) / h
@@ -171,8 +178,10 @@ def stable_dt(geom: Geometry, params: Params, umax, cfl: float = 1.0):
     return jnp.minimum(cfl * h / jnp.maximum(umax, 1e-12), h * h / (4 * jnp.maximum(params.nu, 1e-12)))
 
 
-def step(geom: Geometry, state: State, params: Params, dt, tol=1e-5, max_iter=200) -> State:
-    """Advance one step of dt (s): semi-Lagrangian advection, explicit viscosity, buoyancy, projection."""
+def step(geom: Geometry, state: State, params: Params, dt, tol=1e-5, max_iter=200,
+         op: pressure.Operator | None = None) -> State:
+    """Advance one step of dt (s): semi-Lagrangian advection, explicit viscosity, buoyancy, projection
+    (op: ``operator(geom, params)``, computed here when None)."""
     u, v = state.u, state.v
     lu, lv = viscous(geom, params, u, v)
     un = advect(geom, u, v, u, 0.0, 0.5, dt) + dt * lu
@@ -181,13 +190,15 @@ def step(geom: Geometry, state: State, params: Params, dt, tol=1e-5, max_iter=20
     sm = jnp.concatenate([smoke[:1], 0.5 * (smoke[1:] + smoke[:-1]), smoke[-1:]], 0)
     vn = vn + dt * params.buoyancy * sm
     un, vn = apply_bc(geom, params, un, vn)
-    un, vn, p, it = project(geom, params, un, vn, dt, tol, max_iter)  # leaves closed/prescribed faces as set
+    un, vn, p, it = project(geom, params, un, vn, dt, tol, max_iter, op)  # leaves closed/prescribed faces as set
     return State(un, vn, p, smoke, state.t + dt, it)
 
 
 def run(geom: Geometry, state: State, params: Params, dt, n_steps: int, tol=1e-5, max_iter=200) -> State:
-    """n_steps steps of dt in a lax.scan (jit this with geom and n_steps static); tol, max_iter: step's."""
-    return jax.lax.scan(lambda s, _: (step(geom, s, params, dt, tol, max_iter), None), state, None,
+    """n_steps steps of dt in a lax.scan (jit this with geom and n_steps static); tol, max_iter: step's. The
+    pressure operator is prepared once, before the loop (the obstacles do not move)."""
+    op = operator(geom, params)
+    return jax.lax.scan(lambda s, _: (step(geom, s, params, dt, tol, max_iter, op), None), state, None,
                         length=n_steps)[0]
 
 
