@@ -105,6 +105,8 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
         # per space axis x, y, z: the boundary condition, and The Well's word for it (periodic / wall / open)
         "bc": " ".join(bcs),
         "bc_type": " ".join(types),
+        # a flow's box states each side (left=inflow right=outflow bottom=wall top=wall); empty for other grids
+        "sides": " ".join(f"{k}={v}" for k, v in zip(("left", "right", "bottom", "top"), getattr(pde.grid, "sides", ()))),
         "pdestream_inputs": " ".join(pde.INPUTS),  # a steady PDE's input fields (variables too), else empty
         "pdestream_params": " ".join(pde.PARAMS),  # parameter coordinates, in PDE.PARAMS order
         "pdestream_seed": int(seed),

@@ -16,8 +16,10 @@ SMALL_N = {1: 64, 2: 32, 3: 16}
 
 
 # The time-dependent entries; a steady one (darcy2d: no frames, no IC) has the same contract checked in
-# tests/test_darcy.py (shapes, key discipline, bit-identity, no recompilation, refusals).
+# tests/test_darcy.py (shapes, key discipline, bit-identity, no recompilation, refusals). The spectral family's
+# (ETDRK4 rollouts of a drawn IC) are SPECTRAL; the flows' (MAC solver from rest) is checked in tests/test_flows.py.
 TIMED = [name for name, cls in g.PDES.items() if not cls.STEADY]
+SPECTRAL = [name for name, cls in g.PDES.items() if issubclass(cls, g.PDE)]
 
 
 @functools.lru_cache(maxsize=None)
@@ -29,7 +31,7 @@ def small(name):
 
 
 def test_every_catalog_entry_has_a_small_version():
-    for name in TIMED:
+    for name in SPECTRAL:
         pde = small(name)
         assert pde.n <= SMALL_N[pde.NDIM] and pde.steps_per_frame * (pde.n_frames - 1) <= 45, name
 
@@ -41,7 +43,7 @@ def dealiased(pde, field):
     return np.fft.irfftn(f * pde.grid.dealias_mask(), s=pde.grid.shape, axes=axes)
 
 
-@pytest.mark.parametrize("name", TIMED)
+@pytest.mark.parametrize("name", SPECTRAL)
 def test_registry_sweep_shapes_finite_first_frame_and_params(name):
     pde = small(name)
     traj = g.sample(pde, [0, 7, 3], seed=11)
@@ -61,7 +63,7 @@ def test_registry_sweep_shapes_finite_first_frame_and_params(name):
     assert np.abs(u[:, -1] - u[:, 0]).max() > 0  # it evolved
 
 
-@pytest.mark.parametrize("name", TIMED)
+@pytest.mark.parametrize("name", SPECTRAL)
 def test_sample_is_bit_identical_alone_and_in_any_batch(name):
     pde = small(name)
     alone = np.asarray(g.sample(pde, [5], seed=3).u[0])
@@ -72,7 +74,7 @@ def test_sample_is_bit_identical_alone_and_in_any_batch(name):
     assert not np.array_equal(alone, other_seed)
 
 
-@pytest.mark.parametrize("name", TIMED)
+@pytest.mark.parametrize("name", SPECTRAL)
 def test_default_grids_resolve_their_defaults(name):
     # the top fifth of the retained (2/3-rule) modes holds a small share of the peak amplitude at every frame
     pde = g.get_pde(name)
@@ -84,7 +86,7 @@ def test_default_grids_resolve_their_defaults(name):
     assert tail.max() < 0.05, (name, tail.max())
 
 
-@pytest.mark.parametrize("name", TIMED)
+@pytest.mark.parametrize("name", SPECTRAL)
 def test_new_parameters_never_recompile(name):
     pde = small(name)
     g.sample(pde, [7, 8, 11], seed=5)

@@ -1,0 +1,200 @@
+"""The flow entries (karman2d, cavity2d, channel2d, smoke2d) through what pdestream does with samples: shapes,
+parameters in their domains, the obstacle mask as a field, boundary values held by the solver, identity alone /
+in batches / with explicit parameters, no recompilation for new parameters, stream == cache (Zarr and HDF5, the
+walls recorded), the reservoir, the CLI, and the one-line refusals of geometry and resolution."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import torch
+import xarray as xr
+
+import cli
+import datasets
+import generator
+from datasets.reservoir import ReservoirStream
+from generator.flow import divergence, initial_state, run
+from generator.flow.grid import velocity_masks
+from generator.flow.problem import _programs
+from generator.flow.step import inflow_profile, solid_mask
+
+torch.set_num_threads(1)
+
+# Small versions of every flow entry (16 cells across, a short window): bodies made large enough for the grid.
+SMALL = {
+    "karman2d": dict(n=16, radius="uniform(0.15, 0.2)", re="uniform(20, 40)", t_start=0.3, t_end=0.6, n_frames=3),
+    "cavity2d": dict(n=16, re="uniform(100, 400)", t_end=0.4, n_frames=3),
+    "channel2d": dict(n=16, size_min=0.13, size_max=0.2, re="uniform(100, 200)", t_start=0.2, t_end=0.4, n_frames=3),
+    "smoke2d": dict(n=16, radius="uniform(0.13, 0.15)", source_y=0.3, t_end=0.4, n_frames=3),
+}
+FLOWS = list(SMALL)
+
+
+def small(name):
+    return generator.get_pde(name, **SMALL[name])
+
+
+def test_the_flow_entries_are_in_the_catalog_under_fluids():
+    for name in FLOWS:
+        assert generator.GROUP[name] == "fluids" and not generator.PDES[name].STEADY
+
+
+@pytest.mark.parametrize("name", FLOWS)
+def test_samples_have_their_shape_params_in_domain_and_evolve(name):
+    pde = small(name)
+    traj = generator.sample(pde, [0, 5, 2], seed=4)
+    u = np.asarray(traj.u)
+    assert u.shape == (3, 3, len(pde.FIELDS), 2 * 0 + pde.aspect * 16, 16) and u.dtype == np.float32
+    assert np.isfinite(u).all() and np.abs(u[:, -1] - u[:, 0]).max() > 0
+    np.testing.assert_allclose(traj.t, np.linspace(pde.t_start, pde.t_end, 3), rtol=1e-6)
+    for pname, dom in pde.param_domains.items():
+        lo, hi = dom.bounds
+        assert np.all((np.asarray(traj.params[pname]) >= lo) & (np.asarray(traj.params[pname]) <= hi)), pname
+    if "solid" in pde.FIELDS:  # the mask is a field: constant in time, 1 in a body, and no flow there
+        solid = u[:, :, pde.FIELDS.index("solid")]
+        assert np.array_equal(solid[:, 0], solid[:, -1]) and 0 < solid.mean() < 0.3
+        for f in ("u", "v"):
+            assert np.abs(u[:, :, pde.FIELDS.index(f)][solid == 1]).max() == 0.0
+    if "smoke" in pde.FIELDS:
+        smoke = u[:, :, pde.FIELDS.index("smoke")]
+        assert smoke[:, 0].max() == 0 and smoke[:, -1].sum() > smoke[:, 1].sum() > 0 and smoke.min() >= -1e-3
+
+
+def test_the_karman_mask_is_the_drawn_cylinder():
+    pde = small("karman2d")
+    traj = generator.sample(pde, [0, 1], seed=0)
+    x, y = np.meshgrid(pde.grid.coords(0), pde.grid.coords(1), indexing="ij")  # generator order [x, y]
+    for b in range(2):
+        cx, cy, r = (float(traj.params[k][b]) for k in ("cx", "cy", "radius"))
+        inside = (x - cx) ** 2 + (y - cy) ** 2 < r * r
+        got = np.asarray(traj.u[b, 0, pde.FIELDS.index("solid")]) == 1
+        assert np.array_equal(got, inside) and inside.sum() >= 8
+
+
+@pytest.mark.parametrize("name", ["karman2d", "channel2d"])
+def test_samples_are_bit_identical_alone_in_batches_and_with_explicit_params(name):
+    pde = small(name)
+    batch = generator.sample(pde, [0, 1, 2, 3, 4], seed=1)
+    alone = generator.sample(pde, [3], seed=1)
+    np.testing.assert_array_equal(np.asarray(batch.u[3]), np.asarray(alone.u[0]))
+    given = generator.sample(pde, [3], seed=1, params={k: np.asarray(v[3:4]) for k, v in batch.params.items()})
+    np.testing.assert_array_equal(np.asarray(given.u[0]), np.asarray(alone.u[0]))
+    assert not np.array_equal(np.asarray(generator.sample(pde, [3], seed=2).u[0]), np.asarray(alone.u[0]))
+
+
+def test_new_parameters_and_seeds_never_recompile():
+    pde = small("cavity2d")
+    generator.sample(pde, [0, 1], seed=0)
+    start, advance, frame = _programs(pde)
+    sizes = (start._cache_size(), frame._cache_size(), advance.cache_info().currsize)
+    generator.sample(pde, [7, 8, 9], seed=5)
+    generator.sample(pde, [0], seed=0, params={"re": 333.0})
+    assert (start._cache_size(), frame._cache_size(), advance.cache_info().currsize) == sizes
+
+
+@pytest.mark.parametrize("name", ["karman2d", "channel2d", "cavity2d"])
+def test_the_solver_holds_boundary_values_and_closes_walls_and_bodies(name):
+    # a rollout of the solver itself from a sample's parameters: inflow faces carry the profile, walls and
+    # body faces carry nothing across, and the projection leaves the velocity nearly divergence-free
+    pde = small(name)
+    keys = generator.sample_keys(0, np.array([1]))
+    p, fp, _ = _programs(pde)[0](*[jnp.asarray(a) for a in generator.chunked.split(
+        [keys, np.zeros((1, len(pde.PARAMS)), np.float32), np.zeros((1, len(pde.PARAMS)), bool)], 4)[0]])
+    fp = jax.tree_util.tree_map(lambda a: a[0], fp)
+    geom = pde.grid.geometry()
+    s = jax.jit(run, static_argnums=(0, 4))(geom, initial_state(geom, fp), fp, pde.step_dt, 30)
+    u, v = np.asarray(s.u), np.asarray(s.v)
+    assert np.isfinite(u).all() and np.abs(u).max() > 0.1
+    if geom.left == "inflow":
+        np.testing.assert_allclose(u[:, 0], np.asarray(inflow_profile(geom, fp)), rtol=1e-6)  # fused: 1 ulp
+    else:
+        assert np.all(u[:, 0] == 0) and np.all(u[:, -1] == 0)
+    assert np.all(v[0] == 0) and np.all(v[-1] == 0)  # walls at the bottom and top: no flow through
+    mu, mv = (np.asarray(m) for m in velocity_masks(geom, solid_mask(geom, fp)))
+    assert np.all(u[mu == 0] == 0) and np.all(v[mv == 0] == 0)
+    fluid = 1 - np.asarray(solid_mask(geom, fp))
+    div = np.abs(np.asarray(divergence(geom, s.u, s.v)) * fluid).max()
+    assert div < 0.05 * np.abs(u).max() / geom.h, div
+
+
+@pytest.mark.parametrize("name, settings, words", [
+    ("karman2d", {"cx": "uniform(1.8, 1.95)"}, ["cylinder reaches outside the box", "x in [1.8, 1.95]"]),
+    ("karman2d", {"cx": "uniform(0.05, 0.2)"}, ["cylinder blocks the inflow", "x in [0.05, 0.2]"]),
+    ("karman2d", {"cy": "uniform(0.1, 0.2)"}, ["touches a wall or closes the channel", "y in [0.1, 0.2]"]),
+    ("karman2d", {"radius": "uniform(0.02, 0.05)"}, ["radius=uniform(0.02, 0.05)", "cells across", "below 4"]),
+    ("karman2d", {"re": "uniform(500, 1000)"}, ["cell Reynolds number", "limit is 40", "finer grid"]),
+    ("cavity2d", {"re": "uniform(100, 5000)"}, ["cell Reynolds number", "156", "limit is 40"]),
+    ("karman2d", {"cfl": 3.0}, ["cfl=3", "(0, 2]"]),
+    ("karman2d", {"t_start": 5.0, "t_end": 4.0}, ["t_start=5, t_end=4", "0 <= t_start < t_end"]),
+    ("channel2d", {"size_max": 0.5}, ["size_max=0.5", "could close the channel"]),
+    ("channel2d", {"obstacles": 6}, ["obstacles=6", "slot"]),
+    ("channel2d", {"obstacles": 0}, ["obstacles=0", "1..8"]),
+    ("smoke2d", {"sx": "uniform(0.05, 0.5)"}, ["source reaches outside the box"]),
+    ("cavity2d", {"n": 12, "aspect": 0}, ["aspect=0", "1..16"]),
+    ("cavity2d", {"n": 9}, ["n=9", "even integer >= 8"]),
+])
+def test_bad_geometry_and_resolution_are_refused_in_one_line(name, settings, words):
+    with pytest.raises(ValueError) as err:
+        generator.get_pde(name, **settings)
+    msg = str(err.value)
+    assert msg.startswith(f"{name}: ") and "\n" not in msg, msg
+    for w in words:
+        assert w in msg, (w, msg)
+
+
+@pytest.mark.parametrize("fmt", ["zarr", "h5"])
+def test_stream_and_cache_give_the_same_bits_and_the_cache_records_the_box(tmp_path, fmt):
+    pde = small("karman2d")
+    path = tmp_path / f"k.{fmt}"
+    datasets.write_cache(pde, path, n_samples=5, seed=2, block=4)
+    plain = xr.open_zarr(path) if fmt == "zarr" else xr.open_dataset(path, engine="h5netcdf")
+    assert dict(plain.sizes) == {"sample": 5, "time": 3, "y": 16, "x": 32}
+    assert plain.attrs["bc"] == "neumann dirichlet" and plain.attrs["bc_type"] == "open wall"
+    assert plain.attrs["sides"] == "left=inflow right=outflow bottom=wall top=wall"
+    np.testing.assert_allclose(plain["x"].values, (np.arange(32) + 0.5) / 16, rtol=1e-6)
+    assert set(plain.data_vars) >= {"u", "v", "p", "solid"}
+    stream = datasets.TrajectoryStream(pde, seed=2, view="whole", batch_size=5, n_samples=5, shuffle=False,
+                                       resample=False, solve_batch=4)
+    batch = next(iter(torch.utils.data.DataLoader(stream, batch_size=None)))
+    cached = datasets.CachedTrajectories(path, view="whole")
+    assert cached.pde.config() == pde.config()
+    for k, i in enumerate(batch["index"].tolist()):
+        assert torch.equal(cached[i]["u"], batch["u"][k])
+    # the stored layout is [y, x]: the solid mask read with plain xarray is the body where the generator put it
+    solid = plain["solid"].isel(sample=0, time=0).values
+    assert np.array_equal(solid.T, batch["u"][0, 0, pde.FIELDS.index("solid")].numpy())
+
+
+def test_the_reservoir_serves_flow_samples():
+    pde = small("karman2d")
+    stream = ReservoirStream(pde, seed=3, view="next_step", batch_size=4, capacity=6, max_reuse=2, solve_batch=4,
+                             mode="deterministic")
+    batches = []
+    for batch in torch.utils.data.DataLoader(stream, batch_size=None):
+        batches.append(batch)
+        if len(batches) == 3:
+            break
+    stream.close()
+    b = batches[0]
+    assert b["x"].shape[1:] == (1, len(pde.FIELDS), 32, 16) and torch.isfinite(b["x"]).all()
+    index = sorted({int(i) for b in batches for i in b["index"]})
+    ref = datasets.sample_tensors(pde, index, seed=3)
+    assert all(any(torch.equal(b["x"][k, 0], ref["u"][index.index(i), t]) for t in range(pde.n_frames))
+               for b in batches for k, i in enumerate(b["index"].tolist()))
+
+
+def test_the_cli_lists_generates_and_refuses_flows(tmp_path, capsys):
+    assert cli.main(["list"]) == 0
+    out = capsys.readouterr().out
+    for name in FLOWS:
+        assert name in out
+    sets = [x for k, v in SMALL["cavity2d"].items() if k != "n" for x in ("--set", f"{k}={v}")]
+    out_path = tmp_path / "c.zarr"
+    assert cli.main(["generate", "cavity2d", "--n", "2", "--set", "n=16", *sets, "--out", str(out_path)]) == 0
+    assert xr.open_zarr(out_path).sizes["x"] == 16
+    capsys.readouterr()
+    bad = tmp_path / "bad.zarr"
+    assert cli.main(["generate", "karman2d", "--n", "2", "--set", "re=uniform(500,1000)", "--out", str(bad)]) != 0
+    err = capsys.readouterr().err
+    assert "cell Reynolds number" in err and "Traceback" not in err and not bad.exists()
