@@ -176,6 +176,9 @@ def advance(pde: PDE, u, params: Mapping[str, jax.Array], frames: int = 1):
     bits of ``_advance_one`` in one call.
     """
     u, params = _inputs(pde, u, params, frames)
+    own = getattr(pde, "advance_frames", None)  # a family with its own stepping (the flows) advances itself
+    if own is not None:
+        return own(u, params, frames)
     coeffs = _coefficients_for(pde, params, u.shape[0], _device(u))
     return advance_bounded(pde, u, params, coeffs, frames * _steps_per_frame(pde))
 
@@ -193,6 +196,9 @@ def advance_vjp(pde: PDE, u, params: Mapping[str, jax.Array], frames: int = 1, w
     nonlinear term). Between the call and vjp only the residuals jax.vjp needs are kept (in the closure).
     """
     u, params = _inputs(pde, u, params, frames)
+    own = getattr(pde, "advance_frames_vjp", None)
+    if own is not None:
+        return own(u, params, frames, wrt_params)
     batch, device, shape = u.shape[0], _device(u), u.shape
     if not wrt_params:
         coeffs = _coefficients_for(pde, params, batch, device)

@@ -198,3 +198,32 @@ def test_the_cli_lists_generates_and_refuses_flows(tmp_path, capsys):
     assert cli.main(["generate", "karman2d", "--n", "2", "--set", "re=uniform(500,1000)", "--out", str(bad)]) != 0
     err = capsys.readouterr().err
     assert "cell Reynolds number" in err and "Traceback" not in err and not bad.exists()
+
+
+@pytest.mark.parametrize("name", FLOWS)
+def test_the_oracle_continues_a_sampled_frame_to_the_next_one(name):
+    # a frame is the solver's whole state: the stored faces, the rebuilt right-most/top ones, the body from the
+    # frame's own mask (channel2d's bodies are random geometry, not parameters)
+    pde = small(name)
+    t = datasets.sample_tensors(pde, range(3), seed=3)
+    oracle = datasets.SolverOracle(pde)
+    for i in range(pde.n_frames - 1):
+        got, want = oracle(t["u"][:, i], t["params"]), t["u"][:, i + 1]
+        for c, field in enumerate(pde.FIELDS):
+            scale = max(float(want[:, c].abs().max()), 1e-6)
+            assert float((got[:, c] - want[:, c]).abs().max()) / scale < 1e-5, (field, i)
+    one = oracle(t["u"][1:2, 0], t["params"][1:2])
+    assert torch.equal(one[0], oracle(t["u"][:, 0], t["params"])[1])  # alone == in a batch
+
+
+def test_solver_step_gradients_match_float64_finite_differences_through_a_projection():
+    pde = generator.get_pde("karman2d", n=16, aspect=2, radius="uniform(0.15, 0.18)", cx="uniform(0.6, 0.7)",
+                            cy="uniform(0.45, 0.55)", re="uniform(5, 10)", speed="uniform(0.5, 1)",
+                            t_start=0.05, t_end=0.15, n_frames=2, cfl=1.0, tol=1e-12, max_iter=200)
+    t = datasets.sample_tensors(pde, range(2), seed=3)
+    with jax.enable_x64(True):
+        step = datasets.SolverStep(pde)
+        u = t["u"][:, 0].double().requires_grad_(True)
+        params = t["params"].double().requires_grad_(True)
+        assert torch.autograd.gradcheck(step, (u, params), eps=1e-6, atol=1e-7, rtol=1e-5, fast_mode=True)
+    assert not jax.config.jax_enable_x64

@@ -65,7 +65,8 @@ class Params(NamedTuple):
     plug: the inflow profile's blend of a plug into the parabola (0 parabolic, 1 uniform; the mean flux is
     2/3 * inflow * ly either way); obstacles: more solid primitives, an array [K, 5] of rows
     (kind, cx, cy, a, b) [m] with kind one of OBSTACLE_KINDS' codes (None: none); source: a smoke source disc
-    (sx, sy, r [m], rate [smoke/s]) (rate 0: none)."""
+    (sx, sy, r [m], rate [smoke/s]) (rate 0: none); mask: a given solid mask [ny, nx] (bool; None: none), e.g. a
+    frame's ``solid`` field when the solver continues from a frame."""
 
     nu: float = 0.01
     lid: float = 0.0
@@ -75,6 +76,7 @@ class Params(NamedTuple):
     plug: float = 0.0
     obstacles: Any = None
     source: tuple = (0.0, 0.0, 0.0, 0.0)
+    mask: Any = None
 
 
 # Obstacle primitives of Params.obstacles rows (kind, cx, cy, a, b): code -> what a and b are.

@@ -135,30 +135,38 @@ def solve(fc: Faces, b, periodic_x: bool, periodic_y: bool, singular: bool, tol:
     def proj(x):
         return x - fluid * (jnp.sum(x * fluid) / nfl) if singular else x
 
-    b = proj(b)
-    bn2 = jnp.sum(b * b)
-    stop2 = tol * tol * bn2
-
     def prec(r):
         return proj(vcycle(op, r, periodic_x, periodic_y))
 
-    def cond(s):
-        return (s[0] < max_iter) & (s[5] > stop2)
+    def matvec(x):
+        return apply(fc, x, periodic_x, periodic_y)
 
-    def body(s):
-        k, x, r, d, rz, _ = s
-        ad = apply(fc, d, periodic_x, periodic_y)
-        alpha = rz / jnp.sum(d * ad)
-        x = x + alpha * d
-        r = r - alpha * ad
-        z = prec(r)
-        rz_new = jnp.sum(r * z)
-        return k + 1, x, r, z + (rz_new / rz) * d, rz_new, jnp.sum(r * r)
+    def cg(_, rhs):  # (x, iterations): also the transposed solve of reverse-mode derivatives (A is symmetric)
+        rhs = proj(rhs)
+        bn2 = jnp.sum(rhs * rhs)
+        stop2 = tol * tol * bn2
 
-    z0 = prec(b)
-    s0 = (jnp.zeros((), jnp.int32), jnp.zeros_like(b), b, z0, jnp.sum(b * z0), bn2)
-    s0 = jax.lax.cond(bn2 > 0, lambda s: s, lambda s: s[:5] + (jnp.zeros_like(bn2),), s0)
-    k, x, *_ = jax.lax.while_loop(cond, body, s0)
-    x = proj(x)
-    r = b - apply(fc, x, periodic_x, periodic_y)
-    return Solve(x, k, jnp.sqrt(jnp.sum(r * r) / jnp.maximum(bn2, 1e-30)))
+        def cond(s):
+            return (s[0] < max_iter) & (s[5] > stop2)
+
+        def body(s):
+            k, x, r, d, rz, _ = s
+            ad = matvec(d)
+            alpha = rz / jnp.sum(d * ad)
+            x = x + alpha * d
+            r = r - alpha * ad
+            z = prec(r)
+            rz_new = jnp.sum(r * z)
+            return k + 1, x, r, z + (rz_new / rz) * d, rz_new, jnp.sum(r * r)
+
+        z0 = prec(rhs)
+        s0 = (jnp.zeros((), jnp.int32), jnp.zeros_like(rhs), rhs, z0, jnp.sum(rhs * z0), bn2)
+        s0 = jax.lax.cond(bn2 > 0, lambda s: s, lambda s: s[:5] + (jnp.zeros_like(bn2),), s0)
+        k, x, *_ = jax.lax.while_loop(cond, body, s0)
+        return proj(x), k
+
+    # custom_linear_solve: reverse-mode derivatives solve with A^T = A instead of differentiating the loop
+    b = proj(b)
+    x, k = jax.lax.custom_linear_solve(matvec, b, cg, symmetric=True, has_aux=True)
+    r = b - matvec(x)
+    return Solve(x, k, jnp.sqrt(jnp.sum(r * r) / jnp.maximum(jnp.sum(b * b), 1e-30)))

@@ -1,10 +1,13 @@
 """The incompressible-flow family: a ``generator.problem.Problem`` whose samples are rolled out by the MAC-grid
 solver of this package (walls, inflow, outflow, obstacles, smoke).
 
-A sample is u [T, C, nx, ny] float32 over FIELDS at ``times()`` (generator order: x first), every field at cell
-centres: u, v the velocity components averaged from the faces (m/s), p the pressure over density of the last
-projection (m^2/s^2), and per entry ``solid`` (1 in obstacle cells, 0 in fluid: the mask, constant in time) or
-``smoke`` (a passive density). The box is ``aspect * n`` x ``n`` square cells on [0, aspect * length] x
+A sample is u [T, C, nx, ny] float32 over FIELDS at ``times()`` (generator order: x first), one value per cell:
+u on the cell's left face (x_i - h/2, y_j) and v on its bottom face (x_i, y_j - h/2) (m/s), the MAC grid's own
+values (staggered, as PhiFlow's and jax-cfd's staggered grids store them), p the pressure over density of the
+last projection at the centre (m^2/s^2), and per entry ``solid`` (1 in obstacle cells, 0 in fluid: the mask,
+constant in time) or ``smoke`` (a passive density at the centre). The faces not stored (the right-most u, the
+top v) are walls (zero), periodic copies, or follow from the discrete continuity of the last cell, so a frame
+is the solver's whole state (``state_of``) and the solver can continue from any frame (the oracle). The box is ``aspect * n`` x ``n`` square cells on [0, aspect * length] x
 [0, length]; each side is a wall, inflow, outflow or periodic (``SIDES``), and the grid states its per-axis
 ``bc`` (both sides walls: dirichlet; any open side: neumann; periodic) plus ``sides`` for the record.
 
@@ -35,6 +38,7 @@ from .. import dispatch
 from ..chunked import join, split
 from ..grids import GridBase
 from ..problem import MAX_STEPS, ProblemBase, resolve_params
+from . import interactive
 from .grid import SIDE_KINDS, Geometry, Params
 from .step import State, initial_state, run, solid_mask
 
@@ -130,8 +134,9 @@ class FlowProblem(ProblemBase):
 
     # --- what an entry provides --------------------------------------------------------------------
     @abc.abstractmethod
-    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array) -> Params:
-        """The solver's Params of one sample from its parameters p {name: traced scalar} and a geometry key."""
+    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array | None) -> Params:
+        """The solver's Params of one sample from its parameters p {name: traced scalar} and a geometry key
+        (None: no random geometry; the oracle takes the obstacles from the frame instead)."""
 
     @abc.abstractmethod
     def speed_bound(self) -> float:
@@ -232,13 +237,54 @@ class FlowProblem(ProblemBase):
     def frame_fields(self, geom: Geometry, state: State, fp: Params) -> jax.Array:
         """One frame [C, nx, ny] over FIELDS at cell centres from a solver state (arrays [y, x])."""
         made = {
-            "u": lambda: 0.5 * (state.u[:, 1:] + state.u[:, :-1]),
-            "v": lambda: 0.5 * (state.v[1:] + state.v[:-1]),
+            "u": lambda: state.u[:, :-1],
+            "v": lambda: state.v[:-1],
             "p": lambda: state.p,
             "solid": lambda: solid_mask(geom, fp).astype(state.u.dtype),
             "smoke": lambda: state.smoke,
         }
         return jnp.stack([made[f]().T for f in self.FIELDS])
+
+    def oracle_params(self, p: Mapping[str, jax.Array], frame: jax.Array) -> Params:
+        """The solver's Params to continue from a frame [C, nx, ny]: the parameters' part, and the obstacles from
+        the frame's own ``solid`` field (random geometry is not a parameter)."""
+        fp = self.flow_params(p, None)
+        if "solid" in self.FIELDS:
+            fp = fp._replace(mask=frame[self.FIELDS.index("solid")].T > 0.5)
+        return fp
+
+    def advance_frames(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int):
+        """Frames u [B, C, nx, ny] advanced ``frames`` frame intervals: (u_k, finite [B]) (generator.interactive)."""
+        return interactive.advance(self, u, params, frames)
+
+    def advance_frames_vjp(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int, wrt_params: bool):
+        """``advance_frames`` with its VJP (generator.interactive.advance_vjp's contract)."""
+        return interactive.advance_vjp(self, u, params, frames, wrt_params)
+
+    def state_of(self, frame: jax.Array, fp: Params) -> State:
+        """The solver state of one frame [C, nx, ny] (the inverse of ``frame_fields``): the right-most u and top v
+        faces rebuilt as walls (0), periodic copies, or from the last cells' discrete continuity (an open side)."""
+        geom = self.grid.geometry()
+        field = {name: frame[i].T for i, name in enumerate(self.FIELDS)}  # [ny, nx]
+        u, v = field["u"], field["v"]
+        left, right, bottom, top = self.SIDES
+        if right == top == "outflow":
+            raise ValueError(f"{self.NAME}: a box open on the right and the top has no unique corner state")
+        v_top = v[:1] if top == "periodic" else jnp.zeros_like(v[:1])  # an outflow top: set below
+        if right == "periodic":
+            u_right = u[:, :1]
+        elif right == "outflow":  # continuity of the last column: u_R = u_L - (v_top - v_bottom)
+            v_up = jnp.concatenate([v[1:, -1:], v_top[:, -1:]], 0)
+            u_right = u[:, -1:] - (v_up - v[:, -1:])
+        else:
+            u_right = jnp.zeros_like(u[:, :1])
+        u = jnp.concatenate([u, u_right], 1)
+        if top == "outflow":  # continuity of the top row: v_T = v_B - (u_right - u_left)
+            v_top = v[-1:] - (u[-1:, 1:] - u[-1:, :-1])
+        v = jnp.concatenate([v, v_top], 0)
+        zero = jnp.zeros((geom.ny, geom.nx), frame.dtype)
+        return State(u, v, field.get("p", zero), field.get("smoke", zero), jnp.zeros((), frame.dtype),
+                     jnp.zeros((), jnp.int32))
 
     def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
         """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, C, nx, ny], params {name: [B]},

@@ -34,6 +34,8 @@ def solid_mask(geom: Geometry, params: Params):
     """Solid cells [ny, nx] of the circle obstacle and the obstacle rows in params (traced)."""
     cx, cy, r = params.circle
     solid = circle_solid(geom, cx, cy, r)
+    if params.mask is not None:
+        solid = solid | params.mask
     return solid if params.obstacles is None else solid | obstacles_solid(geom, jnp.asarray(params.obstacles))
 
 

@@ -61,7 +61,7 @@ class Karman2D(FlowProblem):
     speed: Any = Fixed(1.0)
     plug: Any = "uniform(0, 0.3)"
 
-    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array) -> Params:
+    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array | None) -> Params:
         nu = p["speed"] * 2 * p["radius"] / p["re"]
         return Params(nu=nu, inflow=1.5 * p["speed"], plug=p["plug"], circle=(p["cx"], p["cy"], p["radius"]))
 
@@ -98,7 +98,7 @@ class Cavity2D(FlowProblem):
     re: Any = "uniform(100, 1000)"
     lid: Any = Fixed(1.0)
 
-    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array) -> Params:
+    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array | None) -> Params:
         return Params(nu=p["lid"] * self.length / p["re"], lid=p["lid"])
 
     def speed_bound(self) -> float:
@@ -141,7 +141,10 @@ class Channel2D(FlowProblem):
         lx = self.aspect * self.length
         return 0.3 * self.length, (lx - 0.6 * self.length) / self.obstacles
 
-    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array) -> Params:
+    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array | None) -> Params:
+        nu, inflow = p["speed"] * self.length / p["re"], 1.5 * p["speed"]
+        if key is None:
+            return Params(nu=nu, inflow=inflow)
         x0, width = self.slots()
         k = self.obstacles
         u = jax.random.uniform(key, (k, 5), jnp.float32)
@@ -153,7 +156,7 @@ class Channel2D(FlowProblem):
         cx = x0 + width * jnp.arange(k) + margin + (width - 2 * margin) * u[:, 1]
         cy = margin + (self.length - 2 * margin) * u[:, 2]
         rows = jnp.stack([kind, cx, cy, a, b], axis=1)
-        return Params(nu=p["speed"] * self.length / p["re"], inflow=1.5 * p["speed"], obstacles=rows)
+        return Params(nu=nu, inflow=inflow, obstacles=rows)
 
     def describe_geometry(self) -> str:
         return (f"obstacles: {self.obstacles} per sample, each a circle, box or ellipse of half-sizes in "
@@ -214,7 +217,7 @@ class Smoke2D(FlowProblem):
     radius: Any = "uniform(0.07, 0.12)"
     nu: Any = Fixed(2e-3)
 
-    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array) -> Params:
+    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array | None) -> Params:
         return Params(nu=p["nu"], buoyancy=p["buoyancy"], source=(p["sx"], self.source_y, p["radius"], self.rate))
 
     def speed_bound(self) -> float:
