@@ -110,6 +110,10 @@ class ProblemBase(abc.ABC):
     STEADY: ClassVar[bool] = False
     INPUTS: ClassVar[tuple[str, ...]] = ()
     IC_KINDS: ClassVar[Mapping[str, type]] = IC_KINDS  # the ic kinds this problem takes
+    # Where each field lives when not at the grid's points (a staggered grid): {field: location}, locations
+    # "face_x" / "face_y" (on the cell's lower face along that axis), "centre" (cell average), "mask" (a cell set,
+    # 0/1, the solver's geometry: restricted by "any", never changed by a model). Empty: every field at the points.
+    FIELD_LOCATIONS: ClassVar[Mapping[str, str]] = {}
     # A class serving several dimensions: {ndim: setting defaults that differ in that dimension}, e.g.
     # {1: {}, 2: {"n": 64}, 3: {"n": 32}}. Empty: the class is one problem of dimension NDIM.
     DIMENSIONS: ClassVar[Mapping[int, Mapping[str, Any]]] = {}

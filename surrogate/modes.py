@@ -257,11 +257,16 @@ class Oracle:
         return _net_rollout(model, norm, u, params, k_in)
 
 
-def subsample(u: torch.Tensor, factor: int, ndim: int, bc: tuple[str, ...] | None = None) -> torch.Tensor:
+def subsample(u: torch.Tensor, factor: int, ndim: int, bc: tuple[str, ...] | None = None,
+              locations: tuple[str, ...] | None = None) -> torch.Tensor:
     """The fine field at the coarse grid's points, [..., *fine] -> [..., *fine/factor] over the last ndim dims.
     On a periodic axis (x_i = i L / n) fine point factor*i is coarse point i exactly. On an axis with walls the
     points are cell centres: coarse centre i is fine point factor*i + (factor-1)/2, which for an even factor lies
-    midway between two fine points, whose mean is taken (second order in the fine spacing)."""
+    midway between two fine points, whose mean is taken (second order in the fine spacing).
+    ``locations``: per channel (the dim before space), a staggered grid's field locations (Problem.FIELD_LOCATIONS)."""
+    if locations:
+        return torch.stack([_restrict(u.select(-ndim - 1, c), factor, ndim, where)
+                            for c, where in enumerate(locations)], dim=-ndim - 1)
     for axis, b in enumerate(bc or ("periodic",) * ndim):
         dim = u.ndim - ndim + axis
         if b == "periodic":
@@ -269,6 +274,21 @@ def subsample(u: torch.Tensor, factor: int, ndim: int, bc: tuple[str, ...] | Non
         else:
             lo, hi = (factor - 1) // 2, factor // 2  # the same point for an odd factor
             u = 0.5 * (u.unfold(dim, factor, factor).select(-1, lo) + u.unfold(dim, factor, factor).select(-1, hi))
+    return u
+
+
+def _restrict(u: torch.Tensor, factor: int, ndim: int, where: str) -> torch.Tensor:
+    """One staggered field [..., *fine] on the coarse cells [..., *fine/factor]: a cell average ("centre"), a
+    coarse face's mean over the fine faces on it ("face_x", "face_y": the flux through it), or "mask": a coarse
+    cell is in the set when any of its fine cells is."""
+    face = {"face_x": 0, "face_y": 1}.get(where)
+    for axis in range(ndim):
+        dim = u.ndim - ndim + axis
+        if axis == face:
+            u = u.unfold(dim, factor, factor).select(-1, 0)  # the fine faces on the coarse faces' line
+        else:
+            blocks = u.unfold(dim, factor, factor)
+            u = blocks.amax(-1) if where == "mask" else blocks.mean(-1)
     return u
 
 
@@ -288,6 +308,7 @@ class SolverInTheLoop:
     step: nn.Module | None = None
     factor: int = 0
     walls: tuple[str, ...] | None = None  # the PDE's per-axis bc (None: periodic), for the fine -> coarse points
+    locations: tuple[str, ...] | None = None  # per channel, a staggered grid's field locations (FIELD_LOCATIONS)
     name: ClassVar[str] = "solver-in-the-loop"
 
     def settings(self) -> dict:
@@ -308,6 +329,8 @@ class SolverInTheLoop:
                              f"allowed: a proper divisor of {n}, e.g. {n // 8 if n % 8 == 0 and n // 8 >= 8 else n // 2}")
         self.factor = n // self.coarse_n
         self.walls = tuple(pde.grid.bc)
+        where = getattr(pde, "FIELD_LOCATIONS", {})
+        self.locations = tuple(where.get(f, "centre") for f in pde.FIELDS) if where else None
         try:
             self.step = datasets.SolverStep({**pde.config(), "n": self.coarse_n}, frames=1)
         except ValueError as err:  # the PDE's refusal speaks of n, which the user set as --coarse-n
@@ -317,25 +340,29 @@ class SolverInTheLoop:
     def correct(self, model: nn.Module, norm: Normalization, s: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
         """The corrected state after a coarse solver step: s [B, C, *coarse] physical -> same."""
         z = norm.normalize(s)
-        return norm.denormalize(z + model(z, p))
+        dz = model(z, p)
+        if self.locations and "mask" in self.locations:  # the solver's geometry (an obstacle mask) is not learned
+            keep = torch.tensor([w != "mask" for w in self.locations], dtype=dz.dtype, device=dz.device)
+            dz = dz * keep.reshape(-1, *([1] * (dz.ndim - 2)))
+        return norm.denormalize(z + dz)
 
     def step_loss(self, model, batch, norm, step):
         ndim = model.ndim
         params, p = batch["params"], norm.normalize_params(batch["params"])
-        s = subsample(batch["x"][:, -1], self.factor, ndim, self.walls)  # [B, C, *coarse]
+        s = subsample(batch["x"][:, -1], self.factor, ndim, self.walls, self.locations)  # [B, C, *coarse]
         states = []
         for _ in range(self.unroll):
             s = self.correct(model, norm, self.step(s, params), p)
             states.append(s)
         pred = norm.normalize(torch.stack(states, dim=1))  # [B, k, C, *coarse]
-        target = norm.normalize(subsample(batch["y"][:, : self.unroll], self.factor, ndim, self.walls))
+        target = norm.normalize(subsample(batch["y"][:, : self.unroll], self.factor, ndim, self.walls, self.locations))
         return F.mse_loss(pred, target), relative_errors(pred, target)
 
     @torch.no_grad()
     def rollout(self, model, norm, u, params, k_in=1):
         """The corrected coarse solver (model=None: the coarse solver alone) from u[:, 0] subsampled."""
         ndim = u.ndim - 3
-        truth = subsample(u, self.factor, ndim, self.walls)  # [B, T, C, *coarse]
+        truth = subsample(u, self.factor, ndim, self.walls, self.locations)  # [B, T, C, *coarse]
         p = norm.normalize_params(params) if model is not None else None
         s, out = truth[:, 0], []
         for _ in range(u.shape[1] - 1):

@@ -116,6 +116,8 @@ class FlowProblem(ProblemBase):
     NDIM: ClassVar[int] = 2
     SIDES: ClassVar[tuple] = ("wall", "wall", "wall", "wall")  # left, right, bottom, top
     IC_KINDS: ClassVar[Mapping[str, type]] = {AtRest.kind: AtRest}
+    FIELD_LOCATIONS: ClassVar[Mapping[str, str]] = {"u": "face_x", "v": "face_y", "p": "centre", "solid": "mask",
+                                                    "smoke": "centre"}
     MIN_CELLS: ClassVar[int] = 8
     # cell Reynolds number u_max h / nu above which the grid does not resolve the flow (its boundary layers are
     # thinner than a cell); semi-Lagrangian advection stays stable there but the data would be numerical noise
