@@ -13,7 +13,9 @@ compared with the fine solution subsampled: the coarse solver alone, the coarse 
 on (coarse step, fine) pairs (unroll 1: no unrolling, the precomputed-pairs baseline), and with a correction
 trained unrolled ``unroll`` steps through the differentiable coarse solver.
 
-Outputs in out_dir: compare.md, compare.csv, compare.json, compare.png and one run directory per arm.
+Outputs in out_dir: compare.md, compare.csv, compare.json, compare.png (errors against time), rollouts.png
+(solver-in-the-loop: one held-out trajectory, reference / coarse / corrected; vorticity for a flow) and one run
+directory per arm.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import datasets
 from .budget import stratified_test_set
 from .data import check_device
 from .modes import MODE_NAMES, check_mode_settings, make_mode, rollout_errors
+from .rollout_figure import plot_rollouts
 from .runs import train_run
 from .train import load_checkpoint
 
@@ -105,12 +108,30 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
         for label, unroll in (("pairs (unroll 1)", 1), (f"solver-in-the-loop (unroll {k})", k)):
             settings = {"name": "solver-in-the-loop", "unroll": unroll, "coarse_n": cfg.coarse_n}
             arms.append(_train_arm(label, fine, settings, test, cfg, out / f"sitl_unroll{unroll}", log))
+        _plot_sitl_rollouts(out / "rollouts.png", fine, coarse, test[0], out, k, cfg)
     result = {"pde": pde.config(), "fine_pde": fine.config() if sitl else None, "config": asdict(cfg),
               "frame_dt": pde.frame_dt, "arms": arms}
     (out / "compare.json").write_text(json.dumps(result, indent=2))
     _write_tables(out, result, pde, cfg)
     plot(out / "compare.png", result)
     return result
+
+
+def _plot_sitl_rollouts(path: Path, fine, coarse, test: dict, out: Path, k: int, cfg: InteractiveConfig) -> None:
+    """rollouts.png: the first held-out trajectory as the reference (fine, restricted to the coarse grid), the
+    coarse solver alone, the pairs-trained and the solver-in-the-loop corrections, over time."""
+    u, params = test["u"][:1], test["params"][:1]
+    rows = {}
+    for label, run in (("coarse solver", None), ("pairs (unroll 1)", "sitl_unroll1"),
+                       (f"solver-in-the-loop (unroll {k})", f"sitl_unroll{k}")):
+        model, norm = (None, _identity_norm(fine)) if run is None else load_checkpoint(out / run / "model.pt")[:2]
+        pred, truth = coarse.rollout(model, norm, u, params)
+        rows.setdefault(f"reference (n={fine.n} restricted)", truth[0])
+        rows[label] = pred[0]
+    where = getattr(fine, "FIELD_LOCATIONS", {})
+    solid = truth[0, 0, fine.FIELDS.index("solid")] if where.get("solid") == "mask" else None
+    h = fine.grid.length / cfg.coarse_n
+    plot_rollouts(path, fine, rows, h, fine.frame_dt, solid=solid)
 
 
 def _identity_norm(pde) -> datasets.Normalization:
