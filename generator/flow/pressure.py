@@ -125,9 +125,10 @@ class Solve(NamedTuple):
 
 
 def solve(fc: Faces, b, periodic_x: bool, periodic_y: bool, singular: bool, tol: float = 1e-5,
-          max_iter: int = 200, op: Operator | None = None) -> Solve:
-    """Solve A p = b (b [ny, nx], zero in solid cells) by multigrid-preconditioned CG from p = 0; ``op``: the
-    prepared operator of fc (computed here when None)."""
+          max_iter: int = 200, op: Operator | None = None, x0=None) -> Solve:
+    """Solve A p = b (b [ny, nx], zero in solid cells) by multigrid-preconditioned CG to ||b - A p|| <= tol ||b||;
+    ``op``: the prepared operator of fc (computed here when None); ``x0``: a first guess (the last step's
+    pressure: CG then solves for the correction, and stops at the same absolute residual)."""
     op = prepare(fc, periodic_x, periodic_y) if op is None else op
     fluid = 1.0 - fc.solid
     nfl = jnp.maximum(jnp.sum(fluid), 1.0)
@@ -144,7 +145,7 @@ def solve(fc: Faces, b, periodic_x: bool, periodic_y: bool, singular: bool, tol:
     def cg(_, rhs):  # (x, iterations): also the transposed solve of reverse-mode derivatives (A is symmetric)
         rhs = proj(rhs)
         bn2 = jnp.sum(rhs * rhs)
-        stop2 = tol * tol * bn2
+        stop2 = jnp.maximum(tol * tol * bn2, floor2)  # floor2: the warm start's target, tol ||b||, squared
 
         def cond(s):
             return (s[0] < max_iter) & (s[5] > stop2)
@@ -167,6 +168,13 @@ def solve(fc: Faces, b, periodic_x: bool, periodic_y: bool, singular: bool, tol:
 
     # custom_linear_solve: reverse-mode derivatives solve with A^T = A instead of differentiating the loop
     b = proj(b)
-    x, k = jax.lax.custom_linear_solve(matvec, b, cg, symmetric=True, has_aux=True)
+    if x0 is None:
+        floor2 = jnp.zeros((), b.dtype)
+        x, k = jax.lax.custom_linear_solve(matvec, b, cg, symmetric=True, has_aux=True)
+    else:
+        x0 = proj(jax.lax.stop_gradient(x0) * fluid)  # a guess: derivatives do not flow through it
+        floor2 = tol * tol * jnp.sum(b * b)
+        dx, k = jax.lax.custom_linear_solve(matvec, b - matvec(x0), cg, symmetric=True, has_aux=True)
+        x = x0 + dx
     r = b - matvec(x)
     return Solve(x, k, jnp.sqrt(jnp.sum(r * r) / jnp.maximum(jnp.sum(b * b), 1e-30)))

@@ -160,14 +160,16 @@ def operator(geom: Geometry, params: Params) -> pressure.Operator:
     return pressure.prepare(faces(geom, solid_mask(geom, params)), geom.periodic_x, geom.periodic_y)
 
 
-def project(geom: Geometry, params: Params, u, v, dt, tol=1e-5, max_iter=200, op: pressure.Operator | None = None):
+def project(geom: Geometry, params: Params, u, v, dt, tol=1e-5, max_iter=200, op: pressure.Operator | None = None,
+            p_guess=None):
     """Make (u, v) discretely divergence-free: returns u, v, pressure p [ny, nx] (m^2/s^2), iterations.
-    op: ``operator(geom, params)`` when already computed."""
+    op: ``operator(geom, params)`` when already computed; p_guess: a first guess of p (the last step's)."""
     op = operator(geom, params) if op is None else op
     fc = op.levels[0]
     h = geom.h
     b = -h * (u[:, 1:] - u[:, :-1] + v[1:] - v[:-1]) * (1 - fc.solid)
-    sol = pressure.solve(fc, b, geom.periodic_x, geom.periodic_y, geom.singular, tol, max_iter, op)
+    x0 = None if p_guess is None else p_guess * dt
+    sol = pressure.solve(fc, b, geom.periodic_x, geom.periodic_y, geom.singular, tol, max_iter, op, x0)
     g = pressure._ghost_pad(sol.p, geom.periodic_x, geom.periodic_y)
     u = u - fc.cx * (g[1:-1, 1:] - g[1:-1, :-1]) / h
     v = v - fc.cy * (g[1:, 1:-1] - g[:-1, 1:-1]) / h
@@ -192,7 +194,7 @@ def step(geom: Geometry, state: State, params: Params, dt, tol=1e-5, max_iter=20
     sm = jnp.concatenate([smoke[:1], 0.5 * (smoke[1:] + smoke[:-1]), smoke[-1:]], 0)
     vn = vn + dt * params.buoyancy * sm
     un, vn = apply_bc(geom, params, un, vn)
-    un, vn, p, it = project(geom, params, un, vn, dt, tol, max_iter, op)  # leaves closed/prescribed faces as set
+    un, vn, p, it = project(geom, params, un, vn, dt, tol, max_iter, op, state.p)  # leaves closed/prescribed faces as set
     return State(un, vn, p, smoke, state.t + dt, it)
 
 
