@@ -44,6 +44,7 @@ def main(argv=None) -> int:
     ap.add_argument("--test-samples", type=int, default=8)
     ap.add_argument("--shift", type=float, default=0.25, help="held-out Re beyond the range by this share of its width")
     ap.add_argument("--out", default="/tmp/karman_sitl")
+    ap.add_argument("--device", default="cpu", help="where the models train (cpu, cuda)")
     ap.add_argument("--quick", action="store_true", help="a smoke run: n 32 -> 16, 20 steps, 1 seed")
     a = ap.parse_args(argv)
     import torch
@@ -68,7 +69,8 @@ def main(argv=None) -> int:
     for seed in range(a.seeds):
         out = Path(a.out) / f"seed{seed}"
         cfg = InteractiveConfig(modes=("solver-in-the-loop",), unroll=a.unroll, steps=a.steps,
-                                batch_size=a.batch_size, seed=seed, n_test=a.test_samples, coarse_n=a.coarse_n)
+                                batch_size=a.batch_size, seed=seed, n_test=a.test_samples, coarse_n=a.coarse_n,
+                                device=a.device)
         interactive_compare(pde, out, cfg, log=lambda s: print(f"  seed {seed}: {s}", flush=True))
         runs = {"coarse solver": None, "pairs (unroll 1)": out / "sitl_unroll1",
                 f"solver-in-the-loop (unroll {a.unroll})": out / f"sitl_unroll{a.unroll}"}
@@ -78,6 +80,8 @@ def main(argv=None) -> int:
             test = stratified_test_set(test_pde, a.test_samples, seed)
             for arm, run in runs.items():
                 model, norm = (None, _identity_norm(pde)) if run is None else load_checkpoint(run / "model.pt")[:2]
+                if model is not None:
+                    model.to(a.device)
                 errors = rollout_errors(mode, model, norm, test, 1).numpy()
                 results.setdefault((where, arm), []).append(_summary(errors))
         (Path(a.out) / "summary.json").write_text(json.dumps({f"{k[0]}|{k[1]}": v for k, v in results.items()}))
