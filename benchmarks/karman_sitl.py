@@ -47,7 +47,8 @@ def main(argv=None) -> int:
     ap.add_argument("--shift", type=float, default=0.25, help="held-out Re beyond the range by this share of its width")
     ap.add_argument("--out", default="/tmp/karman_sitl")
     ap.add_argument("--device", default="cpu", help="where the models train (cpu, cuda)")
-    ap.add_argument("--quick", action="store_true", help="a smoke run: n 32 -> 16, 20 steps, 1 seed")
+    ap.add_argument("--quick", action="store_true", help="a smoke run: --small, 20 steps, 1 seed")
+    ap.add_argument("--small", action="store_true", help="n 32 -> 16, larger cylinders, Re 40-80, 1 s windows")
     a = ap.parse_args(argv)
     import torch
 
@@ -60,7 +61,9 @@ def main(argv=None) -> int:
     torch.set_num_threads(1)
     settings = dict(FINE, n=a.fine_n)
     if a.quick:
-        a.seeds, a.steps, a.fine_n, a.coarse_n, a.test_samples = 1, 20, 32, 16, 4
+        a.seeds, a.steps, a.test_samples, a.small = 1, 20, 4, True
+    if a.small:
+        a.fine_n, a.coarse_n = 32, 16
         settings = dict(n=32, radius="uniform(0.13, 0.16)", re="uniform(40, 80)", t_start=2.0, t_end=3.0, n_frames=11)
     pde = generator.get_pde("karman2d", **settings)
     lo, hi = pde.re.bounds
