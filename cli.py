@@ -111,13 +111,16 @@ def _list_entry(pde, as_json: bool) -> None:
         rows[name].update(meaning=spec.description, units=spec.units)  # the default is its domain
     rows.update({f"ic.{k}": {"default": v} for k, v in config["ic"].items() if k != "kind"})
     rows["ic"] = {"default": config["ic"]["kind"], "allowed": pde.fitting_ic_kinds()}
+    units = getattr(pde, "FIELD_UNITS", {})
+    fields = {f: units.get(f, "?") for f in (*getattr(pde, "INPUTS", ()), *pde.FIELDS)}
     offered = getattr(pde, "BOUNDARIES", None)
     if offered:
         rows.setdefault("bc", {"default": "periodic"})["allowed"] = list(offered)
     if as_json:
-        print(json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, "settings": rows}, indent=2))
+        print(json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, "fields": fields, "settings": rows}, indent=2))
         return
     print(pde.describe())
+    print("\nfields (units): " + ", ".join(f"{f} [{u}]" for f, u in fields.items()))
     print("\nsettings (--set KEY=VALUE; parameters take uniform(a, b), loguniform(a, b), choice(...)):")
     for key, row in rows.items():
         extra = "".join(f"  {k}: {', '.join(v) if isinstance(v, list) else v}" for k, v in row.items() if k != "default")

@@ -92,8 +92,10 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
     per_sample["complete"] = ("int8", {"long_name": "sample fully written", "flag_values": [0, 1],
                                        "flag_meanings": "missing written"})
     link = " ".join(per_sample)  # CF: the per-sample coordinates of every field
-    # fields: a name, no units (the PDE definitions do not declare them; "1" would claim dimensionless)
-    fields = {f: {"long_name": f, "coordinates": link} for f in (*pde.INPUTS, *pde.FIELDS)}
+    # fields: a name and the units the PDE declares (FIELD_UNITS; xarray's plots print "u [length/time]")
+    units = getattr(pde, "FIELD_UNITS", {})
+    fields = {f: {"long_name": f, "coordinates": link, **({"units": units[f]} if f in units else {})}
+              for f in (*pde.INPUTS, *pde.FIELDS)}
     attrs = {
         "Conventions": "CF-1.10",
         "title": f"pdestream cache: {pde.NAME}, samples 0..{n_samples - 1}, seed {seed}",
