@@ -1,0 +1,32 @@
+"""House rules of issue 21: one atomic write, one name per class, a public engine API, no benchmarks in the wheel."""
+
+import os
+import stat
+
+import pytest
+
+from datasets import schema
+
+
+def test_there_is_one_atomic_write_and_it_syncs_the_directory(tmp_path, monkeypatch):
+    import surrogate.runs
+    import surrogate.train
+
+    assert surrogate.train.atomic_write is schema.atomic_write is surrogate.runs.atomic_write
+    synced = []
+    real = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: synced.append(stat.S_ISDIR(os.fstat(fd).st_mode)) or real(fd))
+    target = tmp_path / "meta.json"
+    target.write_bytes(b"old")
+    schema.atomic_write(target, b"new")
+    assert target.read_bytes() == b"new" and synced == [False, True]  # the file, then its directory
+    assert [p.name for p in tmp_path.iterdir()] == ["meta.json"]  # no temp file left
+
+
+def test_a_failed_atomic_write_leaves_the_old_file(tmp_path, monkeypatch):
+    target = tmp_path / "meta.json"
+    target.write_bytes(b"old")
+    monkeypatch.setattr(os, "replace", lambda *a: (_ for _ in ()).throw(OSError("disk full")))
+    with pytest.raises(OSError):
+        schema.atomic_write(target, b"new")
+    assert target.read_bytes() == b"old" and [p.name for p in tmp_path.iterdir()] == ["meta.json"]
