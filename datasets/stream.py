@@ -8,7 +8,7 @@ index, so workers and ranks together see each index once, whatever their number.
 the view, shuffles them within that solve batch and yields collated batches of ``batch_size`` examples.
 Random window starts and the shuffle are seeded from (seed, epoch, index), so a resumed run replays bits.
 
-Progress (epoch, examples consumed per worker) lives in a ``datasets.progress.Progress`` in shared memory so
+The position (epoch, examples consumed per worker) lives in a ``datasets.progress.StreamPosition`` in shared memory so
 ``set_epoch`` and ``load_state_dict`` reach persistent spawn workers; ``stream_loader`` builds the DataLoader
 that keeps it.
 """
@@ -25,7 +25,7 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from . import _bridge
 from ._prefetch import prefetch
-from .progress import MAX_WORKERS, Progress
+from .progress import MAX_WORKERS, StreamPosition
 from .views import for_sample, gather, make_view
 
 
@@ -82,7 +82,7 @@ class TrajectoryStream(IterableDataset):
         self.on_blowup, self.shuffle, self.resample = on_blowup, bool(shuffle), bool(resample)
         self.drop_last, self.prefetch = bool(drop_last), bool(prefetch)
         self.per_trajectory = len(self.view.starts(self.pde.n_frames, torch.Generator()))
-        self._progress = Progress()  # epoch and examples consumed per worker, shared with spawn workers
+        self._progress = StreamPosition()  # epoch and examples consumed per worker, shared with spawn workers
         self.num_workers = 0  # set by stream_loader; how many consumed counts state_dict reports
 
     # --- placement -------------------------------------------------------------------------------
@@ -153,7 +153,7 @@ class TrajectoryStream(IterableDataset):
     def __getstate__(self):
         state = self.__dict__.copy()
         state["rank"], state["world_size"] = self.placement()  # torch.distributed is not set up in workers
-        return state  # Progress pickles itself: a plain copy, or the shared memory for a spawning worker
+        return state  # StreamPosition pickles itself: a plain copy, or the shared memory for a spawning worker
 
     # --- iteration -------------------------------------------------------------------------------
     def __iter__(self):

@@ -30,3 +30,18 @@ def test_a_failed_atomic_write_leaves_the_old_file(tmp_path, monkeypatch):
     with pytest.raises(OSError):
         schema.atomic_write(target, b"new")
     assert target.read_bytes() == b"old" and [p.name for p in tmp_path.iterdir()] == ["meta.json"]
+
+
+def test_one_class_named_progress():
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).parent.parent
+    seen = {}
+    for package in ("generator", "datasets", "surrogate"):
+        for path in sorted((root / package).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.ClassDef):
+                    seen.setdefault(node.name, []).append(str(path.relative_to(root)))
+    assert seen["StreamPosition"] == ["datasets/progress.py"]  # was a second `Progress` beside surrogate.train's
+    assert len(seen.get("Progress", [])) <= 1

@@ -231,9 +231,9 @@ def test_a_script_may_exit_with_a_stream_still_open(tmp_path):
 def test_progress_counts_snapshots_and_pickles_to_a_copy():
     import pickle
 
-    from datasets.progress import Progress
+    from datasets.progress import StreamPosition
 
-    p = Progress()
+    p = StreamPosition()
     p.set_epoch(2)
     p.add(1, 5)
     p.add(1, 3)
