@@ -261,7 +261,7 @@ def check_disk_room(pde, out: str, n: int) -> None:
     import shutil
     from pathlib import Path
 
-    from datasets._bridge import max_index
+    from datasets import max_index
 
     parent = Path(out).absolute().parent
     if not parent.is_dir() or isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= max_index() + 1:

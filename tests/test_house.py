@@ -45,3 +45,19 @@ def test_one_class_named_progress():
                     seen.setdefault(node.name, []).append(str(path.relative_to(root)))
     assert seen["StreamPosition"] == ["datasets/progress.py"]  # was a second `Progress` beside surrogate.train's
     assert len(seen.get("Progress", [])) <= 1
+
+
+def test_only_the_datasets_package_imports_its_private_bridge():
+    import ast
+    from pathlib import Path
+
+    import datasets
+
+    root = Path(__file__).parent.parent
+    outside = [root / "cli.py", *(root / "surrogate").rglob("*.py"), *(root / "generator").rglob("*.py")]
+    for path in outside:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                assert "_bridge" not in (node.module or ""), f"{path.name} imports datasets._bridge"
+                assert all(a.name != "_bridge" for a in node.names), f"{path.name} imports datasets._bridge"
+    assert datasets.max_index() > 0 and callable(datasets.pde_from_config)  # the public door instead
