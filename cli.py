@@ -831,9 +831,34 @@ def check_bench_extras(families: list[str]) -> None:
         raise ValueError(need + hint)
 
 
-def cmd_bench(args: argparse.Namespace) -> None:
-    import benchmarks.__main__ as bench
+def import_benchmarks():
+    """The benchmarks package, from the source checkout beside this file (it is not in the wheel); ValueError
+    (one line) for an installed pdestream without it."""
+    import sys
+    from pathlib import Path
 
+    try:
+        import benchmarks.__main__ as bench
+    except ModuleNotFoundError:
+        root = Path(__file__).resolve().parent
+        if not (root / "benchmarks" / "__main__.py").is_file():
+            raise ValueError("pdestream bench runs the benchmarks of a source checkout (they are not in the wheel): "
+                             "clone the repository and run `pip install -e .` there") from None
+        sys.path.insert(0, str(root))  # an editable install maps only the packages it ships
+        import benchmarks.__main__ as bench
+    return bench
+
+
+def cmd_bench(args: argparse.Namespace) -> None:
+    from pathlib import Path
+
+    if args.json is not None:  # found before the benchmark runs, not after it
+        where = Path(args.json).absolute()
+        if where.is_dir() or not where.parent.is_dir():
+            raise ValueError(f"--json {args.json} not allowed: "
+                             + ("it is a directory" if where.is_dir() else f"its directory {where.parent} does not exist")
+                             + "; give a file in an existing directory")
+    bench = import_benchmarks()
     families = args.families or bench.available()
     check_bench_extras(families)
     bench.run(families, args.quick, args.json)

@@ -61,3 +61,25 @@ def test_only_the_datasets_package_imports_its_private_bridge():
                 assert "_bridge" not in (node.module or ""), f"{path.name} imports datasets._bridge"
                 assert all(a.name != "_bridge" for a in node.names), f"{path.name} imports datasets._bridge"
     assert datasets.max_index() > 0 and callable(datasets.pde_from_config)  # the public door instead
+
+
+def test_the_wheel_leaves_the_benchmarks_out():
+    import tomllib
+    from pathlib import Path
+
+    from setuptools import find_packages
+
+    root = Path(__file__).parent.parent
+    found = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]
+    shipped = find_packages(where=str(root), include=found["include"], exclude=found.get("exclude", ()))
+    assert "generator" in shipped and "surrogate" in shipped
+    assert not [p for p in shipped if p.split(".")[0] in ("benchmarks", "tests")]
+
+
+def test_bench_json_into_a_missing_directory_is_refused_before_the_benchmark(tmp_path, capsys, monkeypatch):
+    import cli
+
+    monkeypatch.setattr(cli, "import_benchmarks", lambda: pytest.fail("the benchmark ran"))
+    code = cli.main(["bench", "generator", "--quick", "--json", str(tmp_path / "no" / "b.json")])
+    err = capsys.readouterr().err.strip()
+    assert code != 0 and len(err.splitlines()) == 1 and "does not exist" in err and "Traceback" not in err
