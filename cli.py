@@ -756,6 +756,7 @@ def _compare(args: argparse.Namespace) -> None:
         return _budget_compare(args)
     args.set = compare_sets(args)
     pde = pde_from_args(args.pde, args)
+    _check_shift(pde, args)
     _set_threads(1 if args.threads is None else args.threads)
     from surrogate.fno import COMPARE_FNO
 
@@ -773,6 +774,19 @@ def _compare(args: argparse.Namespace) -> None:
     print(f"table: {args.out}/compare.md, compare.csv; figure: {args.out}/compare.png")
 
 
+def _check_shift(pde, args: argparse.Namespace) -> None:
+    """--shift and --shift-set checked (one line) before any cache or run is written: the shifted PDE is built
+    once here the way the comparison builds it later (--shift 0 wrote a 256-sample cache before its refusal)."""
+    from surrogate.compare import shifted_pde
+
+    if args.shift != args.shift or args.shift in (float("inf"), float("-inf")):
+        raise ValueError(f"--shift {args.shift} not allowed: a finite fraction like 0.25 or -0.25")
+    try:
+        shifted_pde(pde, args.shift, _parse_sets(args.shift_set))
+    except ValueError as err:
+        raise ValueError(str(err).replace("shift=0", "--shift 0")) from None
+
+
 def _budget_compare(args: argparse.Namespace) -> None:
     """`compare --budget S | --sim-budget N [--quick]`: every arm at the same cost (surrogate.budget)."""
     from pathlib import Path
@@ -784,6 +798,7 @@ def _budget_compare(args: argparse.Namespace) -> None:
         if args.budget is None and args.sim_budget is None:
             args.budget = 20.0
     pde = pde_from_args(args.pde, args)
+    _check_shift(pde, args)
     _set_threads(1 if args.threads is None else args.threads)
     from surrogate.fno import COMPARE_FNO
 
