@@ -29,3 +29,24 @@ def test_compare_shift_0_is_refused_before_anything_is_written(tmp_path, capsys)
         code = cli.main(["compare", "burgers1d", "--set", "n=32", "--shift", "0", "--out", str(out), *extra])
         one_line(code, capsys, "--shift 0")
         assert not out.exists()
+
+
+@pytest.mark.parametrize("bad", [
+    ["--source", "no_such_cache.zarr"],  # missing cache
+    ["--reservoir", "--producer", "dask", "--scheduler", "tcp://127.0.0.1:9"],  # unreachable scheduler
+    ["--reservoir", "--scheduler", "tcp://127.0.0.1:9"],  # a scheduler without --producer dask
+    ["--mode", "no-such-mode"],
+    ["--set", "nu=-1"],
+])
+def test_a_refused_train_leaves_nothing_so_the_corrected_command_runs(tmp_path, capsys, bad):
+    out = tmp_path / "run"
+    args = ["train", "burgers1d", "--set", "n=16", "--set", "n_frames=3", "--set", "t_end=0.01", "--steps", "1",
+            "--batch-size", "2", "--test-samples", "1", "--out", str(out)]
+    try:
+        code = cli.main(args + bad)
+    except SystemExit as e:  # argparse's own refusal (a bad choice)
+        code = e.code
+    assert code != 0
+    capsys.readouterr()
+    assert not [p.name for p in out.glob("*")] if out.exists() else True  # nothing: no run.json to be refused by
+    assert not any((out / m).exists() for m in cli.RUN_MARKERS)
