@@ -50,3 +50,43 @@ def test_a_refused_train_leaves_nothing_so_the_corrected_command_runs(tmp_path, 
     capsys.readouterr()
     assert not [p.name for p in out.glob("*")] if out.exists() else True  # nothing: no run.json to be refused by
     assert not any((out / m).exists() for m in cli.RUN_MARKERS)
+
+
+def _script(tmp_path, body: str):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    path = tmp_path / "script.py"
+    path.write_text(body)
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).parent.parent)}
+    return subprocess.run([sys.executable, str(path)], capture_output=True, text=True, env=env, timeout=300)
+
+
+def test_an_unguarded_script_with_workers_gets_one_line(tmp_path):
+    out = _script(tmp_path, "import datasets, generator\n"
+                            "pde = generator.get_pde('burgers1d', n=16, n_frames=3, t_end=0.01)\n"
+                            "loader = datasets.stream_loader(datasets.TrajectoryStream(pde), num_workers=2)\n")
+    assert out.returncode == 1 and "Traceback" not in out.stderr, out.stderr
+    assert out.stderr.strip().splitlines() == [out.stderr.strip()] and "(line 3)" in out.stderr
+    from datasets.stream import MainGuardError
+
+    assert issubclass(MainGuardError, ValueError)  # callers that catch the library's ValueError still do
+
+
+@pytest.mark.slow
+def test_a_script_that_breaks_out_of_a_worker_loop_exits_promptly(tmp_path):
+    # torch joined each busy worker for up to 5 s (its MP_STATUS_CHECK_INTERVAL): ~5 s after the loop here
+    out = _script(tmp_path, "import time, datasets, generator\n"
+                            "if __name__ == '__main__':\n"
+                            "    pde = generator.get_pde('burgers1d')\n"
+                            "    loader = datasets.stream_loader(datasets.TrajectoryStream(pde), num_workers=2)\n"
+                            "    for i, b in enumerate(loader):\n"
+                            "        if i == 2:\n"
+                            "            break\n"
+                            "    t = time.monotonic()\n"
+                            "    del loader, b\n"
+                            "    print(time.monotonic() - t)\n")
+    assert out.returncode == 0, out.stderr
+    assert float(out.stdout.split()[-1]) < 2.0  # WORKER_JOIN_S, then busy workers are stopped
