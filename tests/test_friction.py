@@ -90,3 +90,12 @@ def test_a_script_that_breaks_out_of_a_worker_loop_exits_promptly(tmp_path):
                             "    print(time.monotonic() - t)\n")
     assert out.returncode == 0, out.stderr
     assert float(out.stdout.split()[-1]) < 2.0  # WORKER_JOIN_S, then busy workers are stopped
+
+
+@pytest.mark.slow
+def test_a_dask_blow_up_prints_our_line_and_not_the_clusters_report(tmp_path, capfd):
+    pytest.importorskip("distributed")
+    code = cli.main(["generate", "darcy2d", "--n", "2", "--set", "n=17", "--set", "max_iter=5", "--executor", "dask",
+                     "--workers", "1", "--out", str(tmp_path / "d.zarr")])
+    err = [line for line in capfd.readouterr().err.strip().splitlines() if not line.startswith("dask dashboard:")]
+    assert code != 0 and len(err) == 1 and err[0].startswith("pdestream: error: darcy2d: 2 of 2 solves"), err
