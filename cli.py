@@ -111,13 +111,16 @@ def _list_entry(pde, as_json: bool) -> None:
         rows[name].update(meaning=spec.description, units=spec.units)  # the default is its domain
     rows.update({f"ic.{k}": {"default": v} for k, v in config["ic"].items() if k != "kind"})
     rows["ic"] = {"default": config["ic"]["kind"], "allowed": pde.fitting_ic_kinds()}
+    units = getattr(pde, "FIELD_UNITS", {})
+    fields = {f: units.get(f, "?") for f in (*getattr(pde, "INPUTS", ()), *pde.FIELDS)}
     offered = getattr(pde, "BOUNDARIES", None)
     if offered:
         rows.setdefault("bc", {"default": "periodic"})["allowed"] = list(offered)
     if as_json:
-        print(json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, "settings": rows}, indent=2))
+        print(json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, "fields": fields, "settings": rows}, indent=2))
         return
     print(pde.describe())
+    print("\nfields (units): " + ", ".join(f"{f} [{u}]" for f, u in fields.items()))
     print("\nsettings (--set KEY=VALUE; parameters take uniform(a, b), loguniform(a, b), choice(...)):")
     for key, row in rows.items():
         extra = "".join(f"  {k}: {', '.join(v) if isinstance(v, list) else v}" for k, v in row.items() if k != "default")
@@ -258,7 +261,7 @@ def check_disk_room(pde, out: str, n: int) -> None:
     import shutil
     from pathlib import Path
 
-    from datasets._bridge import max_index
+    from datasets import max_index
 
     parent = Path(out).absolute().parent
     if not parent.is_dir() or isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= max_index() + 1:
@@ -753,6 +756,7 @@ def _compare(args: argparse.Namespace) -> None:
         return _budget_compare(args)
     args.set = compare_sets(args)
     pde = pde_from_args(args.pde, args)
+    _check_shift(pde, args)
     _set_threads(1 if args.threads is None else args.threads)
     from surrogate.fno import COMPARE_FNO
 
@@ -770,6 +774,19 @@ def _compare(args: argparse.Namespace) -> None:
     print(f"table: {args.out}/compare.md, compare.csv; figure: {args.out}/compare.png")
 
 
+def _check_shift(pde, args: argparse.Namespace) -> None:
+    """--shift and --shift-set checked (one line) before any cache or run is written: the shifted PDE is built
+    once here the way the comparison builds it later (--shift 0 wrote a 256-sample cache before its refusal)."""
+    from surrogate.compare import shifted_pde
+
+    if args.shift != args.shift or args.shift in (float("inf"), float("-inf")):
+        raise ValueError(f"--shift {args.shift} not allowed: a finite fraction like 0.25 or -0.25")
+    try:
+        shifted_pde(pde, args.shift, _parse_sets(args.shift_set))
+    except ValueError as err:
+        raise ValueError(str(err).replace("shift=0", "--shift 0")) from None
+
+
 def _budget_compare(args: argparse.Namespace) -> None:
     """`compare --budget S | --sim-budget N [--quick]`: every arm at the same cost (surrogate.budget)."""
     from pathlib import Path
@@ -781,6 +798,7 @@ def _budget_compare(args: argparse.Namespace) -> None:
         if args.budget is None and args.sim_budget is None:
             args.budget = 20.0
     pde = pde_from_args(args.pde, args)
+    _check_shift(pde, args)
     _set_threads(1 if args.threads is None else args.threads)
     from surrogate.fno import COMPARE_FNO
 
@@ -828,9 +846,34 @@ def check_bench_extras(families: list[str]) -> None:
         raise ValueError(need + hint)
 
 
-def cmd_bench(args: argparse.Namespace) -> None:
-    import benchmarks.__main__ as bench
+def import_benchmarks():
+    """The benchmarks package, from the source checkout beside this file (it is not in the wheel); ValueError
+    (one line) for an installed pdestream without it."""
+    import sys
+    from pathlib import Path
 
+    try:
+        import benchmarks.__main__ as bench
+    except ModuleNotFoundError:
+        root = Path(__file__).resolve().parent
+        if not (root / "benchmarks" / "__main__.py").is_file():
+            raise ValueError("pdestream bench runs the benchmarks of a source checkout (they are not in the wheel): "
+                             "clone the repository and run `pip install -e .` there") from None
+        sys.path.insert(0, str(root))  # an editable install maps only the packages it ships
+        import benchmarks.__main__ as bench
+    return bench
+
+
+def cmd_bench(args: argparse.Namespace) -> None:
+    from pathlib import Path
+
+    if args.json is not None:  # found before the benchmark runs, not after it
+        where = Path(args.json).absolute()
+        if where.is_dir() or not where.parent.is_dir():
+            raise ValueError(f"--json {args.json} not allowed: "
+                             + ("it is a directory" if where.is_dir() else f"its directory {where.parent} does not exist")
+                             + "; give a file in an existing directory")
+    bench = import_benchmarks()
     families = args.families or bench.available()
     check_bench_extras(families)
     bench.run(families, args.quick, args.json)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import textwrap
 
 import numpy as np
 
@@ -128,10 +129,12 @@ def draw(ds, n_show: int = 4):
 
     1D: space-time images (x across, t up), one row per field, one column per sample. 2D: first/middle/last
     frames (x across, y up, origin lower, aspect equal), one row per sample, one group of columns per field,
-    frame times in the titles; 3D: the same for the middle z slice. Each field has one colour range over all
-    its panels and one colourbar labelled with its name (and units when the cache has them): diverging and
-    centred on zero for a signed field, sequential for a one-signed one (``colour_scale``). Axis labels come
-    from the coordinates' long_name/units attrs, as in xarray's own plots.
+    frame times in the titles; 3D: the same for the middle z slice. Colour ranges: in 1D one per field over all
+    its panels; in 2D/3D one per field and frame column, shared by that column's samples, with its own colourbar
+    below it (one range over all frames left ns2d's t = 0 column blank: its vorticity grows ~100x under the
+    forcing). Colourbars carry the field's name and units (the PDE's FIELD_UNITS); maps are diverging and centred
+    on zero for a signed field, sequential for a one-signed one (``colour_scale``). Axis labels come from the
+    coordinates' long_name/units attrs, as in xarray's own plots.
     """
     import matplotlib.pyplot as plt
 
@@ -143,7 +146,9 @@ def draw(ds, n_show: int = 4):
     space = [d for d in ds[fields[0]].dims if d in schema.SPACE]  # stored order: (z,) (y,) x
     panels = _space_time if len(space) == 1 else _snapshots
     fig = panels(plt, ds, fields, show, index, label, space)
-    fig.suptitle(f"{ds.attrs['pde']}: {ds.attrs['equation']}", fontsize=9)
+    # wrapped to the figure's width (~14 characters per inch at 9 pt): darcy2d's equation ran past the right edge
+    title = textwrap.fill(f"{ds.attrs['pde']}: {ds.attrs['equation']}", max(20, int(14 * fig.get_figwidth())))
+    fig.suptitle(title, fontsize=9)
     return fig
 
 
@@ -213,10 +218,10 @@ def _snapshots(plt, ds, fields, show, index, label, space):
         var = ds[name].isel(sample=slice(0, show), **slab)
         var = var.isel(time=frames) if timed else var.expand_dims("time", axis=1)
         u = var.transpose("sample", "time", up, across).values  # [S, F, y, x]: row y, column x
-        scale = colour_scale(u)
         block = axes[:, c * len(frames):(c + 1) * len(frames)]
-        for i in range(show):
-            for j, f in enumerate(frames):
+        for j, f in enumerate(frames):
+            scale = colour_scale(u[:, j])  # per frame: a forced field grows ~100x from t = 0 (ns2d)
+            for i in range(show):
                 ax = block[i, j]
                 im = ax.imshow(u[i, j], origin="lower", aspect="equal", extent=extent, interpolation="nearest",
                                **scale)
@@ -225,5 +230,7 @@ def _snapshots(plt, ds, fields, show, index, label, space):
                 ax.set_xlabel(axis_label(ds[across]) if i == show - 1 else "", fontsize=8)
                 ax.set_ylabel(axis_label(ds[up]) if c == 0 and j == 0 else "", fontsize=8)
                 ax.tick_params(labelsize=7)
-        fig.colorbar(im, ax=list(block.ravel()), label=axis_label(ds[name]), shrink=0.8, fraction=0.06, pad=0.02)
+            bar = fig.colorbar(im, ax=list(block[:, j]), location="bottom", shrink=0.9, fraction=0.05, pad=0.02)
+            bar.ax.tick_params(labelsize=7)
+            bar.set_label(axis_label(ds[name]), fontsize=8)
     return fig

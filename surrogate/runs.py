@@ -135,7 +135,7 @@ def resume_run(run_dir, run: tuple[dict, dict] | None = None) -> tuple[dict, int
     """
     run_dir = Path(run_dir)
     settings, ckpt = read_run(run_dir) if run is None else run
-    from datasets._bridge import pde_from_config  # the one door to the generator (surrogate never imports it)
+    from datasets import pde_from_config  # the one door to the generator (surrogate never imports it)
 
     for name in RUN_FILES:  # temp files of atomic writes cut short by the kill
         for stray in run_dir.glob(f".{name}.*.tmp"):

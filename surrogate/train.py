@@ -22,9 +22,7 @@ import csv
 import io
 import json
 import math
-import os
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +33,7 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from datasets.normalize import Normalization
+from datasets.schema import atomic_write  # the one atomic write (fsyncs the file and its directory)
 
 from .data import model_device, to_device
 from .models import build_model, model_spec
@@ -341,26 +340,6 @@ def check_belongs(ckpt: dict, meta: dict) -> None:
                 a, b = {k: a.get(k) for k in diff}, {k: b.get(k) for k in diff}
             raise ValueError(f"the checkpoint belongs to another run: its {what} is {a}, this run's is {b}; "
                              "resume it with its own run directory, or start this one afresh (--overwrite)")
-
-
-def atomic_write(path: Path, data: bytes) -> None:
-    """Replace ``path`` with ``data`` all at once: a temp file in the same directory, fsync, os.replace; a
-    crash leaves the old file or the new one, never half of one (at worst a stray ``.NAME.*.tmp``)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    dir_fd = os.open(path.parent, os.O_RDONLY)  # the rename itself survives a power cut once the directory is synced
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
 
 
 def save_train_state(out: Path, state: dict) -> None:

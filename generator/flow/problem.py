@@ -294,7 +294,7 @@ class FlowProblem(ProblemBase):
         start, advance, frame = _programs(self)
         speed_cap = BLOW_UP_FACTOR * self.speed_bound()
         cells = math.prod(self.grid.shape)
-        per_step = CHUNK * cells * STEP_WORK_PER_CELL + dispatch.STEP_OVERHEAD
+        per_step = CHUNK * cells * STEP_WORK_PER_CELL + dispatch.step_overhead()
         results = []
         for part in split([jnp.asarray(keys), jnp.asarray(explicit), jnp.asarray(given)], CHUNK):
             p, fp, state = start(*part)
