@@ -99,6 +99,13 @@ def cmd_list(args: argparse.Namespace) -> None:
             walls = (f"  bc: {', '.join(offered)} (--set bc={offered[1]}, or one axis: --set bc.x={offered[-1]})"
                      if len(offered) > 1 else f"  bc: {pde.grid.bc[0]} on every axis (fixed)")
             print(f"[{pde.NDIM}D] {pde.describe()}\n{walls}\n")
+    mine = generator.user.names()  # your own PDEs: registered by Python or installed entry points
+    if mine:
+        print(f"== user ({len(mine)}) ==\n")
+    for name in mine:
+        pde = generator.get_pde(name)
+        where = pde.config().get("origin") or {}
+        print(f"[{pde.NDIM}D] {pde.describe()}\n  from {where.get('module')}:{where.get('class')}\n")
 
 
 def _list_entry(pde, as_json: bool) -> None:
@@ -106,7 +113,7 @@ def _list_entry(pde, as_json: bool) -> None:
     import json
 
     config = pde.config()
-    rows = {key: {"default": value} for key, value in config.items() if key not in ("pde", "ic")}
+    rows = {key: {"default": value} for key, value in config.items() if key not in ("pde", "ic", "origin")}
     for name, spec in pde.PARAMS.items():
         rows[name].update(meaning=spec.description, units=spec.units)  # the default is its domain
     rows.update({f"ic.{k}": {"default": v} for k, v in config["ic"].items() if k != "kind"})
@@ -118,6 +125,8 @@ def _list_entry(pde, as_json: bool) -> None:
         print(json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, "settings": rows}, indent=2))
         return
     print(pde.describe())
+    if "origin" in config:  # a user's PDE: where its code is (its identity in caches and runs)
+        print("  from {module}:{class} version {version!r} source sha256 {source_sha256}".format(**config["origin"]))
     print("\nsettings (--set KEY=VALUE; parameters take uniform(a, b), loguniform(a, b), choice(...)):")
     for key, row in rows.items():
         extra = "".join(f"  {k}: {', '.join(v) if isinstance(v, list) else v}" for k, v in row.items() if k != "default")
@@ -683,9 +692,10 @@ def compare_sets(args: argparse.Namespace) -> list[str]:
     import generator
 
     name, _ = settings_from_args(args.pde, args)
-    if name not in generator.PDES:
+    try:
+        base = generator.pde_class(name)()
+    except (ValueError, TypeError):
         return list(args.set)  # pde_from_args refuses the name in its own words
-    base = generator.PDES[name]()
     fields = base.config_fields()
     defaults = {k: (str(min(int(v), base.n)) if k == "n" else v) for k, v in COMPARE_DEFAULTS.items() if k in fields}
     return [f"{k}={v}" for k, v in defaults.items()] + list(args.set)

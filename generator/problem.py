@@ -282,6 +282,11 @@ class ProblemBase(abc.ABC):
             value = getattr(self, name)
             out[name] = str(value) if name in self.PARAMS else value
         out["ic"] = {"kind": self.ic.kind, **dataclasses.asdict(self.ic)}
+        from .user import origin  # a user's PDE: where its code came from is part of its identity
+
+        where = origin(type(self))
+        if where is not None:
+            out["origin"] = where
         return out
 
     def config_hash(self) -> str:
