@@ -103,7 +103,11 @@ def cmd_list(args: argparse.Namespace) -> None:
     if mine:
         print(f"== user ({len(mine)}) ==\n")
     for name in mine:
-        pde = generator.get_pde(name)
+        try:
+            pde = generator.get_pde(name)
+        except ValueError as err:  # one broken entry point does not hide the rest of the list
+            print(f"[?] {name}: cannot be loaded: {err}\n")
+            continue
         where = pde.config().get("origin") or {}
         print(f"[{pde.NDIM}D] {pde.describe()}\n  from {where.get('module')}:{where.get('class')}\n")
 

@@ -40,7 +40,7 @@ def check_class(cls: Any, where: str) -> None:
     abstract = sorted(getattr(cls, "__abstractmethods__", ()))
     if abstract:
         raise ValueError(f"{where}: class {cls.__name__} lacks the required method(s) {', '.join(abstract)}")
-    params = getattr(cls, "__dataclass_params__", None)
+    params = cls.__dict__.get("__dataclass_params__")  # its own: a subclass of a dataclass is not one by itself
     if not issubclass(cls, ProblemBase) or params is None or not params.frozen:
         raise ValueError(f"{where}: class {cls.__name__} must be a @dataclass(frozen=True) subclass of generator.PDE "
                          "(or generator.ProblemBase)")
