@@ -33,15 +33,16 @@ class Surrogate(Protocol):
 
 
 MODELS: dict[str, type[Surrogate]] = {cls.name: cls for cls in (FNO, UNet)}
+DIMENSIONS = (1, 2, 3)  # the spatial dimensions the built-in models take
 
 
 def parse_model_name(name: str) -> tuple[str, int | None]:
     """"fno" -> ("fno", None); "fno2d" -> ("fno", 2): a suffix pins the spatial dimension."""
     base, ndim = name, None
-    if name[-2:] in ("1d", "2d"):
+    if name[-2:] in ("1d", "2d", "3d"):
         base, ndim = name[:-2], int(name[-2])
     if base not in MODELS:
-        allowed = ", ".join([*MODELS, *(f"{m}{d}d" for m in MODELS for d in (1, 2))])
+        allowed = ", ".join([*MODELS, *(f"{m}{d}d" for m in MODELS for d in DIMENSIONS)])
         raise ValueError(f"unknown model {name!r}; allowed: {allowed}")
     return base, ndim
 
@@ -56,9 +57,8 @@ def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_par
     string values (from ``--model-set``) are converted to int.
     """
     base, pinned = parse_model_name(name)
-    if ndim not in (1, 2):
-        raise ValueError(f"model {name!r}: ndim={ndim} not supported; allowed: 1, 2 (no 3D surrogate yet: a 3D "
-                         "entry can be generated, cached, streamed and inspected, not trained)")
+    if ndim not in DIMENSIONS:
+        raise ValueError(f"model {name!r}: ndim={ndim} not supported; allowed: {', '.join(map(str, DIMENSIONS))}")
     if pinned is not None and pinned != ndim:
         raise ValueError(f"model {name!r} is {pinned}D but the PDE is {ndim}D; use {base!r} or {base}{ndim}d")
     cls = MODELS[base]
