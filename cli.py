@@ -325,7 +325,9 @@ def cmd_inspect(args: argparse.Namespace) -> None:
 
 # --- train / compare (surrogate) ---------------------------------------------------------------------
 def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr: float) -> None:
-    p.add_argument("--model", default="fno", help="fno or unet (fno1d/fno2d/unet1d/unet2d pin the dimension)")
+    p.add_argument("--model", default="fno", help="fno or unet (fno1d/fno2d/fno3d/unet1d/... pin the dimension), or "
+                   "your own: package.module:Class (an nn.Module built from ndim, in_channels, out_channels, n_params "
+                   "and the --model-set keys)")
     p.add_argument("--model-set", action="append", metavar="KEY=VALUE", default=[],
                    help="model setting, e.g. --model-set width=64 --model-set modes=16 (unet: channels, depth)")
     p.add_argument("--view", default=None, choices=["next_step", "operator"],
