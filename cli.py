@@ -29,11 +29,18 @@ def _add_pde_config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
                    help="override a PDE setting, e.g. --set nu='loguniform(1e-3,1e-2)' --set n=512 --set ic.alpha=2.5")
     p.add_argument("--config", metavar="FILE.toml", help="TOML file of settings (a [pde] table or top-level keys)")
+    p.add_argument("--pde", dest="pde_option", metavar="NAME|package.module:Class",
+                   help="the PDE, as the positional name does: a catalog entry, a registered or entry-point PDE, or "
+                   "your own class by import path (see README 'Your own PDE')")
 
 
 def settings_from_args(name: str | None, args: argparse.Namespace) -> tuple[str | None, dict]:
     """(PDE name, settings) from the command line: the --config file's keys, then --set overrides."""
     settings: dict = {}
+    option = getattr(args, "pde_option", None)
+    if name and option and name != option:
+        raise ValueError(f"the command names PDE {name!r} and --pde {option!r}; give one")
+    name = name or option
     if getattr(args, "config", None):
         data = read_config(args.config)
         # either a [pde] table (with name = NAME) or top-level keys (with pde = NAME)
@@ -51,7 +58,7 @@ def settings_from_args(name: str | None, args: argparse.Namespace) -> tuple[str 
             table.update({f"ic.{k}": v for k, v in ic.items()})
         settings.update(table)
     settings.update(_parse_sets(getattr(args, "set", None)))
-    return name, settings
+    return name or getattr(args, "pde_default", None), settings  # compare's burgers1d when nothing names a PDE
 
 
 def read_config(path: str) -> dict:
@@ -533,7 +540,7 @@ def _settings_given_with_resume(args: argparse.Namespace) -> list[str]:
     """The options (and PDE name) set on the command line besides --resume and --threads."""
     defaults = vars(build_parser().parse_args(["train", "--resume", "x"]))
     given = [k for k, v in vars(args).items() if k not in RESUME_ALLOWED and v != defaults.get(k)]
-    return ["PDE name" if k == "pde" else "--" + k.replace("_", "-") for k in given]
+    return ["PDE name" if k == "pde" else "--pde" if k == "pde_option" else "--" + k.replace("_", "-") for k in given]
 
 
 def cmd_train(args: argparse.Namespace) -> None:
@@ -653,7 +660,8 @@ def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
 
 def add_compare(sub) -> None:
     p = sub.add_parser("compare", help="the same model trained on a fixed cache vs the on-the-fly stream")
-    p.add_argument("pde", nargs="?", default="burgers1d", help="PDE name (default burgers1d)")
+    p.add_argument("pde", nargs="?", help="PDE name (default burgers1d)")
+    p.set_defaults(pde_default="burgers1d")
     p.add_argument("--out", required=True, metavar="DIR", help="output: compare.md/csv/json/png, cache, runs")
     p.add_argument("--cache-samples", type=int, default=32, metavar="M", help="size of the fixed cached set")
     p.add_argument("--seeds", type=int, help="model seeds per arm, mean and spread (default: 3; with a budget: 1)")

@@ -3,6 +3,7 @@ goes through list / generate / resume / stream / oracle / cache through the CLI;
 old cache; bad modules and classes are one line each; register() by Python."""
 
 import importlib
+import json
 import re
 import sys
 import uuid
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 
 import cli
+import datasets
 import generator
 
 README = Path(__file__).resolve().parents[1] / "README.md"
@@ -154,3 +156,18 @@ def test_register_by_python_and_from_config():
         generator.unregister("damped_burgers1d")
     with pytest.raises(ValueError, match="unknown PDE 'damped_burgers1d'"):
         generator.get_pde("damped_burgers1d")
+
+
+def test_import_path_by_option_and_in_a_toml_config(package, tmp_path, capsys):
+    path = f"{package}.damped:DampedBurgers"
+    code, out, err = run(capsys, "generate", "--pde", path, "--n", "2", "--out", str(tmp_path / "a.zarr"), *SMALL)
+    assert code == 0 and "wrote 2 samples" in out, err
+    config = tmp_path / "mine.toml"
+    config.write_text(f'pde = "{path}"\nn = 32\nn_frames = 4\nt_end = 0.3\n')
+    code, out, err = run(capsys, "generate", "--config", str(config), "--n", "2", "--out", str(tmp_path / "b.zarr"))
+    assert code == 0 and "wrote 2 samples" in out, err
+    a, b = (generator.from_config(json.loads(datasets.open_cache(tmp_path / f).attrs["pdestream_config"]))
+            for f in ("a.zarr", "b.zarr"))
+    assert a == b and a.NAME == "damped_burgers1d"
+    code, out, err = run(capsys, "generate", "burgers1d", "--pde", path, "--n", "2", "--out", str(tmp_path / "c"))
+    assert code == 2 and "give one" in err
