@@ -88,8 +88,11 @@ def test_entry_point_pde_through_the_cli(package, tmp_path, capsys):
                          "--resume", *SMALL)
     assert code == 0 and "already complete" in out, err
 
-    for extra in (["--source", "stream"], ["--source", str(cache)], ["--source", "stream", "--mode", "oracle"]):
-        out_dir = tmp_path / f"run{len(extra)}{extra[1][-4:]}"
+    reservoir = ["--source", "stream", "--reservoir", "--capacity", "8", "--solve-batch", "4", "--warmup", "4",
+                 "--producer", "process", "--batch-size", "4"]  # the producer process finds the class by its origin
+    for extra in (["--source", "stream"], ["--source", str(cache)], ["--source", "stream", "--mode", "oracle"],
+                  reservoir):
+        out_dir = tmp_path / f"run{len(extra)}{extra[-1][-4:]}"
         code, out, err = run(capsys, "train", "damped_burgers1d", *SMALL, *extra, "--steps", "3", "--test-samples",
                              "4", "--out", str(out_dir))
         assert code == 0 and "trained fno" in out, err
@@ -171,3 +174,11 @@ def test_import_path_by_option_and_in_a_toml_config(package, tmp_path, capsys):
     assert a == b and a.NAME == "damped_burgers1d"
     code, out, err = run(capsys, "generate", "burgers1d", "--pde", path, "--n", "2", "--out", str(tmp_path / "c"))
     assert code == 2 and "give one" in err
+
+
+@pytest.mark.slow
+def test_compare_on_an_entry_point_pde(package, tmp_path, capsys):
+    code, out, err = run(capsys, "compare", "damped_burgers1d", "--steps", "2", "--seeds", "1", "--set", "n=32",
+                         "--shift-set", "mu=uniform(1.0, 1.5)",
+                         "--out", str(tmp_path / "cmp"))
+    assert code == 0 and "| cache |" in out and "| stream |" in out, err
