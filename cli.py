@@ -133,7 +133,8 @@ def _list_entry(pde, as_json: bool) -> None:
     if offered:
         rows.setdefault("bc", {"default": "periodic"})["allowed"] = list(offered)
     if as_json:
-        print(json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, "settings": rows}, indent=2))
+        where = {"origin": config["origin"]} if "origin" in config else {}  # a user's PDE: where its code is
+        print(json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, **where, "settings": rows}, indent=2))
         return
     print(pde.describe())
     if "origin" in config:  # a user's PDE: where its code is (its identity in caches and runs)
