@@ -289,6 +289,16 @@ class ProblemBase(abc.ABC):
             out["origin"] = where
         return out
 
+    def __reduce_ex__(self, protocol):
+        """A user's problem pickles as its config (rebuilt by ``generator.from_config``, which finds its class by
+        origin and refuses changed code): its NAME may have been given at registration, which a class pickled by
+        reference would lose in a worker process. The package's own problems pickle as usual."""
+        from .user import origin, rebuild
+
+        if origin(type(self)) is None:
+            return super().__reduce_ex__(protocol)
+        return (rebuild, (self.config(),))
+
     def config_hash(self) -> str:
         """sha256 of the canonical JSON configuration (first 16 hex digits)."""
         text = json.dumps(self.config(), sort_keys=True)

@@ -147,7 +147,10 @@ def from_origin(name: str, stored: dict) -> type:
     if not isinstance(stored, dict) or not {"module", "class"} <= set(stored):
         raise ValueError(f"PDE {name!r}: origin {stored!r} not allowed: needs module and class")
     cls = lookup(name) if name in names() else None
-    cls = cls or _checked(load(f"{stored['module']}:{stored['class']}"), f"{stored['module']}:{stored['class']}")
+    if cls is None:  # another process (a worker): the class by its origin, named as it was
+        path = f"{stored['module']}:{stored['class']}"
+        cls = load(path)
+        cls = _named(cls, name, f"PDE {path!r}") if not getattr(cls, "NAME", "x") else _checked(cls, path)
     now = origin(cls) or {}
     for key in ("module", "class", "version", "source_sha256"):
         if stored.get(key) != now.get(key):
@@ -155,3 +158,10 @@ def from_origin(name: str, stored: dict) -> type:
                              f"{stored.get(key)!r}, now {now.get(key)!r} in {now.get('module')}:{now.get('class')}); "
                              "use the code that made it, or start a new cache / run")
     return cls
+
+
+def rebuild(config: dict):
+    """The problem of a pickled user problem's ``config()`` (see ProblemBase.__reduce_ex__)."""
+    from . import from_config
+
+    return from_config(config)

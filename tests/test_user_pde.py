@@ -4,6 +4,7 @@ old cache; bad modules and classes are one line each; register() by Python."""
 
 import importlib
 import json
+import pickle
 import re
 import sys
 import uuid
@@ -182,3 +183,10 @@ def test_compare_on_an_entry_point_pde(package, tmp_path, capsys):
                          "--shift-set", "mu=uniform(1.0, 1.5)",
                          "--out", str(tmp_path / "cmp"))
     assert code == 0 and "| cache |" in out and "| stream |" in out, err
+
+
+def test_a_user_pde_pickles_by_its_config(package):
+    pde = generator.get_pde(f"{package}.damped:DampedBurgers", n=16)  # NAME given in the class
+    assert pickle.loads(pickle.dumps(pde)) == pde
+    builtin = generator.get_pde("burgers1d", n=16)
+    assert pickle.loads(pickle.dumps(builtin)) == builtin
