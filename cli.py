@@ -29,11 +29,18 @@ def _add_pde_config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
                    help="override a PDE setting, e.g. --set nu='loguniform(1e-3,1e-2)' --set n=512 --set ic.alpha=2.5")
     p.add_argument("--config", metavar="FILE.toml", help="TOML file of settings (a [pde] table or top-level keys)")
+    p.add_argument("--pde", dest="pde_option", metavar="NAME|package.module:Class",
+                   help="the PDE, as the positional name does: a catalog entry, a registered or entry-point PDE, or "
+                   "your own class by import path (see README 'Your own PDE')")
 
 
 def settings_from_args(name: str | None, args: argparse.Namespace) -> tuple[str | None, dict]:
     """(PDE name, settings) from the command line: the --config file's keys, then --set overrides."""
     settings: dict = {}
+    option = getattr(args, "pde_option", None)
+    if name and option and name != option:
+        raise ValueError(f"the command names PDE {name!r} and --pde {option!r}; give one")
+    name = name or option
     if getattr(args, "config", None):
         data = read_config(args.config)
         # either a [pde] table (with name = NAME) or top-level keys (with pde = NAME)
@@ -51,7 +58,7 @@ def settings_from_args(name: str | None, args: argparse.Namespace) -> tuple[str 
             table.update({f"ic.{k}": v for k, v in ic.items()})
         settings.update(table)
     settings.update(_parse_sets(getattr(args, "set", None)))
-    return name, settings
+    return name or getattr(args, "pde_default", None), settings  # compare's burgers1d when nothing names a PDE
 
 
 def read_config(path: str) -> dict:
@@ -99,6 +106,17 @@ def cmd_list(args: argparse.Namespace) -> None:
             walls = (f"  bc: {', '.join(offered)} (--set bc={offered[1]}, or one axis: --set bc.x={offered[-1]})"
                      if len(offered) > 1 else f"  bc: {pde.grid.bc[0]} on every axis (fixed)")
             print(f"[{pde.NDIM}D] {pde.describe()}\n{walls}\n")
+    mine = generator.user.names()  # your own PDEs: registered by Python or installed entry points
+    if mine:
+        print(f"== user ({len(mine)}) ==\n")
+    for name in mine:
+        try:
+            pde = generator.get_pde(name)
+        except ValueError as err:  # one broken entry point does not hide the rest of the list
+            print(f"[?] {name}: cannot be loaded: {err}\n")
+            continue
+        where = pde.config().get("origin") or {}
+        print(f"[{pde.NDIM}D] {pde.describe()}\n  from {where.get('module')}:{where.get('class')}\n")
 
 
 def _list_entry(pde, as_json: bool) -> None:
@@ -106,7 +124,7 @@ def _list_entry(pde, as_json: bool) -> None:
     import json
 
     config = pde.config()
-    rows = {key: {"default": value} for key, value in config.items() if key not in ("pde", "ic")}
+    rows = {key: {"default": value} for key, value in config.items() if key not in ("pde", "ic", "origin")}
     for name, spec in pde.PARAMS.items():
         rows[name].update(meaning=spec.description, units=spec.units)  # the default is its domain
     rows.update({f"ic.{k}": {"default": v} for k, v in config["ic"].items() if k != "kind"})
@@ -117,9 +135,13 @@ def _list_entry(pde, as_json: bool) -> None:
     if offered:
         rows.setdefault("bc", {"default": "periodic"})["allowed"] = list(offered)
     if as_json:
-        print(json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, "fields": fields, "settings": rows}, indent=2))
+        where = {"origin": config["origin"]} if "origin" in config else {}  # a user's PDE: where its code is
+        print(json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, **where, "fields": fields, "settings": rows},
+                         indent=2))
         return
     print(pde.describe())
+    if "origin" in config:  # a user's PDE: where its code is (its identity in caches and runs)
+        print("  from {module}:{class} version {version!r} source sha256 {source_sha256}".format(**config["origin"]))
     print("\nfields (units): " + ", ".join(f"{f} [{u}]" for f, u in fields.items()))
     print("\nsettings (--set KEY=VALUE; parameters take uniform(a, b), loguniform(a, b), choice(...)):")
     for key, row in rows.items():
@@ -315,7 +337,9 @@ def cmd_inspect(args: argparse.Namespace) -> None:
 
 # --- train / compare (surrogate) ---------------------------------------------------------------------
 def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr: float) -> None:
-    p.add_argument("--model", default="fno", help="fno or unet (fno1d/fno2d/unet1d/unet2d pin the dimension)")
+    p.add_argument("--model", default="fno", help="fno or unet (fno1d/fno2d/fno3d/unet1d/... pin the dimension), or "
+                   "your own: package.module:Class (an nn.Module built from ndim, in_channels, out_channels, n_params "
+                   "and the --model-set keys)")
     p.add_argument("--model-set", action="append", metavar="KEY=VALUE", default=[],
                    help="model setting, e.g. --model-set width=64 --model-set modes=16 (unet: channels, depth)")
     p.add_argument("--view", default=None, choices=["next_step", "operator"],
@@ -521,7 +545,7 @@ def _settings_given_with_resume(args: argparse.Namespace) -> list[str]:
     """The options (and PDE name) set on the command line besides --resume and --threads."""
     defaults = vars(build_parser().parse_args(["train", "--resume", "x"]))
     given = [k for k, v in vars(args).items() if k not in RESUME_ALLOWED and v != defaults.get(k)]
-    return ["PDE name" if k == "pde" else "--" + k.replace("_", "-") for k in given]
+    return ["PDE name" if k == "pde" else "--pde" if k == "pde_option" else "--" + k.replace("_", "-") for k in given]
 
 
 def cmd_train(args: argparse.Namespace) -> None:
@@ -641,7 +665,8 @@ def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
 
 def add_compare(sub) -> None:
     p = sub.add_parser("compare", help="the same model trained on a fixed cache vs the on-the-fly stream")
-    p.add_argument("pde", nargs="?", default="burgers1d", help="PDE name (default burgers1d)")
+    p.add_argument("pde", nargs="?", help="PDE name (default burgers1d)")
+    p.set_defaults(pde_default="burgers1d")
     p.add_argument("--out", required=True, metavar="DIR", help="output: compare.md/csv/json/png, cache, runs")
     p.add_argument("--cache-samples", type=int, default=32, metavar="M", help="size of the fixed cached set")
     p.add_argument("--seeds", type=int, help="model seeds per arm, mean and spread (default: 3; with a budget: 1)")
@@ -686,9 +711,10 @@ def compare_sets(args: argparse.Namespace) -> list[str]:
     import generator
 
     name, _ = settings_from_args(args.pde, args)
-    if name not in generator.PDES:
+    try:
+        base = generator.pde_class(name)()
+    except (ValueError, TypeError):
         return list(args.set)  # pde_from_args refuses the name in its own words
-    base = generator.PDES[name]()
     fields = base.config_fields()
     defaults = {k: (str(min(int(v), base.n)) if k == "n" else v) for k, v in COMPARE_DEFAULTS.items() if k in fields}
     return [f"{k}={v}" for k, v in defaults.items()] + list(args.set)

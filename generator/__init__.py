@@ -5,6 +5,8 @@ JAX only (never imports torch). Public API::
     PDES                              the catalog {name: problem class} (generator.catalog: entries, groups)
     Problem                           what every problem offers (generator.problem); families: PDE (spectral,
                                       time-dependent), SteadyProblem (elliptic, no time axis)
+    register(name, cls)               your own PDE (generator.user; also entry points `pdestream.pdes` and
+                                      import paths "package.module:Class" wherever a name goes)
     get_pde(name, **overrides)        a configured PDE (overrides may be strings, e.g. nu="loguniform(1e-3, 1e-2)";
                                       bc="dirichlet" / "x=dirichlet,y=periodic" puts walls on the spectral entries
                                       that take them: generator.pdes.walls, generator.bounded)
@@ -16,8 +18,8 @@ JAX only (never imports torch). Public API::
                                       (not used, with a warning, if another user owns or may write it)
 """
 
-from . import interactive
-from .catalog import GROUP, GROUPS, PDES, get_pde
+from . import interactive, user
+from .catalog import GROUP, GROUPS, PDES, get_pde, pde_class
 from .domains import Choice, Domain, Fixed, LogUniform, Uniform, parse_domain
 from .grids import BC_TYPE, BOUNDARY_TYPES, NodeGrid
 from .ics import IC_KINDS, FourierSeries, GaussianRandomField, GrayScottSpots, InitialCondition, make_ic
@@ -26,6 +28,7 @@ from .pdes.steady import SteadyProblem
 from .problem import Problem, ProblemBase
 from .sampler import BlowUpError, Trajectory, draw_params, sample, sample_keys, solve
 from .spectral import Grid
+from .user import register, unregister
 
 # The revision of the numerics that decide a sample's bits for a given (config, seed, index): bumped by every change
 # that alters them (2: ETDRK4 coefficients with one exponential per wavenumber; 3: Gray-Scott spots kept in range).
@@ -80,13 +83,17 @@ def from_config(config: dict) -> PDE:
     """Rebuild a PDE from ``PDE.config()`` output (e.g. a cache's provenance)."""
     cfg = dict(config)
     name = cfg.pop("pde", None)
-    return get_pde(name, cfg)
+    stored = cfg.pop("origin", None)
+    if stored is None:
+        return get_pde(name, cfg)
+    cls = user.from_origin(name, stored)  # refuses an origin whose code changed since the config was made
+    return cls().replace(cfg) if cfg else cls()
 
 
 __all__ = [
     "BC_TYPE", "BOUNDARY_TYPES", "BlowUpError", "Choice", "Domain", "Fixed", "FourierSeries", "GROUP", "GROUPS",
     "GaussianRandomField", "GrayScottSpots", "Grid", "IC_KINDS", "InitialCondition", "LinearPDE", "LogUniform",
     "NodeGrid", "PDE", "PDES", "Param", "Problem", "ProblemBase", "SteadyProblem", "Trajectory", "Uniform",
-    "draw_params", "enable_compilation_cache", "from_config", "get_pde",
+    "draw_params", "enable_compilation_cache", "from_config", "get_pde", "pde_class", "register", "unregister", "user",
     "interactive", "make_ic", "parse_domain", "sample", "sample_keys", "solve",
 ]

@@ -122,12 +122,26 @@ globals().update({cls.__name__: cls for cls in PDES.values() if cls.__module__ =
 def get_pde(name: str, overrides: Mapping | None = None, **kwargs) -> PDE:
     """The catalog PDE ``name`` with its defaults, changed by ``overrides`` / keyword arguments.
 
-    Values may be strings (parsed: domains like "loguniform(1e-3, 1e-1)", numbers, ic kinds).
+    Values may be strings (parsed: domains like "loguniform(1e-3, 1e-1)", numbers, ic kinds). ``name`` may also
+    be a user PDE (generator.user: registered, an entry point, or an import path "package.module:Class").
     """
-    if not isinstance(name, str) or name not in PDES:
+    cls = pde_class(name)
+    pde = cls()
+    return pde.replace(overrides, **kwargs) if (overrides or kwargs) else pde
+
+
+def pde_class(name: str) -> type[PDE]:
+    """The class of catalog entry or user PDE ``name`` (one-line ValueError naming what is allowed)."""
+    from . import user
+
+    if isinstance(name, str) and name in PDES:
+        return PDES[name]
+    found = user.lookup(name) if isinstance(name, str) and name else None
+    if found is None:
         near = [n for n in PDES if isinstance(name, str) and name and n.startswith(name)]
         near = near or (difflib.get_close_matches(name, list(PDES), n=3) if isinstance(name, str) else [])
         hint = f"; did you mean {' or '.join(near)}" if near else ""
-        raise ValueError(f"unknown PDE {name!r}{hint}; allowed: {', '.join(PDES)}")
-    pde = PDES[name]()
-    return pde.replace(overrides, **kwargs) if (overrides or kwargs) else pde
+        mine = ", ".join(user.names())
+        raise ValueError(f"unknown PDE {name!r}{hint}; allowed: {', '.join(PDES)}{', ' + mine if mine else ''} "
+                         "or an import path package.module:Class")
+    return found

@@ -285,7 +285,22 @@ class ProblemBase(abc.ABC):
             value = getattr(self, name)
             out[name] = str(value) if name in self.PARAMS else value
         out["ic"] = {"kind": self.ic.kind, **dataclasses.asdict(self.ic)}
+        from .user import origin  # a user's PDE: where its code came from is part of its identity
+
+        where = origin(type(self))
+        if where is not None:
+            out["origin"] = where
         return out
+
+    def __reduce_ex__(self, protocol):
+        """A user's problem pickles as its config (rebuilt by ``generator.from_config``, which finds its class by
+        origin and refuses changed code): its NAME may have been given at registration, which a class pickled by
+        reference would lose in a worker process. The package's own problems pickle as usual."""
+        from .user import origin, rebuild
+
+        if origin(type(self)) is None:
+            return super().__reduce_ex__(protocol)
+        return (rebuild, (self.config(),))
 
     def config_hash(self) -> str:
         """sha256 of the canonical JSON configuration (first 16 hex digits)."""

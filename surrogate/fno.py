@@ -1,4 +1,4 @@
-"""Fourier Neural Operator (Li et al., 2021) for 1D and 2D fields, periodic or with walls.
+"""Fourier Neural Operator (Li et al., 2021) for 1D, 2D and 3D fields, periodic or with walls.
 
 Input ``x: [B, C_in, *space]`` (frames stacked into channels), optional conditioning ``params: [B, P]``
 (broadcast over space as P extra input channels), output ``[B, C_out, *space]``. Normalized grid
@@ -12,6 +12,7 @@ padding, as neuraloperator's DomainPadding does), so the operator does not wrap 
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import torch
@@ -75,7 +76,7 @@ class Pointwise(nn.Module):
 
 
 def pointwise(ndim: int, c_in: int, c_out: int) -> nn.Module:
-    """A 1x1 convolution in 1D or 2D (ndim is accepted for symmetry with the other layer builders)."""
+    """A 1x1 convolution in 1D, 2D or 3D (ndim is accepted for symmetry with the other layer builders)."""
     return Pointwise(c_in, c_out)
 
 
@@ -83,13 +84,14 @@ class SpectralConv(nn.Module):
     """Multiply the lowest Fourier modes by learned complex weights; zero the rest.
 
     Weights are stored as real tensors with a trailing (re, im) axis so checkpoints hold only real floats.
-    In 2D the kept block is [:m, :m] and [-m:, :m] of the rfft2 (both signs of the first wavenumber).
+    The rfft halves the last axis only, so every other axis keeps both signs of its wavenumbers: one block of
+    weights per sign pattern, 2**(ndim-1) blocks (2D: [:m, :m] and [-m:, :m]; 3D: four corners).
     """
 
     def __init__(self, ndim: int, c_in: int, c_out: int, modes: int):
         super().__init__()
         self.ndim, self.modes = ndim, modes
-        blocks = 1 if ndim == 1 else 2
+        blocks = 2 ** (ndim - 1)
         scale = 1.0 / (c_in * c_out)
         shape = (blocks, c_in, c_out) + (modes,) * ndim + (2,)
         self.weight = nn.Parameter(scale * torch.rand(shape))  # [blocks, C_in, C_out, *modes, 2]
@@ -99,13 +101,11 @@ class SpectralConv(nn.Module):
         space = x.shape[2:]
         x_ft = torch.fft.rfftn(x, dim=tuple(range(2, x.ndim)))  # [B, C_in, *space[:-1], n_last//2+1]
         out = torch.zeros(x.shape[0], w.shape[2], *x_ft.shape[2:], dtype=x_ft.dtype, device=x.device)
-        if self.ndim == 1:
-            m = min(self.modes, x_ft.shape[-1])
-            out[..., :m] = torch.einsum("bix,iox->box", x_ft[..., :m], w[0, :, :, :m])
-        else:
-            m1, m2 = min(self.modes, space[0] // 2), min(self.modes, x_ft.shape[-1])
-            out[..., :m1, :m2] = torch.einsum("bixy,ioxy->boxy", x_ft[..., :m1, :m2], w[0, :, :, :m1, :m2])
-            out[..., -m1:, :m2] = torch.einsum("bixy,ioxy->boxy", x_ft[..., -m1:, :m2], w[1, :, :, :m1, :m2])
+        kept = [min(self.modes, n // 2) for n in space[:-1]] + [min(self.modes, x_ft.shape[-1])]
+        low = tuple(slice(0, m) for m in kept)  # the weights' own index: the first m of each axis
+        for block, signs in enumerate(itertools.product((False, True), repeat=self.ndim - 1)):
+            corner = (*(slice(-m, None) if neg else slice(0, m) for m, neg in zip(kept, signs)), low[-1])
+            out[(..., *corner)] = torch.einsum("bi...,io...->bo...", x_ft[(..., *corner)], w[(block, ..., *low)])
         return torch.fft.irfftn(out, s=space, dim=tuple(range(2, x.ndim)))  # [B, C_out, *space]
 
 

@@ -15,6 +15,7 @@ from torch import nn
 
 from .fno import FNO
 from .unet import UNet
+from .user_model import UserModel
 
 
 class Surrogate(Protocol):
@@ -33,15 +34,16 @@ class Surrogate(Protocol):
 
 
 MODELS: dict[str, type[Surrogate]] = {cls.name: cls for cls in (FNO, UNet)}
+DIMENSIONS = (1, 2, 3)  # the spatial dimensions the built-in models take
 
 
 def parse_model_name(name: str) -> tuple[str, int | None]:
     """"fno" -> ("fno", None); "fno2d" -> ("fno", 2): a suffix pins the spatial dimension."""
     base, ndim = name, None
-    if name[-2:] in ("1d", "2d"):
+    if name[-2:] in ("1d", "2d", "3d"):
         base, ndim = name[:-2], int(name[-2])
     if base not in MODELS:
-        allowed = ", ".join([*MODELS, *(f"{m}{d}d" for m in MODELS for d in (1, 2))])
+        allowed = ", ".join([*MODELS, *(f"{m}{d}d" for m in MODELS for d in DIMENSIONS), "package.module:Class"])
         raise ValueError(f"unknown model {name!r}; allowed: {allowed}")
     return base, ndim
 
@@ -53,12 +55,14 @@ def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_par
     bc: the data's per-axis boundary conditions (``pde.grid.bc``: periodic / dirichlet / neumann), from the data
     source; the model pads each axis accordingly (None or all periodic: the periodic model, as it always was).
     ``cfg`` sets the model's config dataclass (FNOConfig: width, modes, layers; UNetConfig: channels, depth);
-    string values (from ``--model-set``) are converted to int.
+    string values (from ``--model-set``) are converted to int. A name "package.module:Class" builds your own
+    model (surrogate.user_model.UserModel: the class gets ndim, channels, n_params and ``cfg``; no wall padding).
     """
+    if isinstance(name, str) and ":" in name:  # your own model, by import path (surrogate.user_model)
+        return UserModel(name, ndim, in_channels, out_channels, n_params, **cfg)
     base, pinned = parse_model_name(name)
-    if ndim not in (1, 2):
-        raise ValueError(f"model {name!r}: ndim={ndim} not supported; allowed: 1, 2 (no 3D surrogate yet: a 3D "
-                         "entry can be generated, cached, streamed and inspected, not trained)")
+    if ndim not in DIMENSIONS:
+        raise ValueError(f"model {name!r}: ndim={ndim} not supported; allowed: {', '.join(map(str, DIMENSIONS))}")
     if pinned is not None and pinned != ndim:
         raise ValueError(f"model {name!r} is {pinned}D but the PDE is {ndim}D; use {base!r} or {base}{ndim}d")
     cls = MODELS[base]
@@ -83,6 +87,8 @@ def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_par
 def model_spec(model: Surrogate) -> dict:
     """Plain dict that ``build_model(**spec)`` turns back into the same architecture (for checkpoints): the
     model's own name, its shape (ndim, channels, n_params) and its config's fields."""
+    if isinstance(model, UserModel):
+        return model.spec()
     bc = getattr(model, "bc", None)
     walls = {} if bc is None else {"bc": list(bc)}  # a periodic model's spec is what it always was
     return {"name": model.name, "ndim": model.ndim, "in_channels": model.in_channels,

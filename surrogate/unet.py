@@ -1,4 +1,4 @@
-"""A small U-Net for 1D and 2D fields, periodic or with walls.
+"""A small U-Net for 1D, 2D and 3D fields, periodic or with walls.
 
 Input ``x: [B, C_in, *space]`` (frames stacked into channels), optional conditioning ``params: [B, P]``
 (broadcast over space as P extra input channels), output ``[B, C_out, *space]``. Convolutions pad each axis by
@@ -19,6 +19,8 @@ from torch import nn
 from .fno import check_bc, check_input, condition, pointwise
 
 PAD_MODE = {"periodic": "circular", "dirichlet": "constant", "neumann": "replicate"}
+CONV = {1: nn.Conv1d, 2: nn.Conv2d, 3: nn.Conv3d}
+POOL = {1: F.avg_pool1d, 2: F.avg_pool2d, 3: F.avg_pool3d}
 
 
 @dataclass(frozen=True)
@@ -36,11 +38,11 @@ class UNetConfig:
 
 
 class WallConv(nn.Module):
-    """A 3-point / 3x3 convolution after padding each axis by one point in its boundary condition's mode."""
+    """A 3-point / 3x3 / 3x3x3 convolution after padding each axis by one point in its boundary condition's mode."""
 
     def __init__(self, ndim: int, c_in: int, c_out: int, bc: tuple[str, ...]):
         super().__init__()
-        self.conv = (nn.Conv1d if ndim == 1 else nn.Conv2d)(c_in, c_out, 3)
+        self.conv = CONV[ndim](c_in, c_out, 3)
         self.modes = [PAD_MODE[b] for b in bc]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -53,9 +55,9 @@ class WallConv(nn.Module):
 
 
 def conv(ndim: int, c_in: int, c_out: int, bc: tuple[str, ...] | None = None) -> nn.Module:
-    """3-point (1D) or 3x3 (2D) convolution: periodic padding (bc None), else padded per axis (WallConv)."""
+    """3-point (1D), 3x3 (2D) or 3x3x3 (3D) convolution: periodic padding (bc None), else padded per axis (WallConv)."""
     if bc is None:
-        return (nn.Conv1d if ndim == 1 else nn.Conv2d)(c_in, c_out, 3, padding=1, padding_mode="circular")
+        return CONV[ndim](c_in, c_out, 3, padding=1, padding_mode="circular")
     return WallConv(ndim, c_in, c_out, bc)
 
 
@@ -98,7 +100,7 @@ class UNet(nn.Module):
         if any(n % factor for n in x.shape[2:]):
             raise ValueError(f"unet depth={self.config.depth} needs every grid size divisible by {factor}, "
                              f"got {tuple(x.shape[2:])}; lower depth or change the resolution")
-        pool = F.avg_pool1d if self.ndim == 1 else F.avg_pool2d
+        pool = POOL[self.ndim]
         h = self.stem(condition(x, params, self.n_params))  # [B, c, *space]
         skips = []
         for block in self.down:
