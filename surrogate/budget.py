@@ -44,13 +44,12 @@ import datasets
 from datasets.proposal import ParamProposal
 
 from .compare import shifted_pde
-from .data import TEST_SEED_OFFSET, EpochBatchSampler, check_device, model_device, to_device
-from .evaluate import pairs, rollout
+from .data import TEST_SEED_OFFSET, EpochBatchSampler, check_device, to_device
+from .evaluate import error_stats, rollout_errors
 from .fno import COMPARE_FNO
-from .metrics import rel_l2
 from .models import build_model
-from .runs import model_channels
-from .train import predict, relative_errors, source_normalization, stack_frames
+from .predict import model_channels, relative_errors, stack_frames
+from .train import source_normalization
 
 ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")
 
@@ -122,28 +121,9 @@ def stratified_test_set(pde, n: int, seed: int, chunk: int = 32) -> list[dict]:
     return out
 
 
-@torch.no_grad()
 def per_trajectory_errors(model, norm, view, test: list[dict]) -> np.ndarray:
     """Relative L2 per test trajectory [N]: the operator's output, or the whole rollout of a next-step model."""
-    model.train(False)
-    errs = []
-    for batch in test:
-        batch = to_device(batch, model_device(model))
-        if view.rollout_k_in:  # a next-step model: its whole rollout
-            k = view.rollout_k_in
-            u = batch["u"]  # [b, T, C, *space]
-            pred = rollout(model, norm.normalize(u[:, :k]), norm.normalize_params(batch["params"]), u.shape[1] - k)
-            errs.append(rel_l2(norm.denormalize(pred), u[:, k:]))
-        else:
-            p = pairs(view, batch)
-            errs.append(rel_l2(predict(model, norm, p["x"], p["params"], model.ndim, p["y"].shape), p["y"]))
-    model.train()
-    return torch.cat(errs).cpu().numpy()
-
-
-def error_stats(errors: np.ndarray) -> dict:
-    """mean, p95 and max of per-trajectory errors."""
-    return {"mean": float(errors.mean()), "p95": float(np.percentile(errors, 95)), "max": float(errors.max())}
+    return rollout_errors(model, norm, test, view).trajectory()
 
 
 # --- one arm ----------------------------------------------------------------------------------------------

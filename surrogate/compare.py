@@ -23,7 +23,8 @@ import datasets
 from .data import test_set
 from .fno import COMPARE_FNO
 from .models import build_model
-from .runs import model_channels, train_run
+from .predict import model_channels
+from .runs import train_run
 
 
 @dataclass

@@ -31,11 +31,12 @@ import numpy as np
 import datasets
 
 from .budget import stratified_test_set
+from .checkpoint import load_checkpoint
 from .data import check_device
-from .modes import MODE_NAMES, check_mode_settings, make_mode, rollout_errors
+from .evaluate import error_stats, rollout_errors
+from .modes import MODE_NAMES, check_mode_settings, make_mode
 from .rollout_figure import plot_rollouts
 from .runs import train_run
-from .train import load_checkpoint
 
 NETWORK_MODES = ("one-step", "pushforward", "oracle")
 
@@ -102,7 +103,7 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
         k = cfg.sitl_unroll or cfg.unroll
         coarse = make_mode({"name": "solver-in-the-loop", "unroll": 1, "coarse_n": cfg.coarse_n}).bind(fine)
         t0 = time.perf_counter()
-        errors = rollout_errors(coarse, None, _identity_norm(fine), test, 1).numpy()
+        errors = rollout_errors(None, _identity_norm(fine), test, datasets.NextStep(1, 1), coarse).relative()
         arms.append(_record("coarse solver", "none", errors, 0.0, None, cfg.coarse_n))
         log(f"coarse solver (n={cfg.coarse_n}): end error {arms[-1]['end_mean']:.4f} ({time.perf_counter() - t0:.1f} s)")
         for label, unroll in (("pairs (unroll 1)", 1), (f"solver-in-the-loop (unroll {k})", k)):
@@ -152,7 +153,7 @@ def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: Interacti
     model, norm, _ = load_checkpoint(run_dir / "model.pt")
     model.to(check_device(cfg.device))
     mode = make_mode(settings).bind(pde, cfg.seed)
-    errors = rollout_errors(mode, model, norm, test, cfg.k_in).numpy()  # [N, T - k_in]
+    errors = rollout_errors(model, norm, test, datasets.NextStep(cfg.k_in, 1), mode).relative()  # [N, T - k_in]
     rec = _record(label, settings["name"], errors, summary["wall"], summary, settings.get("coarse_n", pde.n))
     rec["unroll"] = settings.get("unroll", 1)
     rec["mode_stats"] = summary.get("mode_stats", {})
@@ -163,10 +164,10 @@ def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: Interacti
 
 def _record(label: str, mode: str, errors: np.ndarray, wall: float, summary: dict | None, n: int) -> dict:
     """One arm's figures from its per-trajectory, per-frame errors [N, h]; n: the grid it predicts on."""
-    end = errors[:, -1]
+    end = error_stats(errors[:, -1])
     return {"arm": label, "mode": mode, "n": n, "wall_s": wall, "steps": summary["steps"] if summary else 0,
             "final_loss": summary["final_loss"] if summary else None,
-            "end_mean": float(end.mean()), "end_p95": float(np.percentile(end, 95)), "end_max": float(end.max()),
+            "end_mean": end["mean"], "end_p95": end["p95"], "end_max": end["max"],
             "rollout_mean": float(errors.mean()), "curve": errors.mean(0).tolist(),
             "curve_p95": np.percentile(errors, 95, axis=0).tolist(), "frames": errors.shape[1]}
 

@@ -10,7 +10,8 @@ import cli
 import datasets
 import generator
 from datasets.proposal import ParamProposal
-from surrogate.budget import BudgetConfig, budget_compare, error_stats, stratified_test_set
+from surrogate.budget import BudgetConfig, budget_compare, stratified_test_set
+from surrogate.evaluate import error_stats
 
 torch.set_num_threads(1)
 TINY = generator.get_pde("burgers1d", n=32, n_frames=5)

@@ -19,7 +19,8 @@ from torch.utils.data import DataLoader, IterableDataset
 import cli
 from surrogate import build_model
 from surrogate.data import EpochBatchSampler
-from surrogate.train import TIMINGS, _postfix, forever, relative_errors, stack_frames, train
+from surrogate.predict import relative_errors, stack_frames
+from surrogate.train import TIMINGS, _postfix, forever, train
 
 torch.set_num_threads(1)
 

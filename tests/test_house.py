@@ -1,0 +1,115 @@
+"""The surrogate package's structure: no import circle, one place for each piece of model-side logic."""
+
+import ast
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _imports(package: str) -> dict[str, set[str]]:
+    """module -> the modules of ``package`` it imports, anywhere in the file (a function-local import counts)."""
+    graph = {}
+    for path in (ROOT / package).glob("*.py"):
+        mod, deps = path.stem, set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                if node.level == 1 and node.module:
+                    deps.add(node.module.split(".")[0])
+                elif node.level == 1:
+                    deps.update(a.name for a in node.names)
+                elif node.module and node.module.startswith(package + "."):
+                    deps.add(node.module.split(".")[1])
+        graph[mod] = deps - {mod}
+    return graph
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    state, stack = {}, []
+
+    def visit(m):
+        state[m] = 1
+        stack.append(m)
+        for d in sorted(graph.get(m, ())):
+            if state.get(d) == 1:
+                return stack[stack.index(d):] + [d]
+            if d not in state and (found := visit(d)):
+                return found
+        stack.pop()
+        state[m] = 2
+        return None
+
+    for m in sorted(graph):
+        if m not in state and (found := visit(m)):
+            return found
+    return None
+
+
+def test_surrogate_has_no_import_circle():
+    """Counting function-local imports too: a local import that only hides a circle is still one."""
+    assert _cycle(_imports("surrogate")) is None
+
+
+def test_the_cycle_finder_finds_a_circle():
+    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert _cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_frames_are_stacked_into_channels_in_one_place():
+    """``flatten(1, ...)`` of frames into channels is written only in surrogate/predict.py."""
+    found = [p.name for p in (ROOT / "surrogate").glob("*.py") if p.name != "predict.py"
+             and (".flatten(1, 2)" in p.read_text() or "u.flatten(1, u.ndim" in p.read_text())]
+    assert found == []
+
+
+class _Persistence(torch.nn.Module):
+    """A 'network' that predicts no change: its rollout repeats the first frame (errors known by hand)."""
+
+    ndim = 1
+
+    def __init__(self):
+        super().__init__()
+        self.w = torch.nn.Parameter(torch.zeros(()))
+
+    def forward(self, x, p):
+        return x + 0 * self.w
+
+
+def _identity_norm(c: int, p: int):
+    from datasets.normalize import Normalization
+
+    return Normalization(tuple(f"f{i}" for i in range(c)), torch.zeros(c), torch.ones(c),
+                         tuple(f"p{i}" for i in range(p)), torch.zeros(p), torch.ones(p), 1)
+
+
+def test_one_evaluator_against_hand_computed_errors():
+    """Per-frame and whole-trajectory relative L2 of a persistence rollout, and the one-step and rollout figures
+    a run reports, all from the one evaluator and equal to the errors computed by hand."""
+    import datasets
+    from surrogate.evaluate import error_stats, rollout_errors, test_errors
+
+    gen = torch.Generator().manual_seed(0)
+    u = torch.randn(5, 4, 1, 16, generator=gen)  # [N, T, C, x]
+    test = [{"u": u[:3], "params": torch.zeros(3, 1), "index": torch.arange(3)},
+            {"u": u[3:], "params": torch.zeros(2, 1), "index": torch.arange(3, 5)}]
+    model, norm, view = _Persistence(), _identity_norm(1, 1), datasets.NextStep(1, 1)
+    errors = rollout_errors(model, norm, test, view)
+    by_hand = ((u[:, 1:] - u[:, :1]).flatten(2).norm(dim=2) / u[:, 1:].flatten(2).norm(dim=2)).double()  # [N, 3]
+    assert errors.relative() == pytest.approx(by_hand.numpy(), rel=1e-6)
+    whole = ((u[:, 1:] - u[:, :1]).flatten(1).norm(dim=1) / u[:, 1:].flatten(1).norm(dim=1)).double()
+    assert errors.trajectory() == pytest.approx(whole.numpy(), rel=1e-6)
+    assert error_stats(errors.trajectory())["max"] == pytest.approx(float(whole.max()), rel=1e-6)
+    report = test_errors(model, norm, view, test)
+    one_step = ((u[:, 1:] - u[:, :-1]).flatten(2).norm(dim=2) / u[:, 1:].flatten(2).norm(dim=2)).mean()
+    assert report["rel_l2"] == pytest.approx(float(one_step), rel=1e-5)
+    assert report["rollout"] == pytest.approx(by_hand.mean(0).tolist(), rel=1e-6)
+
+
+def test_rollout_error_is_defined_once():
+    """evaluate.py, modes.py and budget.py share one rollout-error definition: no module but evaluate.py loops
+    rel_l2 over predicted frames."""
+    found = [p.name for p in (ROOT / "surrogate").glob("*.py") if p.name != "evaluate.py"
+             and "rel_l2(pred[:, j]" in p.read_text()]
+    assert found == []
