@@ -37,19 +37,18 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch.utils.data import DataLoader
 
 import datasets
 from datasets.proposal import ParamProposal
 
 from .compare import shifted_pde
-from .data import TEST_SEED_OFFSET, EpochBatchSampler, check_device, to_device
+from .data import TEST_SEED_OFFSET, EpochBatchSampler, check_device
 from .evaluate import error_stats, rollout_errors
 from .fno import COMPARE_FNO
 from .models import build_model
-from .predict import model_channels, relative_errors, stack_frames
-from .train import source_normalization
+from .modes import check_fits, make_mode, training_view
+from .train import Stop, source_normalization, train
 
 ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")
 
@@ -80,6 +79,7 @@ class BudgetConfig:
     shift: float = -0.25
     device: str = "cpu"  # where the models train ("cuda": JAX solves on the GPU too when it sees one)
     snapshots: int = 8
+    mode: dict | None = None  # the training mode's settings (surrogate.modes; None: one-step)
 
     def check(self) -> None:
         if (self.budget_s is None) == (self.sim_budget is None):
@@ -121,9 +121,9 @@ def stratified_test_set(pde, n: int, seed: int, chunk: int = 32) -> list[dict]:
     return out
 
 
-def per_trajectory_errors(model, norm, view, test: list[dict]) -> np.ndarray:
+def per_trajectory_errors(model, norm, view, test: list[dict], mode=None) -> np.ndarray:
     """Relative L2 per test trajectory [N]: the operator's output, or the whole rollout of a next-step model."""
-    return rollout_errors(model, norm, test, view).trajectory()
+    return rollout_errors(model, norm, test, view, mode).trajectory()
 
 
 # --- one arm ----------------------------------------------------------------------------------------------
@@ -178,71 +178,50 @@ def _warmup(cfg: BudgetConfig) -> int:
 
 
 def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=print, seed: int = 0) -> dict:
-    """Train one arm (model and data seed ``seed``) within the budget; evaluate its snapshots afterwards.
-    Returns the arm's record."""
+    """Train one arm (model and data seed ``seed``) within the budget through ``train.train`` (its clock started
+    before the data source was built: a cache's solves count); evaluate its snapshots afterwards. ``view``: the
+    arm's training view (``training_view`` of the mode). Returns the arm's record."""
     out.mkdir(parents=True, exist_ok=True)
     clock_start = time.perf_counter()
+    mode = make_mode(cfg.mode).bind(pde, seed)
     loader, extra = _loader(arm, pde, view, cfg, seed, out, clock_start, log)
     dataset = loader.dataset
-    norm = source_normalization(loader)
-    c_in, c_out = model_channels(pde, view)
+    norm = source_normalization(loader)  # before training: not counted as the loop's data wait
     torch.manual_seed(seed)  # the same initial weights in every arm
-    model = build_model(cfg.model, pde.NDIM, c_in, c_out, len(pde.PARAMS), bc=pde.grid.bc,
+    model = build_model(cfg.model, pde.NDIM, *mode.channels(pde, view), len(pde.PARAMS), bc=pde.grid.bc,
                         **cfg.model_cfg).to(cfg.device)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    report = getattr(dataset, "report_losses", None)
-    snapshots, steps, examples, t_data, t_compute = [], 0, 0, 0.0, 0.0
-    batches = iter(loader)
-    model.train()
-    while True:
-        elapsed = time.perf_counter() - clock_start
-        done = steps / cfg.steps if cfg.sim_budget is not None else elapsed / cfg.budget_s
-        if len(snapshots) < cfg.snapshots and done >= (len(snapshots) + 1) / cfg.snapshots - 1e-9:
-            snapshots.append((elapsed, steps, copy.deepcopy(model.state_dict())))
-        if done >= 1:
-            break
-        for group in opt.param_groups:  # cosine over the budget's elapsed fraction, down to 1%
-            group["lr"] = cfg.lr * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * done)))
-        t0 = time.perf_counter()
-        batch = next(batches, None)
-        if batch is None:  # a cache pass ended: the next epoch; a stream's simulation budget ran out: stop
-            if arm != "precomputed":
-                snapshots.append((time.perf_counter() - clock_start, steps, copy.deepcopy(model.state_dict())))
-                break
-            batches = iter(loader)
-            continue
-        batch = to_device(batch, cfg.device)  # a copy to the GPU counts as waiting for data
-        t1 = time.perf_counter()
-        # of_x / of_y: a steady entry's input field and solution have their own statistics (else both are all fields)
-        target = stack_frames(norm.of_y.normalize(batch["y"]), pde.NDIM)
-        pred = model(stack_frames(norm.of_x.normalize(batch["x"]), pde.NDIM), norm.normalize_params(batch["params"]))
-        loss = F.mse_loss(pred, target)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        if not math.isfinite(loss.item()):
-            raise ValueError(f"{arm}: training diverged at step {steps + 1}; lower --lr")
-        if report is not None:
-            report(batch, relative_errors(pred, target))
-        t_data, t_compute = t_data + t1 - t0, t_compute + time.perf_counter() - t1
-        steps, examples = steps + 1, examples + len(batch["x"])
-    wall = time.perf_counter() - clock_start
-    stats = dataset.stats() if hasattr(dataset, "stats") else {}
-    reuse = dataset.res.reuse(dataset.per_trajectory).tolist() if hasattr(dataset, "res") else []
-    density = dataset.proposal.density() if hasattr(dataset, "proposal") else None
-    if hasattr(dataset, "close"):
-        dataset.close()
-    solved = extra.get("trajectories_solved", stats.get("inserted"))
-    if solved is None:  # the FIFO stream uses each solve once: its examples tell how many it took
-        solved = examples // max(1, dataset.per_trajectory)
+    snapshots, loop_end = [], [0.0]
+
+    def snapshot(step: int, fraction: float, elapsed: float) -> None:
+        loop_end[0] = elapsed
+        if len(snapshots) < cfg.snapshots and fraction >= (len(snapshots) + 1) / cfg.snapshots - 1e-9:
+            snapshots.append((elapsed, step, copy.deepcopy(model.state_dict())))
+
+    # a cache is trained over in epochs; a stream's simulation budget, once spent, ends the arm
+    stop = Stop(steps=cfg.steps if cfg.sim_budget is not None else None,
+                seconds=cfg.budget_s if cfg.sim_budget is None else None, once=arm != "precomputed")
+    try:
+        summary = train(model, loader, stop, out, lr=cfg.lr, normalizer=norm, label=arm, mode=mode,
+                        started=clock_start, after_step=snapshot, meta={"arm": arm, "seed": seed, "mode": mode.settings()})
+    finally:
+        stats = dataset.stats() if hasattr(dataset, "stats") else {}
+        report = dataset.report() if hasattr(dataset, "report") else {}  # a reservoir's reuse and where it solved
+        if hasattr(dataset, "close"):
+            dataset.close()
+    if summary["stop"] == "data" or not snapshots:  # the data ran out before the budget: the model as it ended
+        snapshots.append((summary["wall"], summary["steps"], copy.deepcopy(model.state_dict())))
+    steps, examples, t_data, t_compute = summary["steps"], summary["examples_seen"], summary["t_data"], summary["t_compute"]
+    wall = loop_end[0] if steps else summary["wall"]
+    # a cache knows its size; a reservoir counts its insertions; the FIFO stream uses each solve once
+    solved = extra.get("trajectories_solved", stats.get("inserted", summary["trajectories_seen"]))
     curve = []
     for t, s, state in snapshots:
         model.load_state_dict(state)
         curve.append({"elapsed": t, "step": s, **{f"{k}_{m}": v for k, e in
-                                                   ((k, per_trajectory_errors(model, norm, view, ts)) for k, ts in tests.items())
+                                                   ((k, per_trajectory_errors(model, norm, view, ts, mode)) for k, ts in tests.items())
                                                    for m, v in error_stats(e).items()}})
-    final = {k: per_trajectory_errors(model, norm, view, ts) for k, ts in tests.items()}
-    torch.save({"model": model.state_dict(), "normalization": norm.to_dict()}, out / "model.pt")
+    final = {k: per_trajectory_errors(model, norm, view, ts, mode) for k, ts in tests.items()}
+    reuse, density = report.get("reuse", []), report.get("density")
     record = {"arm": arm, "seed": seed, "wall_s": wall, "steps": steps, "examples": examples, "trajectories_solved": solved,
               "data_wait_s": t_data, "compute_s": t_compute, "startup_s": wall - t_data - t_compute,
               "wait_share": t_data / max(t_data + t_compute, 1e-9),  # of the training loop's time
@@ -259,8 +238,10 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
     cfg.check()
     # fitted to the samples (a steady entry's operator view has no frames to check) and the model built once, so
     # a 3D entry or a bad --model-set is refused before any solve (it was refused after the test sets and a cache)
-    view = datasets.for_sample(datasets.make_view(cfg.view), pde.n_frames, len(pde.INPUTS))
-    build_model(cfg.model, pde.NDIM, *model_channels(pde, view), len(pde.PARAMS), bc=pde.grid.bc, **cfg.model_cfg)
+    mode = make_mode(cfg.mode)
+    view = training_view(mode, datasets.for_sample(datasets.make_view(cfg.view), pde.n_frames, len(pde.INPUTS)))
+    check_fits(mode, view, pde)
+    build_model(cfg.model, pde.NDIM, *mode.channels(pde, view), len(pde.PARAMS), bc=pde.grid.bc, **cfg.model_cfg)
     datasets.ReservoirStream(pde, view=view, batch_size=cfg.batch_size, capacity=cfg.capacity,
                              solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode,
                              proposal_kwargs={"floor": cfg.proposal_floor})  # settings checked before any work

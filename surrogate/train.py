@@ -21,14 +21,13 @@ from __future__ import annotations
 import csv
 import json
 import math
-import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from torch import nn
 from torch.utils.data import DataLoader
-from tqdm import tqdm
 
 from datasets.normalize import Normalization
 
@@ -44,6 +43,7 @@ from .checkpoint import (
 from .data import model_device, to_device
 from .models import model_spec
 from .modes import OneStep
+from .phases import RunProgress
 
 
 def source_normalization(loader) -> Normalization | None:
@@ -53,13 +53,55 @@ def source_normalization(loader) -> Normalization | None:
     return source.normalization() if hasattr(source, "normalization") else None
 
 
-def make_schedule(opt: torch.optim.Optimizer, name: str, steps: int, lr: float):
-    """"cosine" (decay to 1% of lr) or "onecycle" (warm-up then anneal) over ``steps`` optimizer steps."""
+@dataclass(frozen=True)
+class Stop:
+    """When a run ends: after ``steps`` optimizer steps, or once ``seconds`` of wall clock have passed since the
+    run's clock started (``train(..., started=)``); ``once``: also when a single pass over the loader ends (a
+    simulation budget's stream: every solve used once), else a finite loader is iterated again (epochs)."""
+
+    steps: int | None = None
+    seconds: float | None = None
+    once: bool = False
+
+    def check(self) -> None:
+        """ValueError (one line) naming the bad value."""
+        if (self.steps is None) == (self.seconds is None):
+            raise ValueError(f"a run stops after steps or after seconds, exactly one (got steps={self.steps}, "
+                             f"seconds={self.seconds})")
+        if self.steps is not None:
+            check_count("steps", self.steps)
+        elif not (isinstance(self.seconds, (int, float)) and not isinstance(self.seconds, bool)
+                  and math.isfinite(self.seconds) and self.seconds > 0):
+            raise ValueError(f"seconds={self.seconds!r} not allowed; must be a number > 0")
+
+    def fraction(self, step: int, elapsed: float) -> float:
+        """How much of the run is done after ``step`` steps and ``elapsed`` seconds: 0 at the start, >= 1 at the end."""
+        return step / self.steps if self.steps is not None else elapsed / self.seconds
+
+
+def cosine_factor(fraction: float) -> float:
+    """The cosine schedule's lr / peak lr at ``fraction`` of the run: 1 down to 0.01."""
+    return 0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(fraction, 1.0)))
+
+
+def make_schedule(opt: torch.optim.Optimizer, name: str, stop: Stop | int, lr: float, fraction=None):
+    """"cosine" (decay to 1% of lr) or "onecycle" (warm-up then anneal) over the run. A run of known steps uses
+    torch's schedulers; a run of ``seconds`` follows ``fraction()`` (the share of its clock spent), cosine only."""
+    stop = Stop(steps=stop) if isinstance(stop, int) else stop
+    if name not in SCHEDULES:
+        raise ValueError(f"unknown schedule {name!r}; allowed: {', '.join(SCHEDULES)}")
+    if stop.steps is None:
+        if name != "cosine":
+            raise ValueError(f"schedule {name!r} needs a number of steps; a run of seconds allows: cosine")
+        return torch.optim.lr_scheduler.LambdaLR(opt, lambda _: cosine_factor(fraction()))
     if name == "cosine":
-        return torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps, eta_min=lr * 0.01)
-    if name == "onecycle":
-        return torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps)
-    raise ValueError(f"unknown schedule {name!r}; allowed: cosine, onecycle")
+        return torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=stop.steps, eta_min=lr * 0.01)
+    return torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=stop.steps)
+
+
+def once(loader):
+    """Batches of one pass over ``loader``."""
+    yield from loader
 
 
 def forever(loader):
@@ -84,16 +126,28 @@ POSTFIX_STATS = ("wait_share", "reuse_mean")  # data-source stats shown in the p
 TIMINGS = ("t_data", "t_compute", "elapsed", "wall", "data_share", "wait_share", "solver_traj_per_s", "examples_per_s")
 
 
-def check_train_settings(steps: int, lr: float, schedule: str, checkpoint_every: int = 0) -> None:
-    """ValueError naming the value and what is allowed (called before a run touches its directory)."""
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-        raise ValueError(f"steps={steps} not allowed; must be an integer >= 1")
-    if not lr > 0:
-        raise ValueError(f"lr={lr} not allowed; must be > 0")
-    if schedule not in ("cosine", "onecycle"):
-        raise ValueError(f"unknown schedule {schedule!r}; allowed: cosine, onecycle")
-    if isinstance(checkpoint_every, bool) or not isinstance(checkpoint_every, int) or checkpoint_every < 0:
-        raise ValueError(f"checkpoint_every={checkpoint_every} not allowed; must be an integer >= 0 (0: only at the end)")
+SCHEDULES = ("cosine", "onecycle")
+
+
+def check_count(name: str, value, low: int = 1, note: str = "") -> int:
+    """``value`` when it is an integer >= low, else ValueError naming it (bool is no integer here)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ValueError(f"{name}={value!r} not allowed; must be an integer >= {low}{note}")
+    return value
+
+
+def check_train_settings(steps, lr: float, schedule: str, checkpoint_every: int = 0) -> None:
+    """ValueError naming the value and what is allowed (called before a run touches its directory); steps: an
+    int or a ``Stop``."""
+    stop = Stop(steps=steps) if not isinstance(steps, Stop) else steps
+    stop.check()
+    if isinstance(lr, bool) or not isinstance(lr, (int, float)) or not (math.isfinite(lr) and lr > 0):
+        raise ValueError(f"lr={lr!r} not allowed; must be a number > 0")
+    if schedule not in SCHEDULES:
+        raise ValueError(f"unknown schedule {schedule!r}; allowed: {', '.join(SCHEDULES)}")
+    if stop.steps is None and schedule != "cosine":
+        raise ValueError(f"schedule {schedule!r} needs a number of steps; a run of seconds allows: cosine")
+    check_count("checkpoint_every", checkpoint_every, 0, " (0: only at the end)")
 
 
 def _postfix(loss: float, stats: dict | None) -> dict:
@@ -111,11 +165,12 @@ def _plain(stats: dict) -> dict:
     return {str(k): (v.item() if hasattr(v, "item") else v) for k, v in stats.items()}
 
 
-def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, schedule: str = "cosine",
+def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1e-3, schedule: str = "cosine",
           normalizer: Normalization | None = None, log_every: int = 10, meta: dict | None = None,
           label: str = "train", checkpoint_every: int = 0, resume: dict | None = None, finish=None,
-          mode=None) -> dict:
-    """Train ``model`` for ``steps`` optimizer steps on batches from ``loader``; returns the summary dict.
+          mode=None, started: float | None = None, after_step=None) -> dict:
+    """Train ``model`` on batches from ``loader`` until ``steps`` (an int: optimizer steps; or a ``Stop``: steps
+    or seconds, optionally one pass over the data) says stop; returns the summary dict.
 
     Works the same for an IterableDataset stream (DataLoader(stream, batch_size=None)) and a map-style cache
     (DataLoader(cached, batch_sampler=EpochBatchSampler(...))). Times are wall-clock seconds: "t_data" is time
@@ -125,23 +180,29 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
     result is the uninterrupted run's, bit for bit on the CPU. finish: ``finish(model, normalizer) -> dict``,
     merged into the summary before metrics.json is written (e.g. test errors). mode: how a batch becomes a
     loss (``surrogate.modes``: one-step, pushforward, oracle, solver-in-the-loop; None: one-step).
+    started: ``time.perf_counter()`` when the run's clock started (default: now), for a ``Stop(seconds=)``
+    that counts what the caller did before (solving a cache). after_step: ``after_step(step, fraction,
+    elapsed)`` after every optimizer step (fraction: of the run done, ``Stop.fraction``), e.g. to snapshot the
+    model. The summary's "stop" says what ended the run: "steps", "seconds" or "data" (a ``once`` pass ran out).
     """
-    check_train_settings(steps, lr, schedule, checkpoint_every)
+    stop = Stop(steps=steps) if not isinstance(steps, Stop) else steps
+    check_train_settings(stop, lr, schedule, checkpoint_every)
     mode = OneStep() if mode is None else mode
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ndim, device = model.ndim, model_device(model)
+    start = time.perf_counter() if started is None else started
     opt = torch.optim.Adam(model.parameters(), lr=lr)
-    sched = make_schedule(opt, schedule, steps, lr)
-    start = time.perf_counter()
+    sched = make_schedule(opt, schedule, stop, lr, fraction=lambda: (time.perf_counter() - start) / stop.seconds)
     if resume is not None:
         check_belongs(resume, meta or {})
-        normalizer, progress = restore(resume, model, opt, sched, loader, steps)
+        normalizer, progress = restore(resume, model, opt, sched, loader, stop.steps)
     else:
         progress = TrainProgress()
         if normalizer is None:
+            t0 = time.perf_counter()
             normalizer = source_normalization(loader)
-            progress.t_data += time.perf_counter() - start  # a calibration draw (or reading a cache) is data time
+            progress.t_data += time.perf_counter() - t0  # a calibration draw (or reading a cache) is data time
     if isinstance(loader, DataLoader) and loader.generator is None:
         # Each pass over a DataLoader draws its workers' base seed from its generator, else from the global torch
         # RNG. A resumed run starts a pass where the uninterrupted one did not, so that draw would shift the RNG
@@ -149,18 +210,23 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
         loader.generator = torch.Generator().manual_seed(torch.initial_seed())
     dataset = getattr(loader, "dataset", None)
     report_losses, stats = getattr(dataset, "report_losses", None), getattr(dataset, "stats", None)
-    batches = forever(loader)
+    batches = once(loader) if stop.once else forever(loader)
     if resume is not None:  # last, so that nothing above draws from it; the data source may (random windows)
         torch.set_rng_state(resume["torch_rng"])
-    bar = tqdm(total=steps, initial=progress.step, desc=label, disable=not sys.stderr.isatty(), leave=False)
+    bar = RunProgress(label, stop.steps, progress.step)
     model.train()
-    for step in range(progress.step + 1, steps + 1):
+    step, loss_value, ended = progress.step, math.nan, "steps" if stop.steps is not None else "seconds"
+    while stop.fraction(step, progress.wall + time.perf_counter() - start) < 1:
+        step += 1
         t0 = time.perf_counter()
-        batch = to_device(next(batches), device)  # a copy to the GPU counts as waiting for data
+        batch = next(batches, None)
+        if batch is None:  # one pass over the data was asked for, and it ran out
+            step, ended = step - 1, "data"
+            break
+        batch = to_device(batch, device)  # a copy to the GPU counts as waiting for data
         t1 = time.perf_counter()
         if normalizer is None:  # the data source offers none: calibrate on the first batch
             normalizer = Normalization.from_batch(batch, ndim)
-        x = batch["x"]  # [B, (k,) C, *space]
         loss, per_example = mode.step_loss(model, batch, normalizer, step)  # per_example: float64 CPU [B]
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -174,26 +240,34 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
             report_losses(batch, per_example)
         progress.step = step
         progress.t_data, progress.t_compute = progress.t_data + t1 - t0, progress.t_compute + t2 - t1
-        progress.examples += len(x)
+        progress.examples += len(batch["x"])
         progress.trajectories.update(batch["index"].tolist())
-        bar.update(1)
-        if step % log_every == 0 or step == steps:
+        elapsed = progress.wall + time.perf_counter() - start
+        last = stop.fraction(step, elapsed) >= 1
+        if step % log_every == 0 or last:
             row = {"step": step, "loss": loss_value, "lr": sched.get_last_lr()[0], "examples": progress.examples,
                    "trajectories": len(progress.trajectories), "t_data": progress.t_data,
-                   "t_compute": progress.t_compute, "elapsed": progress.wall + time.perf_counter() - start}
+                   "t_compute": progress.t_compute, "elapsed": elapsed}
             if stats is not None:
                 progress.data_stats = _plain(stats())
                 row.update({k: v for k, v in progress.data_stats.items() if k not in row})  # the loop's own win
             progress.rows.append(row)
-            bar.set_postfix(_postfix(loss_value, progress.data_stats))
-        if checkpoint_every and step % checkpoint_every == 0 and step < steps:
-            save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, steps, start, meta))
+            bar.show(step, _postfix(loss_value, progress.data_stats))
+        if after_step is not None:
+            after_step(step, stop.fraction(step, elapsed), elapsed)
+        if checkpoint_every and step % checkpoint_every == 0 and not last:
+            save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, stop.steps, start, meta))
             write_metrics_csv(out / "metrics.csv", progress.rows)
     bar.close()
+    if normalizer is None:
+        raise ValueError(f"{label}: the data ran out before the first step")
+    if progress.rows and progress.rows[-1]["step"] != progress.step:  # a run of seconds or one pass ends anywhere
+        progress.rows.append({**progress.rows[-1], "step": progress.step, "loss": loss_value})
     write_metrics_csv(out / "metrics.csv", progress.rows)
-    save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, steps, start, meta))
+    save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, stop.steps, start, meta))
     wall = progress.wall + time.perf_counter() - start
-    summary = {"label": label, "steps": steps, "final_loss": progress.rows[-1]["loss"],
+    summary = {"label": label, "steps": progress.step, "stop": ended,
+               "final_loss": progress.rows[-1]["loss"] if progress.rows else math.nan,
                "examples_seen": progress.examples, "trajectories_seen": len(progress.trajectories),
                "t_data": progress.t_data, "t_compute": progress.t_compute, "wall": wall,
                "data_share": progress.t_data / max(progress.t_data + progress.t_compute, 1e-12),
@@ -206,7 +280,7 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
         summary["mode_stats"] = mode.stats()
     if finish is not None:
         summary.update(finish(model, normalizer))
-    save_checkpoint(out / "model.pt", model, normalizer, step=steps, meta=meta)
+    save_checkpoint(out / "model.pt", model, normalizer, step=progress.step, meta=meta)
     atomic_write(out / "metrics.json", json.dumps(summary, indent=2).encode())  # last: marks the run finished
     summary["normalizer"] = normalizer
     summary["curve"] = progress.rows

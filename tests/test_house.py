@@ -113,3 +113,46 @@ def test_rollout_error_is_defined_once():
     found = [p.name for p in (ROOT / "surrogate").glob("*.py") if p.name != "evaluate.py"
              and "rel_l2(pred[:, j]" in p.read_text()]
     assert found == []
+
+
+class _Batches(torch.utils.data.IterableDataset):
+    """``n`` random batches {"x", "y": [4, 1, 16], "params": [4, 1], "index": [4]}, the same on every pass."""
+
+    def __init__(self, n: int):
+        self.n = n
+
+    def __iter__(self):
+        gen = torch.Generator().manual_seed(0)
+        for i in range(self.n):
+            x = torch.randn(4, 1, 16, generator=gen)
+            yield {"x": x, "y": x.roll(1, -1), "params": torch.rand(4, 1, generator=gen), "index": torch.arange(4) + 4 * i}
+
+
+def _model():
+    from surrogate import build_model
+
+    torch.manual_seed(0)
+    return build_model("fno", 1, 1, 1, 1, width=4, modes=2, layers=1)
+
+
+def test_one_loop_stops_on_steps_seconds_or_the_end_of_one_pass(tmp_path):
+    """The loop that `train`, `compare` and the budget arms share: a stop rule, and a hook after every step."""
+    from surrogate.train import Stop, train
+
+    seen = []
+    s = train(_model(), torch.utils.data.DataLoader(_Batches(3), batch_size=None), Stop(steps=7), tmp_path / "a",
+              after_step=lambda step, fraction, elapsed: seen.append((step, fraction)))
+    assert s["steps"] == 7 and s["stop"] == "steps" and seen[-1] == (7, 1.0) and [a for a, _ in seen] == list(range(1, 8))
+    s = train(_model(), torch.utils.data.DataLoader(_Batches(3), batch_size=None), Stop(steps=7, once=True),
+              tmp_path / "b")
+    assert s["steps"] == 3 and s["stop"] == "data"  # one pass of 3 batches, not 7 steps over epochs
+    s = train(_model(), torch.utils.data.DataLoader(_Batches(10**6), batch_size=None), Stop(seconds=0.5),
+              tmp_path / "c", started=__import__("time").perf_counter() - 0.25)
+    assert s["stop"] == "seconds" and 0.5 <= s["wall"] < 2.0 and s["steps"] >= 1
+    rows = (tmp_path / "c" / "metrics.csv").read_text().splitlines()
+    assert rows[-1].split(",")[0] == str(s["steps"])  # the last step is logged wherever the clock ended the run
+    with pytest.raises(ValueError, match="schedule 'onecycle' needs a number of steps"):
+        train(_model(), torch.utils.data.DataLoader(_Batches(3), batch_size=None), Stop(seconds=1.0), tmp_path / "d",
+              schedule="onecycle")
+    with pytest.raises(ValueError, match="exactly one"):
+        Stop(steps=3, seconds=1.0).check()
