@@ -391,17 +391,13 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
     return {k: v for k, v in cfg.items() if v is not None}
 
 
-MODE_NAMES = ("one-step", "pushforward", "oracle", "solver-in-the-loop")
-
-
 def _add_mode_args(p: argparse.ArgumentParser, train: bool) -> None:
+    from surrogate.mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, takes
+
     g = p.add_argument_group("interactive training modes (see surrogate/modes.py)")
     if train:
         g.add_argument("--mode", default="one-step", choices=MODE_NAMES,
-                       help="one-step: frames -> next frames; pushforward: unroll the network K-1 steps without "
-                            "gradient, train the K-th; oracle: train on states the network reaches in 0..K steps, "
-                            "labelled by the solver; solver-in-the-loop: a correction network on a coarse "
-                            "differentiable solver, unrolled K steps, against the fine solve (the PDE's n)")
+                       help="; ".join(f"{name}: {spec.help}" for name, spec in MODE_SPECS.items()))
     else:
         g.add_argument("--modes", metavar="M1,M2,...",
                        help="compare training modes at equal steps (rollout error against time): a comma-separated "
@@ -409,28 +405,18 @@ def _add_mode_args(p: argparse.ArgumentParser, train: bool) -> None:
         g.add_argument("--fine-n", type=int, metavar="N",
                        help="solver-in-the-loop: the fine grid (default: the PDE's n)")
     g.add_argument("--unroll", type=int, default=None, metavar="K",
-                   help="steps unrolled by pushforward, oracle and solver-in-the-loop (default: 4 with --mode(s))")
+                   help=f"steps unrolled by {takes('unroll')} (default {DEFAULTS['unroll']})")
     g.add_argument("--coarse-n", type=int, metavar="N",
-                   help="solver-in-the-loop: grid of the coarse solver, a divisor of the fine n (default 64)")
+                   help=f"{takes('coarse_n')}: grid of the coarse solver, a divisor of the fine n "
+                        f"(default {DEFAULTS['coarse_n']})")
 
 
 def mode_cfg(args: argparse.Namespace) -> dict:
-    """The `train --mode` settings for train_run (one line for options that do not fit the mode)."""
-    from surrogate.modes import check_mode_settings
+    """The `train --mode` settings for train_run: the mode table's defaults, one line for an option the mode does
+    not take (surrogate.mode_table.mode_settings); --k-out is checked with the view (surrogate.modes)."""
+    from surrogate.mode_table import mode_settings
 
-    if args.mode == "one-step":
-        if args.unroll not in (None, 1) or args.coarse_n is not None:
-            raise ValueError(f"--unroll {args.unroll} and --coarse-n go with --mode pushforward, oracle or "
-                             "solver-in-the-loop, not one-step")
-        return {"name": "one-step"}
-    if args.k_out != 1:
-        raise ValueError(f"--k-out={args.k_out} goes with --mode one-step; --mode {args.mode} predicts one frame per "
-                         "step and reads --unroll frames ahead")
-    cfg = {"name": args.mode, "unroll": 4 if args.unroll is None else args.unroll}
-    if args.mode == "solver-in-the-loop":
-        cfg["coarse_n"] = 64 if args.coarse_n is None else args.coarse_n
-    check_mode_settings(cfg["name"], cfg["unroll"], cfg.get("coarse_n"))
-    return cfg
+    return mode_settings(args.mode, unroll=args.unroll, coarse_n=args.coarse_n)
 
 
 def _interactive_compare(args: argparse.Namespace) -> None:
@@ -450,11 +436,11 @@ def _interactive_compare(args: argparse.Namespace) -> None:
         if args.model.startswith("fno") else {}
     model_cfg.update(_parse_sets(args.model_set))
     quick = args.quick and args.steps == 1000  # --quick without --steps: a few steps
-    cfg = InteractiveConfig(modes=modes, unroll=4 if args.unroll is None else args.unroll,
+    given = {"unroll": args.unroll, "coarse_n": 16 if args.quick and args.coarse_n is None else args.coarse_n}
+    cfg = InteractiveConfig(modes=modes, **{k: v for k, v in given.items() if v is not None},  # else the mode table's
                             steps=20 if quick else args.steps, batch_size=8 if quick else args.batch_size, lr=args.lr,
                             model=args.model, model_cfg=model_cfg, k_in=args.k_in, seed=0,
                             n_test=4 if args.quick and args.test_samples == 128 else args.test_samples,
-                            coarse_n=(16 if args.quick else 64) if args.coarse_n is None else args.coarse_n,
                             fine_n=args.fine_n, device=args.device)
     if args.k_out != 1:
         raise ValueError(f"--k-out={args.k_out} not allowed with --modes: every mode predicts one frame per step")

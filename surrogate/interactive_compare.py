@@ -34,11 +34,10 @@ from .budget import stratified_test_set
 from .checkpoint import load_checkpoint
 from .data import check_device
 from .evaluate import error_stats, rollout_errors
-from .modes import MODE_NAMES, check_mode_settings, make_mode
+from .mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, NETWORK_MODES, mode_settings
+from .modes import make_mode
 from .rollout_figure import plot_rollouts
 from .runs import train_run
-
-NETWORK_MODES = ("one-step", "pushforward", "oracle")
 
 
 @dataclass
@@ -47,7 +46,7 @@ class InteractiveConfig:
     last); coarse_n / fine_n: the solver-in-the-loop grids (fine_n None: the PDE's n)."""
 
     modes: tuple = NETWORK_MODES
-    unroll: int = 4
+    unroll: int = DEFAULTS["unroll"]
     sitl_unroll: int | None = None
     steps: int = 2000
     batch_size: int = 32
@@ -57,7 +56,7 @@ class InteractiveConfig:
     k_in: int = 1
     seed: int = 0
     n_test: int = 32
-    coarse_n: int = 64
+    coarse_n: int = DEFAULTS["coarse_n"]
     fine_n: int | None = None
     device: str = "cpu"
 
@@ -67,9 +66,7 @@ class InteractiveConfig:
         if unknown or not self.modes:
             raise ValueError(f"--modes {','.join(self.modes)} not allowed; choose from {', '.join(MODE_NAMES)}")
         for name in self.modes:
-            check_mode_settings(name, self.unroll if name != "one-step" else 1)
-        if self.sitl_unroll is not None:
-            check_mode_settings("solver-in-the-loop", self.sitl_unroll)
+            _settings(self, name)
         for name, value in (("steps", self.steps), ("batch size", self.batch_size), ("test samples", self.n_test),
                             ("k_in", self.k_in)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -80,6 +77,14 @@ class InteractiveConfig:
         check_device(self.device)
 
 
+def _settings(cfg: InteractiveConfig, name: str, **override) -> dict:
+    """Mode ``name``'s settings in this comparison: the config's unroll (sitl_unroll for solver-in-the-loop) and
+    coarse grid where the mode takes them (the mode table decides), ``override`` on top."""
+    unroll = cfg.sitl_unroll if name == "solver-in-the-loop" and cfg.sitl_unroll else cfg.unroll
+    given = {"unroll": unroll, "coarse_n": cfg.coarse_n, **override}
+    return mode_settings(name, **{k: v for k, v in given.items() if k in MODE_SPECS[name].settings})
+
+
 def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict:
     """Train and roll out every arm; write compare.md/csv/json and compare.png; return the result dict."""
     cfg.check(pde)
@@ -88,7 +93,7 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
     sitl = "solver-in-the-loop" in cfg.modes
     fine = pde.replace({"n": cfg.fine_n}) if sitl and cfg.fine_n not in (None, pde.n) else pde
     if sitl:
-        make_mode({"name": "solver-in-the-loop", "unroll": 1, "coarse_n": cfg.coarse_n}).bind(fine)  # sizes fit?
+        make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)  # sizes fit?
     out.mkdir(parents=True, exist_ok=True)
     arms = []
     if net_modes:
@@ -96,18 +101,18 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
         test = stratified_test_set(pde, cfg.n_test, cfg.seed)
         log(f"test set: {cfg.n_test} trajectories of {pde.n_frames} frames in {time.perf_counter() - t0:.1f} s")
         for name in net_modes:
-            settings = {"name": name} if name == "one-step" else {"name": name, "unroll": cfg.unroll}
+            settings = _settings(cfg, name)
             arms.append(_train_arm(name, pde, settings, test, cfg, out / name, log))
     if sitl:
         test = stratified_test_set(fine, cfg.n_test, cfg.seed)
-        k = cfg.sitl_unroll or cfg.unroll
-        coarse = make_mode({"name": "solver-in-the-loop", "unroll": 1, "coarse_n": cfg.coarse_n}).bind(fine)
+        k = _settings(cfg, "solver-in-the-loop")["unroll"]
+        coarse = make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)
         t0 = time.perf_counter()
         errors = rollout_errors(None, _identity_norm(fine), test, datasets.NextStep(1, 1), coarse).relative()
         arms.append(_record("coarse solver", "none", errors, 0.0, None, cfg.coarse_n))
         log(f"coarse solver (n={cfg.coarse_n}): end error {arms[-1]['end_mean']:.4f} ({time.perf_counter() - t0:.1f} s)")
         for label, unroll in (("pairs (unroll 1)", 1), (f"solver-in-the-loop (unroll {k})", k)):
-            settings = {"name": "solver-in-the-loop", "unroll": unroll, "coarse_n": cfg.coarse_n}
+            settings = _settings(cfg, "solver-in-the-loop", unroll=unroll)
             arms.append(_train_arm(label, fine, settings, test, cfg, out / f"sitl_unroll{unroll}", log))
         _plot_sitl_rollouts(out / "rollouts.png", fine, coarse, test[0], out, k, cfg)
     result = {"pde": pde.config(), "fine_pde": fine.config() if sitl else None, "config": asdict(cfg),

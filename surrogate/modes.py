@@ -38,9 +38,8 @@ from torch import nn
 import datasets
 from datasets.normalize import Normalization
 
+from .mode_table import DEFAULTS, MODE_NAMES, mode_settings
 from .predict import model_channels, net_step, pairs, predict, relative_errors, rollout, stack_frames
-
-MODE_NAMES = ("one-step", "pushforward", "oracle", "solver-in-the-loop")
 
 
 class Mode(Protocol):
@@ -56,6 +55,9 @@ class Mode(Protocol):
 
     def frames_ahead(self, view) -> int:
         """Target frames per example the mode reads from a next-step view."""
+
+    def train_view(self, view):
+        """The view the mode trains on, made from the one asked for; ValueError (one line) when it cannot."""
 
     def channels(self, pde, view) -> tuple[int, int]:
         """(in_channels, out_channels) of the network."""
@@ -74,9 +76,14 @@ class Mode(Protocol):
         the training view's pairs for one-step, (frame, next frame) for the modes that unroll."""
 
 
-def _next_step(view, mode: str) -> None:
+def _unrolling_view(mode, view):
+    """A next-step ``view`` reading ``mode.frames_ahead`` frames ahead; ValueError for a view without windows."""
     if view.rollout_k_in is None:  # the view makes no windows of frames to unroll over
-        raise ValueError(f"--mode {mode} needs the next_step view, not {view.name!r}; use --view next_step")
+        raise ValueError(f"--mode {mode.name} needs the next_step view, not {view.name!r}; use --view next_step")
+    if view.frames_out != 1:  # the mode predicts one frame per network call
+        raise ValueError(f"--k-out={view.frames_out} goes with --mode one-step; --mode {mode.name} predicts one frame "
+                         "per step and reads --unroll frames ahead")
+    return view.ahead(mode.frames_ahead(view))
 
 
 @torch.no_grad()
@@ -111,6 +118,9 @@ class OneStep:
 
     def frames_ahead(self, view) -> int:
         return view.frames_out
+
+    def train_view(self, view):
+        return view
 
     def channels(self, pde, view) -> tuple[int, int]:
         return model_channels(pde, view)
@@ -147,7 +157,7 @@ def _draws(seed: int, step: int, batch: int, low: int, high: int) -> torch.Tenso
 class Pushforward:
     """Unroll n ~ U{0..k-1} network steps without gradient, train the next one against the frame n+1 ahead."""
 
-    unroll: int = 2
+    unroll: int = DEFAULTS["unroll"]
     seed: int = 0
     name: ClassVar[str] = "pushforward"
 
@@ -164,6 +174,9 @@ class Pushforward:
 
     def frames_ahead(self, view) -> int:
         return self.unroll
+
+    def train_view(self, view):
+        return _unrolling_view(self, view)
 
     def channels(self, pde, view) -> tuple[int, int]:
         return view.rollout_k_in * len(pde.FIELDS), len(pde.FIELDS)
@@ -192,7 +205,7 @@ class Oracle:
     reached a state the solver cannot advance) are left out of the loss and counted in ``dropped``.
     """
 
-    unroll: int = 2
+    unroll: int = DEFAULTS["unroll"]
     solver: object = None
     seed: int = 0
     dropped: int = 0
@@ -212,6 +225,9 @@ class Oracle:
 
     def frames_ahead(self, view) -> int:
         return 1  # the targets come from the solver; the view only supplies start states
+
+    def train_view(self, view):
+        return _unrolling_view(self, view)
 
     def channels(self, pde, view) -> tuple[int, int]:
         return view.rollout_k_in * len(pde.FIELDS), len(pde.FIELDS)
@@ -314,8 +330,8 @@ class SolverInTheLoop:
     the solver (``datasets.SolverStep``). unroll=1 is training on precomputed (coarse step, fine) pairs.
     """
 
-    unroll: int = 4
-    coarse_n: int = 64
+    unroll: int = DEFAULTS["unroll"]
+    coarse_n: int = DEFAULTS["coarse_n"]
     step: nn.Module | None = None
     factor: int = 0
     walls: tuple[str, ...] | None = None  # the PDE's per-axis bc (None: periodic), for the fine -> coarse points
@@ -327,6 +343,12 @@ class SolverInTheLoop:
 
     def frames_ahead(self, view) -> int:
         return self.unroll
+
+    def train_view(self, view):
+        if view.rollout_k_in not in (None, 1):
+            raise ValueError(f"--mode solver-in-the-loop corrects one state at a time: --k-in={view.rollout_k_in} not "
+                             "allowed; use 1")
+        return _unrolling_view(self, view)
 
     def channels(self, pde, view) -> tuple[int, int]:
         return len(pde.FIELDS), len(pde.FIELDS)
@@ -393,49 +415,28 @@ class SolverInTheLoop:
         return pred[:, 0], truth[:, 0]
 
 
-MODES = {"one-step": OneStep, "pushforward": Pushforward, "oracle": Oracle, "solver-in-the-loop": SolverInTheLoop}
+MODES = {cls.name: cls for cls in (OneStep, Pushforward, Oracle, SolverInTheLoop)}  # one per MODE_SPECS row
+assert tuple(MODES) == MODE_NAMES
 
 
-def check_mode_settings(name: str, unroll: int = 1, coarse_n: int | None = None) -> None:
-    """ValueError (one line) naming a bad mode name, unroll or coarse grid."""
-    if name not in MODES:
-        raise ValueError(f"unknown mode {name!r}; allowed: {', '.join(MODES)}")
-    if isinstance(unroll, bool) or not isinstance(unroll, int) or unroll < 1:
-        raise ValueError(f"--unroll={unroll!r} not allowed; must be an integer >= 1")
-    if name != "solver-in-the-loop" and coarse_n is not None:
-        raise ValueError(f"--coarse-n goes with --mode solver-in-the-loop, not --mode {name}")
+def check_mode_settings(name: str, unroll: int | None = None, coarse_n: int | None = None) -> None:
+    """ValueError (one line) naming a bad mode name, unroll or coarse grid (``mode_table.mode_settings``)."""
+    mode_settings(name, unroll=unroll, coarse_n=coarse_n)
 
 
 def make_mode(settings: dict | None) -> Mode:
-    """The mode of run.json's "mode" settings ({"name", "unroll", "coarse_n"}; None: one-step), not yet bound
-    to a PDE: ``mode.bind(pde, seed)`` gives it its solver."""
+    """The mode of run.json's "mode" settings ({"name", "unroll", "coarse_n"}; None: one-step; a setting left
+    out: its default, ``mode_table.DEFAULTS``), not yet bound to a PDE: ``mode.bind(pde, seed)`` gives it its
+    solver. ValueError (one line) for a bad name or setting."""
     s = dict(settings or {"name": "one-step"})
-    name = s.pop("name", "one-step")
-    unroll, coarse_n = s.pop("unroll", 1), s.pop("coarse_n", None)
-    if s:
-        raise ValueError(f"unknown mode setting(s) {sorted(s)}; allowed: name, unroll, coarse_n")
-    check_mode_settings(name, unroll, coarse_n)
-    if name == "one-step":
-        if unroll != 1:
-            raise ValueError(f"--unroll={unroll} goes with pushforward, oracle or solver-in-the-loop, not one-step")
-        return OneStep()
-    if name == "pushforward":
-        return Pushforward(unroll)
-    if name == "oracle":
-        return Oracle(unroll)
-    return SolverInTheLoop(unroll, 64 if coarse_n is None else coarse_n)
+    s = mode_settings(s.pop("name", "one-step"), **s)
+    return MODES[s.pop("name")](**s)
 
 
 def training_view(mode: Mode, view):
-    """The view a mode trains on: one-step keeps ``view``; the others need a next-step view and get
-    k_out = ``mode.frames_ahead``. ValueError (one line) for another view or a window that does not fit."""
-    if isinstance(mode, OneStep):
-        return view
-    _next_step(view, mode.name)
-    if isinstance(mode, SolverInTheLoop) and view.rollout_k_in != 1:
-        raise ValueError(f"--mode solver-in-the-loop corrects one state at a time: --k-in={view.rollout_k_in} not allowed; "
-                         "use 1")
-    return view.ahead(mode.frames_ahead(view))
+    """The view a mode trains on (``mode.train_view``): one-step keeps ``view``; the others need a next-step view
+    and get k_out = ``mode.frames_ahead``. ValueError (one line) for another view or a window that does not fit."""
+    return mode.train_view(view)
 
 
 def check_fits(mode: Mode, view, pde) -> None:

@@ -1,6 +1,7 @@
 """The surrogate package's structure: no import circle, one place for each piece of model-side logic."""
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -156,3 +157,35 @@ def test_one_loop_stops_on_steps_seconds_or_the_end_of_one_pass(tmp_path):
               schedule="onecycle")
     with pytest.raises(ValueError, match="exactly one"):
         Stop(steps=3, seconds=1.0).check()
+
+
+def test_a_mode_owns_its_settings_defaults_and_cli_choices():
+    """One table (surrogate/mode_table.py) gives the CLI's choices and help, the defaults and the checks; the
+    modes are one class per row; nothing switches on a mode's class."""
+    import subprocess
+    import sys
+
+    import cli
+    from surrogate.mode_table import DEFAULTS, MODE_NAMES, mode_settings
+    from surrogate.modes import MODES, make_mode
+
+    assert tuple(MODES) == MODE_NAMES
+    train = next(a for a in cli.build_parser()._subparsers._group_actions[0].choices["train"]._actions
+                 if a.dest == "mode")
+    assert tuple(train.choices) == MODE_NAMES
+    assert make_mode({"name": "solver-in-the-loop"}).settings() == {"name": "solver-in-the-loop", **DEFAULTS}
+    assert make_mode({"name": "pushforward"}).settings() == mode_settings("pushforward") == {
+        "name": "pushforward", "unroll": DEFAULTS["unroll"]}
+    with pytest.raises(ValueError, match="--coarse-n=8 goes with solver-in-the-loop, not pushforward"):
+        mode_settings("pushforward", coarse_n=8)
+    for path in [*(ROOT / "surrogate").glob("*.py"), ROOT / "cli.py"]:
+        text = path.read_text()
+        if path.name != "mode_table.py":  # the coarse grid's default is written once
+            assert not re.search(r"coarse_n[^\n]{0,24}\b64\b|\b64\b[^\n]{0,24}coarse_n", text), path.name
+        assert "isinstance(mode" not in text, path.name
+        assert '"one-step", "pushforward"' not in text or path.name == "mode_table.py", path.name
+    # the CLI's parser reads the table without loading torch
+    code = "import sys, cli; cli.build_parser(); print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                         env={"PYTHONPATH": str(ROOT), "PATH": ""})
+    assert out.stdout.strip() == "False", out.stderr
