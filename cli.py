@@ -311,7 +311,7 @@ def cmd_inspect(args: argparse.Namespace) -> None:
 
 
 # --- train / compare (surrogate) ---------------------------------------------------------------------
-def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr: float) -> None:
+def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr: float, lr_note: str = "") -> None:
     p.add_argument("--model", default="fno", help="fno or unet (fno1d/fno2d/unet1d/unet2d pin the dimension)")
     p.add_argument("--model-set", action="append", metavar="KEY=VALUE", default=[],
                    help="model setting, e.g. --model-set width=64 --model-set modes=16 (unet: channels, depth)")
@@ -323,7 +323,7 @@ def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr:
     p.add_argument("--k-out", type=int, default=1, help="next_step: predicted frames")
     p.add_argument("--steps", type=int, default=steps, help="optimizer steps")
     p.add_argument("--batch-size", type=int, default=batch_size, help="examples per optimizer step")
-    p.add_argument("--lr", type=float, default=lr, help="peak learning rate (Adam, cosine decay)")
+    p.add_argument("--lr", type=float, default=lr, help=f"peak learning rate (Adam, cosine decay; default {lr:g}{lr_note})")
     p.add_argument("--threads", type=int, default=None,
                    help="torch CPU threads (default: train: all cores but one, so the stream's solver thread, or on "
                         "a cache the loader and the OS, keep a core; compare: 1)")
@@ -607,7 +607,8 @@ def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
     if mode["name"] != "one-step":
         how = f" --mode {mode['name']}{how}"
     print(f"trained {model}{how} on {source} for {s['steps']} steps in {s['wall']:.1f} s "
-          f"(waiting for data {s['t_data']:.1f} s, computing {s['t_compute']:.1f} s); "
+          f"(waiting for data {s['t_data']:.1f} s = {100 * s['data_share']:.1f}% of the loop, normalization draw "
+          f"included; computing {s['t_compute']:.1f} s); "
           f"{s['trajectories_seen']} trajectories, final loss {s['final_loss']:.4g}")
     t = s["test"]["test"]
     if mode["name"] == "solver-in-the-loop":  # the corrected coarse solver against the fine solution subsampled
@@ -617,7 +618,9 @@ def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
     if "data_stats" in s and "reuse_mean" in s["data_stats"]:
         d = s["data_stats"]
         print(f"reservoir: {d['inserted']} trajectories solved, {d['evicted']} evicted, reuse mean {d['reuse_mean']:.2f} "
-              f"(max {d['reuse_max']:.2f}), loop waiting {100 * d['wait_share']:.1f}%")
+              f"(max {d['reuse_max']:.2f}); waiting for solves {100 * d['wait_share']:.1f}% of the time since the "
+              "first batch (the reservoir's own clock: the loop's waiting share above also counts the normalization "
+              "draw and handing batches over)")
     extra = ", reservoir.json, reservoir.png" if "data_stats" in s and "reuse_mean" in s["data_stats"] else ""
     print(f"run: {out}/metrics.csv, metrics.json, model.pt, checkpoint.pt{extra}")
 
@@ -649,7 +652,8 @@ def add_compare(sub) -> None:
                         "paced over the run and, for reservoir_loss, steered)")
     b.add_argument("--quick", action="store_true",
                    help="a small scale for tests and a first look (n=64, 11 frames, small FNO, 20 s per arm)")
-    _add_model_args(p, steps=1000, batch_size=32, lr=3e-3)
+    _add_model_args(p, steps=1000, batch_size=32, lr=3e-3,
+                    lr_note=": three times train's 1e-3, for the comparisons' small models and short runs")
     _add_reservoir_args(p, train=False)
     _add_mode_args(p, train=False)
     _add_pde_config_args(p)
@@ -766,6 +770,9 @@ def _budget_compare(args: argparse.Namespace) -> None:
         args.set = compare_sets(args)
         if args.budget is None and args.sim_budget is None:
             args.budget = 20.0
+            print("compare --quick: the budget comparison of the data routes (--arms) at --budget 20 seconds per "
+                  "arm; --sim-budget N for equal solves, --modes M1,M2 for the training modes, no --quick for cache "
+                  "vs stream", flush=True)
     pde = pde_from_args(args.pde, args)
     _set_threads(1 if args.threads is None else args.threads)
     from surrogate.fno import COMPARE_FNO

@@ -48,6 +48,7 @@ from .evaluate import error_stats, rollout_errors
 from .fno import COMPARE_FNO
 from .models import build_model
 from .modes import check_fits, make_mode, training_view
+from .phases import phase
 from .train import Stop, source_normalization, train
 
 ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")
@@ -214,13 +215,9 @@ def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=
     wall = loop_end[0] if steps else summary["wall"]
     # a cache knows its size; a reservoir counts its insertions; the FIFO stream uses each solve once
     solved = extra.get("trajectories_solved", stats.get("inserted", summary["trajectories_seen"]))
-    curve = []
-    for t, s, state in snapshots:
-        model.load_state_dict(state)
-        curve.append({"elapsed": t, "step": s, **{f"{k}_{m}": v for k, e in
-                                                   ((k, per_trajectory_errors(model, norm, view, ts, mode)) for k, ts in tests.items())
-                                                   for m, v in error_stats(e).items()}})
-    final = {k: per_trajectory_errors(model, norm, view, ts, mode) for k, ts in tests.items()}
+    with phase(f"{arm}: evaluating {len(snapshots)} snapshots on the test sets"):
+        curve = _snapshot_curve(model, norm, view, mode, snapshots, tests)  # leaves the model at the last one
+        final = {k: per_trajectory_errors(model, norm, view, ts, mode) for k, ts in tests.items()}
     reuse, density = report.get("reuse", []), report.get("density")
     record = {"arm": arm, "seed": seed, "wall_s": wall, "steps": steps, "examples": examples, "trajectories_solved": solved,
               "data_wait_s": t_data, "compute_s": t_compute, "startup_s": wall - t_data - t_compute,
@@ -233,6 +230,18 @@ def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=
 
 
 # --- the comparison ----------------------------------------------------------------------------------------
+def _snapshot_curve(model, norm, view, mode, snapshots: list, tests: dict) -> list[dict]:
+    """Each snapshot (elapsed, step, state dict) loaded into ``model`` and evaluated: mean, p95 and max of the
+    per-trajectory errors on every test set."""
+    curve = []
+    for t, s, state in snapshots:
+        model.load_state_dict(state)
+        errors = {k: per_trajectory_errors(model, norm, view, ts, mode) for k, ts in tests.items()}
+        curve.append({"elapsed": t, "step": s, **{f"{k}_{m}": v for k, e in errors.items()
+                                                   for m, v in error_stats(e).items()}})
+    return curve
+
+
 def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None = None, log=print) -> dict:
     """Run every arm at the budget; write compare.md/csv/json and compare.png; return the result dict."""
     cfg.check()
@@ -248,10 +257,11 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    tests = {"test": stratified_test_set(pde, cfg.n_test, 0)}
     shifted = shifted_pde(pde, cfg.shift, shift_overrides)
-    if shifted is not None:
-        tests["shifted"] = stratified_test_set(shifted, cfg.n_test, 0)
+    with phase(f"building the test sets ({cfg.n_test} stratified trajectories each)"):
+        tests = {"test": stratified_test_set(pde, cfg.n_test, 0)}
+        if shifted is not None:
+            tests["shifted"] = stratified_test_set(shifted, cfg.n_test, 0)
     log(f"test sets: {cfg.n_test} stratified trajectories" + (" in-domain and shifted" if shifted else "")
         + f" in {time.perf_counter() - t0:.1f} s")
     records = []
@@ -262,7 +272,7 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
             runs.append(rec)
             log(f"{arm:15s} seed {seed}: test mean {rec['test_mean']:.4f} p95 {rec['test_p95']:.4f} max "
                 f"{rec['test_max']:.4f}; {rec['steps']} steps, {rec['trajectories_solved']} trajectories, "
-                f"{rec['wall_s']:.0f} s, waiting {100 * rec['wait_share']:.0f}%")
+                f"{rec['wall_s']:.0f} s, loop waiting for data {100 * rec['wait_share']:.0f}%")
         records.append(combine_seeds(runs))
     test_params = {k: torch.cat([b["params"] for b in ts]).tolist() for k, ts in tests.items()}
     result = {"pde": pde.config(), "shifted_pde": shifted.config() if shifted else None,

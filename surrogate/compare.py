@@ -23,6 +23,7 @@ import datasets
 from .data import test_set
 from .fno import COMPARE_FNO
 from .models import build_model
+from .phases import phase
 from .predict import model_channels
 from .runs import train_run
 
@@ -88,10 +89,11 @@ def compare(pde, out_dir, cfg: CompareConfig = CompareConfig(), shift_overrides:
     written = datasets.write_cache(pde, cache, cfg.cache_samples, seed=0, overwrite=True)
     log(written.line())
     t0 = time.perf_counter()
-    tests = {"test": test_set(pde, 0, cfg.n_test)}
     shifted = shifted_pde(pde, cfg.shift, shift_overrides)
-    if shifted is not None:
-        tests["shifted"] = test_set(shifted, 0, cfg.n_test)
+    with phase(f"building the test sets ({cfg.n_test} trajectories each)"):
+        tests = {"test": test_set(pde, 0, cfg.n_test)}
+        if shifted is not None:
+            tests["shifted"] = test_set(shifted, 0, cfg.n_test)
     log(f"test sets: {cfg.n_test} trajectories in-domain" + (f", {cfg.n_test} shifted ({_domains(shifted)})" if shifted else "")
         + f" in {time.perf_counter() - t0:.1f} s")
     runs = {"cache": [], "stream": []}

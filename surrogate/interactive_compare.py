@@ -36,6 +36,7 @@ from .data import check_device
 from .evaluate import error_stats, rollout_errors
 from .mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, NETWORK_MODES, mode_settings
 from .modes import make_mode
+from .phases import phase
 from .rollout_figure import plot_rollouts
 from .runs import train_run
 
@@ -98,13 +99,15 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
     arms = []
     if net_modes:
         t0 = time.perf_counter()
-        test = stratified_test_set(pde, cfg.n_test, cfg.seed)
+        with phase(f"building the test set ({cfg.n_test} trajectories)"):
+            test = stratified_test_set(pde, cfg.n_test, cfg.seed)
         log(f"test set: {cfg.n_test} trajectories of {pde.n_frames} frames in {time.perf_counter() - t0:.1f} s")
         for name in net_modes:
             settings = _settings(cfg, name)
             arms.append(_train_arm(name, pde, settings, test, cfg, out / name, log))
     if sitl:
-        test = stratified_test_set(fine, cfg.n_test, cfg.seed)
+        with phase(f"building the fine test set ({cfg.n_test} trajectories, n={fine.n})"):
+            test = stratified_test_set(fine, cfg.n_test, cfg.seed)
         k = _settings(cfg, "solver-in-the-loop")["unroll"]
         coarse = make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)
         t0 = time.perf_counter()
@@ -158,7 +161,8 @@ def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: Interacti
     model, norm, _ = load_checkpoint(run_dir / "model.pt")
     model.to(check_device(cfg.device))
     mode = make_mode(settings).bind(pde, cfg.seed)
-    errors = rollout_errors(model, norm, test, datasets.NextStep(cfg.k_in, 1), mode).relative()  # [N, T - k_in]
+    with phase(f"{label}: rolling out {cfg.n_test} test trajectories"):
+        errors = rollout_errors(model, norm, test, datasets.NextStep(cfg.k_in, 1), mode).relative()  # [N, T - k_in]
     rec = _record(label, settings["name"], errors, summary["wall"], summary, settings.get("coarse_n", pde.n))
     rec["unroll"] = settings.get("unroll", 1)
     rec["mode_stats"] = summary.get("mode_stats", {})

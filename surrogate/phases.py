@@ -29,8 +29,8 @@ class RunProgress:
     """The training loop's progress: a tqdm bar on a terminal, else a plain line every ``every`` seconds.
     total: steps of the run (None: a run of seconds); initial: steps already done (a resumed run)."""
 
-    def __init__(self, label: str, total: int | None, initial: int = 0, every: float = EVERY):
-        self.label, self.total, self.every = label, total, every
+    def __init__(self, label: str, total: int | None, initial: int = 0, every: float | None = None):
+        self.label, self.total, self.every = label, total, EVERY if every is None else every
         self.bar = tqdm(total=total, initial=initial, desc=label, leave=False) if _terminal() else None
         self.step, self.last_line, self.start = initial, time.perf_counter(), time.perf_counter()
 
@@ -52,11 +52,11 @@ class RunProgress:
 
 
 @contextmanager
-def phase(what: str, every: float = EVERY):
+def phase(what: str, every: float | None = None):
     """Report a phase (``what``: e.g. "test set: 32 trajectories") that may run long: a plain line every
     ``every`` seconds while it runs ("... still running, 20 s"), and one with its time when it ends if any was
     printed; a quick phase prints nothing."""
-    done, t0 = threading.Event(), time.perf_counter()
+    done, t0, every = threading.Event(), time.perf_counter(), EVERY if every is None else every
 
     def tick():
         while not done.wait(every):

@@ -21,6 +21,7 @@ from .data import check_device, test_set, train_loader
 from .evaluate import test_errors
 from .models import build_model
 from .modes import check_fits, make_mode, training_view
+from .phases import phase
 from .train import check_train_settings, train
 
 RUN_FILE = "run.json"
@@ -188,8 +189,12 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
             "seed": s["seed"], "data_seed": s["data_seed"], "batch_size": s["batch_size"], "mode": mode.settings()}
 
     def finish(model, normalizer) -> dict:
-        sets = tests if tests is not None else {"test": test_set(data_pde, s["data_seed"], s["n_test"])}
-        return {"test": {name: test_errors(model, normalizer, view, t, mode) for name, t in sets.items()}}
+        sets = tests
+        if sets is None:
+            with phase(f"{s['label']}: building the test set ({s['n_test']} trajectories)"):
+                sets = {"test": test_set(data_pde, s["data_seed"], s["n_test"])}
+        with phase(f"{s['label']}: test errors" + (" and rollouts" if view.rollout_k_in else "")):
+            return {"test": {name: test_errors(model, normalizer, view, t, mode) for name, t in sets.items()}}
 
     dataset = loader.dataset
     try:

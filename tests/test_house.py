@@ -189,3 +189,67 @@ def test_a_mode_owns_its_settings_defaults_and_cli_choices():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
                          env={"PYTHONPATH": str(ROOT), "PATH": ""})
     assert out.stdout.strip() == "False", out.stderr
+
+
+def test_long_phases_report_plain_lines_when_stderr_is_not_a_terminal(tmp_path, capsys, monkeypatch):
+    """Training and any phase longer than phases.EVERY seconds (test sets, rollouts) print plain periodic
+    lines in a log (stderr is not a terminal under pytest's capture); a quick phase prints nothing."""
+    import time
+
+    from surrogate import phases
+    from surrogate.train import train
+
+    with phases.phase("quick"):
+        pass
+    with phases.phase("building the test set", every=0.05):
+        time.sleep(0.18)
+    err = capsys.readouterr().err
+    assert "quick" not in err and err.count("building the test set: still running") >= 2
+    assert "building the test set: done in 0 s" in err
+    monkeypatch.setattr(phases, "EVERY", 0.0)
+    train(_model(), torch.utils.data.DataLoader(_Batches(3), batch_size=None), 4, tmp_path, log_every=1, label="arm")
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("arm: step")]
+    assert lines[0].startswith("arm: step 1/4, ") and "loss" in lines[0] and len(lines) == 4
+
+
+def _help_of(command: str, dest: str) -> str:
+    import cli
+
+    sub = cli.build_parser()._subparsers._group_actions[0].choices[command]
+    return next(a.help for a in sub._actions if a.dest == dest)
+
+
+def test_lr_defaults_are_stated_where_train_and_compare_differ():
+    assert "default 0.001" in _help_of("train", "lr")
+    assert "default 0.003: three times train's 1e-3" in _help_of("compare", "lr")
+
+
+def test_compare_quick_alone_says_what_it_runs(tmp_path, capsys, monkeypatch):
+    import cli
+    import surrogate.budget
+
+    ran = []
+
+    def stub(pde, out, cfg, shift_overrides=None):
+        ran.append(cfg)
+        Path(out).mkdir(parents=True)
+        (Path(out) / "compare.md").write_text("table\n")
+
+    monkeypatch.setattr(surrogate.budget, "budget_compare", stub)
+    assert cli.main(["compare", "--quick", "--out", str(tmp_path / "cmp")]) == 0
+    out = capsys.readouterr().out
+    assert ran[0].budget_s == 20.0 and "compare --quick: the budget comparison of the data routes" in out
+
+
+def test_the_two_waiting_figures_are_named_apart(capsys):
+    """The loop's data share (normalization draw included) and the reservoir's wait for solves (its own clock)
+    were printed as two unexplained 'waiting' percentages."""
+    import cli
+
+    s = {"steps": 10, "wall": 5.0, "t_data": 1.0, "t_compute": 4.0, "data_share": 0.2, "trajectories_seen": 8,
+         "final_loss": 0.1, "test": {"test": {"rel_l2": 0.1, "nrmse": 0.1}},
+         "data_stats": {"inserted": 8, "evicted": 0, "reuse_mean": 1.0, "reuse_max": 2.0, "wait_share": 0.05}}
+    cli._print_run(s, "fno", "stream", 4, "run")
+    out = capsys.readouterr().out
+    assert "waiting for data 1.0 s = 20.0% of the loop, normalization draw included" in out
+    assert "waiting for solves 5.0% of the time since the first batch (the reservoir's own clock" in out
