@@ -323,7 +323,7 @@ def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr:
     p.add_argument("--k-out", type=int, default=1, help="next_step: predicted frames")
     p.add_argument("--steps", type=int, default=steps, help="optimizer steps")
     p.add_argument("--batch-size", type=int, default=batch_size, help="examples per optimizer step")
-    p.add_argument("--lr", type=float, default=lr, help=f"peak learning rate (Adam, cosine decay; default {lr:g}{lr_note})")
+    p.add_argument("--lr", type=float, default=lr, help=f"peak learning rate (Adam, cosine decay{lr_note})")
     p.add_argument("--threads", type=int, default=None,
                    help="torch CPU threads (default: train: all cores but one, so the stream's solver thread, or on "
                         "a cache the loader and the OS, keep a core; compare: 1)")
@@ -653,7 +653,7 @@ def add_compare(sub) -> None:
     b.add_argument("--quick", action="store_true",
                    help="a small scale for tests and a first look (n=64, 11 frames, small FNO, 20 s per arm)")
     _add_model_args(p, steps=1000, batch_size=32, lr=3e-3,
-                    lr_note=": three times train's 1e-3, for the comparisons' small models and short runs")
+                    lr_note="; three times train's 1e-3, for the comparisons' small models and short runs")
     _add_reservoir_args(p, train=False)
     _add_mode_args(p, train=False)
     _add_pde_config_args(p)
@@ -749,8 +749,6 @@ def _compare(args: argparse.Namespace) -> None:
     model_cfg = dict(COMPARE_FNO) if args.model.startswith("fno") else {}
     model_cfg.update(_parse_sets(args.model_set))
     args.seeds = 3 if args.seeds is None else args.seeds
-    if args.seeds < 1 or args.cache_samples < 1 or args.test_samples < 1:
-        raise ValueError("--seeds, --cache-samples and --test-samples must be >= 1")
     cfg = CompareConfig(model=args.model, model_cfg=model_cfg, view=_view_from_args(args, "operator"),
                         steps=args.steps, batch_size=args.batch_size, lr=args.lr, cache_samples=args.cache_samples,
                         seeds=tuple(range(args.seeds)), n_test=args.test_samples, shift=args.shift,

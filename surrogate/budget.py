@@ -30,7 +30,6 @@ from __future__ import annotations
 import copy
 import csv
 import json
-import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -42,6 +41,7 @@ from torch.utils.data import DataLoader
 import datasets
 from datasets.proposal import ParamProposal
 
+from .checks import check_count, check_number
 from .compare import shifted_pde
 from .data import TEST_SEED_OFFSET, EpochBatchSampler, check_device
 from .evaluate import error_stats, rollout_errors
@@ -85,22 +85,21 @@ class BudgetConfig:
     def check(self) -> None:
         if (self.budget_s is None) == (self.sim_budget is None):
             raise ValueError("give exactly one budget: --budget SECONDS or --sim-budget N")
-        if self.budget_s is not None and not (isinstance(self.budget_s, (int, float)) and math.isfinite(self.budget_s)
-                                              and self.budget_s > 0):
-            raise ValueError(f"--budget={self.budget_s} not allowed; must be a number of seconds > 0")
-        if self.sim_budget is not None and (isinstance(self.sim_budget, bool) or not isinstance(self.sim_budget, int)
-                                            or self.sim_budget < 1):
-            raise ValueError(f"--sim-budget={self.sim_budget} not allowed; must be an integer >= 1 (trajectories)")
+        if self.budget_s is not None:
+            check_number("--budget", self.budget_s, 0, unit="seconds")
+        if self.sim_budget is not None:
+            check_count("--sim-budget", self.sim_budget, note=" (trajectories)")
         unknown = [a for a in self.arms if a not in ARMS]
         if unknown or not self.arms:
             raise ValueError(f"arms {list(self.arms)} not allowed; choose from {', '.join(ARMS)}")
-        if not 0 <= self.sim_warmup_share <= 1:
-            raise ValueError(f"sim warm-up share={self.sim_warmup_share} not allowed; must be in [0, 1]")
-        if not 0 < self.precompute_share < 1:
-            raise ValueError(f"precompute share={self.precompute_share} not allowed; must be in (0, 1)")
+        check_number("sim warm-up share", self.sim_warmup_share, 0, 1, closed="both")
+        check_number("precompute share", self.precompute_share, 0, 1)
         check_device(self.device)
-        if self.steps < 1 or self.n_test < 1 or self.snapshots < 1 or self.seeds < 1:
-            raise ValueError("steps, seeds, test samples and snapshots must be >= 1")
+        for name, value in (("--steps", self.steps), ("--seeds", self.seeds), ("--test-samples", self.n_test),
+                            ("snapshots", self.snapshots), ("--batch-size", self.batch_size)):
+            check_count(name, value)
+        check_number("--lr", self.lr, 0)
+        make_mode(self.mode)
 
 
 # --- test sets ------------------------------------------------------------------------------------------

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import datasets
 
+from .checks import check_count, check_number
 from .data import test_set
 from .fno import COMPARE_FNO
 from .models import build_model
@@ -78,8 +79,10 @@ def compare(pde, out_dir, cfg: CompareConfig = CompareConfig(), shift_overrides:
             log=print) -> dict:
     """Run both arms for every seed; write the table and the figure; return {"rows": [...], ...}."""
     out = Path(out_dir)
-    if cfg.cache_samples < 1 or not cfg.seeds:
-        raise ValueError(f"compare needs cache_samples >= 1 and at least one seed (got {cfg.cache_samples}, {cfg.seeds})")
+    for name, value in (("--cache-samples", cfg.cache_samples), ("--seeds", len(cfg.seeds)),
+                        ("--test-samples", cfg.n_test), ("--steps", cfg.steps), ("--batch-size", cfg.batch_size)):
+        check_count(name, value)
+    check_number("--lr", cfg.lr, 0)
     # fail before any work: the view fitted to the samples (a steady entry has no frames), the model buildable
     view = datasets.make_view(cfg.view)
     fitted = datasets.for_sample(view, pde.n_frames, len(pde.INPUTS))

@@ -12,6 +12,8 @@ from torch.utils.data import DataLoader, Sampler
 
 import datasets
 
+from .checks import check_count
+
 TEST_SEED_OFFSET = 1_000_003  # test seeds never coincide with a training seed below this offset
 # data_cfg {"kind": "reservoir", ...}: the ReservoirStream keyword arguments a run may set
 RESERVOIR_SETTINGS = {"capacity", "max_reuse", "warmup", "eviction", "draw", "solve_batch", "mode", "producer",
@@ -107,10 +109,10 @@ class EpochBatchSampler(Sampler):
     """
 
     def __init__(self, n: int, batch_size: int, seed: int, drop_last: bool = False):
-        if n < 1 or batch_size < 1:
-            raise ValueError(f"EpochBatchSampler: n={n} and batch_size={batch_size} must both be >= 1")
-        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**31:
-            raise ValueError(f"EpochBatchSampler: seed={seed!r} not allowed; must be an integer in [0, 2**31)")
+        check_count("n", n)
+        check_count("batch_size", batch_size)
+        if check_count("seed", seed, 0) >= 2**31:
+            raise ValueError(f"seed={seed!r} not allowed; must be an integer in [0, 2**31)")
         self.n, self.batch_size, self.seed, self.drop_last = n, batch_size, seed, bool(drop_last)
         self.epoch, self.consumed = 0, 0
 

@@ -32,6 +32,7 @@ import datasets
 
 from .budget import stratified_test_set
 from .checkpoint import load_checkpoint
+from .checks import check_count, check_number
 from .data import check_device
 from .evaluate import error_stats, rollout_errors
 from .mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, NETWORK_MODES, mode_settings
@@ -68,10 +69,10 @@ class InteractiveConfig:
             raise ValueError(f"--modes {','.join(self.modes)} not allowed; choose from {', '.join(MODE_NAMES)}")
         for name in self.modes:
             _settings(self, name)
-        for name, value in (("steps", self.steps), ("batch size", self.batch_size), ("test samples", self.n_test),
-                            ("k_in", self.k_in)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name}={value!r} not allowed; must be an integer >= 1")
+        for name, value in (("--steps", self.steps), ("--batch-size", self.batch_size), ("--test-samples", self.n_test),
+                            ("--k-in", self.k_in)):
+            check_count(name, value)
+        check_number("--lr", self.lr, 0)
         if pde.n_frames < self.k_in + max(self.unroll, 1) + 1:
             raise ValueError(f"--unroll {self.unroll} needs trajectories of at least {self.k_in + self.unroll + 1} "
                              f"frames; {pde.NAME} has n_frames={pde.n_frames}")

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .checks import check_count
+
 DEFAULTS = {"unroll": 4, "coarse_n": 64}  # a setting's default for every mode that takes it
 
 
@@ -58,8 +60,5 @@ def mode_settings(name: str, **given) -> dict:
             raise ValueError(f"{OPTION[key]}={value} goes with {takes(key)}, not {name}")
     out = {"name": name}
     for key in spec.settings:
-        value = DEFAULTS[key] if given.get(key) is None else given[key]
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{OPTION[key]}={value!r} not allowed; must be an integer >= 1")
-        out[key] = value
+        out[key] = check_count(OPTION[key], DEFAULTS[key] if given.get(key) is None else given[key])
     return out

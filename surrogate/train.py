@@ -40,6 +40,7 @@ from .checkpoint import (
     save_train_state,
     train_state,
 )
+from .checks import check_count, check_number
 from .data import model_device, to_device
 from .models import model_spec
 from .modes import OneStep
@@ -70,9 +71,8 @@ class Stop:
                              f"seconds={self.seconds})")
         if self.steps is not None:
             check_count("steps", self.steps)
-        elif not (isinstance(self.seconds, (int, float)) and not isinstance(self.seconds, bool)
-                  and math.isfinite(self.seconds) and self.seconds > 0):
-            raise ValueError(f"seconds={self.seconds!r} not allowed; must be a number > 0")
+        else:
+            check_number("seconds", self.seconds, 0)
 
     def fraction(self, step: int, elapsed: float) -> float:
         """How much of the run is done after ``step`` steps and ``elapsed`` seconds: 0 at the start, >= 1 at the end."""
@@ -129,20 +129,12 @@ TIMINGS = ("t_data", "t_compute", "elapsed", "wall", "data_share", "wait_share",
 SCHEDULES = ("cosine", "onecycle")
 
 
-def check_count(name: str, value, low: int = 1, note: str = "") -> int:
-    """``value`` when it is an integer >= low, else ValueError naming it (bool is no integer here)."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise ValueError(f"{name}={value!r} not allowed; must be an integer >= {low}{note}")
-    return value
-
-
 def check_train_settings(steps, lr: float, schedule: str, checkpoint_every: int = 0) -> None:
     """ValueError naming the value and what is allowed (called before a run touches its directory); steps: an
     int or a ``Stop``."""
     stop = Stop(steps=steps) if not isinstance(steps, Stop) else steps
     stop.check()
-    if isinstance(lr, bool) or not isinstance(lr, (int, float)) or not (math.isfinite(lr) and lr > 0):
-        raise ValueError(f"lr={lr!r} not allowed; must be a number > 0")
+    check_number("lr", lr, 0)
     if schedule not in SCHEDULES:
         raise ValueError(f"unknown schedule {schedule!r}; allowed: {', '.join(SCHEDULES)}")
     if stop.steps is None and schedule != "cosine":

@@ -220,8 +220,9 @@ def _help_of(command: str, dest: str) -> str:
 
 
 def test_lr_defaults_are_stated_where_train_and_compare_differ():
-    assert "default 0.001" in _help_of("train", "lr")
-    assert "default 0.003: three times train's 1e-3" in _help_of("compare", "lr")
+    """Both defaults show in --help (argparse adds them); compare's says why it differs from train's."""
+    assert "three times" not in _help_of("train", "lr")
+    assert "three times train's 1e-3, for the comparisons' small models" in _help_of("compare", "lr")
 
 
 def test_compare_quick_alone_says_what_it_runs(tmp_path, capsys, monkeypatch):
@@ -253,3 +254,28 @@ def test_the_two_waiting_figures_are_named_apart(capsys):
     out = capsys.readouterr().out
     assert "waiting for data 1.0 s = 20.0% of the loop, normalization draw included" in out
     assert "waiting for solves 5.0% of the time since the first batch (the reservoir's own clock" in out
+
+
+def test_one_set_of_argument_checks(tmp_path):
+    """Every surrogate config refuses the same bad values in the same words (surrogate/checks.py): a bool is no
+    count, a learning rate must be finite and > 0."""
+    import generator
+    from surrogate.budget import BudgetConfig
+    from surrogate.compare import CompareConfig, compare
+    from surrogate.interactive_compare import InteractiveConfig
+
+    pde = generator.get_pde("burgers1d", n=32, n_frames=6)
+    cases = [
+        (lambda: BudgetConfig(sim_budget=4, steps=True).check(), "--steps=True not allowed; must be an integer >= 1"),
+        (lambda: BudgetConfig(sim_budget=4, lr=float("inf")).check(), "--lr=inf not allowed; must be a number > 0"),
+        (lambda: InteractiveConfig(steps=True).check(pde), "--steps=True not allowed; must be an integer >= 1"),
+        (lambda: InteractiveConfig(lr=0.0).check(pde), "--lr=0.0 not allowed; must be a number > 0"),
+        (lambda: compare(pde, tmp_path / "c", CompareConfig(cache_samples=True)),
+         "--cache-samples=True not allowed; must be an integer >= 1"),
+        (lambda: compare(pde, tmp_path / "c", CompareConfig(lr=-1.0)), "--lr=-1.0 not allowed; must be a number > 0"),
+    ]
+    for call, message in cases:
+        with pytest.raises(ValueError) as err:
+            call()
+        assert str(err.value) == message and "\n" not in str(err.value)
+    assert not (tmp_path / "c").exists()
