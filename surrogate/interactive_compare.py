@@ -130,12 +130,15 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
 def _plot_sitl_rollouts(path: Path, fine, coarse, test: dict, out: Path, k: int, cfg: InteractiveConfig) -> None:
     """rollouts.png: the first held-out trajectory as the reference (fine, restricted to the coarse grid), the
     coarse solver alone, the pairs-trained and the solver-in-the-loop corrections, over time."""
-    u, params = test["u"][:1], test["params"][:1]
+    device = check_device(cfg.device)
+    u, params = test["u"][:1].to(device), test["params"][:1].to(device)
     rows = {}
     for label, run in (("coarse solver", None), ("pairs (unroll 1)", "sitl_unroll1"),
                        (f"solver-in-the-loop (unroll {k})", f"sitl_unroll{k}")):
         model, norm = (None, _identity_norm(fine)) if run is None else load_checkpoint(out / run / "model.pt")[:2]
-        pred, truth = coarse.rollout(model, norm, u, params)
+        if model is not None:
+            model.to(device)
+        pred, truth = (x.cpu() for x in coarse.rollout(model, norm, u, params))
         rows.setdefault(f"reference (n={fine.n} restricted)", truth[0])
         rows[label] = pred[0]
     where = getattr(fine, "FIELD_LOCATIONS", {})

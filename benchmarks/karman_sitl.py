@@ -1,0 +1,126 @@
+"""Solver-in-the-loop on the vortex street (Um et al. 2020, the PBDL book's "reducing numerical errors"):
+karman2d with the Reynolds number varied per trajectory, three arms over several seeds, rolled out on held-out
+Reynolds numbers inside the training range and beyond it.
+
+    nice python -m benchmarks.karman_sitl [--seeds 3] [--steps 300] [--fine-n 64] [--coarse-n 32] [--unroll 3]
+        [--out /tmp/karman_sitl] [--quick]
+
+Per seed, ``surrogate.interactive_compare`` (the same code as ``pdestream compare karman2d --modes
+solver-in-the-loop``) trains the pairs-trained correction (unroll 1: precomputed (coarse step, fine) pairs,
+no interaction) and the solver-in-the-loop correction (unrolled through the differentiable coarse solver) from
+the same initial weights and stream, and rolls them out, with the coarse solver alone, from the first frame of
+held-out trajectories; then the saved models are rolled out on a second held-out set whose Reynolds numbers lie
+beyond the training range (``--shift``: the domain moved by that fraction of its width). Printed per test set
+and arm: the error over the whole rollout (mean over frames and trajectories) and the p95 over trajectories of
+their rollout-mean error, as mean +- spread (half the range) over seeds, and whether solver-in-the-loop beats
+each other arm on every seed. Figures, not pass/fail; rollouts.png of each seed's run shows vorticity.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+FINE = dict(t_start=4.0, t_end=8.0, n_frames=41)  # frames 0.1 s apart: ~10 coarse steps per frame at n=32
+
+
+def _summary(errors: np.ndarray) -> tuple[float, float]:
+    """errors [N, T] -> (mean over frames and trajectories, p95 over trajectories of their mean)."""
+    per = errors.mean(1)
+    return float(errors.mean()), float(np.percentile(per, 95))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.karman_sitl", description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--only-seed", type=int, help="run this one seed (parallel runs), then --summarize their --out")
+    ap.add_argument("--summarize", action="store_true", help="only print the table of the seeds already in --out")
+    ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--batch-size", type=int, default=8)
+    ap.add_argument("--fine-n", type=int, default=64)
+    ap.add_argument("--coarse-n", type=int, default=32)
+    ap.add_argument("--unroll", type=int, default=3)
+    ap.add_argument("--test-samples", type=int, default=8)
+    ap.add_argument("--shift", type=float, default=0.25, help="held-out Re beyond the range by this share of its width")
+    ap.add_argument("--out", default="/tmp/karman_sitl")
+    ap.add_argument("--device", default="cpu", help="where the models train (cpu, cuda)")
+    ap.add_argument("--quick", action="store_true", help="a smoke run: n 32 -> 16, 20 steps, 1 seed")
+    a = ap.parse_args(argv)
+    import torch
+
+    import generator
+    from surrogate.budget import stratified_test_set
+    from surrogate.interactive_compare import InteractiveConfig, _identity_norm, interactive_compare
+    from surrogate.modes import make_mode, rollout_errors
+    from surrogate.train import load_checkpoint
+
+    torch.set_num_threads(1)
+    settings = dict(FINE, n=a.fine_n)
+    if a.quick:
+        a.seeds, a.steps, a.fine_n, a.coarse_n, a.test_samples = 1, 20, 32, 16, 4
+        settings = dict(n=32, radius="uniform(0.13, 0.16)", re="uniform(40, 80)", t_start=2.0, t_end=3.0, n_frames=11)
+    pde = generator.get_pde("karman2d", **settings)
+    lo, hi = pde.re.bounds
+    shifted = pde.replace(re=f"uniform({hi + (a.shift - 0.1) * (hi - lo):g}, {hi + a.shift * (hi - lo):g})")
+    print(f"fine: {pde.describe()}\nshifted test Re: {shifted.re}; coarse n={a.coarse_n}, unroll {a.unroll}, "
+          f"{a.steps} steps x batch {a.batch_size}, {a.seeds} seeds", flush=True)
+    if a.summarize:
+        return _print_table(_load(Path(a.out)))
+    results: dict[tuple[str, str], list[tuple[float, float]]] = {}
+    for seed in [a.only_seed] if a.only_seed is not None else range(a.seeds):
+        out = Path(a.out) / f"seed{seed}"
+        cfg = InteractiveConfig(modes=("solver-in-the-loop",), unroll=a.unroll, steps=a.steps,
+                                batch_size=a.batch_size, seed=seed, n_test=a.test_samples, coarse_n=a.coarse_n,
+                                device=a.device)
+        interactive_compare(pde, out, cfg, log=lambda s: print(f"  seed {seed}: {s}", flush=True))
+        runs = {"coarse solver": None, "pairs (unroll 1)": out / "sitl_unroll1",
+                f"solver-in-the-loop (unroll {a.unroll})": out / f"sitl_unroll{a.unroll}"}
+        for where, test_pde in (("inside", pde), ("beyond", shifted)):
+            # the coarse solver of the test set's config (the solver refuses parameters outside its domains)
+            mode = make_mode({"name": "solver-in-the-loop", "unroll": 1, "coarse_n": a.coarse_n}).bind(test_pde)
+            test = stratified_test_set(test_pde, a.test_samples, seed)
+            for arm, run in runs.items():
+                model, norm = (None, _identity_norm(pde)) if run is None else load_checkpoint(run / "model.pt")[:2]
+                if model is not None:
+                    model.to(a.device)
+                errors = rollout_errors(mode, model, norm, test, 1).numpy()
+                results.setdefault((where, arm), []).append(_summary(errors))
+        mine = {f"{k[0]}|{k[1]}": v[-1] for k, v in results.items()}
+        (out / "summary.json").write_text(json.dumps(mine))
+    return _print_table(_load(Path(a.out)))
+
+
+def _load(out: Path) -> dict:
+    """{(test set, arm): [(rollout mean, p95) per seed]} from every seed*/summary.json under out."""
+    results: dict = {}
+    for f in sorted(out.glob("seed*/summary.json")):
+        for key, v in json.loads(f.read_text()).items():
+            results.setdefault(tuple(key.split("|")), []).append(tuple(v))
+    return results
+
+
+def _print_table(results: dict) -> int:
+    print("\n| test Re | arm | rollout error (mean +- spread over seeds) | p95 over trajectories |")
+    print("| --- | --- | --- | --- |")
+    for (where, arm), vals in results.items():
+        means = np.array([v[0] for v in vals])
+        p95 = np.array([v[1] for v in vals])
+        print(f"| {where} | {arm} | {means.mean():.4f} +- {np.ptp(means) / 2:.4f} | "
+              f"{p95.mean():.4f} +- {np.ptp(p95) / 2:.4f} |")
+    for where in ("inside", "beyond"):
+        arms = [k for k in results if k[0] == where]
+        for j, what in ((0, "mean"), (1, "p95")):
+            loop = np.array([v[j] for v in results[arms[-1]]])
+            for other in arms[:-1]:
+                base = np.array([v[j] for v in results[other]])
+                print(f"{where}, {what}: solver-in-the-loop vs {other[1]}: {np.mean(base / loop):.2f}x lower rollout "
+                      f"error (range {np.min(base / loop):.2f}..{np.max(base / loop):.2f} over seeds; beats it on "
+                      f"{int(np.sum(loop < base))} of {len(loop)} seeds)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
