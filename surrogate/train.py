@@ -183,8 +183,8 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ndim, device = model.ndim, model_device(model)
+    opt = torch.optim.Adam(model.parameters(), lr=lr)  # the first one imports torch's compiler: seconds
     start = time.perf_counter() if started is None else started
-    opt = torch.optim.Adam(model.parameters(), lr=lr)
     sched = make_schedule(opt, schedule, stop, lr, fraction=lambda: (time.perf_counter() - start) / stop.seconds)
     if resume is not None:
         check_belongs(resume, meta or {})
