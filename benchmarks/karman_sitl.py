@@ -52,11 +52,13 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     import torch
 
+    import datasets
     import generator
     from surrogate.budget import stratified_test_set
+    from surrogate.checkpoint import load_checkpoint
+    from surrogate.evaluate import rollout_errors
     from surrogate.interactive_compare import InteractiveConfig, _identity_norm, interactive_compare
-    from surrogate.modes import make_mode, rollout_errors
-    from surrogate.train import load_checkpoint
+    from surrogate.modes import make_mode
 
     torch.set_num_threads(1)
     settings = dict(FINE, n=a.fine_n)
@@ -89,7 +91,7 @@ def main(argv=None) -> int:
                 model, norm = (None, _identity_norm(pde)) if run is None else load_checkpoint(run / "model.pt")[:2]
                 if model is not None:
                     model.to(a.device)
-                errors = rollout_errors(mode, model, norm, test, 1).numpy()
+                errors = rollout_errors(model, norm, test, datasets.NextStep(1, 1), mode).relative()  # [N, T - 1]
                 results.setdefault((where, arm), []).append(_summary(errors))
         mine = {f"{k[0]}|{k[1]}": v[-1] for k, v in results.items()}
         (out / "summary.json").write_text(json.dumps(mine))
