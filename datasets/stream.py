@@ -335,6 +335,9 @@ def stream_loader(stream: TrajectoryStream, num_workers: int = 0, prefetch_facto
 
     Spawned workers import the calling script again: a script must run its training under
     ``if __name__ == "__main__":`` (refused with one line otherwise, see ``check_main_guard``)."""
+    if not isinstance(stream, TrajectoryStream):  # a PDE passed here failed later with FrozenInstanceError
+        raise ValueError(f"stream_loader takes a TrajectoryStream, got {type(stream).__name__}: "
+                         "stream_loader(TrajectoryStream(pde, seed), ...)")
     num_workers = _int_arg("num_workers", num_workers, 0)
     if num_workers > MAX_WORKERS:
         raise ValueError(f"num_workers={num_workers} not allowed; at most {MAX_WORKERS}")

@@ -99,3 +99,10 @@ def test_a_dask_blow_up_prints_our_line_and_not_the_clusters_report(tmp_path, ca
                      "--workers", "1", "--out", str(tmp_path / "d.zarr")])
     err = [line for line in capfd.readouterr().err.strip().splitlines() if not line.startswith("dask dashboard:")]
     assert code != 0 and len(err) == 1 and err[0].startswith("pdestream: error: darcy2d: 2 of 2 solves"), err
+
+
+def test_stream_loader_names_what_it_takes():
+    import datasets
+
+    with pytest.raises(ValueError, match="stream_loader takes a TrajectoryStream, got Burgers"):
+        datasets.stream_loader(generator.get_pde("burgers1d", n=16), num_workers=0)
