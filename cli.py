@@ -129,16 +129,20 @@ def _list_entry(pde, as_json: bool) -> None:
         rows[name].update(meaning=spec.description, units=spec.units)  # the default is its domain
     rows.update({f"ic.{k}": {"default": v} for k, v in config["ic"].items() if k != "kind"})
     rows["ic"] = {"default": config["ic"]["kind"], "allowed": pde.fitting_ic_kinds()}
+    units = getattr(pde, "FIELD_UNITS", {})
+    fields = {f: units.get(f, "?") for f in (*getattr(pde, "INPUTS", ()), *pde.FIELDS)}
     offered = getattr(pde, "BOUNDARIES", None)
     if offered:
         rows.setdefault("bc", {"default": "periodic"})["allowed"] = list(offered)
     if as_json:
         where = {"origin": config["origin"]} if "origin" in config else {}  # a user's PDE: where its code is
-        print(json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, **where, "settings": rows}, indent=2))
+        print(json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, **where, "fields": fields, "settings": rows},
+                         indent=2))
         return
     print(pde.describe())
     if "origin" in config:  # a user's PDE: where its code is (its identity in caches and runs)
         print("  from {module}:{class} version {version!r} source sha256 {source_sha256}".format(**config["origin"]))
+    print("\nfields (units): " + ", ".join(f"{f} [{u}]" for f, u in fields.items()))
     print("\nsettings (--set KEY=VALUE; parameters take uniform(a, b), loguniform(a, b), choice(...)):")
     for key, row in rows.items():
         extra = "".join(f"  {k}: {', '.join(v) if isinstance(v, list) else v}" for k, v in row.items() if k != "default")
@@ -279,7 +283,7 @@ def check_disk_room(pde, out: str, n: int) -> None:
     import shutil
     from pathlib import Path
 
-    from datasets._bridge import max_index
+    from datasets import max_index
 
     parent = Path(out).absolute().parent
     if not parent.is_dir() or isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= max_index() + 1:
@@ -332,7 +336,7 @@ def cmd_inspect(args: argparse.Namespace) -> None:
 
 
 # --- train / compare (surrogate) ---------------------------------------------------------------------
-def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr: float) -> None:
+def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr: float, lr_note: str = "") -> None:
     p.add_argument("--model", default="fno", help="fno or unet (fno1d/fno2d/fno3d/unet1d/... pin the dimension), or "
                    "your own: package.module:Class (an nn.Module built from ndim, in_channels, out_channels, n_params "
                    "and the --model-set keys)")
@@ -346,7 +350,7 @@ def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr:
     p.add_argument("--k-out", type=int, default=1, help="next_step: predicted frames")
     p.add_argument("--steps", type=int, default=steps, help="optimizer steps")
     p.add_argument("--batch-size", type=int, default=batch_size, help="examples per optimizer step")
-    p.add_argument("--lr", type=float, default=lr, help="peak learning rate (Adam, cosine decay)")
+    p.add_argument("--lr", type=float, default=lr, help=f"peak learning rate (Adam, cosine decay{lr_note})")
     p.add_argument("--threads", type=int, default=None,
                    help="torch CPU threads (default: train: all cores but one, so the stream's solver thread, or on "
                         "a cache the loader and the OS, keep a core; compare: 1)")
@@ -414,17 +418,13 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
     return {k: v for k, v in cfg.items() if v is not None}
 
 
-MODE_NAMES = ("one-step", "pushforward", "oracle", "solver-in-the-loop")
-
-
 def _add_mode_args(p: argparse.ArgumentParser, train: bool) -> None:
+    from surrogate.mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, takes
+
     g = p.add_argument_group("interactive training modes (see surrogate/modes.py)")
     if train:
         g.add_argument("--mode", default="one-step", choices=MODE_NAMES,
-                       help="one-step: frames -> next frames; pushforward: unroll the network K-1 steps without "
-                            "gradient, train the K-th; oracle: train on states the network reaches in 0..K steps, "
-                            "labelled by the solver; solver-in-the-loop: a correction network on a coarse "
-                            "differentiable solver, unrolled K steps, against the fine solve (the PDE's n)")
+                       help="; ".join(f"{name}: {spec.help}" for name, spec in MODE_SPECS.items()))
     else:
         g.add_argument("--modes", metavar="M1,M2,...",
                        help="compare training modes at equal steps (rollout error against time): a comma-separated "
@@ -432,28 +432,18 @@ def _add_mode_args(p: argparse.ArgumentParser, train: bool) -> None:
         g.add_argument("--fine-n", type=int, metavar="N",
                        help="solver-in-the-loop: the fine grid (default: the PDE's n)")
     g.add_argument("--unroll", type=int, default=None, metavar="K",
-                   help="steps unrolled by pushforward, oracle and solver-in-the-loop (default: 4 with --mode(s))")
+                   help=f"steps unrolled by {takes('unroll')} (default {DEFAULTS['unroll']})")
     g.add_argument("--coarse-n", type=int, metavar="N",
-                   help="solver-in-the-loop: grid of the coarse solver, a divisor of the fine n (default 64)")
+                   help=f"{takes('coarse_n')}: grid of the coarse solver, a divisor of the fine n "
+                        f"(default {DEFAULTS['coarse_n']})")
 
 
 def mode_cfg(args: argparse.Namespace) -> dict:
-    """The `train --mode` settings for train_run (one line for options that do not fit the mode)."""
-    from surrogate.modes import check_mode_settings
+    """The `train --mode` settings for train_run: the mode table's defaults, one line for an option the mode does
+    not take (surrogate.mode_table.mode_settings); --k-out is checked with the view (surrogate.modes)."""
+    from surrogate.mode_table import mode_settings
 
-    if args.mode == "one-step":
-        if args.unroll not in (None, 1) or args.coarse_n is not None:
-            raise ValueError(f"--unroll {args.unroll} and --coarse-n go with --mode pushforward, oracle or "
-                             "solver-in-the-loop, not one-step")
-        return {"name": "one-step"}
-    if args.k_out != 1:
-        raise ValueError(f"--k-out={args.k_out} goes with --mode one-step; --mode {args.mode} predicts one frame per "
-                         "step and reads --unroll frames ahead")
-    cfg = {"name": args.mode, "unroll": 4 if args.unroll is None else args.unroll}
-    if args.mode == "solver-in-the-loop":
-        cfg["coarse_n"] = 64 if args.coarse_n is None else args.coarse_n
-    check_mode_settings(cfg["name"], cfg["unroll"], cfg.get("coarse_n"))
-    return cfg
+    return mode_settings(args.mode, unroll=args.unroll, coarse_n=args.coarse_n)
 
 
 def _interactive_compare(args: argparse.Namespace) -> None:
@@ -473,11 +463,11 @@ def _interactive_compare(args: argparse.Namespace) -> None:
         if args.model.startswith("fno") else {}
     model_cfg.update(_parse_sets(args.model_set))
     quick = args.quick and args.steps == 1000  # --quick without --steps: a few steps
-    cfg = InteractiveConfig(modes=modes, unroll=4 if args.unroll is None else args.unroll,
+    given = {"unroll": args.unroll, "coarse_n": 16 if args.quick and args.coarse_n is None else args.coarse_n}
+    cfg = InteractiveConfig(modes=modes, **{k: v for k, v in given.items() if v is not None},  # else the mode table's
                             steps=20 if quick else args.steps, batch_size=8 if quick else args.batch_size, lr=args.lr,
                             model=args.model, model_cfg=model_cfg, k_in=args.k_in, seed=0,
                             n_test=4 if args.quick and args.test_samples == 128 else args.test_samples,
-                            coarse_n=(16 if args.quick else 64) if args.coarse_n is None else args.coarse_n,
                             fine_n=args.fine_n, device=args.device)
     if args.k_out != 1:
         raise ValueError(f"--k-out={args.k_out} not allowed with --modes: every mode predicts one frame per step")
@@ -644,7 +634,8 @@ def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
     if mode["name"] != "one-step":
         how = f" --mode {mode['name']}{how}"
     print(f"trained {model}{how} on {source} for {s['steps']} steps in {s['wall']:.1f} s "
-          f"(waiting for data {s['t_data']:.1f} s, computing {s['t_compute']:.1f} s); "
+          f"(waiting for data {s['t_data']:.1f} s = {100 * s['data_share']:.1f}% of the loop, normalization draw "
+          f"included; computing {s['t_compute']:.1f} s); "
           f"{s['trajectories_seen']} trajectories, final loss {s['final_loss']:.4g}")
     t = s["test"]["test"]
     if mode["name"] == "solver-in-the-loop":  # the corrected coarse solver against the fine solution subsampled
@@ -654,7 +645,9 @@ def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
     if "data_stats" in s and "reuse_mean" in s["data_stats"]:
         d = s["data_stats"]
         print(f"reservoir: {d['inserted']} trajectories solved, {d['evicted']} evicted, reuse mean {d['reuse_mean']:.2f} "
-              f"(max {d['reuse_max']:.2f}), loop waiting {100 * d['wait_share']:.1f}%")
+              f"(max {d['reuse_max']:.2f}); waiting for solves {100 * d['wait_share']:.1f}% of the time since the "
+              "first batch (the reservoir's own clock: the loop's waiting share above also counts the normalization "
+              "draw and handing batches over)")
     extra = ", reservoir.json, reservoir.png" if "data_stats" in s and "reuse_mean" in s["data_stats"] else ""
     print(f"run: {out}/metrics.csv, metrics.json, model.pt, checkpoint.pt{extra}")
 
@@ -687,7 +680,8 @@ def add_compare(sub) -> None:
                         "paced over the run and, for reservoir_loss, steered)")
     b.add_argument("--quick", action="store_true",
                    help="a small scale for tests and a first look (n=64, 11 frames, small FNO, 20 s per arm)")
-    _add_model_args(p, steps=1000, batch_size=32, lr=3e-3)
+    _add_model_args(p, steps=1000, batch_size=32, lr=3e-3,
+                    lr_note="; three times train's 1e-3, for the comparisons' small models and short runs")
     _add_reservoir_args(p, train=False)
     _add_mode_args(p, train=False)
     _add_pde_config_args(p)
@@ -778,14 +772,13 @@ def _compare(args: argparse.Namespace) -> None:
         return _budget_compare(args)
     args.set = compare_sets(args)
     pde = pde_from_args(args.pde, args)
+    _check_shift(pde, args)
     _set_threads(1 if args.threads is None else args.threads)
     from surrogate.fno import COMPARE_FNO
 
     model_cfg = dict(COMPARE_FNO) if args.model.startswith("fno") else {}
     model_cfg.update(_parse_sets(args.model_set))
     args.seeds = 3 if args.seeds is None else args.seeds
-    if args.seeds < 1 or args.cache_samples < 1 or args.test_samples < 1:
-        raise ValueError("--seeds, --cache-samples and --test-samples must be >= 1")
     cfg = CompareConfig(model=args.model, model_cfg=model_cfg, view=_view_from_args(args, "operator"),
                         steps=args.steps, batch_size=args.batch_size, lr=args.lr, cache_samples=args.cache_samples,
                         seeds=tuple(range(args.seeds)), n_test=args.test_samples, shift=args.shift,
@@ -793,6 +786,19 @@ def _compare(args: argparse.Namespace) -> None:
     compare(pde, args.out, cfg, shift_overrides=_parse_sets(args.shift_set))
     print((Path(args.out) / "compare.md").read_text(), end="")
     print(f"table: {args.out}/compare.md, compare.csv; figure: {args.out}/compare.png")
+
+
+def _check_shift(pde, args: argparse.Namespace) -> None:
+    """--shift and --shift-set checked (one line) before any cache or run is written: the shifted PDE is built
+    once here the way the comparison builds it later (--shift 0 wrote a 256-sample cache before its refusal)."""
+    from surrogate.compare import shifted_pde
+
+    if args.shift != args.shift or args.shift in (float("inf"), float("-inf")):
+        raise ValueError(f"--shift {args.shift} not allowed: a finite fraction like 0.25 or -0.25")
+    try:
+        shifted_pde(pde, args.shift, _parse_sets(args.shift_set))
+    except ValueError as err:
+        raise ValueError(str(err).replace("shift=0", "--shift 0")) from None
 
 
 def _budget_compare(args: argparse.Namespace) -> None:
@@ -805,7 +811,11 @@ def _budget_compare(args: argparse.Namespace) -> None:
         args.set = compare_sets(args)
         if args.budget is None and args.sim_budget is None:
             args.budget = 20.0
+            print("compare --quick: the budget comparison of the data routes (--arms) at --budget 20 seconds per "
+                  "arm; --sim-budget N for equal solves, --modes M1,M2 for the training modes, no --quick for cache "
+                  "vs stream", flush=True)
     pde = pde_from_args(args.pde, args)
+    _check_shift(pde, args)
     _set_threads(1 if args.threads is None else args.threads)
     from surrogate.fno import COMPARE_FNO
 
@@ -853,9 +863,34 @@ def check_bench_extras(families: list[str]) -> None:
         raise ValueError(need + hint)
 
 
-def cmd_bench(args: argparse.Namespace) -> None:
-    import benchmarks.__main__ as bench
+def import_benchmarks():
+    """The benchmarks package, from the source checkout beside this file (it is not in the wheel); ValueError
+    (one line) for an installed pdestream without it."""
+    import sys
+    from pathlib import Path
 
+    try:
+        import benchmarks.__main__ as bench
+    except ModuleNotFoundError:
+        root = Path(__file__).resolve().parent
+        if not (root / "benchmarks" / "__main__.py").is_file():
+            raise ValueError("pdestream bench runs the benchmarks of a source checkout (they are not in the wheel): "
+                             "clone the repository and run `pip install -e .` there") from None
+        sys.path.insert(0, str(root))  # an editable install maps only the packages it ships
+        import benchmarks.__main__ as bench
+    return bench
+
+
+def cmd_bench(args: argparse.Namespace) -> None:
+    from pathlib import Path
+
+    if args.json is not None:  # found before the benchmark runs, not after it
+        where = Path(args.json).absolute()
+        if where.is_dir() or not where.parent.is_dir():
+            raise ValueError(f"--json {args.json} not allowed: "
+                             + ("it is a directory" if where.is_dir() else f"its directory {where.parent} does not exist")
+                             + "; give a file in an existing directory")
+    bench = import_benchmarks()
     families = args.families or bench.available()
     check_bench_extras(families)
     bench.run(families, args.quick, args.json)

@@ -20,11 +20,10 @@ import torch
 import datasets
 import generator
 from surrogate.data import test_set, train_loader
-from surrogate.evaluate import pairs
 from surrogate.metrics import rel_l2
 from surrogate.models import build_model
-from surrogate.runs import model_channels
-from surrogate.train import predict, train
+from surrogate.predict import model_channels, pairs, predict
+from surrogate.train import train
 
 
 @torch.no_grad()

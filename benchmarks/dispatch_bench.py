@@ -60,9 +60,9 @@ def run(quick: bool = False) -> list[dict]:
             t0 = time.perf_counter()
             bounded()
             t_bounded.append(time.perf_counter() - t0)
-        per_step = batch * len(pde.FIELDS) * pde.n**pde.NDIM + dispatch.STEP_OVERHEAD
+        per_step = batch * len(pde.FIELDS) * pde.n**pde.NDIM + dispatch.step_overhead()
         steps = (pde.n_frames - 1) * pde.steps_per_frame
-        n_calls = max(1, -(-steps * per_step // dispatch.DISPATCH_WORK))
+        n_calls = max(1, -(-steps * per_step // dispatch.work()))
         row = {"case": f"{name} {settings or 'defaults'} B={batch}", "one_call_s": statistics.median(t_one),
                "bounded_s": statistics.median(t_bounded), "calls": n_calls}
         row["ratio"] = row["bounded_s"] / row["one_call_s"]

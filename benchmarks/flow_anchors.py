@@ -184,6 +184,9 @@ def jaxcfd_trajectory(case: VortexCase, batch: int = 0):
     return run
 
 
+VMAP = False  # --vmap: members vectorised (a GPU's way; bits then depend on the batch size)
+
+
 def pdestream_trajectory(case: VortexCase, batch: int = 0):
     """pdestream's solver (``generator.flow``) on the case: the same grid, lengths, nu, uniform inflow (a plug
     profile), walls, cylinder, dt, steps and frames, pressure tolerance ``case.tol``; a batch runs each member's
@@ -214,7 +217,7 @@ def pdestream_trajectory(case: VortexCase, batch: int = 0):
         return probe, div * h / case.u_in
 
     nus = jnp.full((max(batch, 1),), case.nu, jnp.float32)
-    program = jax.jit(lambda nus: jax.lax.map(one, nus))
+    program = jax.jit(jax.vmap(one) if VMAP else lambda nus: jax.lax.map(one, nus))
 
     def go():
         probe, div = jax.block_until_ready(program(nus))
@@ -247,12 +250,15 @@ def main(argv=None) -> None:
     ap.add_argument("--grids", default="128x64,64x32")
     ap.add_argument("--steps", type=int, default=1600)
     ap.add_argument("--frames", type=int, default=100)
-    ap.add_argument("--batch", type=int, default=4)
+    ap.add_argument("--batch", default="4", help="batch sizes besides 1, comma-separated")
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--arms", default="phiflow,jaxcfd,pdestream")
     ap.add_argument("--scheme", default="mac_cormack", choices=("mac_cormack", "semi_lagrangian"))
     ap.add_argument("--re", type=float, default=100.0)
+    ap.add_argument("--vmap", action="store_true", help="pdestream: vectorise the batch (jax.vmap) instead of lax.map")
     a = ap.parse_args(argv)
+    global VMAP
+    VMAP = a.vmap
     import jax
 
     print(f"jax {jax.__version__} devices={jax.devices()}")
@@ -262,7 +268,7 @@ def main(argv=None) -> None:
         case = VortexCase(nx=nx, ny=ny, steps=a.steps, frames=a.frames, scheme=a.scheme, re=a.re)
         print(f"case {case} nu={case.nu:g} cfl={case.u_in * case.dt * nx / case.lx:.2f}")
         for name in a.arms.split(","):
-            for b in (0, a.batch) if a.batch else (0,):
+            for b in sorted({0, *(int(x) for x in str(a.batch).split(","))} - {1}):
                 try:
                     r = bench(arms[name], case, b, a.reps)
                 except (NotImplementedError, FloatingPointError) as e:

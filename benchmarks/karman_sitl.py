@@ -36,6 +36,8 @@ def _summary(errors: np.ndarray) -> tuple[float, float]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.karman_sitl", description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--only-seed", type=int, help="run this one seed (parallel runs), then --summarize their --out")
+    ap.add_argument("--summarize", action="store_true", help="only print the table of the seeds already in --out")
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--batch-size", type=int, default=8)
     ap.add_argument("--fine-n", type=int, default=64)
@@ -44,31 +46,40 @@ def main(argv=None) -> int:
     ap.add_argument("--test-samples", type=int, default=8)
     ap.add_argument("--shift", type=float, default=0.25, help="held-out Re beyond the range by this share of its width")
     ap.add_argument("--out", default="/tmp/karman_sitl")
-    ap.add_argument("--quick", action="store_true", help="a smoke run: n 32 -> 16, 20 steps, 1 seed")
+    ap.add_argument("--device", default="cpu", help="where the models train (cpu, cuda)")
+    ap.add_argument("--quick", action="store_true", help="a smoke run: --small, 20 steps, 1 seed")
+    ap.add_argument("--small", action="store_true", help="n 32 -> 16, larger cylinders, Re 40-80, 1 s windows")
     a = ap.parse_args(argv)
     import torch
 
+    import datasets
     import generator
     from surrogate.budget import stratified_test_set
+    from surrogate.checkpoint import load_checkpoint
+    from surrogate.evaluate import rollout_errors
     from surrogate.interactive_compare import InteractiveConfig, _identity_norm, interactive_compare
-    from surrogate.modes import make_mode, rollout_errors
-    from surrogate.train import load_checkpoint
+    from surrogate.modes import make_mode
 
     torch.set_num_threads(1)
     settings = dict(FINE, n=a.fine_n)
     if a.quick:
-        a.seeds, a.steps, a.fine_n, a.coarse_n, a.test_samples = 1, 20, 32, 16, 4
+        a.seeds, a.steps, a.test_samples, a.small = 1, 20, 4, True
+    if a.small:
+        a.fine_n, a.coarse_n = 32, 16
         settings = dict(n=32, radius="uniform(0.13, 0.16)", re="uniform(40, 80)", t_start=2.0, t_end=3.0, n_frames=11)
     pde = generator.get_pde("karman2d", **settings)
     lo, hi = pde.re.bounds
     shifted = pde.replace(re=f"uniform({hi + (a.shift - 0.1) * (hi - lo):g}, {hi + a.shift * (hi - lo):g})")
     print(f"fine: {pde.describe()}\nshifted test Re: {shifted.re}; coarse n={a.coarse_n}, unroll {a.unroll}, "
           f"{a.steps} steps x batch {a.batch_size}, {a.seeds} seeds", flush=True)
+    if a.summarize:
+        return _print_table(_load(Path(a.out)))
     results: dict[tuple[str, str], list[tuple[float, float]]] = {}
-    for seed in range(a.seeds):
+    for seed in [a.only_seed] if a.only_seed is not None else range(a.seeds):
         out = Path(a.out) / f"seed{seed}"
         cfg = InteractiveConfig(modes=("solver-in-the-loop",), unroll=a.unroll, steps=a.steps,
-                                batch_size=a.batch_size, seed=seed, n_test=a.test_samples, coarse_n=a.coarse_n)
+                                batch_size=a.batch_size, seed=seed, n_test=a.test_samples, coarse_n=a.coarse_n,
+                                device=a.device)
         interactive_compare(pde, out, cfg, log=lambda s: print(f"  seed {seed}: {s}", flush=True))
         runs = {"coarse solver": None, "pairs (unroll 1)": out / "sitl_unroll1",
                 f"solver-in-the-loop (unroll {a.unroll})": out / f"sitl_unroll{a.unroll}"}
@@ -78,9 +89,25 @@ def main(argv=None) -> int:
             test = stratified_test_set(test_pde, a.test_samples, seed)
             for arm, run in runs.items():
                 model, norm = (None, _identity_norm(pde)) if run is None else load_checkpoint(run / "model.pt")[:2]
-                errors = rollout_errors(mode, model, norm, test, 1).numpy()
+                if model is not None:
+                    model.to(a.device)
+                errors = rollout_errors(model, norm, test, datasets.NextStep(1, 1), mode).relative()  # [N, T - 1]
                 results.setdefault((where, arm), []).append(_summary(errors))
-        (Path(a.out) / "summary.json").write_text(json.dumps({f"{k[0]}|{k[1]}": v for k, v in results.items()}))
+        mine = {f"{k[0]}|{k[1]}": v[-1] for k, v in results.items()}
+        (out / "summary.json").write_text(json.dumps(mine))
+    return _print_table(_load(Path(a.out)))
+
+
+def _load(out: Path) -> dict:
+    """{(test set, arm): [(rollout mean, p95) per seed]} from every seed*/summary.json under out."""
+    results: dict = {}
+    for f in sorted(out.glob("seed*/summary.json")):
+        for key, v in json.loads(f.read_text()).items():
+            results.setdefault(tuple(key.split("|")), []).append(tuple(v))
+    return results
+
+
+def _print_table(results: dict) -> int:
     print("\n| test Re | arm | rollout error (mean +- spread over seeds) | p95 over trajectories |")
     print("| --- | --- | --- | --- |")
     for (where, arm), vals in results.items():
@@ -90,12 +117,13 @@ def main(argv=None) -> int:
               f"{p95.mean():.4f} +- {np.ptp(p95) / 2:.4f} |")
     for where in ("inside", "beyond"):
         arms = [k for k in results if k[0] == where]
-        loop = np.array([v[0] for v in results[arms[-1]]])
-        for other in arms[:-1]:
-            base = np.array([v[0] for v in results[other]])
-            print(f"{where}: solver-in-the-loop vs {other[1]}: {np.mean(base / loop):.2f}x lower rollout error "
-                  f"(range {np.min(base / loop):.2f}..{np.max(base / loop):.2f} over seeds; beats it on "
-                  f"{int(np.sum(loop < base))} of {len(loop)} seeds)")
+        for j, what in ((0, "mean"), (1, "p95")):
+            loop = np.array([v[j] for v in results[arms[-1]]])
+            for other in arms[:-1]:
+                base = np.array([v[j] for v in results[other]])
+                print(f"{where}, {what}: solver-in-the-loop vs {other[1]}: {np.mean(base / loop):.2f}x lower rollout "
+                      f"error (range {np.min(base / loop):.2f}..{np.max(base / loop):.2f} over seeds; beats it on "
+                      f"{int(np.sum(loop < base))} of {len(loop)} seeds)")
     return 0
 
 

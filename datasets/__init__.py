@@ -1,7 +1,9 @@
 """pdestream.datasets: the torch side. Streams solver output into training, caches it to HDF5/Zarr,
-and loads caches back; ``_bridge`` is the only module that touches JAX."""
+and loads caches back; ``_bridge`` is the only module that touches JAX, and is private: code outside this package
+(the CLI, surrogate) reaches the generator through the names exported here (``pde_from_config``, ``max_index``,
+``param_domains``, ``sample_tensors``)."""
 
-from ._bridge import param_domains, sample_tensors
+from ._bridge import max_index, param_domains, pde_from_config, sample_tensors
 from .cache import WriteSummary, open_cache, write_cache
 from .loader import CachedTrajectories
 from .normalize import Normalization, compute_normalization
@@ -11,5 +13,5 @@ from .stream import StreamLoader, TrajectoryStream, stream_loader
 from .views import VIEWS, NextStep, Operator, SteadyOperator, Whole, collate, examples, for_sample, gather, make_view
 
 __all__ = [
-    "Normalization", "Reservoir", "param_domains", "sample_tensors", "ReservoirStream", "SolverOracle", "SolverStep", "StreamLoader", "TrajectoryStream", "compute_normalization", "gather", "stream_loader",
+    "Normalization", "Reservoir", "max_index", "param_domains", "pde_from_config", "sample_tensors", "ReservoirStream", "SolverOracle", "SolverStep", "StreamLoader", "TrajectoryStream", "compute_normalization", "gather", "stream_loader",
     "CachedTrajectories", "WriteSummary", "open_cache", "write_cache", "VIEWS", "NextStep", "Operator", "SteadyOperator", "Whole", "collate", "examples", "for_sample", "make_view"]

@@ -131,7 +131,8 @@ def dask_client(scheduler: str | None = None, workers: int = 2):
         with _sigint_blocked():
             cluster = stack.enter_context(dist.LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                silence_logs=logging.ERROR, env=_worker_env()))
+                silence_logs=logging.CRITICAL, env=_worker_env()))  # a task's error reaches us as an exception
+            # (our one line); at ERROR the workers also printed their own 8-line "Compute Failed" report first
         yield stack.enter_context(dist.Client(cluster, set_as_default=False))
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import textwrap
 
 import numpy as np
 
@@ -128,10 +129,12 @@ def draw(ds, n_show: int = 4):
 
     1D: space-time images (x across, t up), one row per field, one column per sample. 2D: first/middle/last
     frames (x across, y up, origin lower, aspect equal), one row per sample, one group of columns per field,
-    frame times in the titles; 3D: the same for the middle z slice. Each field has one colour range over all
-    its panels and one colourbar labelled with its name (and units when the cache has them): diverging and
-    centred on zero for a signed field, sequential for a one-signed one (``colour_scale``). Axis labels come
-    from the coordinates' long_name/units attrs, as in xarray's own plots.
+    frame times in the titles; 3D: the same for the middle z slice. Colour ranges: in 1D one per field over all
+    its panels; in 2D/3D one per field and frame column, shared by that column's samples, with its own colourbar
+    below it (one range over all frames left ns2d's t = 0 column blank: its vorticity grows ~100x under the
+    forcing). Colourbars carry the field's name and units (the PDE's FIELD_UNITS); maps are diverging and centred
+    on zero for a signed field, sequential for a one-signed one (``colour_scale``). Axis labels come from the
+    coordinates' long_name/units attrs, as in xarray's own plots.
     """
     import matplotlib.pyplot as plt
 
@@ -141,9 +144,20 @@ def draw(ds, n_show: int = 4):
     label = [", ".join(f"{p}={float(ds[p][i]):.3g}" for p in params) for i in range(show)]
     index = ds["sample"].values[:show]
     space = [d for d in ds[fields[0]].dims if d in schema.SPACE]  # stored order: (z,) (y,) x
-    panels = _space_time if len(space) == 1 else _snapshots
-    fig = panels(plt, ds, fields, show, index, label, space)
-    fig.suptitle(f"{ds.attrs['pde']}: {ds.attrs['equation']}", fontsize=9)
+    mask = None
+    if ds.attrs.get("sides"):  # a MAC-grid flow: its bodies drawn over every panel, its vorticity shown first
+        if "solid" in fields:
+            fields, mask = [f for f in fields if f != "solid"], ds["solid"]
+        if {"u", "v"} <= set(fields):
+            ds = ds.assign(vorticity=flow_vorticity(ds))
+            fields = ["vorticity", *fields]
+    if len(space) == 1:
+        fig = _space_time(plt, ds, fields, show, index, label, space)
+    else:
+        fig = _snapshots(plt, ds, fields, show, index, label, space, mask)
+    # wrapped to the figure's width (~14 characters per inch at 9 pt): darcy2d's equation ran past the right edge
+    title = textwrap.fill(f"{ds.attrs['pde']}: {ds.attrs['equation']}", max(20, int(14 * fig.get_figwidth())))
+    fig.suptitle(title, fontsize=9)
     return fig
 
 
@@ -196,9 +210,20 @@ def _space_time(plt, ds, fields, show, index, label, space):
     return fig
 
 
-def _snapshots(plt, ds, fields, show, index, label, space):
+def flow_vorticity(ds):
+    """Vorticity dv/dx - du/dy [1/s] of a MAC-grid flow's cache (u on cells' left faces, v on bottom faces),
+    at the cells' lower-left corners, as a DataArray like u (the first row and column repeat their neighbours)."""
+    h = float(ds["x"][1] - ds["x"][0])
+    u, v = ds["u"], ds["v"]
+    dvdx = v.diff("x", label="upper").reindex(x=ds["x"], method="bfill")  # plain numpy fills (no bottleneck)
+    dudy = u.diff("y", label="upper").reindex(y=ds["y"], method="bfill")
+    return ((dvdx - dudy) / h).assign_attrs(long_name="vorticity", units="1/s")
+
+
+def _snapshots(plt, ds, fields, show, index, label, space, mask=None):
     """2D (3D: the middle z slice): one row per sample, first/middle/last frame of each field, x across, y up;
-    one colourbar per field. A steady PDE's cache (no time axis): one panel per field, input fields first."""
+    one colourbar per field. A steady PDE's cache (no time axis): one panel per field, input fields first.
+    ``mask``: a flow's solid cells [sample, time, y, x], drawn in grey over every panel."""
     timed = "time" in ds.dims
     n_frames = ds.sizes["time"] if timed else 1
     frames = sorted({0, n_frames // 2, n_frames - 1})
@@ -213,17 +238,23 @@ def _snapshots(plt, ds, fields, show, index, label, space):
         var = ds[name].isel(sample=slice(0, show), **slab)
         var = var.isel(time=frames) if timed else var.expand_dims("time", axis=1)
         u = var.transpose("sample", "time", up, across).values  # [S, F, y, x]: row y, column x
-        scale = colour_scale(u)
         block = axes[:, c * len(frames):(c + 1) * len(frames)]
-        for i in range(show):
-            for j, f in enumerate(frames):
+        for j, f in enumerate(frames):
+            scale = colour_scale(u[:, j])  # per frame: a forced field grows ~100x from t = 0 (ns2d)
+            for i in range(show):
                 ax = block[i, j]
                 im = ax.imshow(u[i, j], origin="lower", aspect="equal", extent=extent, interpolation="nearest",
                                **scale)
+                if mask is not None:
+                    m = mask.isel(sample=i, time=f).transpose(up, across).values
+                    ax.imshow(np.ma.masked_where(m < 0.5, m), origin="lower", aspect="equal", extent=extent,
+                              interpolation="nearest", cmap="Greys", vmin=0.0, vmax=1.6)
                 title = f"{name} #{index[i]}" + (f" t={float(ds.time[f]):.4g}" if timed else "") + where
                 ax.set_title(title + (f"\n{label[i]}" if j == 0 and label[i] else ""), fontsize=7)
                 ax.set_xlabel(axis_label(ds[across]) if i == show - 1 else "", fontsize=8)
                 ax.set_ylabel(axis_label(ds[up]) if c == 0 and j == 0 else "", fontsize=8)
                 ax.tick_params(labelsize=7)
-        fig.colorbar(im, ax=list(block.ravel()), label=axis_label(ds[name]), shrink=0.8, fraction=0.06, pad=0.02)
+            bar = fig.colorbar(im, ax=list(block[:, j]), location="bottom", shrink=0.9, fraction=0.05, pad=0.02)
+            bar.ax.tick_params(labelsize=7)
+            bar.set_label(axis_label(ds[name]), fontsize=8)
     return fig

@@ -1,4 +1,4 @@
-"""Progress: where an iterable dataset stands (epoch, units consumed per worker), shared with spawned workers.
+"""StreamPosition: where an iterable dataset stands (epoch, units consumed per worker), shared with spawned workers.
 
 A stream's ``set_epoch`` and ``load_state_dict`` run in the main process, but persistent DataLoader workers
 read where to start from; so the counts live in shared memory that spawn/forkserver workers map, not copy.
@@ -21,7 +21,7 @@ def _count(name: str, value) -> int:
     return int(value)
 
 
-class Progress:
+class StreamPosition:
     """Epoch and per-worker consumed counts, for TrajectoryStream, StreamLoader or any other stream.
 
     Shared (int64, seen by the main process and its spawned workers):

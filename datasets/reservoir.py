@@ -46,7 +46,7 @@ from torch.utils.data import IterableDataset, get_worker_info
 
 from . import _bridge
 from .producers import open_producer
-from .progress import Progress
+from .progress import StreamPosition
 from .proposal import ParamProposal, _plain
 from .views import for_sample, gather, make_view
 
@@ -250,7 +250,7 @@ class ReservoirStream(IterableDataset):
         self.pending: collections.deque = collections.deque()  # (indices, params, future) in submission order
         self.done: list = []  # async: finished jobs waiting for room
         self.drawn_since_insert = 0
-        self.progress = Progress(slots=1)  # batches handed out (one producer-side "worker": this process)
+        self.progress = StreamPosition(slots=1)  # batches handed out (one producer-side "worker": this process)
         self.t_wait = 0.0  # seconds the loop waited for solves
         self._t_first = None  # when iteration started (rates in stats())
 

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -92,8 +93,10 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
     per_sample["complete"] = ("int8", {"long_name": "sample fully written", "flag_values": [0, 1],
                                        "flag_meanings": "missing written"})
     link = " ".join(per_sample)  # CF: the per-sample coordinates of every field
-    # fields: a name, no units (the PDE definitions do not declare them; "1" would claim dimensionless)
-    fields = {f: {"long_name": f, "coordinates": link} for f in (*pde.INPUTS, *pde.FIELDS)}
+    # fields: a name and the units the PDE declares (FIELD_UNITS; xarray's plots print "u [length/time]")
+    units = getattr(pde, "FIELD_UNITS", {})
+    fields = {f: {"long_name": f, "coordinates": link, **({"units": units[f]} if f in units else {})}
+              for f in (*pde.INPUTS, *pde.FIELDS)}
     attrs = {
         "Conventions": "CF-1.10",
         "title": f"pdestream cache: {pde.NAME}, samples 0..{n_samples - 1}, seed {seed}",
@@ -264,17 +267,26 @@ def consolidate(path: str) -> None:
 
 
 def atomic_write(path: Path, data: bytes) -> None:
-    """Replace ``path`` with ``data`` in one rename: readers (and a kill) see the old or the new bytes."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    """Replace ``path`` with ``data`` all at once: a temp file in the same directory (unique, so two writers never
+    share one), fsync, os.replace, then fsync of the directory; readers, a kill or a power cut see the old file or
+    the new one, never half of one (at worst a stray ``.NAME.*.tmp``). The one atomic write of the project (caches'
+    metadata, run files, checkpoints)."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with open(tmp, "wb") as f:
+        with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())  # the bytes are on disk before the rename makes them the file
         os.replace(tmp, path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        Path(tmp).unlink(missing_ok=True)
         raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)  # the rename itself survives a power cut once the directory is synced
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
 
 
 def disk_bytes(path) -> int:

@@ -8,7 +8,7 @@ index, so workers and ranks together see each index once, whatever their number.
 the view, shuffles them within that solve batch and yields collated batches of ``batch_size`` examples.
 Random window starts and the shuffle are seeded from (seed, epoch, index), so a resumed run replays bits.
 
-Progress (epoch, examples consumed per worker) lives in a ``datasets.progress.Progress`` in shared memory so
+The position (epoch, examples consumed per worker) lives in a ``datasets.progress.StreamPosition`` in shared memory so
 ``set_epoch`` and ``load_state_dict`` reach persistent spawn workers; ``stream_loader`` builds the DataLoader
 that keeps it.
 """
@@ -17,15 +17,17 @@ from __future__ import annotations
 
 import ast
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
+from torch.utils.data.dataloader import _MultiProcessingDataLoaderIter
 
 from . import _bridge
 from ._prefetch import prefetch
-from .progress import MAX_WORKERS, Progress
+from .progress import MAX_WORKERS, StreamPosition
 from .views import for_sample, gather, make_view
 
 
@@ -82,7 +84,7 @@ class TrajectoryStream(IterableDataset):
         self.on_blowup, self.shuffle, self.resample = on_blowup, bool(shuffle), bool(resample)
         self.drop_last, self.prefetch = bool(drop_last), bool(prefetch)
         self.per_trajectory = len(self.view.starts(self.pde.n_frames, torch.Generator()))
-        self._progress = Progress()  # epoch and examples consumed per worker, shared with spawn workers
+        self._progress = StreamPosition()  # epoch and examples consumed per worker, shared with spawn workers
         self.num_workers = 0  # set by stream_loader; how many consumed counts state_dict reports
 
     # --- placement -------------------------------------------------------------------------------
@@ -153,7 +155,7 @@ class TrajectoryStream(IterableDataset):
     def __getstate__(self):
         state = self.__dict__.copy()
         state["rank"], state["world_size"] = self.placement()  # torch.distributed is not set up in workers
-        return state  # Progress pickles itself: a plain copy, or the shared memory for a spawning worker
+        return state  # StreamPosition pickles itself: a plain copy, or the shared memory for a spawning worker
 
     # --- iteration -------------------------------------------------------------------------------
     def __iter__(self):
@@ -232,9 +234,38 @@ class TrajectoryStream(IterableDataset):
         return compute_normalization(self.pde, seed=self.seed, n=n, solve_batch=self.solve_batch)
 
 
+# How long closing a loader waits for its workers before stopping them. A worker sees torch's "done" event only
+# between two batches, and one busy solving the next (or compiling) held a script that broke out of its loop
+# ~5 s (torch's join timeout, MP_STATUS_CHECK_INTERVAL) per worker; a worker's state is of no use once closed.
+WORKER_JOIN_S = 0.5
+
+
+class _PromptShutdown(_MultiProcessingDataLoaderIter):
+    """torch's worker iterator, whose shutdown waits WORKER_JOIN_S for all workers together, then terminates
+    the ones still busy (each is its own process: no JAX call of this process is torn down)."""
+
+    def _shutdown_workers(self):
+        if not getattr(self, "_shutdown", True) and getattr(self, "_workers", None):
+            self._workers_done_event.set()
+            deadline = time.monotonic() + WORKER_JOIN_S
+            for w in self._workers:
+                w.join(timeout=max(0.0, deadline - time.monotonic()))
+            for w in self._workers:
+                if w.is_alive():
+                    w.terminate()
+        super()._shutdown_workers()  # torch's own clean-up (queues, pin-memory thread), now without waiting
+
+
 class StreamLoader(DataLoader):
     """A DataLoader that records, batch by batch, what the training loop consumed from worker shards,
-    so ``stream.state_dict()`` is exact with workers, and that starts the next epoch after a full one."""
+    so ``stream.state_dict()`` is exact with workers, and that starts the next epoch after a full one.
+    Closing it (or leaving the script) stops busy workers within WORKER_JOIN_S."""
+
+    def _get_iterator(self):
+        if self.num_workers == 0:
+            return super()._get_iterator()
+        self.check_worker_number_rationality()
+        return _PromptShutdown(self)
 
     def __iter__(self):
         stream = self.dataset
@@ -251,6 +282,16 @@ class StreamLoader(DataLoader):
             yield batch
         if stream.n_samples is not None:
             stream.set_epoch(progress.epoch + 1)
+
+
+class MainGuardError(ValueError, SystemExit):
+    """check_main_guard's refusal: a ValueError to callers that catch it, and, left uncaught in the script it
+    names, a SystemExit whose code is the message: Python prints that one line and exits 1, no traceback (the
+    README's promise; a plain ValueError printed a traceback before its line)."""
+
+    def __init__(self, message: str):
+        super().__init__(message)
+        self.code = message
 
 
 def check_main_guard(what: str) -> None:
@@ -274,7 +315,7 @@ def check_main_guard(what: str) -> None:
     if line is None or any(isinstance(node, ast.If) and _is_main_test(node.test) and node.lineno <= line <= node.end_lineno
                            for node in tree.body):
         return
-    raise ValueError(f"{what} starts spawned worker processes, which import {Path(path).name} again: put the code "
+    raise MainGuardError(f"{what} starts spawned worker processes, which import {Path(path).name} again: put the code "
                      f"that runs it (line {line}) under `if __name__ == \"__main__\":`")
 
 

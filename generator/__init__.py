@@ -31,9 +31,9 @@ from .spectral import Grid
 from .user import register, unregister
 
 # The revision of the numerics that decide a sample's bits for a given (config, seed, index): bumped by every change
-# that alters them (2: ETDRK4 coefficients with one exponential per wavenumber). Caches record it and --resume
-# compares it, so a cache is never finished with samples of other bits.
-NUMERICS = 2
+# that alters them (2: ETDRK4 coefficients with one exponential per wavenumber; 3: Gray-Scott spots kept in range).
+# Caches record it and --resume compares it, so a cache is never finished with samples of other bits.
+NUMERICS = 3
 
 _REFUSED_CACHE_DIRS: set[str] = set()
 

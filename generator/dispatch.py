@@ -5,11 +5,13 @@ Each call advances a batch by at most about DISPATCH_WORK grid-point steps (0.05
 2-core CPU here, 0.5-2% slower in all than one call: benchmarks/dispatch_bench.py; 2**22 cost 2-20%). A step
 also costs a fixed ~25 us whatever its size, counted as STEP_OVERHEAD points (small grids). Every family that
 solves in steps (the spectral rollouts, interactive advances) splits its work with ``pieces`` and waits with
-``sync``; read DISPATCH_WORK through this module at call time (tests and benchmarks change it).
+``sync``. DISPATCH_WORK and STEP_OVERHEAD are the defaults; ``call_size(work, overhead)`` sets other sizes for
+the solves of one thread inside a ``with`` block (tests, benchmarks), read with ``work()`` / ``step_overhead()``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import threading
 
 import jax
@@ -17,6 +19,33 @@ import jax
 DISPATCH_WORK = 2**24
 STEP_OVERHEAD = 2**13
 _CANCEL = threading.local()
+_SIZE = threading.local()
+
+
+@contextlib.contextmanager
+def call_size(work: int = DISPATCH_WORK, overhead: int = STEP_OVERHEAD):
+    """Inside the block, solves in the calling thread run in calls of at most ~``work`` point-steps, a step
+    counting ``overhead`` points more (ints >= 1 and >= 0); the sizes before it come back after it."""
+    if isinstance(work, bool) or not isinstance(work, int) or work < 1:
+        raise ValueError(f"work={work!r} not allowed; must be an integer >= 1 (point-steps per call)")
+    if isinstance(overhead, bool) or not isinstance(overhead, int) or overhead < 0:
+        raise ValueError(f"overhead={overhead!r} not allowed; must be an integer >= 0 (points per step)")
+    before = getattr(_SIZE, "value", None)
+    _SIZE.value = (work, overhead)
+    try:
+        yield
+    finally:
+        _SIZE.value = before
+
+
+def work() -> int:
+    """Point-steps per call for this thread's solves (DISPATCH_WORK unless inside ``call_size``)."""
+    return (getattr(_SIZE, "value", None) or (DISPATCH_WORK, STEP_OVERHEAD))[0]
+
+
+def step_overhead() -> int:
+    """The fixed cost of a step in points for this thread's solves (STEP_OVERHEAD unless inside ``call_size``)."""
+    return (getattr(_SIZE, "value", None) or (DISPATCH_WORK, STEP_OVERHEAD))[1]
 
 
 class Cancelled(Exception):
@@ -40,5 +69,5 @@ def sync(states) -> None:
 
 def pieces(n_steps: int, per_step: int) -> list[int]:
     """Steps per call for ``n_steps`` steps of ``per_step`` point-steps each: at most ~DISPATCH_WORK per call."""
-    k = max(1, DISPATCH_WORK // per_step)
+    k = max(1, work() // per_step)
     return [min(k, n_steps - done) for done in range(0, n_steps, k)]

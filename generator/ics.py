@@ -157,10 +157,16 @@ class GaussianRandomField:
 
 @dataclass(frozen=True)
 class GrayScottSpots:
-    """u = 1 - 2 s, v = s for a sum s of n_spots Gaussian bumps (periodic distance, width ``radius``,
-    peak ``height``) at uniform random centres, plus ``noise``-sized white noise on both fields.
+    """u = 1 - 2 s - noise * a, v = s + noise * b: s is n_spots Gaussian bumps (periodic distance, width ``radius``)
+    at uniform random centres, scaled so that max s <= ``height``; a, b are non-negative noise fields in [0, 1].
 
-    Two fields (Gray-Scott's u, v), any dimension. Not band-limited: frame 0 is its 2/3-rule projection.
+    Two fields (Gray-Scott's u, v), any dimension. Both are concentrations and stay in their physical range:
+    0 <= v <= height + noise and 1 - 2 height - noise <= u <= 1 (so 0 <= u, v <= 1, the declared bound; ``check``
+    refuses settings that would leave it). Why scaled, not summed: overlapping bumps summed to s > 1/2 and u < 0
+    (u min -0.24 in grayscott3d). Why non-negative noise: zero-mean white noise made v < 0 wherever s = 0. The noise
+    is the square of white noise band-limited to |m| <= n // 6 per axis, divided by its maximum: its square stays
+    inside the solver's 2/3-rule band, so frame 0 (the IC's projection) keeps the range (the bumps' tails beyond the
+    band are below 1e-8 at the default radii and spacing).
     """
 
     n_spots: int = 6
@@ -175,6 +181,18 @@ class GrayScottSpots:
             raise ValueError(f"ic.n_spots={self.n_spots} not allowed: need 1 <= n_spots <= {MAX_SPOTS}")
         if not self.radius > 0:
             raise ValueError(f"ic.radius={self.radius} not allowed: must be > 0")
+        if not (self.height >= 0 and self.noise >= 0 and 2 * self.height + self.noise <= 1):
+            raise ValueError(f"ic.height={self.height}, ic.noise={self.noise} not allowed: need height >= 0, "
+                             "noise >= 0 and 2 height + noise <= 1 (u = 1 - 2 s - noise stays >= 0)")
+
+    def _noise(self, key: jax.Array, grid: Grid) -> jax.Array:
+        """Two non-negative fields in [0, 1] with max 1, float32 [2, *shape], band-limited to |m| <= 2 (n // 6)."""
+        keep = jnp.asarray(grid.max_abs_mode() <= grid.n // 6)
+        g = grid.irfft(_white_noise_hat(key, grid, 2) * keep)
+        g2 = g * g
+        # max is exact in any order (unlike a sum), so the scale does not depend on the batch
+        peak = jnp.max(g2.reshape(2, -1), axis=1).reshape((2,) + (1,) * grid.ndim)
+        return g2 / jnp.maximum(peak, jnp.finfo(jnp.float32).tiny)
 
     def sample(self, key: jax.Array, grid: Grid, n_fields: int = 2) -> jax.Array:
         k_centre, k_noise = jax.random.split(key)
@@ -189,12 +207,14 @@ class GrayScottSpots:
             for axis in range(grid.ndim):
                 # chord distance on the circle: smooth and periodic, ~ |x - c| for nearby points
                 d2 = d2 + (grid.length / jnp.pi * jnp.sin(jnp.pi * (mesh[axis] - centres[i, axis]) / grid.length)) ** 2
-            s = s + self.height * jnp.exp(-d2 / (2 * self.radius**2))
-        noise = self.noise * jax.random.normal(k_noise, (2, *grid.shape), jnp.float32)
-        return jnp.stack([1.0 - 2.0 * s, s]) + noise
+            s = s + jnp.exp(-d2 / (2 * self.radius**2))
+        # one scale for the whole field (keeps it smooth and band-limited, unlike clipping): peak height at most
+        s = (self.height / jnp.maximum(1.0, jnp.max(s))) * s
+        a, b = self._noise(k_noise, grid)
+        return jnp.stack([1.0 - 2.0 * s - self.noise * a, s + self.noise * b])
 
     def bound(self, grid: Grid) -> float:
-        return 1.0
+        return 1.0  # 0 <= u, v <= 1 (check)
 
 
 IC_KINDS: Mapping[str, type] = {"fourier": FourierSeries, "grf": GaussianRandomField, "spots": GrayScottSpots}

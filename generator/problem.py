@@ -114,6 +114,9 @@ class ProblemBase(abc.ABC):
     # "face_x" / "face_y" (on the cell's lower face along that axis), "centre" (cell average), "mask" (a cell set,
     # 0/1, the solver's geometry: restricted by "any", never changed by a model). Empty: every field at the points.
     FIELD_LOCATIONS: ClassVar[Mapping[str, str]] = {}
+    # The units of every field and input field, in the words of Param.units ("1": dimensionless, "length/time"):
+    # shown by `pdestream list NAME`, in pictures, and stored as each cache variable's CF `units` attribute.
+    FIELD_UNITS: ClassVar[Mapping[str, str]] = {"u": "1"}
     # A class serving several dimensions: {ndim: setting defaults that differ in that dimension}, e.g.
     # {1: {}, 2: {"n": 64}, 3: {"n": 32}}. Empty: the class is one problem of dimension NDIM.
     DIMENSIONS: ClassVar[Mapping[int, Mapping[str, Any]]] = {}

@@ -151,9 +151,9 @@ def evolve_bounded(pde: PDE, parts):
     states = [(*start(u0, p), p, c) for u0, p, c in parts]
     batch = sum(int(u0.shape[0]) for u0, _, _ in parts)
     spf, last = pde.steps_per_frame, pde.n_frames - 1
-    per_step = batch * len(pde.FIELDS) * pde.n**pde.NDIM + len(parts) * dispatch.STEP_OVERHEAD
-    if per_step * spf <= dispatch.DISPATCH_WORK:  # whole frames per call
-        k = dispatch.DISPATCH_WORK // (per_step * spf)
+    per_step = batch * len(pde.FIELDS) * pde.n**pde.NDIM + len(parts) * dispatch.step_overhead()
+    if per_step * spf <= dispatch.work():  # whole frames per call
+        k = dispatch.work() // (per_step * spf)
         for lo in range(0, last, k):
             states = [(*frames(v, buf, p, c, lo, min(lo + k, last)), p, c) for v, buf, p, c in states]
             dispatch.sync(states)
@@ -193,7 +193,7 @@ def advance_bounded(pde: PDE, u: jax.Array, p: Mapping[str, jax.Array], coeffs, 
     recording no frames, in calls of at most ~DISPATCH_WORK point-steps like a rollout (a Ctrl-C or
     ``cancel_on`` stops between two): (u_k [B, C, *space], finite [B]), the bits of the steps in one call."""
     enter, leave, whole = compiled_state(pde)
-    pieces = dispatch.pieces(n_steps, int(u.shape[0]) * len(pde.FIELDS) * pde.n**pde.NDIM + dispatch.STEP_OVERHEAD)
+    pieces = dispatch.pieces(n_steps, int(u.shape[0]) * len(pde.FIELDS) * pde.n**pde.NDIM + dispatch.step_overhead())
     if len(pieces) == 1:  # one program (three dispatches and a sync made a one-frame advance 20-40% slower)
         return whole(u, p, coeffs, n_steps)
     steps = compiled_stages(pde)[3]

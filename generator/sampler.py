@@ -127,8 +127,8 @@ def sample(
     pde = get_pde(pde) if isinstance(pde, str) else pde
     if on_blowup not in ("raise", "redraw"):
         raise ValueError(f"on_blowup={on_blowup!r} not allowed; allowed: 'raise', 'redraw'")
-    if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")  # True is an int to Python, not a seed
     idx = _check_indices(indices)
     explicit, given = explicit_params(pde, params, len(idx))
     # each kind of PDE solves its samples its own way (time-dependent: ETDRK4 rollouts; steady: PCG)

@@ -30,27 +30,26 @@ from __future__ import annotations
 import copy
 import csv
 import json
-import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch.utils.data import DataLoader
 
 import datasets
 from datasets.proposal import ParamProposal
 
+from .checks import check_count, check_number
 from .compare import shifted_pde
-from .data import TEST_SEED_OFFSET, EpochBatchSampler, check_device, model_device, to_device
-from .evaluate import pairs, rollout
+from .data import TEST_SEED_OFFSET, EpochBatchSampler, check_device
+from .evaluate import error_stats, rollout_errors
 from .fno import COMPARE_FNO
-from .metrics import rel_l2
 from .models import build_model
-from .runs import model_channels
-from .train import predict, relative_errors, source_normalization, stack_frames
+from .modes import check_fits, make_mode, training_view
+from .phases import phase
+from .train import Stop, source_normalization, train
 
 ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")
 
@@ -81,26 +80,26 @@ class BudgetConfig:
     shift: float = -0.25
     device: str = "cpu"  # where the models train ("cuda": JAX solves on the GPU too when it sees one)
     snapshots: int = 8
+    mode: dict | None = None  # the training mode's settings (surrogate.modes; None: one-step)
 
     def check(self) -> None:
         if (self.budget_s is None) == (self.sim_budget is None):
             raise ValueError("give exactly one budget: --budget SECONDS or --sim-budget N")
-        if self.budget_s is not None and not (isinstance(self.budget_s, (int, float)) and math.isfinite(self.budget_s)
-                                              and self.budget_s > 0):
-            raise ValueError(f"--budget={self.budget_s} not allowed; must be a number of seconds > 0")
-        if self.sim_budget is not None and (isinstance(self.sim_budget, bool) or not isinstance(self.sim_budget, int)
-                                            or self.sim_budget < 1):
-            raise ValueError(f"--sim-budget={self.sim_budget} not allowed; must be an integer >= 1 (trajectories)")
+        if self.budget_s is not None:
+            check_number("--budget", self.budget_s, 0, unit="seconds")
+        if self.sim_budget is not None:
+            check_count("--sim-budget", self.sim_budget, note=" (trajectories)")
         unknown = [a for a in self.arms if a not in ARMS]
         if unknown or not self.arms:
             raise ValueError(f"arms {list(self.arms)} not allowed; choose from {', '.join(ARMS)}")
-        if not 0 <= self.sim_warmup_share <= 1:
-            raise ValueError(f"sim warm-up share={self.sim_warmup_share} not allowed; must be in [0, 1]")
-        if not 0 < self.precompute_share < 1:
-            raise ValueError(f"precompute share={self.precompute_share} not allowed; must be in (0, 1)")
+        check_number("sim warm-up share", self.sim_warmup_share, 0, 1, closed="both")
+        check_number("precompute share", self.precompute_share, 0, 1)
         check_device(self.device)
-        if self.steps < 1 or self.n_test < 1 or self.snapshots < 1 or self.seeds < 1:
-            raise ValueError("steps, seeds, test samples and snapshots must be >= 1")
+        for name, value in (("--steps", self.steps), ("--seeds", self.seeds), ("--test-samples", self.n_test),
+                            ("snapshots", self.snapshots), ("--batch-size", self.batch_size)):
+            check_count(name, value)
+        check_number("--lr", self.lr, 0)
+        make_mode(self.mode)
 
 
 # --- test sets ------------------------------------------------------------------------------------------
@@ -122,28 +121,9 @@ def stratified_test_set(pde, n: int, seed: int, chunk: int = 32) -> list[dict]:
     return out
 
 
-@torch.no_grad()
-def per_trajectory_errors(model, norm, view, test: list[dict]) -> np.ndarray:
+def per_trajectory_errors(model, norm, view, test: list[dict], mode=None) -> np.ndarray:
     """Relative L2 per test trajectory [N]: the operator's output, or the whole rollout of a next-step model."""
-    model.train(False)
-    errs = []
-    for batch in test:
-        batch = to_device(batch, model_device(model))
-        if view.rollout_k_in:  # a next-step model: its whole rollout
-            k = view.rollout_k_in
-            u = batch["u"]  # [b, T, C, *space]
-            pred = rollout(model, norm.normalize(u[:, :k]), norm.normalize_params(batch["params"]), u.shape[1] - k)
-            errs.append(rel_l2(norm.denormalize(pred), u[:, k:]))
-        else:
-            p = pairs(view, batch)
-            errs.append(rel_l2(predict(model, norm, p["x"], p["params"], model.ndim, p["y"].shape), p["y"]))
-    model.train()
-    return torch.cat(errs).cpu().numpy()
-
-
-def error_stats(errors: np.ndarray) -> dict:
-    """mean, p95 and max of per-trajectory errors."""
-    return {"mean": float(errors.mean()), "p95": float(np.percentile(errors, 95)), "max": float(errors.max())}
+    return rollout_errors(model, norm, test, view, mode).trajectory()
 
 
 # --- one arm ----------------------------------------------------------------------------------------------
@@ -198,71 +178,46 @@ def _warmup(cfg: BudgetConfig) -> int:
 
 
 def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=print, seed: int = 0) -> dict:
-    """Train one arm (model and data seed ``seed``) within the budget; evaluate its snapshots afterwards.
-    Returns the arm's record."""
+    """Train one arm (model and data seed ``seed``) within the budget through ``train.train`` (its clock started
+    before the data source was built: a cache's solves count); evaluate its snapshots afterwards. ``view``: the
+    arm's training view (``training_view`` of the mode). Returns the arm's record."""
     out.mkdir(parents=True, exist_ok=True)
     clock_start = time.perf_counter()
+    mode = make_mode(cfg.mode).bind(pde, seed)
     loader, extra = _loader(arm, pde, view, cfg, seed, out, clock_start, log)
     dataset = loader.dataset
-    norm = source_normalization(loader)
-    c_in, c_out = model_channels(pde, view)
+    norm = source_normalization(loader)  # before training: not counted as the loop's data wait
     torch.manual_seed(seed)  # the same initial weights in every arm
-    model = build_model(cfg.model, pde.NDIM, c_in, c_out, len(pde.PARAMS), bc=pde.grid.bc,
+    model = build_model(cfg.model, pde.NDIM, *mode.channels(pde, view), len(pde.PARAMS), bc=pde.grid.bc,
                         **cfg.model_cfg).to(cfg.device)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    report = getattr(dataset, "report_losses", None)
-    snapshots, steps, examples, t_data, t_compute = [], 0, 0, 0.0, 0.0
-    batches = iter(loader)
-    model.train()
-    while True:
-        elapsed = time.perf_counter() - clock_start
-        done = steps / cfg.steps if cfg.sim_budget is not None else elapsed / cfg.budget_s
-        if len(snapshots) < cfg.snapshots and done >= (len(snapshots) + 1) / cfg.snapshots - 1e-9:
-            snapshots.append((elapsed, steps, copy.deepcopy(model.state_dict())))
-        if done >= 1:
-            break
-        for group in opt.param_groups:  # cosine over the budget's elapsed fraction, down to 1%
-            group["lr"] = cfg.lr * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * done)))
-        t0 = time.perf_counter()
-        batch = next(batches, None)
-        if batch is None:  # a cache pass ended: the next epoch; a stream's simulation budget ran out: stop
-            if arm != "precomputed":
-                snapshots.append((time.perf_counter() - clock_start, steps, copy.deepcopy(model.state_dict())))
-                break
-            batches = iter(loader)
-            continue
-        batch = to_device(batch, cfg.device)  # a copy to the GPU counts as waiting for data
-        t1 = time.perf_counter()
-        # of_x / of_y: a steady entry's input field and solution have their own statistics (else both are all fields)
-        target = stack_frames(norm.of_y.normalize(batch["y"]), pde.NDIM)
-        pred = model(stack_frames(norm.of_x.normalize(batch["x"]), pde.NDIM), norm.normalize_params(batch["params"]))
-        loss = F.mse_loss(pred, target)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        if not math.isfinite(loss.item()):
-            raise ValueError(f"{arm}: training diverged at step {steps + 1}; lower --lr")
-        if report is not None:
-            report(batch, relative_errors(pred, target))
-        t_data, t_compute = t_data + t1 - t0, t_compute + time.perf_counter() - t1
-        steps, examples = steps + 1, examples + len(batch["x"])
-    wall = time.perf_counter() - clock_start
-    stats = dataset.stats() if hasattr(dataset, "stats") else {}
-    reuse = dataset.res.reuse(dataset.per_trajectory).tolist() if hasattr(dataset, "res") else []
-    density = dataset.proposal.density() if hasattr(dataset, "proposal") else None
-    if hasattr(dataset, "close"):
-        dataset.close()
-    solved = extra.get("trajectories_solved", stats.get("inserted"))
-    if solved is None:  # the FIFO stream uses each solve once: its examples tell how many it took
-        solved = examples // max(1, dataset.per_trajectory)
-    curve = []
-    for t, s, state in snapshots:
-        model.load_state_dict(state)
-        curve.append({"elapsed": t, "step": s, **{f"{k}_{m}": v for k, e in
-                                                   ((k, per_trajectory_errors(model, norm, view, ts)) for k, ts in tests.items())
-                                                   for m, v in error_stats(e).items()}})
-    final = {k: per_trajectory_errors(model, norm, view, ts) for k, ts in tests.items()}
-    torch.save({"model": model.state_dict(), "normalization": norm.to_dict()}, out / "model.pt")
+    snapshots, loop_end = [], [0.0]
+
+    def snapshot(step: int, fraction: float, elapsed: float) -> None:
+        loop_end[0] = elapsed
+        if len(snapshots) < cfg.snapshots and fraction >= (len(snapshots) + 1) / cfg.snapshots - 1e-9:
+            snapshots.append((elapsed, step, copy.deepcopy(model.state_dict())))
+
+    # a cache is trained over in epochs; a stream's simulation budget, once spent, ends the arm
+    stop = Stop(steps=cfg.steps if cfg.sim_budget is not None else None,
+                seconds=cfg.budget_s if cfg.sim_budget is None else None, once=arm != "precomputed")
+    try:
+        summary = train(model, loader, stop, out, lr=cfg.lr, normalizer=norm, label=arm, mode=mode,
+                        started=clock_start, after_step=snapshot, meta={"arm": arm, "seed": seed, "mode": mode.settings()})
+    finally:
+        stats = dataset.stats() if hasattr(dataset, "stats") else {}
+        report = dataset.report() if hasattr(dataset, "report") else {}  # a reservoir's reuse and where it solved
+        if hasattr(dataset, "close"):
+            dataset.close()
+    if summary["stop"] == "data" or not snapshots:  # the data ran out before the budget: the model as it ended
+        snapshots.append((summary["wall"], summary["steps"], copy.deepcopy(model.state_dict())))
+    steps, examples, t_data, t_compute = summary["steps"], summary["examples_seen"], summary["t_data"], summary["t_compute"]
+    wall = loop_end[0] if steps else summary["wall"]
+    # a cache knows its size; a reservoir counts its insertions; the FIFO stream uses each solve once
+    solved = extra.get("trajectories_solved", stats.get("inserted", summary["trajectories_seen"]))
+    with phase(f"{arm}: evaluating {len(snapshots)} snapshots on the test sets"):
+        curve = _snapshot_curve(model, norm, view, mode, snapshots, tests)  # leaves the model at the last one
+        final = {k: per_trajectory_errors(model, norm, view, ts, mode) for k, ts in tests.items()}
+    reuse, density = report.get("reuse", []), report.get("density")
     record = {"arm": arm, "seed": seed, "wall_s": wall, "steps": steps, "examples": examples, "trajectories_solved": solved,
               "data_wait_s": t_data, "compute_s": t_compute, "startup_s": wall - t_data - t_compute,
               "wait_share": t_data / max(t_data + t_compute, 1e-9),  # of the training loop's time
@@ -274,23 +229,38 @@ def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=
 
 
 # --- the comparison ----------------------------------------------------------------------------------------
+def _snapshot_curve(model, norm, view, mode, snapshots: list, tests: dict) -> list[dict]:
+    """Each snapshot (elapsed, step, state dict) loaded into ``model`` and evaluated: mean, p95 and max of the
+    per-trajectory errors on every test set."""
+    curve = []
+    for t, s, state in snapshots:
+        model.load_state_dict(state)
+        errors = {k: per_trajectory_errors(model, norm, view, ts, mode) for k, ts in tests.items()}
+        curve.append({"elapsed": t, "step": s, **{f"{k}_{m}": v for k, e in errors.items()
+                                                   for m, v in error_stats(e).items()}})
+    return curve
+
+
 def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None = None, log=print) -> dict:
     """Run every arm at the budget; write compare.md/csv/json and compare.png; return the result dict."""
     cfg.check()
     # fitted to the samples (a steady entry's operator view has no frames to check) and the model built once, so
     # a 3D entry or a bad --model-set is refused before any solve (it was refused after the test sets and a cache)
-    view = datasets.for_sample(datasets.make_view(cfg.view), pde.n_frames, len(pde.INPUTS))
-    build_model(cfg.model, pde.NDIM, *model_channels(pde, view), len(pde.PARAMS), bc=pde.grid.bc, **cfg.model_cfg)
+    mode = make_mode(cfg.mode)
+    view = training_view(mode, datasets.for_sample(datasets.make_view(cfg.view), pde.n_frames, len(pde.INPUTS)))
+    check_fits(mode, view, pde)
+    build_model(cfg.model, pde.NDIM, *mode.channels(pde, view), len(pde.PARAMS), bc=pde.grid.bc, **cfg.model_cfg)
     datasets.ReservoirStream(pde, view=view, batch_size=cfg.batch_size, capacity=cfg.capacity,
                              solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode,
                              proposal_kwargs={"floor": cfg.proposal_floor})  # settings checked before any work
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    tests = {"test": stratified_test_set(pde, cfg.n_test, 0)}
     shifted = shifted_pde(pde, cfg.shift, shift_overrides)
-    if shifted is not None:
-        tests["shifted"] = stratified_test_set(shifted, cfg.n_test, 0)
+    with phase(f"building the test sets ({cfg.n_test} stratified trajectories each)"):
+        tests = {"test": stratified_test_set(pde, cfg.n_test, 0)}
+        if shifted is not None:
+            tests["shifted"] = stratified_test_set(shifted, cfg.n_test, 0)
     log(f"test sets: {cfg.n_test} stratified trajectories" + (" in-domain and shifted" if shifted else "")
         + f" in {time.perf_counter() - t0:.1f} s")
     records = []
@@ -301,7 +271,7 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
             runs.append(rec)
             log(f"{arm:15s} seed {seed}: test mean {rec['test_mean']:.4f} p95 {rec['test_p95']:.4f} max "
                 f"{rec['test_max']:.4f}; {rec['steps']} steps, {rec['trajectories_solved']} trajectories, "
-                f"{rec['wall_s']:.0f} s, waiting {100 * rec['wait_share']:.0f}%")
+                f"{rec['wall_s']:.0f} s, loop waiting for data {100 * rec['wait_share']:.0f}%")
         records.append(combine_seeds(runs))
     test_params = {k: torch.cat([b["params"] for b in ts]).tolist() for k, ts in tests.items()}
     result = {"pde": pde.config(), "shifted_pde": shifted.config() if shifted else None,

@@ -20,10 +20,13 @@ from pathlib import Path
 
 import datasets
 
+from .checks import check_count, check_number
 from .data import test_set
 from .fno import COMPARE_FNO
 from .models import build_model
-from .runs import model_channels, train_run
+from .phases import phase
+from .predict import model_channels
+from .runs import train_run
 
 
 @dataclass
@@ -76,8 +79,10 @@ def compare(pde, out_dir, cfg: CompareConfig = CompareConfig(), shift_overrides:
             log=print) -> dict:
     """Run both arms for every seed; write the table and the figure; return {"rows": [...], ...}."""
     out = Path(out_dir)
-    if cfg.cache_samples < 1 or not cfg.seeds:
-        raise ValueError(f"compare needs cache_samples >= 1 and at least one seed (got {cfg.cache_samples}, {cfg.seeds})")
+    for name, value in (("--cache-samples", cfg.cache_samples), ("--seeds", len(cfg.seeds)),
+                        ("--test-samples", cfg.n_test), ("--steps", cfg.steps), ("--batch-size", cfg.batch_size)):
+        check_count(name, value)
+    check_number("--lr", cfg.lr, 0)
     # fail before any work: the view fitted to the samples (a steady entry has no frames), the model buildable
     view = datasets.make_view(cfg.view)
     fitted = datasets.for_sample(view, pde.n_frames, len(pde.INPUTS))
@@ -87,10 +92,11 @@ def compare(pde, out_dir, cfg: CompareConfig = CompareConfig(), shift_overrides:
     written = datasets.write_cache(pde, cache, cfg.cache_samples, seed=0, overwrite=True)
     log(written.line())
     t0 = time.perf_counter()
-    tests = {"test": test_set(pde, 0, cfg.n_test)}
     shifted = shifted_pde(pde, cfg.shift, shift_overrides)
-    if shifted is not None:
-        tests["shifted"] = test_set(shifted, 0, cfg.n_test)
+    with phase(f"building the test sets ({cfg.n_test} trajectories each)"):
+        tests = {"test": test_set(pde, 0, cfg.n_test)}
+        if shifted is not None:
+            tests["shifted"] = test_set(shifted, 0, cfg.n_test)
     log(f"test sets: {cfg.n_test} trajectories in-domain" + (f", {cfg.n_test} shifted ({_domains(shifted)})" if shifted else "")
         + f" in {time.perf_counter() - t0:.1f} s")
     runs = {"cache": [], "stream": []}

@@ -12,6 +12,8 @@ from torch.utils.data import DataLoader, Sampler
 
 import datasets
 
+from .checks import check_count
+
 TEST_SEED_OFFSET = 1_000_003  # test seeds never coincide with a training seed below this offset
 # data_cfg {"kind": "reservoir", ...}: the ReservoirStream keyword arguments a run may set
 RESERVOIR_SETTINGS = {"capacity", "max_reuse", "warmup", "eviction", "draw", "solve_batch", "mode", "producer",
@@ -92,37 +94,34 @@ def train_loader(pde, source: str, view, batch_size: int, seed: int = 0, data_se
     return loader, cached.pde
 
 
+def epoch_seed(seed: int, epoch: int) -> int:
+    """The generator seed of one epoch's shuffle: distinct for every (seed < 2**31, epoch < 2**32) pair."""
+    return (seed << 32) + epoch
+
+
 class EpochBatchSampler(Sampler):
     """Batches of example indices (lists of ``batch_size`` ints), one shuffled pass per epoch, resumable.
 
-    The batches are the ones ``DataLoader(ds, batch_size, shuffle=True, generator=Generator().manual_seed(seed),
-    drop_last)`` gives, and epoch e's order is a pure function of (seed, e): the generator is replayed through
-    the draws that loader makes per epoch. ``state_dict()`` records (epoch, batches handed out) -- exact for a
-    DataLoader without workers, which asks for one batch at a time.
+    Epoch e's order is ``torch.randperm(n)`` drawn from a generator seeded with ``epoch_seed(seed, e)`` (as
+    ``DistributedSampler`` seeds one per epoch with seed + epoch), so it is a pure function of (seed, e) that
+    no other draw shifts. ``state_dict()`` records (epoch, batches handed out) -- exact for a DataLoader without
+    workers, which asks for one batch at a time.
     """
 
     def __init__(self, n: int, batch_size: int, seed: int, drop_last: bool = False):
-        if n < 1 or batch_size < 1:
-            raise ValueError(f"EpochBatchSampler: n={n} and batch_size={batch_size} must both be >= 1")
+        check_count("n", n)
+        check_count("batch_size", batch_size)
+        if check_count("seed", seed, 0) >= 2**31:
+            raise ValueError(f"seed={seed!r} not allowed; must be an integer in [0, 2**31)")
         self.n, self.batch_size, self.seed, self.drop_last = n, batch_size, seed, bool(drop_last)
         self.epoch, self.consumed = 0, 0
-        self._gen, self._gen_epoch = None, -1  # generator positioned at the start of epoch _gen_epoch
 
     def __len__(self) -> int:
         return self.n // self.batch_size if self.drop_last else -(-self.n // self.batch_size)
 
     def _permutation(self, epoch: int) -> torch.Tensor:
-        """Epoch ``epoch``'s order [n]. Per epoch the shuffling DataLoader draws from its generator: its base
-        seed (an int64), RandomSampler's permutation, and a second permutation for the (empty) remainder."""
-        if self._gen is None or self._gen_epoch > epoch:
-            self._gen, self._gen_epoch = torch.Generator().manual_seed(self.seed), 0
-        while True:
-            torch.empty((), dtype=torch.int64).random_(generator=self._gen)
-            perm = torch.randperm(self.n, generator=self._gen)
-            torch.randperm(self.n, generator=self._gen)
-            self._gen_epoch += 1
-            if self._gen_epoch > epoch:
-                return perm
+        """Epoch ``epoch``'s order [n]."""
+        return torch.randperm(self.n, generator=torch.Generator().manual_seed(epoch_seed(self.seed, epoch)))
 
     def __iter__(self):
         if self.consumed >= len(self):  # resumed right at the end of an epoch

@@ -1,81 +1,103 @@
-"""Held-out evaluation: one-step errors under a training view, and autoregressive rollouts.
+"""Held-out evaluation, one evaluator: per-trajectory, per-frame errors, and the figures derived from them.
 
 A test set is a list of whole-trajectory batches {"u": [B, T, C, *space], "params": [B, P], "index": [B]}
-(the "whole" view), so the same test set serves operator and next-step models alike.
+(the "whole" view), so the same test set serves operator and next-step models, and every training mode.
+
+- ``rollout_errors`` is the one definition of a rollout's error: per test trajectory and predicted frame, the
+  L2 norm of the error and of the truth ([N, T] each). A next-step model is rolled out autoregressively from
+  the first k_in frames (by its mode: a network, or a corrected coarse solver); an operator model's one output
+  counts as one frame (T = 1). Per-frame relative errors, whole-trajectory relative errors, curves and the mean,
+  p95 and max over trajectories all derive from it.
+- ``test_errors``: one-step errors (relative L2 and PDEBench nRMSE) over every pair of the test trajectories,
+  plus the rollout curve for next-step views: what a training run reports.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numpy as np
 import torch
 from torch import nn
 
 from datasets.normalize import Normalization
-from datasets.views import collate, examples
 
 from .data import model_device, to_device
-from .metrics import nrmse, rel_l2, summarize
-from .train import predict
+from .metrics import EPS, nrmse, rel_l2
+from .modes import Mode, OneStep
+from .predict import pairs, predict
 
 
-def pairs(view, batch: dict) -> dict:
-    """Whole trajectories -> the view's (x, y) pairs, every window for next-step views."""
-    view = view.evaluation()  # a next-step view: every window, not a random few; ValueError for "whole"
-    u, params, index = batch["u"], batch["params"], batch["index"]
-    t = torch.zeros(u.shape[1])  # times are not model inputs
-    out = []
-    for i in range(len(u)):
-        out += examples(view, u[i], t, params[i], int(index[i]))
-    return collate(out)
+@dataclass(frozen=True)
+class RolloutErrors:
+    """diff, ref: float64 CPU [N, T]: per test trajectory and predicted frame, ||pred - truth||_2 and ||truth||_2
+    over all channels and grid points of the frame (physical units)."""
+
+    diff: torch.Tensor
+    ref: torch.Tensor
+
+    def relative(self) -> np.ndarray:
+        """Relative L2 error per trajectory and frame, [N, T] (``metrics.rel_l2`` of each frame)."""
+        return (self.diff / (self.ref + EPS)).numpy()
+
+    def trajectory(self) -> np.ndarray:
+        """Relative L2 error of each whole predicted trajectory (all its frames together), [N]."""
+        return (self.diff.pow(2).sum(1).sqrt() / (self.ref.pow(2).sum(1).sqrt() + EPS)).numpy()
+
+    def curve(self) -> list[float]:
+        """Relative L2 error per frame, mean over trajectories, [T]."""
+        return self.relative().mean(0).tolist()
+
+
+def error_stats(errors: np.ndarray) -> dict:
+    """mean, p95 and max over trajectories of per-trajectory errors [N]."""
+    return {"mean": float(errors.mean()), "p95": float(np.percentile(errors, 95)), "max": float(errors.max())}
+
+
+def _rolled_out(mode: Mode, model, norm: Normalization, batch: dict, view) -> tuple[torch.Tensor, torch.Tensor]:
+    """(prediction, truth) [B, T', ...] of one batch of whole trajectories, physical units."""
+    if view.rollout_k_in is None:  # an operator view: its one output is the whole prediction
+        p = pairs(view, batch)
+        return predict(model, norm, p["x"], p["params"], model.ndim, p["y"].shape)[:, None], p["y"][:, None]
+    return mode.rollout(model, norm, batch["u"], batch["params"], view.rollout_k_in)
 
 
 @torch.no_grad()
-def evaluate(model: nn.Module, norm: Normalization, test: list[dict], view, chunk: int = 256) -> dict:
-    """Mean relative L2 and nRMSE (PDEBench) over every pair of the test trajectories, physical units."""
-    model.train(False)  # evaluation mode
-    errors = {"rel_l2": [], "nrmse": []}
+def rollout_errors(model: nn.Module | None, norm: Normalization, test: list[dict], view,
+                   mode: Mode | None = None) -> RolloutErrors:
+    """Per test trajectory and predicted frame, the L2 error norm and the truth's norm ([N, T] each, see
+    ``RolloutErrors``). view: the model's view (its rollout_k_in frames start a rollout; an operator view makes
+    one frame); mode: who predicts a step (default one-step: the network; model None: the mode's solver alone)."""
+    mode = OneStep() if mode is None else mode
+    device = model_device(model) if model is not None else torch.device("cpu")
+    if model is not None:
+        model.train(False)
+    diff, ref = [], []
     for batch in test:
-        p = to_device(pairs(view, batch), model_device(model))
-        for s in range(0, len(p["x"]), chunk):
-            x, y, params = p["x"][s:s + chunk], p["y"][s:s + chunk], p["params"][s:s + chunk]
-            pred = predict(model, norm, x, params, model.ndim, y.shape)  # [b, (k_out,) C, *space]
-            errors["rel_l2"].append(rel_l2(pred, y))
-            errors["nrmse"].append(nrmse(pred, y, model.ndim))
-    model.train()
-    return summarize(errors)
+        pred, truth = _rolled_out(mode, model, norm, to_device(batch, device), view)
+        e, t = (pred - truth).double().flatten(2), truth.double().flatten(2)  # [B, T', C * points]
+        diff.append(e.norm(dim=2).cpu())
+        ref.append(t.norm(dim=2).cpu())
+    if model is not None:
+        model.train()
+    return RolloutErrors(torch.cat(diff), torch.cat(ref))
 
 
 @torch.no_grad()
-def rollout(model: nn.Module, u0: torch.Tensor, params: torch.Tensor, n_frames: int) -> torch.Tensor:
-    """Feed predictions back, in normalized units (the caller normalizes u0 and params, and denormalizes the
-    result): u0 [B, k_in, C, *space], params [B, P] -> [B, n_frames, C, *space]."""
-    k_in, frames, done = u0.shape[1], [], 0
-    window = u0
-    while done < n_frames:
-        out = model(window.flatten(1, 2), params)  # [B, k_out*C, *space]
-        nxt = out.reshape(u0.shape[0], -1, *u0.shape[2:])  # [B, k_out, C, *space]
-        frames.append(nxt)
-        done += nxt.shape[1]
-        window = torch.cat([window, nxt], dim=1)[:, -k_in:]  # [B, k_in, C, *space]
-    return torch.cat(frames, dim=1)[:, :n_frames]
-
-
-@torch.no_grad()
-def rollout_error(model: nn.Module, norm: Normalization, test: list[dict], k_in: int, horizon: int | None = None) -> list[float]:
-    """Relative L2 per predicted frame (mean over test trajectories), rolling out from the first k_in frames.
-
-    horizon: frames to predict (default: the rest of the trajectory).
-    """
-    model.train(False)  # evaluation mode
-    per_frame = []
+def test_errors(model: nn.Module, norm: Normalization, view, test: list[dict], mode: Mode | None = None) -> dict:
+    """{"rel_l2", "nrmse"}: mean over every one-step pair of the test trajectories (physical units; a next-step
+    mode's pairs are (frame, next frame)), plus "rollout" (relative L2 per frame, mean over trajectories) and
+    "rollout_final" for a next-step view."""
+    mode = OneStep() if mode is None else mode
+    model.train(False)
+    rel, nr = [], []
     for batch in test:
-        batch = to_device(batch, model_device(model))
-        u = batch["u"]  # [B, T, C, *space]
-        h = u.shape[1] - k_in if horizon is None else horizon
-        if not 1 <= h <= u.shape[1] - k_in:
-            raise ValueError(f"rollout horizon={h} not allowed; must be in 1..{u.shape[1] - k_in} for {u.shape[1]} frames")
-        pred = rollout(model, norm.normalize(u[:, :k_in]), norm.normalize_params(batch["params"]), h)
-        pred = norm.denormalize(pred)  # [B, h, C, *space]
-        truth = u[:, k_in:k_in + h]
-        per_frame.append(torch.stack([rel_l2(pred[:, j], truth[:, j]) for j in range(h)], dim=1).cpu())  # [B, h]
+        pred, truth = mode.one_step(model, norm, to_device(batch, model_device(model)), view)
+        rel.append(rel_l2(pred, truth).cpu())
+        nr.append(nrmse(pred, truth, model.ndim).cpu())
     model.train()
-    return torch.cat(per_frame).mean(0).tolist()
+    out = {"rel_l2": float(torch.cat(rel).mean()), "nrmse": float(torch.cat(nr).mean())}
+    if view.rollout_k_in:  # a next-step view: the model is also rolled out
+        curve = rollout_errors(model, norm, test, view, mode).curve()
+        out["rollout"], out["rollout_final"] = curve, curve[-1]
+    return out

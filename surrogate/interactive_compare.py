@@ -31,13 +31,15 @@ import numpy as np
 import datasets
 
 from .budget import stratified_test_set
+from .checkpoint import load_checkpoint
+from .checks import check_count, check_number
 from .data import check_device
-from .modes import MODE_NAMES, check_mode_settings, make_mode, rollout_errors
+from .evaluate import error_stats, rollout_errors
+from .mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, NETWORK_MODES, mode_settings
+from .modes import make_mode
+from .phases import phase
 from .rollout_figure import plot_rollouts
 from .runs import train_run
-from .train import load_checkpoint
-
-NETWORK_MODES = ("one-step", "pushforward", "oracle")
 
 
 @dataclass
@@ -46,7 +48,7 @@ class InteractiveConfig:
     last); coarse_n / fine_n: the solver-in-the-loop grids (fine_n None: the PDE's n)."""
 
     modes: tuple = NETWORK_MODES
-    unroll: int = 4
+    unroll: int = DEFAULTS["unroll"]
     sitl_unroll: int | None = None
     steps: int = 2000
     batch_size: int = 32
@@ -56,7 +58,7 @@ class InteractiveConfig:
     k_in: int = 1
     seed: int = 0
     n_test: int = 32
-    coarse_n: int = 64
+    coarse_n: int = DEFAULTS["coarse_n"]
     fine_n: int | None = None
     device: str = "cpu"
 
@@ -66,17 +68,23 @@ class InteractiveConfig:
         if unknown or not self.modes:
             raise ValueError(f"--modes {','.join(self.modes)} not allowed; choose from {', '.join(MODE_NAMES)}")
         for name in self.modes:
-            check_mode_settings(name, self.unroll if name != "one-step" else 1)
-        if self.sitl_unroll is not None:
-            check_mode_settings("solver-in-the-loop", self.sitl_unroll)
-        for name, value in (("steps", self.steps), ("batch size", self.batch_size), ("test samples", self.n_test),
-                            ("k_in", self.k_in)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name}={value!r} not allowed; must be an integer >= 1")
+            _settings(self, name)
+        for name, value in (("--steps", self.steps), ("--batch-size", self.batch_size), ("--test-samples", self.n_test),
+                            ("--k-in", self.k_in)):
+            check_count(name, value)
+        check_number("--lr", self.lr, 0)
         if pde.n_frames < self.k_in + max(self.unroll, 1) + 1:
             raise ValueError(f"--unroll {self.unroll} needs trajectories of at least {self.k_in + self.unroll + 1} "
                              f"frames; {pde.NAME} has n_frames={pde.n_frames}")
         check_device(self.device)
+
+
+def _settings(cfg: InteractiveConfig, name: str, **override) -> dict:
+    """Mode ``name``'s settings in this comparison: the config's unroll (sitl_unroll for solver-in-the-loop) and
+    coarse grid where the mode takes them (the mode table decides), ``override`` on top."""
+    unroll = cfg.sitl_unroll if name == "solver-in-the-loop" and cfg.sitl_unroll else cfg.unroll
+    given = {"unroll": unroll, "coarse_n": cfg.coarse_n, **override}
+    return mode_settings(name, **{k: v for k, v in given.items() if k in MODE_SPECS[name].settings})
 
 
 def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict:
@@ -87,26 +95,28 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
     sitl = "solver-in-the-loop" in cfg.modes
     fine = pde.replace({"n": cfg.fine_n}) if sitl and cfg.fine_n not in (None, pde.n) else pde
     if sitl:
-        make_mode({"name": "solver-in-the-loop", "unroll": 1, "coarse_n": cfg.coarse_n}).bind(fine)  # sizes fit?
+        make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)  # sizes fit?
     out.mkdir(parents=True, exist_ok=True)
     arms = []
     if net_modes:
         t0 = time.perf_counter()
-        test = stratified_test_set(pde, cfg.n_test, cfg.seed)
+        with phase(f"building the test set ({cfg.n_test} trajectories)"):
+            test = stratified_test_set(pde, cfg.n_test, cfg.seed)
         log(f"test set: {cfg.n_test} trajectories of {pde.n_frames} frames in {time.perf_counter() - t0:.1f} s")
         for name in net_modes:
-            settings = {"name": name} if name == "one-step" else {"name": name, "unroll": cfg.unroll}
+            settings = _settings(cfg, name)
             arms.append(_train_arm(name, pde, settings, test, cfg, out / name, log))
     if sitl:
-        test = stratified_test_set(fine, cfg.n_test, cfg.seed)
-        k = cfg.sitl_unroll or cfg.unroll
-        coarse = make_mode({"name": "solver-in-the-loop", "unroll": 1, "coarse_n": cfg.coarse_n}).bind(fine)
+        with phase(f"building the fine test set ({cfg.n_test} trajectories, n={fine.n})"):
+            test = stratified_test_set(fine, cfg.n_test, cfg.seed)
+        k = _settings(cfg, "solver-in-the-loop")["unroll"]
+        coarse = make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)
         t0 = time.perf_counter()
-        errors = rollout_errors(coarse, None, _identity_norm(fine), test, 1).numpy()
+        errors = rollout_errors(None, _identity_norm(fine), test, datasets.NextStep(1, 1), coarse).relative()
         arms.append(_record("coarse solver", "none", errors, 0.0, None, cfg.coarse_n))
         log(f"coarse solver (n={cfg.coarse_n}): end error {arms[-1]['end_mean']:.4f} ({time.perf_counter() - t0:.1f} s)")
         for label, unroll in (("pairs (unroll 1)", 1), (f"solver-in-the-loop (unroll {k})", k)):
-            settings = {"name": "solver-in-the-loop", "unroll": unroll, "coarse_n": cfg.coarse_n}
+            settings = _settings(cfg, "solver-in-the-loop", unroll=unroll)
             arms.append(_train_arm(label, fine, settings, test, cfg, out / f"sitl_unroll{unroll}", log))
         _plot_sitl_rollouts(out / "rollouts.png", fine, coarse, test[0], out, k, cfg)
     result = {"pde": pde.config(), "fine_pde": fine.config() if sitl else None, "config": asdict(cfg),
@@ -120,12 +130,15 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
 def _plot_sitl_rollouts(path: Path, fine, coarse, test: dict, out: Path, k: int, cfg: InteractiveConfig) -> None:
     """rollouts.png: the first held-out trajectory as the reference (fine, restricted to the coarse grid), the
     coarse solver alone, the pairs-trained and the solver-in-the-loop corrections, over time."""
-    u, params = test["u"][:1], test["params"][:1]
+    device = check_device(cfg.device)
+    u, params = test["u"][:1].to(device), test["params"][:1].to(device)
     rows = {}
     for label, run in (("coarse solver", None), ("pairs (unroll 1)", "sitl_unroll1"),
                        (f"solver-in-the-loop (unroll {k})", f"sitl_unroll{k}")):
         model, norm = (None, _identity_norm(fine)) if run is None else load_checkpoint(out / run / "model.pt")[:2]
-        pred, truth = coarse.rollout(model, norm, u, params)
+        if model is not None:
+            model.to(device)
+        pred, truth = (x.cpu() for x in coarse.rollout(model, norm, u, params))
         rows.setdefault(f"reference (n={fine.n} restricted)", truth[0])
         rows[label] = pred[0]
     where = getattr(fine, "FIELD_LOCATIONS", {})
@@ -152,7 +165,8 @@ def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: Interacti
     model, norm, _ = load_checkpoint(run_dir / "model.pt")
     model.to(check_device(cfg.device))
     mode = make_mode(settings).bind(pde, cfg.seed)
-    errors = rollout_errors(mode, model, norm, test, cfg.k_in).numpy()  # [N, T - k_in]
+    with phase(f"{label}: rolling out {cfg.n_test} test trajectories"):
+        errors = rollout_errors(model, norm, test, datasets.NextStep(cfg.k_in, 1), mode).relative()  # [N, T - k_in]
     rec = _record(label, settings["name"], errors, summary["wall"], summary, settings.get("coarse_n", pde.n))
     rec["unroll"] = settings.get("unroll", 1)
     rec["mode_stats"] = summary.get("mode_stats", {})
@@ -163,10 +177,10 @@ def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: Interacti
 
 def _record(label: str, mode: str, errors: np.ndarray, wall: float, summary: dict | None, n: int) -> dict:
     """One arm's figures from its per-trajectory, per-frame errors [N, h]; n: the grid it predicts on."""
-    end = errors[:, -1]
+    end = error_stats(errors[:, -1])
     return {"arm": label, "mode": mode, "n": n, "wall_s": wall, "steps": summary["steps"] if summary else 0,
             "final_loss": summary["final_loss"] if summary else None,
-            "end_mean": float(end.mean()), "end_p95": float(np.percentile(end, 95)), "end_max": float(end.max()),
+            "end_mean": end["mean"], "end_p95": end["p95"], "end_max": end["max"],
             "rollout_mean": float(errors.mean()), "curve": errors.mean(0).tolist(),
             "curve_p95": np.percentile(errors, 95, axis=0).tolist(), "frames": errors.shape[1]}
 

@@ -38,11 +38,8 @@ from torch import nn
 import datasets
 from datasets.normalize import Normalization
 
-from .data import model_device, to_device
-from .metrics import nrmse, rel_l2
-from .train import predict, relative_errors, stack_frames
-
-MODE_NAMES = ("one-step", "pushforward", "oracle", "solver-in-the-loop")
+from .mode_table import DEFAULTS, MODE_NAMES, mode_settings
+from .predict import model_channels, net_step, pairs, predict, relative_errors, rollout, stack_frames
 
 
 class Mode(Protocol):
@@ -59,6 +56,9 @@ class Mode(Protocol):
     def frames_ahead(self, view) -> int:
         """Target frames per example the mode reads from a next-step view."""
 
+    def train_view(self, view):
+        """The view the mode trains on, made from the one asked for; ValueError (one line) when it cannot."""
+
     def channels(self, pde, view) -> tuple[int, int]:
         """(in_channels, out_channels) of the network."""
 
@@ -71,22 +71,33 @@ class Mode(Protocol):
         k_in frames: (prediction, truth), both [B, T - k_in, C, *space'] in physical units on the grid the mode
         predicts on."""
 
+    def one_step(self, model: nn.Module, norm: Normalization, batch: dict, view) -> tuple[torch.Tensor, torch.Tensor]:
+        """(prediction, truth) of every one-step pair of the whole trajectories in ``batch`` (physical units):
+        the training view's pairs for one-step, (frame, next frame) for the modes that unroll."""
 
-def _next_step(view, mode: str) -> None:
+
+def _unrolling_view(mode, view):
+    """A next-step ``view`` reading ``mode.frames_ahead`` frames ahead; ValueError for a view without windows."""
     if view.rollout_k_in is None:  # the view makes no windows of frames to unroll over
-        raise ValueError(f"--mode {mode} needs the next_step view, not {view.name!r}; use --view next_step")
+        raise ValueError(f"--mode {mode.name} needs the next_step view, not {view.name!r}; use --view next_step")
+    if view.frames_out != 1:  # the mode predicts one frame per network call
+        raise ValueError(f"--k-out={view.frames_out} goes with --mode one-step; --mode {mode.name} predicts one frame "
+                         "per step and reads --unroll frames ahead")
+    return view.ahead(mode.frames_ahead(view))
 
 
-def _net_step(model: nn.Module, window: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
-    """One network step in normalized units: window [B, k_in, C, *space] -> next frame [B, 1, C, *space]."""
-    out = model(window.flatten(1, 2), p)  # [B, C, *space]
-    return out.reshape(window.shape[0], 1, *window.shape[2:])
+@torch.no_grad()
+def _net_one_step(model: nn.Module, norm: Normalization, batch: dict, view, chunk: int = 256):
+    """(prediction, truth) of every (x, y) pair ``view`` makes of the whole trajectories in ``batch``, physical
+    units, predicted ``chunk`` pairs at a time."""
+    p = pairs(view, batch)
+    pred = [predict(model, norm, p["x"][s:s + chunk], p["params"][s:s + chunk], model.ndim, p["y"][s:s + chunk].shape)
+            for s in range(0, len(p["x"]), chunk)]
+    return torch.cat(pred), p["y"]
 
 
 @torch.no_grad()
 def _net_rollout(model: nn.Module, norm: Normalization, u: torch.Tensor, params: torch.Tensor, k_in: int):
-    from .evaluate import rollout
-
     h = u.shape[1] - k_in
     pred = rollout(model, norm.normalize(u[:, :k_in]), norm.normalize_params(params), h)
     return norm.denormalize(pred), u[:, k_in:]
@@ -108,9 +119,10 @@ class OneStep:
     def frames_ahead(self, view) -> int:
         return view.frames_out
 
-    def channels(self, pde, view) -> tuple[int, int]:
-        from .runs import model_channels
+    def train_view(self, view):
+        return view
 
+    def channels(self, pde, view) -> tuple[int, int]:
         return model_channels(pde, view)
 
     def step_loss(self, model, batch, norm, step):
@@ -121,13 +133,16 @@ class OneStep:
     def rollout(self, model, norm, u, params, k_in):
         return _net_rollout(model, norm, u, params, k_in)
 
+    def one_step(self, model, norm, batch, view):
+        return _net_one_step(model, norm, batch, view)
+
 
 def _unrolled(model: nn.Module, window: torch.Tensor, p: torch.Tensor, j: torch.Tensor) -> torch.Tensor:
     """Example i's window after j[i] network steps without gradient: [B, k_in, C, *space] normalized."""
     out = window.clone()
     with torch.no_grad():
         for i in range(1, int(j.max()) + 1):
-            window = torch.cat([window[:, 1:], _net_step(model, window, p)], dim=1)
+            window = torch.cat([window[:, 1:], net_step(model, window, p)], dim=1)
             out[j == i] = window[j == i]
     return out
 
@@ -142,7 +157,7 @@ def _draws(seed: int, step: int, batch: int, low: int, high: int) -> torch.Tenso
 class Pushforward:
     """Unroll n ~ U{0..k-1} network steps without gradient, train the next one against the frame n+1 ahead."""
 
-    unroll: int = 2
+    unroll: int = DEFAULTS["unroll"]
     seed: int = 0
     name: ClassVar[str] = "pushforward"
 
@@ -160,6 +175,9 @@ class Pushforward:
     def frames_ahead(self, view) -> int:
         return self.unroll
 
+    def train_view(self, view):
+        return _unrolling_view(self, view)
+
     def channels(self, pde, view) -> tuple[int, int]:
         return view.rollout_k_in * len(pde.FIELDS), len(pde.FIELDS)
 
@@ -167,12 +185,15 @@ class Pushforward:
         p = norm.normalize_params(batch["params"])
         n = self.draws(step, len(p)).to(p.device)
         window = _unrolled(model, norm.normalize(batch["x"]), p, n)  # the unrolled steps carry no gradient
-        pred = _net_step(model, window, p)[:, 0]  # [B, C, *space]
+        pred = net_step(model, window, p)[:, 0]  # [B, C, *space]
         target = norm.normalize(batch["y"][torch.arange(len(n), device=n.device), n])
         return F.mse_loss(pred, target), relative_errors(pred, target)
 
     def rollout(self, model, norm, u, params, k_in):
         return _net_rollout(model, norm, u, params, k_in)
+
+    def one_step(self, model, norm, batch, view):
+        return _net_one_step(model, norm, batch, datasets.NextStep(view.rollout_k_in, 1))
 
 
 @dataclass
@@ -184,7 +205,7 @@ class Oracle:
     reached a state the solver cannot advance) are left out of the loss and counted in ``dropped``.
     """
 
-    unroll: int = 2
+    unroll: int = DEFAULTS["unroll"]
     solver: object = None
     seed: int = 0
     dropped: int = 0
@@ -204,6 +225,9 @@ class Oracle:
 
     def frames_ahead(self, view) -> int:
         return 1  # the targets come from the solver; the view only supplies start states
+
+    def train_view(self, view):
+        return _unrolling_view(self, view)
 
     def channels(self, pde, view) -> tuple[int, int]:
         return view.rollout_k_in * len(pde.FIELDS), len(pde.FIELDS)
@@ -245,7 +269,7 @@ class Oracle:
                                  "lower --lr or --unroll")
             start, answer, batch = start[ok], answer[ok], {**batch, "params": batch["params"][ok]}
         target = norm.normalize(answer)
-        pred = _net_step(model, start, norm.normalize_params(batch["params"]))[:, 0]
+        pred = net_step(model, start, norm.normalize_params(batch["params"]))[:, 0]
         per = relative_errors(pred, target)
         if not bool(ok.all()):  # report_losses wants a value per example: the dropped count as the worst kept
             full = torch.full((len(ok),), float(per.max()), dtype=torch.float64)
@@ -255,6 +279,9 @@ class Oracle:
 
     def rollout(self, model, norm, u, params, k_in):
         return _net_rollout(model, norm, u, params, k_in)
+
+    def one_step(self, model, norm, batch, view):
+        return _net_one_step(model, norm, batch, datasets.NextStep(view.rollout_k_in, 1))
 
 
 def subsample(u: torch.Tensor, factor: int, ndim: int, bc: tuple[str, ...] | None = None,
@@ -303,8 +330,8 @@ class SolverInTheLoop:
     the solver (``datasets.SolverStep``). unroll=1 is training on precomputed (coarse step, fine) pairs.
     """
 
-    unroll: int = 4
-    coarse_n: int = 64
+    unroll: int = DEFAULTS["unroll"]
+    coarse_n: int = DEFAULTS["coarse_n"]
     step: nn.Module | None = None
     factor: int = 0
     walls: tuple[str, ...] | None = None  # the PDE's per-axis bc (None: periodic), for the fine -> coarse points
@@ -316,6 +343,12 @@ class SolverInTheLoop:
 
     def frames_ahead(self, view) -> int:
         return self.unroll
+
+    def train_view(self, view):
+        if view.rollout_k_in not in (None, 1):
+            raise ValueError(f"--mode solver-in-the-loop corrects one state at a time: --k-in={view.rollout_k_in} not "
+                             "allowed; use 1")
+        return _unrolling_view(self, view)
 
     def channels(self, pde, view) -> tuple[int, int]:
         return len(pde.FIELDS), len(pde.FIELDS)
@@ -372,50 +405,38 @@ class SolverInTheLoop:
             out.append(s)
         return torch.stack(out, dim=1), truth[:, 1:]
 
+    def one_step(self, model, norm, batch, view):
+        """Each frame's corrected coarse step against the next frame, on the coarse grid."""
+        u, params = batch["u"], batch["params"]
+        B, T = u.shape[:2]
+        starts = u[:, :-1].reshape(B * (T - 1), 1, *u.shape[2:])
+        pred, truth = self.rollout(model, norm, torch.cat([starts, u[:, 1:].reshape(starts.shape)], 1),
+                                   params.repeat_interleave(T - 1, 0))
+        return pred[:, 0], truth[:, 0]
 
-MODES = {"one-step": OneStep, "pushforward": Pushforward, "oracle": Oracle, "solver-in-the-loop": SolverInTheLoop}
+
+MODES = {cls.name: cls for cls in (OneStep, Pushforward, Oracle, SolverInTheLoop)}  # one per MODE_SPECS row
+assert tuple(MODES) == MODE_NAMES
 
 
-def check_mode_settings(name: str, unroll: int = 1, coarse_n: int | None = None) -> None:
-    """ValueError (one line) naming a bad mode name, unroll or coarse grid."""
-    if name not in MODES:
-        raise ValueError(f"unknown mode {name!r}; allowed: {', '.join(MODES)}")
-    if isinstance(unroll, bool) or not isinstance(unroll, int) or unroll < 1:
-        raise ValueError(f"--unroll={unroll!r} not allowed; must be an integer >= 1")
-    if name != "solver-in-the-loop" and coarse_n is not None:
-        raise ValueError(f"--coarse-n goes with --mode solver-in-the-loop, not --mode {name}")
+def check_mode_settings(name: str, unroll: int | None = None, coarse_n: int | None = None) -> None:
+    """ValueError (one line) naming a bad mode name, unroll or coarse grid (``mode_table.mode_settings``)."""
+    mode_settings(name, unroll=unroll, coarse_n=coarse_n)
 
 
 def make_mode(settings: dict | None) -> Mode:
-    """The mode of run.json's "mode" settings ({"name", "unroll", "coarse_n"}; None: one-step), not yet bound
-    to a PDE: ``mode.bind(pde, seed)`` gives it its solver."""
+    """The mode of run.json's "mode" settings ({"name", "unroll", "coarse_n"}; None: one-step; a setting left
+    out: its default, ``mode_table.DEFAULTS``), not yet bound to a PDE: ``mode.bind(pde, seed)`` gives it its
+    solver. ValueError (one line) for a bad name or setting."""
     s = dict(settings or {"name": "one-step"})
-    name = s.pop("name", "one-step")
-    unroll, coarse_n = s.pop("unroll", 1), s.pop("coarse_n", None)
-    if s:
-        raise ValueError(f"unknown mode setting(s) {sorted(s)}; allowed: name, unroll, coarse_n")
-    check_mode_settings(name, unroll, coarse_n)
-    if name == "one-step":
-        if unroll != 1:
-            raise ValueError(f"--unroll={unroll} goes with pushforward, oracle or solver-in-the-loop, not one-step")
-        return OneStep()
-    if name == "pushforward":
-        return Pushforward(unroll)
-    if name == "oracle":
-        return Oracle(unroll)
-    return SolverInTheLoop(unroll, 64 if coarse_n is None else coarse_n)
+    s = mode_settings(s.pop("name", "one-step"), **s)
+    return MODES[s.pop("name")](**s)
 
 
 def training_view(mode: Mode, view):
-    """The view a mode trains on: one-step keeps ``view``; the others need a next-step view and get
-    k_out = ``mode.frames_ahead``. ValueError (one line) for another view or a window that does not fit."""
-    if isinstance(mode, OneStep):
-        return view
-    _next_step(view, mode.name)
-    if isinstance(mode, SolverInTheLoop) and view.rollout_k_in != 1:
-        raise ValueError(f"--mode solver-in-the-loop corrects one state at a time: --k-in={view.rollout_k_in} not allowed; "
-                         "use 1")
-    return view.ahead(mode.frames_ahead(view))
+    """The view a mode trains on (``mode.train_view``): one-step keeps ``view``; the others need a next-step view
+    and get k_out = ``mode.frames_ahead``. ValueError (one line) for another view or a window that does not fit."""
+    return mode.train_view(view)
 
 
 def check_fits(mode: Mode, view, pde) -> None:
@@ -428,48 +449,3 @@ def check_fits(mode: Mode, view, pde) -> None:
         raise ValueError(f"--mode {mode.name} with --unroll {mode.unroll} and --k-in {k_in} needs "
                          f"{k_in + view.frames_out} frames per window but the trajectories have {pde.n_frames}; "
                          f"allowed: --unroll <= {pde.n_frames - k_in}")
-
-
-@torch.no_grad()
-def rollout_errors(mode: Mode, model, norm: Normalization, test: list[dict], k_in: int) -> torch.Tensor:
-    """Relative L2 per test trajectory and predicted frame, float64 [N, T - k_in] (physical units)."""
-    if model is not None:
-        model.train(False)
-    errs, device = [], model_device(model) if model is not None else torch.device("cpu")
-    for batch in test:
-        batch = to_device(batch, device)
-        pred, truth = mode.rollout(model, norm, batch["u"], batch["params"], k_in)
-        errs.append(torch.stack([rel_l2(pred[:, j], truth[:, j]) for j in range(pred.shape[1])], dim=1).double().cpu())
-    if model is not None:
-        model.train()
-    return torch.cat(errs)
-
-
-@torch.no_grad()
-def mode_test_errors(mode: Mode, model, norm: Normalization, view, test: list[dict]) -> dict:
-    """{"rel_l2", "nrmse", "rollout" (mean per frame), "rollout_final"} of a mode that predicts one frame per
-    step: one-step errors on every (frame, next frame) pair, and the whole rollout from the first k_in frames."""
-    k_in = view.rollout_k_in
-    rel, nr = [], []
-    model.train(False)
-    for batch in test:
-        batch = to_device(batch, model_device(model))
-        u, params = batch["u"], batch["params"]
-        if isinstance(mode, SolverInTheLoop):
-            B, T = u.shape[:2]
-            starts = u[:, :-1].reshape(B * (T - 1), 1, *u.shape[2:])
-            p = params.repeat_interleave(T - 1, 0)
-            pred, truth = mode.rollout(model, norm, torch.cat([starts, u[:, 1:].reshape(starts.shape)], 1), p)
-            pred, truth = pred[:, 0], truth[:, 0]
-        else:
-            from .evaluate import pairs
-
-            pp = pairs(datasets.NextStep(k_in, 1), batch)
-            truth = pp["y"]
-            pred = predict(model, norm, pp["x"], pp["params"], model.ndim, truth.shape)
-        rel.append(rel_l2(pred, truth).cpu())
-        nr.append(nrmse(pred, truth, model.ndim).cpu())
-    model.train()
-    curve = rollout_errors(mode, model, norm, test, k_in).mean(0).tolist()
-    return {"rel_l2": float(torch.cat(rel).mean()), "nrmse": float(torch.cat(nr).mean()), "rollout": curve,
-            "rollout_final": curve[-1]}

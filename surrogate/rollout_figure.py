@@ -42,6 +42,9 @@ def plot_rollouts(path: Path, pde, rows: dict[str, torch.Tensor], h: float, dt: 
     import matplotlib.pyplot as plt
 
     pics = {label: picture_of(pde, frames, h) for label, frames in rows.items()}
+    if next(iter(pics.values()))[0].ndim == 2:  # 1D: one space-time image per row
+        _space_time(plt, path, pde, pics, dt)
+        return
     steps = next(iter(pics.values()))[0].shape[0]
     cols = np.unique(np.linspace(0, steps - 1, min(columns, steps)).round().astype(int))
     fig, axes = plt.subplots(len(pics), len(cols), figsize=(2.6 * len(cols), 1.6 * len(pics) + 0.6), squeeze=False)
@@ -63,6 +66,23 @@ def plot_rollouts(path: Path, pde, rows: dict[str, torch.Tensor], h: float, dt: 
                 ax.set_ylabel(label, fontsize=8)
     fig.suptitle(f"{pde.NAME}: {what}, one held-out trajectory (colour range per column: the reference's)",
                  fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _space_time(plt, path: Path, pde, pics: dict, dt: float) -> None:
+    """1D rollouts: one image per row (x across, t up), the reference's colour range."""
+    ref, what = next(iter(pics.values()))
+    lim = float(np.percentile(np.abs(ref), 99)) or 1.0
+    fig, axes = plt.subplots(1, len(pics), figsize=(2.8 * len(pics), 3.0), squeeze=False)
+    for ax, (label, (pic, _)) in zip(axes[0], pics.items()):
+        ax.imshow(pic, origin="lower", aspect="auto", cmap="RdBu_r", vmin=-lim, vmax=lim,
+                  extent=(0, pic.shape[1], dt, dt * pic.shape[0]))
+        ax.set_title(label, fontsize=8)
+        ax.set_xlabel("x (cells)", fontsize=8)
+    axes[0, 0].set_ylabel("t", fontsize=8)
+    fig.suptitle(f"{pde.NAME}: {what}, one held-out trajectory", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -16,11 +16,13 @@ import torch
 import datasets
 
 from .budget_plot import plot_reservoir_run
+from .checkpoint import CHECKPOINT, atomic_write, load_train_state
 from .data import check_device, test_set, train_loader
-from .evaluate import evaluate, rollout_error
+from .evaluate import test_errors
 from .models import build_model
-from .modes import OneStep, check_fits, make_mode, mode_test_errors, training_view
-from .train import CHECKPOINT, atomic_write, check_train_settings, load_train_state, train
+from .modes import check_fits, make_mode, training_view
+from .phases import phase
+from .train import check_train_settings, train
 from .user_model import check_output
 
 RUN_FILE = "run.json"
@@ -83,21 +85,6 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def model_channels(pde, view) -> tuple[int, int]:
-    """(in_channels, out_channels) of a model trained on ``view`` (the view says: frames stacked into channels for
-    next-step views); ValueError for a view that makes no input/target pairs."""
-    return view.channels(len(pde.FIELDS))
-
-
-def test_errors(model, normalizer, view, test: list[dict]) -> dict:
-    """{"rel_l2", "nrmse"} on every pair of the test trajectories, plus "rollout" (per frame) for next-step."""
-    out = evaluate(model, normalizer, test, view)
-    if view.rollout_k_in:  # a next-step view: the model is also rolled out
-        curve = rollout_error(model, normalizer, test, view.rollout_k_in)
-        out["rollout"], out["rollout_final"] = curve, curve[-1]
-    return out
-
-
 def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict | None = None, view="next_step",
               steps: int = 1000, batch_size: int = 32, lr: float = 1e-3, schedule: str = "cosine", seed: int = 0,
               data_seed: int | None = None, tests: dict[str, list[dict]] | None = None, n_test: int = 32,
@@ -136,7 +123,7 @@ def resume_run(run_dir, run: tuple[dict, dict] | None = None) -> tuple[dict, int
     """
     run_dir = Path(run_dir)
     settings, ckpt = read_run(run_dir) if run is None else run
-    from datasets._bridge import pde_from_config  # the one door to the generator (surrogate never imports it)
+    from datasets import pde_from_config  # the one door to the generator (surrogate never imports it)
 
     for name in RUN_FILES:  # temp files of atomic writes cut short by the kill
         for stray in run_dir.glob(f".{name}.*.tmp"):
@@ -206,10 +193,12 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
             "seed": s["seed"], "data_seed": s["data_seed"], "batch_size": s["batch_size"], "mode": mode.settings()}
 
     def finish(model, normalizer) -> dict:
-        sets = tests if tests is not None else {"test": test_set(data_pde, s["data_seed"], s["n_test"])}
-        if isinstance(mode, OneStep):
-            return {"test": {name: test_errors(model, normalizer, view, t) for name, t in sets.items()}}
-        return {"test": {name: mode_test_errors(mode, model, normalizer, view, t) for name, t in sets.items()}}
+        sets = tests
+        if sets is None:
+            with phase(f"{s['label']}: building the test set ({s['n_test']} trajectories)"):
+                sets = {"test": test_set(data_pde, s["data_seed"], s["n_test"])}
+        with phase(f"{s['label']}: test errors" + (" and rollouts" if view.rollout_k_in else "")):
+            return {"test": {name: test_errors(model, normalizer, view, t, mode) for name, t in sets.items()}}
 
     dataset = loader.dataset
     try:

@@ -19,25 +19,32 @@ relative L2 error in normalized units), and ``stats()`` (a flat dict of numbers)
 from __future__ import annotations
 
 import csv
-import io
 import json
 import math
-import os
-import sys
-import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from torch import nn
 from torch.utils.data import DataLoader
-from tqdm import tqdm
 
 from datasets.normalize import Normalization
 
+from .checkpoint import (
+    TrainProgress,
+    atomic_write,
+    check_belongs,
+    restore,
+    save_checkpoint,
+    save_train_state,
+    train_state,
+)
+from .checks import check_count, check_number
 from .data import model_device, to_device
-from .models import build_model, model_spec
+from .models import model_spec
+from .modes import OneStep
+from .phases import RunProgress
 
 
 def source_normalization(loader) -> Normalization | None:
@@ -47,25 +54,54 @@ def source_normalization(loader) -> Normalization | None:
     return source.normalization() if hasattr(source, "normalization") else None
 
 
-def stack_frames(u: torch.Tensor, ndim: int) -> torch.Tensor:
-    """[B, k, C, *space] -> [B, k*C, *space]; [B, C, *space] unchanged."""
-    return u.flatten(1, u.ndim - ndim - 1)
+@dataclass(frozen=True)
+class Stop:
+    """When a run ends: after ``steps`` optimizer steps, or once ``seconds`` of wall clock have passed since the
+    run's clock started (``train(..., started=)``); ``once``: also when a single pass over the loader ends (a
+    simulation budget's stream: every solve used once), else a finite loader is iterated again (epochs)."""
+
+    steps: int | None = None
+    seconds: float | None = None
+    once: bool = False
+
+    def check(self) -> None:
+        """ValueError (one line) naming the bad value."""
+        if (self.steps is None) == (self.seconds is None):
+            raise ValueError(f"a run stops after steps or after seconds, exactly one (got steps={self.steps}, "
+                             f"seconds={self.seconds})")
+        if self.steps is not None:
+            check_count("steps", self.steps)
+        else:
+            check_number("seconds", self.seconds, 0)
+
+    def fraction(self, step: int, elapsed: float) -> float:
+        """How much of the run is done after ``step`` steps and ``elapsed`` seconds: 0 at the start, >= 1 at the end."""
+        return step / self.steps if self.steps is not None else elapsed / self.seconds
 
 
-def predict(model: nn.Module, norm: Normalization, x: torch.Tensor, params: torch.Tensor, ndim: int,
-            y_shape: torch.Size) -> torch.Tensor:
-    """Physical-unit prediction in the target's layout y_shape ([B, k_out, C, *space] or [B, C, *space])."""
-    out = model(stack_frames(norm.of_x.normalize(x), ndim), norm.normalize_params(params))  # [B, k_out*C, *space]
-    return norm.of_y.denormalize(out.reshape(y_shape))
+def cosine_factor(fraction: float) -> float:
+    """The cosine schedule's lr / peak lr at ``fraction`` of the run: 1 down to 0.01."""
+    return 0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(fraction, 1.0)))
 
 
-def make_schedule(opt: torch.optim.Optimizer, name: str, steps: int, lr: float):
-    """"cosine" (decay to 1% of lr) or "onecycle" (warm-up then anneal) over ``steps`` optimizer steps."""
+def make_schedule(opt: torch.optim.Optimizer, name: str, stop: Stop | int, lr: float, fraction=None):
+    """"cosine" (decay to 1% of lr) or "onecycle" (warm-up then anneal) over the run. A run of known steps uses
+    torch's schedulers; a run of ``seconds`` follows ``fraction()`` (the share of its clock spent), cosine only."""
+    stop = Stop(steps=stop) if isinstance(stop, int) else stop
+    if name not in SCHEDULES:
+        raise ValueError(f"unknown schedule {name!r}; allowed: {', '.join(SCHEDULES)}")
+    if stop.steps is None:
+        if name != "cosine":
+            raise ValueError(f"schedule {name!r} needs a number of steps; a run of seconds allows: cosine")
+        return torch.optim.lr_scheduler.LambdaLR(opt, lambda _: cosine_factor(fraction()))
     if name == "cosine":
-        return torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=steps, eta_min=lr * 0.01)
-    if name == "onecycle":
-        return torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps)
-    raise ValueError(f"unknown schedule {name!r}; allowed: cosine, onecycle")
+        return torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=stop.steps, eta_min=lr * 0.01)
+    return torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=stop.steps)
+
+
+def once(loader):
+    """Batches of one pass over ``loader``."""
+    yield from loader
 
 
 def forever(loader):
@@ -85,73 +121,25 @@ def forever(loader):
     raise ValueError("the data loader yielded no batches (empty dataset?)")
 
 
-CHECKPOINT = "checkpoint.pt"
-CHECKPOINT_FORMAT = 1
 POSTFIX_STATS = ("wait_share", "reuse_mean")  # data-source stats shown in the progress bar when offered
 # the only values a resume may change: the loop's timers and the data source's rates
 TIMINGS = ("t_data", "t_compute", "elapsed", "wall", "data_share", "wait_share", "solver_traj_per_s", "examples_per_s")
 
 
-def check_train_settings(steps: int, lr: float, schedule: str, checkpoint_every: int = 0) -> None:
-    """ValueError naming the value and what is allowed (called before a run touches its directory)."""
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-        raise ValueError(f"steps={steps} not allowed; must be an integer >= 1")
-    if not lr > 0:
-        raise ValueError(f"lr={lr} not allowed; must be > 0")
-    if schedule not in ("cosine", "onecycle"):
-        raise ValueError(f"unknown schedule {schedule!r}; allowed: cosine, onecycle")
-    if isinstance(checkpoint_every, bool) or not isinstance(checkpoint_every, int) or checkpoint_every < 0:
-        raise ValueError(f"checkpoint_every={checkpoint_every} not allowed; must be an integer >= 0 (0: only at the end)")
+SCHEDULES = ("cosine", "onecycle")
 
 
-@dataclass
-class Progress:
-    """What a run has done so far; saved in checkpoint.pt so that a resumed run's metrics continue it.
-
-    wall: wall-clock seconds of earlier sessions (a resumed session adds its own); rows: metrics.csv rows;
-    trajectories: global sample indices seen; data_stats: the data source's last ``stats()``.
-    """
-
-    step: int = 0
-    examples: int = 0
-    t_data: float = 0.0
-    t_compute: float = 0.0
-    wall: float = 0.0
-    rows: list = field(default_factory=list)
-    trajectories: set = field(default_factory=set)
-    data_stats: dict | None = None
-
-    def counters(self, wall: float) -> dict:
-        """Plain values for checkpoint.pt; ``trajectories`` as a sorted int64 tensor [N]."""
-        return {"examples": self.examples, "t_data": self.t_data, "t_compute": self.t_compute, "wall": wall,
-                "trajectories": torch.tensor(sorted(self.trajectories), dtype=torch.int64),
-                "data_stats": self.data_stats}
-
-    @classmethod
-    def from_checkpoint(cls, ckpt: dict) -> "Progress":
-        c = ckpt["counters"]
-        return cls(step=int(ckpt["step"]), examples=int(c["examples"]), t_data=float(c["t_data"]),
-                   t_compute=float(c["t_compute"]), wall=float(c["wall"]), rows=[dict(r) for r in ckpt["rows"]],
-                   trajectories=set(c["trajectories"].tolist()), data_stats=c["data_stats"])
-
-
-def data_state_owner(loader) -> tuple[str | None, object]:
-    """("dataset" | "batch_sampler", the object) holding the data source's resumable state, or (None, None).
-
-    A stream (or the reservoir) keeps its own ``state_dict()``; a cache source keeps it in its batch sampler
-    (surrogate.data.EpochBatchSampler).
-    """
-    for name in ("dataset", "batch_sampler"):
-        owner = getattr(loader, name, None)
-        if callable(getattr(owner, "state_dict", None)) and callable(getattr(owner, "load_state_dict", None)):
-            return name, owner
-    return None, None
-
-
-def relative_errors(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Per-example ||pred - target|| / ||target|| over all non-batch dims: [B, ...] x 2 -> float64 CPU [B]."""
-    pred, target = pred.detach().flatten(1).double().cpu(), target.detach().flatten(1).double().cpu()
-    return (pred - target).norm(dim=1) / target.norm(dim=1).clamp_min(torch.finfo(torch.float64).tiny)
+def check_train_settings(steps, lr: float, schedule: str, checkpoint_every: int = 0) -> None:
+    """ValueError naming the value and what is allowed (called before a run touches its directory); steps: an
+    int or a ``Stop``."""
+    stop = Stop(steps=steps) if not isinstance(steps, Stop) else steps
+    stop.check()
+    check_number("lr", lr, 0)
+    if schedule not in SCHEDULES:
+        raise ValueError(f"unknown schedule {schedule!r}; allowed: {', '.join(SCHEDULES)}")
+    if stop.steps is None and schedule != "cosine":
+        raise ValueError(f"schedule {schedule!r} needs a number of steps; a run of seconds allows: cosine")
+    check_count("checkpoint_every", checkpoint_every, 0, " (0: only at the end)")
 
 
 def _postfix(loss: float, stats: dict | None) -> dict:
@@ -169,11 +157,12 @@ def _plain(stats: dict) -> dict:
     return {str(k): (v.item() if hasattr(v, "item") else v) for k, v in stats.items()}
 
 
-def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, schedule: str = "cosine",
+def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1e-3, schedule: str = "cosine",
           normalizer: Normalization | None = None, log_every: int = 10, meta: dict | None = None,
           label: str = "train", checkpoint_every: int = 0, resume: dict | None = None, finish=None,
-          mode=None) -> dict:
-    """Train ``model`` for ``steps`` optimizer steps on batches from ``loader``; returns the summary dict.
+          mode=None, started: float | None = None, after_step=None) -> dict:
+    """Train ``model`` on batches from ``loader`` until ``steps`` (an int: optimizer steps; or a ``Stop``: steps
+    or seconds, optionally one pass over the data) says stop; returns the summary dict.
 
     Works the same for an IterableDataset stream (DataLoader(stream, batch_size=None)) and a map-style cache
     (DataLoader(cached, batch_sampler=EpochBatchSampler(...))). Times are wall-clock seconds: "t_data" is time
@@ -183,26 +172,29 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
     result is the uninterrupted run's, bit for bit on the CPU. finish: ``finish(model, normalizer) -> dict``,
     merged into the summary before metrics.json is written (e.g. test errors). mode: how a batch becomes a
     loss (``surrogate.modes``: one-step, pushforward, oracle, solver-in-the-loop; None: one-step).
+    started: ``time.perf_counter()`` when the run's clock started (default: now), for a ``Stop(seconds=)``
+    that counts what the caller did before (solving a cache). after_step: ``after_step(step, fraction,
+    elapsed)`` after every optimizer step (fraction: of the run done, ``Stop.fraction``), e.g. to snapshot the
+    model. The summary's "stop" says what ended the run: "steps", "seconds" or "data" (a ``once`` pass ran out).
     """
-    check_train_settings(steps, lr, schedule, checkpoint_every)
-    if mode is None:
-        from .modes import OneStep  # modes imports this module
-
-        mode = OneStep()
+    stop = Stop(steps=steps) if not isinstance(steps, Stop) else steps
+    check_train_settings(stop, lr, schedule, checkpoint_every)
+    mode = OneStep() if mode is None else mode
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ndim, device = model.ndim, model_device(model)
-    opt = torch.optim.Adam(model.parameters(), lr=lr)
-    sched = make_schedule(opt, schedule, steps, lr)
-    start = time.perf_counter()
+    opt = torch.optim.Adam(model.parameters(), lr=lr)  # the first one imports torch's compiler: seconds
+    start = time.perf_counter() if started is None else started
+    sched = make_schedule(opt, schedule, stop, lr, fraction=lambda: (time.perf_counter() - start) / stop.seconds)
     if resume is not None:
         check_belongs(resume, meta or {})
-        normalizer, progress = restore(resume, model, opt, sched, loader, steps)
+        normalizer, progress = restore(resume, model, opt, sched, loader, stop.steps)
     else:
-        progress = Progress()
+        progress = TrainProgress()
         if normalizer is None:
+            t0 = time.perf_counter()
             normalizer = source_normalization(loader)
-            progress.t_data += time.perf_counter() - start  # a calibration draw (or reading a cache) is data time
+            progress.t_data += time.perf_counter() - t0  # a calibration draw (or reading a cache) is data time
     if isinstance(loader, DataLoader) and loader.generator is None:
         # Each pass over a DataLoader draws its workers' base seed from its generator, else from the global torch
         # RNG. A resumed run starts a pass where the uninterrupted one did not, so that draw would shift the RNG
@@ -210,18 +202,23 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
         loader.generator = torch.Generator().manual_seed(torch.initial_seed())
     dataset = getattr(loader, "dataset", None)
     report_losses, stats = getattr(dataset, "report_losses", None), getattr(dataset, "stats", None)
-    batches = forever(loader)
+    batches = once(loader) if stop.once else forever(loader)
     if resume is not None:  # last, so that nothing above draws from it; the data source may (random windows)
         torch.set_rng_state(resume["torch_rng"])
-    bar = tqdm(total=steps, initial=progress.step, desc=label, disable=not sys.stderr.isatty(), leave=False)
+    bar = RunProgress(label, stop.steps, progress.step)
     model.train()
-    for step in range(progress.step + 1, steps + 1):
+    step, loss_value, ended = progress.step, math.nan, "steps" if stop.steps is not None else "seconds"
+    while stop.fraction(step, progress.wall + time.perf_counter() - start) < 1:
+        step += 1
         t0 = time.perf_counter()
-        batch = to_device(next(batches), device)  # a copy to the GPU counts as waiting for data
+        batch = next(batches, None)
+        if batch is None:  # one pass over the data was asked for, and it ran out
+            step, ended = step - 1, "data"
+            break
+        batch = to_device(batch, device)  # a copy to the GPU counts as waiting for data
         t1 = time.perf_counter()
         if normalizer is None:  # the data source offers none: calibrate on the first batch
             normalizer = Normalization.from_batch(batch, ndim)
-        x = batch["x"]  # [B, (k,) C, *space]
         loss, per_example = mode.step_loss(model, batch, normalizer, step)  # per_example: float64 CPU [B]
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -235,26 +232,34 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
             report_losses(batch, per_example)
         progress.step = step
         progress.t_data, progress.t_compute = progress.t_data + t1 - t0, progress.t_compute + t2 - t1
-        progress.examples += len(x)
+        progress.examples += len(batch["x"])
         progress.trajectories.update(batch["index"].tolist())
-        bar.update(1)
-        if step % log_every == 0 or step == steps:
+        elapsed = progress.wall + time.perf_counter() - start
+        last = stop.fraction(step, elapsed) >= 1
+        if step % log_every == 0 or last:
             row = {"step": step, "loss": loss_value, "lr": sched.get_last_lr()[0], "examples": progress.examples,
                    "trajectories": len(progress.trajectories), "t_data": progress.t_data,
-                   "t_compute": progress.t_compute, "elapsed": progress.wall + time.perf_counter() - start}
+                   "t_compute": progress.t_compute, "elapsed": elapsed}
             if stats is not None:
                 progress.data_stats = _plain(stats())
                 row.update({k: v for k, v in progress.data_stats.items() if k not in row})  # the loop's own win
             progress.rows.append(row)
-            bar.set_postfix(_postfix(loss_value, progress.data_stats))
-        if checkpoint_every and step % checkpoint_every == 0 and step < steps:
-            save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, steps, start, meta))
+            bar.show(step, _postfix(loss_value, progress.data_stats))
+        if after_step is not None:
+            after_step(step, stop.fraction(step, elapsed), elapsed)
+        if checkpoint_every and step % checkpoint_every == 0 and not last:
+            save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, stop.steps, start, meta))
             write_metrics_csv(out / "metrics.csv", progress.rows)
     bar.close()
+    if normalizer is None:
+        raise ValueError(f"{label}: the data ran out before the first step")
+    if progress.rows and progress.rows[-1]["step"] != progress.step:  # a run of seconds or one pass ends anywhere
+        progress.rows.append({**progress.rows[-1], "step": progress.step, "loss": loss_value})
     write_metrics_csv(out / "metrics.csv", progress.rows)
-    save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, steps, start, meta))
+    save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, stop.steps, start, meta))
     wall = progress.wall + time.perf_counter() - start
-    summary = {"label": label, "steps": steps, "final_loss": progress.rows[-1]["loss"],
+    summary = {"label": label, "steps": progress.step, "stop": ended,
+               "final_loss": progress.rows[-1]["loss"] if progress.rows else math.nan,
                "examples_seen": progress.examples, "trajectories_seen": len(progress.trajectories),
                "t_data": progress.t_data, "t_compute": progress.t_compute, "wall": wall,
                "data_share": progress.t_data / max(progress.t_data + progress.t_compute, 1e-12),
@@ -267,7 +272,7 @@ def train(model: nn.Module, loader, steps: int, out_dir, *, lr: float = 1e-3, sc
         summary["mode_stats"] = mode.stats()
     if finish is not None:
         summary.update(finish(model, normalizer))
-    save_checkpoint(out / "model.pt", model, normalizer, step=steps, meta=meta)
+    save_checkpoint(out / "model.pt", model, normalizer, step=progress.step, meta=meta)
     atomic_write(out / "metrics.json", json.dumps(summary, indent=2).encode())  # last: marks the run finished
     summary["normalizer"] = normalizer
     summary["curve"] = progress.rows
@@ -281,122 +286,3 @@ def write_metrics_csv(path: Path, rows: list[dict]) -> None:
         writer = csv.DictWriter(f, fieldnames=columns, restval="")
         writer.writeheader()
         writer.writerows(rows)
-
-
-def train_state(model: nn.Module, opt, sched, normalizer: Normalization, loader, progress: Progress, steps: int,
-                start: float, meta: dict | None) -> dict:
-    """The checkpoint.pt dict: everything a resumed run needs to continue as if never stopped.
-
-    {"format": 1, "step": done, "steps": total, "model": state dict, "spec": model_spec, "optimizer": state
-    dict, "scheduler": state dict, "torch_rng": uint8 tensor (torch.get_rng_state()), "normalization":
-    Normalization.to_dict(), "rows": metrics rows so far, "counters": Progress.counters, "data": {"owner":
-    "dataset" | "batch_sampler", "state": its state_dict()} or None, "meta": run metadata}.
-    """
-    owner_name, owner = data_state_owner(loader)
-    return {"format": CHECKPOINT_FORMAT, "step": progress.step, "steps": steps, "model": model.state_dict(),
-            "spec": model_spec(model), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-            "torch_rng": torch.get_rng_state(), "normalization": normalizer.to_dict(),
-            "rows": [dict(r) for r in progress.rows], "counters": progress.counters(progress.wall + time.perf_counter() - start),
-            "data": None if owner is None else {"owner": owner_name, "state": owner.state_dict()}, "meta": meta or {}}
-
-
-def restore(ckpt: dict, model: nn.Module, opt, sched, loader, steps: int) -> tuple[Normalization, Progress]:
-    """Load a ``train_state`` dict into the model, optimizer, schedule and data source (not the torch RNG:
-    ``train`` sets that right before the first batch). ValueError when it belongs to another set-up."""
-    if ckpt.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"checkpoint format {ckpt.get('format')!r} not supported; allowed: {CHECKPOINT_FORMAT}")
-    if ckpt["steps"] != steps or not 0 < ckpt["step"] <= steps:
-        raise ValueError(f"checkpoint at step {ckpt['step']} of {ckpt['steps']} does not fit a run of {steps} steps")
-    if ckpt["spec"] != model_spec(model):
-        raise ValueError(f"checkpoint model {ckpt['spec']} differs from this run's {model_spec(model)}")
-    owner_name, owner = data_state_owner(loader)
-    saved = ckpt["data"]
-    if (saved is None) != (owner is None) or (saved is not None and saved["owner"] != owner_name):
-        raise ValueError(f"checkpoint data state ({saved and saved['owner']}) does not fit this data source "
-                         f"({owner_name})")
-    model.load_state_dict(ckpt["model"])
-    opt.load_state_dict(ckpt["optimizer"])
-    sched.load_state_dict(ckpt["scheduler"])
-    if owner is not None:
-        owner.load_state_dict(saved["state"])
-    return Normalization.from_dict(ckpt["normalization"]), Progress.from_checkpoint(ckpt)
-
-
-# What a checkpoint belongs to (train's ``meta``): a resume with a checkpoint of another PDE, grid, view or mode
-# would train on with foreign weights and normalization, so each is compared before anything is loaded.
-BELONGS = {"pde": "PDE configuration", "view": "view", "view_args": "view settings", "mode": "training mode"}
-CHECKPOINT_KEYS = ("format", "step", "steps", "model", "spec", "optimizer", "scheduler", "torch_rng",
-                   "normalization", "rows", "counters", "data", "meta")
-
-
-def check_belongs(ckpt: dict, meta: dict) -> None:
-    """ValueError naming the first difference when checkpoint ``ckpt`` was saved by a run with other ``meta``
-    (PDE config, view, view settings, mode); a key missing on either side is not compared."""
-    saved = ckpt.get("meta") or {}
-    for key, what in BELONGS.items():
-        if key in saved and key in meta and saved[key] != meta[key]:
-            a, b = saved[key], meta[key]
-            if isinstance(a, dict) and isinstance(b, dict):  # name the settings that differ, not two whole dicts
-                diff = sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))
-                a, b = {k: a.get(k) for k in diff}, {k: b.get(k) for k in diff}
-            raise ValueError(f"the checkpoint belongs to another run: its {what} is {a}, this run's is {b}; "
-                             "resume it with its own run directory, or start this one afresh (--overwrite)")
-
-
-def atomic_write(path: Path, data: bytes) -> None:
-    """Replace ``path`` with ``data`` all at once: a temp file in the same directory, fsync, os.replace; a
-    crash leaves the old file or the new one, never half of one (at worst a stray ``.NAME.*.tmp``)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    dir_fd = os.open(path.parent, os.O_RDONLY)  # the rename itself survives a power cut once the directory is synced
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
-
-
-def save_train_state(out: Path, state: dict) -> None:
-    """Write ``train_state``'s dict to out/checkpoint.pt atomically."""
-    buf = io.BytesIO()
-    torch.save(state, buf)
-    atomic_write(out / CHECKPOINT, buf.getvalue())
-
-
-def load_train_state(path) -> dict:
-    """checkpoint.pt as a dict (weights_only: plain containers and tensors); ValueError when unreadable."""
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # truncated or foreign file: torch raises several kinds
-        raise ValueError(f"{path} cannot be read as a pdestream checkpoint ({type(err).__name__}: {err})".splitlines()[0]) from None
-    if not isinstance(ckpt, dict):
-        raise ValueError(f"{path} is not a pdestream checkpoint: it holds a {type(ckpt).__name__}, not a dict")
-    missing = [key for key in CHECKPOINT_KEYS if key not in ckpt]
-    if missing:
-        raise ValueError(f"{path} is not a complete pdestream checkpoint: it lacks {', '.join(missing)}")
-    return ckpt
-
-
-def save_checkpoint(path, model: nn.Module, normalizer: Normalization, step: int, meta: dict | None = None) -> None:
-    """State dict + plain dicts only, so ``torch.load(path, weights_only=True)`` loads it."""
-    torch.save({"model": model.state_dict(), "spec": model_spec(model), "normalization": normalizer.to_dict(),
-                "step": step, "meta": meta or {}}, path)
-
-
-def load_checkpoint(path) -> tuple[nn.Module, Normalization, dict]:
-    """(model in eval mode, its normalization, the checkpoint dict) from ``save_checkpoint``'s file."""
-    ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    if "normalization" not in ckpt:
-        raise ValueError(f"{path} is a checkpoint of an older pdestream (no 'normalization' entry); train it again")
-    spec = dict(ckpt["spec"])
-    model = build_model(spec.pop("name"), spec.pop("ndim"), spec.pop("in_channels"), spec.pop("out_channels"),
-                        spec.pop("n_params"), **spec)
-    model.load_state_dict(ckpt["model"])
-    return model.train(False), Normalization.from_dict(ckpt["normalization"]), ckpt

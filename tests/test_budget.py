@@ -10,7 +10,8 @@ import cli
 import datasets
 import generator
 from datasets.proposal import ParamProposal
-from surrogate.budget import BudgetConfig, budget_compare, error_stats, stratified_test_set
+from surrogate.budget import BudgetConfig, budget_compare, stratified_test_set
+from surrogate.evaluate import error_stats
 
 torch.set_num_threads(1)
 TINY = generator.get_pde("burgers1d", n=32, n_frames=5)
@@ -101,3 +102,22 @@ def test_combine_seeds_reports_mean_and_spread():
     out = combine_seeds(runs)
     assert out["test_mean"] == 2.0 and out["test_max"] == 6.0 and out["test_mean_std"] == pytest.approx(2 ** 0.5)
     assert out["curve"] == [1] and [r["steps"] for r in out["per_seed"]] == [5, 6]
+
+
+def test_budget_arms_train_with_the_mode_asked(tmp_path):
+    """The arms run the one training loop with the training mode (they used to ignore it: one-step always)."""
+    cfg = BudgetConfig(sim_budget=8, steps=4, arms=("precomputed", "reservoir"), batch_size=4, model_cfg=TINY_MODEL,
+                       n_test=4, capacity=8, solve_batch=4, snapshots=2, view="next_step",
+                       mode={"name": "pushforward", "unroll": 2})
+    result = budget_compare(TINY, tmp_path, cfg, log=lambda *_: None)
+    for r in result["arms"]:
+        summary = json.loads((tmp_path / r["arm"] / "metrics.json").read_text())
+        assert summary["mode"] == {"name": "pushforward", "unroll": 2} and summary["steps"] == 4 == r["steps"]
+        assert summary["view_args"]["k_out"] == 2 if "view_args" in summary else True
+
+
+def test_budget_refuses_a_mode_its_view_cannot_train(tmp_path):
+    cfg = BudgetConfig(sim_budget=8, steps=4, model_cfg=TINY_MODEL, mode={"name": "pushforward", "unroll": 2})
+    with pytest.raises(ValueError, match="--mode pushforward needs the next_step view"):
+        budget_compare(TINY, tmp_path / "out", cfg, log=lambda *_: None)
+    assert not (tmp_path / "out").exists()

@@ -164,7 +164,7 @@ def test_bad_settings_are_one_line():
         (lambda: make_mode({"name": "dagger"}), "unknown mode 'dagger'; allowed: one-step, pushforward"),
         (lambda: make_mode({"name": "pushforward", "unroll": 0}), "--unroll=0 not allowed"),
         (lambda: make_mode({"name": "one-step", "unroll": 3}), "--unroll=3 goes with"),
-        (lambda: make_mode({"name": "oracle", "unroll": 2, "coarse_n": 16}), "--coarse-n goes with"),
+        (lambda: make_mode({"name": "oracle", "unroll": 2, "coarse_n": 16}), "--coarse-n=16 goes with solver-in-the-loop, not oracle"),
         (lambda: bound({"name": "solver-in-the-loop", "unroll": 2, "coarse_n": 24}, FINE),
          "coarse n=24 does not fit the fine grid n=64"),
         (lambda: training_view(Pushforward(2), datasets.Operator()), "needs the next_step view, not 'operator'"),
@@ -207,7 +207,7 @@ def test_modes_ask_the_view_not_its_class():
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--mode", "one-step", "--unroll", "3"], "--unroll 3 and --coarse-n go with"),
+    (["--mode", "one-step", "--unroll", "3"], "--unroll=3 goes with pushforward, oracle or solver-in-the-loop, not one-step"),
     (["--mode", "pushforward", "--k-out", "2"], "--k-out=2 goes with --mode one-step"),
     (["--mode", "oracle", "--unroll", "0"], "--unroll=0 not allowed"),
     (["--mode", "pushforward", "--view", "operator"], "needs the next_step view"),

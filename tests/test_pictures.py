@@ -94,7 +94,7 @@ def test_plain_xarray_plot_puts_x_across_and_y_up(ns_cache):
         ds["vorticity"].isel(sample=0, time=-1).plot()
         ax = fig.axes[0]
         assert ax.get_xlabel().startswith("x [length]") and ax.get_ylabel().startswith("y [length]")
-        assert fig.axes[1].get_ylabel() == "vorticity"  # the colourbar: the field's name
+        assert fig.axes[1].get_ylabel() == "vorticity [1/time]"  # the colourbar: the field's name and units
     finally:
         plt.close(fig)
 
@@ -118,12 +118,17 @@ def test_coordinates_carry_labels(ns_cache):
     assert (ds["time"].attrs["long_name"], ds["time"].attrs["units"]) == ("t", "time")
     assert ds["nu"].attrs["long_name"] == pde.PARAMS["nu"].description
     assert ds["nu"].attrs["units"] == pde.PARAMS["nu"].units
-    assert ds["vorticity"].attrs["long_name"] == "vorticity" and "units" not in ds["vorticity"].attrs
+    assert ds["vorticity"].attrs["long_name"] == "vorticity" and ds["vorticity"].attrs["units"] == "1/time"
     assert ds.attrs["pdestream_schema"] == schema.SCHEMA_VERSION == 2
 
 
 def _images(fig):
     return [im for ax in fig.axes for im in ax.get_images()]
+
+
+def _frame(im) -> str:
+    """'t=0.5' of a panel titled 'vorticity #1 t=0.5' (its first line)."""
+    return im.axes.get_title().split("\n")[0].split()[2]
 
 
 def test_inspect_1d_shared_zero_centred_colour_range(burgers_cache):
@@ -140,7 +145,7 @@ def test_inspect_1d_shared_zero_centred_colour_range(burgers_cache):
         panel = ims[0].axes
         assert panel.get_xlabel() == "x [length]" and panel.get_ylabel() == "t [time]"
         bars = [ax for ax in fig.axes if not ax.get_images()]
-        assert [ax.get_ylabel() for ax in bars] == ["u"]
+        assert [ax.get_ylabel() for ax in bars] == ["u [length/time]"]
     finally:
         plt.close(fig)
 
@@ -150,7 +155,7 @@ def test_inspect_2d_panels_have_axes_and_colourbars(ns_cache, gs_cache):
         fig = inspect.figure(path, n_show=2)
         try:
             ims = _images(fig)
-            assert len(ims) == 2 * 3 * n_fields and len(fig.axes) == len(ims) + n_fields  # a colourbar per field
+            assert len(ims) == 2 * 3 * n_fields and len(fig.axes) == len(ims) + 3 * n_fields  # a bar per column
             for im in ims:
                 ax = im.axes
                 assert im.origin == "lower" and ax.get_aspect() == 1.0 and " t=" in ax.get_title()
@@ -158,7 +163,10 @@ def test_inspect_2d_panels_have_axes_and_colourbars(ns_cache, gs_cache):
             ds = open_cache(path)
             for _c, name in enumerate(ds.attrs["pdestream_fields"].split()):
                 mine = [im for im in ims if im.axes.get_title().startswith(f"{name} #")]
-                assert len(mine) == 6 and len({im.get_clim() for im in mine}) == 1  # shared per field
+                assert len(mine) == 6
+                columns = {_frame(im) for im in mine}
+                assert len(columns) == 3  # one range per frame column, shared by its samples
+                assert all(len({im.get_clim() for im in mine if _frame(im) == t}) == 1 for t in columns)
                 # the image is the stored (y, x) frame itself: row = y, column = x
                 first = next(im for im in mine if im.axes.get_title().startswith(f"{name} #0 t=0"))
                 np.testing.assert_array_equal(first.get_array(), ds[name].values[0, 0])
@@ -233,3 +241,57 @@ def test_a_schema_1_1d_cache_still_reads(tmp_path):
         f.attrs["pdestream_schema"] = np.int64(1)  # 1D layout is the same in both schemas
     u = torch.from_numpy(np.array(generator.sample(pde, [1], 0).u[0]))
     assert torch.equal(datasets.CachedTrajectories(path)[1]["u"], u)
+
+
+def test_a_frame_column_has_its_own_colour_range(ns_cache):
+    # forced from rest (|w| ~ 1e-6 at t = 0, ~1 later): one range over all frames drew the t = 0 column blank
+    _, path = ns_cache
+    w = open_cache(path)["vorticity"].values[:2]  # [S, T, y, x]
+    fig = inspect.figure(path, n_show=2)
+    try:
+        for f, t in enumerate(("t=0", "t=0.5", "t=1")):
+            clims = {im.get_clim() for im in _images(fig) if _frame(im) == t}
+            (lo, hi), peak = clims.pop(), np.abs(w[:, f]).max()
+            assert hi == peak and lo == -peak  # the column's own data fills its range
+        bars = [ax for ax in fig.axes if not ax.get_images()]
+        assert {ax.get_xlabel() for ax in bars} == {"vorticity [1/time]"}  # the PDE's units on every bar
+    finally:
+        plt.close(fig)
+
+
+@pytest.mark.parametrize("name, settings", [("darcy2d", {"n": 9}), ("ns2d", NS), ("burgers1d", {"n": 16, "t_end": 0.1})])
+def test_no_label_or_title_is_clipped(tmp_path, name, settings):
+    pde = generator.get_pde(name, **settings)
+    datasets.write_cache(pde, tmp_path / "c.zarr", 4, seed=0, progress=False)
+    fig = inspect.figure(tmp_path / "c.zarr", n_show=4)
+    try:
+        fig.canvas.draw()
+        page = fig.bbox
+        texts = [fig._suptitle] + [t for ax in fig.axes for t in (ax.title, ax.xaxis.label, ax.yaxis.label)]
+        for text in texts:
+            if text is not None and text.get_text():
+                box = text.get_window_extent()
+                assert page.x0 - 0.5 <= box.x0 and box.x1 <= page.x1 + 0.5, text.get_text()
+                assert page.y0 - 0.5 <= box.y0 and box.y1 <= page.y1 + 0.5, text.get_text()
+    finally:
+        plt.close(fig)
+
+
+def test_every_entry_declares_the_units_of_its_fields():
+    for name in generator.PDES:
+        pde = generator.get_pde(name)
+        for f in (*pde.INPUTS, *pde.FIELDS):
+            assert pde.FIELD_UNITS.get(f), (name, f)
+    assert generator.get_pde("burgers2d").FIELD_UNITS["v"] == "length/time"
+    assert generator.get_pde("ks2d").FIELD_UNITS["u"] == "length^2/time"  # the scalar form: |grad u|^2 ~ u_t
+
+
+def test_list_name_shows_field_units(capsys):
+    import json
+
+    import cli
+
+    assert cli.main(["list", "ns2d"]) == 0
+    assert "fields (units): vorticity [1/time]" in capsys.readouterr().out
+    assert cli.main(["list", "darcy2d", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["fields"] == {"a": "1", "u": "1"}

@@ -19,7 +19,8 @@ from torch.utils.data import DataLoader, IterableDataset
 import cli
 from surrogate import build_model
 from surrogate.data import EpochBatchSampler
-from surrogate.train import TIMINGS, _postfix, forever, relative_errors, stack_frames, train
+from surrogate.predict import relative_errors, stack_frames
+from surrogate.train import TIMINGS, _postfix, forever, train
 
 torch.set_num_threads(1)
 
@@ -170,11 +171,15 @@ def test_kill9_and_resume_on_a_cache_is_bit_identical(tmp_path):
 
 
 @pytest.mark.parametrize("n,batch_size,drop_last", [(10, 4, True), (3, 4, False), (9, 3, True), (7, 3, False)])
-def test_epoch_batch_sampler_matches_the_shuffling_dataloader_and_resumes_anywhere(n, batch_size, drop_last):
-    epochs = 4
-    old = DataLoader(list(range(n)), batch_size=batch_size, shuffle=True, drop_last=drop_last,
-                     generator=torch.Generator().manual_seed(5))
-    reference = [b.tolist() for _ in range(epochs) for b in old]  # what training on a cache gave before
+def test_epoch_batch_sampler_seeds_each_epoch_and_resumes_anywhere(n, batch_size, drop_last):
+    """Epoch e's order is randperm(n) from a generator seeded for (seed, e) alone (it used to replay the draws a
+    shuffling DataLoader makes internally), and a state taken after any batch continues exactly."""
+    epochs, seed = 4, 5
+    reference = []
+    for e in range(epochs):
+        order = torch.randperm(n, generator=torch.Generator().manual_seed((seed << 32) + e)).tolist()
+        batches = [order[b:b + batch_size] for b in range(0, n, batch_size)]
+        reference += [b for b in batches if len(b) == batch_size or not drop_last]
     sampler = EpochBatchSampler(n, batch_size, seed=5, drop_last=drop_last)
     it = forever(sampler)
     assert [next(it) for _ in reference] == reference

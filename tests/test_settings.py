@@ -141,6 +141,26 @@ def test_ics_that_fit_are_accepted():
     assert g.get_pde("grayscott2d", ic="grf", n=32).ic.kind == "grf"  # one independent draw per field
 
 
+
+@pytest.mark.parametrize("name", ["grayscott2d", "grayscott3d"])
+def test_grayscott_spots_concentrations_stay_in_their_physical_range(name):
+    # issue 21: overlapping spots drove u to -0.24 and zero-mean noise v to -0.015 at t = 0; 0 <= u, v <= 1 is
+    # also the IC's declared bound (the reaction step is chosen from it)
+    pde = g.get_pde(name, n_frames=2, t_end=1.0)
+    import jax
+
+    ic = np.stack([np.asarray(pde.sample_ic(jax.random.PRNGKey(i))) for i in range(8)])  # what it draws
+    frame0 = np.asarray(g.sample(pde, list(range(8)), seed=0).u)[:, 0]  # the IC's projection the solver evolves
+    for u in [ic, frame0]:
+        assert u.min() >= -1e-6 and u.max() <= pde.ic.bound(pde.grid) + 1e-6
+    assert frame0[:, 1].max() <= pde.ic.height + pde.ic.noise + 1e-6  # spots at most `height` tall
+    assert frame0[:, 0].min() >= 1 - 2 * pde.ic.height - pde.ic.noise - 1e-6
+
+
+def test_grayscott_spots_refuse_a_height_that_leaves_the_range():
+    with pytest.raises(ValueError, match=r"ic.height=0.6.*2 height \+ noise <= 1"):
+        g.get_pde("grayscott2d", {"ic.height": "0.6"})
+
 # --- limits on the frame/step arithmetic, named and checked before anything runs ----------------------------
 @pytest.mark.parametrize("name, settings, limit", [
     ("burgers1d", {"t_end": "1e300"}, str(base.MAX_STEPS)),

@@ -38,27 +38,26 @@ def _setup(pde, batch):
     ("grayscott2d", {"n": 16, "n_frames": 3, "t_end": 10}),  # two fields
     ("diffusion1d", {"n": 32, "n_frames": 5}),  # linear: exact exponential steps
 ])
-def test_bounded_calls_give_the_bits_of_one_call(monkeypatch, name, overrides):
+def test_bounded_calls_give_the_bits_of_one_call(name, overrides):
     pde = generator.get_pde(name, overrides)
     params, u0, coeffs = _setup(pde, 3)
     ref, ref_finite = rollout.compiled_evolve(pde)(u0, params, coeffs)  # the whole rollout in one call
     per_step = 3 * len(pde.FIELDS) * pde.n**pde.NDIM
     # a frame per call; then pieces of a frame (1 step, 2 steps per call); then everything in one call
     for work, overhead in [(per_step * pde.steps_per_frame, 0), (per_step, 0), (2 * per_step, 0), (2**40, 2**13)]:
-        monkeypatch.setattr(dispatch, "DISPATCH_WORK", work)
-        monkeypatch.setattr(dispatch, "STEP_OVERHEAD", overhead)
-        [(u, finite)] = rollout.evolve_bounded(pde, [(u0, params, coeffs)])
+        with dispatch.call_size(work, overhead):
+            [(u, finite)] = rollout.evolve_bounded(pde, [(u0, params, coeffs)])
         assert u.shape == ref.shape
         assert bool(jnp.array_equal(u, ref)), f"{name}: bounded calls ({work} point-steps each) changed the bits"
         assert np.array_equal(finite, ref_finite)
     if pde.NDIM > 1:
         return
     # and through sample(): split into 1-step calls == one call
-    monkeypatch.setattr(dispatch, "DISPATCH_WORK", 2**40)
-    whole = generator.sample(pde, [0, 5, 7], seed=3)
-    monkeypatch.setattr(dispatch, "DISPATCH_WORK", 1)
-    monkeypatch.setattr(dispatch, "STEP_OVERHEAD", 0)
-    np.testing.assert_array_equal(np.asarray(generator.sample(pde, [0, 5, 7], seed=3).u), np.asarray(whole.u))
+    with dispatch.call_size(2**40):
+        whole = generator.sample(pde, [0, 5, 7], seed=3)
+    with dispatch.call_size(1, 0):
+        np.testing.assert_array_equal(np.asarray(generator.sample(pde, [0, 5, 7], seed=3).u), np.asarray(whole.u))
+    assert (dispatch.work(), dispatch.step_overhead()) == (dispatch.DISPATCH_WORK, dispatch.STEP_OVERHEAD)  # restored
 
 
 def test_solve_and_advance_run_in_bounded_calls_with_the_bits_of_one_call(monkeypatch):
@@ -81,12 +80,11 @@ def test_solve_and_advance_run_in_bounded_calls_with_the_bits_of_one_call(monkey
     syncs = []
     monkeypatch.setattr(dispatch, "sync", lambda states, sync=dispatch.sync: syncs.append(1) or sync(states))
     for work, overhead in [(2**40, 2**13), (1, 0), (2 * 32 * 3, 0)]:  # one call; a step per call; 3 steps
-        monkeypatch.setattr(dispatch, "DISPATCH_WORK", work)
-        monkeypatch.setattr(dispatch, "STEP_OVERHEAD", overhead)
         syncs.clear()
-        assert bool(jnp.array_equal(generator.solve(pde, u0, p).u, whole))
-        solve_calls = len(syncs)
-        u2, finite = interactive.advance(pde, u0, p, frames=2)
+        with dispatch.call_size(work, overhead):
+            assert bool(jnp.array_equal(generator.solve(pde, u0, p).u, whole))
+            solve_calls = len(syncs)
+            u2, finite = interactive.advance(pde, u0, p, frames=2)
         assert bool(jnp.array_equal(u2, ahead)) and bool(finite.all())
         steps = pde.steps_per_frame
         assert (solve_calls, len(syncs) - solve_calls) == {2**40: (1, 0), 1: (3 * steps, 2 * steps),
@@ -95,10 +93,11 @@ def test_solve_and_advance_run_in_bounded_calls_with_the_bits_of_one_call(monkey
     stop.set()
     dispatch.cancel_on(stop)  # a cancelled thread's solve and advance stop at their first call boundary
     try:
-        with pytest.raises(dispatch.Cancelled):
-            generator.solve(pde, u0, p)
-        with pytest.raises(dispatch.Cancelled):
-            interactive.advance(pde, u0, p)
+        with dispatch.call_size(2 * 32 * 3, 0):  # several calls each (one call has no boundary to stop at)
+            with pytest.raises(dispatch.Cancelled):
+                generator.solve(pde, u0, p)
+            with pytest.raises(dispatch.Cancelled):
+                interactive.advance(pde, u0, p)
     finally:
         dispatch.cancel_on(None)
 
@@ -361,3 +360,14 @@ def test_ctrl_c_after_a_block_leaves_a_resumable_cache(tmp_path, capsys):
     assert is_complete(a)
     np.testing.assert_array_equal(a["u"].values, b["u"].values)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.zarr", "ref.zarr"]
+
+
+def test_call_size_is_checked_and_restored():
+    with pytest.raises(ValueError, match="work=0 not allowed"):
+        with dispatch.call_size(0):
+            pass
+    with dispatch.call_size(7, 1):
+        with dispatch.call_size(9):
+            assert (dispatch.work(), dispatch.step_overhead()) == (9, dispatch.STEP_OVERHEAD)
+        assert (dispatch.work(), dispatch.step_overhead(), dispatch.pieces(5, 3)) == (7, 1, [2, 2, 1])
+    assert dispatch.work() == dispatch.DISPATCH_WORK

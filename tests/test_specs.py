@@ -9,8 +9,8 @@ from torch import nn
 
 from datasets.normalize import Normalization
 from surrogate import models
+from surrogate.checkpoint import load_checkpoint, save_checkpoint
 from surrogate.models import MODELS, build_model, model_spec
-from surrogate.train import load_checkpoint, save_checkpoint
 
 
 def _norm(c: int, p: int) -> Normalization:
@@ -82,8 +82,7 @@ def test_views_describe_their_models_and_evaluation():
     from dataclasses import dataclass as dc
 
     import datasets
-    from surrogate.evaluate import pairs
-    from surrogate.runs import model_channels
+    from surrogate.predict import model_channels, pairs
 
     class Pde:
         FIELDS = ("u", "v")

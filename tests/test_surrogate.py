@@ -8,8 +8,9 @@ import torch
 import cli
 from datasets.normalize import Normalization
 from surrogate import MODELS, build_model
+from surrogate.checkpoint import load_checkpoint
 from surrogate.metrics import nrmse, rel_l2
-from surrogate.train import load_checkpoint, train
+from surrogate.train import train
 
 torch.set_num_threads(1)
 

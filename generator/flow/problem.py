@@ -17,8 +17,8 @@ n_frames). The step is one fixed dt per configuration (the CFL number ``cfl`` at
 domains allow, and the explicit viscous limit), so the compiled program never depends on a sample's parameters.
 
 Identity: the key of (seed, index) splits into a parameter key (``resolve_params``) and a geometry key (random
-obstacles, sources); each sample runs the same unbatched program inside ``jax.lax.map`` over a fixed chunk
-(``generator.chunked``), so its bits are the same alone and in any batch, and the rollout advances in bounded
+obstacles, sources); each sample runs in a chunk of CHUNK rows (padded; ``generator.chunked``), set up one row
+at a time and advanced vectorised over the chunk, so its bits are the same alone and in any batch, and the rollout advances in bounded
 calls (``generator.dispatch``: a Ctrl-C or a gone consumer stops it between two).
 """
 
@@ -294,7 +294,7 @@ class FlowProblem(ProblemBase):
         start, advance, frame = _programs(self)
         speed_cap = BLOW_UP_FACTOR * self.speed_bound()
         cells = math.prod(self.grid.shape)
-        per_step = CHUNK * cells * STEP_WORK_PER_CELL + dispatch.STEP_OVERHEAD
+        per_step = CHUNK * cells * STEP_WORK_PER_CELL + dispatch.step_overhead()
         results = []
         for part in split([jnp.asarray(keys), jnp.asarray(explicit), jnp.asarray(given)], CHUNK):
             p, fp, state = start(*part)
@@ -344,7 +344,9 @@ def _programs(problem: FlowProblem):
             state, fp, dt = t
             return run(geom, state, fp, dt, k, tol=problem.tol, max_iter=problem.max_iter)
 
-        return jax.jit(lambda states, fps, dt: jax.lax.map(one, (states, fps, jnp.broadcast_to(dt, (CHUNK,)))))
+        # vectorised over the fixed chunk (a GPU's batch; on a CPU as fast as a loop): every chunk has CHUNK rows
+        # (padded), and a row's bits do not depend on its place or its chunk-mates (tests/test_flows.py)
+        return jax.jit(lambda states, fps, dt: jax.vmap(one)((states, fps, jnp.broadcast_to(dt, (CHUNK,)))))
 
     frame = jax.jit(lambda states, fps: jax.lax.map(lambda t: problem.frame_fields(geom, *t), (states, fps)))
     return start, advance, frame

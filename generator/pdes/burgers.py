@@ -41,6 +41,7 @@ class Burgers(PDE):
     EQUATION: ClassVar[str] = "u_t + u u_x = nu u_xx"
     BOUNDARIES: ClassVar[tuple] = ("periodic", "dirichlet", "neumann")  # `--set bc=...` (generator.pdes.walls)
     PARAMS: ClassVar[dict] = {"nu": Param("viscosity", "length^2/time", positive=True)}
+    FIELD_UNITS: ClassVar[dict] = {name: "length/time" for name in VELOCITY_FIELDS}  # velocity components
 
     n: int = 256
     length: float = 1.0

@@ -101,6 +101,7 @@ class Darcy2D(SteadyProblem):
     NAME: ClassVar[str] = "darcy2d"
     EQUATION: ClassVar[str] = "-div(a grad u) = f on (0,1)^2, u = 0 on the boundary; a = a_pos where g > 0 else a_neg"
     FIELDS: ClassVar[tuple] = ("u",)
+    FIELD_UNITS: ClassVar[dict] = {"a": "1", "u": "1"}  # -div(a grad u) = f with f in "1": u in length^2
     INPUTS: ClassVar[tuple] = ("a",)  # random input fields stored per sample beside the solution
     NDIM: ClassVar[int] = 2
     PARAMS: ClassVar[dict] = {

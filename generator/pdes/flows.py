@@ -29,6 +29,10 @@ def _bounds(problem, name: str) -> tuple[float, float]:
     return tuple(getattr(problem, name).bounds)
 
 
+# velocity on faces and pressure over density (generator.flow.step): SI units, as the flows' parameters
+FLOW_UNITS = {"u": "m/s", "v": "m/s", "p": "m^2/s^2"}
+
+
 @dataclass(frozen=True)
 class Karman2D(FlowProblem):
     """Flow past a cylinder in a channel: parabolic (or blunter) inflow on the left, outflow on the right, no-slip
@@ -39,6 +43,7 @@ class Karman2D(FlowProblem):
     EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u, div u = 0; cylinder in a channel, "
                                "nu = U D / Re")
     FIELDS: ClassVar[tuple] = ("u", "v", "p", "solid")
+    FIELD_UNITS: ClassVar[dict] = {**FLOW_UNITS, "solid": "1"}
     SIDES: ClassVar[tuple] = ("inflow", "outflow", "wall", "wall")
     PARAMS: ClassVar[dict] = {
         "re": Param("Reynolds number U D / nu", "1", positive=True),
@@ -86,6 +91,7 @@ class Cavity2D(FlowProblem):
     NAME: ClassVar[str] = "cavity2d"
     EQUATION: ClassVar[str] = "u_t + (u.grad)u = -grad p + nu lap u, div u = 0; lid-driven cavity, nu = U L / Re"
     FIELDS: ClassVar[tuple] = ("u", "v", "p")
+    FIELD_UNITS: ClassVar[dict] = FLOW_UNITS
     SIDES: ClassVar[tuple] = ("wall", "wall", "wall", "wall")
     PARAMS: ClassVar[dict] = {
         "re": Param("Reynolds number U L / nu", "1", positive=True),
@@ -120,6 +126,7 @@ class Channel2D(FlowProblem):
     EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u, div u = 0; channel with random obstacles, "
                                "nu = U H / Re")
     FIELDS: ClassVar[tuple] = ("u", "v", "p", "solid")
+    FIELD_UNITS: ClassVar[dict] = {**FLOW_UNITS, "solid": "1"}
     SIDES: ClassVar[tuple] = ("inflow", "outflow", "wall", "wall")
     PARAMS: ClassVar[dict] = {
         "re": Param("Reynolds number U H / nu", "1", positive=True),
@@ -199,6 +206,7 @@ class Smoke2D(FlowProblem):
     EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u + b s e_y, div u = 0, s_t + u.grad s = "
                                "source; buoyant plume")
     FIELDS: ClassVar[tuple] = ("u", "v", "p", "smoke")
+    FIELD_UNITS: ClassVar[dict] = {**FLOW_UNITS, "smoke": "1"}
     SIDES: ClassVar[tuple] = ("wall", "wall", "wall", "outflow")
     PARAMS: ClassVar[dict] = {
         "buoyancy": Param("buoyancy b per unit smoke", "m/s^2", positive=True),

@@ -29,6 +29,7 @@ class GrayScott(PDE):
 
     EQUATION: ClassVar[str] = "u_t = Du Lap(u) - u v^2 + F (1 - u);  v_t = Dv Lap(v) + u v^2 - (F + k) v"
     FIELDS: ClassVar[tuple] = ("u", "v")
+    FIELD_UNITS: ClassVar[dict] = {"u": "1", "v": "1"}  # concentrations
     DIMENSIONS: ClassVar[dict] = {2: {}, 3: {"n": 32, "length": 0.32, "t_end": 1000.0,
                                              "ic": GrayScottSpots(radius=0.04)}}
     PARAMS: ClassVar[dict] = {

@@ -36,6 +36,7 @@ class KS(PDE):
     DIMENSIONS: ClassVar[dict] = {1: {}, 2: {"n": 64, "length": 10 * math.pi, "n_frames": 51}}
     EQUATION: ClassVar[str] = "u_t + u u_x + u_xx + nu u_xxxx = 0"
     PARAMS: ClassVar[dict] = {"nu": Param("hyperviscosity", "length^4/time", positive=True)}
+    FIELD_UNITS: ClassVar[dict] = {"u": "length/time"}  # 1D: u u_x ~ u_t; 2D (for_dimension): |grad u|^2 ~ u_t
 
     n: int = 256
     length: float = 32 * math.pi
@@ -54,6 +55,7 @@ class KS(PDE):
         if ndim == 1:
             return {"BOUNDARIES": ("periodic", "dirichlet")}
         return {"EQUATION": "u_t + |grad u|^2 / 2 + Laplacian(u) + nu Laplacian^2(u) = 0",
+                "FIELD_UNITS": {"u": "length^2/time"},
                 "BOUNDARIES": ("periodic", "neumann")}
 
     def linear(self, grid, p):

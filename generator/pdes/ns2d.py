@@ -34,6 +34,7 @@ class NS2D(PDE):
     NAME: ClassVar[str] = "ns2d"
     EQUATION: ClassVar[str] = "w_t + (u . grad) w = nu Laplacian(w) - drag w + f,  u = curl^-1 w"
     FIELDS: ClassVar[tuple] = ("vorticity",)
+    FIELD_UNITS: ClassVar[dict] = {"vorticity": "1/time"}
     NDIM: ClassVar[int] = 2
     PARAMS: ClassVar[dict] = {"nu": Param("kinematic viscosity", "length^2/time", positive=True)}
 

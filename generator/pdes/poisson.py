@@ -48,6 +48,7 @@ class Poisson(WallGrid, SteadyProblem):
     EQUATION: ClassVar[str] = "-Laplacian(u) = f"
     FIELDS: ClassVar[tuple] = ("u",)
     INPUTS: ClassVar[tuple] = ("f",)
+    FIELD_UNITS: ClassVar[dict] = {"f": "1/length^2", "u": "1"}  # f = -Laplacian(u) (or with + k^2 u)
     IC_KINDS: ClassVar[dict] = {"grf": GaussianRandomField, "fourier": FourierSeries}
     IC_LABEL: ClassVar[str] = "source f"
     BOUNDARIES: ClassVar[tuple] = ("dirichlet", "neumann", "periodic")

@@ -35,6 +35,7 @@ class Wave(LinearPDE):
 
     EQUATION: ClassVar[str] = "u_t = v;  v_t = c^2 u_xx"
     FIELDS: ClassVar[tuple] = ("u", "v")
+    FIELD_UNITS: ClassVar[dict] = {"u": "1", "v": "1/time"}  # v = u_t
     PARAMS: ClassVar[dict] = {"c": Param("wave speed", "length/time", positive=True)}
     DIMENSIONS: ClassVar[dict] = {1: {}, 2: {"n": 64}}
 

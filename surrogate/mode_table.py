@@ -1,0 +1,64 @@
+"""The training modes' table: names, settings, defaults, checks and help, in one place (no torch: the CLI's
+parser reads it for its choices and help without loading the models).
+
+``surrogate.modes`` implements each mode (``MODES``, one class per row here); ``mode_settings`` turns what a
+user gave (the CLI, a config, run.json) into a mode's complete settings or one line naming what is wrong.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .checks import check_count
+
+DEFAULTS = {"unroll": 4, "coarse_n": 64}  # a setting's default for every mode that takes it
+
+
+@dataclass(frozen=True)
+class ModeSpec:
+    """One training mode: its settings (a subset of DEFAULTS' keys), whether it predicts with a network alone
+    (False: a network corrects a coarse solver, which the comparisons set against that solver alone) and its
+    help line."""
+
+    name: str
+    settings: tuple[str, ...]
+    network: bool
+    help: str
+
+
+MODE_SPECS = {spec.name: spec for spec in (
+    ModeSpec("one-step", (), True, "frames -> next frames"),
+    ModeSpec("pushforward", ("unroll",), True,
+             "unroll the network K-1 steps without gradient, train the K-th"),
+    ModeSpec("oracle", ("unroll",), True,
+             "train on states the network reaches in 0..K steps, labelled by the solver"),
+    ModeSpec("solver-in-the-loop", ("unroll", "coarse_n"), False,
+             "a correction network on a coarse differentiable solver, unrolled K steps, against the fine solve"),
+)}
+MODE_NAMES = tuple(MODE_SPECS)
+NETWORK_MODES = tuple(name for name, spec in MODE_SPECS.items() if spec.network)
+OPTION = {"unroll": "--unroll", "coarse_n": "--coarse-n"}  # how the CLI spells each setting
+
+
+def takes(setting: str) -> str:
+    """The modes that take ``setting``, in words ("pushforward, oracle or solver-in-the-loop")."""
+    names = [n for n, spec in MODE_SPECS.items() if setting in spec.settings]
+    return ", ".join(names[:-1]) + " or " + names[-1] if len(names) > 1 else names[0]
+
+
+def mode_settings(name: str, **given) -> dict:
+    """The complete settings {"name", ...} of mode ``name`` from the settings given (None: the default);
+    ValueError (one line) for an unknown mode, a setting it does not take, or a bad value."""
+    if name not in MODE_SPECS:
+        raise ValueError(f"unknown mode {name!r}; allowed: {', '.join(MODE_SPECS)}")
+    spec = MODE_SPECS[name]
+    unknown = sorted(k for k in given if k not in DEFAULTS)
+    if unknown:
+        raise ValueError(f"unknown mode setting(s) {unknown}; allowed: name, {', '.join(DEFAULTS)}")
+    for key, value in given.items():
+        if key not in spec.settings and value is not None and not (key == "unroll" and value == 1):
+            raise ValueError(f"{OPTION[key]}={value} goes with {takes(key)}, not {name}")
+    out = {"name": name}
+    for key in spec.settings:
+        out[key] = check_count(OPTION[key], DEFAULTS[key] if given.get(key) is None else given[key])
+    return out

@@ -1,0 +1,73 @@
+"""Saying what a long run is doing: a bar on a terminal, plain periodic lines in a log.
+
+Every phase of a command that may take more than a few seconds (building test sets, training, rolling out)
+reports through here, so a run piped into a log file is not silent for minutes: on a terminal, training shows a
+tqdm bar; elsewhere a plain line every ``EVERY`` seconds (and one when a phase longer than that ends).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from contextlib import contextmanager
+
+from tqdm import tqdm
+
+EVERY = 10.0  # seconds between plain progress lines when stderr is not a terminal
+
+
+def _terminal() -> bool:
+    return sys.stderr.isatty()
+
+
+def _line(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+class RunProgress:
+    """The training loop's progress: a tqdm bar on a terminal, else a plain line every ``every`` seconds.
+    total: steps of the run (None: a run of seconds); initial: steps already done (a resumed run)."""
+
+    def __init__(self, label: str, total: int | None, initial: int = 0, every: float | None = None):
+        self.label, self.total, self.every = label, total, EVERY if every is None else every
+        self.bar = tqdm(total=total, initial=initial, desc=label, leave=False) if _terminal() else None
+        self.step, self.last_line, self.start = initial, time.perf_counter(), time.perf_counter()
+
+    def show(self, step: int, postfix: dict) -> None:
+        """Training reached ``step``; postfix: a few figures (loss, the data source's waiting)."""
+        if self.bar is not None:
+            self.bar.update(step - self.step)
+            self.bar.set_postfix(postfix)
+        elif time.perf_counter() - self.last_line >= self.every:
+            of = f"/{self.total}" if self.total else ""
+            _line(f"{self.label}: step {step}{of}, {time.perf_counter() - self.start:.0f} s, "
+                  + ", ".join(f"{k} {v}" for k, v in postfix.items()))
+            self.last_line = time.perf_counter()
+        self.step = step
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+@contextmanager
+def phase(what: str, every: float | None = None):
+    """Report a phase (``what``: e.g. "test set: 32 trajectories") that may run long: a plain line every
+    ``every`` seconds while it runs ("... still running, 20 s"), and one with its time when it ends if any was
+    printed; a quick phase prints nothing."""
+    done, t0, every = threading.Event(), time.perf_counter(), EVERY if every is None else every
+
+    def tick():
+        while not done.wait(every):
+            _line(f"{what}: still running, {time.perf_counter() - t0:.0f} s")
+
+    ticker = threading.Thread(target=tick, daemon=True)
+    ticker.start()
+    try:
+        yield
+    finally:
+        done.set()
+        ticker.join()
+        if time.perf_counter() - t0 >= every:
+            _line(f"{what}: done in {time.perf_counter() - t0:.0f} s")
