@@ -58,7 +58,7 @@ def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_par
     string values (from ``--model-set``) are converted to int. A name "package.module:Class" builds your own
     model (surrogate.user_model.UserModel: the class gets ndim, channels, n_params and ``cfg``; no wall padding).
     """
-    if isinstance(name, str) and ":" in name:  # your own model, by import path (surrogate.user_model)
+    if ":" in str(name):  # your own model, by import path (surrogate.user_model)
         return UserModel(name, ndim, in_channels, out_channels, n_params, **cfg)
     base, pinned = parse_model_name(name)
     if ndim not in DIMENSIONS:
