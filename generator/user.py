@@ -113,14 +113,14 @@ def lookup(name: str) -> type | None:
     if name in eps:
         return _named(load(eps[name].value), name, f"entry point {name!r} ({eps[name].value})")
     if ":" in name:
-        cls = load(name)
-        return _named(cls, name, f"PDE {name!r}") if not getattr(cls, "NAME", "x") else _checked(cls, name)
+        return _adopted(load(name), name)
     return None
 
 
-def _checked(cls: type, spec: str) -> type:
-    check_class(cls, f"PDE {spec!r}")
-    return cls
+def _adopted(cls: type, path: str) -> type:
+    """A class found by import path: checked, and named by the path if it declares no NAME of its own."""
+    check_class(cls, f"PDE {path!r}")
+    return cls if cls.NAME else _named(cls, path, f"PDE {path!r}")
 
 
 def user_class(cls: type) -> type | None:
@@ -150,7 +150,8 @@ def from_origin(name: str, stored: dict) -> type:
     if cls is None:  # another process (a worker): the class by its origin, named as it was
         path = f"{stored['module']}:{stored['class']}"
         cls = load(path)
-        cls = _named(cls, name, f"PDE {path!r}") if not getattr(cls, "NAME", "x") else _checked(cls, path)
+        check_class(cls, f"PDE {path!r}")
+        cls = cls if cls.NAME else _named(cls, name, f"PDE {path!r}")
     now = origin(cls) or {}
     for key in ("module", "class", "version", "source_sha256"):
         if stored.get(key) != now.get(key):

@@ -58,7 +58,7 @@ def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_par
     string values (from ``--model-set``) are converted to int. A name "package.module:Class" builds your own
     model (surrogate.user_model.UserModel: the class gets ndim, channels, n_params and ``cfg``; no wall padding).
     """
-    if isinstance(name, str) and ":" in name:  # your own model, by import path (surrogate.user_model)
+    if ":" in str(name):  # your own model, by import path (surrogate.user_model)
         return UserModel(name, ndim, in_channels, out_channels, n_params, **cfg)
     base, pinned = parse_model_name(name)
     if ndim not in DIMENSIONS:
@@ -87,8 +87,8 @@ def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_par
 def model_spec(model: Surrogate) -> dict:
     """Plain dict that ``build_model(**spec)`` turns back into the same architecture (for checkpoints): the
     model's own name, its shape (ndim, channels, n_params) and its config's fields."""
-    if isinstance(model, UserModel):
-        return model.spec()
+    if hasattr(model, "user_spec"):  # your own model (surrogate.user_model.UserModel)
+        return model.user_spec()
     bc = getattr(model, "bc", None)
     walls = {} if bc is None else {"bc": list(bc)}  # a periodic model's spec is what it always was
     return {"name": model.name, "ndim": model.ndim, "in_channels": model.in_channels,

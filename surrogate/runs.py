@@ -23,6 +23,7 @@ from .models import build_model
 from .modes import check_fits, make_mode, training_view
 from .phases import phase
 from .train import check_train_settings, train
+from .user_model import check_output
 
 RUN_FILE = "run.json"
 RUN_FORMAT = 1
@@ -175,6 +176,9 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     net = build_model(s["model"], data_pde.NDIM, c_in, c_out, len(data_pde.PARAMS), bc=data_pde.grid.bc,
                       **s["model_cfg"])  # the walls of the data (a cache's own, or the stream's PDE)
     net.to(check_device(s.get("device", "cpu")))  # runs from before --device trained on the CPU
+    coarse = getattr(mode, "coarse_n", None)  # solver-in-the-loop: the model works on the coarse grid
+    space = (coarse,) * data_pde.NDIM if coarse else tuple(data_pde.grid.shape)
+    check_output(net, space)  # your own model: its output shape, before run.json is written
     if resume is None:
         s = {**s, "pde": data_pde.config()}  # the data's PDE: a cache's own settings
         try:

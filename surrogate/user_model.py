@@ -90,8 +90,19 @@ class UserModel(nn.Module):
                              f"{want} for input {tuple(x.shape)}")
         return out
 
-    def spec(self) -> dict:
+    def user_spec(self) -> dict:
         """What ``build_model(**spec)`` rebuilds this model from (checkpoints; compared on resume)."""
         return {"name": self.name, "ndim": self.ndim, "in_channels": self.in_channels,
                 "out_channels": self.out_channels, "n_params": self.n_params, "source_sha256": self.source_sha256,
                 **self.config}
+
+
+def check_output(model: nn.Module, space: tuple[int, ...]) -> None:
+    """For a user's model: one forward pass on zeros [1, in_channels, *space] before a run writes anything, so a
+    wrong output shape is refused with nothing left behind (the built-in models are right by construction)."""
+    if not hasattr(model, "user_spec"):  # a built-in model
+        return
+    device = next(model.parameters(), torch.zeros(())).device
+    params = torch.zeros(1, model.n_params, device=device) if model.n_params else None
+    with torch.no_grad():
+        model(torch.zeros(1, model.in_channels, *space, device=device), params)

@@ -113,4 +113,5 @@ def test_bad_user_models_are_one_line(netpkg, tmp_path, capsys):
     (tmp_path / netpkg / "nets.py").write_text(NET.replace("SHAPE_BUG = 0", "SHAPE_BUG = 1"))
     sys.modules.pop(f"{netpkg}.nets", None)
     one_line(capsys, train(tmp_path / "e", f"{netpkg}.nets:TinyNet"),
-             "output shape (4, 2, 32) does not match [B, out_channels, *space] = (4, 1, 32)")
+             "output shape (1, 2, 32) does not match [B, out_channels, *space] = (1, 1, 32)")
+    assert not (tmp_path / "e").exists()  # refused before the run wrote anything
