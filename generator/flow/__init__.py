@@ -4,8 +4,8 @@ DRAFT for issue 18, not yet a catalog entry: semi-Lagrangian advection (first or
 a multigrid-preconditioned CG projection. Checked so far: closed wall and obstacle faces, a sample's bits alone and
 in batches through run_batch (one per loop step, as the sampler does; vmap over samples rounds differently), the
 finite flag, Couette flow to 2e-6 and the grid's discrete Poiseuille profile to 4e-6 (tests/test_flow_validation.py).
-Known defect: after the first step a projection leaves ~1% of the divergence instead of the CG tolerance (two
-strict xfail tests record the ratios). Not yet: Taylor-Green and manufactured orders, the
+Divergence after every projection within 1.1x the CG tolerance (the solve checks its true residual
+before stopping and drops a warm-start guess worse than zero; tests/test_flow_validation.py). Not yet: Taylor-Green and manufactured orders, the
 cavity (Ghia 1982) and cylinder (Schaefer-Turek 1996) benchmarks, iteration counts within 1.5x over refinements
 (13/18/24 at 32^2/64^2/128^2 cavity: ~1.35x per refinement), the karman2d/cavity2d/channel2d/smoke2d entries.
 

@@ -182,10 +182,9 @@ def stable_dt(geom: Geometry, params: Params, umax, cfl: float = 1.0):
     return jnp.minimum(cfl * h / jnp.maximum(umax, 1e-12), h * h / (4 * jnp.maximum(params.nu, 1e-12)))
 
 
-def step(geom: Geometry, state: State, params: Params, dt, tol=1e-5, max_iter=200,
-         op: pressure.Operator | None = None) -> State:
-    """Advance one step of dt (s): semi-Lagrangian advection, explicit viscosity, buoyancy, projection
-    (op: ``operator(geom, params)``, computed here when None)."""
+def predict(geom: Geometry, state: State, params: Params, dt):
+    """The step before its projection: advected, diffused and forced u [ny, nx+1], v [ny+1, nx] with boundary
+    values set, and the advected smoke [ny, nx] (what ``step`` projects; exposed to measure the projection)."""
     u, v = state.u, state.v
     lu, lv = viscous(geom, params, u, v)
     un = advect(geom, u, v, u, 0.0, 0.5, dt) + dt * lu
@@ -194,6 +193,14 @@ def step(geom: Geometry, state: State, params: Params, dt, tol=1e-5, max_iter=20
     sm = jnp.concatenate([smoke[:1], 0.5 * (smoke[1:] + smoke[:-1]), smoke[-1:]], 0)
     vn = vn + dt * params.buoyancy * sm
     un, vn = apply_bc(geom, params, un, vn)
+    return un, vn, smoke
+
+
+def step(geom: Geometry, state: State, params: Params, dt, tol=1e-5, max_iter=200,
+         op: pressure.Operator | None = None) -> State:
+    """Advance one step of dt (s): semi-Lagrangian advection, explicit viscosity, buoyancy, projection
+    (op: ``operator(geom, params)``, computed here when None)."""
+    un, vn, smoke = predict(geom, state, params, dt)
     un, vn, p, it = project(geom, params, un, vn, dt, tol, max_iter, op, state.p)  # leaves closed/prescribed faces as set
     return State(un, vn, p, smoke, state.t + dt, it)
 
