@@ -5,9 +5,10 @@ a multigrid-preconditioned CG projection. Checked so far: closed wall and obstac
 in batches through run_batch (one per loop step, as the sampler does; vmap over samples rounds differently), the
 finite flag, Couette flow to 2e-6 and the grid's discrete Poiseuille profile to 4e-6 (tests/test_flow_validation.py).
 Divergence after every projection within 1.1x the CG tolerance (the solve checks its true residual
-before stopping and drops a warm-start guess worse than zero; tests/test_flow_validation.py). Not yet: Taylor-Green and manufactured orders, the
-cavity (Ghia 1982) and cylinder (Schaefer-Turek 1996) benchmarks, iteration counts within 1.5x over refinements
-(13/18/24 at 32^2/64^2/128^2 cavity: ~1.35x per refinement), the karman2d/cavity2d/channel2d/smoke2d entries.
+before stopping and drops a warm-start guess worse than zero; tests/test_flow_validation.py). Pressure iterations
+9/10/13 at 64x32/128x64/256x128 on a cylinder channel (float64 cold; float32 warm 7/7/10; weighted coarse
+correction, benchmarks/flow_validation.py). Not yet: Taylor-Green and manufactured orders, the
+cavity (Ghia 1982) and cylinder (Schaefer-Turek 1996) benchmarks, the karman2d/cavity2d/channel2d/smoke2d entries.
 
 API (geom is static, params traced: changing Reynolds number, inflow, lid or circle does not recompile)::
 
