@@ -125,12 +125,12 @@ def _taylor_green_error(n, advection, nu=0.002, t_end=0.5, cfl=0.5):
 
 def test_taylor_green_second_order_with_maccormack():
     # dt ~ h (CFL 0.5): the slope fitted over 16/32/64 cells is the order in space and time together. Measured
-    # errors 0.0254 / 0.0058 / 0.00059 (maccormack, fitted order 2.7) against 0.223 / 0.132 / 0.073 for the
+    # errors 0.0107 / 0.0024 / 0.00053 (maccormack, orders 2.15, 2.19) against 0.223 / 0.132 / 0.073 for the
     # first-order semi-Lagrangian default (0.8).
     ns = np.array([16, 32, 64])
     errors = np.array([_taylor_green_error(n, "maccormack") for n in ns])
     order = -np.polyfit(np.log(ns), np.log(errors), 1)[0]
-    assert order > 1.9 and errors[-1] < 2e-3, (errors, order)
+    assert order > 1.9 and errors[-1] < 1e-3, (errors, order)
     first = [_taylor_green_error(n, "semi_lagrangian") for n in ns[:2]]
     assert np.log2(first[0] / first[1]) < 1.2 and errors[0] < 0.5 * first[0], first  # the check tells them apart
 
