@@ -1,8 +1,11 @@
 """One incompressible Navier-Stokes step on the MAC grid: advect, diffuse, force, project.
 
-Advection: semi-Lagrangian with a midpoint (RK2) backtrace and bilinear interpolation: unconditionally
-stable; accuracy O(dt^2 + h^2 / dt) per unit time, so keep the CFL number u dt / h near 1 (stable_dt uses
-cfl = 1 by default). Viscosity: explicit 5-point Laplacian, stable for nu dt / h^2 <= 1/4. Buoyancy:
+Advection (``advection=``): 'semi_lagrangian' (default), a midpoint (RK2) backtrace by u^n and bilinear
+interpolation: unconditionally stable; first order overall (O(dt + h^2 / dt) per unit time; the pressure
+acts only at the arrival point), so keep the CFL number u dt / h near 1 (stable_dt uses cfl = 1 by default).
+'maccormack': limited MacCormack interpolation, the backtrace by a half-step velocity and the forces by a
+Lagrangian trapezoid: second order in space and time (Taylor-Green, tests/test_flow_validation.py), still
+stable beyond CFL 1 (the clamp adds no extrema); about 2.5x the advection work. Viscosity: explicit 5-point Laplacian, stable for nu dt / h^2 <= 1/4. Buoyancy:
 v += dt * buoyancy * smoke (smoke advected by the same velocity). Projection: the masked Poisson solve of
 generator.flow.pressure; afterwards the discrete divergence is zero to the solver tolerance.
 """
