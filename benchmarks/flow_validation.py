@@ -21,7 +21,6 @@ import argparse
 import time
 
 import jax
-import jax.experimental
 import jax.numpy as jnp
 import numpy as np
 
@@ -46,12 +45,15 @@ def iterations(grids=((64, 32), (128, 64), (256, 128)), tol=1e-5):
         b = -geom.h * (u[:, 1:] - u[:, :-1] + v[1:] - v[:-1]) * (1 - fc.solid)
         cold = jax.jit(lambda b: pressure.solve(fc, b, False, False, False, tol, 500, op))(b)
         s = jax.jit(lambda s: jax.lax.fori_loop(0, 20, lambda _, s: step(geom, s, params, dt, tol, 500, op), s))(s0)
-        with jax.experimental.enable_x64():  # the algorithm's count, below float32's rounding floor
+        jax.config.update("jax_enable_x64", True)  # the algorithm's count, below float32's rounding floor
+        try:
             op64 = pressure.Operator([jax.tree_util.tree_map(lambda a: a.astype(jnp.float64), lv) for lv in op.levels],
                                      op.coarse_inverse.astype(jnp.float64))
             b64 = jnp.asarray(np.asarray(b), jnp.float64)
             c64 = jax.jit(lambda b: pressure.solve(op64.levels[0], b, False, False, False, tol, 500, op64))(b64)
             c64 = (int(c64.iterations), float(c64.residual))
+        finally:
+            jax.config.update("jax_enable_x64", False)
         rows.append((nx, ny, int(cold.iterations), float(cold.residual), int(s.iterations), *c64))
     print(f"pressure iterations, karman-like channel, tol {tol}, {len(op.levels)} levels at the finest grid")
     print("  grid      float32: cold(step 1) residual  warm(step 20) | float64: cold residual")
