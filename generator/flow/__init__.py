@@ -1,13 +1,15 @@
 """Incompressible 2D Navier-Stokes on a staggered MAC grid (JAX; float32, float64 under x64; jit/vmap-able).
 
-DRAFT for issue 18, not yet a catalog entry: semi-Lagrangian advection (first order overall), explicit viscosity,
-a multigrid-preconditioned CG projection. Checked so far: closed wall and obstacle faces, a sample's bits alone and
+DRAFT for issue 18: advection semi-Lagrangian (default; first order overall) or advection='maccormack' (limited
+MacCormack with a half-step backtrace velocity and trapezoid forces: second order, Taylor-Green 2.15/2.19),
+explicit viscosity, a multigrid-preconditioned CG projection. Checked so far: closed wall and obstacle faces, a sample's bits alone and
 in batches through run_batch (one per loop step, as the sampler does; vmap over samples rounds differently), the
 finite flag, Couette flow to 2e-6 and the grid's discrete Poiseuille profile to 4e-6 (tests/test_flow_validation.py).
-Known defect: after the first step a projection leaves ~1% of the divergence instead of the CG tolerance (two
-strict xfail tests record the ratios). Not yet: Taylor-Green and manufactured orders, the
-cavity (Ghia 1982) and cylinder (Schaefer-Turek 1996) benchmarks, iteration counts within 1.5x over refinements
-(13/18/24 at 32^2/64^2/128^2 cavity: ~1.35x per refinement), the karman2d/cavity2d/channel2d/smoke2d entries.
+Divergence after every projection within the CG tolerance plus float32 rounding (the solve checks its true residual
+before stopping and drops a warm-start guess worse than zero; tests/test_flow_validation.py). Pressure iterations
+9/10/13 at 64x32/128x64/256x128 on a cylinder channel (float64 cold; float32 warm 7/7/10; weighted coarse
+correction, benchmarks/flow_validation.py). Cavity Re 100 against Ghia 1982 and the Schaefer-Turek
+2D-2 cylinder: benchmarks/flow_validation.py. Not yet: a manufactured-solution order test.
 
 API (geom is static, params traced: changing Reynolds number, inflow, lid or circle does not recompile)::
 

@@ -26,21 +26,22 @@ def _leaves(params: Params, dt, batch: int, dtype):
 
 
 @functools.lru_cache(maxsize=32)
-def _program(geom: Geometry, n_steps: int, chunk: int):
+def _program(geom: Geometry, n_steps: int, chunk: int, advection: str = "semi_lagrangian"):
     def one(row):
         nu, lid, inflow, cx, cy, r, buoy, dt = row
         p = Params(nu=nu, lid=lid, inflow=inflow, circle=(cx, cy, r), buoyancy=buoy)
-        return run(geom, initial_state(geom, p, dt.dtype), p, dt, n_steps)
+        return run(geom, initial_state(geom, p, dt.dtype), p, dt, n_steps, advection=advection)
 
     return jax.jit(lambda *cols: jax.lax.map(one, cols))
 
 
-def run_batch(geom: Geometry, params: Params, dt, n_steps: int, chunk: int = 4, dtype=jnp.float32) -> State:
+def run_batch(geom: Geometry, params: Params, dt, n_steps: int, chunk: int = 4, dtype=jnp.float32,
+              advection: str = "semi_lagrangian") -> State:
     """n_steps steps of dt (s) from rest (initial_state) for a batch of parameter sets.
 
     params: Params whose leaves are scalars or arrays [B] (circle: three of them); dt scalar or [B].
     Returns a State with a leading batch axis B (u [B, ny, nx+1], v [B, ny+1, nx], p/smoke [B, ny, nx]).
-    Sample i's bits are identical alone (B = 1) and in any batch.
+    Sample i's bits are identical alone (B = 1) and in any batch. advection: a key of step.ADVECTION.
     """
     if chunk < 1:
         raise ValueError(f"chunk={chunk} must be a positive integer")
@@ -49,4 +50,4 @@ def run_batch(geom: Geometry, params: Params, dt, n_steps: int, chunk: int = 4, 
     if len(sizes) > 1:
         raise ValueError(f"params/dt batch sizes {sorted(sizes)} differ; allowed: one common size B or scalars")
     batch = sizes.pop() if sizes else 1
-    return chunked_map(_program(geom, n_steps, chunk), chunk, *_leaves(params, dt, batch, dtype))
+    return chunked_map(_program(geom, n_steps, chunk, advection), chunk, *_leaves(params, dt, batch, dtype))

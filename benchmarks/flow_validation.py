@@ -1,0 +1,218 @@
+"""Flow solver validation figures (issue 18): pressure iterations over refinement, advection order, and the
+published benchmarks (lid-driven cavity, Ghia, Ghia & Shin 1982; cylinder in a channel, Schaefer & Turek 1996).
+
+    nice python -m benchmarks.flow_validation [--parts iterations,cavity,cylinder,speed,speed2] [--cavity-n 32,64]
+        [--cylinder-ny 64] [--cylinder-t 10]
+
+Figures, not pass/fail; each part says its case, grid and what it measured. Measured (2 shared cores, nice):
+- iterations, tol 1e-5, 64x32/128x64/256x128: float64 cold 9/10/13 (1.44x; 16/23/34 before the weighted
+  coarse correction), float32 warm (step 20) 7/7/10.
+- cavity Re 100, max |deviation| from Ghia's u / v: 64^2 maccormack 0.0027 / 0.0072, semi-Lagrangian
+  0.0130 / 0.0082; 32^2 maccormack 0.0044 / 0.0044, semi-Lagrangian 0.0225 / 0.0214.
+- Schaefer-Turek 2D-2, maccormack, 344x64 (15.6 cells per diameter; the finest that ran in a few minutes here,
+  145 s; 688x128 would take ~8x): Cd max 3.236 (in 3.22-3.24), St 0.2964 (in 0.295-0.305), Cl max 0.827
+  (17% under 0.99-1.01; Cl min -0.671). 172x32 (7.8 cells): Cd max 3.301, St 0.285, Cl swings -0.99..0.02:
+  the staircase circle (masked area 0.98 of it, asymmetric about the centre at this h) biases the lift.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from generator.flow import Geometry, Params, initial_state, run_batch, step
+
+
+def iterations(grids=((64, 32), (128, 64), (256, 128)), tol=1e-5):
+    """Pressure-solve iterations on a karman-like channel (2 x 1, cylinder r 0.1 at (0.5, 0.52), parabolic
+    inflow peak 1.5): the first step's projection from rest (cold start) and a warm-started step later."""
+    from generator.flow import pressure  # noqa: PLC0415 (the speed part also runs on trees without predict)
+    from generator.flow.step import operator, predict  # noqa: PLC0415
+
+    rows = []
+    for nx, ny in grids:
+        geom = Geometry(nx, ny, 2.0, 1.0, left="inflow", right="outflow")
+        params = Params(nu=1e-3, inflow=1.5, circle=(0.5, 0.52, 0.1))
+        dt = 0.5 * geom.h / 1.5
+        op = operator(geom, params)
+        fc = op.levels[0]
+        s0 = initial_state(geom, params)
+        u, v, _ = predict(geom, s0, params, dt)
+        b = -geom.h * (u[:, 1:] - u[:, :-1] + v[1:] - v[:-1]) * (1 - fc.solid)
+        cold = jax.jit(lambda b: pressure.solve(fc, b, False, False, False, tol, 500, op))(b)
+        s = jax.jit(lambda s: jax.lax.fori_loop(0, 20, lambda _, s: step(geom, s, params, dt, tol, 500, op), s))(s0)
+        jax.config.update("jax_enable_x64", True)  # the algorithm's count, below float32's rounding floor
+        try:
+            op64 = pressure.Operator([jax.tree_util.tree_map(lambda a: a.astype(jnp.float64), lv) for lv in op.levels],
+                                     op.coarse_inverse.astype(jnp.float64))
+            b64 = jnp.asarray(np.asarray(b), jnp.float64)
+            c64 = jax.jit(lambda b: pressure.solve(op64.levels[0], b, False, False, False, tol, 500, op64))(b64)
+            c64 = (int(c64.iterations), float(c64.residual))
+        finally:
+            jax.config.update("jax_enable_x64", False)
+        rows.append((nx, ny, int(cold.iterations), float(cold.residual), int(s.iterations), *c64))
+    print(f"pressure iterations, karman-like channel, tol {tol}, {len(op.levels)} levels at the finest grid")
+    print("  grid      float32: cold(step 1) residual  warm(step 20) | float64: cold residual")
+    for nx, ny, c, r, w, c64, r64 in rows:
+        print(f"  {nx}x{ny:<7} {c:>13}    {r:.1e} {w:>10}     | {c64:>13} {r64:.1e}")
+    for name, col in (("float32 warm", 4), ("float64 cold", 5), ("float32 cold", 2)):
+        c = [r[col] for r in rows]
+        print(f"  {name}: per refinement {', '.join(f'{b / a:.2f}x' for a, b in zip(c, c[1:]))};"
+              f" first -> last grid {c[-1] / c[0]:.2f}x")
+    print("  (float32 cold solves from rest stop at the rounding floor of ||b - A p|| (eps ||A|| ||p|| with ||p|| ~ 200"
+          " ||b|| at 256x128) after their 4 true-residual checks)")
+    return rows
+
+
+# Ghia, Ghia & Shin (1982), J. Comput. Phys. 48, 387-411, Re = 100 (129 x 129 multigrid stream function-vorticity):
+# Table I, u along the vertical line through the cavity's centre (y, u); Table II, v along the horizontal line (x, v).
+GHIA_U = ((1.0, 1.0), (0.9766, 0.84123), (0.9688, 0.78871), (0.9609, 0.73722), (0.9531, 0.68717),
+          (0.8516, 0.23151), (0.7344, 0.00332), (0.6172, -0.13641), (0.5, -0.20581), (0.4531, -0.2109),
+          (0.2813, -0.15662), (0.1719, -0.1015), (0.1016, -0.06434), (0.0703, -0.04775), (0.0625, -0.04192),
+          (0.0547, -0.03717), (0.0, 0.0))
+GHIA_V = ((1.0, 0.0), (0.9688, -0.05906), (0.9609, -0.07391), (0.9531, -0.08864), (0.9453, -0.10313),
+          (0.9063, -0.16914), (0.8594, -0.22445), (0.8047, -0.24533), (0.5, 0.05454), (0.2344, 0.17527),
+          (0.2266, 0.17507), (0.1563, 0.16077), (0.0938, 0.12317), (0.0781, 0.1089), (0.0703, 0.10091),
+          (0.0625, 0.09233), (0.0, 0.0))
+
+
+def cavity(n=64, t_end=20.0, advection="maccormack"):
+    """Lid-driven cavity, Re = 100 (unit box, lid speed 1, nu 0.01) run to t_end (steady to ~1e-4 by then):
+    centreline u(y) and v(x), linearly interpolated from the faces on the centre lines (walls give the end
+    values), against Ghia et al. 1982."""
+    geom = Geometry(n, n, 1.0, 1.0)
+    params = Params(nu=0.01, lid=1.0)
+    h = geom.h
+    dt = min(0.5 * h, 0.9 * h * h / (4 * params.nu))
+    steps = int(round(t_end / dt))
+    go = jax.jit(lambda s, k: jax.lax.fori_loop(0, k, lambda _, s: step(geom, s, params, dt, advection=advection),
+                                                 s), static_argnums=1)
+    s = go(initial_state(geom, params), steps - 50)
+    s1 = go(s, 50)
+    change = float(jnp.abs(s1.u - s.u).max()) / (50 * dt)
+    yc = np.concatenate([[0.0], (np.arange(n) + 0.5) * h, [1.0]])
+    uc = np.concatenate([[0.0], np.asarray(s1.u[:, n // 2]), [1.0]])
+    vc = np.concatenate([[0.0], np.asarray(s1.v[n // 2, :]), [0.0]])
+    du = [np.interp(y, yc, uc) - u for y, u in GHIA_U]
+    dv = [np.interp(x, yc, vc) - v for x, v in GHIA_V]
+    print(f"lid-driven cavity Re 100, {n}x{n}, {advection}, t {t_end} ({steps} steps of {dt:.4f}; "
+          f"max |du/dt| at the end {change:.1e}): vs Ghia, Ghia & Shin 1982 Tables I/II")
+    print(f"  u(y) on x = 0.5: max |dev| {np.max(np.abs(du)):.4f}, rms {np.sqrt(np.mean(np.square(du))):.4f}; "
+          f"u_min {uc.min():.4f} (Ghia -0.2109)")
+    print(f"  v(x) on y = 0.5: max |dev| {np.max(np.abs(dv)):.4f}, rms {np.sqrt(np.mean(np.square(dv))):.4f}; "
+          f"v_max {vc.max():.4f} (Ghia 0.17527), v_min {vc.min():.4f} (Ghia -0.24533)")
+    return du, dv
+
+
+def body_force(geom, solid, state, nu):
+    """Force on the masked body per unit depth and density (Fx, Fy) [m^3/s^2]: pressure on each fluid-solid
+    cell face (the fluid cell's p, h wide) plus wall shear nu du/dn over the half cell between the fluid cell's
+    centre velocity and the no-slip face. A staircase surface: first order in h."""
+    f = 1.0 - solid.astype(state.p.dtype)
+    sol = 1.0 - f
+    p, h = state.p, geom.h
+    uc = 0.5 * (state.u[:, 1:] + state.u[:, :-1])
+    vc = 0.5 * (state.v[1:] + state.v[:-1])
+    left = f[:, :-1] * sol[:, 1:]   # fluid cell (i) left of solid (i+1): pushes the body in +x
+    right = sol[:, :-1] * f[:, 1:]
+    below = f[:-1] * sol[1:]
+    above = sol[:-1] * f[1:]
+    fx = h * (jnp.sum(left * p[:, :-1]) - jnp.sum(right * p[:, 1:]))
+    fy = h * (jnp.sum(below * p[:-1]) - jnp.sum(above * p[1:]))
+    fx = fx + 2 * nu * (jnp.sum(below * uc[:-1]) + jnp.sum(above * uc[1:]))
+    fy = fy + 2 * nu * (jnp.sum(left * vc[:, :-1]) + jnp.sum(right * vc[:, 1:]))
+    return fx, fy
+
+
+def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack"):
+    """Schaefer & Turek (1996) benchmark 2D-2: channel 2.2 x 0.41 (here lx = nx h with nx even, <= 0.2% longer
+    so cells stay square and the grid coarsens), cylinder centre (0.2, 0.2), r 0.05, parabolic inflow peak 1.5
+    (mean 1), nu 1e-3, Re 100. Cd = 2 Fx / (U^2 D), Cl = 2 Fy / (U^2 D) with U = 1, D = 0.1; St = f D / U from
+    the lift's upward zero crossings over the last ``window`` s. Published: Cd max 3.22-3.24, Cl max 0.99-1.01,
+    St 0.295-0.305."""
+    h = 0.41 / ny
+    nx = 2 * round(2.2 / h / 2)
+    geom = Geometry(nx, ny, nx * h, 0.41, left="inflow", right="outflow")
+    params = Params(nu=1e-3, inflow=1.5, circle=(0.2, 0.2, 0.05))
+    from generator.flow.step import operator, solid_mask  # noqa: PLC0415
+
+    solid = solid_mask(geom, params)
+    dt = 0.4 * h / 1.5
+    steps = int(round(t_end / dt))
+
+    def go(s):
+        op = operator(geom, params)
+
+        def one(s, _):
+            s = step(geom, s, params, dt, op=op, advection=advection)
+            return s, jnp.stack(body_force(geom, solid, s, params.nu))
+
+        return jax.lax.scan(one, s, None, length=steps)
+
+    t0 = time.perf_counter()
+    s, forces = jax.jit(go)(initial_state(geom, params))
+    forces = np.asarray(forces) * 2 / (1.0 ** 2 * 0.1)
+    wall = time.perf_counter() - t0
+    t = (np.arange(steps) + 1) * dt
+    last = t > t_end - window
+    cd, cl = forces[last, 0], forces[last, 1]
+    up = np.flatnonzero((cl[:-1] < np.mean(cl)) & (cl[1:] >= np.mean(cl)))
+    st = (len(up) - 1) / ((up[-1] - up[0]) * dt) * 0.1 if len(up) > 2 else float("nan")
+    area = float(jnp.sum(solid)) * h * h / (np.pi * 0.05 ** 2)
+    print(f"Schaefer-Turek 2D-2, {nx}x{ny} (h {h:.5f}, D = {0.1 / h:.1f} cells, masked area {area:.3f} of the "
+          f"circle), {advection}, {steps} steps of {dt:.5f} to t {t_end} ({wall:.0f} s incl. compile), "
+          f"finite {bool(jnp.isfinite(s.u).all())}")
+    print(f"  Cd max {cd.max():.3f} (3.22-3.24), Cl max {cl.max():.3f} (0.99-1.01), St {st:.4f} (0.295-0.305); "
+          f"Cd mean {cd.mean():.3f}, Cl min {cl.min():.3f}, over t > {t_end - window:g}")
+    return cd, cl, st
+
+
+def speed(nx=128, ny=64, batches=(1, 8), n_steps=100, reps=3, advection=None):
+    """Steps/s of run_batch on the karman-like channel (sample-steps per second of wall time, best of reps;
+    batch 1 runs a padded chunk of 4, as the sampler does). advection None: run_batch's default."""
+    geom = Geometry(nx, ny, 2.0, 1.0, left="inflow", right="outflow")
+    dt = 0.5 * geom.h / 1.5
+    kw = {} if advection is None else {"advection": advection}
+    for b in batches:
+        params = Params(nu=1e-3, inflow=jnp.linspace(1.0, 1.5, b), circle=(0.5, 0.52, 0.1))
+        jax.block_until_ready(run_batch(geom, params, dt, n_steps, **kw))
+        best = float("inf")
+        for _ in range(reps):
+            t = time.perf_counter()
+            out = jax.block_until_ready(run_batch(geom, params, dt, n_steps, **kw))
+            best = min(best, time.perf_counter() - t)
+        print(f"  run_batch {nx}x{ny} {advection or 'default'} batch {b}: {b * n_steps / best:.0f} sample-steps/s "
+              f"(last pressure iterations {np.asarray(out.iterations).tolist()})")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--parts", default="iterations,cavity,cylinder")
+    ap.add_argument("--cylinder-ny", type=lambda a: [int(n) for n in a.split(",")], default=[64])
+    ap.add_argument("--cylinder-t", type=float, default=10.0)
+    ap.add_argument("--cavity-n", type=lambda a: [int(n) for n in a.split(",")], default=[32, 64])
+    args = ap.parse_args(argv)
+    parts = args.parts.split(",")
+    if "iterations" in parts:
+        t = time.perf_counter()
+        iterations()
+        print(f"  ({time.perf_counter() - t:.0f} s)")
+    if "cavity" in parts:
+        for n in args.cavity_n:
+            for adv in ("semi_lagrangian", "maccormack"):
+                cavity(n, advection=adv)
+    if "cylinder" in parts:
+        for ny in args.cylinder_ny:
+            cylinder(ny, args.cylinder_t)
+    if "speed" in parts:
+        speed()
+    if "speed2" in parts:
+        speed(advection="maccormack")
+
+
+if __name__ == "__main__":
+    main()
