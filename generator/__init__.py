@@ -19,16 +19,17 @@ JAX only (never imports torch). Public API::
 """
 
 from . import interactive, user
-from .catalog import GROUP, GROUPS, PDES, get_pde, pde_class
+from .catalog import GROUP, GROUPS, PDES, get_pde, pde_class, register
 from .domains import Choice, Domain, Fixed, LogUniform, Uniform, parse_domain
 from .grids import BC_TYPE, BOUNDARY_TYPES, NodeGrid
 from .ics import IC_KINDS, FourierSeries, GaussianRandomField, GrayScottSpots, InitialCondition, make_ic
+from .origin import rebuild
 from .pdes import PDE, LinearPDE, Param
 from .pdes.steady import SteadyProblem
 from .problem import Problem, ProblemBase
 from .sampler import BlowUpError, Trajectory, draw_params, sample, sample_keys, solve
 from .spectral import Grid
-from .user import register, unregister
+from .user import unregister
 
 # The revision of the numerics that decide a sample's bits for a given (config, seed, index): bumped by every change
 # that alters them (2: ETDRK4 coefficients with one exponential per wavenumber; 3: Gray-Scott spots kept in range).
@@ -81,13 +82,10 @@ def unsafe_cache_dir(path) -> str | None:
 
 def from_config(config: dict) -> PDE:
     """Rebuild a PDE from ``PDE.config()`` output (e.g. a cache's provenance)."""
+    if "origin" in config:  # a user's PDE: its class by origin, refused if its code changed since the config
+        return rebuild(config)
     cfg = dict(config)
-    name = cfg.pop("pde", None)
-    stored = cfg.pop("origin", None)
-    if stored is None:
-        return get_pde(name, cfg)
-    cls = user.from_origin(name, stored)  # refuses an origin whose code changed since the config was made
-    return cls().replace(cfg) if cfg else cls()
+    return get_pde(cfg.pop("pde", None), cfg)
 
 
 __all__ = [

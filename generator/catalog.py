@@ -13,6 +13,7 @@ import difflib
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+from . import user
 from .pdes.advection import Advection
 from .pdes.advection_diffusion import AdvectionDiffusion
 from .pdes.allen_cahn import AllenCahn
@@ -119,6 +120,12 @@ GROUP: dict[str, str] = {e.name: e.group for e in ENTRIES}
 globals().update({cls.__name__: cls for cls in PDES.values() if cls.__module__ == __name__})
 
 
+def register(name: str, cls: type) -> type:
+    """Make your problem class ``cls`` known as ``name`` (get_pde, the CLI, ``pdestream list``); a catalog entry's
+    name is refused. Returns the class (generator.user.register does the checks)."""
+    return user.register(name, cls, taken=tuple(PDES))
+
+
 def get_pde(name: str, overrides: Mapping | None = None, **kwargs) -> PDE:
     """The catalog PDE ``name`` with its defaults, changed by ``overrides`` / keyword arguments.
 
@@ -132,8 +139,6 @@ def get_pde(name: str, overrides: Mapping | None = None, **kwargs) -> PDE:
 
 def pde_class(name: str) -> type[PDE]:
     """The class of catalog entry or user PDE ``name`` (one-line ValueError naming what is allowed)."""
-    from . import user
-
     if isinstance(name, str) and name in PDES:
         return PDES[name]
     found = user.lookup(name) if isinstance(name, str) and name else None

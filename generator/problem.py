@@ -24,6 +24,7 @@ import numpy as np
 from .domains import Domain, Fixed, parse_domain
 from .grids import GridBase
 from .ics import IC_KINDS, check_value, coerce, make_ic
+from .origin import origin, rebuild
 
 # Limits that keep one configuration's frame/step arithmetic and memory sane; a setting beyond them is refused
 # when the problem is built, naming the limit, instead of overflowing, exhausting memory or running for days.
@@ -285,9 +286,7 @@ class ProblemBase(abc.ABC):
             value = getattr(self, name)
             out[name] = str(value) if name in self.PARAMS else value
         out["ic"] = {"kind": self.ic.kind, **dataclasses.asdict(self.ic)}
-        from .user import origin  # a user's PDE: where its code came from is part of its identity
-
-        where = origin(type(self))
+        where = origin(type(self))  # a user's PDE: where its code came from is part of its identity
         if where is not None:
             out["origin"] = where
         return out
@@ -296,8 +295,6 @@ class ProblemBase(abc.ABC):
         """A user's problem pickles as its config (rebuilt by ``generator.from_config``, which finds its class by
         origin and refuses changed code): its NAME may have been given at registration, which a class pickled by
         reference would lose in a worker process. The package's own problems pickle as usual."""
-        from .user import origin, rebuild
-
         if origin(type(self)) is None:
             return super().__reduce_ex__(protocol)
         return (rebuild, (self.config(),))

@@ -14,14 +14,13 @@ and ``from_config`` refuses an origin whose source changed.
 
 from __future__ import annotations
 
-import hashlib
-import importlib
 import inspect
-import sys
 from typing import Any
 
+from .origin import REGISTERED, load
+from .problem import ProblemBase
+
 ENTRY_POINT_GROUP = "pdestream.pdes"
-_REGISTERED: dict[str, type] = {}
 # What a problem class must offer beyond being a frozen dataclass (the attributes the sampler, cache and CLI read).
 REQUIRED = ("NAME", "EQUATION", "FIELDS", "NDIM", "PARAMS", "grid", "times", "run_keys", "config", "replace",
             "describe", "failure")
@@ -29,8 +28,6 @@ REQUIRED = ("NAME", "EQUATION", "FIELDS", "NDIM", "PARAMS", "grid", "times", "ru
 
 def check_class(cls: Any, where: str) -> None:
     """One-line ValueError unless ``cls`` is a problem class that can be built (``where``: how it was named)."""
-    from .problem import ProblemBase
-
     if not inspect.isclass(cls):
         raise ValueError(f"{where}: {cls!r} is not a class; a PDE is a class (subclass generator.PDE)")
     missing = [name for name in REQUIRED if not hasattr(cls, name)]
@@ -60,21 +57,20 @@ def _named(cls: type, name: str, where: str) -> type:
     return cls
 
 
-def register(name: str, cls: type) -> type:
-    """Make problem class ``cls`` known as ``name`` (get_pde, the CLI, ``pdestream list``); returns the class."""
-    from .catalog import PDES
-
+def register(name: str, cls: type, taken: tuple[str, ...] = ()) -> type:
+    """Make problem class ``cls`` known as ``name``; returns the class. ``taken``: names it may not have (the
+    catalog's: ``generator.register`` passes them, this module does not import the catalog)."""
     if not isinstance(name, str) or not name.isidentifier():
         raise ValueError(f"register: name {name!r} not allowed: a PDE name is an identifier such as 'mypde'")
-    if name in PDES:
+    if name in taken:
         raise ValueError(f"register: name {name!r} not allowed: it is a catalog entry; choose another name")
-    _REGISTERED[name] = _named(cls, name, f"register({name!r})")
+    REGISTERED[name] = _named(cls, name, f"register({name!r})")
     return cls
 
 
 def unregister(name: str) -> None:
     """Forget a PDE registered by Python (tests; a no-op for an unknown name)."""
-    _REGISTERED.pop(name, None)
+    REGISTERED.pop(name, None)
 
 
 def _entry_points() -> dict[str, Any]:
@@ -85,30 +81,13 @@ def _entry_points() -> dict[str, Any]:
 
 def names() -> list[str]:
     """The user PDEs known by name: registered by Python, then installed entry points."""
-    return [*_REGISTERED, *(n for n in _entry_points() if n not in _REGISTERED)]
-
-
-def load(spec: str) -> type:
-    """The class at import path ``spec`` = "package.module:Class" (one-line ValueError if it cannot be had)."""
-    module_name, _, qualname = spec.partition(":")
-    if not module_name or not qualname:
-        raise ValueError(f"PDE {spec!r} not allowed: an import path is 'package.module:Class'")
-    try:
-        module = importlib.import_module(module_name)
-    except Exception as err:  # any error of the user's module: say which module and why, no traceback
-        raise ValueError(f"PDE {spec!r}: module {module_name!r} does not import: {type(err).__name__}: {err}") from None
-    obj: Any = module
-    for part in qualname.split("."):
-        if not hasattr(obj, part):
-            raise ValueError(f"PDE {spec!r}: module {module_name!r} has no {qualname!r}")
-        obj = getattr(obj, part)
-    return obj
+    return [*REGISTERED, *(n for n in _entry_points() if n not in REGISTERED)]
 
 
 def lookup(name: str) -> type | None:
     """The user class called ``name`` (registered, entry point, or an import path), or None."""
-    if name in _REGISTERED:
-        return _REGISTERED[name]
+    if name in REGISTERED:
+        return REGISTERED[name]
     eps = _entry_points()
     if name in eps:
         return _named(load(eps[name].value), name, f"entry point {name!r} ({eps[name].value})")
@@ -121,48 +100,3 @@ def _adopted(cls: type, path: str) -> type:
     """A class found by import path: checked, and named by the path if it declares no NAME of its own."""
     check_class(cls, f"PDE {path!r}")
     return cls if cls.NAME else _named(cls, path, f"PDE {path!r}")
-
-
-def user_class(cls: type) -> type | None:
-    """The first class in ``cls``'s MRO from outside the package (a walled variant's user class), or None."""
-    return next((c for c in cls.__mro__ if c.__module__.split(".")[0] not in ("generator", "builtins", "abc")), None)
-
-
-def origin(cls: type) -> dict[str, Any] | None:
-    """Where a user problem class came from: {module, class, version, source_sha256}; None for the package's own."""
-    cls = user_class(cls)
-    if cls is None:
-        return None
-    module = sys.modules.get(cls.__module__)
-    try:
-        source = inspect.getsource(module) if module is not None else inspect.getsource(cls)
-    except (OSError, TypeError):  # defined interactively: the class's own source if any, else nothing to hash
-        source = None
-    return {"module": cls.__module__, "class": cls.__qualname__, "version": str(getattr(cls, "VERSION", "")),
-            "source_sha256": hashlib.sha256(source.encode()).hexdigest()[:16] if source is not None else None}
-
-
-def from_origin(name: str, stored: dict) -> type:
-    """The class of a stored config's origin, refused in one line if its code is no longer what made the config."""
-    if not isinstance(stored, dict) or not {"module", "class"} <= set(stored):
-        raise ValueError(f"PDE {name!r}: origin {stored!r} not allowed: needs module and class")
-    cls = lookup(name) if name in names() else None
-    if cls is None:  # another process (a worker): the class by its origin, named as it was
-        path = f"{stored['module']}:{stored['class']}"
-        cls = load(path)
-        check_class(cls, f"PDE {path!r}")
-        cls = cls if cls.NAME else _named(cls, name, f"PDE {path!r}")
-    now = origin(cls) or {}
-    for key in ("module", "class", "version", "source_sha256"):
-        if stored.get(key) != now.get(key):
-            raise ValueError(f"PDE {name!r}: its code changed since this config was made ({key}: was "
-                             f"{stored.get(key)!r}, now {now.get(key)!r} in {now.get('module')}:{now.get('class')}); "
-                             "use the code that made it, or start a new cache / run")
-    return cls
-
-
-def rebuild(config: dict):
-    """The problem of a pickled user problem's ``config()`` (see ProblemBase.__reduce_ex__)."""
-    from . import from_config
-
-    return from_config(config)
