@@ -1,7 +1,8 @@
 """Incompressible 2D Navier-Stokes on a staggered MAC grid (JAX; float32, float64 under x64; jit/vmap-able).
 
-DRAFT for issue 18: advection semi-Lagrangian (default; first order overall) or advection='maccormack' (limited
-MacCormack with a half-step backtrace velocity and trapezoid forces: second order, Taylor-Green 2.15/2.19),
+Advection: step/run's ``advection=`` 'semi_lagrangian' (their default; first order overall) or 'maccormack' (limited
+MacCormack with a half-step backtrace velocity and trapezoid forces: second order, Taylor-Green 2.15/2.19; the
+catalog's flows use it, FlowProblem.advection),
 explicit viscosity, a multigrid-preconditioned CG projection. Checked so far: closed wall and obstacle faces, a sample's bits alone and
 in batches through run_batch (one per loop step, as the sampler does; vmap over samples rounds differently), the
 finite flag, Couette flow to 2e-6 and the grid's discrete Poiseuille profile to 4e-6 (tests/test_flow_validation.py).

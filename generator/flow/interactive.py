@@ -37,7 +37,7 @@ def _one(problem, frames: int):
         p = {name: p_row[j] for j, name in enumerate(problem.PARAMS)}
         fp = problem.oracle_params(p, u)
         s = run(geom, problem.state_of(u, fp), fp, jnp.asarray(problem.step_dt, u.dtype), steps,
-                tol=problem.tol, max_iter=problem.max_iter)
+                tol=problem.tol, max_iter=problem.max_iter, advection=problem.advection)
         return problem.frame_fields(geom, s, fp)
 
     return one

@@ -40,7 +40,7 @@ from ..grids import GridBase
 from ..problem import MAX_STEPS, ProblemBase, resolve_params
 from . import interactive
 from .grid import SIDE_KINDS, Geometry, Params
-from .step import State, initial_state, run, solid_mask
+from .step import ADVECTION, State, initial_state, run, solid_mask
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
 # Work of one flow step per cell, in the spectral family's point-steps (generator.dispatch): a projection's
@@ -120,7 +120,7 @@ class FlowProblem(ProblemBase):
                                                     "smoke": "centre"}
     MIN_CELLS: ClassVar[int] = 8
     # cell Reynolds number u_max h / nu above which the grid does not resolve the flow (its boundary layers are
-    # thinner than a cell); semi-Lagrangian advection stays stable there but the data would be numerical noise
+    # thinner than a cell); the advection stays stable there but the data would be numerical noise
     MAX_CELL_REYNOLDS: ClassVar[float] = 40.0
 
     n: int = 32  # cells across the box (y)
@@ -133,6 +133,8 @@ class FlowProblem(ProblemBase):
     cfl: float = 0.5  # u_max dt / h at the largest speed the domains allow
     tol: float = 1e-5  # pressure solve: relative residual
     max_iter: int = 100  # pressure solve: CG iterations per step at most
+    advection: str = "maccormack"  # a key of generator.flow.step.ADVECTION: second order (Ghia and Schaefer-Turek
+    # checks in benchmarks/flow_validation.py), ~8% slower per karman2d trajectory than "semi_lagrangian" (first order)
 
     # --- what an entry provides --------------------------------------------------------------------
     @abc.abstractmethod
@@ -170,7 +172,7 @@ class FlowProblem(ProblemBase):
 
     def stable_dt(self) -> float:
         """Largest step (s): ``cfl`` h / u_max and the explicit viscous limit h^2 / (4 nu_max), at the domains'
-        extremes (the semi-Lagrangian advection is stable beyond CFL 1 but loses accuracy as h^2 / dt grows)."""
+        extremes (both advection schemes are stable beyond CFL 1 but loses accuracy as h^2 / dt grows)."""
         return min(self.cfl * self.h / self.speed_bound(), 0.9 * self.h**2 / (4 * self.viscosity_range()[1]))
 
     @property
@@ -210,6 +212,9 @@ class FlowProblem(ProblemBase):
             raise ValueError(f"{self.NAME}: tol={self.tol:g} not allowed: the relative residual must be in (0, 1)")
         if not self.max_iter >= 1:
             raise ValueError(f"{self.NAME}: max_iter={self.max_iter} not allowed: must be an integer >= 1")
+        if self.advection not in ADVECTION:
+            raise ValueError(f"{self.NAME}: advection={self.advection!r} not allowed: allowed are "
+                             f"{', '.join(sorted(ADVECTION))}")
         self._check_size()
         self.check_flow()
         nu_min = self.viscosity_range()[0]
@@ -228,7 +233,7 @@ class FlowProblem(ProblemBase):
         return (f"  fields: {', '.join(self.FIELDS)}   grid: {self.grid.describe()}\n"
                 f"  t in [{self.t_start:g}, {self.t_end:g}] {start}, {self.n_frames} frames, "
                 f"step {self.step_dt:.4g} s ({self.steps_per_frame}/frame, CFL {self.cfl:g} at "
-                f"{self.speed_bound():g} m/s); MAC grid, semi-Lagrangian advection, multigrid-CG projection"
+                f"{self.speed_bound():g} m/s); MAC grid, {self.advection.replace('_', '-')} advection, multigrid-CG projection"
                 + (f"\n  {self.describe_geometry()}" if self.describe_geometry() else ""))
 
     def failure(self) -> tuple[str, str]:
@@ -342,7 +347,7 @@ def _programs(problem: FlowProblem):
     def advance(k: int):
         def one(t):
             state, fp, dt = t
-            return run(geom, state, fp, dt, k, tol=problem.tol, max_iter=problem.max_iter)
+            return run(geom, state, fp, dt, k, tol=problem.tol, max_iter=problem.max_iter, advection=problem.advection)
 
         # vectorised over the fixed chunk (a GPU's batch; on a CPU as fast as a loop): every chunk has CHUNK rows
         # (padded), and a row's bits do not depend on its place or its chunk-mates (tests/test_flows.py)

@@ -230,7 +230,7 @@ class Smoke2D(FlowProblem):
 
     def speed_bound(self) -> float:
         # a plume of unit smoke rises at ~ sqrt(b L) (free fall over the box height against its own drag); the
-        # semi-Lagrangian step stays stable above it, so this only sets the accuracy of the step
+        # advection stays stable above it, so this only sets the accuracy of the step
         return math.sqrt(_bounds(self, "buoyancy")[1] * self.length)
 
     def viscosity_range(self) -> tuple[float, float]:
