@@ -16,7 +16,13 @@ def test_the_reference_covers_the_catalog_and_the_numerics_revision():
     assert set(SAVED["entries"]) <= {*generator.PDES, *ref.WALLED}  # new entries may come; none of these may go
 
 
-@pytest.mark.parametrize("name", sorted(SAVED["entries"]))
+def _entries():
+    """The recorded entries; the flows (10-30 s each: a warm-up of hundreds of projections) in the slow set."""
+    slow = pytest.mark.slow
+    return [pytest.param(n, marks=slow) if generator.GROUP.get(n) == "fluids" else n for n in sorted(SAVED["entries"])]
+
+
+@pytest.mark.parametrize("name", _entries())
 def test_entry_is_unchanged(name):
     assert ref.record(name) == SAVED["entries"][name]
 
