@@ -184,6 +184,7 @@ def jaxcfd_trajectory(case: VortexCase, batch: int = 0):
     return run
 
 
+ADVECTION = {"mac_cormack": "maccormack", "semi_lagrangian": "semi_lagrangian"}  # --scheme, in pdestream's words
 VMAP = False  # --vmap: members vectorised (a GPU's way; bits then depend on the batch size)
 
 
@@ -191,7 +192,8 @@ def pdestream_trajectory(case: VortexCase, batch: int = 0):
     """pdestream's solver (``generator.flow``) on the case: the same grid, lengths, nu, uniform inflow (a plug
     profile), walls, cylinder, dt, steps and frames, pressure tolerance ``case.tol``; a batch runs each member's
     unbatched program in ``jax.lax.map`` (bit-identical to alone, as the sampler does). Starts from rest (the
-    inflow switched on), not from the anchors' kick. Returns run() -> (probe v [frames] of member 0, max |div| dx / u_in)."""
+    inflow switched on), not from the anchors' kick. Advection: the case's scheme (PhiFlow's and ours are both a
+    limited MacCormack on a semi-Lagrangian backtrace, or both semi-Lagrangian). Returns run() -> (probe v [frames] of member 0, max |div| dx / u_in)."""
     import jax
     import jax.numpy as jnp
 
@@ -208,7 +210,7 @@ def pdestream_trajectory(case: VortexCase, batch: int = 0):
         p = params._replace(nu=nu)
 
         def frame(s, _):
-            s = run(geom, s, p, case.dt, every, tol=case.tol)
+            s = run(geom, s, p, case.dt, every, tol=case.tol, advection=ADVECTION[case.scheme])
             return s, 0.5 * (s.v[py, px] + s.v[py + 1, px])
 
         last, probe = jax.lax.scan(frame, initial_state(geom, p), None, length=case.frames)
