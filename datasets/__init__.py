@@ -5,6 +5,7 @@ and loads caches back; ``_bridge`` is the only module that touches JAX, and is p
 
 from ._bridge import max_index, param_domains, pde_from_config, sample_tensors
 from .cache import WriteSummary, open_cache, write_cache
+from .derived import flow_vorticity, vorticity
 from .loader import CachedTrajectories
 from .normalize import Normalization, compute_normalization
 from .reservoir import Reservoir, ReservoirStream
@@ -14,4 +15,4 @@ from .views import VIEWS, NextStep, Operator, SteadyOperator, Whole, collate, ex
 
 __all__ = [
     "Normalization", "Reservoir", "max_index", "param_domains", "pde_from_config", "sample_tensors", "ReservoirStream", "SolverOracle", "SolverStep", "StreamLoader", "TrajectoryStream", "compute_normalization", "gather", "stream_loader",
-    "CachedTrajectories", "WriteSummary", "open_cache", "write_cache", "VIEWS", "NextStep", "Operator", "SteadyOperator", "Whole", "collate", "examples", "for_sample", "make_view"]
+    "CachedTrajectories", "WriteSummary", "flow_vorticity", "vorticity", "open_cache", "write_cache", "VIEWS", "NextStep", "Operator", "SteadyOperator", "Whole", "collate", "examples", "for_sample", "make_view"]

@@ -9,6 +9,7 @@ import numpy as np
 
 from . import schema
 from .cache import is_complete, open_cache
+from .derived import flow_vorticity
 
 
 def field_stats(ds, name: str, rows: np.ndarray, block: int = 64) -> dict:
@@ -208,16 +209,6 @@ def _space_time(plt, ds, fields, show, index, label, space):
             ax.set_ylabel(axis_label(ds.time) if i == 0 else "")
         fig.colorbar(im, ax=list(axes[r]), label=axis_label(ds[name]), fraction=0.04, pad=0.01)
     return fig
-
-
-def flow_vorticity(ds):
-    """Vorticity dv/dx - du/dy [1/s] of a MAC-grid flow's cache (u on cells' left faces, v on bottom faces),
-    at the cells' lower-left corners, as a DataArray like u (the first row and column repeat their neighbours)."""
-    h = float(ds["x"][1] - ds["x"][0])
-    u, v = ds["u"], ds["v"]
-    dvdx = v.diff("x", label="upper").reindex(x=ds["x"], method="bfill")  # plain numpy fills (no bottleneck)
-    dudy = u.diff("y", label="upper").reindex(y=ds["y"], method="bfill")
-    return ((dvdx - dudy) / h).assign_attrs(long_name="vorticity", units="1/s")
 
 
 def _snapshots(plt, ds, fields, show, index, label, space, mask=None):

@@ -14,20 +14,19 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from datasets.derived import vorticity
 
-def vorticity(frames: torch.Tensor, fields: tuple[str, ...], h: float) -> np.ndarray:
+
+def frame_vorticity(frames: torch.Tensor, fields: tuple[str, ...], h: float) -> np.ndarray:
     """Vorticity [T, nx-1, ny-1] (1/s) of staggered frames [T, C, nx, ny] (u on left faces, v on bottom faces)."""
-    u, v = frames[:, fields.index("u")], frames[:, fields.index("v")]
-    dvdx = v[:, 1:, 1:] - v[:, :-1, 1:]
-    dudy = u[:, 1:, 1:] - u[:, 1:, :-1]
-    return ((dvdx - dudy) / h).numpy()
+    return vorticity(frames[:, fields.index("u")], frames[:, fields.index("v")], h).numpy()
 
 
 def picture_of(pde, frames: torch.Tensor, h: float) -> tuple[np.ndarray, str]:
     """What to draw of frames [T, C, *space]: (array [T, ...], its name)."""
     where = getattr(pde, "FIELD_LOCATIONS", {})
     if where.get("u") == "face_x" and where.get("v") == "face_y":
-        return vorticity(frames, tuple(pde.FIELDS), h), "vorticity [1/s]"
+        return frame_vorticity(frames, tuple(pde.FIELDS), h), "vorticity [1/s]"
     return frames[:, 0].numpy(), pde.FIELDS[0]
 
 
@@ -55,7 +54,7 @@ def plot_rollouts(path: Path, pde, rows: dict[str, torch.Tensor], h: float, dt: 
             ax = axes[i, j]
             ax.imshow(pic[t].T, origin="lower", cmap="RdBu_r", vmin=-lim, vmax=lim, aspect="equal")
             if solid is not None:
-                s = solid.numpy()[: pic.shape[1], : pic.shape[2]]
+                s = solid.numpy()[-pic.shape[1]:, -pic.shape[2]:]  # vorticity corner (i, j): cell (i+1, j+1)'s
                 ax.imshow(np.ma.masked_where(s.T < 0.5, s.T), origin="lower", cmap="Greys", vmin=0, vmax=1.5,
                           aspect="equal")
             ax.set_xticks([])

@@ -227,3 +227,23 @@ def test_solver_step_gradients_match_float64_finite_differences_through_a_projec
         params = t["params"].double().requires_grad_(True)
         assert torch.autograd.gradcheck(step, (u, params), eps=1e-6, atol=1e-7, rtol=1e-5, fast_mode=True)
     assert not jax.config.jax_enable_x64
+
+
+def test_vorticity_of_a_solid_body_rotation_is_twice_its_rate_on_arrays_tensors_and_caches():
+    """u = -W (y - y0), v = W (x - x0) on the MAC faces: dv/dx - du/dy = 2 W exactly, from numpy, torch and xarray."""
+    import torch
+    import xarray as xr
+
+    import datasets
+
+    n, h, rate = 8, 0.125, 0.7
+    xc = (np.arange(n) + 0.5) * h  # cell centres; u lives at x = i h (left faces), v at y = j h (bottom faces)
+    u = -rate * (xc[None, :] - 0.5) * np.ones((n, 1))  # [nx, ny]: u(x_i, y_j centre) = -W (y_j - 0.5)
+    v = rate * (xc[:, None] - 0.5) * np.ones((1, n))  # v(x_i centre, y_j) = W (x_i - 0.5)
+    w = datasets.vorticity(u, v, h)
+    assert w.shape == (n - 1, n - 1) and np.allclose(w, 2 * rate)
+    assert torch.allclose(datasets.vorticity(torch.tensor(u), torch.tensor(v), h), torch.tensor(2 * rate, dtype=torch.float64))
+    ds = xr.Dataset({"u": (("x", "y"), u), "v": (("x", "y"), v)}, coords={"x": xc, "y": xc})
+    assert np.allclose(datasets.flow_vorticity(ds).values, 2 * rate)
+    shear = datasets.vorticity(np.zeros((n, n)), v, h)  # -du/dy dropped: the rate alone
+    assert np.allclose(shear, rate)

@@ -295,3 +295,25 @@ def test_list_name_shows_field_units(capsys):
     assert "fields (units): vorticity [1/time]" in capsys.readouterr().out
     assert cli.main(["list", "darcy2d", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["fields"] == {"a": "1", "u": "1"}
+
+
+def test_rollouts_figure_of_a_flow_draws_vorticity_with_the_body_and_a_1d_entry_as_space_time(tmp_path):
+    """solver-in-the-loop's rollouts.png: a flow's rows are vorticity (not u), the body in grey; 1D: space-time."""
+    from surrogate.rollout_figure import picture_of, plot_rollouts
+
+    flow = generator.get_pde("karman2d")
+    nx, ny = flow.grid.shape
+    frames = torch.zeros(6, len(flow.FIELDS), nx, ny)
+    frames[:, flow.FIELDS.index("u")] = torch.linspace(0, 1, ny)  # shear du/dy = 1/h per cell: vorticity -1/h...
+    pic, what = picture_of(flow, frames, flow.h)
+    assert what.startswith("vorticity") and pic.shape == (6, nx - 1, ny - 1)
+    assert np.allclose(pic, -(1 / (ny - 1)) / flow.h, rtol=1e-4)  # ...times the profile's step 1/(ny-1)
+    solid = torch.zeros(nx, ny)
+    solid[10:14, 12:18] = 1
+    plot_rollouts(tmp_path / "flow.png", flow, {"reference": frames, "coarse": frames * 0.5}, flow.h, 0.1,
+                  solid=solid)
+    burgers = generator.get_pde("burgers1d", n=32)
+    plot_rollouts(tmp_path / "b.png", burgers, {"reference": torch.rand(5, 1, 32), "corrected": torch.rand(5, 1, 32)},
+                  1 / 32, 0.1)
+    for name in ("flow.png", "b.png"):
+        assert plt.imread(tmp_path / name).shape[0] > 100
