@@ -85,3 +85,25 @@ def test_batch_bits_with_maccormack():
         np.testing.assert_array_equal(np.asarray(getattr(batch, field)[1]), np.asarray(getattr(alone, field)[0]))
     semi = run_batch(geom, Params(lid=lids[1:2]), 0.01, 4)
     assert float(jnp.abs(semi.u - alone.u).max()) > 1e-6  # the keyword reaches the step
+
+
+def test_no_xla_eigen_decomposition_in_a_rollout_and_the_host_pseudo_inverse_is_one():
+    """The coarsest level's pseudo-inverse is computed on the host: XLA's CPU eigh kernel blocks on XLA's own
+    thread pool, and two programs decomposing at once (the stream sampling flows while solver-in-the-loop's step
+    runs) hung both pool threads for good. No eigh primitive may come back into the rollout."""
+    from generator.flow import pressure
+    from generator.flow.step import operator, run
+
+    geom = Geometry(32, 16, 2.0, 1.0, left="inflow", right="outflow")
+    params = Params(nu=1e-2, inflow=1.0, circle=(0.5, 0.5, 0.15))
+    state = initial_state(geom, params)
+    text = str(jax.make_jaxpr(lambda s: run(geom, s, params, 0.01, 2))(state))
+    assert "eigh" not in text and "pure_callback" in text
+    op = operator(geom, params)
+    coarse = op.levels[-1]
+    m = coarse.solid.size
+    eye = jnp.eye(m).reshape(m, *coarse.solid.shape)
+    a = np.asarray(jax.vmap(lambda e: pressure.apply(coarse, e, False, False).reshape(m))(eye), np.float64)
+    x = np.asarray(op.coarse_inverse, np.float64)
+    assert np.allclose(a @ x @ a, a, atol=1e-4 * np.abs(a).max())  # a pseudo-inverse: A X A = A
+    assert np.allclose(x, x.T, atol=1e-6 * np.abs(x).max())

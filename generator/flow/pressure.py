@@ -16,6 +16,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from generator.flow.grid import Faces
 
@@ -95,11 +96,23 @@ def prepare(fc: Faces, periodic_x: bool, periodic_y: bool) -> Operator:
     m = coarse.solid.size
     eye = jnp.eye(m, dtype=coarse.solid.dtype).reshape(m, *shape)
     a = jax.vmap(lambda e: apply(coarse, e, periodic_x, periodic_y).reshape(m))(eye)
-    a = 0.5 * (a + a.T)
-    w, q = jnp.linalg.eigh(a)
-    keep = w > 1e-5 * jnp.max(w)
-    inv_w = jnp.where(keep, 1.0 / jnp.where(keep, w, 1.0), 0.0)
-    return Operator(levels, (q * inv_w) @ q.T)
+    a = jax.lax.stop_gradient(0.5 * (a + a.T))  # geometry only: nothing to differentiate
+    # On the host (numpy's LAPACK), one matrix at a time: XLA's own CPU eigh kernel waits on XLA's intra-op
+    # thread pool from inside it, so two programs decomposing at once (a stream thread sampling flows while the
+    # training thread runs solver-in-the-loop's differentiable step) parked both pool threads and hung for good
+    # (gdb: both tf_XLAEigen threads in EigenvalueDecompositionSymmetric, on 2 cores).
+    shape = jax.ShapeDtypeStruct(a.shape, a.dtype)
+    return Operator(levels, jax.pure_callback(_pseudo_inverse, shape, a, vmap_method="sequential"))
+
+
+def _pseudo_inverse(a) -> np.ndarray:
+    """Pseudo-inverse of symmetric a [m, m] by its eigen-decomposition in float64, eigenvalues below 1e-5 of the
+    largest dropped; returned in a's dtype."""
+    a = np.asarray(a)
+    w, q = np.linalg.eigh(a.astype(np.float64))
+    keep = w > 1e-5 * w.max()
+    inv_w = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
+    return ((q * inv_w) @ q.T).astype(a.dtype)
 
 
 def _jacobi(fc: Faces, x, r, inv_d, px, py, sweeps: int):
