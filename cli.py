@@ -544,7 +544,8 @@ def add_train(sub) -> None:
     p = sub.add_parser("train", help="train a surrogate (FNO / U-Net) on the stream or on a cache; --resume a run")
     p.add_argument("pde", nargs="?", help="PDE name (see `pdestream list`); may come from --config instead")
     p.add_argument("--source", default="stream", metavar="stream|PATH",
-                   help="'stream' (solve on the fly) or a cache written by `pdestream generate`")
+                   help="'stream' (solve on the fly), a cache written by `pdestream generate`, or a file written by "
+                        "`pdestream export` (read through a temporary cache)")
     p.add_argument("--out", metavar="RUN_DIR", help="run directory (required for a new run; a resumed run keeps its own): run.json, "
                    "checkpoint.pt, metrics.csv/json, model.pt")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run from its checkpoint.pt, with the "
@@ -577,7 +578,6 @@ def cmd_train(args: argparse.Namespace) -> None:
         return _resume_train(args)
     from pathlib import Path
 
-    from datasets.export import exported_as
     from surrogate.runs import remove_staging, replace_run, staging_dir, train_run
 
     if args.out is None:
@@ -588,9 +588,6 @@ def cmd_train(args: argparse.Namespace) -> None:
                               "continue it, --overwrite to replace it, or choose another --out")
     if args.source != "stream" and not Path(args.source).exists():
         raise FileNotFoundError(f"--source {args.source}: no such cache (or use --source stream)")
-    if args.source != "stream" and (kind := exported_as(args.source)):
-        raise ValueError(f"--source {args.source} is a {kind} export; make it a cache first: pdestream import "
-                         f"{args.source} --out CACHE.h5, then --source CACHE.h5")
     named = settings_from_args(args.pde, args)  # the --config file, read once
     pde = pde_from_args(args.pde, args, named)
     if pde.STEADY and args.mode != "one-step":  # the modes' own refusal would send the user to --view next_step

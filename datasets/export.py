@@ -1,6 +1,7 @@
 """Export a complete cache to The Well's or PDEBench's HDF5 layout (``export_cache``), read such an export back
 as an xarray.Dataset in pdestream's layout (``read_export``) and turn it into a pdestream cache again
-(``import_export``, so ``pdestream train NAME --source CACHE`` trains on it).
+(``import_export``). ``pdestream train NAME --source EXPORT`` trains on an export directly: ``as_cache`` imports
+it into a private temporary cache for the run (removed when the process exits).
 
 One small interface per format (``ExportFormat``: ``write``, ``written_by``, ``read``), chosen by name
 (``FORMATS``) on export and by recognising the file on read. An export holds the cache's root attributes
@@ -389,3 +390,29 @@ def import_export(path, out) -> Path:
         remove_any(tmp)
         raise
     return out
+
+
+_IMPORTED: dict[tuple, Path] = {}  # (export path, its identity) -> the temporary cache made from it
+
+
+def as_cache(path) -> Path:
+    """``path`` for anything but an export; for an export written by ``export_cache``, a cache made from it
+    (``import_export``) in a private temporary directory, once per process and version of the file. The
+    directory is removed when the process exits, after an interrupt too (a kill -9 leaves it in the system's
+    temporary directory: ``pdestream-import-*``)."""
+    import shutil
+    import tempfile
+    from multiprocessing.util import Finalize
+
+    path = Path(path)
+    if exported_as(path) is None:
+        return path
+    st = path.stat()
+    key = (str(path.resolve()), st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size)
+    if key not in _IMPORTED:
+        tmp = Path(tempfile.mkdtemp(prefix="pdestream-import-"))
+        # run at exit by multiprocessing's exit hook, which the CLI's exit after an interrupt runs as well;
+        # ignored in child processes
+        Finalize(None, shutil.rmtree, args=(str(tmp),), kwargs={"ignore_errors": True}, exitpriority=0)
+        _IMPORTED[key] = import_export(path, tmp / path.with_suffix(".h5").name)
+    return _IMPORTED[key]

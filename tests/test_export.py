@@ -3,7 +3,12 @@ WellDataset and by plain h5py as PDEBench's loaders read them, equal the cache, 
 
 from __future__ import annotations
 
+import json
+import os
 import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -172,6 +177,24 @@ def test_refusals_are_one_line(caches, tmp_path, capsys):
                                                                      str(tmp_path / "c.h5")])
     assert "neither a The Well nor a PDEBench" in _err(capsys, ["import", cache, "--out", str(tmp_path / "c.h5")])
     assert "exists; choose another path" in _err(capsys, ["import", str(out), "--out", str(other)])
-    assert "is a the-well export; make it a cache first: pdestream import" in _err(
-        capsys, ["train", "burgers1d", "--source", str(out), "--out", str(tmp_path / "run")])
+    assert "cache " + str(out) + " was written with other settings (n: cache 32 vs asked 64)" in _err(
+        capsys, ["train", "burgers1d", "--source", str(out), "--set", "n=64", "--out", str(tmp_path / "run")])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.h5", "incomplete.h5", "other.h5", "pdebench.hdf5"]
+
+
+def test_train_on_an_export_equals_training_on_the_cache(caches, tmp_path):
+    """`train --source EXPORT` reads the export through a temporary cache, removed when the command exits."""
+    out = tmp_path / "e.h5"
+    export_cache(caches["burgers1d"], "pdebench", out)
+    (tmp_path / "tmp").mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp_path / "tmp")}
+    losses = []
+    for source, run in ((caches["burgers1d"], "run_cache"), (out, "run_export")):
+        argv = [sys.executable, str(Path(cli.__file__)), "train", "burgers1d", "--source", str(source), "--set", "n=32",
+                "--set", "n_frames=4", "--steps", "3", "--batch-size", "2", "--test-samples", "1",
+                "--out", str(tmp_path / run)]
+        subprocess.run(argv, env=env, check=True, capture_output=True)
+        losses.append(json.loads((tmp_path / run / "metrics.json").read_text())["final_loss"])
+    assert losses[0] == losses[1]
+    assert json.loads((tmp_path / "run_export" / "run.json").read_text())["source"] == str(out)
+    assert not list((tmp_path / "tmp").glob("pdestream-import-*"))
