@@ -63,8 +63,9 @@ class ExportFormat(Protocol):
         """True when the open h5py file ``f`` has this format's layout (whoever wrote it)."""
 
     def read(self, f) -> dict:
-        """Arrays of an export in the generator's order: {"fields": {name: [N, T, *space] or [N, *space]},
-        "coords": {"time": [T] or None, "x": .., ...}, "params": {name: [N]}} with their attrs."""
+        """What an export holds, arrays in the generator's order, each as (array, attrs): {"space": ("x", ...),
+        "coords": {"time": (or None when steady), "x": ...}, "fields": {name: [N, T, *space] or [N, *space]},
+        "params": {name: [N]}, "drop": root attributes of the format's own, "drop_var": its variable attributes}."""
 
 
 # --- shared pieces ---------------------------------------------------------------------------------
@@ -118,7 +119,7 @@ class TheWell:
     def write(self, ds, out: Path) -> None:
         import h5py
 
-        inputs, fields, params = _names(ds)
+        _, fields, params = _names(ds)
         if "time" not in ds.dims:
             raise ValueError(f"{ds.attrs.get('pde')} is steady (no time axis); The Well holds time series: "
                              "export it with --to pdebench")

@@ -72,6 +72,12 @@ def test_the_wells_own_dataset_class_reads_the_export(caches, tmp_path, name):
         np.testing.assert_array_equal(got, expected[i])
         np.testing.assert_array_equal(item["constant_scalars"].numpy(), [params[p][i] for p in params])
         assert (item["boundary_conditions"].numpy() == 2).all()  # BoundaryCondition.PERIODIC on every side
+    from the_well.utils.export import hdf5_to_xarray  # The Well's own reader of one file
+
+    with h5py.File(out, "r") as f:
+        plain = hdf5_to_xarray(f)
+    for k, v in fields.items():
+        np.testing.assert_array_equal(plain[k].values, v)
     grid = np.stack(np.meshgrid(*(coords[d] for d in ("x", "y") if d in coords), indexing="ij"), -1)
     np.testing.assert_array_equal(item["space_grid"].numpy(), grid)
 
