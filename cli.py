@@ -188,7 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="with NAME: the settings as JSON")
     p.set_defaults(func=cmd_list)
 
-    for add in (add_generate, add_inspect, add_train, add_compare, add_bench):
+    for add in (add_generate, add_inspect, add_export, add_import, add_train, add_compare, add_bench):
         add(sub)
     return parser
 
@@ -333,6 +333,44 @@ def cmd_inspect(args: argparse.Namespace) -> None:
     print(inspect.summary(args.path))
     if args.plot:
         print(f"plot: {inspect.plot(args.path, args.plot)}")
+
+
+# --- export / import (datasets.export) ------------------------------------------------------------
+def add_export(sub) -> None:
+    p = sub.add_parser("export", help="write a complete cache in The Well's or PDEBench's HDF5 layout",
+                       description="Write a complete cache as one HDF5 file that The Well's WellDataset or "
+                                   "PDEBench's loaders read (layouts in datasets/export.py); `pdestream import` "
+                                   "reads it back.")
+    p.add_argument("cache", help="cache file (.h5/.hdf5) or directory (.zarr), complete")
+    p.add_argument("--to", required=True, metavar="the-well|pdebench", help="the layout to write")
+    p.add_argument("--out", required=True, metavar="FILE.hdf5",
+                   help="file to write (The Well: put it in DIR/data/train/ and load WellDataset(path=DIR, "
+                        "well_split_name='train'))")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing export written by pdestream "
+                                                            "(anything else at FILE is refused)")
+    p.set_defaults(func=cmd_export)
+
+
+def cmd_export(args: argparse.Namespace) -> None:
+    from datasets.export import export_cache
+
+    out = export_cache(args.cache, args.to, args.out, overwrite=args.overwrite)
+    print(f"exported {args.cache} to {out} ({args.to})")
+
+
+def add_import(sub) -> None:
+    p = sub.add_parser("import", help="turn a file written by `pdestream export` back into a cache "
+                                      "(then `train --source CACHE`)")
+    p.add_argument("path", help="a The Well or PDEBench HDF5 file written by `pdestream export`")
+    p.add_argument("--out", required=True, metavar="PATH.h5|PATH.zarr", help="cache to write (must not exist)")
+    p.set_defaults(func=cmd_import)
+
+
+def cmd_import(args: argparse.Namespace) -> None:
+    from datasets.export import exported_as, import_export
+
+    out = import_export(args.path, args.out)
+    print(f"imported {args.path} ({exported_as(args.path)}) to {out}")
 
 
 # --- train / compare (surrogate) ---------------------------------------------------------------------
@@ -506,7 +544,8 @@ def add_train(sub) -> None:
     p = sub.add_parser("train", help="train a surrogate (FNO / U-Net) on the stream or on a cache; --resume a run")
     p.add_argument("pde", nargs="?", help="PDE name (see `pdestream list`); may come from --config instead")
     p.add_argument("--source", default="stream", metavar="stream|PATH",
-                   help="'stream' (solve on the fly) or a cache written by `pdestream generate`")
+                   help="'stream' (solve on the fly), a cache written by `pdestream generate`, or a file written by "
+                        "`pdestream export` (read through a temporary cache)")
     p.add_argument("--out", metavar="RUN_DIR", help="run directory (required for a new run; a resumed run keeps its own): run.json, "
                    "checkpoint.pt, metrics.csv/json, model.pt")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run from its checkpoint.pt, with the "

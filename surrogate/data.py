@@ -1,7 +1,8 @@
 """Data sources for training and evaluation, all through ``datasets`` (never the solver directly).
 
 - ``train_loader(pde, source, ...)``: "stream" -> the on-the-fly TrajectoryStream; a path -> a cache read by
-  CachedTrajectories (refused when it holds another PDE or other settings than asked).
+  CachedTrajectories (refused when it holds another PDE or other settings than asked); a file written by
+  ``pdestream export`` is read through a temporary cache made from it (``datasets.export.as_cache``).
 - ``test_set(pde, seed, n)``: whole trajectories of a held-out seed, as a list of batch dicts.
 """
 
@@ -11,6 +12,7 @@ import torch
 from torch.utils.data import DataLoader, Sampler
 
 import datasets
+from datasets.export import as_cache
 
 from .checks import check_count
 
@@ -85,8 +87,12 @@ def train_loader(pde, source: str, view, batch_size: int, seed: int = 0, data_se
     if source == "stream":
         stream = datasets.TrajectoryStream(pde, seed=data_seed, view=view, batch_size=batch_size)
         return datasets.stream_loader(stream), stream.pde
-    cached = datasets.CachedTrajectories(source, view=view)
-    check_cache_matches(cached, pde, explicit)
+    path = as_cache(source)  # an export of The Well's or PDEBench's layout: a temporary cache made from it
+    try:
+        cached = datasets.CachedTrajectories(path, view=view)
+        check_cache_matches(cached, pde, explicit)
+    except ValueError as err:  # named after what the user gave
+        raise ValueError(str(err).replace(str(path), str(source))) from None
     sampler = EpochBatchSampler(len(cached), batch_size, seed, drop_last=len(cached) >= batch_size)
     # the generator only feeds the DataLoader's per-iteration worker seed, which would otherwise be drawn
     # from the global torch RNG (that one also draws random next_step windows, and a resume restores it)

@@ -1,0 +1,419 @@
+"""Export a complete cache to The Well's or PDEBench's HDF5 layout (``export_cache``), read such an export back
+as an xarray.Dataset in pdestream's layout (``read_export``) and turn it into a pdestream cache again
+(``import_export``). ``pdestream train NAME --source EXPORT`` trains on an export directly: ``as_cache`` imports
+it into a private temporary cache for the run (removed when the process exits).
+
+One small interface per format (``ExportFormat``: ``write``, ``written_by``, ``read``), chosen by name
+(``FORMATS``) on export and by recognising the file on read. An export holds the cache's root attributes
+(config, seed, provenance, ``pdestream_*``) plus ``pdestream_export`` (the format's name), the global sample
+indices and blow-up redraws in a group ``pdestream`` (both formats' loaders ignore it), and the per-sample
+parameters; that is what makes reading it back exact. A file the other project wrote (without those
+attributes) is recognised and refused in one line: it has no PDE config for pdestream to train with.
+
+The Well (``--to the-well``): one HDF5 file in the layout of The Well's ``WellDataset`` (the_well 1.2): root
+attributes ``dataset_name`` (the PDE's name), ``grid_type`` "cartesian", ``n_spatial_dims``, ``n_trajectories``,
+``simulation_parameters`` (parameter names); ``dimensions`` with ``time`` and ``x``(, ``y``, ``z``)
+(``spatial_dims``; ``sample_varying``/``time_varying`` False); ``boundary_conditions`` with one group per
+axis, ``{axis}_{bc_type}``, whose ``bc_type`` is the cache's (WALL / OPEN / PERIODIC) and whose ``mask`` marks
+both ends of the axis (no ``values``: pdestream records the kind of boundary, not its values); ``scalars``
+with each parameter as a sample-varying, time-constant scalar [N] (WellDataset's ``constant_scalars``);
+``t0_fields`` with every field as a scalar field [N, T, x(, y, z)] in x-first order (a velocity's components
+stay separate t0 fields; ``t1_fields``/``t2_fields`` are empty). WellDataset reads a directory of such files,
+``DIR/data/SPLIT/*.hdf5``: export to ``DIR/data/train/NAME.hdf5`` and load
+``WellDataset(path=DIR, well_split_name="train")``. Steady caches (no time axis) are refused: The Well holds
+time series.
+
+PDEBench (``--to pdebench``): one HDF5 file in the layout of PDEBench's own loaders (``FNODatasetSingle`` /
+``UNetDatasetSingle``): a single-field cache's field is ``tensor`` [N, T, x(, y, z)] (x first) as in the 1D and
+2D scalar files; a cache of several fields has one dataset per field, named as in the cache ([N, T, x(, y)],
+the CFD files' layout, whose loader however reads the names density/Vx/Vy/pressure), plus ``x-coordinate``
+(, ``y-coordinate``, ``z-coordinate``) and ``t-coordinate`` (the T frame times). A steady cache is laid out as
+PDEBench's Darcy file: its input fields as their own datasets [N, x(, y)], its solution as ``tensor``
+[N, 1, x(, y)] (no ``t-coordinate``). Each parameter is a dataset [N] named after it.
+
+Writes are atomic (``OUT.tmp-PID``, then ``os.replace``); an existing OUT is refused unless ``overwrite`` is
+given and OUT is an export pdestream wrote (anything else is never replaced).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from . import schema
+from .store import plain
+
+CHUNK_SAMPLES = 64  # samples copied at once (bounded memory for large caches)
+GROUP = "pdestream"  # sample indices and redraws: ignored by both formats' loaders
+WELL_OWN = ("dataset_name", "grid_type", "n_spatial_dims", "n_trajectories", "simulation_parameters")
+
+
+class ExportFormat(Protocol):
+    """One foreign layout: write an open complete cache to ``out``, recognise and read a file back."""
+
+    name: str
+
+    def write(self, ds, out: Path) -> None:
+        """Write the cache ``ds`` (``open_cache``'s dataset) as a new HDF5 file at ``out``."""
+
+    def looks_like(self, f) -> bool:
+        """True when the open h5py file ``f`` has this format's layout (whoever wrote it)."""
+
+    def read(self, f) -> dict:
+        """What an export holds, arrays in the generator's order, each as (array, attrs): {"space": ("x", ...),
+        "coords": {"time": (or None when steady), "x": ...}, "fields": {name: [N, T, *space] or [N, *space]},
+        "params": {name: [N]}, "drop": root attributes of the format's own, "drop_var": its variable attributes}."""
+
+
+# --- shared pieces ---------------------------------------------------------------------------------
+def _names(ds) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+    """(inputs, fields, params) of a cache, in PDE order."""
+    return tuple(str(ds.attrs.get("pdestream_inputs", "")).split()), tuple(str(ds.attrs["pdestream_fields"]).split()), \
+        tuple(str(ds.attrs["pdestream_params"]).split())
+
+
+def _space(ds) -> tuple[str, ...]:
+    """The cache's space dims in the generator's (x-first) order."""
+    first = _names(ds)[1][0]
+    return schema.SPACE[: schema.space_ndim(ds[first].dims)]
+
+
+def _attrs(a: dict) -> dict:
+    """Attributes HDF5 can hold, as plain values (xarray's decoded ones stay out)."""
+    return {k: v for k, v in a.items() if k not in ("coordinates", "_FillValue")}
+
+
+def _copy_field(ds, name: str, dset, ndim: int, time_axis: bool = False) -> None:
+    """Copy field ``name`` into the h5py dataset ``dset`` in the generator's order, CHUNK_SAMPLES at a time;
+    ``time_axis``: insert a length-1 time axis (a steady field as PDEBench's Darcy ``tensor``)."""
+    n = ds.sizes["sample"]
+    for lo in range(0, n, CHUNK_SAMPLES):
+        hi = min(lo + CHUNK_SAMPLES, n)
+        a = schema.from_disk(np.asarray(ds[name].isel(sample=slice(lo, hi)).values, np.float32), ndim)
+        dset[lo:hi] = a[:, None] if time_axis else a
+
+
+def _common(ds, f, fmt: str) -> None:
+    """Root attributes of the cache, the format's name, and the per-sample bookkeeping group."""
+    for k, v in ds.attrs.items():
+        f.attrs[k] = v
+    f.attrs["pdestream_export"] = fmt
+    g = f.create_group(GROUP)
+    g.create_dataset("sample", data=np.asarray(ds["sample"].values, np.int64))
+    g.create_dataset("redraws", data=np.asarray(ds["redraws"].values, np.int8))
+
+
+def _param_data(ds, name: str) -> np.ndarray:
+    return np.asarray(ds[name].values, np.float32)
+
+
+# --- The Well --------------------------------------------------------------------------------------
+class TheWell:
+    """The Well's HDF5 layout (see the module docstring)."""
+
+    name = "the-well"
+
+    def write(self, ds, out: Path) -> None:
+        import h5py
+
+        _, fields, params = _names(ds)
+        if "time" not in ds.dims:
+            raise ValueError(f"{ds.attrs.get('pde')} is steady (no time axis); The Well holds time series: "
+                             "export it with --to pdebench")
+        space = _space(ds)
+        n = ds.sizes["sample"]
+        with h5py.File(out, "w") as f:
+            _common(ds, f, self.name)
+            f.attrs.update({"dataset_name": str(ds.attrs["pde"]), "grid_type": "cartesian",
+                            "n_spatial_dims": len(space), "n_trajectories": n,
+                            "simulation_parameters": list(params)})
+            dims = f.create_group("dimensions")
+            dims.attrs["spatial_dims"] = list(space)
+            for d in ("time", *space):
+                v = dims.create_dataset(d, data=ds[d].values)
+                v.attrs.update(_attrs(ds[d].attrs))
+                v.attrs.update({"sample_varying": False, "time_varying": d == "time"})
+            bcs = f.create_group("boundary_conditions")
+            for d in space:
+                kind = str(ds[d].attrs.get("bc_type", "periodic")).upper()
+                g = bcs.create_group(f"{d}_{kind.lower()}")
+                g.attrs.update({"associated_dims": [d], "associated_fields": [], "bc_type": kind,
+                                "sample_varying": False, "time_varying": False,
+                                "pdestream_bc": str(ds[d].attrs.get("bc", ""))})
+                mask = np.zeros(ds.sizes[d], bool)
+                mask[[0, -1]] = True
+                g.create_dataset("mask", data=mask)
+            sc = f.create_group("scalars")
+            sc.attrs["field_names"] = list(params)
+            for p in params:
+                v = sc.create_dataset(p, data=_param_data(ds, p))
+                v.attrs.update({**_attrs(ds[p].attrs), "sample_varying": True, "time_varying": False})
+            t0 = f.create_group("t0_fields")
+            t0.attrs["field_names"] = list(fields)
+            shape = (n, ds.sizes["time"], *(ds.sizes[d] for d in space))
+            for name in fields:
+                v = t0.create_dataset(name, shape=shape, dtype="float32")
+                _copy_field(ds, name, v, len(space))
+                v.attrs.update({**_attrs(ds[name].attrs), "dim_varying": [True] * len(space),
+                                "sample_varying": True, "time_varying": True})
+            for order in ("t1_fields", "t2_fields"):
+                f.create_group(order).attrs["field_names"] = []
+
+    def looks_like(self, f) -> bool:
+        return all(k in f for k in ("dimensions", "t0_fields", "scalars")) and "n_trajectories" in f.attrs
+
+    def read(self, f) -> dict:
+        space = tuple(plain(d) for d in f["dimensions"].attrs["spatial_dims"])
+        coords = {d: (f["dimensions"][d][()], dict(f["dimensions"][d].attrs)) for d in ("time", *space)}
+        fields = {name: (f["t0_fields"][name][()], dict(f["t0_fields"][name].attrs))
+                  for name in (plain(x) for x in f["t0_fields"].attrs["field_names"])}
+        params = {name: (f["scalars"][name][()], dict(f["scalars"][name].attrs))
+                  for name in (plain(x) for x in f["scalars"].attrs["field_names"])}
+        return {"space": space, "coords": coords, "fields": fields, "params": params,
+                "drop": WELL_OWN, "drop_var": ("dim_varying", "sample_varying", "time_varying")}
+
+
+# --- PDEBench --------------------------------------------------------------------------------------
+class PDEBench:
+    """PDEBench's HDF5 layout (see the module docstring)."""
+
+    name = "pdebench"
+
+    def write(self, ds, out: Path) -> None:
+        import h5py
+
+        inputs, fields, params = _names(ds)
+        space = _space(ds)
+        n, timed = ds.sizes["sample"], "time" in ds.dims
+        with h5py.File(out, "w") as f:
+            _common(ds, f, self.name)
+            for d in space:
+                f.create_dataset(f"{d}-coordinate", data=ds[d].values).attrs.update(_attrs(ds[d].attrs))
+            if timed:
+                f.create_dataset("t-coordinate", data=ds["time"].values).attrs.update(_attrs(ds["time"].attrs))
+            grid = tuple(ds.sizes[d] for d in space)
+            for name in inputs:  # a steady PDE's inputs (Darcy's "nu"): [N, *space]
+                v = f.create_dataset(name, shape=(n, *grid), dtype="float32")
+                _copy_field(ds, name, v, len(space))
+                v.attrs.update(_attrs(ds[name].attrs))
+            frames = ds.sizes["time"] if timed else 1
+            for name in fields:
+                key = "tensor" if len(fields) == 1 else name
+                v = f.create_dataset(key, shape=(n, frames, *grid), dtype="float32")
+                _copy_field(ds, name, v, len(space), time_axis=not timed)
+                v.attrs.update({**_attrs(ds[name].attrs), "pdestream_name": name})
+            for p in params:
+                f.create_dataset(p, data=_param_data(ds, p)).attrs.update(_attrs(ds[p].attrs))
+
+    def looks_like(self, f) -> bool:
+        return "x-coordinate" in f and ("tensor" in f or "density" in f or "pdestream_fields" in f.attrs)
+
+    def read(self, f) -> dict:
+        space = tuple(d for d in schema.SPACE if f"{d}-coordinate" in f)
+        timed = "t-coordinate" in f
+        coords = {d: (f[f"{d}-coordinate"][()], dict(f[f"{d}-coordinate"].attrs)) for d in space}
+        coords["time"] = (f["t-coordinate"][()], dict(f["t-coordinate"].attrs)) if timed else None
+        names = str(plain(f.attrs["pdestream_fields"])).split()
+        inputs = str(plain(f.attrs.get("pdestream_inputs", ""))).split()
+        fields = {name: (f[name][()], dict(f[name].attrs)) for name in inputs}
+        for name in names:
+            a = f["tensor" if len(names) == 1 else name]
+            fields[name] = (a[()] if timed else a[:, 0], dict(a.attrs))
+        params = {p: (f[p][()], dict(f[p].attrs)) for p in str(plain(f.attrs["pdestream_params"])).split()}
+        return {"space": space, "coords": coords, "fields": fields, "params": params, "drop": (),
+                "drop_var": ("pdestream_name",)}
+
+
+FORMATS: dict[str, ExportFormat] = {f.name: f for f in (TheWell(), PDEBench())}
+
+
+# --- export ----------------------------------------------------------------------------------------
+def _check_out(out: Path, overwrite: bool) -> None:
+    """Refuse an OUT that exists (unless ``overwrite`` and it is a pdestream export) or whose directory is missing."""
+    if out.suffix.lower() not in (".h5", ".hdf5"):
+        raise ValueError(f"--out {str(out)!r} must end in .h5 or .hdf5 (got {out.suffix or 'no suffix'!r}): both "
+                         "formats are HDF5 files")
+    if out.is_symlink():
+        raise ValueError(f"{out} is a symlink to {os.readlink(out)}; pdestream does not write through links: "
+                         "give the real path")
+    if out.exists():
+        if not overwrite:
+            raise FileExistsError(f"{out} exists; pass --overwrite to replace it (only a pdestream export is replaced)")
+        if exported_as(out) is None:
+            raise ValueError(f"refusing to overwrite {out}: it is not an export written by pdestream (remove it "
+                             "yourself or choose another path)")
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise FileNotFoundError(f"cannot write {out}: directory {parent} does not exist")
+
+
+def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
+    """Write the complete cache at ``cache`` to ``out`` in format ``to`` ("the-well" or "pdebench"); returns
+    ``out``. One-line ValueError for an unknown format, an incomplete or unreadable cache, an existing ``out``
+    (without ``overwrite``, or one that is not a pdestream export)."""
+    from .cache import is_complete, open_cache
+
+    if to not in FORMATS:
+        raise ValueError(f"--to {to!r} not allowed; allowed: {', '.join(FORMATS)}")
+    fmt, out = FORMATS[to], Path(out)
+    _check_out(out, overwrite)
+    ds = open_cache(cache)
+    try:
+        if not is_complete(ds):
+            done = int((ds["complete"].values == 1).sum())
+            raise ValueError(f"{cache} is incomplete ({done} of {ds.sizes['sample']} samples written); only a "
+                             "complete cache is exported: finish it with `pdestream generate ... --resume`")
+        tmp = out.with_name(f"{out.name}.tmp-{os.getpid()}")
+        try:
+            fmt.write(ds, tmp)
+            os.replace(tmp, out)
+        except BaseException:
+            tmp.unlink(missing_ok=True)  # ours
+            raise
+    finally:
+        ds.close()
+    return out
+
+
+# --- reading back ----------------------------------------------------------------------------------
+def exported_as(path) -> str | None:
+    """The format name of a pdestream export at ``path``; None when it is not one (or not readable)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            name = plain(f.attrs.get("pdestream_export"))
+            return name if name in FORMATS and FORMATS[name].looks_like(f) else None
+    except (OSError, ValueError):
+        return None
+
+
+def read_export(path):
+    """An export written by ``export_cache`` as an xarray.Dataset in pdestream's layout (what ``open_cache``
+    gives for the cache it came from, loaded): fields [sample, time, (z,) y, x], per-sample parameters,
+    ``redraws`` and ``complete`` as coordinates, the cache's root attributes. One-line ValueError for a file
+    that is not an export of a known format, or one the other project wrote (no pdestream config)."""
+    import h5py
+    import xarray as xr
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"no export at {path}: not a file")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as err:
+        raise ValueError(f"{path} is not a readable HDF5 file: {str(err).splitlines()[0]}") from None
+    with f:
+        found = [fmt for fmt in FORMATS.values() if fmt.looks_like(f)]
+        if not found:
+            raise ValueError(f"{path} is neither a The Well nor a PDEBench HDF5 file; allowed: files written by "
+                             "`pdestream export --to the-well|pdebench`")
+        if schema.CONFIG_ATTR not in f.attrs or GROUP not in f:
+            raise ValueError(f"{path} is a {found[0].name} file not written by pdestream (no {schema.CONFIG_ATTR} "
+                             "attribute): pdestream reads back only its own exports")
+        fmt = FORMATS.get(plain(f.attrs.get("pdestream_export")), found[0])
+        got = fmt.read(f)
+        attrs = {k: plain(v) for k, v in f.attrs.items() if k not in (*got["drop"], "pdestream_export")}
+        sample = f[GROUP]["sample"][()].astype(np.int64)
+        redraws = f[GROUP]["redraws"][()].astype(np.int8)
+    space, ndim = got["space"], len(got["space"])
+    disk = schema.disk_space_dims(ndim)
+    timed = got["coords"].get("time") is not None
+
+    def clean(a: dict, drop=()) -> dict:
+        return {k: plain(v) if not isinstance(v, np.ndarray) else v for k, v in a.items()
+                if k not in (*drop, "sample_varying", "time_varying")}
+
+    coords = {"sample": ("sample", sample, {"long_name": "sample index"})}
+    if timed:
+        t, ta = got["coords"]["time"]
+        coords["time"] = ("time", t, clean(ta))
+    for d in space:
+        coords[d] = (d, got["coords"][d][0], clean(got["coords"][d][1]))
+    for p, (v, a) in got["params"].items():
+        coords[p] = ("sample", v.astype(np.float32), clean(a))
+    coords["redraws"] = ("sample", redraws, {"long_name": "blow-up redraws used for this sample", "units": "1"})
+    coords["complete"] = ("sample", np.ones(len(sample), np.int8),
+                          {"long_name": "sample fully written", "flag_values": [0, 1], "flag_meanings": "missing written"})
+    inputs = set(str(attrs.get("pdestream_inputs", "")).split())
+    data = {}
+    for name, (a, at) in got["fields"].items():
+        dims = ("sample", *(("time",) if timed and name not in inputs else ()), *disk)
+        data[name] = (dims, np.ascontiguousarray(schema.to_disk(a.astype(np.float32), ndim)), clean(at, got["drop_var"]))
+    return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def import_export(path, out) -> Path:
+    """Write the export at ``path`` back as a complete pdestream cache at ``out`` (.h5/.hdf5 or .zarr; the layout
+    ``pdestream generate`` writes), so `pdestream train NAME --source OUT` trains on it. Refuses an existing
+    ``out``; built under a hidden name and renamed into place."""
+    from .cache import _check_name, _check_writable, _hidden
+    from .store import format_of, remove_any
+
+    out = Path(out)
+    fmt = format_of(out)
+    _check_name(out)
+    if out.exists() or out.is_symlink():
+        raise FileExistsError(f"{out} exists; choose another path (import never replaces a file)")
+    _check_writable(out)
+    ds = read_export(path)
+    inputs, fields, params = _names(ds)
+    first = ds[fields[0]]
+    lay = schema.Layout(
+        dims=dict(ds.sizes),
+        coords={d: ((d,), ds[d].values, dict(ds[d].attrs)) for d in ("sample", *(["time"] if "time" in ds.dims
+                                                                                  else []), *_space(ds))},
+        per_sample={**{p: ("float32", dict(ds[p].attrs)) for p in params},
+                    "redraws": ("int8", dict(ds["redraws"].attrs)), "complete": ("int8", dict(ds["complete"].attrs))},
+        fields={n: {**ds[n].attrs, "coordinates": " ".join((*params, "redraws", "complete"))} for n in (*inputs, *fields)},
+        field_dims=first.dims,
+        attrs={**ds.attrs, "pdestream_complete": 0},
+    )
+    block = int(ds.attrs.get("pdestream_block", ds.sizes["sample"]))
+    tmp = _hidden(out, "new")
+    try:
+        fmt.create(tmp, lay, min(block, ds.sizes["sample"]))
+        store = fmt.open(tmp, writable=True)
+        try:
+            for n in (*inputs, *fields, *params, "redraws"):
+                store[n][...] = ds[n].values
+            store.flush()
+            store["complete"][...] = np.ones(ds.sizes["sample"], np.int8)
+            store.flush()
+            fmt.mark_complete(store)
+        finally:
+            store.close()
+        os.replace(tmp, out)
+    except BaseException:
+        remove_any(tmp)
+        raise
+    return out
+
+
+_IMPORTED: dict[tuple, Path] = {}  # (export path, its identity) -> the temporary cache made from it
+
+
+def as_cache(path) -> Path:
+    """``path`` for anything but an export; for an export written by ``export_cache``, a cache made from it
+    (``import_export``) in a private temporary directory, once per process and version of the file. The
+    directory is removed when the process exits, after an interrupt too (a kill -9 leaves it in the system's
+    temporary directory: ``pdestream-import-*``)."""
+    import shutil
+    import tempfile
+    from multiprocessing.util import Finalize
+
+    path = Path(path)
+    if exported_as(path) is None:
+        return path
+    st = path.stat()
+    key = (str(path.resolve()), st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size)
+    if key not in _IMPORTED:
+        tmp = Path(tempfile.mkdtemp(prefix="pdestream-import-"))
+        # run at exit by multiprocessing's exit hook, which the CLI's exit after an interrupt runs as well;
+        # ignored in child processes
+        Finalize(None, shutil.rmtree, args=(str(tmp),), kwargs={"ignore_errors": True}, exitpriority=0)
+        _IMPORTED[key] = import_export(path, tmp / path.with_suffix(".h5").name)
+    return _IMPORTED[key]

@@ -1,0 +1,206 @@
+"""`pdestream export --to the-well|pdebench` and `pdestream import`: the files are read by The Well's own
+WellDataset and by plain h5py as PDEBench's loaders read them, equal the cache, and read back exactly."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import xarray as xr
+
+import cli
+import datasets
+from datasets import schema
+from datasets.cache import open_cache
+from datasets.export import FORMATS, export_cache, import_export, read_export
+
+ENTRIES = {  # tiny caches: a 1D entry, a 2D entry of two fields, a steady 2D entry (PDEBench's Darcy layout)
+    "burgers1d": ["--n", "3", "--set", "n=32", "--set", "n_frames=4"],
+    "wave2d": ["--n", "2", "--set", "n=16", "--set", "n_frames=3"],
+    "darcy2d": ["--n", "2", "--set", "n=16"],
+}
+
+
+@pytest.fixture(scope="module")
+def caches(tmp_path_factory):
+    root = tmp_path_factory.mktemp("caches")
+    out = {}
+    for name, argv in ENTRIES.items():
+        out[name] = root / f"{name}.h5"
+        assert cli.main(["generate", name, *argv, "--out", str(out[name])]) == 0
+    return out
+
+
+def _fields(path) -> dict[str, np.ndarray]:
+    """Every field (inputs first) of a cache in the generator's order [N, (T,) x(, y)], and its parameters."""
+    with open_cache(path) as ds:
+        names = (*ds.attrs["pdestream_inputs"].split(), *ds.attrs["pdestream_fields"].split())
+        arrays = {n: schema.from_disk(ds[n].values, schema.space_ndim(ds[n].dims)) for n in names}
+        params = {p: ds[p].values for p in ds.attrs["pdestream_params"].split()}
+        coords = {d: ds[d].values for d in ("time", "x", "y") if d in ds.coords}
+    return arrays, params, coords
+
+
+def _same_attrs(a, b) -> bool:
+    return set(a) == set(b) and all(np.array_equal(np.asarray(a[k]), np.asarray(b[k])) for k in a)
+
+
+@pytest.mark.parametrize("name", ["burgers1d", "wave2d"])
+def test_the_wells_own_dataset_class_reads_the_export(caches, tmp_path, name):
+    well = pytest.importorskip("the_well.data")
+    out = tmp_path / "data" / "train" / f"{name}.hdf5"
+    out.parent.mkdir(parents=True)
+    export_cache(caches[name], "the-well", out)
+    fields, params, coords = _fields(caches[name])
+    n = len(next(iter(params.values())))
+    ds = well.WellDataset(path=str(tmp_path), well_split_name="train", n_steps_input=1, full_trajectory_mode=True)
+    meta = ds.metadata
+    assert meta.dataset_name == name and meta.n_trajectories_per_file == [n]
+    assert meta.field_names[0] == list(fields) and meta.constant_scalar_names == list(params)
+    assert meta.boundary_condition_types == ["PERIODIC"] and len(ds) == n
+    expected = np.stack(list(fields.values()), -1)  # [N, T, x(, y), C]: The Well's channel-last order
+    for i in range(n):
+        item = ds[i]  # full trajectory i: the first frame as input, the others as output
+        got = np.concatenate([item["input_fields"].numpy(), item["output_fields"].numpy()], 0)
+        np.testing.assert_array_equal(got, expected[i])
+        np.testing.assert_array_equal(item["constant_scalars"].numpy(), [params[p][i] for p in params])
+        assert (item["boundary_conditions"].numpy() == 2).all()  # BoundaryCondition.PERIODIC on every side
+    from the_well.utils.export import hdf5_to_xarray  # The Well's own reader of one file
+
+    with h5py.File(out, "r") as f:
+        plain = hdf5_to_xarray(f)
+    for k, v in fields.items():
+        np.testing.assert_array_equal(plain[k].values, v)
+    grid = np.stack(np.meshgrid(*(coords[d] for d in ("x", "y") if d in coords), indexing="ij"), -1)
+    np.testing.assert_array_equal(item["space_grid"].numpy(), grid)
+
+
+def test_a_steady_cache_goes_to_pdebench_only(caches, tmp_path, capsys):
+    out = tmp_path / "darcy.hdf5"
+    assert cli.main(["export", str(caches["darcy2d"]), "--to", "the-well", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "steady" in err and "--to pdebench" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", list(ENTRIES))
+def test_pdebench_layout_read_as_pdebenchs_loaders_do(caches, tmp_path, name):
+    out = tmp_path / f"{name}.h5"
+    export_cache(caches[name], "pdebench", out)
+    fields, params, coords = _fields(caches[name])
+    with h5py.File(out, "r") as f:
+        np.testing.assert_array_equal(f["x-coordinate"][...], coords["x"])
+        if "y" in coords:
+            np.testing.assert_array_equal(f["y-coordinate"][...], coords["y"])
+        if name == "darcy2d":  # Darcy's layout: the input as its own dataset, the solution as tensor [N, 1, x, y]
+            assert "t-coordinate" not in f
+            np.testing.assert_array_equal(f["a"][...], fields["a"])
+            np.testing.assert_array_equal(f["tensor"][...], fields["u"][:, None])
+        else:
+            np.testing.assert_array_equal(f["t-coordinate"][...], coords["time"])
+            if len(fields) == 1:  # one field: "tensor" [N, T, x(, y)]
+                np.testing.assert_array_equal(np.array(f["tensor"], dtype=np.float32), fields["u"])
+            else:  # several: one dataset per field, as PDEBench's CFD files
+                assert "tensor" not in f
+                for k, v in fields.items():
+                    np.testing.assert_array_equal(f[k][...], v)
+        for p, v in params.items():
+            np.testing.assert_array_equal(f[p][...], v)
+
+
+@pytest.mark.parametrize("to", list(FORMATS))
+@pytest.mark.parametrize("name", list(ENTRIES))
+def test_read_back_and_import_equal_the_cache(caches, tmp_path, name, to):
+    if to == "the-well" and name == "darcy2d":
+        pytest.skip("steady: The Well holds time series")
+    out = tmp_path / "e.hdf5"
+    export_cache(caches[name], to, out)
+    with open_cache(caches[name]) as ds:
+        original = ds.load()
+    back = read_export(out)
+    xr.testing.assert_equal(back, original)
+    assert _same_attrs(back.attrs, original.attrs)
+    assert all(_same_attrs(back[v].attrs, original[v].attrs) for v in original.variables)
+    cache = import_export(out, tmp_path / "again.h5")
+    with open_cache(cache) as ds:
+        xr.testing.assert_equal(ds.load(), original)
+        assert _same_attrs(ds.attrs, original.attrs)
+    a, b = datasets.CachedTrajectories(caches[name]), datasets.CachedTrajectories(cache)
+    assert len(a) == len(b) and a.config == b.config
+    for k in range(len(a)):
+        assert all(np.array_equal(a[k][key], b[k][key]) for key in a[k])
+
+
+def _err(capsys, argv) -> str:
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("pdestream: error: ") and "Traceback" not in err
+    return err
+
+
+def test_refusals_are_one_line(caches, tmp_path, capsys):
+    cache = str(caches["burgers1d"])
+    out = tmp_path / "b.h5"
+    assert "--to 'hdf5' not allowed; allowed: the-well, pdebench" in _err(
+        capsys, ["export", cache, "--to", "hdf5", "--out", str(out)])
+    assert "must end in .h5 or .hdf5" in _err(capsys, ["export", cache, "--to", "pdebench", "--out", str(tmp_path / "b.nc")])
+    assert not list(tmp_path.iterdir())
+
+    incomplete = tmp_path / "incomplete.h5"
+    shutil.copy(cache, incomplete)
+    with h5py.File(incomplete, "r+") as f:
+        f["complete"][1] = 0
+        f.attrs["pdestream_complete"] = 0
+    assert "incomplete (2 of 3 samples written)" in _err(capsys, ["export", str(incomplete), "--to", "pdebench",
+                                                                  "--out", str(out)])
+    assert not out.exists()
+
+    assert cli.main(["export", cache, "--to", "pdebench", "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert "exists; pass --overwrite" in _err(capsys, ["export", cache, "--to", "the-well", "--out", str(out)])
+    assert cli.main(["export", cache, "--to", "the-well", "--out", str(out), "--overwrite"]) == 0  # ours: replaced
+    assert read_export(out).attrs["pde"] == "burgers1d"
+    capsys.readouterr()
+    other = tmp_path / "other.h5"  # not an export of ours: never replaced
+    other.write_bytes(b"user data")
+    assert "refusing to overwrite" in _err(capsys, ["export", cache, "--to", "pdebench", "--out", str(other),
+                                                    "--overwrite"])
+    assert other.read_bytes() == b"user data"
+
+    foreign = tmp_path / "pdebench.hdf5"  # a file PDEBench wrote: no PDE config to train with
+    with h5py.File(foreign, "w") as f:
+        f["tensor"] = np.zeros((2, 3, 8), np.float32)
+        f["x-coordinate"] = np.linspace(0, 1, 8)
+        f["t-coordinate"] = np.linspace(0, 1, 3)
+    assert "pdebench file not written by pdestream" in _err(capsys, ["import", str(foreign), "--out",
+                                                                     str(tmp_path / "c.h5")])
+    assert "neither a The Well nor a PDEBench" in _err(capsys, ["import", cache, "--out", str(tmp_path / "c.h5")])
+    assert "exists; choose another path" in _err(capsys, ["import", str(out), "--out", str(other)])
+    assert "cache " + str(out) + " was written with other settings (n: cache 32 vs asked 64)" in _err(
+        capsys, ["train", "burgers1d", "--source", str(out), "--set", "n=64", "--out", str(tmp_path / "run")])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.h5", "incomplete.h5", "other.h5", "pdebench.hdf5"]
+
+
+def test_train_on_an_export_equals_training_on_the_cache(caches, tmp_path):
+    """`train --source EXPORT` reads the export through a temporary cache, removed when the command exits."""
+    out = tmp_path / "e.h5"
+    export_cache(caches["burgers1d"], "pdebench", out)
+    (tmp_path / "tmp").mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp_path / "tmp")}
+    losses = []
+    for source, run in ((caches["burgers1d"], "run_cache"), (out, "run_export")):
+        argv = [sys.executable, str(Path(cli.__file__)), "train", "burgers1d", "--source", str(source), "--set", "n=32",
+                "--set", "n_frames=4", "--steps", "3", "--batch-size", "2", "--test-samples", "1",
+                "--out", str(tmp_path / run)]
+        subprocess.run(argv, env=env, check=True, capture_output=True)
+        losses.append(json.loads((tmp_path / run / "metrics.json").read_text())["final_loss"])
+    assert losses[0] == losses[1]
+    assert json.loads((tmp_path / "run_export" / "run.json").read_text())["source"] == str(out)
+    assert not list((tmp_path / "tmp").glob("pdestream-import-*"))
