@@ -78,6 +78,9 @@ def test_config_pickle_and_dimensions():
     assert two == generator.get_pde("exponax:Burgers2d", n=32, diffusivity="uniform(0.01, 0.1)", dt=0.02)
     assert generator.from_config(two.config()) == two and pickle.loads(pickle.dumps(two)) == two
     assert two.config_hash() != pde.config_hash()
+    traj = generator.sample(pde.replace(n_frames=3), [0, 1], seed=3)  # generator.solve from the samples' ICs
+    again = generator.solve(traj.pde, traj.u[:, 0], traj.params)
+    assert np.array_equal(np.asarray(again.u), np.asarray(traj.u))
     assert "diffusivity ~ uniform(0.01, 0.1)" in pde.describe() and "convection_scale = 1.0 (fixed)" in pde.describe()
 
 

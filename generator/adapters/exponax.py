@@ -154,6 +154,20 @@ class ExponaxProblem(ProblemBase):
         cls = steppers()[self.STEPPER]
         return cls(self.NDIM, float(self.length), int(self.n), float(self.dt), **{k: float(v) for k, v in params.items()})
 
+    @property
+    def step_dt(self) -> float:
+        return self.dt
+
+    def evolve(self, u0: jax.Array, p: Mapping[str, jax.Array]):
+        """A caller's initial conditions u0 [B, C, *space], params {name: [B]} -> (u [B, T, C, *space], finite [B])
+        (``generator.solve``), one sample after another."""
+        roll, us = _roll(self.n_frames - 1, self.n_steps_per_frame), []
+        for i in range(u0.shape[0]):
+            us.append(roll(self.stepper({k: float(v[i]) for k, v in p.items()}), u0[i]))
+            sync([(us[-1],)])
+        u = jnp.stack(us)
+        return u, jnp.all(jnp.isfinite(u.reshape(u.shape[0], -1)), axis=1)
+
     def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
         """One sample per key [B], one after another (a host sync between two): (u [B, T, C, *space],
         params {name: [B]}, ok [B], None)."""
