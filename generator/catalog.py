@@ -141,6 +141,10 @@ def pde_class(name: str) -> type[PDE]:
     """The class of catalog entry or user PDE ``name`` (one-line ValueError naming what is allowed)."""
     if isinstance(name, str) and name in PDES:
         return PDES[name]
+    if isinstance(name, str) and name.startswith("exponax:"):  # an Exponax stepper (optional: imported here)
+        from .adapters.exponax import exponax_pde_class
+
+        return exponax_pde_class(name)
     found = user.lookup(name) if isinstance(name, str) and name else None
     if found is None:
         near = [n for n in PDES if isinstance(name, str) and name and n.startswith(name)]
@@ -148,5 +152,5 @@ def pde_class(name: str) -> type[PDE]:
         hint = f"; did you mean {' or '.join(near)}" if near else ""
         mine = ", ".join(user.names())
         raise ValueError(f"unknown PDE {name!r}{hint}; allowed: {', '.join(PDES)}{', ' + mine if mine else ''} "
-                         "or an import path package.module:Class")
+                         "or an import path package.module:Class, or an Exponax stepper exponax:Name")
     return found

@@ -1,0 +1,1 @@
+"""Adapters: other solvers' problems as pdestream entries (each imports its solver lazily: an optional dependency)."""
