@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 from . import user
+from .adapters.exponax import exponax_pde_class
 from .pdes.advection import Advection
 from .pdes.advection_diffusion import AdvectionDiffusion
 from .pdes.allen_cahn import AllenCahn
@@ -141,9 +142,7 @@ def pde_class(name: str) -> type[PDE]:
     """The class of catalog entry or user PDE ``name`` (one-line ValueError naming what is allowed)."""
     if isinstance(name, str) and name in PDES:
         return PDES[name]
-    if isinstance(name, str) and name.startswith("exponax:"):  # an Exponax stepper (optional: imported here)
-        from .adapters.exponax import exponax_pde_class
-
+    if isinstance(name, str) and name.startswith("exponax:"):  # an Exponax stepper (the adapter imports exponax)
         return exponax_pde_class(name)
     found = user.lookup(name) if isinstance(name, str) and name else None
     if found is None:
