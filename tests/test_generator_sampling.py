@@ -101,8 +101,29 @@ def test_new_parameters_never_recompile(name):
 
 
 def _stages_compiled(pde):
-    """Programs compiled so far for the rollout's bounded calls (generator.rollout.compiled_stages)."""
-    return sum(f._cache_size() for f in compiled_stages(pde))
+    """Programs compiled so far for the rollout's bounded calls (generator.rollout.compiled_stages, both the
+    per-sample and the shared-coefficient variants)."""
+    return sum(f._cache_size() for shared in (False, True) for f in compiled_stages(pde, shared))
+
+
+@pytest.mark.parametrize("name", ["ks1d", "burgers1d", "ks2d", "wave1d"])
+def test_fixed_parameters_share_one_sample_coefficients_with_the_same_bits(name):
+    """All parameters fixed: the set-up skips the coefficients and the rollout takes one copy for the batch
+    (rollout.shared_coefficients), bit-identical to the samples of the drawn domain given those values, in
+    whole-frame calls and in calls of one step."""
+    from generator import dispatch
+    from generator.rollout import shared_coefficients
+
+    free = small(name)
+    values = {k: float(np.mean(d.bounds)) for k, d in free.param_domains.items()}
+    fixed = free.replace(dt=free.step_dt, **{k: repr(v) for k, v in values.items()})  # (KS: dt from the nu bounds)
+    assert shared_coefficients(fixed) and not shared_coefficients(free)
+    idx = np.arange(5)
+    for work in (dispatch.DISPATCH_WORK, 1):  # whole frames per call; a frame in pieces of one step
+        with dispatch.call_size(work):
+            u = np.asarray(g.sample(fixed, idx, seed=2).u)
+            ref = np.asarray(g.sample(free, idx, seed=2, params=values).u)
+        assert np.isfinite(u).all() and np.array_equal(u, ref), (name, work)
 
 
 def test_solve_never_recompiles_for_new_parameters():
