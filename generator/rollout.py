@@ -113,8 +113,10 @@ def _steps(pde: PDE, v, p, coeffs, k):
 
 def shared_coefficients(pde: PDE) -> bool:
     """Whether every sample of ``pde`` has the same ETDRK4 coefficients: all its parameters are fixed (a sample's
-    explicit values must lie in their domain, so they are the fixed values too)."""
-    return all(isinstance(d, Fixed) for d in pde.param_domains.values())
+    explicit values must lie in their domain, so they are the fixed values too). A PDE without parameters keeps
+    the per-sample path (``compiled_coefficients`` maps over the parameters: it has none to map over)."""
+    domains = pde.param_domains.values()
+    return bool(domains) and all(isinstance(d, Fixed) for d in domains)
 
 
 @functools.lru_cache(maxsize=64)

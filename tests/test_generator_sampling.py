@@ -126,6 +126,32 @@ def test_fixed_parameters_share_one_sample_coefficients_with_the_same_bits(name)
         assert np.isfinite(u).all() and np.array_equal(u, ref), (name, work)
 
 
+def test_a_pde_without_parameters_samples():
+    """No parameters: the per-sample coefficients (rollout.shared_coefficients is False; there is nothing to map
+    the shared coefficients' program over)."""
+    import dataclasses
+    from typing import ClassVar
+
+    from generator.pdes.ks import KS
+    from generator.rollout import shared_coefficients
+
+    @dataclasses.dataclass(frozen=True)
+    class Unparametrised(KS):
+        NAME: ClassVar[str] = "ks_no_params"
+        PARAMS: ClassVar[dict] = {}
+
+        def linear(self, grid, p):
+            (k,) = grid.wavenumbers()
+            return (k**2 - k**4)[None]
+
+        def stable_dt(self):
+            return 0.05
+
+    pde = Unparametrised(n=64, length=25.0, t_end=1.0, n_frames=3, nu=1.0)
+    assert not pde.param_domains and not shared_coefficients(pde)
+    assert np.isfinite(np.asarray(g.sample(pde, [0, 1, 2]).u)).all()
+
+
 def test_solve_never_recompiles_for_new_parameters():
     pde = g.get_pde("burgers1d", n=32, n_frames=3, t_end=0.1)
     x = pde.grid.coords()
