@@ -1,6 +1,6 @@
 """Generator benchmark: pdestream vs Exponax (ETDRK4, float32) on the issue-6 cases, in one process.
 
-    python -m benchmarks.generator_bench [--quick] [--only burgers1d,ks1d] [--json OUT.json]
+    python -m benchmarks.generator_bench [--quick] [--only burgers1d,ks1d] [--batch B] [--json OUT.json]
 
 Per PDE: trajectories/s and frames/s of ``generator.sample`` (keys -> parameters -> IC -> rollout -> finite
 check) and of Exponax (random ICs from the same distribution sampled inside the timed jit, then
@@ -188,12 +188,12 @@ def fft_floor_fn(name: str, pde, batch: int):
     return lambda: jax.block_until_ready(run(v0))
 
 
-def child(name: str) -> None:
+def child(name: str, batch: int | None = None) -> None:
     """(Run in a fresh process.) First batch with the persistent cache in $PDESTREAM_JAX_CACHE; peak memory."""
     generator.enable_compilation_cache(os.environ["PDESTREAM_JAX_CACHE"])
     pde = case_pde(name)
     hwm0 = _vmhwm()
-    fn = ours_fn(pde, CASES[name].batch)
+    fn = ours_fn(pde, batch or CASES[name].batch)
     first = timed(fn)
     peak = (_vmhwm() - hwm0) / 2**20
     print(json.dumps({"first_batch_s": first, "second_batch_s": timed(fn), "peak_delta_mb": peak}))
@@ -204,13 +204,14 @@ def _vmhwm() -> int:
         return next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmHWM"))
 
 
-def second_process(name: str) -> dict:
+def second_process(name: str, batch: int) -> dict:
     """Run ``child`` twice with a fresh cache directory: cold (fills the cache), then warm."""
     out = {}
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "PDESTREAM_JAX_CACHE": cache}
         for label in ("cold", "warm"):
-            res = subprocess.run([sys.executable, "-m", "benchmarks.generator_bench", "--child", name],
+            res = subprocess.run([sys.executable, "-m", "benchmarks.generator_bench", "--child", name,
+                                  "--batch", str(batch)],
                                  env=env, capture_output=True, text=True, check=True)
             out[label] = json.loads(res.stdout.strip().splitlines()[-1])
     warm = out["warm"]
@@ -218,9 +219,9 @@ def second_process(name: str) -> dict:
             "warm_start_overhead_s": warm["first_batch_s"] - warm["second_batch_s"], "peak_delta_mb": warm["peak_delta_mb"]}
 
 
-def bench_case(name: str, reps: int, scaling: bool) -> dict:
+def bench_case(name: str, reps: int, scaling: bool, batch: int | None = None) -> dict:
     case, pde = CASES[name], case_pde(name)
-    steps, batch = pde.n_frames - 1, case.batch
+    steps, batch = pde.n_frames - 1, batch or case.batch
     fns = {"ours": ours_fn(pde, batch), "exponax": exponax_fn(name, pde, batch), "floor": fft_floor_fn(name, pde, batch)}
     t = compare(fns, reps)
     row = {"pde": name, "n": pde.n, "batch": batch, "steps": steps, "dt": pde.step_dt}
@@ -237,7 +238,7 @@ def bench_case(name: str, reps: int, scaling: bool) -> dict:
     row["step_over_floor"] = row["step_us"] / row["floor_us"]
     row["cpu_step_over_floor"] = t["ours"]["cpu_s"] / t["floor"]["cpu_s"]
     row["bytes_per_traj"] = pde.n_frames * len(pde.FIELDS) * pde.n**pde.NDIM * 4
-    row.update(second_process(name))
+    row.update(second_process(name, batch))
     if scaling:
         row["resolution"] = scale_runs(name, [(s, max(1, batch // 4)) for s in case.scales], reps)
         row["batch_sizes"] = scale_runs(name, [(1, b) for b in (1, 4, 16, 64) if b <= batch], reps)
@@ -283,11 +284,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true", help="3 timed runs per side, no scaling runs")
     p.add_argument("--only", default=",".join(CASES), help=f"comma-separated subset of {', '.join(CASES)}")
     p.add_argument("--reps", type=int, default=None, help="timed runs per side (default 7, quick 3)")
+    p.add_argument("--batch", type=int, default=None, help="trajectories per batch for every case (default: the "
+                   "case's own: 64 in 1D, 16 for ns2d/burgers2d, 8 in 3D)")
     p.add_argument("--json", metavar="OUT.json", help="write the figures as JSON")
     p.add_argument("--child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    if args.batch is not None and args.batch < 1:
+        raise ValueError(f"--batch {args.batch} not allowed; must be >= 1")
     if args.child:
-        child(args.child)
+        child(args.child, args.batch)
         return 0
     names = [n.strip() for n in args.only.split(",") if n.strip()]
     bad = [n for n in names if n not in CASES]
@@ -296,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     reps = args.reps or (3 if args.quick else 7)
     rows = []
     for name in names:
-        rows.append(bench_case(name, reps, scaling=not args.quick))
+        rows.append(bench_case(name, reps, scaling=not args.quick, batch=args.batch))
         print(f"[{name} done]", file=sys.stderr, flush=True)
     print(f"jax {jax.__version__}, {os.cpu_count()} CPU cores, float32, medians of {reps} alternating runs; ratio = "
           "ours/exponax throughput (wall; CPU-s: process CPU time, robust to other load); agree/err: rel. L2 over the "

@@ -101,8 +101,55 @@ def test_new_parameters_never_recompile(name):
 
 
 def _stages_compiled(pde):
-    """Programs compiled so far for the rollout's bounded calls (generator.rollout.compiled_stages)."""
-    return sum(f._cache_size() for f in compiled_stages(pde))
+    """Programs compiled so far for the rollout's bounded calls (generator.rollout.compiled_stages, both the
+    per-sample and the shared-coefficient variants)."""
+    return sum(f._cache_size() for shared in (False, True) for f in compiled_stages(pde, shared))
+
+
+@pytest.mark.parametrize("name", ["ks1d", "burgers1d", "ks2d", "wave1d"])
+def test_fixed_parameters_share_one_sample_coefficients_with_the_same_bits(name):
+    """All parameters fixed: the set-up skips the coefficients and the rollout takes one copy for the batch
+    (rollout.shared_coefficients), bit-identical to the samples of the drawn domain given those values, in
+    whole-frame calls and in calls of one step."""
+    from generator import dispatch
+    from generator.rollout import shared_coefficients
+
+    free = small(name)
+    values = {k: float(np.mean(d.bounds)) for k, d in free.param_domains.items()}
+    fixed = free.replace(dt=free.step_dt, **{k: repr(v) for k, v in values.items()})  # (KS: dt from the nu bounds)
+    assert shared_coefficients(fixed) and not shared_coefficients(free)
+    idx = np.arange(5)
+    for work in (dispatch.DISPATCH_WORK, 1):  # whole frames per call; a frame in pieces of one step
+        with dispatch.call_size(work):
+            u = np.asarray(g.sample(fixed, idx, seed=2).u)
+            ref = np.asarray(g.sample(free, idx, seed=2, params=values).u)
+        assert np.isfinite(u).all() and np.array_equal(u, ref), (name, work)
+
+
+def test_a_pde_without_parameters_samples():
+    """No parameters: the per-sample coefficients (rollout.shared_coefficients is False; there is nothing to map
+    the shared coefficients' program over)."""
+    import dataclasses
+    from typing import ClassVar
+
+    from generator.pdes.ks import KS
+    from generator.rollout import shared_coefficients
+
+    @dataclasses.dataclass(frozen=True)
+    class Unparametrised(KS):
+        NAME: ClassVar[str] = "ks_no_params"
+        PARAMS: ClassVar[dict] = {}
+
+        def linear(self, grid, p):
+            (k,) = grid.wavenumbers()
+            return (k**2 - k**4)[None]
+
+        def stable_dt(self):
+            return 0.05
+
+    pde = Unparametrised(n=64, length=25.0, t_end=1.0, n_frames=3, nu=1.0)
+    assert not pde.param_domains and not shared_coefficients(pde)
+    assert np.isfinite(np.asarray(g.sample(pde, [0, 1, 2]).u)).all()
 
 
 def test_solve_never_recompiles_for_new_parameters():
