@@ -19,7 +19,8 @@ Figures, not pass/fail; each part says its case, grid and what it measured. Meas
   (orders max 2.83/3.43/3.11, RMS 2.96/3.68/2.65, pressure 2.44/2.54/2.47; 128: 6434 steps, 175 s);
   semi-Lagrangian RMS 7.35e-1/6.06e-1/4.69e-1 at 16/32/64 (0.28/0.37: bilinear interpolation's O(h^2) per step
   over dt ~ h). At nu 0.05 the viscous limit makes dt ~ h^2 and maccormack's steady error goes first order
-  (16 -> 32 RMS 4.16e-3 -> 2.26e-3, 0.88; halving dt at 32 gives 3.64e-3): interpolation error per step over dt.
+  (--mms-nu 0.05: 16 -> 32 RMS 3.80e-3 -> 2.26e-3, 0.75, max 1.23, pressure 2.32; a quarter of the dt at 32
+  gives 3.64e-3, 1.6x more): interpolation error per step over dt. Semi-Lagrangian there 4.21e-1 -> 2.98e-1.
 """
 
 from __future__ import annotations
