@@ -17,8 +17,8 @@ Figures, not pass/fail; each part says its case, grid and what it measured. Meas
 - mms (manufactured steady box flow, four no-slip walls, nu 0.01, dt = 0.5 h / pi, t 8): maccormack max / RMS
   velocity error 1.43e-1 / 5.28e-2, 2.02e-2 / 6.77e-3, 1.87e-3 / 5.30e-4, 2.16e-4 / 8.42e-5 at n 16/32/64/128
   (orders max 2.83/3.43/3.11, RMS 2.96/3.68/2.65, pressure 2.44/2.54/2.47; 128: 6434 steps, 175 s);
-  semi-Lagrangian RMS 7.35e-1/6.06e-1/4.69e-1 at 16/32/64 (0.28/0.37: bilinear interpolation's O(h^2) per step
-  over dt ~ h). At nu 0.05 the viscous limit makes dt ~ h^2 and maccormack's steady error goes first order
+  semi-Lagrangian RMS 7.35e-1/6.06e-1/4.69e-1/3.34e-1 (0.28/0.37/0.49, rising; 128: 54 s alone): bilinear
+  interpolation's O(h^2) per step over dt ~ h. At nu 0.05 the viscous limit makes dt ~ h^2 and maccormack's steady error goes first order
   (--mms-nu 0.05: 16 -> 32 RMS 3.80e-3 -> 2.26e-3, 0.75, max 1.23, pressure 2.32; a quarter of the dt at 32
   gives 3.64e-3, 1.6x more): interpolation error per step over dt. Semi-Lagrangian there 4.21e-1 -> 2.98e-1.
 """
