@@ -1,7 +1,8 @@
 """Flow solver validation figures (issue 18): pressure iterations over refinement, advection order, and the
 published benchmarks (lid-driven cavity, Ghia, Ghia & Shin 1982; cylinder in a channel, Schaefer & Turek 1996).
 
-    nice python -m benchmarks.flow_validation [--parts iterations,cavity,cylinder,speed,speed2] [--cavity-n 32,64]
+    nice python -m benchmarks.flow_validation [--parts iterations,cavity,cylinder,mms,speed,speed2] [--cavity-n 32,64]
+        [--mms-n 16,32,64,128] [--mms-nu 0.01]
         [--cylinder-ny 64] [--cylinder-t 10]
 
 Figures, not pass/fail; each part says its case, grid and what it measured. Measured (2 shared cores, nice):
@@ -13,6 +14,13 @@ Figures, not pass/fail; each part says its case, grid and what it measured. Meas
   145 s; 688x128 would take ~8x): Cd max 3.236 (in 3.22-3.24), St 0.2964 (in 0.295-0.305), Cl max 0.827
   (17% under 0.99-1.01; Cl min -0.671). 172x32 (7.8 cells): Cd max 3.301, St 0.285, Cl swings -0.99..0.02:
   the staircase circle (masked area 0.98 of it, asymmetric about the centre at this h) biases the lift.
+- mms (manufactured steady box flow, four no-slip walls, nu 0.01, dt = 0.5 h / pi, t 8): maccormack max / RMS
+  velocity error 1.43e-1 / 5.28e-2, 2.02e-2 / 6.77e-3, 1.87e-3 / 5.30e-4, 2.16e-4 / 8.42e-5 at n 16/32/64/128
+  (orders max 2.83/3.43/3.11, RMS 2.96/3.68/2.65, pressure 2.44/2.54/2.47; 128: 6434 steps, 175 s);
+  semi-Lagrangian RMS 7.35e-1/6.06e-1/4.69e-1/3.34e-1 (0.28/0.37/0.49, rising; 128: 54 s alone): bilinear
+  interpolation's O(h^2) per step over dt ~ h. At nu 0.05 the viscous limit makes dt ~ h^2 and maccormack's steady error goes first order
+  (--mms-nu 0.05: 16 -> 32 RMS 3.80e-3 -> 2.26e-3, 0.75, max 1.23, pressure 2.32; a quarter of the dt at 32
+  gives 3.64e-3, 1.6x more): interpolation error per step over dt. Semi-Lagrangian there 4.21e-1 -> 2.98e-1.
 """
 
 from __future__ import annotations
@@ -24,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from generator.flow import Geometry, Params, initial_state, run_batch, step
+from generator.flow import Geometry, Params, initial_state, run, run_batch, step
 
 
 def iterations(grids=((64, 32), (128, 64), (256, 128)), tol=1e-5):
@@ -189,12 +197,68 @@ def speed(nx=128, ny=64, batches=(1, 8), n_steps=100, reps=3, advection=None):
               f"(last pressure iterations {np.asarray(out.iterations).tolist()})")
 
 
+def mms_fields(x, y, nu):
+    """Manufactured steady flow in the closed unit box: stream function sin^2(pi x) sin^2(pi y) (u = psi_y,
+    v = -psi_x, both zero on every wall), pressure cos(pi x) cos(pi y); returns u, v and the body force
+    f = (u.grad)u + grad p - nu lap u that makes them a steady solution (x, y: arrays; float64 numpy)."""
+    a, s, c = np.pi, np.sin, np.cos
+    u = a * s(a * x) ** 2 * s(2 * a * y)
+    v = -a * s(2 * a * x) * s(a * y) ** 2
+    ux, uy = a * a * s(2 * a * x) * s(2 * a * y), 2 * a * a * s(a * x) ** 2 * c(2 * a * y)
+    vx, vy = -2 * a * a * c(2 * a * x) * s(a * y) ** 2, -a * a * s(2 * a * x) * s(2 * a * y)
+    lu = 2 * a ** 3 * c(2 * a * x) * s(2 * a * y) - 4 * a ** 3 * s(a * x) ** 2 * s(2 * a * y)
+    lv = 4 * a ** 3 * s(2 * a * x) * s(a * y) ** 2 - 2 * a ** 3 * s(2 * a * x) * c(2 * a * y)
+    px, py = -a * s(a * x) * c(a * y), -a * c(a * x) * s(a * y)
+    return u, v, u * ux + v * uy + px - nu * lu, u * vx + v * vy + py - nu * lv
+
+
+def mms_error(n, advection, nu=0.01, t_end=8.0, cfl=0.5):
+    """Errors of the steady forced box flow (mms_fields) on n x n cells, marched from the exact fields over t_end
+    with dt = min(cfl h / pi, 0.9 h^2 / (4 nu)) (pi = max |u|): max and RMS over u and v faces, max of the
+    pressure with means removed; and the steps taken."""
+    geom = Geometry(n, n, 1.0, 1.0)  # four no-slip walls
+    h = 1.0 / n
+    xu, yu = np.meshgrid(np.arange(n + 1) * h, (np.arange(n) + 0.5) * h)
+    xv, yv = np.meshgrid((np.arange(n) + 0.5) * h, np.arange(n + 1) * h)
+    xp, yp = np.meshgrid((np.arange(n) + 0.5) * h, (np.arange(n) + 0.5) * h)
+    ue, _, fx, _ = mms_fields(xu, yu, nu)
+    _, ve, _, fy = mms_fields(xv, yv, nu)
+    pe = np.cos(np.pi * xp) * np.cos(np.pi * yp)
+    params = Params(nu=nu, force=(jnp.asarray(fx, jnp.float32), jnp.asarray(fy, jnp.float32)))
+    s = initial_state(geom, params)._replace(u=jnp.asarray(ue, jnp.float32), v=jnp.asarray(ve, jnp.float32))
+    steps = int(np.ceil(t_end / min(cfl * h / np.pi, 0.9 * h * h / (4 * nu))))
+    s = jax.jit(run, static_argnums=(0, 4, 7))(geom, s, params, t_end / steps, steps, 1e-6, 200, advection)
+    eu, ev = np.asarray(s.u) - ue, np.asarray(s.v) - ve
+    p = np.asarray(s.p)
+    return (max(np.abs(eu).max(), np.abs(ev).max()), np.sqrt((np.sum(eu ** 2) + np.sum(ev ** 2)) / (eu.size + ev.size)),
+            np.abs(p - p.mean() - pe + pe.mean()).max(), steps)
+
+
+
+def mms(ns=(16, 32, 64, 128), nu=0.01, t_end=8.0, cfl=0.5, advections=("maccormack", "semi_lagrangian")):
+    """Manufactured steady solution with four no-slip walls (mms_fields): errors and observed orders over n."""
+    for advection in advections:
+        print(f"manufactured box flow (psi = sin^2(pi x) sin^2(pi y), p = cos(pi x) cos(pi y), walls), {advection}, "
+              f"nu {nu}, t {t_end} from the exact fields, dt = min({cfl} h / pi, 0.9 h^2 / (4 nu))")
+        print("  n     steps  max|u-ue|  order  rms(u-ue)  order  max|p-pe|  order   (u: u and v faces; p: means removed)")
+        prev = None
+        for n in ns:
+            t = time.perf_counter()
+            e = mms_error(n, advection, nu, t_end, cfl)
+            o = [""] * 3 if prev is None else [f"{np.log2(a / b):5.2f}" for a, b in zip(prev, e[:3])]
+            print(f"  {n:<5} {e[3]:>5}  {e[0]:.3e} {o[0]:>6}  {e[1]:.3e} {o[1]:>6}  {e[2]:.3e} {o[2]:>6}"
+                  f"   ({time.perf_counter() - t:.0f} s)", flush=True)
+            prev = e[:3]
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--parts", default="iterations,cavity,cylinder")
     ap.add_argument("--cylinder-ny", type=lambda a: [int(n) for n in a.split(",")], default=[64])
     ap.add_argument("--cylinder-t", type=float, default=10.0)
     ap.add_argument("--cavity-n", type=lambda a: [int(n) for n in a.split(",")], default=[32, 64])
+    ap.add_argument("--mms-n", type=lambda a: [int(n) for n in a.split(",")], default=[16, 32, 64, 128])
+    ap.add_argument("--mms-nu", type=float, default=0.01)
     args = ap.parse_args(argv)
     parts = args.parts.split(",")
     if "iterations" in parts:
@@ -208,6 +272,8 @@ def main(argv=None):
     if "cylinder" in parts:
         for ny in args.cylinder_ny:
             cylinder(ny, args.cylinder_t)
+    if "mms" in parts:
+        mms(args.mms_n, args.mms_nu)
     if "speed" in parts:
         speed()
     if "speed2" in parts:

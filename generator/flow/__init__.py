@@ -10,7 +10,12 @@ Divergence after every projection within the CG tolerance plus float32 rounding 
 before stopping and drops a warm-start guess worse than zero; tests/test_flow_validation.py). Pressure iterations
 9/10/13 at 64x32/128x64/256x128 on a cylinder channel (float64 cold; float32 warm 7/7/10; weighted coarse
 correction, benchmarks/flow_validation.py). Cavity Re 100 against Ghia 1982 and the Schaefer-Turek
-2D-2 cylinder: benchmarks/flow_validation.py. Not yet: a manufactured-solution order test.
+2D-2 cylinder: benchmarks/flow_validation.py. Manufactured steady flow in a closed box (four no-slip walls,
+stream function sin^2(pi x) sin^2(pi y), Params.force, nu 0.01, dt = 0.5 h / pi): maccormack's RMS velocity error
+5.3e-2/6.8e-3/5.3e-4/8.4e-5 at 16/32/64/128 (orders 2.96/3.68/2.65; max 2.83/3.43/3.11; pressure 2.44/2.54/2.47),
+semi-Lagrangian 0.73/0.61/0.47/0.33 (orders 0.28/0.37/0.49, rising: its O(h^2 / dt) interpolation error per
+unit time at dt ~ h, still pre-asymptotic at Re ~ 300). Where the viscous limit sets dt ~ h^2 (nu 0.05) maccormack drops to ~1 (16 -> 32 RMS 0.75; a quarter of the dt at 32
+raises the error 1.6x): the interpolation error per step over dt (tests/test_flow_validation.py, --parts mms).
 
 API (geom is static, params traced: changing Reynolds number, inflow, lid or circle does not recompile)::
 

@@ -66,7 +66,9 @@ class Params(NamedTuple):
     2/3 * inflow * ly either way); obstacles: more solid primitives, an array [K, 5] of rows
     (kind, cx, cy, a, b) [m] with kind one of OBSTACLE_KINDS' codes (None: none); source: a smoke source disc
     (sx, sy, r [m], rate [smoke/s]) (rate 0: none); mask: a given solid mask [ny, nx] (bool; None: none), e.g. a
-    frame's ``solid`` field when the solver continues from a frame."""
+    frame's ``solid`` field when the solver continues from a frame; force: a body force per unit mass [m/s^2]
+    on the faces, a pair (fx [ny, nx+1] on u faces, fy [ny+1, nx] on v faces), steady (None: none; e.g. a
+    manufactured solution's forcing)."""
 
     nu: float = 0.01
     lid: float = 0.0
@@ -77,6 +79,7 @@ class Params(NamedTuple):
     obstacles: Any = None
     source: tuple = (0.0, 0.0, 0.0, 0.0)
     mask: Any = None
+    force: Any = None
 
 
 # Obstacle primitives of Params.obstacles rows (kind, cx, cy, a, b): code -> what a and b are.

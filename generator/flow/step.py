@@ -6,7 +6,8 @@ acts only at the arrival point), so keep the CFL number u dt / h near 1 (stable_
 'maccormack': limited MacCormack interpolation, the backtrace by a half-step velocity and the forces by a
 Lagrangian trapezoid: second order in space and time (Taylor-Green, tests/test_flow_validation.py), still
 stable beyond CFL 1 (the clamp adds no extrema); about 2.5x the advection work. Viscosity: explicit 5-point Laplacian, stable for nu dt / h^2 <= 1/4. Buoyancy:
-v += dt * buoyancy * smoke (smoke advected by the same velocity). Projection: the masked Poisson solve of
+v += dt * buoyancy * smoke (smoke advected by the same velocity); Params.force, a steady body force on the faces
+(None: none), with the viscous force (trapezoid under maccormack). Projection: the masked Poisson solve of
 generator.flow.pressure; afterwards the discrete divergence is zero to the solver tolerance.
 """
 
@@ -232,6 +233,8 @@ def _second_order_velocity(geom: Geometry, params: Params, state: State, lu, lv,
     leave an O(dt^2) non-gradient error per step: first order overall (Taylor-Green measured 0.83/0.92)."""
     gx, gy = _pressure_gradient(geom, params, state.p)
     u, v = state.u, state.v
+    if params.force is not None:  # a steady body force rides the trapezoid with the viscous force
+        lu, lv = lu + params.force[0], lv + params.force[1]
     fu, fv = lu - gx, lv - gy
     uh = advect(geom, u, v, u, 0.0, 0.5, 0.5 * dt) + 0.5 * dt * fu
     vh = advect(geom, u, v, v, 0.5, 0.0, 0.5 * dt) + 0.5 * dt * fv
@@ -258,6 +261,8 @@ def predict(geom: Geometry, state: State, params: Params, dt, advection: str = "
         un, vn = adv(geom, u, v, u, 0.0, 0.5, dt), adv(geom, u, v, v, 0.5, 0.0, dt)
         lu, lv = viscous(geom, params, *apply_bc(geom, params, un, vn))
         un, vn = un + dt * lu, vn + dt * lv
+        if params.force is not None:
+            un, vn = un + dt * params.force[0], vn + dt * params.force[1]
     else:
         ua, va, un, vn = _second_order_velocity(geom, params, state, lu, lv, dt, adv)
     smoke = adv(geom, ua, va, state.smoke, 0.5, 0.5, dt) + dt * source_rate(geom, params, state.smoke.dtype)
