@@ -37,6 +37,7 @@ from .user import unregister
 NUMERICS = 3
 
 _REFUSED_CACHE_DIRS: set[str] = set()
+CACHE_MAX_BYTES = 2 * 1024**3  # the compilation cache's bound (least recently used programs go first)
 
 
 def enable_compilation_cache(path, min_compile_time_s: float = 0.0) -> None:
@@ -62,6 +63,13 @@ def enable_compilation_cache(path, min_compile_time_s: float = 0.0) -> None:
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", min_compile_time_s)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    try:  # a size bound turns on JAX's file lock around every read and write of an entry
+        import filelock  # noqa: F401 (JAX imports it itself; torch installs it)
+    except ImportError:
+        return
+    # Without the lock JAX writes an entry in place, so a spawned worker (or a second run) could read a
+    # program half written by another process: the test suite once died of a segfault deserialising one.
+    jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
 
 
 def unsafe_cache_dir(path) -> str | None:

@@ -282,6 +282,8 @@ def test_a_private_cache_dir_is_used_and_configure_jax_checks_it(tmp_path, monke
     mine = tmp_path / "mine"
     g.enable_compilation_cache(mine)
     assert jax_cache_setting.config.jax_compilation_cache_dir == str(mine) and not recwarn.list
+    # bounded, so JAX locks each entry's read and write: no process reads a program another is still writing
+    assert jax_cache_setting.config.jax_compilation_cache_max_size == g.CACHE_MAX_BYTES
     shared = tmp_path / "shared"
     shared.mkdir()
     shared.chmod(0o757)
