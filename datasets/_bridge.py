@@ -21,7 +21,8 @@ CACHE_ENV = "PDESTREAM_JAX_CACHE"
 
 
 def jax_cache_dir() -> Path:
-    """Private directory of JAX's persistent compilation cache (``$PDESTREAM_JAX_CACHE`` overrides)."""
+    """Private directory of JAX's persistent compilation cache (``$PDESTREAM_JAX_CACHE`` overrides; set to the empty
+    string, no persistent cache is used)."""
     default = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "pdestream" / "jax"
     return Path(os.environ.get(CACHE_ENV, default))
 
@@ -32,6 +33,8 @@ def configure_jax() -> None:
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
     import generator
 
+    if os.environ.get(CACHE_ENV) == "":  # set and empty: no persistent compilation cache (the test suite)
+        return
     try:
         generator.enable_compilation_cache(jax_cache_dir())
     except OSError:
