@@ -106,3 +106,25 @@ def check_output(model: nn.Module, space: tuple[int, ...]) -> None:
     params = torch.zeros(1, model.n_params, device=device) if model.n_params else None
     with torch.no_grad():
         model(torch.zeros(1, model.in_channels, *space, device=device), params)
+    check_state_dict(model)
+
+
+def check_state_dict(model: nn.Module) -> None:
+    """Checkpoints load with ``torch.load(weights_only=True)`` (tensors and plain containers only), so a user's
+    model whose state_dict holds other objects (a library's metadata with functions in it) is refused here, in
+    one line, instead of after training when its checkpoint is read back."""
+    import io
+
+    buffer = io.BytesIO()
+    torch.save(model.state_dict(), buffer)
+    buffer.seek(0)
+    try:
+        torch.load(buffer, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch's UnpicklingError explains itself over many lines: keep the reason
+        import re
+
+        found = re.search(r"GLOBAL (\S+)", str(err))
+        what = found.group(1) if found else type(err).__name__
+        raise ValueError(f"model {model.name!r}: its state_dict holds {what}, not only tensors and plain "
+                         "containers, so its checkpoints would not load with torch.load(weights_only=True); "
+                         "drop such entries in the model's state_dict()") from None

@@ -35,6 +35,16 @@ class TinyNet(nn.Module):
 class OtherNet(TinyNet):
     pass
 
+
+class MetaNet(TinyNet):
+    """Keeps a function in its state_dict, as some libraries' models do (neuralop's '_metadata')."""
+
+    def get_extra_state(self):
+        return {"activation": torch.nn.functional.gelu}
+
+    def set_extra_state(self, state):
+        pass
+
 SHAPE_BUG = 0
 '''
 PDE = ["burgers1d", "--set", "n=32", "--set", "n_frames=4"]
@@ -115,3 +125,21 @@ def test_bad_user_models_are_one_line(netpkg, tmp_path, capsys):
     one_line(capsys, train(tmp_path / "e", f"{netpkg}.nets:TinyNet"),
              "output shape (1, 2, 32) does not match [B, out_channels, *space] = (1, 1, 32)")
     assert not (tmp_path / "e").exists()  # refused before the run wrote anything
+    (tmp_path / netpkg / "nets.py").write_text(NET)
+    sys.modules.pop(f"{netpkg}.nets", None)
+    one_line(capsys, train(tmp_path / "f", f"{netpkg}.nets:MetaNet"),
+             "its state_dict holds torch._C._nn.gelu, not only tensors")
+    assert not (tmp_path / "f").exists()
+
+
+@pytest.mark.parametrize("pde", [PDE, ["ns2d", "--set", "n=16", "--set", "n_frames=3"]])
+def test_the_neuraloperator_example_trains_and_loads_back(pde, tmp_path, capsys):
+    """examples/neuralop_fno.py (the README's): neuralop's FNO trains on the stream in 1D and 2D, where it installs."""
+    pytest.importorskip("neuralop")
+    model = "examples.neuralop_fno:NeuralopFNO"
+    argv = ["train", *pde, "--model", model, "--model-set", "modes=4", "--model-set", "width=8", "--steps", "3",
+            "--batch-size", "2", "--test-samples", "2", "--out", str(tmp_path / "run")]
+    assert cli.main(argv) == 0, capsys.readouterr().err
+    net, _, saved = load_checkpoint(tmp_path / "run" / "model.pt")
+    assert type(net.net).__name__ == "NeuralopFNO" and type(net.net.fno).__module__.startswith("neuralop")
+    assert saved["spec"]["modes"] == 4 and saved["spec"]["width"] == 8
