@@ -374,7 +374,7 @@ def cmd_import(args: argparse.Namespace) -> None:
 
 
 # --- train / compare (surrogate) ---------------------------------------------------------------------
-def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr: float, lr_note: str = "") -> None:
+def _add_model_args(p: argparse.ArgumentParser, steps: int | None, batch_size: int, lr: float, lr_note: str = "") -> None:
     p.add_argument("--model", default="fno", help="fno or unet (fno1d/fno2d/fno3d/unet1d/... pin the dimension), or "
                    "your own: package.module:Class (an nn.Module built from ndim, in_channels, out_channels, n_params "
                    "and the --model-set keys)")
@@ -386,7 +386,9 @@ def _add_model_args(p: argparse.ArgumentParser, steps: int, batch_size: int, lr:
                         "operator)")
     p.add_argument("--k-in", type=int, default=1, help="next_step: input frames stacked into channels")
     p.add_argument("--k-out", type=int, default=1, help="next_step: predicted frames")
-    p.add_argument("--steps", type=int, default=steps, help="optimizer steps")
+    p.add_argument("--steps", type=int, default=steps, help="optimizer steps" if steps is not None else
+                   f"optimizer steps (default: {TRAIN_STEPS}); with --resume RUN_DIR: the run's new total, which "
+                   "extends it, finished or not (the schedule is re-planned for the new total)")
     p.add_argument("--batch-size", type=int, default=batch_size, help="examples per optimizer step")
     p.add_argument("--lr", type=float, default=lr, help=f"peak learning rate (Adam, cosine decay{lr_note})")
     p.add_argument("--threads", type=int, default=None,
@@ -555,7 +557,10 @@ def add_train(sub) -> None:
     p.add_argument("--checkpoint-every", type=int, default=100, metavar="N",
                    help="write RUN_DIR/checkpoint.pt every N steps (0: only at the end)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run in RUN_DIR")
-    _add_model_args(p, steps=1000, batch_size=32, lr=1e-3)
+    _add_model_args(p, steps=None, batch_size=32, lr=1e-3)  # None: --steps given or not, known with --resume
+    p.add_argument("--schedule", default="cosine", help="learning rate over the run: cosine (decay to 1%% of "
+                   "--lr), onecycle (warm-up, then anneal) or constant (a run extended by --resume --steps "
+                   "then equals one of that length)")
     _add_reservoir_args(p, train=True)
     _add_mode_args(p, train=True)
     _add_pde_config_args(p)
@@ -563,7 +568,9 @@ def add_train(sub) -> None:
 
 
 RUN_MARKERS = ("run.json", "checkpoint.pt", "model.pt", "metrics.json")  # any of them: the directory holds a run
-RESUME_ALLOWED = {"resume", "threads", "command", "func"}  # what may go with --resume (threads: how, not what)
+# what may go with --resume: --threads (how, not what) and --steps (a new total, which extends the run)
+RESUME_ALLOWED = {"resume", "threads", "steps", "command", "func"}
+TRAIN_STEPS = 1000  # train's --steps for a new run (its default is None, so that --resume knows if it was given)
 
 
 def _settings_given_with_resume(args: argparse.Namespace) -> list[str]:
@@ -606,8 +613,8 @@ def cmd_train(args: argparse.Namespace) -> None:
     try:
         s = train_run(pde, args.source, target, model=args.model, model_cfg=_parse_sets(args.model_set),
                       view=_view_from_args(args, "operator" if pde.STEADY else "next_step"),  # steady: no frames
-                      steps=args.steps, batch_size=args.batch_size,
-                      lr=args.lr, seed=args.seed, n_test=args.test_samples, explicit=named[1],
+                      steps=TRAIN_STEPS if args.steps is None else args.steps, batch_size=args.batch_size,
+                      lr=args.lr, schedule=args.schedule, seed=args.seed, n_test=args.test_samples, explicit=named[1],
                       checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args), device=args.device,
                       mode=mode_cfg(args))
     except KeyboardInterrupt:
@@ -658,12 +665,16 @@ def _resume_train(args: argparse.Namespace) -> None:
     given = _settings_given_with_resume(args)
     if given:
         raise ValueError(f"--resume takes the run's settings from {Path(args.resume) / RUN_FILE}; "
-                         f"drop {', '.join(given)} (only --threads may go with it)")
-    run = read_run(Path(args.resume))  # refuse a non-run or a finished run before anything else
+                         f"drop {', '.join(given)} (only --threads and --steps may go with it)")
+    run = read_run(Path(args.resume), args.steps)  # refuse a non-run or a finished run before anything else
     settings = run[0]
     _set_threads(default_threads(settings["source"]) if args.threads is None else args.threads)
-    s, step = resume_run(args.resume, run)
-    print(f"resumed {args.resume} at step {step} of {settings['steps']}")
+    steps = settings["steps"] if args.steps is None else args.steps
+    if steps != settings["steps"]:
+        print(f"extending {args.resume} from {settings['steps']} to {steps} steps at its step {run[1]['step']}; "
+              f"the {settings.get('schedule', 'cosine')} schedule is re-planned for {steps} steps")
+    s, step = resume_run(args.resume, run, steps)
+    print(f"resumed {args.resume} at step {step} of {steps}")
     _print_run(s, settings["model"], settings["source"], settings["n_test"], args.resume)
 
 

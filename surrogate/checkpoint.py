@@ -91,7 +91,7 @@ def restore(ckpt: dict, model: nn.Module, opt, sched, loader, steps: int) -> tup
     ``train`` sets that right before the first batch). ValueError when it belongs to another set-up."""
     if ckpt.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"checkpoint format {ckpt.get('format')!r} not supported; allowed: {CHECKPOINT_FORMAT}")
-    if ckpt["steps"] != steps or not 0 < ckpt["step"] <= steps:
+    if not 0 < ckpt["step"] <= steps:
         raise ValueError(f"checkpoint at step {ckpt['step']} of {ckpt['steps']} does not fit a run of {steps} steps")
     if ckpt["spec"] != model_spec(model):
         raise ValueError(f"checkpoint model {ckpt['spec']} differs from this run's {model_spec(model)}")
@@ -100,12 +100,32 @@ def restore(ckpt: dict, model: nn.Module, opt, sched, loader, steps: int) -> tup
     if (saved is None) != (owner is None) or (saved is not None and saved["owner"] != owner_name):
         raise ValueError(f"checkpoint data state ({saved and saved['owner']}) does not fit this data source "
                          f"({owner_name})")
+    fresh = sched.state_dict()  # the schedule of this run's own length, at step 0
     model.load_state_dict(ckpt["model"])
     opt.load_state_dict(ckpt["optimizer"])
-    sched.load_state_dict(ckpt["scheduler"])
+    if ckpt["steps"] == steps:
+        sched.load_state_dict(ckpt["scheduler"])
+    else:  # a run extended to more steps (train --resume RUN --steps N)
+        replan_schedule(sched, opt, fresh, ckpt["step"])
     if owner is not None:
         owner.load_state_dict(saved["state"])
     return Normalization.from_dict(ckpt["normalization"]), TrainProgress.from_checkpoint(ckpt)
+
+
+def replan_schedule(sched, opt, fresh: dict, step: int) -> None:
+    """Put ``sched`` (built for the run's new length; ``fresh`` its state at step 0) where it is after ``step``
+    steps of that length: from here on the learning rate (and onecycle's momentum) follows a run planned for the
+    new length from the start. Only "constant" makes the result equal to such a run; cosine and onecycle change
+    their curve at ``step`` (a finished cosine run warms up again from 1% of its peak)."""
+    import warnings
+
+    for group in opt.param_groups:
+        group["lr"] = group["initial_lr"]  # what the fresh schedule started from
+    sched.load_state_dict(fresh)
+    with warnings.catch_warnings():  # stepping a schedule without optimizer steps is what is wanted here
+        warnings.simplefilter("ignore")
+        for _ in range(step):
+            sched.step()
 
 
 # What a checkpoint belongs to (train's ``meta``): a resume with a checkpoint of another PDE, grid, view or mode

@@ -114,25 +114,34 @@ def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict 
     return _run(pde, settings, Path(out_dir), tests=tests, explicit=explicit)
 
 
-def resume_run(run_dir, run: tuple[dict, dict] | None = None) -> tuple[dict, int]:
+def resume_run(run_dir, run: tuple[dict, dict] | None = None, steps: int | None = None) -> tuple[dict, int]:
     """Continue the run in ``run_dir`` from its checkpoint.pt to its total steps: (summary, step resumed at).
 
     Everything is rebuilt from run.json; the finished run equals the uninterrupted one (bit for bit on the
-    CPU) apart from timings. run: ``read_run(run_dir)``'s result when the caller has it already. ValueError
-    when the directory is not a run or the run is already complete.
+    CPU) apart from timings. steps: a new total (>= the steps done) that extends the run, finished or not:
+    run.json records it (and "extended": each earlier total with the step it was extended at), the schedule is
+    re-planned for the new total (``checkpoint.replan_schedule``: equal to a run of that length from the start
+    with the "constant" schedule), and model.pt / metrics.json are replaced when the longer run finishes.
+    run: ``read_run(run_dir, steps)``'s result when the caller has it already. ValueError when the directory is
+    not a run or the run is already complete.
     """
     run_dir = Path(run_dir)
-    settings, ckpt = read_run(run_dir) if run is None else run
+    settings, ckpt = read_run(run_dir, steps) if run is None else run
     from datasets import pde_from_config  # the one door to the generator (surrogate never imports it)
 
     for name in RUN_FILES:  # temp files of atomic writes cut short by the kill
         for stray in run_dir.glob(f".{name}.*.tmp"):
             stray.unlink(missing_ok=True)
+    if steps is not None and steps != settings["steps"]:
+        extended = [*settings.get("extended", []), {"steps": settings["steps"], "at_step": int(ckpt["step"])}]
+        settings = {**settings, "steps": steps, "extended": extended}
+        atomic_write(run_dir / RUN_FILE, json.dumps(settings, indent=2).encode())
     return _run(pde_from_config(settings["pde"]), settings, run_dir, resume=ckpt), int(ckpt["step"])
 
 
-def read_run(run_dir: Path) -> tuple[dict, dict]:
-    """(run.json settings, checkpoint.pt dict) of an unfinished run; ValueError naming what is wrong."""
+def read_run(run_dir: Path, steps: int | None = None) -> tuple[dict, dict]:
+    """(run.json settings, checkpoint.pt dict) of a run to continue: an unfinished one, or any one that ``steps``
+    (a new total, >= the steps it did) extends; ValueError naming what is wrong."""
     if not run_dir.is_dir():
         raise ValueError(f"--resume {run_dir}: no such run directory")
     missing = [name for name in (RUN_FILE, CHECKPOINT) if not (run_dir / name).is_file()]
@@ -149,9 +158,16 @@ def read_run(run_dir: Path) -> tuple[dict, dict]:
     missing = [key for key in RUN_KEYS if key not in settings]
     if missing:
         raise ValueError(f"--resume {run_dir}: {RUN_FILE} is damaged: it lacks {', '.join(missing)}")
-    if ckpt.get("step") == settings["steps"] and (run_dir / "metrics.json").is_file():
+    done = ckpt.get("step")
+    if steps is not None:
+        if isinstance(steps, bool) or not isinstance(steps, int) or not isinstance(done, int) or steps < done:
+            raise ValueError(f"--steps {steps!r} not allowed with --resume {run_dir}: the run already did {done} "
+                             f"steps; allowed: an integer >= {done} (the new total)")
+        if steps != settings["steps"]:
+            return settings, ckpt
+    if done == settings["steps"] and (run_dir / "metrics.json").is_file():
         raise ValueError(f"--resume {run_dir}: the run is already complete ({settings['steps']} of "
-                         f"{settings['steps']} steps; see metrics.json)")
+                         f"{settings['steps']} steps; see metrics.json); --steps N extends it to N steps")
     return settings, ckpt
 
 

@@ -85,14 +85,17 @@ def cosine_factor(fraction: float) -> float:
 
 
 def make_schedule(opt: torch.optim.Optimizer, name: str, stop: Stop | int, lr: float, fraction=None):
-    """"cosine" (decay to 1% of lr) or "onecycle" (warm-up then anneal) over the run. A run of known steps uses
-    torch's schedulers; a run of ``seconds`` follows ``fraction()`` (the share of its clock spent), cosine only."""
+    """"cosine" (decay to 1% of lr) or "onecycle" (warm-up then anneal) over the run, or "constant" (lr
+    throughout: a run extended by ``train --resume RUN --steps N`` equals one of N steps). A run of known steps
+    uses torch's schedulers; a run of ``seconds`` follows ``fraction()`` (the share of its clock spent)."""
     stop = Stop(steps=stop) if isinstance(stop, int) else stop
     if name not in SCHEDULES:
         raise ValueError(f"unknown schedule {name!r}; allowed: {', '.join(SCHEDULES)}")
+    if name == "constant":
+        return torch.optim.lr_scheduler.LambdaLR(opt, lambda _: 1.0)
     if stop.steps is None:
         if name != "cosine":
-            raise ValueError(f"schedule {name!r} needs a number of steps; a run of seconds allows: cosine")
+            raise ValueError(f"schedule {name!r} needs a number of steps; a run of seconds allows: cosine, constant")
         return torch.optim.lr_scheduler.LambdaLR(opt, lambda _: cosine_factor(fraction()))
     if name == "cosine":
         return torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=stop.steps, eta_min=lr * 0.01)
@@ -126,7 +129,7 @@ POSTFIX_STATS = ("wait_share", "reuse_mean")  # data-source stats shown in the p
 TIMINGS = ("t_data", "t_compute", "elapsed", "wall", "data_share", "wait_share", "solver_traj_per_s", "examples_per_s")
 
 
-SCHEDULES = ("cosine", "onecycle")
+SCHEDULES = ("cosine", "onecycle", "constant")
 
 
 def check_train_settings(steps, lr: float, schedule: str, checkpoint_every: int = 0) -> None:
@@ -137,8 +140,8 @@ def check_train_settings(steps, lr: float, schedule: str, checkpoint_every: int 
     check_number("lr", lr, 0)
     if schedule not in SCHEDULES:
         raise ValueError(f"unknown schedule {schedule!r}; allowed: {', '.join(SCHEDULES)}")
-    if stop.steps is None and schedule != "cosine":
-        raise ValueError(f"schedule {schedule!r} needs a number of steps; a run of seconds allows: cosine")
+    if stop.steps is None and schedule not in ("cosine", "constant"):
+        raise ValueError(f"schedule {schedule!r} needs a number of steps; a run of seconds allows: cosine, constant")
     check_count("checkpoint_every", checkpoint_every, 0, " (0: only at the end)")
 
 

@@ -98,7 +98,9 @@ def assert_same_run(a: Path, b: Path) -> None:
     assert without_timings(read_csv(a / "metrics.csv")) == without_timings(read_csv(b / "metrics.csv"))
     sa, sb = (json.loads((d / "metrics.json").read_text()) for d in (a, b))
     assert without_timings([sa]) == without_timings([sb])
-    assert json.loads((a / "run.json").read_text()) == json.loads((b / "run.json").read_text())
+    ra, rb = ({k: v for k, v in json.loads((d / "run.json").read_text()).items() if k != "extended"}
+              for d in (a, b))  # an extended run says so (test_resume_with_more_steps_...) and is otherwise the same
+    assert ra == rb
 
 
 def kill_and_resume(whole: Path, killed: Path, fresh: dict, kill_at: int) -> dict:
@@ -217,7 +219,7 @@ def test_resume_refusals(tmp_path, capsys):
     assert sorted(p.name for p in empty.iterdir()) == ["checkpoint.pt", "run.json"]
     # settings given with --resume are refused, all named in one line, before the directory is even looked at
     refused(["train", "burgers1d", "--resume", str(empty), "--steps", "5", "--set", "n=64"],
-            "drop PDE name, --steps, --set (only --threads may go with it)")
+            "drop PDE name, --set (only --threads and --steps may go with it)")
     refused(["train", "--resume", str(empty), "--out", str(tmp_path / "o"), "--overwrite"], "drop --out, --overwrite")
     refused(["train", "burgers1d", *TINY_PDE, "--steps", "2"], "give --out RUN_DIR for a new run")
     # a new run is not started over an unfinished one
@@ -386,3 +388,65 @@ def test_reservoir_options_without_reservoir_and_zero_workers_are_refused(tmp_pa
     assert cli.main(_tiny_train(out, "--reservoir", "--producer", "dask", "--workers", "0")) == 2
     assert "--workers=0 not allowed; must be >= 1" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_resume_with_more_steps_extends_a_finished_run_to_the_uninterrupted_longer_one(tmp_path, capsys):
+    """`train --resume RUN --steps N` (constant schedule): the 20-step run extended to 30 ends bit for bit as
+    the 30-step run; run.json records the extension; fewer steps than done, or the same total, are refused."""
+    def fresh(out, steps):
+        return {"argv": ["train", "burgers1d", *TINY_PDE, *TINY_MODEL, "--steps", str(steps), "--batch-size", "8",
+                         "--schedule", "constant", "--checkpoint-every", "10", "--test-samples", "2", "--threads",
+                         "1", "--out", str(out)]}
+
+    whole, short = tmp_path / "whole", tmp_path / "short"
+    for out, steps in ((whole, 30), (short, 20)):
+        done = run_process(fresh(out, steps))
+        assert done.returncode == 0, done.stderr
+    first = load(short / "model.pt")["model"]
+    extended = run_process({"argv": ["train", "--resume", str(short), "--steps", "30", "--threads", "1"]})
+    assert extended.returncode == 0, extended.stderr
+    assert f"extending {short} from 20 to 30 steps at its step 20" in extended.stdout
+    assert_same_run(whole, short)
+    assert not all(torch.equal(first[k], load(short / "model.pt")["model"][k]) for k in first)  # it did train on
+    settings = json.loads((short / "run.json").read_text())
+    assert settings["steps"] == 30 and settings["extended"] == [{"steps": 20, "at_step": 20}]
+    assert settings["schedule"] == "constant"
+
+    before = {p.name: p.stat().st_mtime_ns for p in short.iterdir()}
+    for steps, needle in (("29", "the run already did 30 steps; allowed: an integer >= 30"),
+                          ("30", "already complete (30 of 30 steps; see metrics.json); --steps N extends it")):
+        assert cli.main(["train", "--resume", str(short), "--steps", steps]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and needle in err and "Traceback" not in err, err
+    assert {p.name: p.stat().st_mtime_ns for p in short.iterdir()} == before
+    assert cli.main(["train", "burgers1d", *TINY_PDE, "--schedule", "linear", "--out", str(tmp_path / "bad")]) == 2
+    assert "unknown schedule 'linear'; allowed: cosine, onecycle, constant" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.parametrize("name", ["cosine", "onecycle", "constant"])
+def test_a_longer_run_replans_its_schedule_as_if_planned_so_from_the_start(name):
+    from surrogate.checkpoint import replan_schedule
+    from surrogate.train import make_schedule
+
+    def adam():
+        return torch.optim.Adam(torch.nn.Linear(2, 2).parameters(), lr=1e-2)
+
+    short = adam()
+    sched = make_schedule(short, name, 20, 1e-2)
+    for _ in range(12):  # the checkpoint of a 20-step run at step 12
+        short.step()
+        sched.step()
+    longer = adam()
+    replanned = make_schedule(longer, name, 50, 1e-2)
+    fresh = replanned.state_dict()
+    longer.load_state_dict(copy.deepcopy(short.state_dict()))  # as checkpoint.restore does
+    replan_schedule(replanned, longer, fresh, 12)
+    reference = adam()
+    planned = make_schedule(reference, name, 50, 1e-2)
+    for _ in range(12):
+        reference.step()
+        planned.step()
+    got, want = longer.param_groups[0], reference.param_groups[0]
+    assert got["lr"] == want["lr"] and got["betas"] == want["betas"]
+    assert (got["lr"] != short.param_groups[0]["lr"]) == (name != "constant")  # the 20-step curve was elsewhere
