@@ -708,7 +708,8 @@ def add_compare(sub) -> None:
     p.set_defaults(pde_default="burgers1d")
     p.add_argument("--out", required=True, metavar="DIR", help="output: compare.md/csv/json/png, cache, runs")
     p.add_argument("--cache-samples", type=int, default=32, metavar="M", help="size of the fixed cached set")
-    p.add_argument("--seeds", type=int, help="model seeds per arm, mean and spread (default: 3; with a budget: 1)")
+    p.add_argument("--seeds", type=int, help="model and data seeds per arm: mean, spread and, with a budget, a "
+                   "verdict per metric (default: 3; a budget with --quick: 1)")
     p.add_argument("--test-samples", type=int, default=128, help="held-out trajectories per test set")
     p.add_argument("--shift", type=float, default=-0.25,
                    help="shifted test set: parameter domains moved this fraction of their width beyond the "
@@ -723,8 +724,10 @@ def add_compare(sub) -> None:
     b.add_argument("--sim-budget", type=int, metavar="N",
                    help="every arm gets N solved trajectories and --steps optimizer steps")
     b.add_argument("--arms", default=",".join(BUDGET_ARMS), help="comma-separated subset of the arms")
-    b.add_argument("--precompute-share", type=float, default=0.5,
-                   help="--budget: share of the precomputed arm's time spent solving its dataset")
+    b.add_argument("--precompute-share", type=float, default=None,
+                   help="--budget: share of the precomputed arm's time spent solving its dataset (default: sized "
+                        "as a careful user would: as many trajectories as it can solve and train on --max-reuse "
+                        "times each in the budget, from the solver and training rates it measures)")
     b.add_argument("--sim-warmup-share", type=float, default=0.5,
                    help="--sim-budget: share of a reservoir arm's solves made before training starts (the rest are "
                         "paced over the run and, for reservoir_loss, steered)")
@@ -880,7 +883,7 @@ def _budget_compare(args: argparse.Namespace) -> None:
                        sim_warmup_share=args.sim_warmup_share,
                        proposal_floor=args.proposal_floor, solve_batch=args.solve_batch,
                        n_test=32 if args.quick and args.test_samples == 128 else args.test_samples, shift=args.shift,
-                       seeds=1 if args.seeds is None else args.seeds, device=args.device)
+                       seeds=(1 if args.quick else 3) if args.seeds is None else args.seeds, device=args.device)
     budget_compare(pde, args.out, cfg, shift_overrides=_parse_sets(args.shift_set))
     print((Path(args.out) / "compare.md").read_text(), end="")
     print(f"table: {args.out}/compare.md, compare.csv, compare.json; figure: {args.out}/compare.png")

@@ -11,12 +11,18 @@ does: compiling, solving, writing and reading a cache, computing normalization s
 Two budgets:
 
 - ``budget_s`` (wall-clock seconds per arm): every arm trains until its clock reaches the budget, with a
-  cosine learning rate over the elapsed fraction; the precomputed arm spends ``precompute_share`` of it
-  solving (N from the solver rate it measures on its first block, which counts too).
+  cosine learning rate over the elapsed fraction. The precomputed arm sizes its dataset as a careful user
+  would (``precompute_size``): it measures the solver's rate and the training step's, then solves as many
+  trajectories as it can train over ``max_reuse`` epochs in the rest of the budget (each trajectory used as
+  often as the reservoir arms may use one); ``precompute_share`` fixes the share of the budget spent solving
+  instead.
 - ``sim_budget`` (solved trajectories per arm): every arm gets the same N trajectories and ``steps`` optimizer
   steps (the FIFO stream runs out after N trajectories' examples: it trains fewer steps, as it would). The
   reservoir arms run in deterministic mode there: ``sim_warmup_share`` of the solves (uniform) before the first
   step, the rest paced over the training run, so the loss-driven proposals follow the model as it learns.
+
+The precomputed arm stores only the frames its view uses (the operator view: the first and the last, solved
+with the same internal step, so they are the stream's frames bit for bit), as a user who precomputes would.
 
 Test sets are stratified over the parameter box (a Latin hypercube in the unit box: linear for uniform, log for
 loguniform), with ICs from a held-out seed, plus the shifted domain. Errors are per trajectory (relative L2 of
@@ -67,7 +73,7 @@ class BudgetConfig:
     batch_size: int = 32
     lr: float = 3e-3
     steps: int = 1000  # sim_budget: optimizer steps per arm
-    precompute_share: float = 0.5  # budget_s: the precomputed arm's share of the budget spent solving
+    precompute_share: float | None = None  # budget_s: share of the budget spent solving (None: precompute_size)
     capacity: int = 512
     max_reuse: float = 16.0
     target_reuse: float | None = None  # time budget: pace the reservoirs' solver (None: solve flat out)
@@ -75,7 +81,7 @@ class BudgetConfig:
     reservoir_mode: str = "async"
     proposal_floor: float = 0.25
     solve_batch: int = 16
-    seeds: int = 1  # repetitions per arm: model and data seeds 0..seeds-1 (mean and spread in the table)
+    seeds: int = 3  # repetitions per arm: model and data seeds 0..seeds-1 (mean, spread and verdicts)
     n_test: int = 128
     shift: float = -0.25
     device: str = "cpu"  # where the models train ("cuda": JAX solves on the GPU too when it sees one)
@@ -93,7 +99,8 @@ class BudgetConfig:
         if unknown or not self.arms:
             raise ValueError(f"arms {list(self.arms)} not allowed; choose from {', '.join(ARMS)}")
         check_number("sim warm-up share", self.sim_warmup_share, 0, 1, closed="both")
-        check_number("precompute share", self.precompute_share, 0, 1)
+        if self.precompute_share is not None:
+            check_number("precompute share", self.precompute_share, 0, 1)
         check_device(self.device)
         for name, value in (("--steps", self.steps), ("--seeds", self.seeds), ("--test-samples", self.n_test),
                             ("snapshots", self.snapshots), ("--batch-size", self.batch_size)):
@@ -127,26 +134,80 @@ def per_trajectory_errors(model, norm, view, test: list[dict], mode=None) -> np.
 
 
 # --- one arm ----------------------------------------------------------------------------------------------
+def stored_pde(pde, view):
+    """The PDE whose samples the precomputed arm stores: for the operator view, frames 0 and n_frames - 1 only,
+    solved with the same internal step (``dt`` pinned to the full trajectory's, so the frames are the stream's
+    bit for bit); otherwise ``pde`` itself (next-step windows use every frame; a problem without a ``dt``
+    setting, e.g. the flows, is stored whole)."""
+    step = getattr(pde, "step_dt", None)
+    if view.name != "operator" or pde.STEADY or pde.n_frames <= 2 or step is None or "dt" not in pde.config():
+        return pde
+    # a hair above the step, so that ceil(t_end / dt) gives back the same number of steps in all
+    return pde.replace({"n_frames": 2, "dt": step * (1 + 1e-9)})
+
+
+def precompute_size(cfg: BudgetConfig, rate: float, step_s: float, left_s: float, per: int) -> int:
+    """Trajectories for the precomputed arm at a time budget, the way a careful user sizes a dataset: as many
+    as it can both solve (``rate`` trajectories/s) and train over ``cfg.max_reuse`` epochs (``step_s`` seconds
+    per optimizer step of ``cfg.batch_size`` examples, ``per`` examples per trajectory) in the ``left_s``
+    seconds left. N solves take N / rate s and N max_reuse per / batch steps the rest:
+    N = left / (1 / rate + max_reuse per step_s / batch). ``cfg.precompute_share`` instead fixes the solving
+    share. At least one batch."""
+    if cfg.precompute_share is not None:
+        return max(cfg.batch_size, int(rate * (cfg.precompute_share * cfg.budget_s - (cfg.budget_s - left_s))))
+    return max(cfg.batch_size, int(left_s / (1 / rate + cfg.max_reuse * per * step_s / cfg.batch_size)))
+
+
+def _step_seconds(pde, view, cfg: BudgetConfig, mode) -> float:
+    """Seconds per optimizer step of the arms' model at ``cfg.batch_size`` (random inputs; 2 warm-up steps,
+    then the median of 5): the training rate the precomputed arm plans its dataset with."""
+    c_in, c_out = mode.channels(pde, view)
+    model = build_model(cfg.model, pde.NDIM, c_in, c_out, len(pde.PARAMS), bc=pde.grid.bc, **cfg.model_cfg).to(cfg.device)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    x = torch.randn(cfg.batch_size, c_in, *pde.grid.shape, device=cfg.device)
+    y = torch.randn(cfg.batch_size, c_out, *pde.grid.shape, device=cfg.device)
+    p = torch.randn(cfg.batch_size, len(pde.PARAMS), device=cfg.device) if pde.PARAMS else None
+    times = []
+    for i in range(7):
+        t0 = time.perf_counter()
+        opt.zero_grad()
+        torch.nn.functional.mse_loss(model(x, p), y).backward()
+        opt.step()
+        float(y.sum())  # the step is done (a GPU runs asynchronously)
+        if i >= 2:
+            times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
 def _loader(arm: str, pde, view, cfg: BudgetConfig, seed: int, out: Path, clock_start: float, log):
-    """(DataLoader, what the arm did to get it: {"trajectories_solved"?, "cache_bytes"?})."""
+    """(DataLoader, what the arm did to get it: {"trajectories_solved"?, "cache_bytes"?, "precompute"?})."""
     if arm == "precomputed":
+        stored = stored_pde(pde, view)
+        plan = {"frames_stored": stored.n_frames, "frames": pde.n_frames}
         if cfg.sim_budget is not None:
             n = cfg.sim_budget
-        else:  # measure the solver on a warm block (the compiling one before it counts too), then fill the
-            # precompute share of the budget
-            datasets.sample_tensors(pde, np.arange(cfg.solve_batch), seed)
+            plan["rule"] = "the simulation budget"
+        else:  # measure the solver on a warm block (the compiling one before it counts too) and the training
+            # step, then size the dataset (precompute_size)
+            datasets.sample_tensors(stored, np.arange(cfg.solve_batch), seed)
             t0 = time.perf_counter()
-            datasets.sample_tensors(pde, np.arange(cfg.solve_batch), seed)
+            datasets.sample_tensors(stored, np.arange(cfg.solve_batch), seed)
             rate = cfg.solve_batch / (time.perf_counter() - t0)
-            left = cfg.precompute_share * cfg.budget_s - (time.perf_counter() - clock_start)
-            n = max(cfg.batch_size, int(rate * left))
+            step_s = _step_seconds(pde, view, cfg, make_mode(cfg.mode).bind(pde, seed))
+            left = cfg.budget_s - (time.perf_counter() - clock_start)
+            per = view.per_trajectory(pde.n_frames)
+            n = precompute_size(cfg, rate, step_s, left, per)
+            plan.update(rule=f"share {cfg.precompute_share:g}" if cfg.precompute_share is not None else
+                        f"each trajectory trained on {cfg.max_reuse:g} times", solve_per_s=rate, step_s=step_s,
+                        solve_share=(cfg.budget_s - left + n / rate) / cfg.budget_s,
+                        epochs_planned=(left - n / rate) / step_s * cfg.batch_size / (n * per))
         path = out / "cache.h5"
-        written = datasets.write_cache(pde, path, n, seed=seed, overwrite=path.exists(), progress=False)
+        written = datasets.write_cache(stored, path, n, seed=seed, overwrite=path.exists(), progress=False)
         log(f"  precomputed: {written.line()}")
         cached = datasets.CachedTrajectories(path, view=view)
         sampler = EpochBatchSampler(len(cached), cfg.batch_size, seed, drop_last=len(cached) >= cfg.batch_size)
         loader = DataLoader(cached, batch_sampler=sampler, collate_fn=datasets.collate, generator=torch.Generator())
-        return loader, {"trajectories_solved": n, "cache_bytes": written.bytes}
+        return loader, {"trajectories_solved": n, "cache_bytes": written.bytes, "precompute": plan}
     if arm == "fifo":
         stream = datasets.TrajectoryStream(pde, seed=seed, view=view, batch_size=cfg.batch_size,
                                            solve_batch=cfg.solve_batch, n_samples=cfg.sim_budget)
@@ -221,7 +282,7 @@ def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=
     record = {"arm": arm, "seed": seed, "wall_s": wall, "steps": steps, "examples": examples, "trajectories_solved": solved,
               "data_wait_s": t_data, "compute_s": t_compute, "startup_s": wall - t_data - t_compute,
               "wait_share": t_data / max(t_data + t_compute, 1e-9),  # of the training loop's time
-              "cache_bytes": extra.get("cache_bytes", 0), "stats": stats, "reuse": reuse, "density": density,
+              "cache_bytes": extra.get("cache_bytes", 0), "precompute": extra.get("precompute"), "stats": stats, "reuse": reuse, "density": density,
               "curve": curve, "errors": {k: v.tolist() for k, v in final.items()},
               **{f"{k}_{m}": v for k, e in final.items() for m, v in error_stats(e).items()}}
     (out / "arm.json").write_text(json.dumps(record, indent=2))
@@ -273,6 +334,9 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
                 f"{rec['test_max']:.4f}; {rec['steps']} steps, {rec['trajectories_solved']} trajectories, "
                 f"{rec['wall_s']:.0f} s, loop waiting for data {100 * rec['wait_share']:.0f}%")
         records.append(combine_seeds(runs))
+    if len(records) > 1:
+        for line in verdicts(records, cfg.seeds):
+            log(line)
     test_params = {k: torch.cat([b["params"] for b in ts]).tolist() for k, ts in tests.items()}
     result = {"pde": pde.config(), "shifted_pde": shifted.config() if shifted else None,
               "config": {k: v if not hasattr(v, "name") else v.name for k, v in asdict(cfg).items()},
@@ -331,10 +395,53 @@ def _write_tables(out: Path, result: dict, pde, cfg: BudgetConfig) -> None:
                  f"{r['reuse_mean']:.2f}" if r["reuse_mean"] != "" else "-",
                  f"{r['reuse_max']:.2f}" if r["reuse_max"] != "" else "-"]
         lines.append("| " + " | ".join(cells) + " |")
+    plan = next((a.get("precompute") for a in result["arms"] if a["arm"] == "precomputed"), None)
+    if plan:
+        lines += ["", precompute_line(plan, next(a for a in result["arms"] if a["arm"] == "precomputed"))]
+    if len(result["arms"]) > 1:
+        lines += ["", "Verdicts (the winner's margin over the runner-up against the seed spread, the sum of "
+                  "their two standard deviations):", "", *[f"- {v}" for v in verdicts(result["arms"], cfg.seeds)]]
     note = too_few_steps_note(result["arms"])
     if note:
         lines += ["", note]
     (out / "compare.md").write_text("\n".join(lines) + "\n")
+
+
+def precompute_line(plan: dict, record: dict) -> str:
+    """compare.md's sentence on how the precomputed arm sized and stored its dataset (seed 0)."""
+    frames = (f"frames 0 and {plan['frames'] - 1} only of {plan['frames']} (what the operator view uses; solved "
+              "with the stream's step, so the same values)" if plan["frames_stored"] < plan["frames"]
+              else f"all {plan['frames']} frames (its view uses them)")
+    size = f"{record['trajectories_solved']} trajectories"
+    if "solve_per_s" in plan:
+        size += (f" (rule: {plan['rule']}; measured {plan['solve_per_s']:.0f} trajectories/s solving and "
+                 f"{1e3 * plan['step_s']:.1f} ms per training step: {100 * plan['solve_share']:.0f}% of the budget "
+                 f"solving, {plan['epochs_planned']:.1f} epochs planned)")
+    else:
+        size += f" ({plan['rule']})"
+    return (f"Precomputed arm (seed 0): {size}; it stored {frames}: {record['cache_bytes'] / 2**20:.1f} MiB on "
+            "disk.")
+
+
+def verdicts(arms: list[dict], seeds: int) -> list[str]:
+    """One line per error metric: which arm has the lowest mean over seeds, by how much it beats the runner-up,
+    and whether that margin exceeds the seed spread (std of the winner + std of the runner-up)."""
+    lines = []
+    for c in COLUMNS:
+        have = sorted((a for a in arms if c in a), key=lambda a: a[c])
+        if len(have) < 2:
+            continue
+        win, second = have[0], have[1]
+        margin, spread = second[c] - win[c], win.get(c + "_std", 0.0) + second.get(c + "_std", 0.0)
+        head = (f"{c.replace('_', ' ')}: {win['arm']} {win[c]:.4f} vs {second['arm']} {second[c]:.4f} "
+                f"(x{second[c] / max(win[c], 1e-300):.2f}, margin {margin:.4f})")
+        if seeds < 2:
+            lines.append(f"{head}: one seed, no spread to judge by (--seeds 3 for a verdict)")
+        elif margin > spread:
+            lines.append(f"{head}: {win['arm']} wins, outside the seed spread {spread:.4f}")
+        else:
+            lines.append(f"{head}: within the seed spread {spread:.4f}, no clear winner")
+    return lines
 
 
 MIN_STEPS = 20  # below this an arm's errors are those of a barely trained network, whichever arm it is

@@ -4,23 +4,37 @@ import sys
 
 import pytest
 
-# Tests run on the CPU whatever the machine has, and without JAX's persistent compilation cache (a clean clone
-# has nothing to reuse; the cache only saves compile time).
+# Tests run on the CPU whatever the machine has, and without JAX's persistent compilation cache: a warm cache
+# saved little (13 min cold, about as long warm, on 2 loaded cores), and its size bound's eviction raced between
+# the suite's processes (warnings of entries gone missing).
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 os.environ.setdefault("PDESTREAM_JAX_CACHE", "")
 
 
+MAPPINGS_BEFORE_RELEASE = 30_000  # of Linux's default 65,530 per process (vm.max_map_count)
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _release_compiled_programs():
-    """Drop JAX's compiled programs after each test file.
+    """Drop JAX's compiled programs after a test file once the process holds many memory mappings.
 
     Every compiled XLA CPU program keeps about three memory mappings of its own (code, constants, data), and the
-    whole suite compiles more programs than Linux's default limit of 65530 mappings per process allows: clean-clone
-    runs died of a segfault inside XLA's compiler at ~92% of the suite (the mapping count was 33,800 at 15%).
+    whole suite compiles more programs than Linux's default limit of 65,530 mappings per process allows: clean-clone
+    runs died of a segfault inside XLA's compiler at ~92% of the suite (33,800 mappings at 15%). Dropping them
+    only past a threshold keeps the programs that the next files would otherwise compile again.
     """
     yield
     jax = sys.modules.get("jax")
-    if jax is not None:
+    if jax is not None and _mappings() > MAPPINGS_BEFORE_RELEASE:
         jax.clear_caches()
         gc.collect()
+
+
+def _mappings() -> int:
+    """This process's memory mappings (0 where /proc is not there)."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            return sum(1 for _ in f)
+    except OSError:
+        return 0

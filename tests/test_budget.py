@@ -2,6 +2,7 @@
 
 import json
 
+import h5py
 import numpy as np
 import pytest
 import torch
@@ -36,7 +37,7 @@ def test_error_stats():
 
 
 def test_sim_budget_gives_every_arm_the_same_solves(tmp_path):
-    cfg = BudgetConfig(sim_budget=16, steps=12, batch_size=8, model_cfg=TINY_MODEL, n_test=8, capacity=16,
+    cfg = BudgetConfig(sim_budget=16, steps=12, batch_size=8, model_cfg=TINY_MODEL, n_test=8, capacity=16, seeds=1,
                        solve_batch=8, snapshots=3)
     result = budget_compare(TINY, tmp_path, cfg, log=lambda *_: None)
     arms = {r["arm"]: r for r in result["arms"]}
@@ -60,12 +61,56 @@ def test_sim_budget_gives_every_arm_the_same_solves(tmp_path):
 
 
 def test_time_budget_stops_every_arm_near_the_budget(tmp_path):
-    cfg = BudgetConfig(budget_s=3.0, arms=("precomputed", "reservoir"), batch_size=8, model_cfg=TINY_MODEL,
+    cfg = BudgetConfig(budget_s=3.0, arms=("precomputed", "reservoir"), batch_size=8, model_cfg=TINY_MODEL, seeds=1,
                        n_test=4, capacity=16, solve_batch=8, snapshots=2)
     result = budget_compare(TINY, tmp_path, cfg, log=lambda *_: None)
     for r in result["arms"]:
         assert 3.0 <= r["wall_s"] < 3.0 + 2.0 and r["steps"] > 0
         assert len(r["curve"]) == 2 and r["curve"][-1]["elapsed"] >= 3.0
+    # the precomputed arm sized its dataset by the rule and stored only the operator view's two frames
+    plan = result["arms"][0]["precompute"]
+    assert plan["frames_stored"] == 2 and plan["frames"] == 5 and plan["rule"] == "each trajectory trained on 16 times"
+    assert plan["solve_per_s"] > 0 and plan["step_s"] > 0 and 0 < plan["solve_share"] < 1
+    with h5py.File(tmp_path / "precomputed" / "cache.h5", "r") as f:
+        assert f["u"].shape[1] == 2
+    table = (tmp_path / "compare.md").read_text()
+    assert "Precomputed arm (seed 0):" in table and "frames 0 and 4 only of 5" in table
+    assert "one seed, no spread to judge by" in table
+
+
+def test_the_precomputed_arm_stores_the_operator_views_frames_bit_for_bit():
+    from surrogate.budget import stored_pde
+
+    pde = generator.get_pde("kdv1d", n=32, n_frames=9, t_end=0.2)
+    stored = stored_pde(pde, datasets.make_view("operator"))
+    assert stored.n_frames == 2 and stored.step_dt == pde.step_dt
+    whole = np.asarray(generator.sample(pde, [0, 1, 2], seed=3).u)
+    ends = np.asarray(generator.sample(stored, [0, 1, 2], seed=3).u)
+    assert np.array_equal(ends, whole[:, [0, -1]])
+    assert stored_pde(pde, datasets.make_view("next_step")) is pde  # next-step windows use every frame
+
+
+def test_the_precomputed_dataset_size_rule():
+    from surrogate.budget import precompute_size
+
+    cfg = BudgetConfig(budget_s=20.0, batch_size=32, max_reuse=16)
+    # N / 100 s solving + N * 16 / 32 steps of 10 ms = 10 s left: N = 10 / (0.01 + 0.005)
+    assert precompute_size(cfg, rate=100.0, step_s=0.01, left_s=10.0, per=1) == 666
+    assert precompute_size(cfg, rate=100.0, step_s=10.0, left_s=10.0, per=1) == 32  # at least one batch
+    fixed = BudgetConfig(budget_s=20.0, precompute_share=0.5)
+    assert precompute_size(fixed, rate=100.0, step_s=0.01, left_s=19.0, per=1) == 900  # (10 s - 1 s spent) x 100/s
+
+
+def test_verdicts_weigh_the_margin_against_the_seed_spread():
+    from surrogate.budget import verdicts
+
+    arms = [{"arm": "precomputed", "test_mean": 0.10, "test_mean_std": 0.01, "test_max": 0.5, "test_max_std": 0.2},
+            {"arm": "reservoir", "test_mean": 0.05, "test_mean_std": 0.01, "test_max": 0.4, "test_max_std": 0.2}]
+    mean, worst = verdicts(arms, 3)
+    assert mean.startswith("test mean: reservoir 0.0500 vs precomputed 0.1000 (x2.00") and "reservoir wins" in mean
+    assert "outside the seed spread 0.0200" in mean
+    assert worst.startswith("test max: reservoir") and "within the seed spread 0.4000, no clear winner" in worst
+    assert all("one seed" in line for line in verdicts(arms, 1))
 
 
 @pytest.mark.parametrize("args, message", [
@@ -106,7 +151,7 @@ def test_combine_seeds_reports_mean_and_spread():
 
 def test_budget_arms_train_with_the_mode_asked(tmp_path):
     """The arms run the one training loop with the training mode (they used to ignore it: one-step always)."""
-    cfg = BudgetConfig(sim_budget=8, steps=4, arms=("precomputed", "reservoir"), batch_size=4, model_cfg=TINY_MODEL,
+    cfg = BudgetConfig(sim_budget=8, steps=4, arms=("precomputed", "reservoir"), batch_size=4, model_cfg=TINY_MODEL, seeds=1,
                        n_test=4, capacity=8, solve_batch=4, snapshots=2, view="next_step",
                        mode={"name": "pushforward", "unroll": 2})
     result = budget_compare(TINY, tmp_path, cfg, log=lambda *_: None)
