@@ -68,8 +68,29 @@ def enable_compilation_cache(path, min_compile_time_s: float = 0.0) -> None:
     except ImportError:
         return
     # Without the lock JAX writes an entry in place, so a spawned worker (or a second run) could read a
-    # program half written by another process: the test suite once died of a segfault deserialising one.
+    # program half written by another process.
+    give_entries_access_times(path)
     jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
+
+
+def give_entries_access_times(path) -> int:
+    """Write the access-time file that JAX's bounded cache keeps beside each entry (``KEY-atime``: the time in
+    ns, 8 bytes little-endian; the entry's mtime here) for every entry ``KEY-cache`` in ``path`` that lacks one;
+    returns how many. Entries written by an unbounded cache (pdestream before the bound) or by a process killed
+    between the two writes have none, and JAX's eviction scan, which reads every entry's, then fails on each
+    new program ("Error writing persistent compilation cache entry ... -atime"): nothing is cached again."""
+    from pathlib import Path
+
+    added = 0
+    for entry in Path(path).glob("*-cache"):
+        atime = entry.with_name(entry.name[: -len("-cache")] + "-atime")
+        if not atime.exists():
+            try:
+                atime.write_bytes(entry.stat().st_mtime_ns.to_bytes(8, "little"))
+                added += 1
+            except OSError:  # gone meanwhile (evicted by another process), or read-only: JAX copes or warns
+                pass
+    return added
 
 
 def unsafe_cache_dir(path) -> str | None:

@@ -399,3 +399,18 @@ def test_train_names_a_dotted_ic_key_that_differs_from_the_cache(tmp_path, capsy
     capsys.readouterr()
     refused(["train", "burgers1d", "--source", str(cache), "--config", str(tmp_path / "other.toml"),
              "--steps", "1", "--out", str(tmp_path / "run")], capsys, "ic.alpha: cache 2.0 vs asked 3.0")
+
+
+def test_cache_entries_without_access_times_get_them(tmp_path, jax_cache_setting, recwarn):
+    """JAX's bounded cache reads every entry's KEY-atime on each write; entries of an unbounded cache (or cut
+    short by a kill) have none and made every later write fail with a warning, so nothing was cached again."""
+    mine = tmp_path / "old"
+    mine.mkdir(mode=0o700)
+    (mine / "jit_f-abc-cache").write_bytes(b"program")
+    (mine / "jit_g-def-cache").write_bytes(b"program")
+    (mine / "jit_g-def-atime").write_bytes((7).to_bytes(8, "little"))
+    g.enable_compilation_cache(mine)
+    written = int.from_bytes((mine / "jit_f-abc-atime").read_bytes(), "little")
+    assert written == (mine / "jit_f-abc-cache").stat().st_mtime_ns
+    assert int.from_bytes((mine / "jit_g-def-atime").read_bytes(), "little") == 7  # an existing one is kept
+    assert g.give_entries_access_times(mine) == 0 and not recwarn.list
