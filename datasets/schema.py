@@ -68,10 +68,19 @@ class Layout:
     attrs: dict = field(default_factory=dict)
 
 
+def package_version() -> str:
+    """The installed pdestream's version, or "unknown (not installed)" when it runs from a source tree on PYTHONPATH
+    (a cache written that way must not fail at its last attribute)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("pdestream")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenance: dict) -> Layout:
     """The layout of a cache of samples 0..n_samples-1 of ``pde`` under ``seed``."""
-    from importlib.metadata import version
-
     space = disk_space_dims(pde.NDIM)
     time = () if pde.STEADY else ("time",)  # a steady PDE's sample has no time axis
     dims = {"sample": n_samples, **{d: pde.n_frames for d in time}, **{d: pde.grid.shape[SPACE.index(d)] for d in space}}
@@ -116,7 +125,7 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
         "pdestream_n_samples": int(n_samples),
         "pdestream_block": int(block),
         "pdestream_on_blowup": on_blowup,
-        "pdestream_version": version("pdestream"),
+        "pdestream_version": package_version(),
         **provenance,
         "pdestream_schema": SCHEMA_VERSION,
         "pdestream_complete": 0,

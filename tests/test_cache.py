@@ -372,3 +372,18 @@ def test_resume_of_a_zarr_cache_without_its_complete_flags_says_what_to_do(tmp_p
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "its 'complete' flags are missing" in err and "--overwrite" in err
     assert sorted(p.name for p in path.iterdir()) == before
+
+
+def test_a_source_tree_that_is_not_installed_still_writes_caches(pde, tmp_path, monkeypatch):
+    # found running from a checkout on PYTHONPATH: the cache's version attribute raised PackageNotFoundError
+    import importlib.metadata as md
+
+    def missing(name):
+        raise md.PackageNotFoundError(name)
+
+    monkeypatch.setattr(md, "version", missing)
+    path = tmp_path / "c.h5"
+    datasets.write_cache(pde, path, 2, progress=False)
+    with _plain_open(path) as ds:
+        assert is_complete(ds)
+        assert ds.attrs["pdestream_version"] == "unknown (not installed)"
