@@ -79,7 +79,8 @@ def filled_stream(pde, storage, u, params, capacity: int = 1000):
     stream = datasets.ReservoirStream(pde, view="operator", batch_size=BATCH, capacity=capacity, max_reuse=10**6,
                                       warmup=16, solve_batch=16, mode="deterministic", device=storage)
     for lo in range(0, capacity, len(u)):
-        stream.res.insert(u, params, np.arange(lo, lo + len(u)))
+        m = min(len(u), capacity - lo)
+        stream.res.insert(u[:m], params[:m], np.arange(lo, lo + m))
     stream._t_first = time.perf_counter()
     return stream
 
@@ -183,13 +184,13 @@ def solver(batches: tuple[int, ...], reps: int) -> None:
               flush=True)
 
 
-def training(seconds: float, arms: list[tuple[str, int]]) -> None:
+def training(seconds: float, arms: list[tuple[str, int]], device: torch.device) -> None:
     import datasets
     from surrogate.train import Stop, train
 
     pde = burgers()
-    device = torch.device("cuda", torch.cuda.current_device())
-    print(f"\n3. training on {torch.cuda.get_device_name()} for {seconds:g} s per arm, solver on the same GPU "
+    name = torch.cuda.get_device_name(device) if device.type == "cuda" else "the CPU"
+    print(f"\n3. training on {name} for {seconds:g} s per arm, solver on the same device "
           "(thread producer, async, max_reuse 50, warm-up one solve batch)")
     print("| storage | solve batch | wait share | steps | steps/s | solver traj/s | mean reuse |")
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
@@ -235,7 +236,8 @@ def main(argv: list[str] | None = None) -> None:
     if "solver" in parts:
         solver(tuple(int(b) for b in args.batches.split(",")), args.reps)
     if "training" in parts:
-        training(args.seconds, [("cpu", 128), ("cuda", 128), ("cuda", 1024)])
+        training(args.seconds, [("cpu", 128), ("cuda", 128), ("cuda", 1024)],
+                 torch.device("cuda", torch.cuda.current_device()))
 
 
 if __name__ == "__main__":
