@@ -14,7 +14,8 @@ operator view), on the CPU or, where torch and JAX both see one, the GPU:
 3. ``training`` (GPU): the set-up trained for ``--seconds`` per arm through ``surrogate.train.train``, the JAX
    solver on the same GPU (thread producer, async, max_reuse 50): the loop's wait share (time in next(batch)
    and the hand-over over the loop's time), steps/s, the solver's trajectories/s and mean reuse, for storage on
-   the host against on the GPU, and solve batches of 128 and 1024.
+   the host against on the GPU, and solve batches of 128 and 1024; the wait split into waiting for solves,
+   inserting them, gathering batches (host clocks) and, of the solves, the first batch's (start-up).
 Figures, not pass/fail.
 """
 
@@ -192,8 +193,9 @@ def training(seconds: float, arms: list[tuple[str, int]], device: torch.device) 
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else "the CPU"
     print(f"\n3. training on {name} for {seconds:g} s per arm, solver on the same device "
           "(thread producer, async, max_reuse 50, warm-up one solve batch)")
-    print("| storage | solve batch | wait share | steps | steps/s | solver traj/s | mean reuse |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    print("| storage | solve batch | wait share | of it: solves | inserts | gathers | first batch | steps | steps/s | "
+          "solver traj/s | mean reuse |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     for storage, solve_batch in arms:
         stream = datasets.ReservoirStream(pde, view="operator", batch_size=BATCH, capacity=max(1000, 4 * solve_batch),
                                           max_reuse=50, solve_batch=solve_batch, warmup=solve_batch, mode="async",
@@ -201,16 +203,25 @@ def training(seconds: float, arms: list[tuple[str, int]], device: torch.device) 
         norm = stream.normalization(n=64)  # compiles the solve at this batch too: not in the arm's clock
         model = fno(pde, device)
         loader = torch.utils.data.DataLoader(stream, batch_size=None)
+        first = [0.0]  # the first batch's wait (the first solve batch: start-up, whatever the reservoir)
+
+        def after_step(step, _fraction, elapsed):
+            if step == 1:
+                first[0] = stream.t_wait
+
         with tempfile.TemporaryDirectory() as tmp:
             try:
                 s = train(model, loader, Stop(seconds=seconds), tmp, normalizer=norm, log_every=10**9,
-                          label=f"{storage}/{solve_batch}")
+                          label=f"{storage}/{solve_batch}", after_step=after_step)
             finally:
                 st = stream.stats()
                 stream.close()
         loop = s["t_data"] + s["t_compute"]
-        print(f"| {storage} | {solve_batch} | {100 * s['data_share']:.1f}% | {s['steps']} | {s['steps'] / loop:.1f} | "
-              f"{st['solver_traj_per_s']:.0f} | {st['reuse_mean']:.2f} |", flush=True)
+        parts = (stream.t_wait, stream.t_insert, stream.t_gather, first[0])
+        print(f"| {storage} | {solve_batch} | {100 * s['data_share']:.1f}% | "
+              + " | ".join(f"{100 * t / loop:.1f}%" for t in parts)
+              + f" | {s['steps']} | {s['steps'] / loop:.1f} | {st['solver_traj_per_s']:.0f} | {st['reuse_mean']:.2f} |",
+              flush=True)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -216,28 +216,31 @@ class Reservoir:
 
     def insert(self, u: torch.Tensor, params: torch.Tensor, index: np.ndarray) -> int:
         """Insert trajectories u [B, T, C, *space] (params [B, P], index [B]; any device); returns how many were
-        evicted. The caller checks ``room() >= B`` first."""
-        evicted = 0
-        slots = np.empty(len(index), np.int64)
-        for b in range(len(index)):
-            empty = np.flatnonzero(self.serial < 0)
-            if len(empty):
-                slot = int(empty[0])
-            else:
-                used = np.flatnonzero(self.uses >= 1)
-                if not len(used):
-                    raise RuntimeError("reservoir full of unused trajectories (insert without room(): a bug)")
-                slot = int(used[self.serial[used].argmin()] if self.eviction == "fifo" else self.rng.choice(used))
-                self.evicted_counts[self.uses[slot]] += 1
-                self.evicted += 1
-                evicted += 1
-            slots[b] = slot  # distinct: a slot just filled is neither empty nor used
-            self.index[slot], self.uses[slot], self.serial[slot] = index[b], 0, self.next_serial
-            self.window_uses[slot] = 0
-            self.next_serial += 1
-            self.inserted += 1
-        self.put(slots, u[: len(index)], params[: len(index)])
-        return evicted
+        evicted. The caller checks ``room() >= B`` first. Slots: the empty ones in order, then the evictable
+        ones (used at least once), oldest first ("fifo") or one random draw each ("random")."""
+        b = len(index)
+        empty = np.flatnonzero(self.serial < 0)[:b]
+        used = np.flatnonzero(self.uses >= 1)  # (a slot just filled has uses 0: never chosen twice)
+        k = b - len(empty)
+        if k > len(used):
+            raise RuntimeError("reservoir full of unused trajectories (insert without room(): a bug)")
+        if self.eviction == "fifo":
+            out = used[np.argsort(self.serial[used], kind="stable")[:k]]
+        else:  # one draw per trajectory from what is left, as many generator calls as trajectories
+            out = np.empty(k, np.int64)
+            for j in range(k):
+                pick = self.rng.choice(len(used))
+                out[j], used = used[pick], np.delete(used, pick)
+        slots = np.concatenate([empty, out]).astype(np.int64)
+        np.add.at(self.evicted_counts, self.uses[out], 1)
+        self.evicted += k
+        self.index[slots], self.uses[slots] = index[:b], 0
+        self.serial[slots] = self.next_serial + np.arange(b)
+        self.window_uses[slots] = 0
+        self.next_serial += b
+        self.inserted += b
+        self.put(slots, u[:b], params[:b])
+        return k
 
     def draw(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Up to k examples, each trajectory at most once: (slots [m], window starts [m]), m <= k; m = 0 when
@@ -359,6 +362,7 @@ class ReservoirStream(IterableDataset):
         self.drawn_since_insert = 0
         self.progress = StreamPosition(slots=1)  # batches handed out (one producer-side "worker": this process)
         self.t_wait = 0.0  # seconds the loop waited for solves
+        self.t_insert = self.t_gather = 0.0  # seconds spent inserting solves and gathering batches (host clock)
         self._t_first = None  # when iteration started (rates in stats())
 
     def place(self, device) -> None:
@@ -411,12 +415,14 @@ class ReservoirStream(IterableDataset):
         return self.next_index >= paid + self.solve_batch
 
     def _insert(self, indices: np.ndarray, result: dict) -> None:
+        t0 = time.perf_counter()
         n = len(indices)
         u = result["u"][:n]
         if not isinstance(u, torch.Tensor):  # numpy from a worker process (writable: torch wants that)
             u = torch.from_numpy(np.require(u, requirements="W"))
         self.res.insert(u, torch.from_numpy(np.asarray(result["params"][:n])), indices)
         self.drawn_since_insert = 0
+        self.t_insert += time.perf_counter() - t0
 
     def _take_oldest(self) -> None:
         """Deterministic mode: wait for the oldest job and insert it."""
@@ -512,11 +518,13 @@ class ReservoirStream(IterableDataset):
     def _gather(self, slots: np.ndarray, starts: np.ndarray) -> dict:
         """The batch of examples (slots [m], window starts [m]), gathered where the storage is: on a GPU the
         m pairs go over in one pinned, asynchronous copy and nothing waits for the device."""
+        t0 = time.perf_counter()
         res, host = self.res, torch.from_numpy(np.stack([slots, starts]))
         sel = host if self._where.type == "cpu" else host.pin_memory().to(self._where, non_blocking=True)
         batch = gather(self.view, res.u, self._t_dev, res.params, res.index_t, sel[0], sel[1])
         if self._where.type != "cpu":  # the host's copy of the batch's parameters, for report_losses
             self._last = (batch["params"], torch.from_numpy(res.params_host[slots]))
+        self.t_gather += time.perf_counter() - t0
         return batch
 
     # --- the training loop's hooks ------------------------------------------------------------------
