@@ -230,6 +230,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seconds", type=float, default=30.0, help="wall-clock seconds per training arm")
     p.add_argument("--batches", default="16,128,1024", help="solve batches of the solver part")
     p.add_argument("--reps", type=int, default=3, help="timed solves per batch (solver part)")
+    p.add_argument("--arms", default="cpu:128,cuda:128,cuda:1024", help="training arms, storage:solve batch")
     p.add_argument("--threads", type=int, default=1, help="torch threads on the CPU (1: the solver keeps a core)")
     args = p.parse_args(argv)
     import jax
@@ -247,8 +248,8 @@ def main(argv: list[str] | None = None) -> None:
     if "solver" in parts:
         solver(tuple(int(b) for b in args.batches.split(",")), args.reps)
     if "training" in parts:
-        training(args.seconds, [("cpu", 128), ("cuda", 128), ("cuda", 1024)],
-                 torch.device("cuda", torch.cuda.current_device()))
+        arms = [(a.split(":")[0], int(a.split(":")[1])) for a in args.arms.split(",")]
+        training(args.seconds, arms, torch.device("cuda", torch.cuda.current_device()))
 
 
 if __name__ == "__main__":
