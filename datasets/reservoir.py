@@ -24,6 +24,10 @@ examples (through the usual views) from what it holds, so a solve is reused inst
   ``datasets.proposal.ParamProposal`` fed by the per-sample losses the training loop reports
   (``report_losses``); ``"uniform"`` leaves the parameters to the solver's own draws.
 
+- **device**: the trajectories live on the training device (``device=``; None: the model's, through the
+  training loop's ``place`` hook), a thread producer's solves are copied in from JAX's buffer there (DLPack) and
+  batches are gathered there; the bookkeeping above stays on the host, so drawing never waits for the GPU.
+
 ``max_reuse=1``, ``capacity=solve_batch``, ``draw="least_used"`` and deterministic mode is the plain FIFO
 stream. Sample identity is (PDE config, seed, index, params): samples are numbered 0, 1, 2, ... in
 submission order, and batches carry "index" and "params" as every other source does.
