@@ -148,18 +148,31 @@ def sample_numpy(pde, indices, seed: int = 0, on_blowup: str = "raise", params: 
     return u, {k: np.asarray(v) for k, v in traj.params.items()}, np.asarray(traj.redraws)
 
 
-def solve_job(config: dict, seed: int, indices, params: dict | None = None) -> dict:
+def solve_job(config: dict, seed: int, indices, params: dict | None = None, on_device: bool = False) -> dict:
     """A producer's job (thread, spawned process or Dask worker): solve samples ``indices`` of the PDE of
-    ``config`` under ``seed`` with optional explicit ``params`` {name: [B]}. Returns numpy arrays
-    {"u": float32 [B, T, C, *space], "params": float32 [B, P] (PARAMS order), "index": int64 [B]}."""
+    ``config`` under ``seed`` with optional explicit ``params`` {name: [B]}. Returns
+    {"u": float32 [B, T, C, *space], "params": float32 [B, P] (PARAMS order), "index": int64 [B]}, all numpy,
+    or with ``on_device`` (a job run in the consumer's process) "u" as a torch tensor on JAX's device that
+    shares JAX's finished buffer (DLPack: no host round trip; read it, never write it). Same values either way."""
+    import jax
     import numpy as np
 
     configure_jax()
     pde = _pde_of(json.dumps(config, sort_keys=True))
-    u, p, _ = sample_numpy(pde, np.asarray(indices, np.int64), seed, "raise", params)
+    indices = np.asarray(indices, np.int64)
+    if on_device:
+        import torch
+
+        import generator
+
+        traj = generator.sample(pde, indices, seed, on_blowup="raise", params=params)
+        jax.block_until_ready((traj.u, traj.inputs))  # done before torch reads it on its own stream
+        u = _joined(traj, torch.cat, to_torch)
+        p = {k: np.asarray(v) for k, v in traj.params.items()}
+    else:
+        u, p, _ = sample_numpy(pde, indices, seed, "raise", params)
     cols = [p[n] for n in pde.PARAMS]
-    return {"u": u, "params": np.stack(cols, 1) if cols else np.zeros((len(u), 0), np.float32),
-            "index": np.asarray(indices, np.int64)}
+    return {"u": u, "params": np.stack(cols, 1) if cols else np.zeros((len(u), 0), np.float32), "index": indices}
 
 
 @functools.lru_cache(maxsize=16)

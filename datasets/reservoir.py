@@ -24,6 +24,10 @@ examples (through the usual views) from what it holds, so a solve is reused inst
   ``datasets.proposal.ParamProposal`` fed by the per-sample losses the training loop reports
   (``report_losses``); ``"uniform"`` leaves the parameters to the solver's own draws.
 
+- **device**: the trajectories live on the training device (``device=``; None: the model's, through the
+  training loop's ``place`` hook), a thread producer's solves are copied in from JAX's buffer there (DLPack) and
+  batches are gathered there; the bookkeeping above stays on the host, so drawing never waits for the GPU.
+
 ``max_reuse=1``, ``capacity=solve_batch``, ``draw="least_used"`` and deterministic mode is the plain FIFO
 stream. Sample identity is (PDE config, seed, index, params): samples are numbered 0, 1, 2, ... in
 submission order, and batches carry "index" and "params" as every other source does.
@@ -83,19 +87,63 @@ def _check_choice(name: str, value, allowed: tuple) -> str:
     return value
 
 
+def storage_device(device) -> torch.device:
+    """torch.device for a reservoir's ``device``: "cpu", "cuda", "cuda:N" or a torch.device ("cuda" becomes the
+    current GPU's index, so that it compares equal to a model's device); one line when it cannot be used."""
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        dev = None
+    if dev is None or dev.type not in ("cpu", "cuda"):
+        raise ValueError(f"device={device!r} not allowed; allowed: cpu, cuda, cuda:N (None: the training device)")
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError(f"device={device!r} not allowed: torch sees no GPU here; allowed: cpu")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ValueError(f"device={device!r} not allowed: torch sees {torch.cuda.device_count()} GPU(s)")
+        if dev.index is None:
+            dev = torch.device("cuda", torch.cuda.current_device())
+    return dev
+
+
+def free_bytes(device: torch.device) -> tuple[int, int]:
+    """(bytes free, bytes in all) on a CUDA device: the driver's free memory plus what torch's caching allocator
+    holds unused (it hands that out first)."""
+    free, total = torch.cuda.mem_get_info(device)
+    return free + torch.cuda.memory_reserved(device) - torch.cuda.memory_allocated(device), total
+
+
+def no_room_line(device: torch.device, need: int, what: str) -> str:
+    """The one line for a device that cannot hold ``need`` bytes."""
+    free, total = free_bytes(device)
+    return (f"device={str(device)!r} cannot hold {what}: it asks {need} bytes ({need / 2**30:.2f} GiB) and {device} has "
+            f"{free} bytes free ({free / 2**30:.2f} of {total / 2**30:.1f} GiB); allowed: a smaller capacity, or "
+            "device='cpu'")
+
+
+def check_room(device: torch.device, need: int, what: str) -> None:
+    """ValueError (one line: bytes asked and free) when a CUDA device has less than ``need`` bytes free. (The
+    host's memory is checked by ReservoirStream against half the machine's RAM.)"""
+    if device.type == "cuda" and need > free_bytes(device)[0]:
+        raise ValueError(no_room_line(device, need, what))
+
+
 class Reservoir:
     """The store itself: up to ``capacity`` trajectories with use counts; no threads, no solver.
 
-    u: float32 [capacity, T, C, *space] (allocated at the first insert); params [capacity, P]; index, uses,
-    serial (insertion order, -1: empty slot) [capacity]; window_uses [capacity, n_windows].
+    u: float32 [capacity, T, C, *space] (allocated at the first insert) and params [capacity, P] on ``device``
+    (the training device: gathers run there), with index_t int64 [capacity], the index's copy there; the
+    bookkeeping stays on the host, so drawing never waits for the device: index, uses, serial (insertion
+    order, -1: empty slot) [capacity]; window_uses [capacity, n_windows].
     A trajectory is drawable while uses < cap_uses, and evictable once uses >= 1.
     """
 
     def __init__(self, capacity: int, cap_uses: int, n_windows: int, eviction: str, draw: str,
-                 rng: np.random.Generator):
+                 rng: np.random.Generator, device: torch.device | str = "cpu"):
         self.capacity, self.cap_uses, self.n_windows = capacity, cap_uses, n_windows
         self.eviction, self.draw_policy, self.rng = eviction, draw, rng
-        self.u = self.params = None
+        self.device = torch.device(device)
+        self.u = self.params = self.index_t = None
         self.index = np.full(capacity, -1, np.int64)
         self.uses = np.zeros(capacity, np.int64)
         self.window_uses = np.zeros((capacity, n_windows), np.int64)
@@ -104,6 +152,7 @@ class Reservoir:
         # evicted trajectories by use count (index: uses): a fixed-size histogram, so neither memory nor the
         # checkpoint grows with the length of the run
         self.evicted_counts = np.zeros(cap_uses + 1, np.int64)
+        self._held: list = []  # (event, tensors): sources of device copies, kept until the copies have run
 
     def live(self) -> np.ndarray:
         return np.flatnonzero(self.serial >= 0)
@@ -115,31 +164,87 @@ class Reservoir:
     def eligible(self) -> np.ndarray:
         return np.flatnonzero((self.serial >= 0) & (self.uses < self.cap_uses))
 
-    def insert(self, u: torch.Tensor, params: torch.Tensor, index: np.ndarray) -> int:
-        """Insert trajectories u [B, T, C, *space] (params [B, P], index [B]); returns how many were evicted.
-        The caller checks ``room() >= B`` first."""
+    def allocate(self, shape: tuple, dtype: torch.dtype, n_params: int) -> None:
+        """The storage on ``device``: u [capacity, *shape], params [capacity, n_params], index_t [capacity].
+        One line (ValueError) when the device cannot hold it: the bytes asked and the bytes free there."""
+        if self.u is not None:
+            return
+        need = self.capacity * (math.prod(shape) * dtype.itemsize + n_params * 4 + 8)
+        check_room(self.device, need, f"a reservoir of {self.capacity} trajectories")
+        try:
+            self.u = torch.empty((self.capacity, *shape), dtype=dtype, device=self.device)
+            self.params = torch.empty((self.capacity, n_params), dtype=torch.float32, device=self.device)
+        except torch.OutOfMemoryError:
+            self.u = self.params = None
+            raise ValueError(no_room_line(self.device, need, f"a reservoir of {self.capacity} trajectories")) from None
+        self.params_host = np.zeros((self.capacity, n_params), np.float32)  # what reports and states read
+        # on the CPU the index tensor is the bookkeeping array itself (shared memory): nothing to keep in step
+        self.index_t = torch.from_numpy(self.index) if self.device.type == "cpu" else \
+            torch.from_numpy(self.index).to(self.device)
+
+    def to(self, device: torch.device | str) -> None:
+        """Move the storage (if any) to ``device``; the bookkeeping stays where it is (host)."""
+        device = torch.device(device)
+        if device == self.device:
+            return
+        if self.u is not None:
+            need = self.u.nbytes + self.params.nbytes + self.index_t.nbytes
+            check_room(device, need, f"a reservoir of {self.capacity} trajectories")
+            self.u, self.params = self.u.to(device), self.params.to(device)
+            self.index_t = torch.from_numpy(self.index) if device.type == "cpu" else torch.from_numpy(self.index).to(device)
+        self.device = device
+
+    def put(self, slots: np.ndarray, u: torch.Tensor, params: torch.Tensor) -> None:
+        """Copy trajectories u [m, ...] and params [m, P] into ``slots`` [m] (distinct) of the storage, one copy
+        each whatever device they come from (a solver's GPU buffer through DLPack: device to device; a worker
+        process's numpy: host to device); ``index[slots]`` must already hold their indices."""
         if self.u is None:
-            self.u = torch.empty((self.capacity, *u.shape[1:]), dtype=u.dtype)
-            self.params = torch.empty((self.capacity, params.shape[1]), dtype=params.dtype)
-        evicted = 0
-        for b in range(len(index)):
-            empty = np.flatnonzero(self.serial < 0)
-            if len(empty):
-                slot = int(empty[0])
-            else:
-                used = np.flatnonzero(self.uses >= 1)
-                if not len(used):
-                    raise RuntimeError("reservoir full of unused trajectories (insert without room(): a bug)")
-                slot = int(used[self.serial[used].argmin()] if self.eviction == "fifo" else self.rng.choice(used))
-                self.evicted_counts[self.uses[slot]] += 1
-                self.evicted += 1
-                evicted += 1
-            self.u[slot], self.params[slot] = u[b], params[b]
-            self.index[slot], self.uses[slot], self.serial[slot] = index[b], 0, self.next_serial
-            self.window_uses[slot] = 0
-            self.next_serial += 1
-            self.inserted += 1
-        return evicted
+            self.allocate(tuple(u.shape[1:]), u.dtype, params.shape[1])
+        self.params_host[slots] = params.detach().cpu().numpy()  # (a solve's params come as numpy: no wait)
+        dev = self.device
+        if dev.type == "cpu":  # (no event to wait on: copies on the CPU are done when they return)
+            at = torch.from_numpy(slots)
+            self.u.index_copy_(0, at, u.to(dev))
+            self.params.index_copy_(0, at, params.to(dev, torch.float32))
+            return
+        at = torch.from_numpy(slots).to(dev)
+        self.u.index_copy_(0, at, u.to(dev, non_blocking=True))
+        self.params.index_copy_(0, at, params.to(dev, torch.float32, non_blocking=True))
+        self.index_t.index_copy_(0, at, torch.from_numpy(self.index[slots]).to(dev))
+        # the copies are queued on torch's stream: their sources (a JAX buffer shared through DLPack, which JAX
+        # reuses once released) live until an event recorded after them has passed; no wait here
+        self._held = [(e, t) for e, t in self._held if not e.query()]
+        event = torch.cuda.Event()
+        event.record(torch.cuda.current_stream(dev))
+        self._held.append((event, (u, params)))
+
+    def insert(self, u: torch.Tensor, params: torch.Tensor, index: np.ndarray) -> int:
+        """Insert trajectories u [B, T, C, *space] (params [B, P], index [B]; any device); returns how many were
+        evicted. The caller checks ``room() >= B`` first. Slots: the empty ones in order, then the evictable
+        ones (used at least once), oldest first ("fifo") or one random draw each ("random")."""
+        b = len(index)
+        empty = np.flatnonzero(self.serial < 0)[:b]
+        used = np.flatnonzero(self.uses >= 1)  # (a slot just filled has uses 0: never chosen twice)
+        k = b - len(empty)
+        if k > len(used):
+            raise RuntimeError("reservoir full of unused trajectories (insert without room(): a bug)")
+        if self.eviction == "fifo":
+            out = used[np.argsort(self.serial[used], kind="stable")[:k]]
+        else:  # one draw per trajectory from what is left, as many generator calls as trajectories
+            out = np.empty(k, np.int64)
+            for j in range(k):
+                pick = self.rng.choice(len(used))
+                out[j], used = used[pick], np.delete(used, pick)
+        slots = np.concatenate([empty, out]).astype(np.int64)
+        np.add.at(self.evicted_counts, self.uses[out], 1)
+        self.evicted += k
+        self.index[slots], self.uses[slots] = index[:b], 0
+        self.serial[slots] = self.next_serial + np.arange(b)
+        self.window_uses[slots] = 0
+        self.next_serial += b
+        self.inserted += b
+        self.put(slots, u[:b], params[:b])
+        return k
 
     def draw(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Up to k examples, each trajectory at most once: (slots [m], window starts [m]), m <= k; m = 0 when
@@ -185,8 +290,11 @@ class ReservoirStream(IterableDataset):
     submitted only once the draws have paid for the previous ones; deterministic: the schedule's rate; default:
     async solves as fast as it can, deterministic uses max_reuse); proposal "uniform" |
     "loss" (+ proposal_kwargs for ParamProposal); sim_budget: stop after this many solved trajectories
-    (None: endless). Batches are dicts as from the views, with "params" [B, P] and "index" [B].
-    The stream runs in the training process (num_workers=0); its producers are the parallelism.
+    (None: endless). device: where the trajectories are kept and batches are gathered ("cpu", "cuda",
+    "cuda:N"; None: the training device, which the training loop sets through ``place``, else the CPU): with
+    the thread producer a solve on that GPU is copied in from JAX's buffer (DLPack, no host round trip), and
+    every tensor of a batch is on that device. Batches are dicts as from the views, with "params" [B, P] and
+    "index" [B]. The stream runs in the training process (num_workers=0); its producers are the parallelism.
     """
 
     def __init__(self, pde, seed: int = 0, view="next_step", batch_size: int = 32, capacity: int = 256,
@@ -194,7 +302,7 @@ class ReservoirStream(IterableDataset):
                  solve_batch: int = 16, mode: str = "async", producer: str = "thread", workers: int = 1,
                  scheduler: str | None = None, inflight: int | None = None, proposal: str = "uniform",
                  proposal_kwargs: dict | None = None, sim_budget: int | None = None, target_reuse: float | None = None,
-                 **view_kwargs):
+                 device=None, **view_kwargs):
         self.pde = _bridge.resolve_pde(pde)
         if view_kwargs and not isinstance(view, str):
             raise ValueError(f"view options {sorted(view_kwargs)} only go with a view name, not a view object")
@@ -233,26 +341,43 @@ class ReservoirStream(IterableDataset):
         self.uses_per_solve = self.cap_uses if target_reuse is None else max(1, round(target_reuse * self.per_trajectory))
         self.config = self.pde.config()
         need = self.capacity * n_frames * len(_bridge.sample_channels(self.pde)) * math.prod(self.pde.grid.shape) * 4
+        self.need = need + self.capacity * (4 * len(self.pde.PARAMS) + 8)  # u, params, index on the device
+        self.device = None if device is None else storage_device(device)
         have = _physical_memory()
-        if have and need > have // 2:
+        if have and need > have // 2 and (self.device is None or self.device.type == "cpu"):
             raise ValueError(f"capacity={capacity} not allowed: holding {capacity} trajectories takes "
                              f"{need / 2**30:.1f} GiB, more than half of this machine's {have / 2**30:.1f} GiB")
+        self._where = torch.device("cpu") if self.device is None else self.device  # where the storage goes
+        check_room(self._where, self.need, f"capacity={capacity} ({capacity} trajectories)")
         self.proposal = ParamProposal(_bridge.param_domains(self.pde), mode=proposal, seed=self.seed,
                                       **(proposal_kwargs or {}))
         self.t = torch.from_numpy(np.asarray(self.pde.times()))
+        self._t_dev = self.t.to(self._where)
+        self._last = None  # (the last batch's params tensor, its host copy): report_losses reads no device
         self._reset_state()
         self._executor = self._closer = None
 
     def _reset_state(self) -> None:
         self.res = Reservoir(self.capacity, self.cap_uses, self.n_windows, self.eviction, self.draw,
-                             np.random.default_rng([self.seed, 1]))
+                             np.random.default_rng([self.seed, 1]), self._where)
         self.next_index = 0  # the next sample index to submit
         self.pending: collections.deque = collections.deque()  # (indices, params, future) in submission order
         self.done: list = []  # async: finished jobs waiting for room
         self.drawn_since_insert = 0
         self.progress = StreamPosition(slots=1)  # batches handed out (one producer-side "worker": this process)
         self.t_wait = 0.0  # seconds the loop waited for solves
+        self.t_insert = self.t_gather = 0.0  # seconds spent inserting solves and gathering batches (host clock)
         self._t_first = None  # when iteration started (rates in stats())
+
+    def place(self, device) -> None:
+        """The training loop's hook: a stream built with device=None keeps its trajectories on the model's
+        ``device`` (moved there if it holds some already); a stream given a device keeps its own."""
+        if self.device is not None:
+            return
+        where = storage_device(device)
+        if where != self._where:
+            self.res.to(where)  # (checks the room there first)
+            self._where, self._t_dev = where, self.t.to(where)
 
     # --- producers ---------------------------------------------------------------------------------
     def _start(self) -> None:
@@ -270,7 +395,10 @@ class ReservoirStream(IterableDataset):
         """One solve job, padded to solve_batch (one compiled shape for every job)."""
         pad = np.resize(np.arange(len(indices)), self.solve_batch)
         padded_params = None if params is None else {k: np.asarray(v)[pad] for k, v in params.items()}
-        return self._executor.submit(_bridge.solve_job, self.config, self.seed, indices[pad], padded_params)
+        # a thread solves in this process: its result stays in JAX's buffer (on its device) and is copied into
+        # the storage from there; a worker process's or Dask's comes back as numpy (pickled)
+        return self._executor.submit(_bridge.solve_job, self.config, self.seed, indices[pad], padded_params,
+                                     self.producer == "thread")
 
     def _fill_pipeline(self) -> None:
         while len(self.pending) + len(self.done) < self.max_inflight:
@@ -291,10 +419,14 @@ class ReservoirStream(IterableDataset):
         return self.next_index >= paid + self.solve_batch
 
     def _insert(self, indices: np.ndarray, result: dict) -> None:
+        t0 = time.perf_counter()
         n = len(indices)
-        u = torch.from_numpy(np.require(result["u"][:n], requirements="W"))  # a JAX buffer is read-only
+        u = result["u"][:n]
+        if not isinstance(u, torch.Tensor):  # numpy from a worker process (writable: torch wants that)
+            u = torch.from_numpy(np.require(u, requirements="W"))
         self.res.insert(u, torch.from_numpy(np.asarray(result["params"][:n])), indices)
         self.drawn_since_insert = 0
+        self.t_insert += time.perf_counter() - t0
 
     def _take_oldest(self) -> None:
         """Deterministic mode: wait for the oldest job and insert it."""
@@ -383,16 +515,30 @@ class ReservoirStream(IterableDataset):
                 got += len(s)
             if not got:
                 return
-            slots, starts = torch.from_numpy(np.concatenate(slots)), torch.from_numpy(np.concatenate(starts))
-            index = torch.from_numpy(self.res.index)
+            slots, starts = np.concatenate(slots), np.concatenate(starts)
             self.progress.add(0, 1)
-            yield gather(self.view, self.res.u, self.t, self.res.params, index, slots, starts)
+            yield self._gather(slots, starts)
+
+    def _gather(self, slots: np.ndarray, starts: np.ndarray) -> dict:
+        """The batch of examples (slots [m], window starts [m]), gathered where the storage is: on a GPU the
+        m pairs go over in one pinned, asynchronous copy and nothing waits for the device."""
+        t0 = time.perf_counter()
+        res, host = self.res, torch.from_numpy(np.stack([slots, starts]))
+        sel = host if self._where.type == "cpu" else host.pin_memory().to(self._where, non_blocking=True)
+        batch = gather(self.view, res.u, self._t_dev, res.params, res.index_t, sel[0], sel[1])
+        if self._where.type != "cpu":  # the host's copy of the batch's parameters, for report_losses
+            self._last = (batch["params"], torch.from_numpy(res.params_host[slots]))
+        self.t_gather += time.perf_counter() - t0
+        return batch
 
     # --- the training loop's hooks ------------------------------------------------------------------
     def report_losses(self, batch: dict, per_example: torch.Tensor) -> None:
         """Per-example training losses [B] of ``batch`` (the loop calls this after each step): they steer
         ``proposal="loss"`` and feed the loss-over-domain plot in any mode."""
-        self.proposal.record(batch["params"].detach().cpu().numpy(), per_example.detach().cpu().numpy())
+        params = batch["params"]
+        if self._last is not None and params is self._last[0]:
+            params = self._last[1]  # the same values, from the host: no wait for the device
+        self.proposal.record(params.detach().cpu().numpy(), per_example.detach().cpu().numpy())
 
     def stats(self) -> dict:
         """Reservoir figures for metrics.csv and the progress bar (flat dict of numbers)."""
@@ -430,7 +576,7 @@ class ReservoirStream(IterableDataset):
             "capacity": self.capacity, "max_reuse": self.max_reuse, "view": self.view.name,
             "n_windows": self.n_windows,
             "slots": live.tolist(), "index": res.index[live].tolist(),
-            "params": res.params[live].tolist() if res.params is not None else [],
+            "params": res.params_host[live].tolist() if res.params is not None else [],
             "uses": res.uses[live].tolist(), "window_uses": res.window_uses[live].tolist(),
             "serial": res.serial[live].tolist(),
             "counters": {"next_serial": res.next_serial, "inserted": res.inserted, "evicted": res.evicted,
@@ -467,18 +613,13 @@ class ReservoirStream(IterableDataset):
             names = list(self.pde.PARAMS)
             params = np.asarray(state["params"], np.float32).reshape(len(slots), len(names))
             index = np.asarray(state["index"], np.int64)
+            res.index[slots] = index
             for lo in range(0, len(slots), self.solve_batch):
                 sel = np.arange(lo, min(lo + self.solve_batch, len(slots)))
                 pad = np.resize(sel, self.solve_batch)
                 out = _bridge.solve_job(self.config, self.seed, index[pad],
-                                        {n: params[pad, j] for j, n in enumerate(names)})
-                u = torch.from_numpy(np.require(out["u"][: len(sel)], requirements="W"))
-                if res.u is None:
-                    res.u = torch.empty((self.capacity, *u.shape[1:]), dtype=u.dtype)
-                    res.params = torch.empty((self.capacity, len(names)), dtype=torch.float32)
-                res.u[slots[sel]] = u
-                res.params[slots[sel]] = torch.from_numpy(out["params"][: len(sel)])
-            res.index[slots] = index
+                                        {n: params[pad, j] for j, n in enumerate(names)}, on_device=True)
+                res.put(slots[sel], out["u"][: len(sel)], torch.from_numpy(out["params"][: len(sel)]))
             res.uses[slots] = state["uses"]
             res.window_uses[slots] = np.asarray(state["window_uses"], np.int64).reshape(len(slots), -1)
             res.serial[slots] = state["serial"]

@@ -156,8 +156,8 @@ class NextStep:
         return {"x": u[start:mid], "y": u[mid : mid + self.k_out], "t0": t[start]}
 
     def gather(self, u: torch.Tensor, t: torch.Tensor, traj: torch.Tensor, start: torch.Tensor) -> dict:
-        x_frames = start[:, None] + torch.arange(self.k_in)  # [N, k_in]
-        y_frames = start[:, None] + self.k_in + torch.arange(self.k_out)  # [N, k_out]
+        x_frames = start[:, None] + torch.arange(self.k_in, device=start.device)  # [N, k_in]
+        y_frames = start[:, None] + self.k_in + torch.arange(self.k_out, device=start.device)  # [N, k_out]
         return {"x": u[traj[:, None], x_frames], "y": u[traj[:, None], y_frames], "t0": t[start]}
 
     @property
@@ -288,7 +288,8 @@ def examples(view: View, u: torch.Tensor, t: torch.Tensor, params: torch.Tensor,
 def gather(view: View, u: torch.Tensor, t: torch.Tensor, params: torch.Tensor, index: torch.Tensor,
            traj: torch.Tensor, start: torch.Tensor) -> dict:
     """A collated batch in one indexing pass: example k is trajectory ``traj[k]`` of u [B, T, C, *space]
-    (params [B, P], index [B]) at window start ``start[k]``. Equals ``collate`` of the same ``examples``."""
+    (params [B, P], index [B]) at window start ``start[k]``. Equals ``collate`` of the same ``examples``.
+    Runs where the tensors are (all on one device, CPU or GPU)."""
     out = view.gather(u, t, traj, start)
     out["params"] = params[traj]
     out["index"] = index[traj]

@@ -7,6 +7,8 @@ also costs a fixed ~25 us whatever its size, counted as STEP_OVERHEAD points (sm
 solves in steps (the spectral rollouts, interactive advances) splits its work with ``pieces`` and waits with
 ``sync``. DISPATCH_WORK and STEP_OVERHEAD are the defaults; ``call_size(work, overhead)`` sets other sizes for
 the solves of one thread inside a ``with`` block (tests, benchmarks), read with ``work()`` / ``step_overhead()``.
+On an accelerator (the default device is a GPU) a call does ACCELERATOR_WORK: a GPU runs 2**24 point-steps in
+about a millisecond, so the host sync after each call, not the steps, set the pace (benchmarks/device_reservoir_bench.py).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import threading
 import jax
 
 DISPATCH_WORK = 2**24
+ACCELERATOR_WORK = 2**28  # ~0.1 s per call for a full batch on an H100, a Ctrl-C still seen within that
 STEP_OVERHEAD = 2**13
 _CANCEL = threading.local()
 _SIZE = threading.local()
@@ -38,9 +41,22 @@ def call_size(work: int = DISPATCH_WORK, overhead: int = STEP_OVERHEAD):
         _SIZE.value = before
 
 
+def accelerated() -> bool:
+    """Whether this thread's solves run on an accelerator: the device of a ``jax.default_device`` block in force,
+    else JAX's default backend, is not the CPU."""
+    device = jax.config.jax_default_device
+    if device is None:
+        return jax.default_backend() != "cpu"
+    return (device if isinstance(device, str) else device.platform) != "cpu"
+
+
 def work() -> int:
-    """Point-steps per call for this thread's solves (DISPATCH_WORK unless inside ``call_size``)."""
-    return (getattr(_SIZE, "value", None) or (DISPATCH_WORK, STEP_OVERHEAD))[0]
+    """Point-steps per call for this thread's solves (DISPATCH_WORK, ACCELERATOR_WORK on a GPU, unless inside
+    ``call_size``)."""
+    size = getattr(_SIZE, "value", None)
+    if size is not None:
+        return size[0]
+    return ACCELERATOR_WORK if accelerated() else DISPATCH_WORK
 
 
 def step_overhead() -> int:

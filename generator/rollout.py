@@ -98,11 +98,16 @@ def compiled_evolve(pde: PDE):
 # -8% against 2, burgers3d -15% against 1; 8 per call -2% and -11%). Bits do not depend on the chunk.
 EVOLVE_BYTES = 2**21
 MIN_CHUNK = 4
+# On an accelerator there is no such cache to fit and every call is a launch: the whole batch goes in one chunk
+# (up to this many bytes: 256K burgers1d n=1024 samples)
+ACCELERATOR_EVOLVE_BYTES = 2**32
 
 
 def evolve_chunk(pde: PDE) -> int:
-    """Samples per rollout call: EVOLVE_BYTES over ~4 float32 fields per PDE field per sample, at least MIN_CHUNK."""
-    return max(MIN_CHUNK, EVOLVE_BYTES // (16 * len(pde.FIELDS) * pde.n**pde.NDIM))
+    """Samples per rollout call: EVOLVE_BYTES (ACCELERATOR_EVOLVE_BYTES on a GPU) over ~4 float32 fields per PDE
+    field per sample, at least MIN_CHUNK."""
+    budget = ACCELERATOR_EVOLVE_BYTES if dispatch.accelerated() else EVOLVE_BYTES
+    return max(MIN_CHUNK, budget // (16 * len(pde.FIELDS) * pde.n**pde.NDIM))
 
 
 def _steps(pde: PDE, v, p, coeffs, k):

@@ -70,19 +70,21 @@ def _lookup(config: dict, key: str):
 
 
 def train_loader(pde, source: str, view, batch_size: int, seed: int = 0, data_seed: int = 0,
-                 explicit: dict | None = None, data_cfg: dict | None = None):
+                 explicit: dict | None = None, data_cfg: dict | None = None, device: str | None = None):
     """(DataLoader of batch dicts, the PDE the data comes from) for ``source`` = "stream" or a cache path.
 
     Stream: samples 0, 1, 2, ... of (pde, data_seed), never repeated. Cache: its samples, reshuffled each
     epoch by an ``EpochBatchSampler`` seeded with ``seed`` (resumable: ``loader.batch_sampler.state_dict()``).
-    data_cfg: opaque settings of the data source recorded in run.json (None: the defaults above).
+    data_cfg: opaque settings of the data source recorded in run.json (None: the defaults above). device: where
+    the model trains; a training reservoir keeps its trajectories there (checked for room before anything runs).
     """
     if source == "stream" and (data_cfg or {}).get("kind") == "reservoir":
         settings = {k: v for k, v in data_cfg.items() if k != "kind"}
         unknown = sorted(set(settings) - RESERVOIR_SETTINGS)
         if unknown:
             raise ValueError(f"unknown reservoir setting(s) {unknown}; allowed: {', '.join(sorted(RESERVOIR_SETTINGS))}")
-        stream = datasets.ReservoirStream(pde, seed=data_seed, view=view, batch_size=batch_size, **settings)
+        stream = datasets.ReservoirStream(pde, seed=data_seed, view=view, batch_size=batch_size, device=device,
+                                          **settings)
         return DataLoader(stream, batch_size=None), stream.pde
     if source == "stream":
         stream = datasets.TrajectoryStream(pde, seed=data_seed, view=view, batch_size=batch_size)

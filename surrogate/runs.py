@@ -181,8 +181,9 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     mode = make_mode(s.get("mode"))  # run.json of runs before modes existed: one-step
     if s["source"] == "stream":
         check_fits(mode, view, pde)  # the mode's own words, before the stream checks the window
+    device = check_device(s.get("device", "cpu"))  # runs from before --device trained on the CPU
     loader, data_pde = train_loader(pde, s["source"], view, s["batch_size"], seed=s["seed"], data_seed=s["data_seed"],
-                                    explicit=explicit, data_cfg=s["data_cfg"])
+                                    explicit=explicit, data_cfg=s["data_cfg"], device=device)
     check_fits(mode, view, data_pde)
     view_args = dict(vars(view))  # as asked (run.json, model.pt); the view fitted to the samples is used below
     view = datasets.for_sample(view, data_pde.n_frames, len(data_pde.INPUTS))
@@ -191,7 +192,7 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     torch.manual_seed(s["seed"])  # same initial weights for every source with the same seed
     net = build_model(s["model"], data_pde.NDIM, c_in, c_out, len(data_pde.PARAMS), bc=data_pde.grid.bc,
                       **s["model_cfg"])  # the walls of the data (a cache's own, or the stream's PDE)
-    net.to(check_device(s.get("device", "cpu")))  # runs from before --device trained on the CPU
+    net.to(device)
     coarse = getattr(mode, "coarse_n", None)  # solver-in-the-loop: the model works on the coarse grid
     space = (coarse,) * data_pde.NDIM if coarse else tuple(data_pde.grid.shape)
     check_output(net, space)  # your own model: its output shape, before run.json is written

@@ -11,9 +11,11 @@ end: its presence marks a finished run), ``model.pt`` and ``checkpoint.pt`` (the
 ``checkpoint_every`` steps and at the end, see ``train_state``; ``train(..., resume=ckpt)`` continues it). All
 ``.pt`` files hold state dicts and plain containers only: ``torch.load(path, weights_only=True)`` works.
 
-Two optional hooks of the data source (``loader.dataset``) are called when it has them:
-``report_losses(batch, per_example)`` after each optimizer step (per_example: float64 CPU [B], each example's
-relative L2 error in normalized units), and ``stats()`` (a flat dict of numbers) at each logged row.
+Three optional hooks of the data source (``loader.dataset``) are called when it has them: ``place(device)``
+once before the first batch (the model's device: a training reservoir keeps its trajectories and gathers its
+batches there), ``report_losses(batch, per_example)`` after each optimizer step (per_example: float64 CPU [B],
+each example's relative L2 error in normalized units), and ``stats()`` (a flat dict of numbers) at each logged
+row.
 """
 
 from __future__ import annotations
@@ -205,12 +207,15 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
         loader.generator = torch.Generator().manual_seed(torch.initial_seed())
     dataset = getattr(loader, "dataset", None)
     report_losses, stats = getattr(dataset, "report_losses", None), getattr(dataset, "stats", None)
+    if hasattr(dataset, "place"):
+        dataset.place(device)
     batches = once(loader) if stop.once else forever(loader)
     if resume is not None:  # last, so that nothing above draws from it; the data source may (random windows)
         torch.set_rng_state(resume["torch_rng"])
     bar = RunProgress(label, stop.steps, progress.step)
     model.train()
     step, loss_value, ended = progress.step, math.nan, "steps" if stop.steps is not None else "seconds"
+    on_device = None if normalizer is None else normalizer.to(device)  # the statistics where the batches are
     while stop.fraction(step, progress.wall + time.perf_counter() - start) < 1:
         step += 1
         t0 = time.perf_counter()
@@ -222,7 +227,8 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
         t1 = time.perf_counter()
         if normalizer is None:  # the data source offers none: calibrate on the first batch
             normalizer = Normalization.from_batch(batch, ndim)
-        loss, per_example = mode.step_loss(model, batch, normalizer, step)  # per_example: float64 CPU [B]
+            on_device = normalizer.to(device)
+        loss, per_example = mode.step_loss(model, batch, on_device, step)  # per_example: float64 CPU [B]
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

@@ -312,3 +312,115 @@ def test_proposal_weights_survive_huge_and_tiny_losses():
     out = prop.propose(400)["nu"]
     assert np.isfinite(out).all()
     assert np.mean(out > 0.7) > 0.7  # the steered draws go where the loss is huge
+
+
+# --- the reservoir on the training device ---------------------------------------------------------------------
+CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (run on a GPU machine)")
+DEVICES = ["cpu", pytest.param("cuda", marks=CUDA)]
+
+
+def on(batch: dict) -> set:
+    return {v.device for v in batch.values() if isinstance(v, torch.Tensor)}
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("view", [dict(view="operator"), dict(view="next_step", k_in=1, k_out=2)])
+def test_a_device_reservoir_gives_the_host_reservoirs_batches_on_its_device(device, view):
+    host = take(stream(device="cpu", **view), 10)
+    there = take(stream(device=device, **view), 10)
+    want = datasets_device(device)
+    assert all(on(b) == {want} for b in there)  # everything a batch holds
+    assert same(host, [{k: v.cpu() for k, v in b.items()} for b in there])  # the same bits: copies only
+
+
+def datasets_device(name: str) -> torch.device:
+    from datasets.reservoir import storage_device
+
+    return storage_device(name)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_a_device_reservoir_keeps_the_bound_and_resumes_exactly(device):
+    batches = take(stream(max_reuse=3, draw="least_used", device=device), 20)
+    counts = collections.Counter(i for b in batches for i in b["index"].tolist())
+    assert max(counts.values()) <= 3
+    full = take(stream(draw="uniform", eviction="random", device=device), 9)
+    first = stream(draw="uniform", eviction="random", device=device)
+    head = take(first, 4)
+    state = first.state_dict()
+    resumed = stream(draw="uniform", eviction="random", device=device)
+    resumed.load_state_dict(state)
+    rest = take(resumed, 5)
+    assert same([{k: v.cpu() for k, v in b.items()} for b in head + rest], [{k: v.cpu() for k, v in b.items()} for b in full])
+
+
+def test_the_training_loop_places_a_reservoir_built_without_a_device(tmp_path):
+    from surrogate.models import build_model
+    from surrogate.train import train
+
+    s = stream(device=None, sim_budget=16, max_reuse=1)
+    placed = []
+    place = s.place
+    s.place = lambda device: (placed.append(device), place(device))
+    model = build_model("fno", 1, 1, 1, len(PDE.PARAMS), bc=PDE.grid.bc, width=4, modes=2, layers=1)
+    out = train(model, DataLoader(s, batch_size=None), 3, tmp_path / "run", log_every=1)
+    s.close()
+    assert placed == [torch.device("cpu")] and out["steps"] == 3 and s.res.device == torch.device("cpu")
+
+
+def test_a_thread_solve_reaches_the_reservoir_through_dlpack_with_the_same_values():
+    from datasets import _bridge
+
+    numpy_out = _bridge.solve_job(PDE.config(), 3, [0, 1, 2, 3])
+    torch_out = _bridge.solve_job(PDE.config(), 3, [0, 1, 2, 3], on_device=True)
+    assert isinstance(torch_out["u"], torch.Tensor) and not isinstance(numpy_out["u"], torch.Tensor)
+    assert np.array_equal(torch_out["u"].cpu().numpy(), numpy_out["u"])
+    assert np.array_equal(torch_out["params"], numpy_out["params"])
+
+
+@pytest.mark.parametrize("bad, message", [
+    ("gpu", "device='gpu' not allowed; allowed: cpu, cuda, cuda:N (None: the training device)"),
+    ("mps", "device='mps' not allowed; allowed: cpu, cuda, cuda:N (None: the training device)"),
+    ("cuda:x", "device='cuda:x' not allowed; allowed: cpu, cuda, cuda:N (None: the training device)"),
+    ("cuda:99", "device='cuda:99' not allowed: torch sees"),
+])
+def test_a_bad_device_is_one_line(bad, message):
+    with pytest.raises(ValueError) as err:
+        stream(device=bad)
+    assert str(err.value).startswith(message) and "\n" not in str(err.value)
+
+
+def test_cuda_without_a_gpu_is_one_line():
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    with pytest.raises(ValueError, match=r"^device='cuda' not allowed: torch sees no GPU here; allowed: cpu$"):
+        stream(device="cuda")
+
+
+def test_a_device_without_room_is_one_line_with_the_bytes_asked_and_free(monkeypatch):
+    import datasets.reservoir as reservoir
+
+    monkeypatch.setattr(reservoir, "free_bytes", lambda device: (123456, 80 * 2**30))
+    with pytest.raises(ValueError) as err:
+        reservoir.check_room(torch.device("cuda", 0), 10**9, "capacity=1000 (1000 trajectories)")
+    assert str(err.value) == ("device='cuda:0' cannot hold capacity=1000 (1000 trajectories): it asks 1000000000 bytes "
+                              "(0.93 GiB) and cuda:0 has 123456 bytes free (0.00 of 80.0 GiB); allowed: a smaller "
+                              "capacity, or device='cpu'")
+    reservoir.check_room(torch.device("cpu"), 10**15, "anything")  # the host: checked against RAM elsewhere
+
+
+@CUDA
+def test_a_reservoir_larger_than_the_gpu_is_refused_in_one_line():
+    with pytest.raises(ValueError, match=r"^device='cuda:\d' cannot hold capacity=1000000000 .* asks \d+ bytes .* has \d+ "
+                                         r"bytes free"):
+        stream(capacity=10**9, device="cuda")
+
+
+@CUDA
+def test_train_run_with_a_reservoir_on_the_gpu(tmp_path):
+    from surrogate.runs import train_run
+
+    cfg = {"kind": "reservoir", "capacity": 16, "max_reuse": 2, "solve_batch": 8, "mode": "deterministic"}
+    s = train_run(PDE, "stream", tmp_path / "run", model_cfg={"width": 8, "modes": 4, "layers": 1}, steps=6,
+                  batch_size=4, n_test=2, checkpoint_every=0, device="cuda", data_cfg=cfg)
+    assert s["steps"] == 6 and s["data_stats"]["inserted"] >= 8
