@@ -742,19 +742,29 @@ def _check_resume(args: argparse.Namespace, ranks: int) -> tuple[dict, dict]:
 
 def _launch_train(args: argparse.Namespace, ranks: int) -> None:
     """`train --ddp N`: the checks here (one line, before anything starts), then N spawned ranks that meet through
-    a file; rank 0's output is shown, and the first failure's one line is raised here after the others are stopped."""
+    a file; rank 0's output is shown, and the first failure's one line is raised here after the others are stopped.
+    A reservoir with --producer dask and no --scheduler gets one embedded cluster here that every rank submits to."""
+    import contextlib
     import multiprocessing as mp
     import tempfile
     from multiprocessing.connection import wait
     from pathlib import Path
 
     if args.resume is not None:
-        _check_resume(args, ranks)
+        data_cfg = _check_resume(args, ranks)[0]["data_cfg"] or {}
     else:
         _check_new_train(args, ranks)
-    with tempfile.TemporaryDirectory(prefix="pdestream-ddp-") as tmp:
+        data_cfg = reservoir_cfg(args) or {}
+    with tempfile.TemporaryDirectory(prefix="pdestream-ddp-") as tmp, contextlib.ExitStack() as stack:
+        env = {}
+        if data_cfg.get("producer") == "dask" and not data_cfg.get("scheduler"):
+            # one pool for every rank: a cluster of --workers processes here, which all ranks' reservoirs submit to
+            from datasets.distributed import dask_client
+            from datasets.ranks import SHARED_SCHEDULER
+
+            env[SHARED_SCHEDULER] = stack.enter_context(dask_client(None, data_cfg.get("workers", 1))).scheduler.address
         ctx = mp.get_context("spawn")  # JAX is not fork-safe
-        procs = [ctx.Process(target=_train_rank, args=(r, ranks, args, tmp), daemon=False) for r in range(ranks)]
+        procs = [ctx.Process(target=_train_rank, args=(r, ranks, args, tmp, env), daemon=False) for r in range(ranks)]
         for proc in procs:
             proc.start()
         interrupted = False
@@ -783,15 +793,16 @@ def _launch_train(args: argparse.Namespace, ranks: int) -> None:
                            + (f": {tail[0]}" if tail else ""))
 
 
-def _train_rank(rank: int, ranks: int, args: argparse.Namespace, tmp: str) -> None:
-    """One rank of `train --ddp N` (a spawned process): the environment torchrun would give it, then `train`. Its
-    user error goes to TMP/rank{rank}.err for the launcher to show once; ranks other than 0 print nothing."""
+def _train_rank(rank: int, ranks: int, args: argparse.Namespace, tmp: str, env: dict) -> None:
+    """One rank of `train --ddp N` (a spawned process): the environment torchrun would give it (and ``env``: the
+    shared Dask cluster's address), then `train`. Its user error goes to TMP/rank{rank}.err for the launcher to
+    show once; ranks other than 0 print nothing."""
     from pathlib import Path
 
     from surrogate.ddp import INIT_ENV
 
     os.environ.update(RANK=str(rank), LOCAL_RANK=str(rank), WORLD_SIZE=str(ranks), LOCAL_WORLD_SIZE=str(ranks),
-                      **{INIT_ENV: f"file://{tmp}/rendezvous"})
+                      **{INIT_ENV: f"file://{tmp}/rendezvous"}, **env)
     if rank > 0:  # their output would repeat rank 0's; a crash's traceback is kept for the launcher
         sys.stdout = open(os.devnull, "w")
         sys.stderr = open(Path(tmp) / f"rank{rank}.log", "w", buffering=1)

@@ -10,7 +10,8 @@ bit. In deterministic mode a rank's batch sequence is a pure function of (PDE co
 Producers: each rank's stream opens its own producer. ``producer="thread"``: one solver thread per rank (per
 device); ``producer="dask", scheduler="tcp://host:8786"``: every rank submits its jobs to that one cluster, one
 pool of solver processes for all ranks (a job is a pure function of its arguments, so who solves it changes
-nothing). An embedded Dask cluster (no scheduler) would be one cluster per rank.
+nothing). ``producer="dask"`` without a scheduler: the cluster named by the environment variable
+PDESTREAM_DASK_SCHEDULER (``pdestream train --ddp N`` starts one and names it for its ranks), else each rank's own.
 
 State: ``RankStates`` wraps a data source so that ``state_dict()`` gathers every rank's state into one
 rank-keyed dict (a collective: every rank calls it at the same step; rank 0 writes it) and
@@ -19,10 +20,14 @@ rank-keyed dict (a collective: every rank calls it at the same step; rank 0 writ
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import torch
 
 from .reservoir import ReservoirStream
+
+SHARED_SCHEDULER = "PDESTREAM_DASK_SCHEDULER"  # the Dask cluster every rank's producer="dask" submits to
 
 
 def placement(rank: int | None = None, world_size: int | None = None) -> tuple[int, int]:
@@ -67,6 +72,8 @@ class RankReservoirStream(ReservoirStream):
             if share < 1:
                 raise ValueError(f"sim_budget={sim_budget} not allowed with {self.world_size} ranks: rank {self.rank} "
                                  f"would solve nothing; must be >= {self.world_size}")
+        if kwargs.get("producer") == "dask" and not kwargs.get("scheduler") and os.environ.get(SHARED_SCHEDULER):
+            kwargs["scheduler"] = os.environ[SHARED_SCHEDULER]  # the launcher's one cluster (not in run.json)
         super().__init__(pde, seed=seed, sim_budget=share, **kwargs)
         if self.world_size > 1:
             self.proposal.rng = np.random.default_rng([self.seed, 2, self.world_size, self.rank])
