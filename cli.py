@@ -552,7 +552,7 @@ def add_train(sub) -> None:
     p.add_argument("--out", metavar="RUN_DIR", help="run directory (required for a new run; a resumed run keeps its own): run.json, "
                    "checkpoint.pt, metrics.csv/json, model.pt")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run from its checkpoint.pt, with the "
-                                                       "settings of its run.json (only --threads may go with it)")
+                                                       "settings of its run.json (only --threads, --steps and --ddp may go with it)")
     p.add_argument("--seed", type=int, default=0, help="model initialization and data seed")
     p.add_argument("--test-samples", type=int, default=32, help="held-out trajectories for the test errors")
     p.add_argument("--checkpoint-every", type=int, default=100, metavar="N",
@@ -821,7 +821,8 @@ def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
     how = "" if mode["name"] == "one-step" else f" ({', '.join(f'{k} {v}' for k, v in mode.items() if k != 'name')})"
     if mode["name"] != "one-step":
         how = f" --mode {mode['name']}{how}"
-    print(f"trained {model}{how} on {source} for {s['steps']} steps in {s['wall']:.1f} s "
+    on = f" on {s['ranks']} ranks" if s.get("ranks") else ""  # (each rank its own data; the counts are all ranks')
+    print(f"trained {model}{how} on {source}{on} for {s['steps']} steps in {s['wall']:.1f} s "
           f"(waiting for data {s['t_data']:.1f} s = {100 * s['data_share']:.1f}% of the loop, normalization draw "
           f"included; computing {s['t_compute']:.1f} s); "
           f"{s['trajectories_seen']} trajectories, final loss {s['final_loss']:.4g}")
@@ -832,7 +833,8 @@ def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
           + (f", rollout rel L2 at the last frame {t['rollout_final']:.4f}" if "rollout_final" in t else ""))
     if "data_stats" in s and "reuse_mean" in s["data_stats"]:
         d = s["data_stats"]
-        print(f"reservoir: {d['inserted']} trajectories solved, {d['evicted']} evicted, reuse mean {d['reuse_mean']:.2f} "
+        who = f"rank 0's reservoir (of {s['ranks']} ranks)" if s.get("ranks") else "reservoir"
+        print(f"{who}: {d['inserted']} trajectories solved, {d['evicted']} evicted, reuse mean {d['reuse_mean']:.2f} "
               f"(max {d['reuse_max']:.2f}); waiting for solves {100 * d['wait_share']:.1f}% of the time since the "
               "first batch (the reservoir's own clock: the loop's waiting share above also counts the normalization "
               "draw and handing batches over)")
