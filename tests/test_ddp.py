@@ -165,22 +165,22 @@ def test_two_gloo_ranks_disjoint_reproducible_equal_weights_and_exact_resume(tmp
 
 @pytest.mark.slow
 @pytest.mark.skipif(distributed is None, reason="dask not installed: pip install -e '.[dask]'")
-def test_cli_ddp_one_dask_pool_equals_a_thread_per_rank_and_resumes(tmp_path, capsys):
+def test_cli_ddp_one_dask_pool_equals_a_thread_per_rank_and_resumes(tmp_path, capfd):
     common = ["train", "burgers1d", "--set", "n=32", "--set", "n_frames=4", "--view", "operator",
               *[a for k, v in TINY_MODEL.items() for a in ("--model-set", f"{k}={v}")], "--batch-size", "4",
               "--test-samples", "2", "--reservoir", "--reservoir-mode", "deterministic", "--capacity", "8",
               "--solve-batch", "4", "--schedule", "constant", "--threads", "1", "--ddp", "2", "--seed", str(SEED)]
     threads, pool = tmp_path / "threads", tmp_path / "pool"
     assert cli.main([*common, "--steps", str(STEPS), "--out", str(threads)]) == 0
-    out = capsys.readouterr().out
+    out = capfd.readouterr().out  # (rank 0 prints from its own process: captured at the file descriptor)
     assert "on 2 ranks" in out and out.count("trained fno") == 1  # rank 0 alone reports
     # one embedded Dask cluster that both ranks' reservoirs submit to; half the steps, then resumed to STEPS
     assert cli.main([*common, "--steps", str(HALF), "--producer", "dask", "--workers", "1", "--out", str(pool)]) == 0
     assert cli.main(["train", "--resume", str(pool), "--steps", str(STEPS), "--ddp", "2", "--threads", "1"]) == 0
-    assert f"resumed {pool} at step {HALF} of {STEPS}" in capsys.readouterr().out
+    assert f"resumed {pool} at step {HALF} of {STEPS}" in capfd.readouterr().out
     a, b = (torch.load(d / "model.pt", weights_only=True)["model"] for d in (threads, pool))
     assert all(torch.equal(a[k], b[k]) for k in a)  # who solves changes nothing: sample identity
     (tmp_path / "x.h5").touch()
     assert cli.main([*common, "--steps", "2", "--source", str(tmp_path / "x.h5"), "--out", str(tmp_path / "c")]) == 2
-    err = capsys.readouterr().err
+    err = capfd.readouterr().err
     assert err.count("\n") == 1 and "--ddp goes with --source stream" in err and not (tmp_path / "c").exists()
