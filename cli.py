@@ -516,14 +516,15 @@ def _interactive_compare(args: argparse.Namespace) -> None:
     print(f"table: {args.out}/compare.md, compare.csv, compare.json; figure: {args.out}/compare.png")
 
 
-def default_threads(source: str) -> int:
+def default_threads(source: str, ranks: int = 1) -> int:
     """torch CPU threads for `train` without --threads: the cores this process may use minus one (at least 1).
     On the stream the solver thread needs that core (torch's threads fighting it ran 6x slower on 2 cores). On a
     cache the loader, the OS and other programs do: torch's spinning OpenMP threads on both cores of a busy
     2-core machine trained 17-30x slower than one thread (50 FNO steps of the README's command: 72.4 s vs 4.2 s,
-    41.9 s vs 1.5 s), same losses. ``source`` ("stream" or a cache path) is kept for callers; both get this."""
+    41.9 s vs 1.5 s), same losses. ``source`` ("stream" or a cache path) is kept for callers; both get this.
+    ranks: processes training on this machine (--ddp N), which share its cores."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, cores - 1)
+    return max(1, cores // ranks - 1)
 
 
 def _set_threads(threads: int | None) -> None:
@@ -551,12 +552,17 @@ def add_train(sub) -> None:
     p.add_argument("--out", metavar="RUN_DIR", help="run directory (required for a new run; a resumed run keeps its own): run.json, "
                    "checkpoint.pt, metrics.csv/json, model.pt")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run from its checkpoint.pt, with the "
-                                                       "settings of its run.json (only --threads may go with it)")
+                                                       "settings of its run.json (only --threads, --steps and --ddp may go with it)")
     p.add_argument("--seed", type=int, default=0, help="model initialization and data seed")
     p.add_argument("--test-samples", type=int, default=32, help="held-out trajectories for the test errors")
     p.add_argument("--checkpoint-every", type=int, default=100, metavar="N",
                    help="write RUN_DIR/checkpoint.pt every N steps (0: only at the end)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run in RUN_DIR")
+    p.add_argument("--ddp", type=int, metavar="N",
+                   help="train on N ranks (processes started here; gloo on the CPU, nccl with --device cuda), each "
+                        "with its own data (disjoint samples; --reservoir: a reservoir per rank), gradients averaged; "
+                        "--batch-size is per rank. Under torchrun the ranks come from WORLD_SIZE instead. A run "
+                        "resumes with the same N")
     _add_model_args(p, steps=None, batch_size=32, lr=1e-3)  # None: --steps given or not, known with --resume
     p.add_argument("--schedule", default="cosine", help="learning rate over the run: cosine (decay to 1%% of "
                    "--lr), onecycle (warm-up, then anneal) or constant (a run extended by --resume --steps "
@@ -569,7 +575,7 @@ def add_train(sub) -> None:
 
 RUN_MARKERS = ("run.json", "checkpoint.pt", "model.pt", "metrics.json")  # any of them: the directory holds a run
 # what may go with --resume: --threads (how, not what) and --steps (a new total, which extends the run)
-RESUME_ALLOWED = {"resume", "threads", "steps", "command", "func"}
+RESUME_ALLOWED = {"resume", "threads", "steps", "ddp", "command", "func"}
 TRAIN_STEPS = 1000  # train's --steps for a new run (its default is None, so that --resume knows if it was given)
 
 
@@ -580,12 +586,35 @@ def _settings_given_with_resume(args: argparse.Namespace) -> list[str]:
     return ["PDE name" if k == "pde" else "--pde" if k == "pde_option" else "--" + k.replace("_", "-") for k in given]
 
 
-def cmd_train(args: argparse.Namespace) -> None:
-    if args.resume is not None:
-        return _resume_train(args)
-    from pathlib import Path
+def _train_ranks(args: argparse.Namespace) -> int:
+    """The ranks this `train` runs on: --ddp N, or torchrun's WORLD_SIZE (they must agree when both are set)."""
+    from surrogate.ddp import env_world
 
-    from surrogate.runs import remove_staging, replace_run, staging_dir, train_run
+    env = env_world()
+    if args.ddp is not None:
+        if args.ddp < 1:
+            raise ValueError(f"--ddp={args.ddp} not allowed; must be an integer >= 1 (ranks)")
+        if env > 1 and args.ddp != env:
+            raise ValueError(f"--ddp {args.ddp} but torchrun started {env} ranks (WORLD_SIZE={env}); drop --ddp or "
+                             "make them agree")
+    return env if env > 1 else (args.ddp or 1)
+
+
+def cmd_train(args: argparse.Namespace) -> None:
+    from surrogate import ddp
+
+    ranks = _train_ranks(args)
+    if ranks > 1 and ddp.env_world() == 1:  # --ddp N: check here, then start the N ranks
+        return _launch_train(args, ranks)
+    try:
+        _resume_train(args, ranks) if args.resume is not None else _new_train(args, ranks)
+    finally:
+        ddp.finish()
+
+
+def _check_new_train(args: argparse.Namespace, ranks: int):
+    """(pde, named settings, held run files) of a new `train`, after its checks (ValueError: one line)."""
+    from pathlib import Path
 
     if args.out is None:
         raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
@@ -600,23 +629,42 @@ def cmd_train(args: argparse.Namespace) -> None:
     if pde.STEADY and args.mode != "one-step":  # the modes' own refusal would send the user to --view next_step
         raise ValueError(f"--mode {args.mode} unrolls over frames and {pde.NAME} is steady (no frames); allowed: "
                          "--mode one-step")
-    _set_threads(default_threads(args.source) if args.threads is None else args.threads)
     if args.test_samples < 1:
         raise ValueError(f"--test-samples={args.test_samples} not allowed; must be >= 1")
     if args.checkpoint_every < 0:
         raise ValueError(f"--checkpoint-every={args.checkpoint_every} not allowed; must be >= 0 (0: only at the end)")
+    if ranks > 1 and args.source != "stream":
+        raise ValueError(f"--ddp goes with --source stream (with or without --reservoir); a cache ({args.source}) is "
+                         "not sharded across ranks")
+    reservoir_cfg(args)  # its one-line refusals before any rank starts
+    return pde, named, held
+
+
+def _new_train(args: argparse.Namespace, ranks: int) -> None:
+    from pathlib import Path
+
+    from surrogate import ddp
+    from surrogate.runs import remove_staging, replace_run, staging_dir, train_run
+
+    pde, named, held = _check_new_train(args, ranks)
+    _set_threads(default_threads(args.source, ranks) if args.threads is None else args.threads)
+    ddp.init_from_env(args.device)  # several ranks: every rank has passed the checks once all have joined
     out = Path(args.out)
+    kw = dict(model=args.model, model_cfg=_parse_sets(args.model_set),
+              view=_view_from_args(args, "operator" if pde.STEADY else "next_step"),  # steady: no frames
+              steps=TRAIN_STEPS if args.steps is None else args.steps, batch_size=args.batch_size, lr=args.lr,
+              schedule=args.schedule, seed=args.seed, n_test=args.test_samples, explicit=named[1],
+              checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args), device=args.device,
+              mode=mode_cfg(args))
+    if ddp.world()[0] > 0:  # another rank than 0: trains, writes nothing, leaves the files and their clean-up to 0
+        train_run(pde, args.source, out, **kw)
+        return
     # --overwrite over a run: the new run is built beside it and moves in only when it finishes (or is interrupted
     # with a checkpoint, which is then worth resuming); a refusal, a divergence or an early Ctrl-C leave the old one
     target = staging_dir(out) if held else out
     before = _snapshot(target)
     try:
-        s = train_run(pde, args.source, target, model=args.model, model_cfg=_parse_sets(args.model_set),
-                      view=_view_from_args(args, "operator" if pde.STEADY else "next_step"),  # steady: no frames
-                      steps=TRAIN_STEPS if args.steps is None else args.steps, batch_size=args.batch_size,
-                      lr=args.lr, schedule=args.schedule, seed=args.seed, n_test=args.test_samples, explicit=named[1],
-                      checkpoint_every=args.checkpoint_every, data_cfg=reservoir_cfg(args), device=args.device,
-                      mode=mode_cfg(args))
+        s = train_run(pde, args.source, target, **kw)
     except KeyboardInterrupt:
         if target != out:
             raise KeyboardInterrupt(_overwrite_left(target, out)) from None
@@ -656,26 +704,116 @@ def _train_left(out, before) -> str:
     return "nothing was kept (no checkpoint yet); run the command again to start over"
 
 
-def _resume_train(args: argparse.Namespace) -> None:
+def _resume_train(args: argparse.Namespace, ranks: int = 1) -> None:
     """`train --resume RUN_DIR`: everything from RUN_DIR/run.json; other settings are refused (one line)."""
+    from surrogate import ddp
+    from surrogate.runs import resume_run
+
+    run = _check_resume(args, ranks)
+    settings = run[0]
+    _set_threads(default_threads(settings["source"], ranks) if args.threads is None else args.threads)
+    steps = settings["steps"] if args.steps is None else args.steps
+    ddp.init_from_env(settings.get("device", "cpu"))
+    ddp.barrier()  # every rank has read run.json before rank 0 may rewrite it (an extension)
+    writes = ddp.world()[0] == 0
+    if steps != settings["steps"] and writes:
+        print(f"extending {args.resume} from {settings['steps']} to {steps} steps at its step {run[1]['step']}; "
+              f"the {settings.get('schedule', 'cosine')} schedule is re-planned for {steps} steps")
+    s, step = resume_run(args.resume, run, steps)
+    if writes:
+        print(f"resumed {args.resume} at step {step} of {steps}")
+        _print_run(s, settings["model"], settings["source"], settings["n_test"], args.resume)
+
+
+def _check_resume(args: argparse.Namespace, ranks: int) -> tuple[dict, dict]:
+    """read_run's (settings, checkpoint) of `train --resume RUN_DIR`, after its checks (ValueError: one line)."""
     from pathlib import Path
 
-    from surrogate.runs import RUN_FILE, read_run, resume_run
+    from surrogate.runs import RUN_FILE, check_ranks, read_run
 
     given = _settings_given_with_resume(args)
     if given:
         raise ValueError(f"--resume takes the run's settings from {Path(args.resume) / RUN_FILE}; "
-                         f"drop {', '.join(given)} (only --threads and --steps may go with it)")
+                         f"drop {', '.join(given)} (only --threads, --steps and --ddp may go with it)")
     run = read_run(Path(args.resume), args.steps)  # refuse a non-run or a finished run before anything else
-    settings = run[0]
-    _set_threads(default_threads(settings["source"]) if args.threads is None else args.threads)
-    steps = settings["steps"] if args.steps is None else args.steps
-    if steps != settings["steps"]:
-        print(f"extending {args.resume} from {settings['steps']} to {steps} steps at its step {run[1]['step']}; "
-              f"the {settings.get('schedule', 'cosine')} schedule is re-planned for {steps} steps")
-    s, step = resume_run(args.resume, run, steps)
-    print(f"resumed {args.resume} at step {step} of {steps}")
-    _print_run(s, settings["model"], settings["source"], settings["n_test"], args.resume)
+    check_ranks(args.resume, run[0], ranks)
+    return run
+
+
+def _launch_train(args: argparse.Namespace, ranks: int) -> None:
+    """`train --ddp N`: the checks here (one line, before anything starts), then N spawned ranks that meet through
+    a file; rank 0's output is shown, and the first failure's one line is raised here after the others are stopped.
+    A reservoir with --producer dask and no --scheduler gets one embedded cluster here that every rank submits to."""
+    import contextlib
+    import multiprocessing as mp
+    import tempfile
+    from multiprocessing.connection import wait
+    from pathlib import Path
+
+    if args.resume is not None:
+        data_cfg = _check_resume(args, ranks)[0]["data_cfg"] or {}
+    else:
+        _check_new_train(args, ranks)
+        data_cfg = reservoir_cfg(args) or {}
+    with tempfile.TemporaryDirectory(prefix="pdestream-ddp-") as tmp, contextlib.ExitStack() as stack:
+        env = {}
+        if data_cfg.get("producer") == "dask" and not data_cfg.get("scheduler"):
+            # one pool for every rank: a cluster of --workers processes here, which all ranks' reservoirs submit to
+            from datasets.distributed import dask_client
+            from datasets.ranks import SHARED_SCHEDULER
+
+            env[SHARED_SCHEDULER] = stack.enter_context(dask_client(None, data_cfg.get("workers", 1))).scheduler.address
+        ctx = mp.get_context("spawn")  # JAX is not fork-safe
+        procs = [ctx.Process(target=_train_rank, args=(r, ranks, args, tmp, env), daemon=False) for r in range(ranks)]
+        for proc in procs:
+            proc.start()
+        interrupted = False
+        try:
+            while any(p.exitcode is None for p in procs) and all(p.exitcode in (None, 0) for p in procs):
+                wait([p.sentinel for p in procs if p.exitcode is None], timeout=1.0)
+        except KeyboardInterrupt:  # the terminal's Ctrl-C reached the ranks too: they leave as one process would
+            interrupted = True
+        for proc in procs:  # a failed rank leaves the others waiting in a collective: stop them
+            proc.join(60 if interrupted else 0.5)
+            if proc.exitcode is None:
+                proc.terminate()
+                proc.join()
+        failed = [r for r, p in enumerate(procs) if p.exitcode != 0]
+        if not failed and not interrupted:
+            return
+        said = [(Path(tmp) / f"rank{r}.err") for r in range(ranks)]
+        said = [f.read_text() for f in said if f.is_file()]
+        if interrupted or any(procs[r].exitcode == 130 for r in failed):
+            raise KeyboardInterrupt(said[0] if said else "")
+        if said:
+            raise ValueError(said[0])
+        log = Path(tmp) / f"rank{failed[0]}.log"
+        tail = log.read_text().strip().splitlines()[-1:] if log.is_file() else []
+        raise RuntimeError(f"rank {failed[0]} of {ranks} failed (exit code {procs[failed[0]].exitcode})"
+                           + (f": {tail[0]}" if tail else ""))
+
+
+def _train_rank(rank: int, ranks: int, args: argparse.Namespace, tmp: str, env: dict) -> None:
+    """One rank of `train --ddp N` (a spawned process): the environment torchrun would give it (and ``env``: the
+    shared Dask cluster's address), then `train`. Its user error goes to TMP/rank{rank}.err for the launcher to
+    show once; ranks other than 0 print nothing."""
+    from pathlib import Path
+
+    from surrogate.ddp import INIT_ENV
+
+    os.environ.update(RANK=str(rank), LOCAL_RANK=str(rank), WORLD_SIZE=str(ranks), LOCAL_WORLD_SIZE=str(ranks),
+                      **{INIT_ENV: f"file://{tmp}/rendezvous"}, **env)
+    if rank > 0:  # their output would repeat rank 0's; a crash's traceback is kept for the launcher
+        sys.stdout = open(os.devnull, "w")
+        sys.stderr = open(Path(tmp) / f"rank{rank}.log", "w", buffering=1)
+    try:
+        cmd_train(args)
+    except USER_ERRORS as err:
+        (Path(tmp) / f"rank{rank}.err").write_text(str(err))
+        sys.exit(2)
+    except KeyboardInterrupt as err:
+        (Path(tmp) / f"rank{rank}.err").write_text(str(err))
+        sys.exit(130)
 
 
 def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
@@ -683,7 +821,8 @@ def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
     how = "" if mode["name"] == "one-step" else f" ({', '.join(f'{k} {v}' for k, v in mode.items() if k != 'name')})"
     if mode["name"] != "one-step":
         how = f" --mode {mode['name']}{how}"
-    print(f"trained {model}{how} on {source} for {s['steps']} steps in {s['wall']:.1f} s "
+    on = f" on {s['ranks']} ranks" if s.get("ranks") else ""  # (each rank its own data; the counts are all ranks')
+    print(f"trained {model}{how} on {source}{on} for {s['steps']} steps in {s['wall']:.1f} s "
           f"(waiting for data {s['t_data']:.1f} s = {100 * s['data_share']:.1f}% of the loop, normalization draw "
           f"included; computing {s['t_compute']:.1f} s); "
           f"{s['trajectories_seen']} trajectories, final loss {s['final_loss']:.4g}")
@@ -694,7 +833,8 @@ def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
           + (f", rollout rel L2 at the last frame {t['rollout_final']:.4f}" if "rollout_final" in t else ""))
     if "data_stats" in s and "reuse_mean" in s["data_stats"]:
         d = s["data_stats"]
-        print(f"reservoir: {d['inserted']} trajectories solved, {d['evicted']} evicted, reuse mean {d['reuse_mean']:.2f} "
+        who = f"rank 0's reservoir (of {s['ranks']} ranks)" if s.get("ranks") else "reservoir"
+        print(f"{who}: {d['inserted']} trajectories solved, {d['evicted']} evicted, reuse mean {d['reuse_mean']:.2f} "
               f"(max {d['reuse_max']:.2f}); waiting for solves {100 * d['wait_share']:.1f}% of the time since the "
               "first batch (the reservoir's own clock: the loop's waiting share above also counts the normalization "
               "draw and handing batches over)")

@@ -405,10 +405,15 @@ class ReservoirStream(IterableDataset):
             budget = self.solve_batch if self.sim_budget is None else min(self.solve_batch, self.sim_budget - self.next_index)
             if budget <= 0 or self._paced():
                 return
-            indices = np.arange(self.next_index, self.next_index + budget, dtype=np.int64)
+            indices = self._sample_indices(self.next_index, budget)
             params = self.proposal.propose(budget)
             self.next_index += budget
             self.pending.append((indices, params, self._submit(indices, params)))
+
+    def _sample_indices(self, first: int, n: int) -> np.ndarray:
+        """Global sample indices of this stream's submissions first .. first + n - 1: int64 [n], 0, 1, 2, ...
+        here (a DDP rank's stream, ``datasets.ranks.RankReservoirStream``, takes every world_size-th)."""
+        return np.arange(first, first + n, dtype=np.int64)
 
     def _paced(self) -> bool:
         """Async mode with target_reuse: hold the next solve until the draws so far have paid for the solves

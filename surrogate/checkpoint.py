@@ -17,6 +17,7 @@ import torch
 from torch import nn
 
 from datasets.normalize import Normalization
+from datasets.ranks import check_world, keyed, placement
 from datasets.schema import atomic_write  # the one atomic write (fsyncs the file and its directory)
 
 from .models import build_model, model_spec
@@ -60,12 +61,13 @@ def data_state_owner(loader) -> tuple[str | None, object]:
     """("dataset" | "batch_sampler", the object) holding the data source's resumable state, or (None, None).
 
     A stream (or the reservoir) keeps its own ``state_dict()``; a cache source keeps it in its batch sampler
-    (surrogate.data.EpochBatchSampler).
+    (surrogate.data.EpochBatchSampler). Under several torch.distributed ranks the object is a
+    ``datasets.ranks.RankStates`` around it: every rank's state, rank-keyed, in the one checkpoint.
     """
     for name in ("dataset", "batch_sampler"):
         owner = getattr(loader, name, None)
         if callable(getattr(owner, "state_dict", None)) and callable(getattr(owner, "load_state_dict", None)):
-            return name, owner
+            return name, keyed(owner)
     return None, None
 
 
@@ -100,6 +102,8 @@ def restore(ckpt: dict, model: nn.Module, opt, sched, loader, steps: int) -> tup
     if (saved is None) != (owner is None) or (saved is not None and saved["owner"] != owner_name):
         raise ValueError(f"checkpoint data state ({saved and saved['owner']}) does not fit this data source "
                          f"({owner_name})")
+    if saved is not None:
+        check_world(saved["state"], placement()[1])  # a state of other ranks: refused before anything is loaded
     fresh = sched.state_dict()  # the schedule of this run's own length, at step 0
     model.load_state_dict(ckpt["model"])
     opt.load_state_dict(ckpt["optimizer"])

@@ -13,6 +13,7 @@ from torch.utils.data import DataLoader, Sampler
 
 import datasets
 from datasets.export import as_cache
+from datasets.ranks import RankReservoirStream, placement
 
 from .checks import check_count
 
@@ -77,14 +78,23 @@ def train_loader(pde, source: str, view, batch_size: int, seed: int = 0, data_se
     epoch by an ``EpochBatchSampler`` seeded with ``seed`` (resumable: ``loader.batch_sampler.state_dict()``).
     data_cfg: opaque settings of the data source recorded in run.json (None: the defaults above). device: where
     the model trains; a training reservoir keeps its trajectories there (checked for room before anything runs).
+    Under several torch.distributed ranks: the stream shards its samples by rank, a reservoir is this rank's
+    ``RankReservoirStream`` (disjoint samples), and a cache is refused (it is not sharded by rank).
     """
+    rank, ranks = placement()
+    if ranks > 1 and source != "stream":
+        raise ValueError(f"training on {ranks} ranks reads --source stream (with or without --reservoir); a cache "
+                         f"({source}) is not sharded across ranks")
     if source == "stream" and (data_cfg or {}).get("kind") == "reservoir":
         settings = {k: v for k, v in data_cfg.items() if k != "kind"}
         unknown = sorted(set(settings) - RESERVOIR_SETTINGS)
         if unknown:
             raise ValueError(f"unknown reservoir setting(s) {unknown}; allowed: {', '.join(sorted(RESERVOIR_SETTINGS))}")
-        stream = datasets.ReservoirStream(pde, seed=data_seed, view=view, batch_size=batch_size, device=device,
-                                          **settings)
+        if ranks > 1:
+            settings.update(rank=rank, world_size=ranks)  # (one rank alone is the plain reservoir, bit for bit)
+        kind = RankReservoirStream if ranks > 1 else datasets.ReservoirStream
+        stream = kind(pde, seed=data_seed, view=view, batch_size=batch_size, device=device,
+                      **settings)
         return DataLoader(stream, batch_size=None), stream.pde
     if source == "stream":
         stream = datasets.TrajectoryStream(pde, seed=data_seed, view=view, batch_size=batch_size)

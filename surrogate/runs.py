@@ -15,6 +15,7 @@ import torch
 
 import datasets
 
+from . import ddp
 from .budget_plot import plot_reservoir_run
 from .checkpoint import CHECKPOINT, atomic_write, load_train_state
 from .data import check_device, test_set, train_loader
@@ -101,7 +102,8 @@ def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict 
     mode: the training mode's settings ({"name", "unroll", "coarse_n"}, see ``surrogate.modes``; None:
     one-step); a mode that unrolls trains on the view with k_out = the frames it needs.
     Writes run.json, checkpoint.pt, metrics.csv, model.pt and metrics.json (with the test errors) to out_dir;
-    returns the summary.
+    returns the summary. Under several torch.distributed ranks (``surrogate.ddp``) every rank calls this; rank 0
+    writes the files, run.json records "world_size", and the run resumes only with that many ranks.
     """
     mode = make_mode(mode).settings()  # checked and normalized before anything is built
     view = training_view(make_mode(mode), datasets.make_view(view))
@@ -111,6 +113,8 @@ def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict 
                 "data_seed": seed if data_seed is None else data_seed, "n_test": n_test,
                 "checkpoint_every": checkpoint_every, "data_cfg": data_cfg, "label": label, "device": device,
                 "mode": mode}
+    if ddp.world()[1] > 1:  # (absent: one process)
+        settings["world_size"] = ddp.world()[1]
     return _run(pde, settings, Path(out_dir), tests=tests, explicit=explicit)
 
 
@@ -127,16 +131,28 @@ def resume_run(run_dir, run: tuple[dict, dict] | None = None, steps: int | None 
     """
     run_dir = Path(run_dir)
     settings, ckpt = read_run(run_dir, steps) if run is None else run
+    check_ranks(run_dir, settings, ddp.world()[1])
     from datasets import pde_from_config  # the one door to the generator (surrogate never imports it)
 
+    writes = ddp.world()[0] == 0
     for name in RUN_FILES:  # temp files of atomic writes cut short by the kill
-        for stray in run_dir.glob(f".{name}.*.tmp"):
+        for stray in run_dir.glob(f".{name}.*.tmp") if writes else ():
             stray.unlink(missing_ok=True)
     if steps is not None and steps != settings["steps"]:
         extended = [*settings.get("extended", []), {"steps": settings["steps"], "at_step": int(ckpt["step"])}]
         settings = {**settings, "steps": steps, "extended": extended}
-        atomic_write(run_dir / RUN_FILE, json.dumps(settings, indent=2).encode())
+        if writes:
+            atomic_write(run_dir / RUN_FILE, json.dumps(settings, indent=2).encode())
     return _run(pde_from_config(settings["pde"]), settings, run_dir, resume=ckpt), int(ckpt["step"])
+
+
+def check_ranks(run_dir, settings: dict, ranks: int) -> None:
+    """ValueError (one line) when the run in ``run_dir`` (its run.json ``settings``) trained on another number of
+    ranks than ``ranks``: each rank's data state is its own, so a run resumes only with the same world size."""
+    saved = settings.get("world_size", 1)
+    if saved != ranks:
+        raise ValueError(f"--resume {run_dir}: the run trained on {saved} rank(s) and this one has {ranks}; resume it "
+                         f"with the same world size ({'--ddp ' + str(saved) if saved > 1 else 'without --ddp'})")
 
 
 def read_run(run_dir: Path, steps: int | None = None) -> tuple[dict, dict]:
@@ -181,7 +197,8 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     mode = make_mode(s.get("mode"))  # run.json of runs before modes existed: one-step
     if s["source"] == "stream":
         check_fits(mode, view, pde)  # the mode's own words, before the stream checks the window
-    device = check_device(s.get("device", "cpu"))  # runs from before --device trained on the CPU
+    device = check_device(ddp.rank_device(s.get("device", "cpu")))  # runs from before --device: the CPU;
+    # several ranks on "cuda": this rank's GPU, where its reservoir lives too
     loader, data_pde = train_loader(pde, s["source"], view, s["batch_size"], seed=s["seed"], data_seed=s["data_seed"],
                                     explicit=explicit, data_cfg=s["data_cfg"], device=device)
     check_fits(mode, view, data_pde)
@@ -196,12 +213,14 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     coarse = getattr(mode, "coarse_n", None)  # solver-in-the-loop: the model works on the coarse grid
     space = (coarse,) * data_pde.NDIM if coarse else tuple(data_pde.grid.shape)
     check_output(net, space)  # your own model: its output shape, before run.json is written
+    writes = ddp.world()[0] == 0  # several ranks: rank 0 writes the run's files
     if resume is None:
         s = {**s, "pde": data_pde.config()}  # the data's PDE: a cache's own settings
         try:
             text = json.dumps(s, indent=2)
         except TypeError as err:
             raise ValueError(f"run settings must be JSON values (data_cfg, model_cfg): {err}") from None
+    if resume is None and writes:
         out.mkdir(parents=True, exist_ok=True)
         for name in RUN_OUTPUTS:  # a fresh run in a directory (a staging one for --overwrite) leaves no stale file
             (out / name).unlink(missing_ok=True)
@@ -222,10 +241,11 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
         summary = train(net, loader, s["steps"], out, lr=s["lr"], schedule=s["schedule"], meta=meta,
                         label=s["label"], checkpoint_every=s["checkpoint_every"], resume=resume, finish=finish,
                         mode=mode)
-        if hasattr(dataset, "report"):  # a reservoir: its reuse and where it simulated, as data and a picture
+        if hasattr(dataset, "report") and writes:  # a reservoir: its reuse and where it simulated (rank 0's)
             report = dataset.report()
             atomic_write(out / "reservoir.json", json.dumps(report, indent=2).encode())
             plot_reservoir_run(out / "reservoir.png", report)
+        ddp.barrier()  # several ranks: all return once rank 0 has written the run (a resume may follow at once)
     finally:
         if hasattr(dataset, "close"):  # producers stop now, not at interpreter exit
             dataset.close()

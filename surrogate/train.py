@@ -33,6 +33,7 @@ from torch.utils.data import DataLoader
 
 from datasets.normalize import Normalization
 
+from . import ddp
 from .checkpoint import (
     TrainProgress,
     atomic_write,
@@ -181,12 +182,20 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
     that counts what the caller did before (solving a cache). after_step: ``after_step(step, fraction,
     elapsed)`` after every optimizer step (fraction: of the run done, ``Stop.fraction``), e.g. to snapshot the
     model. The summary's "stop" says what ended the run: "steps", "seconds" or "data" (a ``once`` pass ran out).
+    Under torch.distributed (``surrogate.ddp``) every rank calls this with its own loader: gradients are averaged
+    each step, the logged loss and example counts are the ranks' mean and sum, and rank 0 alone writes files.
     """
     stop = Stop(steps=steps) if not isinstance(steps, Stop) else steps
     check_train_settings(stop, lr, schedule, checkpoint_every)
+    rank, ranks = ddp.world()
+    writes = rank == 0  # rank 0 writes the run's files
+    if ranks > 1 and (stop.steps is None or stop.once):  # the ranks would stop at different steps and wait forever
+        raise ValueError(f"training on {ranks} ranks stops after a number of steps (not seconds, nor when a pass of "
+                         "the data ends)")
     mode = OneStep() if mode is None else mode
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    if writes:
+        out.mkdir(parents=True, exist_ok=True)
     ndim, device = model.ndim, model_device(model)
     opt = torch.optim.Adam(model.parameters(), lr=lr)  # the first one imports torch's compiler: seconds
     start = time.perf_counter() if started is None else started
@@ -200,6 +209,8 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
             t0 = time.perf_counter()
             normalizer = source_normalization(loader)
             progress.t_data += time.perf_counter() - t0  # a calibration draw (or reading a cache) is data time
+    ddp.broadcast_model(model)  # several ranks: one start (after a resume they all loaded the same weights)
+    normalizer = ddp.agree(normalizer)
     if isinstance(loader, DataLoader) and loader.generator is None:
         # Each pass over a DataLoader draws its workers' base seed from its generator, else from the global torch
         # RNG. A resumed run starts a pass where the uninterrupted one did not, so that draw would shift the RNG
@@ -212,7 +223,7 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
     batches = once(loader) if stop.once else forever(loader)
     if resume is not None:  # last, so that nothing above draws from it; the data source may (random windows)
         torch.set_rng_state(resume["torch_rng"])
-    bar = RunProgress(label, stop.steps, progress.step)
+    bar = RunProgress(label, stop.steps, progress.step) if writes else None
     model.train()
     step, loss_value, ended = progress.step, math.nan, "steps" if stop.steps is not None else "seconds"
     on_device = None if normalizer is None else normalizer.to(device)  # the statistics where the batches are
@@ -231,9 +242,9 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
         loss, per_example = mode.step_loss(model, batch, on_device, step)  # per_example: float64 CPU [B]
         opt.zero_grad(set_to_none=True)
         loss.backward()
+        loss_value, examples = ddp.average_gradients(model, loss, len(batch["x"]))  # one process: loss, batch size
         opt.step()
         sched.step()
-        loss_value = loss.item()
         t2 = time.perf_counter()
         if not math.isfinite(loss_value):
             raise ValueError(f"{label}: training diverged at step {step} (loss={loss_value}); lower --lr")
@@ -241,7 +252,7 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
             report_losses(batch, per_example)
         progress.step = step
         progress.t_data, progress.t_compute = progress.t_data + t1 - t0, progress.t_compute + t2 - t1
-        progress.examples += len(batch["x"])
+        progress.examples += examples
         progress.trajectories.update(batch["index"].tolist())
         elapsed = progress.wall + time.perf_counter() - start
         last = stop.fraction(step, elapsed) >= 1
@@ -253,19 +264,27 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
                 progress.data_stats = _plain(stats())
                 row.update({k: v for k, v in progress.data_stats.items() if k not in row})  # the loop's own win
             progress.rows.append(row)
-            bar.show(step, _postfix(loss_value, progress.data_stats))
+            if bar is not None:
+                bar.show(step, _postfix(loss_value, progress.data_stats))
         if after_step is not None:
             after_step(step, stop.fraction(step, elapsed), elapsed)
         if checkpoint_every and step % checkpoint_every == 0 and not last:
-            save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, stop.steps, start, meta))
-            write_metrics_csv(out / "metrics.csv", progress.rows)
-    bar.close()
+            progress.trajectories = ddp.union(progress.trajectories)
+            state = train_state(model, opt, sched, normalizer, loader, progress, stop.steps, start, meta)  # all ranks
+            if writes:
+                save_train_state(out, state)
+                write_metrics_csv(out / "metrics.csv", progress.rows)
+    if bar is not None:
+        bar.close()
     if normalizer is None:
         raise ValueError(f"{label}: the data ran out before the first step")
     if progress.rows and progress.rows[-1]["step"] != progress.step:  # a run of seconds or one pass ends anywhere
         progress.rows.append({**progress.rows[-1], "step": progress.step, "loss": loss_value})
-    write_metrics_csv(out / "metrics.csv", progress.rows)
-    save_train_state(out, train_state(model, opt, sched, normalizer, loader, progress, stop.steps, start, meta))
+    progress.trajectories = ddp.union(progress.trajectories)
+    state = train_state(model, opt, sched, normalizer, loader, progress, stop.steps, start, meta)  # all ranks
+    if writes:
+        write_metrics_csv(out / "metrics.csv", progress.rows)
+        save_train_state(out, state)
     wall = progress.wall + time.perf_counter() - start
     summary = {"label": label, "steps": progress.step, "stop": ended,
                "final_loss": progress.rows[-1]["loss"] if progress.rows else math.nan,
@@ -276,9 +295,13 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
                **(meta or {})}
     if progress.data_stats is not None:
         summary["data_stats"] = progress.data_stats
+    if ranks > 1:
+        summary["ranks"] = ranks
     summary["mode"] = mode.settings()
     if hasattr(mode, "stats"):  # e.g. the oracle's examples dropped for a non-finite solver answer
         summary["mode_stats"] = mode.stats()
+    if not writes:  # the other ranks: the summary without test errors, and no file
+        return {**summary, "normalizer": normalizer, "curve": progress.rows}
     if finish is not None:
         summary.update(finish(model, normalizer))
     save_checkpoint(out / "model.pt", model, normalizer, step=progress.step, meta=meta)

@@ -219,7 +219,7 @@ def test_resume_refusals(tmp_path, capsys):
     assert sorted(p.name for p in empty.iterdir()) == ["checkpoint.pt", "run.json"]
     # settings given with --resume are refused, all named in one line, before the directory is even looked at
     refused(["train", "burgers1d", "--resume", str(empty), "--steps", "5", "--set", "n=64"],
-            "drop PDE name, --set (only --threads and --steps may go with it)")
+            "drop PDE name, --set (only --threads, --steps and --ddp may go with it)")
     refused(["train", "--resume", str(empty), "--out", str(tmp_path / "o"), "--overwrite"], "drop --out, --overwrite")
     refused(["train", "burgers1d", *TINY_PDE, "--steps", "2"], "give --out RUN_DIR for a new run")
     # a new run is not started over an unfinished one
