@@ -22,7 +22,9 @@ examples (through the usual views) from what it holds, so a solve is reused inst
   order, so what a batch holds depends on timing.
 - **loss-driven sampling** (``proposal="loss"``): the next solves' parameters come from a
   ``datasets.proposal.ParamProposal`` fed by the per-sample losses the training loop reports
-  (``report_losses``); ``"uniform"`` leaves the parameters to the solver's own draws.
+  (``report_losses``); ``proposal="active"`` adds an uncertainty signal (the disagreement of a small bootstrap
+  ensemble of loss models over the parameter box, fitted in a background thread) and a proposal that can hold a
+  sharp mode, over a uniform floor; ``"uniform"`` leaves the parameters to the solver's own draws.
 
 ``max_reuse=1``, ``capacity=solve_batch``, ``draw="least_used"`` and deterministic mode is the plain FIFO
 stream. Sample identity is (PDE config, seed, index, params): samples are numbered 0, 1, 2, ... in
@@ -184,7 +186,7 @@ class ReservoirStream(IterableDataset):
     [1, max_reuse]): pace the solver so each trajectory pays for about this many uses (async: a solve is
     submitted only once the draws have paid for the previous ones; deterministic: the schedule's rate; default:
     async solves as fast as it can, deterministic uses max_reuse); proposal "uniform" |
-    "loss" (+ proposal_kwargs for ParamProposal); sim_budget: stop after this many solved trajectories
+    "loss" | "active" (+ proposal_kwargs for ParamProposal); sim_budget: stop after this many solved trajectories
     (None: endless). Batches are dicts as from the views, with "params" [B, P] and "index" [B].
     The stream runs in the training process (num_workers=0); its producers are the parallelism.
     """
@@ -391,7 +393,7 @@ class ReservoirStream(IterableDataset):
     # --- the training loop's hooks ------------------------------------------------------------------
     def report_losses(self, batch: dict, per_example: torch.Tensor) -> None:
         """Per-example training losses [B] of ``batch`` (the loop calls this after each step): they steer
-        ``proposal="loss"`` and feed the loss-over-domain plot in any mode."""
+        ``proposal="loss"`` and ``"active"`` and feed the loss-over-domain plot in any mode."""
         self.proposal.record(batch["params"].detach().cpu().numpy(), per_example.detach().cpu().numpy())
 
     def stats(self) -> dict:
@@ -531,6 +533,7 @@ class ReservoirStream(IterableDataset):
         """Stop the producers (a thread's job in flight stops at its next bounded call, worker processes end at
         once; stopped jobs are solved again on the next iteration); the stream can be iterated again afterwards."""
         if self._closer is not None:
+            self.proposal.close()
             closer, self._closer, self._executor = self._closer, None, None
             self.pending = collections.deque((i, p, None) for i, p, _f in self.pending)
             closer.close()
