@@ -15,8 +15,8 @@ In ``"active"`` mode the loss signal is kept and an uncertainty signal added, bo
 
 - a **loss model**: a ridge regression of log(recent per-sample loss) on Gaussian bumps over the unit box (a
   lattice of centres, plus constant and linear terms), refitted every ``refit`` reported losses;
-- its **uncertainty**: ``ensemble`` (>= 2) such regressions, each on a bootstrap resample of the window; the
-  spread (std) of their predictions is high where few or discordant losses were seen (AL4PDE's and OGAS's
+- its **uncertainty**: ``ensemble`` (>= 2) such regressions, each on a bootstrap resample of the window and
+  with its own random prior; the spread (std) of their predictions is high where few or discordant losses were seen (AL4PDE's and OGAS's
   ensemble-disagreement signal, on the loss model instead of K surrogates, so it costs milliseconds);
 - the **proposal**: ``candidates`` uniform points of the box, resampled with probability proportional to
   exp(power (mean + kappa spread)) of the predicted log-loss and jittered by about one candidate spacing, so
@@ -301,8 +301,12 @@ def features(z: np.ndarray, centres: np.ndarray) -> np.ndarray:
 def loss_model(points: np.ndarray, losses: np.ndarray, at: np.ndarray, ensemble: int,
                rng: np.random.Generator, ridge: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
     """Predicted log-loss at ``at`` [C, D] from recorded (points [W, D], losses [W]): the mean [C] and the spread
-    (std, [C]) of ``ensemble`` ridge regressions, each fitted to a bootstrap resample of the window. Losses <= 0
-    count as the smallest positive one (log of 0 is not a number); inputs are finite (``record``)."""
+    (std, [C]) of ``ensemble`` ridge regressions, each fitted to a bootstrap resample of the window and shrunk
+    toward its own random prior weights (Osband et al.'s randomized priors) rather than toward zero: where losses
+    were seen the data outweigh the priors and the members agree; where none were, each keeps its prior and they
+    disagree (plain bootstrapped ridge regressions would all shrink to the same value there, with no spread).
+    The priors' scale is the spread of the log-losses. Losses <= 0 count as the smallest positive one (log of 0
+    is not a number); inputs are finite (``record``)."""
     positive = losses[losses > 0]
     y = np.log(np.maximum(losses, positive.min() if len(positive) else 1e-30))
     centres = lattice(points.shape[1])
@@ -310,11 +314,14 @@ def loss_model(points: np.ndarray, losses: np.ndarray, at: np.ndarray, ensemble:
     k = phi.shape[1]
     reg = ridge * np.eye(k)
     reg[0, 0] = 0.0  # the mean level is not shrunk
+    scale = max(float(y.std()), 1e-3)
     preds = np.empty((ensemble, len(at)))
     for e in range(ensemble):
         b = rng.integers(len(y), size=len(y))
+        prior = scale * rng.standard_normal(k)
+        prior[0] = 0.0
         a = phi[b]
-        w = np.linalg.solve(a.T @ a / len(b) + reg, a.T @ y[b] / len(b))
+        w = np.linalg.solve(a.T @ a / len(b) + reg, a.T @ y[b] / len(b) + reg @ prior)
         preds[e] = phi_at @ w
     return preds.mean(0), preds.std(0, ddof=1)
 

@@ -60,6 +60,7 @@ from .phases import phase
 from .train import Stop, source_normalization, train
 
 ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss", "reservoir_active")
+DEFAULT_ARMS = ARMS[:4]  # reservoir_active is named to be run (one more arm x seeds on every default comparison)
 PROPOSALS = {"reservoir_loss": "loss", "reservoir_active": "active"}  # the steered arms' proposal modes
 
 
@@ -69,7 +70,7 @@ class BudgetConfig:
 
     budget_s: float | None = None
     sim_budget: int | None = None
-    arms: tuple = ARMS
+    arms: tuple = DEFAULT_ARMS
     model: str = "fno"
     model_cfg: dict = field(default_factory=lambda: dict(COMPARE_FNO))
     view: object = "operator"

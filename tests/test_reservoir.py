@@ -172,7 +172,9 @@ def test_other_producers_give_the_same_deterministic_batches(kind):
     (dict(draw="newest"), "draw='newest' not allowed; allowed: uniform, least_used"),
     (dict(eviction="lifo"), "eviction='lifo' not allowed; allowed: fifo, random"),
     (dict(mode="sync"), "mode='sync' not allowed; allowed: async, deterministic"),
-    (dict(proposal="active"), "proposal='active' not allowed; allowed: uniform, loss"),
+    (dict(proposal="bayes"), "proposal='bayes' not allowed; allowed: uniform, loss, active"),
+    (dict(proposal="active", proposal_kwargs={"ensemble": 1}),
+     "proposal ensemble=1 not allowed; must be an integer >= 2 (the uncertainty signal is the disagreement of its members)"),
 ])
 def test_bad_settings_are_one_line_errors(kw, message):
     with pytest.raises(ValueError) as err:
