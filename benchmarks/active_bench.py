@@ -6,7 +6,7 @@ p95 and max over seeds against the uniform reservoir's (ratio uniform / arm: > 1
 verdict against the seed spread (the two arms' standard deviations added), and two figures for the "why":
 
 - ``explained``: the share of the variance of log(per-trajectory error) of the uniform arm that the parameters
-  explain (test trajectories binned along each random parameter, 8 bins per axis in the unit box; the rest
+  explain (test trajectories binned in the unit box, about 8 cells: 8 bins for one parameter, 3 x 3 for two; the rest
   comes from the initial condition, which a proposal over parameters cannot steer);
 - ``in/out``: the steered arm's error ratio (uniform / arm, mean over seeds of per-trajectory errors) in the
   unit-box bin with the highest uniform error, and in all the others.
@@ -35,13 +35,15 @@ def _seed_errors(out: Path, arm: str, seeds: int) -> np.ndarray:
     return np.array([r["errors"]["test"] for r in runs])
 
 
-def _bins(result: dict, bins: int = 8) -> np.ndarray:
-    """Bin id [N] of each test trajectory: its random parameters in the unit box, ``bins`` per axis."""
+def _bins(result: dict) -> np.ndarray:
+    """Bin id [N] of each test trajectory: its random parameters in the unit box, about 8 cells in all (8 bins
+    for one parameter, 3 x 3 for two), so that each cell holds enough trajectories for its mean to mean something."""
     from datasets.proposal import ParamProposal
 
     domains = {k: tuple(v) if not isinstance(v, (list, tuple)) else (v[0], v[1], v[2], tuple(v[3]))
                for k, v in result["domains"].items()}
     z = ParamProposal(domains, mode="uniform").to_unit(np.asarray(result["test_params"]["test"]))
+    bins = max(2, round(8 ** (1 / max(z.shape[1], 1))))
     cell = np.minimum((z * bins).astype(int), bins - 1)
     return (cell * bins ** np.arange(z.shape[1])).sum(1) if z.shape[1] else np.zeros(len(z), int)
 
