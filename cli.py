@@ -416,6 +416,10 @@ def _add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                         "faster than training then leaves its core to training (default: solve flat out)")
     g.add_argument("--proposal-floor", type=float, default=0.25,
                    help="loss-driven sampling: share of uniform parameter draws (no region starves)")
+    g.add_argument("--proposal-ensemble", type=int, default=5, metavar="K",
+                   help="active sampling: bootstrap loss models whose disagreement is the uncertainty signal (>= 2)")
+    g.add_argument("--proposal-kappa", type=float, default=1.0,
+                   help="active sampling: weight of that disagreement against the predicted log-loss")
     g.add_argument("--solve-batch", type=int, default=16, help="trajectories per solver job")
     if not train:
         return
@@ -427,12 +431,20 @@ def _add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                    help="who solves: a background thread, spawned processes, or a Dask cluster")
     g.add_argument("--workers", type=int, default=1, help="solver processes (--producer process, or an embedded Dask cluster)")
     g.add_argument("--scheduler", metavar="ADDRESS", help="--producer dask: a running scheduler, e.g. tcp://host:8786")
-    g.add_argument("--proposal", choices=("uniform", "loss"), default="uniform",
-                   help="parameters of the next solves: the domain's own draws, or steered toward high training loss")
+    g.add_argument("--proposal", choices=("uniform", "loss", "active"), default="uniform",
+                   help="parameters of the next solves: the domain's own draws, steered toward high training loss, "
+                        "or active (a loss model + its ensemble's disagreement over the parameter box)")
 
 
 RESERVOIR_OPTIONS = ("capacity", "max_reuse", "reservoir_mode", "target_reuse", "proposal_floor", "solve_batch",
-                     "warmup", "eviction", "draw", "producer", "workers", "scheduler", "proposal")
+                     "warmup", "eviction", "draw", "producer", "workers", "scheduler", "proposal",
+                     "proposal_ensemble", "proposal_kappa")
+
+
+def _active_kwargs(args: argparse.Namespace) -> dict:
+    """--proposal-ensemble / --proposal-kappa as ParamProposal settings (an ensemble < 2 is refused there, in one
+    line: one model has no disagreement)."""
+    return {"ensemble": args.proposal_ensemble, "kappa": args.proposal_kappa}
 
 
 def reservoir_cfg(args: argparse.Namespace) -> dict | None:
@@ -453,7 +465,7 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
     cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,
            "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
            "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,
-           "proposal_kwargs": {"floor": args.proposal_floor}, "solve_batch": args.solve_batch,
+           "proposal_kwargs": {"floor": args.proposal_floor, **_active_kwargs(args)}, "solve_batch": args.solve_batch,
            "target_reuse": args.target_reuse}
     return {k: v for k, v in cfg.items() if v is not None}
 
@@ -858,12 +870,14 @@ def add_compare(sub) -> None:
                    help="explicit shifted domain, e.g. --shift-set nu='loguniform(0.1,0.2)'")
     p.add_argument("--format", default="h5", choices=["h5", "zarr"], help="cache format")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier compare output in DIR")
-    b = p.add_argument_group("budget-matched comparison (precomputed / fifo / reservoir / reservoir_loss)")
+    b = p.add_argument_group("budget-matched comparison (precomputed / fifo / reservoir / reservoir_loss / "
+                             "reservoir_active)")
     b.add_argument("--budget", type=float, metavar="SECONDS",
                    help="every arm gets this wall-clock time (solving, caching and training all count)")
     b.add_argument("--sim-budget", type=int, metavar="N",
                    help="every arm gets N solved trajectories and --steps optimizer steps")
-    b.add_argument("--arms", default=",".join(BUDGET_ARMS), help="comma-separated subset of the arms")
+    b.add_argument("--arms", default=",".join(BUDGET_ARMS), help="comma-separated subset of the arms (default: all "
+                   "but reservoir_active, the active-sampling reservoir: add it by name)")
     b.add_argument("--precompute-share", type=float, default=None,
                    help="--budget: share of the precomputed arm's time spent solving its dataset (default: sized "
                         "as a careful user would: as many trajectories as it can solve and train on --max-reuse "
@@ -1021,8 +1035,8 @@ def _budget_compare(args: argparse.Namespace) -> None:
                        lr=args.lr, steps=args.steps, precompute_share=args.precompute_share, capacity=args.capacity,
                        max_reuse=args.max_reuse, target_reuse=args.target_reuse, reservoir_mode=args.reservoir_mode,
                        sim_warmup_share=args.sim_warmup_share,
-                       proposal_floor=args.proposal_floor, solve_batch=args.solve_batch,
-                       n_test=32 if args.quick and args.test_samples == 128 else args.test_samples, shift=args.shift,
+                       proposal_floor=args.proposal_floor, proposal_kwargs=_active_kwargs(args),
+                       solve_batch=args.solve_batch, n_test=32 if args.quick and args.test_samples == 128 else args.test_samples, shift=args.shift,
                        seeds=(1 if args.quick else 3) if args.seeds is None else args.seeds, device=args.device)
     budget_compare(pde, args.out, cfg, shift_overrides=_parse_sets(args.shift_set))
     print((Path(args.out) / "compare.md").read_text(), end="")

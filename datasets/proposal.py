@@ -10,6 +10,24 @@ reported by the training loop (``record``) and proposes (``propose``) a mixture:
   (unit-box units) and reflected back into the box: a draw whose density follows the recent loss over the box
   (not loss x where earlier proposals went, which would pile every solve into one corner).
 
+In ``"active"`` mode the loss signal is kept and an uncertainty signal added, both predicted over the whole box
+(a candidate parameter has no solution yet, so neither its loss nor a model's disagreement on it can be measured):
+
+- a **loss model**: a ridge regression of log(recent per-sample loss) on Gaussian bumps over the unit box (a
+  lattice of centres, plus constant and linear terms), refitted every ``refit`` reported losses;
+- its **uncertainty**: ``ensemble`` (>= 2) such regressions, each on a bootstrap resample of the window and
+  with its own random prior; the spread (std) of their predictions is high where few or discordant losses were seen (AL4PDE's and OGAS's
+  ensemble-disagreement signal, on the loss model instead of K surrogates, so it costs milliseconds);
+- the **proposal**: ``candidates`` uniform points of the box, resampled with probability proportional to
+  exp(power (mean + kappa spread)) of the predicted log-loss and jittered by about one candidate spacing, so
+  its density follows the acquisition and can hold a sharp mode at one end of a parameter; with probability
+  ``floor`` a uniform draw instead (no region starves).
+
+The fit runs in a background thread, off the training loop: it starts in ``record`` on a snapshot of the
+window and is used from the next refit on (one refit interval later, ``refit`` losses), by which time it is
+done, so the loop does not wait for it. Which fit a proposal uses is therefore fixed by the count of losses
+reported, not by timing: the proposals stay a pure function of (seed, losses, call order).
+
 Everything is numpy and seeded: the sequence of proposals is a pure function of (seed, the losses recorded
 and the order of calls), so a deterministic reservoir stays deterministic. ``state_dict`` captures it all.
 """
@@ -17,10 +35,11 @@ and the order of calls), so a deterministic reservoir stays deterministic. ``sta
 from __future__ import annotations
 
 import math
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
-MODES = ("uniform", "loss")
+MODES = ("uniform", "loss", "active")
 
 
 class ParamProposal:
@@ -28,11 +47,15 @@ class ParamProposal:
 
     domains: {name: (kind, low, high, options)} for every PDE parameter in PARAMS order (``_bridge.param_domains``);
     "fixed" ones are left to the solver. mode: "uniform" (propose() returns None: the solver draws from the
-    key as usual) or "loss". floor: share of uniform draws in "loss" mode, in (0, 1]. window: recent losses kept.
+    key as usual), "loss" or "active" (the module docstring). floor: share of uniform draws in "loss" and
+    "active" mode, in (0, 1]. window: recent losses kept. "active" only: ensemble (>= 2) bootstrap loss models,
+    kappa (>= 0) the weight of their spread against their mean (log-loss units), refit: losses between fits,
+    candidates: uniform points of the box the proposal resamples.
     """
 
     def __init__(self, domains: dict, mode: str = "loss", floor: float = 0.25, window: int = 2048,
-                 bandwidth: float = 0.05, power: float = 1.0, seed: int = 0):
+                 bandwidth: float = 0.05, power: float = 1.0, seed: int = 0, ensemble: int = 5, kappa: float = 1.0,
+                 refit: int = 256, candidates: int = 2048):
         if mode not in MODES:
             raise ValueError(f"proposal={mode!r} not allowed; allowed: {', '.join(MODES)}")
         if not (isinstance(floor, (int, float)) and 0 < floor <= 1):
@@ -43,7 +66,17 @@ class ParamProposal:
             raise ValueError(f"proposal power={power!r} not allowed; must be in [0, 8]")
         if isinstance(window, bool) or not isinstance(window, int) or window < 1:
             raise ValueError(f"proposal window={window!r} not allowed; must be an integer >= 1")
+        if isinstance(ensemble, bool) or not isinstance(ensemble, int) or ensemble < 2:
+            raise ValueError(f"proposal ensemble={ensemble!r} not allowed; must be an integer >= 2 (the uncertainty "
+                             "signal is the disagreement of its members)")
+        if not (isinstance(kappa, (int, float)) and 0 <= kappa <= 100):
+            raise ValueError(f"proposal kappa={kappa!r} not allowed; must be in [0, 100] (weight of the ensemble spread)")
+        for name, value in (("refit", refit), ("candidates", candidates)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"proposal {name}={value!r} not allowed; must be an integer >= 1")
         self.mode, self.floor, self.window, self.bandwidth, self.power = mode, float(floor), window, float(bandwidth), float(power)
+        self.ensemble, self.kappa, self.refit, self.candidates = ensemble, float(kappa), refit, candidates
+        self.seed = seed
         self.names = list(domains)  # every PDE parameter, PARAMS order (the columns of batch["params"])
         self.domains = {k: tuple(v) for k, v in domains.items()}
         self.random = [k for k, (kind, *_rest) in self.domains.items() if kind != "fixed"]
@@ -54,6 +87,11 @@ class ParamProposal:
         self.reports = 0
         self.dropped = 0  # recorded rows refused for a non-finite loss or parameter
         self._w, self._w_at = None, 0  # pick probabilities of the recorded points, as of self._w_at reports
+        # "active": the fit in use, the one running in the background (started at the last refit), and how many
+        # fits were started; a fit is (candidates [C, D], probabilities [C]) or None (no fit yet: uniform)
+        self._fit, self._next, self.fits = None, None, 0
+        self._fit_at = 0  # reports when the last fit was started
+        self._pool = None
 
     # --- unit box <-> parameter values -------------------------------------------------------------
     def to_unit(self, values: np.ndarray) -> np.ndarray:
@@ -104,6 +142,21 @@ class ParamProposal:
         self.points = np.concatenate([self.points, self.to_unit(params[ok])])[-self.window :]
         self.losses = np.concatenate([self.losses, losses[ok]])[-self.window :]
         self.reports += int(ok.sum())
+        if self.mode == "active" and self.reports - self._fit_at >= self.refit:
+            self._start_fit()
+
+    def _start_fit(self) -> None:
+        """Refit point: the fit started at the previous refit goes into use (waiting for it only if it has not
+        finished in a whole refit interval), and a new one starts in the background on a copy of the window."""
+        if self._next is not None:
+            self._fit = self._next.result()
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="proposal-fit")
+        args = (self.points.copy(), self.losses.copy(), self.candidates, self.ensemble, self.kappa, self.power,
+                np.random.default_rng([self.seed, 7, self.fits]))
+        self._next = self._pool.submit(active_fit, *args)
+        self.fits += 1
+        self._fit_at = self.reports
 
     def propose(self, n: int) -> dict[str, np.ndarray] | None:
         """Explicit values {name: float64 [n]} for the next n solves; None in "uniform" mode (key draws)."""
@@ -112,7 +165,15 @@ class ParamProposal:
         d = len(self.random)
         z = self.rng.random((n, d))  # the uniform part
         steer = self.rng.random(n) >= self.floor
-        if steer.any() and len(self.losses):
+        if self.mode == "active":
+            if steer.any() and self._fit is not None:
+                cand, prob = self._fit
+                pick = self.rng.choice(len(prob), size=int(steer.sum()), p=prob)
+                # about one candidate spacing: the density is continuous, yet as sharp as the candidates resolve
+                width = 0.5 * len(prob) ** (-1.0 / d)
+                moved = np.abs(cand[pick] + width * self.rng.standard_normal((len(pick), d)))
+                z[steer] = np.clip(1.0 - np.abs(1.0 - moved), 0.0, 1.0)
+        elif steer.any() and len(self.losses):
             # The recorded points were drawn from earlier proposals, so they crowd where the loss was high; weighting
             # them by loss alone would compound that (loss x crowding) and pile every solve into one corner. Divide
             # by the points' own kernel density so that the steered draws follow the loss, not the crowding.
@@ -159,7 +220,9 @@ class ParamProposal:
         """Everything the next proposals depend on (plain values; loads with torch.load(weights_only=True))."""
         return {"mode": self.mode, "rng": _plain(self.rng.bit_generator.state), "points": self.points.tolist(),
                 "losses": self.losses.tolist(), "proposed": list(self.proposed), "reports": self.reports, "dropped": self.dropped,
-                "weights": None if self._w is None else self._w.tolist(), "weights_at": self._w_at}
+                "weights": None if self._w is None else self._w.tolist(), "weights_at": self._w_at,
+                "fit": _fit_plain(self._fit), "next_fit": _fit_plain(None if self._next is None else self._next.result()),
+                "fits": self.fits, "fit_at": self._fit_at}
 
     def load_state_dict(self, state: dict) -> None:
         """Restore ``state_dict()`` output (the same domains and mode are required)."""
@@ -173,6 +236,34 @@ class ParamProposal:
         self.dropped = int(state.get("dropped", 0))  # states saved before the count existed have none
         self._w = None if state.get("weights") is None else np.asarray(state["weights"], np.float64)
         self._w_at = int(state.get("weights_at", 0))
+        self._fit = _fit_array(state.get("fit"), len(self.random))
+        following = _fit_array(state.get("next_fit"), len(self.random))
+        self._next = None
+        if following is not None:
+            self._next = Future()
+            self._next.set_result(following)
+        self.fits, self._fit_at = int(state.get("fits", 0)), int(state.get("fit_at", 0))
+
+    def __getstate__(self):
+        # copy.deepcopy / pickle: the background fit is resolved into its result, the thread pool is not copied
+        state = dict(self.__dict__)
+        state["_pool"] = None
+        state["_next"] = None if self._next is None else self._next.result()
+        return state
+
+    def __setstate__(self, state):
+        following = state.pop("_next")
+        self.__dict__.update(state)
+        self._next = None
+        if following is not None:
+            self._next = Future()
+            self._next.set_result(following)
+
+    def close(self) -> None:
+        """Let the background fit finish and the thread end (a later refit starts a new one)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
 
 
 def pick_weights(losses: np.ndarray, crowding: np.ndarray, power: float) -> np.ndarray:
@@ -188,6 +279,73 @@ def pick_weights(losses: np.ndarray, crowding: np.ndarray, power: float) -> np.n
         logw[positive] += power * np.log(losses[positive])
     w = np.exp(logw - logw.max())
     return w / w.sum()
+
+
+def lattice(d: int, target: int = 64, most: int = 12) -> np.ndarray:
+    """Centres of the loss model's bumps [M, D]: per axis m = clip(round(target ** (1 / D)), 3, most) evenly
+    spaced points of [0, 1] (D = 1: 12, D = 2: 8 x 8, D = 3: 4 x 4 x 4), all their combinations."""
+    m = int(min(most, max(3, round(target ** (1.0 / d)))))
+    axes = np.meshgrid(*[np.linspace(0, 1, m)] * d, indexing="ij")
+    return np.stack([a.reshape(-1) for a in axes], 1)
+
+
+def features(z: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """[N, D] unit points -> [N, 1 + D + M] features: constant, linear, and Gaussian bumps of width one lattice
+    spacing at ``centres`` [M, D]."""
+    m = round(len(centres) ** (1.0 / z.shape[1]))
+    width = 1.0 / max(m - 1, 1)
+    d2 = ((z[:, None, :] - centres[None]) ** 2).sum(-1)
+    return np.concatenate([np.ones((len(z), 1)), z - 0.5, np.exp(-0.5 * d2 / width**2)], 1)
+
+
+def loss_model(points: np.ndarray, losses: np.ndarray, at: np.ndarray, ensemble: int,
+               rng: np.random.Generator, ridge: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted log-loss at ``at`` [C, D] from recorded (points [W, D], losses [W]): the mean [C] and the spread
+    (std, [C]) of ``ensemble`` ridge regressions, each fitted to a bootstrap resample of the window and shrunk
+    toward its own random prior weights (Osband et al.'s randomized priors) rather than toward zero: where losses
+    were seen the data outweigh the priors and the members agree; where none were, each keeps its prior and they
+    disagree (plain bootstrapped ridge regressions would all shrink to the same value there, with no spread).
+    The priors' scale is the spread of the log-losses. Losses <= 0 count as the smallest positive one (log of 0
+    is not a number); inputs are finite (``record``)."""
+    positive = losses[losses > 0]
+    y = np.log(np.maximum(losses, positive.min() if len(positive) else 1e-30))
+    centres = lattice(points.shape[1])
+    phi, phi_at = features(points, centres), features(at, centres)
+    k = phi.shape[1]
+    reg = ridge * np.eye(k)
+    reg[0, 0] = 0.0  # the mean level is not shrunk
+    scale = max(float(y.std()), 1e-3)
+    preds = np.empty((ensemble, len(at)))
+    for e in range(ensemble):
+        b = rng.integers(len(y), size=len(y))
+        prior = scale * rng.standard_normal(k)
+        prior[0] = 0.0
+        a = phi[b]
+        w = np.linalg.solve(a.T @ a / len(b) + reg, a.T @ y[b] / len(b) + reg @ prior)
+        preds[e] = phi_at @ w
+    return preds.mean(0), preds.std(0, ddof=1)
+
+
+def active_fit(points: np.ndarray, losses: np.ndarray, candidates: int, ensemble: int, kappa: float,
+               power: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """One refit of the "active" proposal: ``candidates`` uniform points of the unit box [C, D] and their
+    probabilities [C], proportional to exp(power (mean + kappa spread)) of the loss model's predicted log-loss
+    (``loss_model``): a resampling of uniform points, so the proposal's density follows that acquisition."""
+    cand = rng.random((candidates, points.shape[1]))
+    mean, spread = loss_model(points, losses, cand, ensemble, rng)
+    score = power * (mean + kappa * spread)
+    w = np.exp(score - score.max())
+    return cand, w / w.sum()
+
+
+def _fit_plain(fit):
+    return None if fit is None else {"candidates": fit[0].tolist(), "prob": fit[1].tolist()}
+
+
+def _fit_array(fit, d: int):
+    if fit is None:
+        return None
+    return np.asarray(fit["candidates"], np.float64).reshape(-1, d), np.asarray(fit["prob"], np.float64)
 
 
 def _plain(state):

@@ -22,7 +22,9 @@ examples (through the usual views) from what it holds, so a solve is reused inst
   order, so what a batch holds depends on timing.
 - **loss-driven sampling** (``proposal="loss"``): the next solves' parameters come from a
   ``datasets.proposal.ParamProposal`` fed by the per-sample losses the training loop reports
-  (``report_losses``); ``"uniform"`` leaves the parameters to the solver's own draws.
+  (``report_losses``); ``proposal="active"`` adds an uncertainty signal (the disagreement of a small bootstrap
+  ensemble of loss models over the parameter box, fitted in a background thread) and a proposal that can hold a
+  sharp mode, over a uniform floor; ``"uniform"`` leaves the parameters to the solver's own draws.
 
 - **device**: the trajectories live on the training device (``device=``; None: the model's, through the
   training loop's ``place`` hook), a thread producer's solves are copied in from JAX's buffer there (DLPack) and
@@ -289,7 +291,7 @@ class ReservoirStream(IterableDataset):
     [1, max_reuse]): pace the solver so each trajectory pays for about this many uses (async: a solve is
     submitted only once the draws have paid for the previous ones; deterministic: the schedule's rate; default:
     async solves as fast as it can, deterministic uses max_reuse); proposal "uniform" |
-    "loss" (+ proposal_kwargs for ParamProposal); sim_budget: stop after this many solved trajectories
+    "loss" | "active" (+ proposal_kwargs for ParamProposal); sim_budget: stop after this many solved trajectories
     (None: endless). device: where the trajectories are kept and batches are gathered ("cpu", "cuda",
     "cuda:N"; None: the training device, which the training loop sets through ``place``, else the CPU): with
     the thread producer a solve on that GPU is copied in from JAX's buffer (DLPack, no host round trip), and
@@ -539,7 +541,7 @@ class ReservoirStream(IterableDataset):
     # --- the training loop's hooks ------------------------------------------------------------------
     def report_losses(self, batch: dict, per_example: torch.Tensor) -> None:
         """Per-example training losses [B] of ``batch`` (the loop calls this after each step): they steer
-        ``proposal="loss"`` and feed the loss-over-domain plot in any mode."""
+        ``proposal="loss"`` and ``"active"`` and feed the loss-over-domain plot in any mode."""
         params = batch["params"]
         if self._last is not None and params is self._last[0]:
             params = self._last[1]  # the same values, from the host: no wait for the device
@@ -677,6 +679,7 @@ class ReservoirStream(IterableDataset):
         """Stop the producers (a thread's job in flight stops at its next bounded call, worker processes end at
         once; stopped jobs are solved again on the next iteration); the stream can be iterated again afterwards."""
         if self._closer is not None:
+            self.proposal.close()
             closer, self._closer, self._executor = self._closer, None, None
             self.pending = collections.deque((i, p, None) for i, p, _f in self.pending)
             closer.close()

@@ -6,7 +6,9 @@ does: compiling, solving, writing and reading a cache, computing normalization s
 - ``precomputed``: solve N trajectories into a cache (HDF5), read it back, train epochs over it;
 - ``fifo``: the plain stream, every solve used once;
 - ``reservoir``: the stream through a training reservoir (reuse under a bound, uniform parameters);
-- ``reservoir_loss``: the reservoir with loss-driven parameter sampling.
+- ``reservoir_loss``: the reservoir with loss-driven parameter sampling;
+- ``reservoir_active``: the reservoir with active sampling (loss model + ensemble disagreement, a proposal that
+  can hold a sharp mode, a uniform floor: ``datasets.proposal``, mode "active").
 
 Two budgets:
 
@@ -57,7 +59,9 @@ from .modes import check_fits, make_mode, training_view
 from .phases import phase
 from .train import Stop, source_normalization, train
 
-ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")
+ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss", "reservoir_active")
+DEFAULT_ARMS = ARMS[:4]  # reservoir_active is named to be run (one more arm x seeds on every default comparison)
+PROPOSALS = {"reservoir_loss": "loss", "reservoir_active": "active"}  # the steered arms' proposal modes
 
 
 @dataclass
@@ -66,7 +70,7 @@ class BudgetConfig:
 
     budget_s: float | None = None
     sim_budget: int | None = None
-    arms: tuple = ARMS
+    arms: tuple = DEFAULT_ARMS
     model: str = "fno"
     model_cfg: dict = field(default_factory=lambda: dict(COMPARE_FNO))
     view: object = "operator"
@@ -80,6 +84,7 @@ class BudgetConfig:
     sim_warmup_share: float = 0.5  # sim budget: share of the solves a reservoir arm makes before training starts
     reservoir_mode: str = "async"
     proposal_floor: float = 0.25
+    proposal_kwargs: dict | None = None  # more ParamProposal settings for the steered arms (e.g. ensemble, kappa)
     solve_batch: int = 16
     seeds: int = 3  # repetitions per arm: model and data seeds 0..seeds-1 (mean, spread and verdicts)
     n_test: int = 128
@@ -225,8 +230,16 @@ def _loader(arm: str, pde, view, cfg: BudgetConfig, seed: int, out: Path, clock_
         mode="deterministic" if cfg.sim_budget is not None else cfg.reservoir_mode,
         target_reuse=None if cfg.sim_budget is not None else cfg.target_reuse,
         warmup=min(_warmup(cfg), cfg.capacity),
-        proposal="loss" if arm == "reservoir_loss" else "uniform", proposal_kwargs={"floor": cfg.proposal_floor})
+        proposal=PROPOSALS.get(arm, "uniform"), proposal_kwargs=_proposal_kwargs(cfg, arm))
     return DataLoader(stream, batch_size=None), {}
+
+
+def _proposal_kwargs(cfg: BudgetConfig, arm: str) -> dict:
+    """ParamProposal settings of ``arm``: the floor, plus ``cfg.proposal_kwargs`` those of its mode accepts
+    (the "active" mode's ensemble, kappa, refit and candidates go to reservoir_active only)."""
+    active_only = ("ensemble", "kappa", "refit", "candidates")
+    extra = {k: v for k, v in (cfg.proposal_kwargs or {}).items() if arm == "reservoir_active" or k not in active_only}
+    return {"floor": cfg.proposal_floor, **extra}
 
 
 def _warmup(cfg: BudgetConfig) -> int:
@@ -313,7 +326,8 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
     build_model(cfg.model, pde.NDIM, *mode.channels(pde, view), len(pde.PARAMS), bc=pde.grid.bc, **cfg.model_cfg)
     datasets.ReservoirStream(pde, view=view, batch_size=cfg.batch_size, capacity=cfg.capacity,
                              solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode,
-                             proposal_kwargs={"floor": cfg.proposal_floor})  # settings checked before any work
+                             proposal="active" if "reservoir_active" in cfg.arms else "uniform",
+                             proposal_kwargs=_proposal_kwargs(cfg, "reservoir_active"))  # settings checked before any work
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

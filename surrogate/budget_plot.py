@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-COLORS = {"precomputed": "tab:red", "fifo": "tab:gray", "reservoir": "tab:blue", "reservoir_loss": "tab:green"}
+COLORS = {"precomputed": "tab:red", "fifo": "tab:gray", "reservoir": "tab:blue", "reservoir_loss": "tab:green",
+          "reservoir_active": "tab:purple"}
 
 
 def plot_budget(path, result: dict, domains: dict) -> None:
@@ -52,9 +53,11 @@ def plot_budget(path, result: dict, domains: dict) -> None:
         ax_dom.text(0.5, 0.5, "no random parameter", ha="center", transform=ax_dom.transAxes)
 
     draw_reuse(ax_reuse, {r["arm"]: r["reuse"] for r in arms if r["reuse"]})
-    steered = next((r for r in arms if r["arm"] == "reservoir_loss" and r["density"]), None)
+    # the active arm when there is one, else the loss-driven one
+    steered = next((r for name in ("reservoir_active", "reservoir_loss") for r in arms
+                    if r["arm"] == name and r["density"]), None)
     if steered and random:
-        draw_proposal(ax_prop, steered["density"], random[0], domains[random[0]])
+        draw_proposal(ax_prop, steered["density"], random[0], domains[random[0]], COLORS[steered["arm"]])
     else:
         ax_prop.text(0.5, 0.5, "no loss-driven arm", ha="center", transform=ax_prop.transAxes)
         ax_prop.set_axis_off()
@@ -74,14 +77,14 @@ def draw_reuse(ax, reuse: dict) -> None:
     ax.set(xlabel="uses per trajectory (1 = one FIFO pass)", ylabel="trajectories", title="reservoir reuse")
 
 
-def draw_proposal(ax, density: dict, name: str, domain: tuple) -> None:
+def draw_proposal(ax, density: dict, name: str, domain: tuple, color: str = COLORS["reservoir_loss"]) -> None:
     """Where the proposal put its simulations (bars) against the recent training loss there (line), along
     parameter ``name`` with domain (kind, low, high, options); ``density`` from ParamProposal.density()."""
     edges = np.asarray(density["edges"])
     kind, low, high, _ = domain
     log = kind == "loguniform"
     x = np.exp(np.log(low) + edges * (np.log(high) - np.log(low))) if log else low + edges * (high - low)
-    ax.bar(x[:-1], density["counts"], width=np.diff(x), align="edge", alpha=0.5, color=COLORS["reservoir_loss"],
+    ax.bar(x[:-1], density["counts"], width=np.diff(x), align="edge", alpha=0.5, color=color,
            label="simulations proposed")
     ax.set(xscale="log" if log else "linear", xlabel=name, ylabel="simulations",
            title="loss-driven sampling: where it simulated")

@@ -172,7 +172,9 @@ def test_other_producers_give_the_same_deterministic_batches(kind):
     (dict(draw="newest"), "draw='newest' not allowed; allowed: uniform, least_used"),
     (dict(eviction="lifo"), "eviction='lifo' not allowed; allowed: fifo, random"),
     (dict(mode="sync"), "mode='sync' not allowed; allowed: async, deterministic"),
-    (dict(proposal="active"), "proposal='active' not allowed; allowed: uniform, loss"),
+    (dict(proposal="bayes"), "proposal='bayes' not allowed; allowed: uniform, loss, active"),
+    (dict(proposal="active", proposal_kwargs={"ensemble": 1}),
+     "proposal ensemble=1 not allowed; must be an integer >= 2 (the uncertainty signal is the disagreement of its members)"),
 ])
 def test_bad_settings_are_one_line_errors(kw, message):
     with pytest.raises(ValueError) as err:
@@ -232,14 +234,15 @@ def test_loss_driven_stream_solves_the_proposed_parameters():
 
 
 # --- through the training loop and the CLI ------------------------------------------------------------------
-def test_kill9_and_resume_through_a_deterministic_reservoir_is_bit_identical(tmp_path):
+@pytest.mark.parametrize("proposal", ["loss", "active"])
+def test_kill9_and_resume_through_a_deterministic_reservoir_is_bit_identical(tmp_path, proposal):
     from test_resume import STEPS, TINY_MODEL, TINY_PDE, kill_and_resume
 
     def fresh(out):
         return {"argv": ["train", "burgers1d", *TINY_PDE, *TINY_MODEL, "--steps", str(STEPS), "--batch-size", "8",
                          "--checkpoint-every", "10", "--test-samples", "2", "--threads", "1", "--out", str(out),
                          "--reservoir", "--reservoir-mode", "deterministic", "--capacity", "16", "--max-reuse", "3",
-                         "--solve-batch", "8", "--proposal", "loss"]}
+                         "--solve-batch", "8", "--proposal", proposal]}
 
     ckpt = kill_and_resume(tmp_path / "whole", tmp_path / "killed", fresh, kill_at=26)
     state = ckpt["data"]["state"]
