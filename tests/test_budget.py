@@ -61,12 +61,14 @@ def test_sim_budget_gives_every_arm_the_same_solves(tmp_path):
 
 
 def test_time_budget_stops_every_arm_near_the_budget(tmp_path):
-    cfg = BudgetConfig(budget_s=3.0, arms=("precomputed", "reservoir"), batch_size=8, model_cfg=TINY_MODEL, seeds=1,
-                       n_test=4, capacity=16, solve_batch=8, snapshots=2)
+    # 5 s: on 2 cores loaded by other jobs (load ~8) a 3 s arm spent its whole budget compiling and trained 0 steps
+    budget = 5.0
+    cfg = BudgetConfig(budget_s=budget, arms=("precomputed", "reservoir"), batch_size=8, model_cfg=TINY_MODEL,
+                       seeds=1, n_test=4, capacity=16, solve_batch=8, snapshots=2)
     result = budget_compare(TINY, tmp_path, cfg, log=lambda *_: None)
     for r in result["arms"]:
-        assert 3.0 <= r["wall_s"] < 3.0 + 2.0 and r["steps"] > 0
-        assert len(r["curve"]) == 2 and r["curve"][-1]["elapsed"] >= 3.0
+        assert budget <= r["wall_s"] < budget + 3.0 and r["steps"] > 0, (r["wall_s"], r["steps"])
+        assert len(r["curve"]) == 2 and r["curve"][-1]["elapsed"] >= budget
     # the precomputed arm sized its dataset by the rule and stored only the operator view's two frames
     plan = result["arms"][0]["precompute"]
     assert plan["frames_stored"] == 2 and plan["frames"] == 5 and plan["rule"] == "each trajectory trained on 16 times"
