@@ -38,3 +38,15 @@ def _mappings() -> int:
             return sum(1 for _ in f)
     except OSError:
         return 0
+
+
+SLOW_TESTS = os.path.join(os.path.dirname(__file__), "slow_tests.txt")
+
+
+def pytest_collection_modifyitems(config, items):
+    # the measured long tests (slow_tests.txt) join the slow set, so the quick default stays a few minutes
+    with open(SLOW_TESTS) as f:
+        listed = {line.strip() for line in f if line.strip() and not line.startswith("#")}
+    for item in items:
+        if item.nodeid in listed:
+            item.add_marker(pytest.mark.slow)
