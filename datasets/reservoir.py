@@ -185,7 +185,9 @@ class ReservoirStream(IterableDataset):
     submitted only once the draws have paid for the previous ones; deterministic: the schedule's rate; default:
     async solves as fast as it can, deterministic uses max_reuse); proposal "uniform" |
     "loss" (+ proposal_kwargs for ParamProposal); sim_budget: stop after this many solved trajectories
-    (None: endless). Batches are dicts as from the views, with "params" [B, P] and "index" [B].
+    (None: endless); on_blowup "raise" | "redraw" | "skip" (a failed sample is left out, one SkippedSamples
+    warning line each, ``stats()["skipped"]`` counts them; deterministic mode stays a pure function of the
+    settings as long as the solver fails the same samples every time, which a timeout does not promise). Batches are dicts as from the views, with "params" [B, P] and "index" [B].
     The stream runs in the training process (num_workers=0); its producers are the parallelism.
     """
 
@@ -194,7 +196,7 @@ class ReservoirStream(IterableDataset):
                  solve_batch: int = 16, mode: str = "async", producer: str = "thread", workers: int = 1,
                  scheduler: str | None = None, inflight: int | None = None, proposal: str = "uniform",
                  proposal_kwargs: dict | None = None, sim_budget: int | None = None, target_reuse: float | None = None,
-                 **view_kwargs):
+                 on_blowup: str = "raise", **view_kwargs):
         self.pde = _bridge.resolve_pde(pde)
         if view_kwargs and not isinstance(view, str):
             raise ValueError(f"view options {sorted(view_kwargs)} only go with a view name, not a view object")
@@ -219,6 +221,7 @@ class ReservoirStream(IterableDataset):
         self.draw = _check_choice("draw", draw, DRAWS)
         self.mode = _check_choice("mode", mode, MODES)
         self.producer, self.workers, self.scheduler = producer, workers, scheduler
+        self.on_blowup = _bridge.check_on_blowup(on_blowup)
         self.sim_budget = None if sim_budget is None else _check_int("sim_budget", sim_budget, 1)
         self.inflight = None if inflight is None else _check_int("inflight", inflight, 1)
         n_frames = self.pde.n_frames
@@ -252,6 +255,7 @@ class ReservoirStream(IterableDataset):
         self.drawn_since_insert = 0
         self.progress = StreamPosition(slots=1)  # batches handed out (one producer-side "worker": this process)
         self.t_wait = 0.0  # seconds the loop waited for solves
+        self.skipped = 0  # samples left out by on_blowup="skip"
         self._t_first = None  # when iteration started (rates in stats())
 
     # --- producers ---------------------------------------------------------------------------------
@@ -270,7 +274,8 @@ class ReservoirStream(IterableDataset):
         """One solve job, padded to solve_batch (one compiled shape for every job)."""
         pad = np.resize(np.arange(len(indices)), self.solve_batch)
         padded_params = None if params is None else {k: np.asarray(v)[pad] for k, v in params.items()}
-        return self._executor.submit(_bridge.solve_job, self.config, self.seed, indices[pad], padded_params)
+        return self._executor.submit(_bridge.solve_job, self.config, self.seed, indices[pad], padded_params,
+                                     self.on_blowup)
 
     def _fill_pipeline(self) -> None:
         while len(self.pending) + len(self.done) < self.max_inflight:
@@ -291,9 +296,14 @@ class ReservoirStream(IterableDataset):
         return self.next_index >= paid + self.solve_batch
 
     def _insert(self, indices: np.ndarray, result: dict) -> None:
-        n = len(indices)
-        u = torch.from_numpy(np.require(result["u"][:n], requirements="W"))  # a JAX buffer is read-only
-        self.res.insert(u, torch.from_numpy(np.asarray(result["params"][:n])), indices)
+        # each index of the job once (the padding repeats them); on_blowup="skip" may have left some out
+        _, first = np.unique(result["index"], return_index=True)
+        rows = np.sort(first)
+        self.skipped += len(indices) - len(rows)
+        _bridge.warn_skipped(dict.fromkeys(result.get("skipped", ())))  # (a padded job repeats its lines)
+        if len(rows):
+            u = torch.from_numpy(np.require(result["u"][rows], requirements="W"))  # a JAX buffer is read-only
+            self.res.insert(u, torch.from_numpy(np.asarray(result["params"][rows])), result["index"][rows])
         self.drawn_since_insert = 0
 
     def _take_oldest(self) -> None:
@@ -404,7 +414,7 @@ class ReservoirStream(IterableDataset):
                 "reuse_mean": float(counts @ np.arange(len(counts))) / total / self.per_trajectory if total else 0.0,
                 "reuse_max": float(used[-1]) / self.per_trajectory if total else 0.0,
                 "solver_traj_per_s": res.inserted / elapsed, "examples_per_s": res.drawn / elapsed,
-                "wait_share": self.t_wait / elapsed}
+                "wait_share": self.t_wait / elapsed, "skipped": self.skipped}
 
     def report(self) -> dict:
         """What a run saves about its data: stats, reuse of every trajectory (1 = one FIFO pass), and where
