@@ -140,6 +140,7 @@ class ExternalSolver(ProblemBase):
     BC: ClassVar[str] = "periodic"  # the boundary type of every axis, one of generator.BOUNDARY_TYPES
     COMMAND: ClassVar[tuple] = ()  # argv with "{params}" and "{out}"; empty: the solve method
     OUTPUT: ClassVar[str] = ".npy"  # what the command writes: ".npy", or ".h5" (dataset "u")
+    ADVANCES: ClassVar[bool] = False  # no solve from a given state: --mode oracle and the interactive modes refuse it
     DETERMINISTIC: ClassVar[bool] = True  # False: the same (seed, index) may give other bits (stated, not hidden)
 
     n: int = 64
@@ -274,6 +275,11 @@ def solve_all(problem: ExternalSolver, jobs: list[tuple[dict, int]]) -> list[tup
     workers, timeout = settings()
     if workers == 0:
         return [_solve_here(problem, p, s) for p, s in jobs]
+    where = (problem.config().get("origin") or {}).get("module")
+    if where == "__main__":
+        raise ValueError(f"{problem.NAME}: class {type(problem).__name__} is defined in the script being run "
+                         "(module __main__), which solver worker processes cannot import; define it in a module "
+                         "and import it from there, or solve in this process (--solver-workers 0)")
     pool = _pool(workers)
     config = problem.config()
     futures = [pool.submit(_solve_in_worker, config, *job, timeout) for job in jobs]

@@ -264,3 +264,10 @@ def test_dask_and_process_producers_run_external_solves():
         got = {int(i): u.numpy() for b in stream for i, u in zip(b["index"], b["u"])}
         stream.close()
         assert sorted(got) == list(range(8)) and all(np.array_equal(got[i], want[i]) for i in got), producer
+
+
+def test_oracle_mode_refuses_an_external_solver_in_one_line(tmp_path, capsys):
+    code, out, err = run(capsys, "train", "--pde", "external_solvers:Decay", "--mode", "oracle", "--steps", "2",
+                         "--out", str(tmp_path / "o"))
+    assert code == 2 and err.count("\n") == 1 and "does not advance a given state" in err, err
+    assert not (tmp_path / "o").exists()
