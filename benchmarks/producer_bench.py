@@ -45,10 +45,13 @@ class Busy(ExternalSolver):
     n_frames: int = 11
     k: Any = "uniform(0.5, 2.0)"
     reps: int = 100
+    sleep: float = 0.0  # > 0: wait this many seconds instead of working (a solver waiting on I/O or a licence)
 
     def solve(self, params, seed):
         x = np.random.default_rng(seed).standard_normal(20_000)
-        for _ in range(self.reps):
+        if self.sleep:
+            time.sleep(self.sleep)
+        for _ in range(0 if self.sleep else self.reps):
             x = np.sin(x) * 0.9 + 0.1
         return np.exp(-params["k"] * self.times())[:, None, None] * x[None, None, : self.n]
 
@@ -97,16 +100,29 @@ def main(argv: list[str] | None = None) -> int:
     from benchmarks.producer_bench import calibrate  # Busy by its module's name, not __main__: workers import it
 
     pde = calibrate(args.solve_ms)
+    print(f"{os.cpu_count()} cores, shared with other sessions (load average {os.getloadavg()[0]:.1f}); {n} solves "
+          f"per run, median of {repeats}")
+    one = {}
+    for label, solver in (("CPU-bound", pde), ("waiting", type(pde)(sleep=args.solve_ms / 1e3))):
+        one[label] = measure(label, solver, n, repeats)
+    kill_solver_worker(pde)
+    if not args.no_dask:
+        for label, solver in (("CPU-bound", pde), ("waiting", type(pde)(sleep=args.solve_ms / 1e3))):
+            dask_arm(label, solver, n, repeats, one[label], kill=label == "CPU-bound")
+    return 0
+
+
+def measure(label: str, pde: Busy, n: int, repeats: int) -> float:
+    """Times of the plain loop and the producer with 0, 1, 2 workers; returns the 1-worker time."""
     jobs = drawn_jobs(pde, n)
     per_solve = statistics.median(_timed(lambda j=j: pde.solve(*j)) for j in jobs[:5])
-    print(f"Busy(reps={pde.reps}): one solve {per_solve * 1e3:.1f} ms; {n} solves per run, median of {repeats}; "
-          f"{os.cpu_count()} cores (shared)")
+    print(f"{label} solver (Busy reps={pde.reps}, sleep={pde.sleep:g} s): one solve {per_solve * 1e3:.1f} ms")
     want = plain(pde, jobs)
     arms = {"plain loop": lambda: plain(pde, jobs), "producer, 0 workers": lambda: producer(pde, n, 0),
             "producer, 1 worker": lambda: producer(pde, n, 1), "producer, 2 workers": lambda: producer(pde, n, 2)}
-    for name, fn in arms.items():  # warm: worker processes started, the draw program compiled
-        got = fn() if name == "plain loop" else np.asarray(producer(pde, min(n, 4), int(name.split()[1])))
-        assert name == "plain loop" or np.array_equal(got, want[: len(got)]), name
+    for name in list(arms)[1:]:  # warm: worker processes started, the draw program compiled; the same bits
+        got = producer(pde, min(n, 4), int(name.split()[1]))
+        assert np.array_equal(got, want[: len(got)]), name
     times = {name: [] for name in arms}
     for _ in range(repeats):
         for name, fn in arms.items():
@@ -117,15 +133,13 @@ def main(argv: list[str] | None = None) -> int:
         extra = "" if name == "plain loop" else f"   overhead {100 * (t / base - 1):+.1f}%"
         print(f"  {name:22s} {t:7.3f} s  {n / t:6.2f} solves/s{extra}")
     print(f"  speedup 2 workers vs 1: {med['producer, 1 worker'] / med['producer, 2 workers']:.2f}x")
-    kill_solver_worker(pde)
-    if not args.no_dask:
-        dask_arm(pde, n, repeats, med["producer, 1 worker"], want)
-    return 0
+    return med["producer, 1 worker"]
 
 
 def kill_solver_worker(pde: Busy) -> None:
     """SIGKILL one of 2 solver workers while it solves: the run finishes with the undisturbed bits."""
     slow = type(pde)(reps=pde.reps * 10)  # ~0.5 s per solve: time to aim
+    external._stop_all(exiting=False)  # only the two workers of this run: the victim is one of them
     external.configure(workers=2)
     want = np.asarray(generator.sample(slow, [0, 1, 2, 3]).u)
     t_clean = _timed(lambda: generator.sample(slow, [0, 1, 2, 3]))
@@ -143,23 +157,27 @@ def kill_solver_worker(pde: Busy) -> None:
           f"{t:.2f} s vs {t_clean:.2f} s undisturbed (the job re-run in a fresh worker)")
 
 
-def dask_arm(pde: Busy, n: int, repeats: int, one_worker: float, want: np.ndarray) -> None:
+def dask_arm(label: str, pde: Busy, n: int, repeats: int, one_worker: float, kill: bool) -> None:
+    """A warm 2-worker LocalCluster, each worker solving half the samples (solve_job) with its own solver
+    worker; with ``kill``, one Dask worker is killed mid-job."""
     from datasets import _bridge
     from datasets.distributed import dask_client
 
     external.configure(workers=1)
     config = pde.config()
+    want = producer(pde, n, 1)
     halves = [np.arange(n)[: n // 2], np.arange(n)[n // 2:]]
     with dask_client(None, 2) as client:
         def run():
             futures = [client.submit(_bridge.solve_job, config, 0, h, pure=False) for h in halves]
             return np.concatenate([f.result()["u"] for f in futures])
 
-        got = run()  # warm: each worker imports, starts its solver worker
-        assert np.array_equal(got, want)
+        assert np.array_equal(run(), want)  # warm: each worker imports, starts its solver worker
         t = statistics.median(_timed(run) for _ in range(repeats))
-        print(f"  dask, 2 workers        {t:7.3f} s  {n / t:6.2f} solves/s   speedup vs 1-worker producer "
+        print(f"  {label}: dask, 2 workers {t:7.3f} s  {n / t:6.2f} solves/s   speedup vs the 1-worker producer "
               f"{one_worker / t:.2f}x")
+        if not kill:
+            return
         pids = client.run(os.getpid)
         futures = [client.submit(_bridge.solve_job, config, 0, h, pure=False) for h in halves]
         time.sleep(min(1.0, 0.3 * t))

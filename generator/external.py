@@ -34,6 +34,7 @@ import json
 import math
 import os
 import pickle
+import queue
 import select
 import signal
 import struct
@@ -42,7 +43,7 @@ import sys
 import tempfile
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor, wait
+from concurrent.futures import Future, wait
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -282,7 +283,7 @@ def solve_all(problem: ExternalSolver, jobs: list[tuple[dict, int]]) -> list[tup
                          "and import it from there, or solve in this process (--solver-workers 0)")
     pool = _pool(workers)
     config = problem.config()
-    futures = [pool.submit(_solve_in_worker, config, *job, timeout) for job in jobs]
+    futures = [pool.submit(config, *job, timeout) for job in jobs]
     while not wait(futures, timeout=0.2).not_done == set():
         if cancelled():  # the consumer has gone (a closed reservoir): stop waiting; the solves in flight end alone
             for f in futures:
@@ -303,18 +304,55 @@ def _raised(err: BaseException) -> str:
     return f"raised {type(err).__name__}: {text[:300]}"
 
 
-_POOLS: dict[int, ThreadPoolExecutor] = {}
+class _Pool:
+    """``workers`` daemon threads, each talking to a worker process of its own. Daemon threads: an exit (a
+    Ctrl-C) never waits for a solve in flight, which may run for hours or hang; the workers are killed at exit."""
+
+    def __init__(self, workers: int):
+        self.jobs: queue.Queue = queue.Queue()
+        for i in range(workers):
+            threading.Thread(target=self._serve, name=f"pdestream-external-{i}", daemon=True).start()
+
+    def submit(self, *args) -> Future:
+        future: Future = Future()
+        self.jobs.put((future, args))
+        return future
+
+    def _serve(self) -> None:
+        while True:
+            future, args = self.jobs.get()
+            if future is None:
+                return
+            if future.set_running_or_notify_cancel():
+                try:
+                    future.set_result(_solve_in_worker(*args))
+                except BaseException as err:  # handed to the caller, who raises it
+                    future.set_exception(err)
+
+    def stop(self) -> None:
+        while True:  # queued jobs are cancelled; each thread ends after its job in flight
+            try:
+                future, _args = self.jobs.get_nowait()
+            except queue.Empty:
+                break
+            future.cancel()
+        for _ in range(64):
+            self.jobs.put((None, None))
+
+
+_POOLS: dict[int, _Pool] = {}
 _POOL_LOCK = threading.Lock()
 _LOCAL = threading.local()  # the worker process of each pool thread
 _PROCS: set = set()
+_STOPPING = threading.Event()
 
 
-def _pool(workers: int) -> ThreadPoolExecutor:
+def _pool(workers: int) -> _Pool:
     """The threads (one per worker process) that run solves; kept for the life of this process."""
     with _POOL_LOCK:
         pool = _POOLS.get(workers)
         if pool is None:
-            pool = _POOLS[workers] = ThreadPoolExecutor(workers, thread_name_prefix="pdestream-external")
+            pool = _POOLS[workers] = _Pool(workers)
         return pool
 
 
@@ -323,6 +361,8 @@ def _solve_in_worker(config: dict, params: dict, seed: int, timeout: float | Non
     replaced and the job run again (CRASH_RETRIES times) before the sample counts as crashed."""
     payload = pickle.dumps((config, params, seed), protocol=5)
     for attempt in range(CRASH_RETRIES + 1):
+        if _STOPPING.is_set():
+            return None, "not solved: the solvers are being stopped (exit)"
         worker = getattr(_LOCAL, "worker", None)
         if worker is None or worker.poll() is not None:
             worker = _LOCAL.worker = _start_worker()
@@ -347,7 +387,9 @@ def _start_worker() -> subprocess.Popen:
     env.setdefault("JAX_PLATFORMS", "cpu")  # a solver's JAX, if any, stays off a GPU the trainer uses
     env[WORKERS_ENV] = "0"
     proc = subprocess.Popen([sys.executable, "-m", "generator._solver_worker"], stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, env=env, start_new_session=True)
+                            stdout=subprocess.PIPE, env=env, process_group=0)
+    # its own process group (a timeout kills the group: a COMMAND's children too), not its own session: a new
+    # session would be a new scheduling autogroup on Linux, and take a larger CPU share than its caller's
     _PROCS.add(proc)
     return proc
 
@@ -420,7 +462,16 @@ def _read(fd: int, n: int, deadline: float | None) -> bytes:
     return b"".join(parts)
 
 
-def _stop_all() -> None:
+def _stop_all(exiting: bool = True) -> None:
+    """End every solver worker of this process and their threads (at exit; exiting=False: the next solve
+    starts fresh ones)."""
+    if exiting:
+        _STOPPING.set()
+    with _POOL_LOCK:
+        pools = list(_POOLS.values())
+        _POOLS.clear()
+    for pool in pools:
+        pool.stop()
     for proc in list(_PROCS):
         _kill(proc)
 
@@ -485,7 +536,10 @@ def _serve() -> None:
             problem = problems.get(key) or problems.setdefault(key, from_config(config))
         except Exception as err:  # the class could not be rebuilt here (its module, its code changed)
             problem, out, cause = None, None, _raised(err)
-        _send(proto_out, ("started", None))
+        try:
+            _send(proto_out, ("started", None))
+        except OSError:
+            return
         if problem is not None:
             out, cause = _solve_here(problem, params, seed)
         if not cause:
@@ -499,8 +553,11 @@ def _serve() -> None:
                 data = pickle.dumps(("error", f"returned something that cannot be sent back ({_raised(err)})"))
         else:
             data = pickle.dumps(("error", cause), protocol=5)
-        proto_out.write(struct.pack("<Q", len(data)) + data)
-        proto_out.flush()
+        try:
+            proto_out.write(struct.pack("<Q", len(data)) + data)
+            proto_out.flush()
+        except OSError:  # the caller has gone (killed, or it stopped this solve): nobody to answer
+            return
 
 
 def _send(f, message) -> None:

@@ -23,10 +23,16 @@ from generator.sampler import SkippedSamples
 
 
 @pytest.fixture(autouse=True)
-def solver_settings(monkeypatch):
-    """Each test starts from the defaults (1 worker, no timeout); configure() writes the environment."""
-    monkeypatch.delenv(external.WORKERS_ENV, raising=False)
-    monkeypatch.delenv(external.TIMEOUT_ENV, raising=False)
+def solver_settings():
+    """Each test starts from the defaults (1 worker, no timeout) and leaves the environment as it found it
+    (configure(), and so the CLI's --solver-workers / --solver-timeout, write os.environ)."""
+    names = (external.WORKERS_ENV, external.TIMEOUT_ENV)
+    saved = {k: os.environ.pop(k, None) for k in names}
+    yield
+    for k, v in saved.items():
+        os.environ.pop(k, None)
+        if v is not None:
+            os.environ[k] = v
 
 
 def u_of(traj) -> np.ndarray:
@@ -230,9 +236,11 @@ def test_a_worker_killed_mid_solve_is_replaced_and_the_job_run_again():
     the bits of an undisturbed run."""
     pde = Decay(delay=1.0)
     want = u_of(generator.sample(Decay(), [0, 1], seed=3))
+    external._stop_all(exiting=False)  # the victim is one of this run's two workers
     external.configure(workers=2)
     generator.sample(pde, [0, 1], seed=3)  # workers up
     before = {p.pid for p in external._PROCS}
+    assert len(before) == 2
     result = {}
     thread = threading.Thread(target=lambda: result.setdefault("traj", generator.sample(pde, [0, 1], seed=3)))
     thread.start()

@@ -2,6 +2,7 @@
 an independent solution, and each streamed into training through the reservoir from the command line at small
 size. The README shows the files' code verbatim (checked here, so they cannot drift)."""
 
+import os
 import re
 from pathlib import Path
 
@@ -12,6 +13,20 @@ import cli
 import generator
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True)
+def solver_settings():
+    """Default solver settings in each test, the environment restored after it (the CLI's options write it)."""
+    from generator import external
+
+    names = (external.WORKERS_ENV, external.TIMEOUT_ENV)
+    saved = {k: os.environ.pop(k, None) for k in names}
+    yield
+    for k, v in saved.items():
+        os.environ.pop(k, None)
+        if v is not None:
+            os.environ[k] = v
 
 
 def readme_solver_blocks() -> list[str]:
