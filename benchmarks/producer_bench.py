@@ -70,6 +70,26 @@ def _timed(fn) -> float:
     return time.perf_counter() - start
 
 
+def _cpu() -> float:
+    """CPU seconds used so far by this process and its live solver workers (Linux /proc; load-independent,
+    unlike wall time on a shared machine)."""
+    total = time.process_time()
+    tick = os.sysconf("SC_CLK_TCK")
+    for proc in list(external._PROCS):
+        try:
+            fields = open(f"/proc/{proc.pid}/stat").read().rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / tick  # utime, stime
+        except (OSError, IndexError, ValueError):
+            pass
+    return total
+
+
+def _cpu_used(fn) -> float:
+    start = _cpu()
+    fn()
+    return _cpu() - start
+
+
 def drawn_jobs(pde: Busy, n: int, seed: int = 0) -> list[tuple[dict, int]]:
     keys = generator.sample_keys(seed, np.arange(n))
     out = []
@@ -124,14 +144,21 @@ def measure(label: str, pde: Busy, n: int, repeats: int) -> float:
         got = producer(pde, min(n, 4), int(name.split()[1]))
         assert np.array_equal(got, want[: len(got)]), name
     times = {name: [] for name in arms}
+    cpus = {name: [] for name in arms}
     for _ in range(repeats):
         for name, fn in arms.items():
+            cpu = _cpu()
             times[name].append(_timed(fn))
+            cpus[name].append(_cpu() - cpu)
     med = {name: statistics.median(t) for name, t in times.items()}
-    base = med["plain loop"]
+    cpu = {name: statistics.median(t) for name, t in cpus.items()}
+    base, base_cpu = med["plain loop"], cpu["plain loop"]
+    print(f"  {'':22s} {'wall':>7s}  {'':13s}    {'wall overhead':>13s}   CPU s (this process + its solver workers)")
     for name, t in med.items():
-        extra = "" if name == "plain loop" else f"   overhead {100 * (t / base - 1):+.1f}%"
-        print(f"  {name:22s} {t:7.3f} s  {n / t:6.2f} solves/s{extra}")
+        extra = "" if name == "plain loop" else f"{100 * (t / base - 1):+12.1f}%"
+        extra_cpu = "" if name == "plain loop" else (f"  {1e3 * (cpu[name] - base_cpu) / n:+.2f} ms per solve "
+                                                      f"({100 * (cpu[name] - base_cpu) / n / per_solve:+.1f}% of a solve)")
+        print(f"  {name:22s} {t:7.3f} s  {n / t:6.2f} solves/s {extra:>13s}   {cpu[name]:6.3f}{extra_cpu}")
     print(f"  speedup 2 workers vs 1: {med['producer, 1 worker'] / med['producer, 2 workers']:.2f}x")
     return med["producer, 1 worker"]
 
