@@ -96,3 +96,14 @@ class NoSolve(ExternalSolver):
     NAME: ClassVar[str] = "nosolve_ext1d"
     FIELDS: ClassVar[tuple] = ("u",)
     NDIM: ClassVar[int] = 1
+
+
+@dataclass(frozen=True)
+class Noisy(Decay):
+    """Decay plus noise from the operating system: not reproducible, and it says so."""
+
+    NAME: ClassVar[str] = "noisy_ext1d"
+    DETERMINISTIC: ClassVar[bool] = False
+
+    def solve(self, params, seed):
+        return super().solve(params, seed) + np.frombuffer(os.urandom(4), np.uint32)[0] * 1e-12

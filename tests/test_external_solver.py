@@ -13,7 +13,7 @@ import warnings
 import numpy as np
 import pytest
 import torch
-from external_solvers import Cmd, CmdH5, Decay, Faulty, NoSolve
+from external_solvers import Cmd, CmdH5, Decay, Faulty, Noisy, NoSolve
 
 import cli
 import datasets
@@ -189,17 +189,26 @@ def test_the_reservoir_takes_an_external_solver_with_loss_driven_sampling_and_sk
 
 
 def test_a_failed_cache_never_reads_complete_and_skip_is_refused(tmp_path):
+    """Seed 5: samples 0-3 solve, sample 4 fails (q = 0.25 < 0.3): blocks of 2 before it are written, the cache
+    stays incomplete, and what it holds are the samples' own bits."""
+    pde = Faulty(fail="raise")
     path = tmp_path / "f.zarr"
-    with pytest.raises(generator.BlowUpError, match="index 0: raised RuntimeError"):
-        datasets.write_cache(Faulty(fail="raise"), path, 6, block=3, progress=False)
-    if path.exists():
-        with datasets.open_cache(path) as ds:
-            assert not datasets.cache.is_complete(ds)
-        with pytest.raises(ValueError, match="incomplete"):
-            datasets.CachedTrajectories(path)
+    with pytest.raises(generator.BlowUpError, match="index 4: raised RuntimeError: no convergence"):
+        datasets.write_cache(pde, path, 8, seed=5, block=2, progress=False)
+    with datasets.open_cache(path) as ds:
+        done = np.flatnonzero(ds["complete"].values == 1)
+        assert not datasets.cache.is_complete(ds) and set(done) <= {0, 1, 2, 3}
+        assert np.array_equal(ds["u"].values[done], u_of(generator.sample(pde, done, seed=5))[:, :, 0])
+    with pytest.raises(ValueError, match="incomplete"):
+        datasets.CachedTrajectories(path)
     with pytest.raises(ValueError, match="on_blowup='skip' not allowed for a cache: a cache holds every index"):
         datasets.write_cache(Decay(), tmp_path / "s.h5", 4, on_blowup="skip", progress=False)
     assert not (tmp_path / "s.h5").exists()
+
+
+def test_a_solver_that_is_not_deterministic_says_so():
+    assert "NOT reproducible: the solver is not deterministic" in Noisy().describe()
+    assert "NOT reproducible" not in Decay().describe()
 
 
 def run(capsys, *argv):
