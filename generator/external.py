@@ -213,7 +213,13 @@ class ExternalSolver(ProblemBase):
         drawn = [_draw(self, keys[b], jnp.asarray(explicit[b]), jnp.asarray(given[b])) for b in range(len(keys))]
         params = {name: np.array([float(p[name]) for p, _ in drawn], np.float32) for name in self.PARAMS}
         jobs = [({name: float(params[name][b]) for name in self.PARAMS}, int(seed)) for b, (_, seed) in enumerate(drawn)]
-        results = solve_all(self, jobs)
+        # a padded batch (the stream's and the reservoir's fixed solve_batch) repeats samples: solve each once
+        first = {}
+        for b, (p, seed) in enumerate(jobs):
+            first.setdefault((tuple(p.items()), seed), b)
+        unique = sorted(set(first.values()))
+        solved = dict(zip(unique, solve_all(self, [jobs[b] for b in unique])))
+        results = [solved[first[(tuple(p.items()), seed)]] for p, seed in jobs]
         u = np.zeros((len(jobs), *self.shape), np.float32)
         causes = []
         for b, (out, cause) in enumerate(results):
@@ -284,7 +290,7 @@ def solve_all(problem: ExternalSolver, jobs: list[tuple[dict, int]]) -> list[tup
     pool = _pool(workers)
     config = problem.config()
     futures = [pool.submit(config, *job, timeout) for job in jobs]
-    while not wait(futures, timeout=0.2).not_done == set():
+    while wait(futures, timeout=0.2).not_done:
         if cancelled():  # the consumer has gone (a closed reservoir): stop waiting; the solves in flight end alone
             for f in futures:
                 f.cancel()

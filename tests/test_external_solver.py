@@ -288,3 +288,11 @@ def test_oracle_mode_refuses_an_external_solver_in_one_line(tmp_path, capsys):
                          "--out", str(tmp_path / "o"))
     assert code == 2 and err.count("\n") == 1 and "does not advance a given state" in err, err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_padded_batch_solves_each_sample_once(monkeypatch):
+    calls = []
+    real = external.solve_all
+    monkeypatch.setattr(external, "solve_all", lambda pde, jobs: calls.append(len(jobs)) or real(pde, jobs))
+    traj = generator.sample(Decay(), [3, 4, 3, 4, 3], seed=0)
+    assert calls == [2] and np.array_equal(u_of(traj)[2], u_of(traj)[0])
