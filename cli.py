@@ -34,6 +34,22 @@ def _add_pde_config_args(p: argparse.ArgumentParser) -> None:
                    "your own class by import path (see README 'Your own PDE')")
 
 
+def _add_solver_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("external solvers (generator.ExternalSolver: your own solve() or command)")
+    g.add_argument("--solver-workers", type=int, metavar="N",
+                   help="worker processes that run an external solver's solves in parallel, per solving process "
+                        "(default 1; 0: in the calling process, no timeout)")
+    g.add_argument("--solver-timeout", type=float, metavar="SECONDS",
+                   help="an external solve running longer fails (its worker is stopped), under --on-blowup")
+
+
+def configure_solvers(args: argparse.Namespace) -> None:
+    """--solver-workers / --solver-timeout for this process and the producers it starts (one line if bad)."""
+    from generator import external
+
+    external.configure(getattr(args, "solver_workers", None), getattr(args, "solver_timeout", None))
+
+
 def settings_from_args(name: str | None, args: argparse.Namespace) -> tuple[str | None, dict]:
     """(PDE name, settings) from the command line: the --config file's keys, then --set overrides."""
     settings: dict = {}
@@ -209,17 +225,20 @@ def add_generate(sub) -> None:
                       help="replace an existing pdestream cache (the new one is built beside it and swapped in "
                            "only when complete; anything else at PATH is refused)")
     p.add_argument("--block", type=int, help="samples solved and written per block (default: ~32 MiB)")
-    p.add_argument("--on-blowup", choices=("raise", "redraw"), default="raise",
-                   help="a NaN/Inf trajectory stops the run (raise) or is redrawn deterministically (redraw)")
+    p.add_argument("--on-blowup", choices=("raise", "redraw", "skip"), default="raise",
+                   help="a NaN/Inf (or failed external) trajectory stops the run (raise) or is redrawn "
+                        "deterministically (redraw); skip is refused: a cache holds every index")
     p.add_argument("--executor", choices=("local", "dask"), default="local",
                    help="local: this process; dask: one task per block on a Dask cluster (Zarr output only)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask: address of a running scheduler, e.g. tcp://host:8786 "
                                                           "(default: an embedded LocalCluster)")
     p.add_argument("--workers", type=int, metavar="N", help="dask: worker processes of the embedded cluster (default 2)")
+    _add_solver_args(p)
     p.set_defaults(func=cmd_generate)
 
 
 def cmd_generate(args: argparse.Namespace) -> None:
+    configure_solvers(args)
     pde = pde_from_args(args.pde, args)
     try:
         _generate(pde, args)
@@ -434,11 +453,14 @@ def _add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
     g.add_argument("--proposal", choices=("uniform", "loss", "active"), default="uniform",
                    help="parameters of the next solves: the domain's own draws, steered toward high training loss, "
                         "or active (a loss model + its ensemble's disagreement over the parameter box)")
+    g.add_argument("--on-blowup", choices=("raise", "redraw", "skip"), default="raise",
+                   help="a failed solve (NaN/Inf; an external solver's error, timeout, crash, wrong shape) stops "
+                        "the run (raise), is redrawn (redraw) or left out with one warning line (skip)")
 
 
 RESERVOIR_OPTIONS = ("capacity", "max_reuse", "reservoir_mode", "target_reuse", "proposal_floor", "solve_batch",
                      "warmup", "eviction", "draw", "producer", "workers", "scheduler", "proposal",
-                     "proposal_ensemble", "proposal_kappa")
+                     "proposal_ensemble", "proposal_kappa", "on_blowup")
 
 
 def _active_kwargs(args: argparse.Namespace) -> dict:
@@ -466,7 +488,7 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
            "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
            "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,
            "proposal_kwargs": {"floor": args.proposal_floor, **_active_kwargs(args)}, "solve_batch": args.solve_batch,
-           "target_reuse": args.target_reuse}
+           "target_reuse": args.target_reuse, "on_blowup": None if args.on_blowup == "raise" else args.on_blowup}
     return {k: v for k, v in cfg.items() if v is not None}
 
 
@@ -582,12 +604,13 @@ def add_train(sub) -> None:
     _add_reservoir_args(p, train=True)
     _add_mode_args(p, train=True)
     _add_pde_config_args(p)
+    _add_solver_args(p)
     p.set_defaults(func=cmd_train)
 
 
 RUN_MARKERS = ("run.json", "checkpoint.pt", "model.pt", "metrics.json")  # any of them: the directory holds a run
 # what may go with --resume: --threads (how, not what) and --steps (a new total, which extends the run)
-RESUME_ALLOWED = {"resume", "threads", "steps", "ddp", "command", "func"}
+RESUME_ALLOWED = {"resume", "threads", "steps", "ddp", "command", "func", "solver_workers", "solver_timeout"}
 TRAIN_STEPS = 1000  # train's --steps for a new run (its default is None, so that --resume knows if it was given)
 
 
@@ -615,6 +638,7 @@ def _train_ranks(args: argparse.Namespace) -> int:
 def cmd_train(args: argparse.Namespace) -> None:
     from surrogate import ddp
 
+    configure_solvers(args)  # (environment variables: spawned ranks and their producers inherit them)
     ranks = _train_ranks(args)
     if ranks > 1 and ddp.env_world() == 1:  # --ddp N: check here, then start the N ranks
         return _launch_train(args, ranks)

@@ -3,7 +3,7 @@
 Each family is a module ``benchmarks/<family>_bench.py`` with ``main(argv)``; the families present are run in
 order (generator: pdestream vs Exponax; stream: TrajectoryStream delivered vs raw; cache: write/read;
 dask: distributed generation; reservoir: reservoir vs FIFO; interactive: the solver as oracle
-and differentiable step vs a plain solve). ``--json`` goes to the generator benchmark. Figures, not pass/fail.
+and differentiable step vs a plain solve; producer: external solvers vs a plain loop, workers and Dask). ``--json`` goes to the generator benchmark. Figures, not pass/fail.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import importlib
 import importlib.util
 import sys
 
-FAMILIES = ("generator", "stream", "cache", "dask", "reservoir", "interactive", "darcy")
+FAMILIES = ("generator", "stream", "cache", "dask", "reservoir", "interactive", "darcy", "producer")
 
 
 def available() -> list[str]:

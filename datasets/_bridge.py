@@ -122,10 +122,13 @@ def resolve_pde(pde):
 
 def sample_tensors(pde, indices, seed: int = 0, on_blowup: str = "raise", params: dict | None = None) -> dict:
     """``trajectory_tensors(generator.sample(pde, indices, seed, on_blowup, params=params))``; NaN/Inf raises
-    BlowUpError. params: optional explicit values {name: [B]} (the IC still comes from (seed, index))."""
+    BlowUpError (on_blowup="skip": such samples are left out, "index" says which are there). params: optional
+    explicit values {name: [B]} (the IC still comes from (seed, index))."""
     import generator
 
-    return trajectory_tensors(generator.sample(pde, indices, seed, on_blowup=on_blowup, params=params))
+    traj = generator.sample(pde, indices, seed, on_blowup=on_blowup, params=params)
+    warn_skipped(traj.skipped)
+    return trajectory_tensors(traj)
 
 
 def cancel_solves_on(event) -> None:
@@ -148,31 +151,33 @@ def sample_numpy(pde, indices, seed: int = 0, on_blowup: str = "raise", params: 
     return u, {k: np.asarray(v) for k, v in traj.params.items()}, np.asarray(traj.redraws)
 
 
-def solve_job(config: dict, seed: int, indices, params: dict | None = None, on_device: bool = False) -> dict:
+def solve_job(config: dict, seed: int, indices, params: dict | None = None, on_blowup: str = "raise",
+              on_device: bool = False) -> dict:
     """A producer's job (thread, spawned process or Dask worker): solve samples ``indices`` of the PDE of
     ``config`` under ``seed`` with optional explicit ``params`` {name: [B]}. Returns
-    {"u": float32 [B, T, C, *space], "params": float32 [B, P] (PARAMS order), "index": int64 [B]}, all numpy,
-    or with ``on_device`` (a job run in the consumer's process) "u" as a torch tensor on JAX's device that
-    shares JAX's finished buffer (DLPack: no host round trip; read it, never write it). Same values either way."""
+    {"u": float32 [B, T, C, *space], "params": float32 [B, P] (PARAMS order), "index": int64 [B], "skipped": lines},
+    all numpy, or with ``on_device`` (a job run in the consumer's process) "u" as a torch tensor on JAX's device
+    that shares JAX's finished buffer (DLPack: no host round trip; read it, never write it). Same values either
+    way. With on_blowup="skip" the samples that failed are left out (B rows fewer; "index" says which are there)
+    and "skipped" lists one line per sample left out."""
     import jax
     import numpy as np
 
+    import generator
+
     configure_jax()
     pde = _pde_of(json.dumps(config, sort_keys=True))
-    indices = np.asarray(indices, np.int64)
-    if on_device:
+    traj = generator.sample(pde, np.asarray(indices, np.int64), seed, on_blowup=on_blowup, params=params)
+    if on_device and isinstance(traj.u, jax.Array):  # (an external solver's result is numpy already)
         import torch
 
-        import generator
-
-        traj = generator.sample(pde, indices, seed, on_blowup="raise", params=params)
         jax.block_until_ready((traj.u, traj.inputs))  # done before torch reads it on its own stream
         u = _joined(traj, torch.cat, to_torch)
-        p = {k: np.asarray(v) for k, v in traj.params.items()}
     else:
-        u, p, _ = sample_numpy(pde, indices, seed, "raise", params)
-    cols = [p[n] for n in pde.PARAMS]
-    return {"u": u, "params": np.stack(cols, 1) if cols else np.zeros((len(u), 0), np.float32), "index": indices}
+        u = _joined(traj, np.concatenate, np.asarray)
+    cols = [np.asarray(traj.params[n]) for n in pde.PARAMS]
+    return {"u": u, "params": np.stack(cols, 1) if cols else np.zeros((len(u), 0), np.float32),
+            "index": np.asarray(traj.indices, np.int64), "skipped": list(traj.skipped)}
 
 
 @functools.lru_cache(maxsize=16)
@@ -189,6 +194,20 @@ def param_domains(pde) -> dict:
         low, high = dom.bounds
         out[name] = (kind, float(low), float(high), tuple(getattr(dom, "options", ())))
     return out
+
+
+def warn_skipped(lines) -> None:
+    """Each line of a solve's "skipped" list as a generator.sampler.SkippedSamples warning."""
+    from generator.sampler import warn_skipped as warn
+
+    warn(lines)
+
+
+def check_on_blowup(on_blowup) -> str:
+    """``on_blowup`` if it is a policy (raise / redraw / skip), else a one-line ValueError."""
+    from generator.sampler import check_on_blowup as check
+
+    return check(on_blowup)
 
 
 def check_params(pde, params: dict, batch: int) -> None:

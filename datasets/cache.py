@@ -302,6 +302,9 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
         _check_int("block", block, 1)
     if resume and overwrite:
         raise ValueError("--resume and --overwrite exclude each other: resume finishes a cache, overwrite replaces it")
+    if on_blowup == "skip":
+        raise ValueError("on_blowup='skip' not allowed for a cache: a cache holds every index 0..N-1; allowed: "
+                         "'raise', 'redraw' (or skip in the stream / the reservoir)")
     if on_blowup not in ("raise", "redraw"):
         raise ValueError(f"on_blowup={on_blowup!r} not allowed; allowed: 'raise', 'redraw'")
     if path.is_symlink():  # acting through a link would replace or fill whatever it points at

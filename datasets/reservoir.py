@@ -292,11 +292,14 @@ class ReservoirStream(IterableDataset):
     submitted only once the draws have paid for the previous ones; deterministic: the schedule's rate; default:
     async solves as fast as it can, deterministic uses max_reuse); proposal "uniform" |
     "loss" | "active" (+ proposal_kwargs for ParamProposal); sim_budget: stop after this many solved trajectories
-    (None: endless). device: where the trajectories are kept and batches are gathered ("cpu", "cuda",
-    "cuda:N"; None: the training device, which the training loop sets through ``place``, else the CPU): with
-    the thread producer a solve on that GPU is copied in from JAX's buffer (DLPack, no host round trip), and
-    every tensor of a batch is on that device. Batches are dicts as from the views, with "params" [B, P] and
-    "index" [B]. The stream runs in the training process (num_workers=0); its producers are the parallelism.
+    (None: endless); on_blowup "raise" | "redraw" | "skip" (a failed sample is left out, one SkippedSamples
+    warning line each, ``stats()["skipped"]`` counts them; deterministic mode stays a pure function of the
+    settings as long as the solver fails the same samples every time, which a timeout does not promise).
+    device: where the trajectories are kept and batches are gathered ("cpu", "cuda", "cuda:N"; None: the
+    training device, which the training loop sets through ``place``, else the CPU): with the thread producer a
+    solve on that GPU is copied in from JAX's buffer (DLPack, no host round trip), and every tensor of a batch
+    is on that device. Batches are dicts as from the views, with "params" [B, P] and "index" [B]. The stream
+    runs in the training process (num_workers=0); its producers are the parallelism.
     """
 
     def __init__(self, pde, seed: int = 0, view="next_step", batch_size: int = 32, capacity: int = 256,
@@ -304,7 +307,7 @@ class ReservoirStream(IterableDataset):
                  solve_batch: int = 16, mode: str = "async", producer: str = "thread", workers: int = 1,
                  scheduler: str | None = None, inflight: int | None = None, proposal: str = "uniform",
                  proposal_kwargs: dict | None = None, sim_budget: int | None = None, target_reuse: float | None = None,
-                 device=None, **view_kwargs):
+                 device=None, on_blowup: str = "raise", **view_kwargs):
         self.pde = _bridge.resolve_pde(pde)
         if view_kwargs and not isinstance(view, str):
             raise ValueError(f"view options {sorted(view_kwargs)} only go with a view name, not a view object")
@@ -329,6 +332,7 @@ class ReservoirStream(IterableDataset):
         self.draw = _check_choice("draw", draw, DRAWS)
         self.mode = _check_choice("mode", mode, MODES)
         self.producer, self.workers, self.scheduler = producer, workers, scheduler
+        self.on_blowup = _bridge.check_on_blowup(on_blowup)
         self.sim_budget = None if sim_budget is None else _check_int("sim_budget", sim_budget, 1)
         self.inflight = None if inflight is None else _check_int("inflight", inflight, 1)
         n_frames = self.pde.n_frames
@@ -369,6 +373,7 @@ class ReservoirStream(IterableDataset):
         self.progress = StreamPosition(slots=1)  # batches handed out (one producer-side "worker": this process)
         self.t_wait = 0.0  # seconds the loop waited for solves
         self.t_insert = self.t_gather = 0.0  # seconds spent inserting solves and gathering batches (host clock)
+        self.skipped = 0  # samples left out by on_blowup="skip"
         self._t_first = None  # when iteration started (rates in stats())
 
     def place(self, device) -> None:
@@ -400,7 +405,7 @@ class ReservoirStream(IterableDataset):
         # a thread solves in this process: its result stays in JAX's buffer (on its device) and is copied into
         # the storage from there; a worker process's or Dask's comes back as numpy (pickled)
         return self._executor.submit(_bridge.solve_job, self.config, self.seed, indices[pad], padded_params,
-                                     self.producer == "thread")
+                                     self.on_blowup, self.producer == "thread")
 
     def _fill_pipeline(self) -> None:
         while len(self.pending) + len(self.done) < self.max_inflight:
@@ -427,11 +432,18 @@ class ReservoirStream(IterableDataset):
 
     def _insert(self, indices: np.ndarray, result: dict) -> None:
         t0 = time.perf_counter()
-        n = len(indices)
-        u = result["u"][:n]
-        if not isinstance(u, torch.Tensor):  # numpy from a worker process (writable: torch wants that)
-            u = torch.from_numpy(np.require(u, requirements="W"))
-        self.res.insert(u, torch.from_numpy(np.asarray(result["params"][:n])), indices)
+        # each index of the job once (the padding repeats them); on_blowup="skip" may have left some out
+        _, first = np.unique(result["index"], return_index=True)
+        rows = np.sort(first)
+        self.skipped += len(indices) - len(rows)
+        _bridge.warn_skipped(dict.fromkeys(result.get("skipped", ())))  # (a padded job repeats its lines)
+        if len(rows):
+            u = result["u"]
+            if isinstance(u, torch.Tensor):  # on JAX's device (DLPack): gathered there
+                u = u[torch.as_tensor(rows, device=u.device)]
+            else:  # numpy from a worker process (writable: torch wants that)
+                u = torch.from_numpy(np.require(u[rows], requirements="W"))
+            self.res.insert(u, torch.from_numpy(np.asarray(result["params"][rows])), result["index"][rows])
         self.drawn_since_insert = 0
         self.t_insert += time.perf_counter() - t0
 
@@ -557,7 +569,7 @@ class ReservoirStream(IterableDataset):
                 "reuse_mean": float(counts @ np.arange(len(counts))) / total / self.per_trajectory if total else 0.0,
                 "reuse_max": float(used[-1]) / self.per_trajectory if total else 0.0,
                 "solver_traj_per_s": res.inserted / elapsed, "examples_per_s": res.drawn / elapsed,
-                "wait_share": self.t_wait / elapsed}
+                "wait_share": self.t_wait / elapsed, "skipped": self.skipped}
 
     def report(self) -> dict:
         """What a run saves about its data: stats, reuse of every trajectory (1 = one FIFO pass), and where

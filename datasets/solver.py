@@ -29,6 +29,9 @@ class SolverOracle:
         self.pde = _bridge.solver_pde(pde)
         if getattr(self.pde, "STEADY", False):
             raise ValueError(f"{self.pde.NAME}: a steady PDE has no frames to advance; allowed: time-dependent PDEs")
+        if not getattr(self.pde, "ADVANCES", True):
+            raise ValueError(f"{self.pde.NAME}: its solver does not advance a given state (an external solver makes "
+                             "whole trajectories); allowed: --mode one-step, or a catalog / spectral PDE")
         self.param_names: list[str] = list(self.pde.PARAMS)
 
     def __call__(self, u: torch.Tensor, params: torch.Tensor | None = None, frames: int = 1) -> torch.Tensor:

@@ -53,7 +53,10 @@ class TrajectoryStream(IterableDataset):
     pde: generator PDE or catalog name; view: "whole" / "next_step" / "operator" or a view object (extra
     keyword arguments configure a named view, e.g. k_in=2, windows=4); batch_size: examples per batch;
     n_samples: trajectories per epoch (None: endless); solve_batch: trajectories per solver call;
-    rank/world_size: default from torch.distributed when initialized; on_blowup: "raise" or "redraw".
+    rank/world_size: default from torch.distributed when initialized; on_blowup: "raise", "redraw" or "skip"
+    (a failed sample is left out with a SkippedSamples warning naming it: its examples are missing from the
+    epoch, and a stream resumed from ``state_dict`` counts the examples consumed as if none were skipped, so a
+    resume after a skip may repeat or miss a few examples of that solve batch).
     Batches are dicts of tensors as in ``datasets.views`` (e.g. next_step: x [B, k_in, C, *space],
     y [B, k_out, C, *space], t0 [B], params [B, P], index [B]).
     """
@@ -79,8 +82,7 @@ class TrajectoryStream(IterableDataset):
             if not (isinstance(rank, (int, np.integer)) and 0 <= rank < world_size):
                 raise ValueError(f"rank={_plain(rank)!r} not allowed; must be in [0, {world_size})")
         self.rank, self.world_size = rank, world_size
-        if on_blowup not in ("raise", "redraw"):
-            raise ValueError(f"on_blowup={on_blowup!r} not allowed; allowed: 'raise', 'redraw'")
+        _bridge.check_on_blowup(on_blowup)
         self.on_blowup, self.shuffle, self.resample = on_blowup, bool(shuffle), bool(resample)
         self.drop_last, self.prefetch = bool(drop_last), bool(prefetch)
         self.per_trajectory = len(self.view.starts(self.pde.n_frames, torch.Generator()))
@@ -206,7 +208,11 @@ class TrajectoryStream(IterableDataset):
         indices = self._base(epoch) + shard + positions * stride
         padded = np.resize(indices, self.solve_batch)  # one shape for the solver; extras are dropped
         data = _bridge.sample_tensors(self.pde, padded, self.seed, self.on_blowup)
-        data = {k: (v[: len(indices)] if k in ("u", "params", "index") else v) for k, v in data.items()}
+        # each index once (the padding repeats them), in order; with on_blowup="skip" the failed ones are gone
+        _, first = np.unique(data["index"].numpy(), return_index=True)
+        rows = torch.from_numpy(np.sort(first))
+        data = {k: (v[rows] if k in ("u", "params", "index") else v) for k, v in data.items()}
+        indices = data["index"].numpy()
         traj, start = [], []
         for b, i in enumerate(indices):
             rng = torch.Generator().manual_seed(_derived_seed(self.seed, epoch, i, 0))

@@ -5,6 +5,8 @@ JAX only (never imports torch). Public API::
     PDES                              the catalog {name: problem class} (generator.catalog: entries, groups)
     Problem                           what every problem offers (generator.problem); families: PDE (spectral,
                                       time-dependent), SteadyProblem (elliptic, no time axis)
+    ExternalSolver                    any solver as an entry: subclass, give solve(params, seed) -> [T, C, *space]
+                                      or a COMMAND (generator.external: worker processes, timeouts, causes)
     register(name, cls)               your own PDE (generator.user; also entry points `pdestream.pdes` and
                                       import paths "package.module:Class" wherever a name goes)
     get_pde(name, **overrides)        a configured PDE (overrides may be strings, e.g. nu="loguniform(1e-3, 1e-2)";
@@ -21,6 +23,7 @@ JAX only (never imports torch). Public API::
 from . import interactive, user
 from .catalog import GROUP, GROUPS, PDES, get_pde, pde_class, register
 from .domains import Choice, Domain, Fixed, LogUniform, Uniform, parse_domain
+from .external import ExternalSolver
 from .grids import BC_TYPE, BOUNDARY_TYPES, NodeGrid
 from .ics import IC_KINDS, FourierSeries, GaussianRandomField, GrayScottSpots, InitialCondition, make_ic
 from .origin import rebuild
@@ -118,7 +121,7 @@ def from_config(config: dict) -> PDE:
 
 
 __all__ = [
-    "BC_TYPE", "BOUNDARY_TYPES", "BlowUpError", "Choice", "Domain", "Fixed", "FourierSeries", "GROUP", "GROUPS",
+    "BC_TYPE", "BOUNDARY_TYPES", "BlowUpError", "Choice", "Domain", "ExternalSolver", "Fixed", "FourierSeries", "GROUP", "GROUPS",
     "GaussianRandomField", "GrayScottSpots", "Grid", "IC_KINDS", "InitialCondition", "LinearPDE", "LogUniform",
     "NodeGrid", "PDE", "PDES", "Param", "Problem", "ProblemBase", "SteadyProblem", "Trajectory", "Uniform",
     "draw_params", "enable_compilation_cache", "from_config", "get_pde", "pde_class", "register", "unregister", "user",

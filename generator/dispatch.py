@@ -74,6 +74,12 @@ def cancel_on(event: threading.Event | None) -> None:
     _CANCEL.event = event
 
 
+def cancelled() -> bool:
+    """Whether the calling thread's solves have been cancelled (``cancel_on``'s event is set)."""
+    event = getattr(_CANCEL, "event", None)
+    return event is not None and event.is_set()
+
+
 def sync(states) -> None:
     """Wait for the calls in flight (a Ctrl-C is seen here), then stop if this thread's solve was cancelled.
     states: a list of tuples whose first item is an array of the call."""

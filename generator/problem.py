@@ -84,6 +84,8 @@ class Problem(Protocol):
 
     def failure(self) -> tuple[str, str]: ...  # (what a failed sample did, how to avoid it), for BlowUpError
 
+    def failure_causes(self) -> list[str]: ...  # why each sample of this thread's last run_keys failed ('' if not)
+
 
 def draw_params(problem, key: jax.Array) -> dict[str, jax.Array]:
     """One draw of every parameter from its domain: {name: float32 scalar}."""
@@ -148,6 +150,11 @@ class ProblemBase(abc.ABC):
         """Class attributes of this class's ``ndim``-dimensional entry that depend on the dimension
         (PARAMS, FIELDS, EQUATION, UNUSED); only for classes with DIMENSIONS."""
         return {}
+
+    def failure_causes(self) -> list[str]:
+        """Why each sample of this thread's last ``run_keys`` failed, one line each ('' where it did not); empty:
+        the family has no per-sample cause (a NaN/Inf is its only failure, said by ``failure``)."""
+        return []
 
     def check_settings(self) -> None:  # noqa: B027 (an optional hook: most problems have nothing more to check)
         """Subclass hook: refuse values of the problem's own settings (types and finiteness are already checked)."""

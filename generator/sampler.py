@@ -25,12 +25,25 @@ PDE = Problem  # the name the signatures below have always used
 __all__ = ["BlowUpError", "Cancelled", "MAX_INDEX", "Trajectory", "cancel_on", "draw_params", "explicit_params",
            "sample", "sample_keys", "solve"]
 
-OnBlowup = Literal["raise", "redraw"]
+OnBlowup = Literal["raise", "redraw", "skip"]
+ON_BLOWUP = ("raise", "redraw", "skip")
 MAX_INDEX = 2**32 - 1
 
 
 class BlowUpError(ValueError):
-    """A solve produced NaN or Inf; names the sample indices and their parameters."""
+    """A solve produced NaN or Inf (or an external solver failed); names the sample indices, their parameters
+    and, where the problem gives one, each failure's cause."""
+
+
+class SkippedSamples(UserWarning):
+    """on_blowup="skip" left samples out: one line per sample, naming its index, parameters and cause."""
+
+
+def check_on_blowup(on_blowup) -> str:
+    """``on_blowup`` if it is a policy (raise / redraw / skip), else a one-line ValueError."""
+    if on_blowup not in ON_BLOWUP:
+        raise ValueError(f"on_blowup={on_blowup!r} not allowed; allowed: {', '.join(map(repr, ON_BLOWUP))}")
+    return on_blowup
 
 
 @dataclass
@@ -50,6 +63,7 @@ class Trajectory:
     indices: np.ndarray | None = None
     redraws: np.ndarray | None = field(default=None)
     inputs: jax.Array | None = None
+    skipped: tuple[str, ...] = ()  # on_blowup="skip": one line per sample left out (index, params, cause)
 
     def __len__(self) -> int:
         return int(self.u.shape[0])
@@ -123,16 +137,21 @@ def sample(
     on_blowup="redraw": such a sample is redrawn with attempt keys 1..max_redraws (deterministic per
     index; explicit parameters are kept, only the drawn ones and the IC change); ``Trajectory.redraws``
     counts them; still failing after max_redraws raises.
+    on_blowup="skip": such a sample is left out (the Trajectory has fewer rows; ``indices`` says which are
+    there) and ``Trajectory.skipped`` holds one line per sample left out (the stream and the reservoir issue
+    each as a SkippedSamples warning: ``warn_skipped``).
+    A problem with per-sample causes (an external solver: raised, timed out, crashed, wrong shape, NaN) names
+    each failure's cause (``failure_causes``).
     """
     pde = get_pde(pde) if isinstance(pde, str) else pde
-    if on_blowup not in ("raise", "redraw"):
-        raise ValueError(f"on_blowup={on_blowup!r} not allowed; allowed: 'raise', 'redraw'")
+    check_on_blowup(on_blowup)
     if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")  # True is an int to Python, not a seed
     idx = _check_indices(indices)
     explicit, given = explicit_params(pde, params, len(idx))
     # each kind of PDE solves its samples its own way (time-dependent: ETDRK4 rollouts; steady: PCG)
     u, params, finite, inputs = pde.run_keys(sample_keys(int(seed), idx), explicit, given)
+    causes = _causes(pde, len(idx))
     redraws = np.zeros(len(idx), np.int64)
     attempt = 0
     bad = np.flatnonzero(~np.asarray(finite))
@@ -141,20 +160,54 @@ def sample(
         # rerun the full batch shape (failed keys padded by repetition) so no new compile is needed
         retry = np.resize(bad, len(idx))
         u2, p2, f2, in2 = pde.run_keys(sample_keys(int(seed), idx[retry], attempt), explicit[retry], given[retry])
+        causes[bad] = _causes(pde, len(idx))[: bad.size]
         sel = jnp.asarray(bad)
         u = u.at[sel].set(u2[: bad.size])
         inputs = None if inputs is None else inputs.at[sel].set(in2[: bad.size])
         params = {k: v.at[sel].set(p2[k][: bad.size]) for k, v in params.items()}
         redraws[bad] = attempt
         bad = bad[~np.asarray(f2[: bad.size])]
+    if bad.size and on_blowup == "skip":
+        return _skipping(pde, u, params, idx, redraws, inputs, bad, causes)
     if bad.size:
-        detail = "; ".join(
-            f"index {idx[b]}: " + ", ".join(f"{k}={float(v[b]):.4g}" for k, v in params.items()) for b in bad[:5]
-        )
-        hint = "" if on_blowup == "redraw" else " (on_blowup='redraw' draws replacements)"
+        detail = "; ".join(_failed(pde.NAME, idx[b], causes[b], params, b) for b in bad[:5])
+        hint = "" if on_blowup == "redraw" else " (on_blowup='redraw' draws replacements, 'skip' leaves them out)"
         what, remedy = pde.failure()
         raise BlowUpError(f"{pde.NAME}: {bad.size} of {len(idx)} {what}: {detail}{hint}; {remedy}")
     return Trajectory(u=u, t=pde.times(), params=params, pde=pde, indices=idx, redraws=redraws, inputs=inputs)
+
+
+def warn_skipped(lines) -> None:
+    """Issue each line of ``Trajectory.skipped`` as a SkippedSamples warning (nothing left out silently)."""
+    import warnings
+
+    for line in lines:
+        warnings.warn(line, SkippedSamples, stacklevel=2)
+
+
+def _causes(pde: PDE, batch: int) -> np.ndarray:
+    """The per-sample causes of the last run_keys (object [batch], '' where none is given)."""
+    out = np.full(batch, "", object)
+    given = pde.failure_causes()
+    out[: len(given)] = given[:batch]
+    return out
+
+
+def _failed(name: str, index: int, cause: str, params: dict, b: int) -> str:
+    """One failed sample in words: its index and its cause, or (no cause given) its parameters."""
+    if cause:
+        return f"index {index}: {cause}"
+    return f"index {index}: " + ", ".join(f"{k}={float(v[b]):.4g}" for k, v in params.items())
+
+
+def _skipping(pde, u, params, idx, redraws, inputs, bad, causes) -> Trajectory:
+    """on_blowup="skip": the Trajectory of the samples that did not fail, with one line per failure."""
+    lines = tuple(f"{pde.NAME}: skipped sample {_failed(pde.NAME, idx[b], causes[b], params, b)}" for b in bad)
+    keep = np.setdiff1d(np.arange(len(idx)), bad)
+    sel = jnp.asarray(keep)
+    return Trajectory(u=u[sel], t=pde.times(), params={k: v[sel] for k, v in params.items()}, pde=pde,
+                      indices=idx[keep], redraws=redraws[keep], inputs=None if inputs is None else inputs[sel],
+                      skipped=lines)
 
 
 def solve(pde: PDE | str, u0, params: Mapping[str, float | Sequence[float]]) -> Trajectory:

@@ -20,7 +20,8 @@ from .checks import check_count
 TEST_SEED_OFFSET = 1_000_003  # test seeds never coincide with a training seed below this offset
 # data_cfg {"kind": "reservoir", ...}: the ReservoirStream keyword arguments a run may set
 RESERVOIR_SETTINGS = {"capacity", "max_reuse", "warmup", "eviction", "draw", "solve_batch", "mode", "producer",
-                      "workers", "scheduler", "inflight", "proposal", "proposal_kwargs", "sim_budget", "target_reuse"}
+                      "workers", "scheduler", "inflight", "proposal", "proposal_kwargs", "sim_budget", "target_reuse",
+                      "on_blowup"}
 
 
 def to_device(batch: dict, device: torch.device | str) -> dict:
