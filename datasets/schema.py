@@ -98,6 +98,11 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
     per_sample = {name: ("float32", {"long_name": p.description, "units": p.units,
                                      "domain": str(getattr(pde, name))})
                   for name, p in pde.PARAMS.items()}
+    taken = {*coords, *pde.INPUTS, *pde.FIELDS, "redraws", "complete"}
+    clash = sorted(set(pde.PARAMS) & taken)
+    if clash:  # (a user's parameter "x" made Zarr fail with "array exists at path 'x'" half-way through the write)
+        raise ValueError(f"{pde.NAME}: parameter(s) {clash} would be stored under a name the cache already uses; "
+                         f"rename them (taken: {', '.join(sorted(taken))})")
     per_sample["redraws"] = ("int8", {"long_name": "blow-up redraws used for this sample", "units": "1"})
     per_sample["complete"] = ("int8", {"long_name": "sample fully written", "flag_values": [0, 1],
                                        "flag_meanings": "missing written"})

@@ -107,3 +107,16 @@ class Noisy(Decay):
 
     def solve(self, params, seed):
         return super().solve(params, seed) + np.frombuffer(os.urandom(4), np.uint32)[0] * 1e-12
+
+
+@dataclass(frozen=True)
+class CoordinateNamedParam(Decay):
+    """Decay whose rate is called "x", the name of the cache's space coordinate."""
+
+    NAME: ClassVar[str] = "coordinate_param_ext1d"
+    PARAMS: ClassVar[dict] = {"x": Param("decay rate", "1/time", positive=True)}
+    k: Any = 1.0
+    x: Any = "uniform(0.5, 2.0)"
+
+    def solve(self, params, seed):
+        return super().solve({"k": params["x"]}, seed)

@@ -13,7 +13,7 @@ import warnings
 import numpy as np
 import pytest
 import torch
-from external_solvers import Cmd, CmdH5, Decay, Faulty, Noisy, NoSolve
+from external_solvers import Cmd, CmdH5, CoordinateNamedParam, Decay, Faulty, Noisy, NoSolve
 
 import cli
 import datasets
@@ -296,3 +296,12 @@ def test_a_padded_batch_solves_each_sample_once(monkeypatch):
     monkeypatch.setattr(external, "solve_all", lambda pde, jobs: calls.append(len(jobs)) or real(pde, jobs))
     traj = generator.sample(Decay(), [3, 4, 3, 4, 3], seed=0)
     assert calls == [2] and np.array_equal(u_of(traj)[2], u_of(traj)[0])
+
+
+@pytest.mark.parametrize("suffix", ["h5", "zarr"])
+def test_a_parameter_named_like_a_coordinate_is_refused_before_writing(tmp_path, suffix):
+    # Zarr failed half-way ("array exists at path 'x'"); now one line names the clash and nothing is written
+    path = tmp_path / f"c.{suffix}"
+    with pytest.raises(ValueError, match=r"parameter\(s\) \['x'\] would be stored under a name the cache already"):
+        datasets.write_cache(CoordinateNamedParam(), path, 2, progress=False)
+    assert not path.exists() and not list(tmp_path.iterdir())
