@@ -427,3 +427,13 @@ def test_train_run_with_a_reservoir_on_the_gpu(tmp_path):
     s = train_run(PDE, "stream", tmp_path / "run", model_cfg={"width": 8, "modes": 4, "layers": 1}, steps=6,
                   batch_size=4, n_test=2, checkpoint_every=0, device="cuda", data_cfg=cfg)
     assert s["steps"] == 6 and s["data_stats"]["inserted"] >= 8
+
+
+def test_the_default_solve_batch_follows_the_training_device():
+    import cli
+
+    parse = cli.build_parser().parse_args
+    assert cli.reservoir_cfg(parse(["train", "burgers1d", "--reservoir"]))["solve_batch"] == 16
+    assert cli.reservoir_cfg(parse(["train", "burgers1d", "--reservoir", "--device", "cuda:1"]))["solve_batch"] == 128
+    given = parse(["train", "burgers1d", "--reservoir", "--device", "cuda", "--solve-batch", "32"])
+    assert cli.reservoir_cfg(given)["solve_batch"] == 32
