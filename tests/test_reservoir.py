@@ -144,7 +144,9 @@ def test_async_mode_respects_the_bound_and_reports_stats():
     s = stream(mode="async", max_reuse=2)
     batches = take(s, 15)
     counts = collections.Counter(i for b in batches for i in b["index"].tolist())
-    assert max(counts.values()) <= 2
+    # (failed once in ~6 whole-suite runs, index 17 drawn 3 times; not reproduced in 30 runs alone: the details)
+    assert max(counts.values()) <= 2, (counts, [b["index"].tolist() for b in batches], s.res.index.tolist(),
+                                       s.res.uses.tolist(), s.res.inserted, s.res.evicted)
     st = s.stats()
     assert st["inserted"] >= 8 and 0 <= st["wait_share"] <= 1 and st["reuse_max"] <= 2
     assert set(st) >= {"inserted", "evicted", "reuse_mean", "reuse_max", "solver_traj_per_s", "examples_per_s"}
