@@ -50,3 +50,19 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.nodeid in listed:
             item.add_marker(pytest.mark.slow)
+
+
+@pytest.fixture
+def solver_settings():
+    """External solvers: each test starts from the default settings (1 worker, no timeout) and leaves the
+    environment as it found it (configure(), and so the CLI's --solver-workers / --solver-timeout, write
+    os.environ). Test files that run external solvers use it for every test."""
+    from generator import external
+
+    names = (external.WORKERS_ENV, external.TIMEOUT_ENV)
+    saved = {k: os.environ.pop(k, None) for k in names}
+    yield
+    for k, v in saved.items():
+        os.environ.pop(k, None)
+        if v is not None:
+            os.environ[k] = v

@@ -10,7 +10,7 @@ import pytest
 import torch
 import torch.distributed as dist
 import torch.multiprocessing as tmp
-from torch.utils.data import DataLoader
+from test_reservoir import take
 
 import cli
 import generator
@@ -31,17 +31,6 @@ RESERVOIR = {"kind": "reservoir", "capacity": 8, "max_reuse": 2.0, "solve_batch"
              "mode": "deterministic", "draw": "uniform"}
 TINY_MODEL = {"width": 8, "modes": 4, "layers": 2}
 STEPS, HALF = 8, 4
-
-
-def take(stream, n=None):
-    """The stream's batches (the first n, or all of a finite one), then close it."""
-    out = []
-    for batch in DataLoader(stream, batch_size=None):
-        out.append(batch)
-        if len(out) == n:
-            break
-    stream.close()
-    return out
 
 
 def same(a, b) -> bool:

@@ -21,18 +21,7 @@ import generator
 from generator import external
 from generator.sampler import SkippedSamples
 
-
-@pytest.fixture(autouse=True)
-def solver_settings():
-    """Each test starts from the defaults (1 worker, no timeout) and leaves the environment as it found it
-    (configure(), and so the CLI's --solver-workers / --solver-timeout, write os.environ)."""
-    names = (external.WORKERS_ENV, external.TIMEOUT_ENV)
-    saved = {k: os.environ.pop(k, None) for k in names}
-    yield
-    for k, v in saved.items():
-        os.environ.pop(k, None)
-        if v is not None:
-            os.environ[k] = v
+pytestmark = pytest.mark.usefixtures("solver_settings")  # (tests/conftest.py)
 
 
 def u_of(traj) -> np.ndarray:

@@ -14,8 +14,8 @@ from datasets.reservoir import Reservoir, ReservoirStream
 PDE = generator.get_pde("burgers1d", n=32, n_frames=4)
 
 
-def take(stream, n):
-    """The first n batches of a stream, then close it."""
+def take(stream, n=None):
+    """The stream's batches (the first n, or all of a finite one), then close it."""
     out = []
     for batch in DataLoader(stream, batch_size=None):
         out.append(batch)

@@ -2,7 +2,6 @@
 an independent solution, and each streamed into training through the reservoir from the command line at small
 size. The README shows the files' code verbatim (checked here, so they cannot drift)."""
 
-import os
 import re
 from pathlib import Path
 
@@ -15,18 +14,7 @@ import generator
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(autouse=True)
-def solver_settings():
-    """Default solver settings in each test, the environment restored after it (the CLI's options write it)."""
-    from generator import external
-
-    names = (external.WORKERS_ENV, external.TIMEOUT_ENV)
-    saved = {k: os.environ.pop(k, None) for k in names}
-    yield
-    for k, v in saved.items():
-        os.environ.pop(k, None)
-        if v is not None:
-            os.environ[k] = v
+pytestmark = pytest.mark.usefixtures("solver_settings")  # (tests/conftest.py)
 
 
 def readme_solver_blocks() -> list[str]:
