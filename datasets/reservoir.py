@@ -44,7 +44,7 @@ import math
 import os
 import time
 import weakref
-from concurrent.futures import FIRST_COMPLETED, wait
+from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, wait
 
 import numpy as np
 import torch
@@ -67,6 +67,17 @@ def _close_all() -> None:
     # a script may leave a stream open: let producers finish their job in flight instead of dying in JAX
     for stream in list(_OPEN):
         stream.close()
+
+
+def _solved(future, indices: np.ndarray) -> dict:
+    """A solve job's result; a producer process that died under it (killed, out of memory) is one line naming the
+    samples, not concurrent.futures' BrokenProcessPool traceback (the pool cannot run anything after that)."""
+    try:
+        return future.result()
+    except BrokenExecutor:
+        raise ValueError(f"a solver process of the reservoir's producer died (killed, or out of memory) while "
+                         f"solving samples {int(indices[0])}..{int(indices[-1])}; the stream stops (a run goes "
+                         "on with --resume from its last checkpoint)") from None
 
 
 def _physical_memory() -> int:
@@ -451,7 +462,7 @@ class ReservoirStream(IterableDataset):
         """Deterministic mode: wait for the oldest job and insert it."""
         indices, _params, future = self.pending.popleft()
         t0 = time.perf_counter()
-        result = future.result()
+        result = _solved(future, indices)
         self.t_wait += time.perf_counter() - t0
         self._insert(indices, result)
         self._fill_pipeline()
@@ -468,7 +479,7 @@ class ReservoirStream(IterableDataset):
         self.pending = still
         while self.done and self.res.room() >= len(self.done[0][0]):
             indices, _params, future = self.done.pop(0)
-            self._insert(indices, future.result())  # a failed solve (BlowUpError) is raised here
+            self._insert(indices, _solved(future, indices))  # a failed solve (BlowUpError) is raised here
         self._fill_pipeline()
 
     def _exhausted(self) -> bool:

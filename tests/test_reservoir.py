@@ -439,3 +439,20 @@ def test_the_default_solve_batch_follows_the_training_device():
     assert cli.reservoir_cfg(parse(["train", "burgers1d", "--reservoir", "--device", "cuda:1"]))["solve_batch"] == 128
     given = parse(["train", "burgers1d", "--reservoir", "--device", "cuda", "--solve-batch", "32"])
     assert cli.reservoir_cfg(given)["solve_batch"] == 32
+
+
+@pytest.mark.slow
+def test_a_killed_producer_process_stops_the_stream_in_one_line():
+    import os
+    import signal
+
+    s = stream(mode="async", producer="process", workers=1)
+    it = iter(DataLoader(s, batch_size=None))
+    next(it)
+    for pid in list(s._executor._processes):  # the pool's worker, as the OOM killer or a user would
+        os.kill(pid, signal.SIGKILL)
+    with pytest.raises(ValueError, match=r"a solver process of the reservoir's producer died .* while solving "
+                                         r"samples \d+\.\.\d+; the stream stops"):
+        for _ in range(200):
+            next(it)
+    s.close()
