@@ -450,10 +450,12 @@ class ReservoirStream(IterableDataset):
         _bridge.warn_skipped(dict.fromkeys(result.get("skipped", ())))  # (a padded job repeats its lines)
         if len(rows):
             u = result["u"]
+            # (rows is 0..m-1 unless a sample was skipped: then a slice, no copy of the solve batch)
+            pick = slice(0, len(rows)) if rows[-1] == len(rows) - 1 else rows
             if isinstance(u, torch.Tensor):  # on JAX's device (DLPack): gathered there
-                u = u[torch.as_tensor(rows, device=u.device)]
+                u = u[pick] if isinstance(pick, slice) else u[torch.as_tensor(pick, device=u.device)]
             else:  # numpy from a worker process (writable: torch wants that)
-                u = torch.from_numpy(np.require(u[rows], requirements="W"))
+                u = torch.from_numpy(np.require(u[pick], requirements="W"))
             self.res.insert(u, torch.from_numpy(np.asarray(result["params"][rows])), result["index"][rows])
         self.drawn_since_insert = 0
         self.t_insert += time.perf_counter() - t0
