@@ -439,6 +439,11 @@ def _add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                    help="active sampling: bootstrap loss models whose disagreement is the uncertainty signal (>= 2)")
     g.add_argument("--proposal-kappa", type=float, default=1.0,
                    help="active sampling: weight of that disagreement against the predicted log-loss")
+    g.add_argument("--priority-power", type=float, default=1.0, metavar="A",
+                   help="prioritized replay (--draw priority; compare's reservoir_priority and reservoir_active arms): "
+                        "a trajectory is drawn in proportion to its last training loss ** A (0: uniform)")
+    g.add_argument("--priority-floor", type=float, default=0.25,
+                   help="prioritized replay: share of uniform draws, in (0, 1]")
     g.add_argument("--solve-batch", type=int, help=f"trajectories per solver job (default: {SOLVE_BATCH['cpu']}; "
                                                     f"{SOLVE_BATCH['cuda']} with --device cuda, where small batches "
                                                     "leave the GPU idle)")
@@ -446,8 +451,9 @@ def _add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
         return
     g.add_argument("--warmup", type=int, help="trajectories held before the first batch (default: capacity/4)")
     g.add_argument("--eviction", choices=("fifo", "random"), default="fifo", help="which used trajectory makes way")
-    g.add_argument("--draw", choices=("uniform", "least_used"), default="uniform",
-                   help="which trajectories a batch draws: at random, or the least used first")
+    g.add_argument("--draw", choices=("uniform", "least_used", "priority"), default="uniform",
+                   help="which trajectories a batch draws: at random, the least used first, or by their last "
+                        "training loss (prioritized replay: --priority-power, --priority-floor)")
     g.add_argument("--producer", choices=("thread", "process", "dask"), default="thread",
                    help="who solves: a background thread, spawned processes, or a Dask cluster")
     g.add_argument("--workers", type=int, default=1, help="solver processes (--producer process, or an embedded Dask cluster)")
@@ -462,7 +468,7 @@ def _add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
 
 RESERVOIR_OPTIONS = ("capacity", "max_reuse", "reservoir_mode", "target_reuse", "proposal_floor", "solve_batch",
                      "warmup", "eviction", "draw", "producer", "workers", "scheduler", "proposal",
-                     "proposal_ensemble", "proposal_kappa", "on_blowup")
+                     "proposal_ensemble", "proposal_kappa", "on_blowup", "priority_power", "priority_floor")
 
 
 def _active_kwargs(args: argparse.Namespace) -> dict:
@@ -502,7 +508,8 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
            "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
            "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,
            "proposal_kwargs": {"floor": args.proposal_floor, **_active_kwargs(args)}, "solve_batch": solve_batch(args),
-           "target_reuse": args.target_reuse, "on_blowup": None if args.on_blowup == "raise" else args.on_blowup}
+           "target_reuse": args.target_reuse, "on_blowup": None if args.on_blowup == "raise" else args.on_blowup,
+           "priority_power": args.priority_power, "priority_floor": args.priority_floor}
     return {k: v for k, v in cfg.items() if v is not None}
 
 
@@ -909,13 +916,16 @@ def add_compare(sub) -> None:
     p.add_argument("--format", default="h5", choices=["h5", "zarr"], help="cache format")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier compare output in DIR")
     b = p.add_argument_group("budget-matched comparison (precomputed / fifo / reservoir / reservoir_loss / "
-                             "reservoir_active)")
+                             "reservoir_active / reservoir_priority)")
     b.add_argument("--budget", type=float, metavar="SECONDS",
                    help="every arm gets this wall-clock time (solving, caching and training all count)")
     b.add_argument("--sim-budget", type=int, metavar="N",
                    help="every arm gets N solved trajectories and --steps optimizer steps")
     b.add_argument("--arms", default=",".join(BUDGET_ARMS), help="comma-separated subset of the arms (default: all "
-                   "but reservoir_active, the active-sampling reservoir: add it by name)")
+                   "but the steered reservoir_active and reservoir_priority: add them by name)")
+    b.add_argument("--priority-cap", type=float, default=4.0, metavar="C",
+                   help="--sim-budget: the reuse bound of the prioritized-replay arms, in multiples of the mean reuse "
+                        "(>= 1; their solves are paced at the mean)")
     b.add_argument("--precompute-share", type=float, default=None,
                    help="--budget: share of the precomputed arm's time spent solving its dataset (default: sized "
                         "as a careful user would: as many trajectories as it can solve and train on --max-reuse "
@@ -1074,7 +1084,8 @@ def _budget_compare(args: argparse.Namespace) -> None:
                        max_reuse=args.max_reuse, target_reuse=args.target_reuse, reservoir_mode=args.reservoir_mode,
                        sim_warmup_share=args.sim_warmup_share,
                        proposal_floor=args.proposal_floor, proposal_kwargs=_active_kwargs(args),
-                       solve_batch=solve_batch(args), n_test=32 if args.quick and args.test_samples == 128 else args.test_samples, shift=args.shift,
+                       priority_power=args.priority_power, priority_floor=args.priority_floor,
+                       priority_cap=args.priority_cap, solve_batch=solve_batch(args), n_test=32 if args.quick and args.test_samples == 128 else args.test_samples, shift=args.shift,
                        seeds=(1 if args.quick else 3) if args.seeds is None else args.seeds, device=args.device)
     budget_compare(pde, args.out, cfg, shift_overrides=_parse_sets(args.shift_set))
     print((Path(args.out) / "compare.md").read_text(), end="")

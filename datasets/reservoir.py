@@ -9,8 +9,14 @@ examples (through the usual views) from what it holds, so a solve is reused inst
   one for ``operator``); the loop waits for fresh solves rather than exceed it. Mean reuse is reported.
 - **eviction** when full: ``"fifo"`` (oldest first) or ``"random"``, among trajectories drawn at least once
   (a solve is never thrown away unused: a producer that is faster than training waits instead).
-- **draw**: ``"uniform"`` over the trajectories below the bound, or ``"least_used"`` (the trajectory drawn
-  least, then its least-drawn window: Melissa's pairing of rarely used samples and windows).
+- **draw**: ``"uniform"`` over the trajectories below the bound, ``"least_used"`` (the trajectory drawn
+  least, then its least-drawn window: Melissa's pairing of rarely used samples and windows), or ``"priority"``
+  (prioritized replay, Schaul et al. 2016: a trajectory is drawn with probability proportional to its last
+  reported training loss to the power ``priority_power``, mixed with a uniform share ``priority_floor``; a new
+  trajectory starts at the highest priority held, so it is drawn soon and its loss measured). At a fixed
+  simulation budget this is the lever that reaches the initial conditions too: a proposal steers the
+  parameters of the next solves, the priorities steer training toward the hard trajectories already solved,
+  whatever made them hard. The reuse bound still holds.
 - **warmup**: no batch before ``warmup`` trajectories are in.
 - **mode** ``"deterministic"``: solves are inserted in submission order at fixed points of the draw sequence
   (after the warm-up, one solve batch of B trajectories each time B x max_reuse uses have been drawn, or
@@ -57,7 +63,7 @@ from .proposal import ParamProposal, _plain
 from .views import for_sample, gather, make_view
 
 MODES = ("async", "deterministic")
-DRAWS = ("uniform", "least_used")
+DRAWS = ("uniform", "least_used", "priority")
 EVICTIONS = ("fifo", "random")
 _OPEN: "weakref.WeakSet[ReservoirStream]" = weakref.WeakSet()
 
@@ -147,13 +153,17 @@ class Reservoir:
     u: float32 [capacity, T, C, *space] (allocated at the first insert) and params [capacity, P] on ``device``
     (the training device: gathers run there), with index_t int64 [capacity], the index's copy there; the
     bookkeeping stays on the host, so drawing never waits for the device: index, uses, serial (insertion
-    order, -1: empty slot) [capacity]; window_uses [capacity, n_windows].
+    order, -1: empty slot), priority (draw "priority": the last reported loss) [capacity]; window_uses
+    [capacity, n_windows].
     A trajectory is drawable while uses < cap_uses, and evictable once uses >= 1.
     """
 
     def __init__(self, capacity: int, cap_uses: int, n_windows: int, eviction: str, draw: str,
-                 rng: np.random.Generator, device: torch.device | str = "cpu"):
+                 rng: np.random.Generator, device: torch.device | str = "cpu", priority_power: float = 1.0,
+                 priority_floor: float = 0.25):
         self.capacity, self.cap_uses, self.n_windows = capacity, cap_uses, n_windows
+        self.priority_power, self.priority_floor = priority_power, priority_floor
+        self.priority = np.ones(capacity)  # draw "priority": each slot's last reported loss (> 0)
         self.eviction, self.draw_policy, self.rng = eviction, draw, rng
         self.device = torch.device(device)
         self.u = self.params = self.index_t = None
@@ -249,6 +259,9 @@ class Reservoir:
                 pick = self.rng.choice(len(used))
                 out[j], used = used[pick], np.delete(used, pick)
         slots = np.concatenate([empty, out]).astype(np.int64)
+        held = self.serial >= 0
+        # new trajectories at the highest priority held: drawn soon, so their own loss replaces it
+        self.priority[slots] = self.priority[held].max() if held.any() else 1.0
         np.add.at(self.evicted_counts, self.uses[out], 1)
         self.evicted += k
         self.index[slots], self.uses[slots] = index[:b], 0
@@ -272,6 +285,11 @@ class Reservoir:
             order = np.lexsort((self.rng.random(len(ok)), self.uses[ok]))  # by uses, ties at random
             slots = ok[order[:m]]
             starts = (self.window_uses[slots] + self.rng.random((m, self.n_windows))).argmin(1)
+        elif self.draw_policy == "priority":
+            w = self.priority[ok] ** self.priority_power
+            p = (1.0 - self.priority_floor) * w / w.sum() + self.priority_floor / len(ok)
+            slots = self.rng.choice(ok, size=m, replace=False, p=p / p.sum())
+            starts = self.rng.integers(self.n_windows, size=m)
         else:
             slots = self.rng.choice(ok, size=m, replace=False)
             starts = self.rng.integers(self.n_windows, size=m)
@@ -279,6 +297,13 @@ class Reservoir:
         self.window_uses[slots, starts] += 1
         self.drawn += m
         return slots, starts
+
+    def set_priority(self, slots: np.ndarray, losses: np.ndarray) -> None:
+        """Draw "priority": ``slots`` [m] get their examples' training losses [m] as priorities (clipped to
+        [1e-30, 1e30], so a power up to 8 stays finite; a slot drawn twice in a batch keeps its last); a
+        non-finite loss (a diverged step) leaves its slot's priority as it was."""
+        ok = np.isfinite(losses)
+        self.priority[slots[ok]] = np.clip(losses[ok], 1e-30, 1e30)
 
     def use_counts(self) -> np.ndarray:
         """Trajectories inserted so far (evicted and held) by use count: int64 [cap_uses + 1]."""
@@ -296,7 +321,8 @@ class ReservoirStream(IterableDataset):
     pde: generator PDE or catalog name; view (+ view keyword arguments) as for TrajectoryStream; batch_size:
     examples per batch; capacity: trajectories held (>= batch_size and >= solve_batch); max_reuse (>= 1): the
     bound on uses per trajectory; warmup: trajectories held before the first batch (default
-    max(solve_batch, capacity // 4)); eviction "fifo" | "random"; draw "uniform" | "least_used"; mode
+    max(solve_batch, capacity // 4)); eviction "fifo" | "random"; draw "uniform" | "least_used" | "priority" (+ priority_power in [0, 8] and
+    priority_floor in (0, 1]: prioritized replay by the last reported loss, see the module docstring); mode
     "async" | "deterministic" (see the module docstring); producer "thread" | "process" | "dask" (+ workers,
     scheduler); inflight: solve jobs submitted ahead (default: 2 per producer slot); target_reuse (in
     [1, max_reuse]): pace the solver so each trajectory pays for about this many uses (async: a solve is
@@ -318,7 +344,8 @@ class ReservoirStream(IterableDataset):
                  solve_batch: int = 16, mode: str = "async", producer: str = "thread", workers: int = 1,
                  scheduler: str | None = None, inflight: int | None = None, proposal: str = "uniform",
                  proposal_kwargs: dict | None = None, sim_budget: int | None = None, target_reuse: float | None = None,
-                 device=None, on_blowup: str = "raise", **view_kwargs):
+                 device=None, on_blowup: str = "raise", priority_power: float = 1.0, priority_floor: float = 0.25,
+                 **view_kwargs):
         self.pde = _bridge.resolve_pde(pde)
         if view_kwargs and not isinstance(view, str):
             raise ValueError(f"view options {sorted(view_kwargs)} only go with a view name, not a view object")
@@ -341,6 +368,11 @@ class ReservoirStream(IterableDataset):
             raise ValueError(f"warmup={warmup} not allowed: must be <= capacity ({capacity})")
         self.eviction = _check_choice("eviction", eviction, EVICTIONS)
         self.draw = _check_choice("draw", draw, DRAWS)
+        if isinstance(priority_power, bool) or not isinstance(priority_power, (int, float)) or not 0 <= priority_power <= 8:
+            raise ValueError(f"priority_power={priority_power!r} not allowed; must be in [0, 8] (0: uniform draws)")
+        if isinstance(priority_floor, bool) or not isinstance(priority_floor, (int, float)) or not 0 < priority_floor <= 1:
+            raise ValueError(f"priority_floor={priority_floor!r} not allowed; must be in (0, 1] (the uniform share of draws)")
+        self.priority_power, self.priority_floor = float(priority_power), float(priority_floor)
         self.mode = _check_choice("mode", mode, MODES)
         self.producer, self.workers, self.scheduler = producer, workers, scheduler
         self.on_blowup = _bridge.check_on_blowup(on_blowup)
@@ -376,7 +408,8 @@ class ReservoirStream(IterableDataset):
 
     def _reset_state(self) -> None:
         self.res = Reservoir(self.capacity, self.cap_uses, self.n_windows, self.eviction, self.draw,
-                             np.random.default_rng([self.seed, 1]), self._where)
+                             np.random.default_rng([self.seed, 1]), self._where, self.priority_power, self.priority_floor)
+        self._drawn = None  # (the last batch's params tensor, its slots, their serials): where its losses go
         self.next_index = 0  # the next sample index to submit
         self.pending: collections.deque = collections.deque()  # (indices, params, future) in submission order
         self.done: list = []  # async: finished jobs waiting for room
@@ -558,6 +591,7 @@ class ReservoirStream(IterableDataset):
         res, host = self.res, torch.from_numpy(np.stack([slots, starts]))
         sel = host if self._where.type == "cpu" else host.pin_memory().to(self._where, non_blocking=True)
         batch = gather(self.view, res.u, self._t_dev, res.params, res.index_t, sel[0], sel[1])
+        self._drawn = (batch["params"], slots, res.serial[slots].copy())
         if self._where.type != "cpu":  # the host's copy of the batch's parameters, for report_losses
             self._last = (batch["params"], torch.from_numpy(res.params_host[slots]))
         self.t_gather += time.perf_counter() - t0
@@ -570,7 +604,26 @@ class ReservoirStream(IterableDataset):
         params = batch["params"]
         if self._last is not None and params is self._last[0]:
             params = self._last[1]  # the same values, from the host: no wait for the device
-        self.proposal.record(params.detach().cpu().numpy(), per_example.detach().cpu().numpy())
+        losses = per_example.detach().cpu().numpy()
+        self.proposal.record(params.detach().cpu().numpy(), losses)
+        if self.draw == "priority":
+            self._prioritize(batch, losses)
+
+    def _prioritize(self, batch: dict, losses: np.ndarray) -> None:
+        """Draw "priority": the batch's per-example losses [B] become its trajectories' priorities; a trajectory
+        evicted since the batch was drawn is left alone (its slot holds another one now)."""
+        res = self.res
+        if self._drawn is not None and batch["params"] is self._drawn[0]:
+            slots, serial = self._drawn[1], self._drawn[2]
+            ok = res.serial[slots] == serial
+        else:  # a batch other than the last one drawn: find its trajectories by index
+            index = batch["index"].detach().cpu().numpy()
+            live = res.live()
+            where = {int(i): s for i, s in zip(res.index[live], live)}
+            slots = np.array([where.get(int(i), -1) for i in index], np.int64)
+            ok = slots >= 0
+        if len(losses) == len(slots):
+            res.set_priority(slots[ok], losses[ok])
 
     def stats(self) -> dict:
         """Reservoir figures for metrics.csv and the progress bar (flat dict of numbers)."""
@@ -610,6 +663,7 @@ class ReservoirStream(IterableDataset):
             "slots": live.tolist(), "index": res.index[live].tolist(),
             "params": res.params_host[live].tolist() if res.params is not None else [],
             "uses": res.uses[live].tolist(), "window_uses": res.window_uses[live].tolist(),
+            "priority": res.priority[live].tolist(),
             "serial": res.serial[live].tolist(),
             "counters": {"next_serial": res.next_serial, "inserted": res.inserted, "evicted": res.evicted,
                          "drawn": res.drawn, "next_index": self.next_index,
@@ -655,6 +709,8 @@ class ReservoirStream(IterableDataset):
             res.uses[slots] = state["uses"]
             res.window_uses[slots] = np.asarray(state["window_uses"], np.int64).reshape(len(slots), -1)
             res.serial[slots] = state["serial"]
+            # (states saved before draw "priority" existed have none: every priority 1)
+            res.priority[slots] = np.asarray(state.get("priority", np.ones(len(slots))), np.float64)
         c = state["counters"]
         res.next_serial, res.inserted, res.evicted, res.drawn = c["next_serial"], c["inserted"], c["evicted"], c["drawn"]
         self.next_index, self.drawn_since_insert = c["next_index"], c["drawn_since_insert"]
@@ -691,6 +747,10 @@ class ReservoirStream(IterableDataset):
             for name, value in state["counters"].items():
                 ints(f"counters.{name}", value, 0, last + 1 if name == "next_index" else 2**62)
             ints("evicted_counts", list(state["evicted_counts"]), 0, 2**62)
+            if "priority" in state:
+                priority = np.asarray(state["priority"], np.float64)
+                if priority.shape != (n,) or not (np.isfinite(priority) & (priority > 0)).all():
+                    raise ValueError(f"reservoir state: priority must be {n} finite numbers > 0, one per slot")
         except (KeyError, TypeError) as err:
             raise ValueError(f"reservoir state is incomplete or malformed ({type(err).__name__}: {err})") from None
 

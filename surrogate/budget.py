@@ -8,7 +8,11 @@ does: compiling, solving, writing and reading a cache, computing normalization s
 - ``reservoir``: the stream through a training reservoir (reuse under a bound, uniform parameters);
 - ``reservoir_loss``: the reservoir with loss-driven parameter sampling;
 - ``reservoir_active``: the reservoir with active sampling (loss model + ensemble disagreement, a proposal that
-  can hold a sharp mode, a uniform floor: ``datasets.proposal``, mode "active").
+  can hold a sharp mode, a uniform floor: ``datasets.proposal``, mode "active");
+- ``reservoir_priority``: the reservoir with uniform parameters and prioritized replay (draw "priority": each
+  trajectory drawn in proportion to its last training loss, over a uniform floor), the lever that reaches the
+  initial conditions, which no proposal over parameters steers. At a simulation budget its reuse bound is
+  ``priority_cap`` times the mean reuse (the solves paced at the mean), so hard trajectories can be drawn more.
 
 Two budgets:
 
@@ -59,9 +63,10 @@ from .modes import check_fits, make_mode, training_view
 from .phases import phase
 from .train import Stop, source_normalization, train
 
-ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss", "reservoir_active")
-DEFAULT_ARMS = ARMS[:4]  # reservoir_active is named to be run (one more arm x seeds on every default comparison)
+ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss", "reservoir_active", "reservoir_priority")
+DEFAULT_ARMS = ARMS[:4]  # the steered arms after them are named to be run (one more arm x seeds each)
 PROPOSALS = {"reservoir_loss": "loss", "reservoir_active": "active"}  # the steered arms' proposal modes
+DRAWS = {"reservoir_priority": "priority"}  # the arms that draw by priority (the rest: uniform)
 
 
 @dataclass
@@ -85,6 +90,9 @@ class BudgetConfig:
     reservoir_mode: str = "async"
     proposal_floor: float = 0.25
     proposal_kwargs: dict | None = None  # more ParamProposal settings for the steered arms (e.g. ensemble, kappa)
+    priority_power: float = 1.0  # prioritized replay: draw probability ~ last loss ** power ...
+    priority_floor: float = 0.25  # ... over this uniform share
+    priority_cap: float = 4.0  # sim budget: the priority arms' reuse bound, in multiples of the mean reuse
     solve_batch: int = 16
     seeds: int = 3  # repetitions per arm: model and data seeds 0..seeds-1 (mean, spread and verdicts)
     n_test: int = 128
@@ -104,6 +112,7 @@ class BudgetConfig:
         if unknown or not self.arms:
             raise ValueError(f"arms {list(self.arms)} not allowed; choose from {', '.join(ARMS)}")
         check_number("sim warm-up share", self.sim_warmup_share, 0, 1, closed="both")
+        check_number("--priority-cap", self.priority_cap, 1, closed="low")
         if self.precompute_share is not None:
             check_number("precompute share", self.precompute_share, 0, 1)
         check_device(self.device)
@@ -218,18 +227,22 @@ def _loader(arm: str, pde, view, cfg: BudgetConfig, seed: int, out: Path, clock_
                                            solve_batch=cfg.solve_batch, n_samples=cfg.sim_budget)
         return datasets.stream_loader(stream), {}
     per = len(view.starts(pde.n_frames, torch.Generator().manual_seed(0)))
-    reuse = cfg.max_reuse
+    draw = DRAWS.get(arm, "uniform")
+    reuse, target = cfg.max_reuse, cfg.target_reuse
     if cfg.sim_budget is not None:  # enough reuse for the steps, the bound still holding
-        reuse = max(1.0, 1.05 * cfg.steps * cfg.batch_size / (cfg.sim_budget * per))
+        reuse = target = max(1.0, 1.05 * cfg.steps * cfg.batch_size / (cfg.sim_budget * per))
+        if draw == "priority":  # room for the hard trajectories to be drawn more than the mean
+            reuse = cfg.priority_cap * target
     stream = datasets.ReservoirStream(
         pde, seed=seed, view=view, batch_size=cfg.batch_size, capacity=cfg.capacity,
         # at a simulation budget the solves are paced by training (deterministic schedule: one solve batch per
-        # solve_batch x max_reuse uses drawn), so loss-driven proposals see the model's current losses rather
+        # solve_batch x the mean reuse drawn), so loss-driven proposals see the model's current losses rather
         # than an untrained model's, and the run is reproducible
         max_reuse=reuse, solve_batch=cfg.solve_batch, sim_budget=cfg.sim_budget,
         mode="deterministic" if cfg.sim_budget is not None else cfg.reservoir_mode,
-        target_reuse=None if cfg.sim_budget is not None else cfg.target_reuse,
-        warmup=min(_warmup(cfg), cfg.capacity),
+        target_reuse=target if cfg.sim_budget is None or draw == "priority" else None,
+        warmup=min(_warmup(cfg), cfg.capacity), draw=draw, priority_power=cfg.priority_power,
+        priority_floor=cfg.priority_floor,
         proposal=PROPOSALS.get(arm, "uniform"), proposal_kwargs=_proposal_kwargs(cfg, arm))
     return DataLoader(stream, batch_size=None), {}
 
@@ -327,7 +340,8 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
     datasets.ReservoirStream(pde, view=view, batch_size=cfg.batch_size, capacity=cfg.capacity,
                              solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode,
                              proposal="active" if "reservoir_active" in cfg.arms else "uniform",
-                             proposal_kwargs=_proposal_kwargs(cfg, "reservoir_active"))  # settings checked before any work
+                             proposal_kwargs=_proposal_kwargs(cfg, "reservoir_active"), draw="priority",
+                             priority_power=cfg.priority_power, priority_floor=cfg.priority_floor)  # settings checked before any work
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

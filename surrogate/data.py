@@ -21,7 +21,7 @@ TEST_SEED_OFFSET = 1_000_003  # test seeds never coincide with a training seed b
 # data_cfg {"kind": "reservoir", ...}: the ReservoirStream keyword arguments a run may set
 RESERVOIR_SETTINGS = {"capacity", "max_reuse", "warmup", "eviction", "draw", "solve_batch", "mode", "producer",
                       "workers", "scheduler", "inflight", "proposal", "proposal_kwargs", "sim_budget", "target_reuse",
-                      "on_blowup"}
+                      "on_blowup", "priority_power", "priority_floor"}
 
 
 def to_device(batch: dict, device: torch.device | str) -> dict:
