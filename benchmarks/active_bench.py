@@ -9,7 +9,11 @@ verdict against the seed spread (the two arms' standard deviations added), and t
   explain (test trajectories binned in the unit box, about 8 cells: 8 bins for one parameter, 3 x 3 for two; the rest
   comes from the initial condition, which a proposal over parameters cannot steer);
 - ``in/out``: the steered arm's error ratio (uniform / arm, mean over seeds of per-trajectory errors) in the
-  unit-box bin with the highest uniform error, and in all the others.
+  unit-box bin with the highest uniform error, and in all the others;
+- ``target norm``: how much of that variance the norm of each test trajectory's last frame explains (relative
+  L2 divides by it: a trajectory that decayed to almost nothing has a large relative error for a small
+  absolute one, and an MSE-trained network spends nothing on it), and that norm for the worst 5% against the
+  median.
 
 Figures, not pass/fail.
 """
@@ -52,6 +56,8 @@ def summarize(out: Path) -> list[str]:
     result = json.loads((out / "compare.json").read_text())
     seeds = result["config"]["seeds"]
     uniform = _arm(result, "reservoir")
+    if uniform is None:
+        raise SystemExit(f"{out}: no uniform reservoir arm to compare with; run compare with --arms reservoir,...")
     budget = (f"{result['config']['sim_budget']} solves, {result['config']['steps']} steps" if result["config"]["sim_budget"]
               else f"{result['config']['budget_s']} s wall clock")
     lines = [f"{out.name}: {result['pde']['pde']} (n={result['pde'].get('n')}), {budget}, {seeds} seeds"]
@@ -66,7 +72,7 @@ def summarize(out: Path) -> list[str]:
     fitted = np.array([y[bins == b].mean() for b in bins])
     explained = 1 - ((y - fitted) ** 2).sum() / ((y - y.mean()) ** 2).sum()
     worst = max(set(bins.tolist()), key=lambda b: base.mean(0)[bins == b].mean())
-    for name in ("reservoir_loss", "reservoir_active"):
+    for name in ("reservoir_loss", "reservoir_active", "reservoir_priority"):
         arm = _arm(result, name)
         if arm is None or uniform is None:
             continue
@@ -84,6 +90,15 @@ def summarize(out: Path) -> list[str]:
     lines.append(f"  parameters explain {100 * explained:.0f}% of the variance of log error (uniform arm); the worst "
                  f"bin holds {int((bins == worst).sum())} of {len(bins)} test trajectories and "
                  f"{int((bins[np.argsort(base.mean(0))[-max(1, len(bins) // 20):]] == worst).sum())} of the top 5%")
+    from surrogate.budget import stratified_test_set
+
+    last = np.concatenate([b["u"][:, -1].flatten(1).norm(dim=1).numpy() for b in
+                           stratified_test_set(pde, result["config"]["n_test"], 0)])
+    x = np.log(np.maximum(last, 1e-30))
+    by_norm = np.corrcoef(x, y)[0, 1] ** 2
+    top = np.argsort(base.mean(0))[-max(1, len(y) // 20):]
+    lines.append(f"  the norm of the last frame explains {100 * by_norm:.0f}% of it (log-log, linear); the worst 5% end at "
+                 f"{np.median(last[top]) / np.median(last):.3g}x the median norm (median of their norms)")
     return lines
 
 

@@ -66,7 +66,7 @@ from .train import Stop, source_normalization, train
 ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss", "reservoir_active", "reservoir_priority")
 DEFAULT_ARMS = ARMS[:4]  # the steered arms after them are named to be run (one more arm x seeds each)
 PROPOSALS = {"reservoir_loss": "loss", "reservoir_active": "active"}  # the steered arms' proposal modes
-DRAWS = {"reservoir_priority": "priority"}  # the arms that draw by priority (the rest: uniform)
+DRAWS = {"reservoir_priority": "priority", "reservoir_active": "priority"}  # the arms that draw by priority (the rest: uniform)
 
 
 @dataclass

@@ -123,6 +123,10 @@ def test_verdicts_weigh_the_margin_against_the_seed_spread():
     (["--budget", "5", "--arms", "cache"], "arms ['cache'] not allowed; choose from precomputed, fifo"),
     (["--budget", "5", "--precompute-share", "1"], "precompute share=1.0 not allowed; must be in (0, 1)"),
     (["--budget", "5", "--capacity", "4"], "capacity=4 not allowed: must be >= batch_size (32)"),
+    (["--sim-budget", "16", "--arms", "reservoir_priority", "--priority-cap", "0.5"],
+     "--priority-cap=0.5 not allowed; must be a number >= 1"),
+    (["--sim-budget", "16", "--arms", "reservoir_priority", "--priority-floor", "0"],
+     "priority_floor=0.0 not allowed; must be in (0, 1] (the uniform share of draws)"),
     (["--sim-budget", "16", "--arms", "reservoir,reservoir_active", "--proposal-ensemble", "1"],
      "proposal ensemble=1 not allowed; must be an integer >= 2 (the uncertainty signal is the disagreement of its members)"),
 ])
@@ -137,11 +141,17 @@ def test_budget_refusals_are_one_line_and_create_nothing(capsys, tmp_path, args,
 def test_cli_quick_budget_compare_runs(capsys, tmp_path):
     out = tmp_path / "cmp"
     assert cli.main(["compare", "--quick", "--sim-budget", "16", "--steps", "6", "--batch-size", "8",
-                     "--capacity", "16", "--test-samples", "4", "--arms", "fifo,reservoir_loss,reservoir_active",
+                     "--capacity", "16", "--test-samples", "4", "--arms",
+                     "fifo,reservoir_loss,reservoir_active,reservoir_priority",
                      "--model-set", "width=8", "--model-set", "modes=4", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "| fifo |" in printed and "| reservoir_loss |" in printed and "compare.png" in printed
-    assert "| reservoir_active |" in printed
+    assert "| reservoir_active |" in printed and "| reservoir_priority |" in printed
+    # the priority arms may draw a trajectory up to --priority-cap (4) times the mean reuse, the others about once it
+    arm = {name: json.loads((out / name / "arm.json").read_text()) for name in ("reservoir_loss", "reservoir_priority")}
+    mean = 6 * 8 / 16
+    assert max(arm["reservoir_loss"]["reuse"]) <= 1.05 * mean + 1
+    assert max(arm["reservoir_priority"]["reuse"]) <= 4 * 1.05 * mean + 1
 
 
 def test_combine_seeds_reports_mean_and_spread():
