@@ -526,6 +526,10 @@ def _add_mode_args(p: argparse.ArgumentParser, train: bool) -> None:
                             f"subset of {', '.join(MODE_NAMES)}")
         g.add_argument("--fine-n", type=int, metavar="N",
                        help="solver-in-the-loop: the fine grid (default: the PDE's n)")
+    g.add_argument("--loss", choices=("mse", "relative"), default="mse",
+                   help="training loss: mse (in normalized units) or relative (the mean per-example relative L2, the "
+                        "FNO paper's: a trajectory with a small target weighs as much as any)"
+                        + ("" if train else "; with --budget / --sim-budget"))
     g.add_argument("--unroll", type=int, default=None, metavar="K",
                    help=f"steps unrolled by {takes('unroll')} (default {DEFAULTS['unroll']})")
     g.add_argument("--coarse-n", type=int, metavar="N",
@@ -538,7 +542,8 @@ def mode_cfg(args: argparse.Namespace) -> dict:
     not take (surrogate.mode_table.mode_settings); --k-out is checked with the view (surrogate.modes)."""
     from surrogate.mode_table import mode_settings
 
-    return mode_settings(args.mode, unroll=args.unroll, coarse_n=args.coarse_n)
+    settings = mode_settings(args.mode, unroll=args.unroll, coarse_n=args.coarse_n)
+    return settings if args.loss == "mse" else {**settings, "loss": args.loss}
 
 
 def _interactive_compare(args: argparse.Namespace) -> None:
@@ -1019,6 +1024,10 @@ def _compare(args: argparse.Namespace) -> None:
 
     from surrogate.compare import CompareConfig, compare
 
+    budget = args.budget is not None or args.sim_budget is not None or args.quick
+    if args.loss != "mse" and (args.modes is not None or not budget):
+        raise ValueError(f"--loss {args.loss} goes with --budget or --sim-budget (and with train), not with "
+                         f"{'--modes' if args.modes is not None else 'the stream/cache comparison'}")
     if args.modes is not None:
         return _interactive_compare(args)
     if args.unroll is not None or args.coarse_n is not None or args.fine_n is not None:
@@ -1086,7 +1095,8 @@ def _budget_compare(args: argparse.Namespace) -> None:
                        proposal_floor=args.proposal_floor, proposal_kwargs=_active_kwargs(args),
                        priority_power=args.priority_power, priority_floor=args.priority_floor,
                        priority_cap=args.priority_cap, solve_batch=solve_batch(args), n_test=32 if args.quick and args.test_samples == 128 else args.test_samples, shift=args.shift,
-                       seeds=(1 if args.quick else 3) if args.seeds is None else args.seeds, device=args.device)
+                       seeds=(1 if args.quick else 3) if args.seeds is None else args.seeds, device=args.device,
+                       mode=None if args.loss == "mse" else {"name": "one-step", "loss": args.loss})
     budget_compare(pde, args.out, cfg, shift_overrides=_parse_sets(args.shift_set))
     print((Path(args.out) / "compare.md").read_text(), end="")
     print(f"table: {args.out}/compare.md, compare.csv, compare.json; figure: {args.out}/compare.png")

@@ -22,6 +22,9 @@ per-mode branches:
 
 Modes that unroll predict one frame per network call and read ``frames_ahead`` frames from a next-step view
 (``training_view`` sets k_out to that). All of them work in normalized units (``datasets.Normalization``).
+Every mode takes ``loss``: "mse" (default: mean squared error over the batch) or "relative" (the mean of the
+per-example relative L2 errors, the FNO paper's training loss): MSE spends nothing on a trajectory whose target
+is small (a decayed flow), while the relative L2 the evaluation reports weighs every trajectory alike.
 Randomness (pushforward's n, the oracle's j) is a pure function of (seed, step), so a resumed run draws what the
 uninterrupted one drew.
 """
@@ -40,6 +43,22 @@ from datasets.normalize import Normalization
 
 from .mode_table import DEFAULTS, MODE_NAMES, mode_settings
 from .predict import model_channels, net_step, pairs, predict, relative_errors, rollout, stack_frames
+
+LOSSES = ("mse", "relative")
+
+
+def objective(loss: str, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The scalar training loss of pred against target [B, ...] (normalized units): "mse", or "relative", the
+    mean over examples of ||pred - target|| / ||target|| (the norm of a target of zeros counted as 1e-12)."""
+    if loss == "mse":
+        return F.mse_loss(pred, target)
+    return ((pred - target).flatten(1).norm(dim=1) / target.flatten(1).norm(dim=1).clamp_min(1e-12)).mean()
+
+
+def _with_loss(settings: dict, loss: str) -> dict:
+    """A mode's settings with its loss (left out when "mse": run.json files written before the setting existed
+    compare equal)."""
+    return settings if loss == "mse" else {**settings, "loss": loss}
 
 
 class Mode(Protocol):
@@ -109,9 +128,10 @@ class OneStep:
 
     name: ClassVar[str] = "one-step"
     unroll: int = 1
+    loss: str = "mse"
 
     def settings(self) -> dict:
-        return {"name": self.name}
+        return _with_loss({"name": self.name}, self.loss)
 
     def bind(self, pde, seed: int = 0) -> "OneStep":
         return self
@@ -128,7 +148,7 @@ class OneStep:
     def step_loss(self, model, batch, norm, step):
         target = stack_frames(norm.of_y.normalize(batch["y"]), model.ndim)  # [B, k_out*C, *space]
         pred = model(stack_frames(norm.of_x.normalize(batch["x"]), model.ndim), norm.normalize_params(batch["params"]))
-        return F.mse_loss(pred, target), relative_errors(pred, target)
+        return objective(self.loss, pred, target), relative_errors(pred, target)
 
     def rollout(self, model, norm, u, params, k_in):
         return _net_rollout(model, norm, u, params, k_in)
@@ -159,10 +179,11 @@ class Pushforward:
 
     unroll: int = DEFAULTS["unroll"]
     seed: int = 0
+    loss: str = "mse"
     name: ClassVar[str] = "pushforward"
 
     def settings(self) -> dict:
-        return {"name": self.name, "unroll": self.unroll}
+        return _with_loss({"name": self.name, "unroll": self.unroll}, self.loss)
 
     def bind(self, pde, seed: int = 0) -> "Pushforward":
         self.seed = seed
@@ -187,7 +208,7 @@ class Pushforward:
         window = _unrolled(model, norm.normalize(batch["x"]), p, n)  # the unrolled steps carry no gradient
         pred = net_step(model, window, p)[:, 0]  # [B, C, *space]
         target = norm.normalize(batch["y"][torch.arange(len(n), device=n.device), n])
-        return F.mse_loss(pred, target), relative_errors(pred, target)
+        return objective(self.loss, pred, target), relative_errors(pred, target)
 
     def rollout(self, model, norm, u, params, k_in):
         return _net_rollout(model, norm, u, params, k_in)
@@ -209,10 +230,11 @@ class Oracle:
     solver: object = None
     seed: int = 0
     dropped: int = 0
+    loss: str = "mse"
     name: ClassVar[str] = "oracle"
 
     def settings(self) -> dict:
-        return {"name": self.name, "unroll": self.unroll}
+        return _with_loss({"name": self.name, "unroll": self.unroll}, self.loss)
 
     def bind(self, pde, seed: int = 0) -> "Oracle":
         """The solver of the training PDE; seed: the run's seed (the draws of j)."""
@@ -275,7 +297,7 @@ class Oracle:
             full = torch.full((len(ok),), float(per.max()), dtype=torch.float64)
             full[ok.cpu()] = per
             per = full
-        return F.mse_loss(pred, target), per
+        return objective(self.loss, pred, target), per
 
     def rollout(self, model, norm, u, params, k_in):
         return _net_rollout(model, norm, u, params, k_in)
@@ -326,7 +348,7 @@ class SolverInTheLoop:
     Built with ``bind(pde)`` from the fine training PDE: the coarse solver is the same PDE config with
     n = coarse_n (its own stable step), ``factor`` = n / coarse_n. A step is
     s <- S(s) + std * net(normalize(S(s)), params): the network outputs the correction in normalized units.
-    The loss is the MSE over the k unrolled states against the fine trajectory subsampled, gradients through
+    The loss (``loss``) is over the k unrolled states against the fine trajectory subsampled, gradients through
     the solver (``datasets.SolverStep``). unroll=1 is training on precomputed (coarse step, fine) pairs.
     """
 
@@ -336,10 +358,11 @@ class SolverInTheLoop:
     factor: int = 0
     walls: tuple[str, ...] | None = None  # the PDE's per-axis bc (None: periodic), for the fine -> coarse points
     locations: tuple[str, ...] | None = None  # per channel, a staggered grid's field locations (FIELD_LOCATIONS)
+    loss: str = "mse"
     name: ClassVar[str] = "solver-in-the-loop"
 
     def settings(self) -> dict:
-        return {"name": self.name, "unroll": self.unroll, "coarse_n": self.coarse_n}
+        return _with_loss({"name": self.name, "unroll": self.unroll, "coarse_n": self.coarse_n}, self.loss)
 
     def frames_ahead(self, view) -> int:
         return self.unroll
@@ -389,7 +412,7 @@ class SolverInTheLoop:
             states.append(s)
         pred = norm.normalize(torch.stack(states, dim=1))  # [B, k, C, *coarse]
         target = norm.normalize(subsample(batch["y"][:, : self.unroll], self.factor, ndim, self.walls, self.locations))
-        return F.mse_loss(pred, target), relative_errors(pred, target)
+        return objective(self.loss, pred, target), relative_errors(pred, target)
 
     @torch.no_grad()
     def rollout(self, model, norm, u, params, k_in=1):
@@ -425,12 +448,15 @@ def check_mode_settings(name: str, unroll: int | None = None, coarse_n: int | No
 
 
 def make_mode(settings: dict | None) -> Mode:
-    """The mode of run.json's "mode" settings ({"name", "unroll", "coarse_n"}; None: one-step; a setting left
+    """The mode of run.json's "mode" settings ({"name", "unroll", "coarse_n", "loss"}; None: one-step; a setting left
     out: its default, ``mode_table.DEFAULTS``), not yet bound to a PDE: ``mode.bind(pde, seed)`` gives it its
     solver. ValueError (one line) for a bad name or setting."""
     s = dict(settings or {"name": "one-step"})
+    loss = s.pop("loss", "mse")
+    if loss not in LOSSES:
+        raise ValueError(f"--loss={loss!r} not allowed; allowed: {', '.join(LOSSES)}")
     s = mode_settings(s.pop("name", "one-step"), **s)
-    return MODES[s.pop("name")](**s)
+    return MODES[s.pop("name")](**s, loss=loss)
 
 
 def training_view(mode: Mode, view):

@@ -4,7 +4,7 @@ A batch is {"x": [B, k_in, C, *space] or [B, C, *space], "y": same layout with k
 "index": [B], ...}. Frames are stacked into channels for the model ([B, k*C, *space]); fields and
 parameters are normalized by a ``datasets.Normalization`` (per-field / per-parameter mean and std) taken from the
 data source when it offers one (a stream's calibration draw, a cache's stored samples), else from the first
-training batch. The loss is the MSE in normalized units.
+training batch. The loss is the mode's (``surrogate.modes``: MSE in normalized units, or the mean relative L2).
 
 The run directory gets ``metrics.csv`` (one row per log step), ``metrics.json`` (summary, written once at the
 end: its presence marks a finished run), ``model.pt`` and ``checkpoint.pt`` (the whole training state every

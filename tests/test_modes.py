@@ -270,3 +270,48 @@ def test_cli_compare_modes_quick(tmp_path, capsys):
     assert not (tmp_path / "other").exists()
     assert cli.main(["compare", "--modes", "one-step,dagger", "--quick", "--out", str(tmp_path / "other")]) == 2
     assert "--modes one-step,dagger not allowed; choose from one-step" in capsys.readouterr().err
+
+
+# --- the training loss: mse or relative -----------------------------------------------------------------
+def test_relative_loss_is_the_mean_per_example_relative_l2_and_weighs_small_targets_alike():
+    from surrogate.modes import objective
+
+    target = torch.tensor([[3.0, 4.0], [0.003, 0.004]])  # norms 5 and 0.005
+    pred = target * torch.tensor([[1.1], [1.2]])  # 10% and 20% off
+    assert objective("relative", pred, target).item() == pytest.approx(0.15)
+    assert objective("mse", pred, target).item() == pytest.approx((0.3**2 + 0.4**2) / 4 + (0.0006**2 + 0.0008**2) / 4)
+    # how much each example's relative error moves the loss: pred_i = (1 + s_i) target_i, d loss / d s_i equal
+    # for both under "relative", the small one's a millionth of the large one's under MSE
+    for loss, ratio in (("relative", 1.0), ("mse", 1e-6)):
+        s = torch.tensor([0.1, 0.2], requires_grad=True)
+        objective(loss, (1 + s)[:, None] * target, target).backward()
+        got = float(s.grad[1] / s.grad[0]) * (0.1 / 0.2 if loss == "mse" else 1.0)  # (MSE's grows with s)
+        assert got == pytest.approx(ratio, rel=1e-3), (loss, got)
+
+
+@pytest.mark.parametrize("settings, pde, k_out", [
+    ({"name": "one-step", "loss": "relative"}, PDE, 1),
+    ({"name": "pushforward", "unroll": 3, "loss": "relative"}, PDE, 3),
+    ({"name": "solver-in-the-loop", "unroll": 2, "coarse_n": 16, "loss": "relative"}, FINE, 2),
+])
+def test_each_mode_trains_on_the_relative_loss(settings, pde, k_out):
+    mode = bound(settings, pde)
+    plain = {k: v for k, v in settings.items() if k != "loss"}
+    assert mode.settings() == {**plain, "loss": "relative"} and bound(plain, pde).settings() == plain
+    losses, _ = train_steps(mode, pde, k_out)
+    assert min(losses[-3:]) < losses[0]
+
+
+def test_cli_train_loss_relative_is_recorded_and_a_resume_keeps_it(tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["train", "burgers1d", "--set", "n=32", "--set", "n_frames=11", "--steps", "4", "--batch-size", "4",
+            "--model-set", "width=8", "--model-set", "modes=4", "--model-set", "layers=2", "--test-samples", "2"]
+    assert cli.main([*args, "--loss", "relative", "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["mode"] == {"name": "one-step", "loss": "relative"}
+    assert cli.main(["train", "--resume", str(out), "--steps", "6"]) == 0
+    assert json.loads((out / "run.json").read_text())["mode"] == {"name": "one-step", "loss": "relative"}
+    capsys.readouterr()
+    assert cli.main(["compare", "burgers1d", "--loss", "relative", "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    assert "--loss relative goes with --budget or --sim-budget" in err and err.count("\n") == 1
+    assert not (tmp_path / "c").exists()
