@@ -471,6 +471,14 @@ RESERVOIR_OPTIONS = ("capacity", "max_reuse", "reservoir_mode", "target_reuse", 
                      "proposal_ensemble", "proposal_kappa", "on_blowup", "priority_power", "priority_floor")
 
 
+def _check_priority_options(args: argparse.Namespace, used: bool, needs: str) -> None:
+    """--priority-power / --priority-floor given where no draw is prioritized: one line (they would do nothing)."""
+    given = [name for name, default in (("--priority-power", 1.0), ("--priority-floor", 0.25))
+             if getattr(args, name[2:].replace("-", "_")) != default]
+    if given and not used:
+        raise ValueError(f"{', '.join(given)} {'goes' if len(given) == 1 else 'go'} with {needs} (prioritized replay)")
+
+
 def _active_kwargs(args: argparse.Namespace) -> dict:
     """--proposal-ensemble / --proposal-kappa as ParamProposal settings (an ensemble < 2 is refused there, in one
     line: one model has no disagreement)."""
@@ -504,6 +512,7 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
         raise ValueError(f"--workers={args.workers} not allowed; must be >= 1 (solver processes or Dask workers)")
     if args.source != "stream":
         raise ValueError(f"--reservoir goes with --source stream (got --source {args.source})")
+    _check_priority_options(args, args.draw == "priority", "--draw priority")
     cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,
            "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
            "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,
@@ -1087,6 +1096,8 @@ def _budget_compare(args: argparse.Namespace) -> None:
     model_cfg = (small if args.quick else {"width": 64, "modes": 16, "layers": 4}) if args.model.startswith("fno") else {}
     model_cfg.update(_parse_sets(args.model_set))
     arms = tuple(a.strip() for a in args.arms.split(",") if a.strip())
+    _check_priority_options(args, bool({"reservoir_active", "reservoir_priority"} & set(arms)),
+                            "the arms reservoir_active or reservoir_priority")
     cfg = BudgetConfig(budget_s=args.budget, sim_budget=args.sim_budget, arms=arms, model=args.model,
                        model_cfg=model_cfg, view=_view_from_args(args, "operator"), batch_size=args.batch_size,
                        lr=args.lr, steps=args.steps, precompute_share=args.precompute_share, capacity=args.capacity,

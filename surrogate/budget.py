@@ -410,7 +410,7 @@ def _write_tables(out: Path, result: dict, pde, cfg: BudgetConfig) -> None:
             "wall s", "data wait", "mean reuse", "max reuse"]
     lines = [f"{pde.NAME} (" + ", ".join(f"{k} ~ {v}" for k, v in pde.param_domains.items()) + f", n={pde.n}), "
              f"budget: {budget}; {cfg.model} {cfg.model_cfg}, batch {cfg.batch_size}, lr {cfg.lr}, "
-             f"view {datasets.make_view(cfg.view)}; errors: relative L2 per trajectory over {cfg.n_test} test "
+             f"training loss {(cfg.mode or {}).get('loss', 'mse')}, view {datasets.make_view(cfg.view)}; errors: relative L2 per trajectory over {cfg.n_test} test "
              "trajectories stratified over the parameter box (mean, p95, max)"
              + (f", each the mean ± std over {cfg.seeds} seeds (steps, trajectories, wall: seed 0)"
                 if cfg.seeds > 1 else ""), "",

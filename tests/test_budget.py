@@ -123,6 +123,8 @@ def test_verdicts_weigh_the_margin_against_the_seed_spread():
     (["--budget", "5", "--arms", "cache"], "arms ['cache'] not allowed; choose from precomputed, fifo"),
     (["--budget", "5", "--precompute-share", "1"], "precompute share=1.0 not allowed; must be in (0, 1)"),
     (["--budget", "5", "--capacity", "4"], "capacity=4 not allowed: must be >= batch_size (32)"),
+    (["--sim-budget", "16", "--arms", "reservoir", "--priority-power", "2"],
+     "--priority-power goes with the arms reservoir_active or reservoir_priority (prioritized replay)"),
     (["--sim-budget", "16", "--arms", "reservoir_priority", "--priority-cap", "0.5"],
      "--priority-cap=0.5 not allowed; must be a number >= 1"),
     (["--sim-budget", "16", "--arms", "reservoir_priority", "--priority-floor", "0"],

@@ -387,6 +387,8 @@ def test_reservoir_options_without_reservoir_and_zero_workers_are_refused(tmp_pa
     assert "--capacity, --proposal go with --reservoir" in capsys.readouterr().err
     assert cli.main(_tiny_train(out, "--reservoir", "--producer", "dask", "--workers", "0")) == 2
     assert "--workers=0 not allowed; must be >= 1" in capsys.readouterr().err
+    assert cli.main(_tiny_train(out, "--reservoir", "--priority-floor", "0.5")) == 2
+    assert "--priority-floor goes with --draw priority (prioritized replay)" in capsys.readouterr().err
     assert not out.exists()
 
 
