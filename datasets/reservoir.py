@@ -570,30 +570,33 @@ class ReservoirStream(IterableDataset):
 
     def _batches(self):
         while True:
-            slots, starts, got = [], [], 0
+            # each part is gathered as soon as it is drawn: the next _draw may insert a solve batch, which evicts
+            # used trajectories, those of this very batch among them (gathering at the end read the newcomers)
+            parts, got = [], 0
             while got < self.batch_size:
                 s, w = self._draw(self.batch_size - got)
                 if not len(s):
                     break
-                slots.append(s)
-                starts.append(w)
+                parts.append((self._gather(s, w), s, self.res.serial[s].copy(), self.res.params_host[s]))
                 got += len(s)
             if not got:
                 return
-            slots, starts = np.concatenate(slots), np.concatenate(starts)
+            batch = parts[0][0] if len(parts) == 1 else {k: torch.cat([p[0][k] for p in parts]) for k in parts[0][0]}
+            slots, serial = np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts])
+            self._drawn = (batch["params"], slots, serial)
+            if self._where.type != "cpu":  # the host's copy of the batch's parameters, for report_losses
+                self._last = (batch["params"], torch.from_numpy(np.concatenate([p[3] for p in parts])))
             self.progress.add(0, 1)
-            yield self._gather(slots, starts)
+            yield batch
 
     def _gather(self, slots: np.ndarray, starts: np.ndarray) -> dict:
-        """The batch of examples (slots [m], window starts [m]), gathered where the storage is: on a GPU the
-        m pairs go over in one pinned, asynchronous copy and nothing waits for the device."""
+        """The examples (slots [m], window starts [m]) as a batch, gathered where the storage is: on a GPU the
+        m pairs go over in one pinned, asynchronous copy and nothing waits for the device (a later insert is
+        queued behind the gather on the same stream)."""
         t0 = time.perf_counter()
         res, host = self.res, torch.from_numpy(np.stack([slots, starts]))
         sel = host if self._where.type == "cpu" else host.pin_memory().to(self._where, non_blocking=True)
         batch = gather(self.view, res.u, self._t_dev, res.params, res.index_t, sel[0], sel[1])
-        self._drawn = (batch["params"], slots, res.serial[slots].copy())
-        if self._where.type != "cpu":  # the host's copy of the batch's parameters, for report_losses
-            self._last = (batch["params"], torch.from_numpy(res.params_host[slots]))
         self.t_gather += time.perf_counter() - t0
         return batch
 
