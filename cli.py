@@ -441,7 +441,8 @@ def _add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                    help="active sampling: weight of that disagreement against the predicted log-loss")
     g.add_argument("--priority-power", type=float, default=1.0, metavar="A",
                    help="prioritized replay (--draw priority; compare's reservoir_priority and reservoir_active arms): "
-                        "a trajectory is drawn in proportion to its last training loss ** A (0: uniform)")
+                        "a trajectory is drawn in proportion to its last training error (per-example relative L2) ** A "
+                        "(0: uniform)")
     g.add_argument("--priority-floor", type=float, default=0.25,
                    help="prioritized replay: share of uniform draws, in (0, 1]")
     g.add_argument("--solve-batch", type=int, help=f"trajectories per solver job (default: {SOLVE_BATCH['cpu']}; "
@@ -477,6 +478,13 @@ def _check_priority_options(args: argparse.Namespace, used: bool, needs: str) ->
              if getattr(args, name[2:].replace("-", "_")) != default]
     if given and not used:
         raise ValueError(f"{', '.join(given)} {'goes' if len(given) == 1 else 'go'} with {needs} (prioritized replay)")
+
+
+def _check_priority_cap(args: argparse.Namespace, used: bool) -> None:
+    """--priority-cap where no prioritized arm runs at a simulation budget: one line (it would do nothing)."""
+    if args.priority_cap != 4.0 and not used:
+        raise ValueError(f"--priority-cap={args.priority_cap:g} goes with --sim-budget and the arms reservoir_active or "
+                         "reservoir_priority (their reuse bound at a simulation budget)")
 
 
 def _active_kwargs(args: argparse.Namespace) -> dict:
@@ -889,7 +897,8 @@ def _train_rank(rank: int, ranks: int, args: argparse.Namespace, tmp: str, env: 
 
 def _print_run(s: dict, model: str, source: str, n_test: int, out) -> None:
     mode = s.get("mode") or {"name": "one-step"}
-    how = "" if mode["name"] == "one-step" else f" ({', '.join(f'{k} {v}' for k, v in mode.items() if k != 'name')})"
+    shown = {k: v for k, v in mode.items() if k != "name"}  # (unroll, coarse_n, loss when not mse)
+    how = f" ({', '.join(f'{k} {v}' for k, v in shown.items())})" if shown else ""
     if mode["name"] != "one-step":
         how = f" --mode {mode['name']}{how}"
     on = f" on {s['ranks']} ranks" if s.get("ranks") else ""  # (each rank its own data; the counts are all ranks')
@@ -1037,6 +1046,9 @@ def _compare(args: argparse.Namespace) -> None:
     if args.loss != "mse" and (args.modes is not None or not budget):
         raise ValueError(f"--loss {args.loss} goes with --budget or --sim-budget (and with train), not with "
                          f"{'--modes' if args.modes is not None else 'the stream/cache comparison'}")
+    if args.modes is not None or not budget:
+        _check_priority_options(args, False, "compare --budget / --sim-budget")
+        _check_priority_cap(args, False)
     if args.modes is not None:
         return _interactive_compare(args)
     if args.unroll is not None or args.coarse_n is not None or args.fine_n is not None:
@@ -1096,8 +1108,9 @@ def _budget_compare(args: argparse.Namespace) -> None:
     model_cfg = (small if args.quick else {"width": 64, "modes": 16, "layers": 4}) if args.model.startswith("fno") else {}
     model_cfg.update(_parse_sets(args.model_set))
     arms = tuple(a.strip() for a in args.arms.split(",") if a.strip())
-    _check_priority_options(args, bool({"reservoir_active", "reservoir_priority"} & set(arms)),
-                            "the arms reservoir_active or reservoir_priority")
+    steered = bool({"reservoir_active", "reservoir_priority"} & set(arms))
+    _check_priority_options(args, steered, "the arms reservoir_active or reservoir_priority")
+    _check_priority_cap(args, steered and args.sim_budget is not None)
     cfg = BudgetConfig(budget_s=args.budget, sim_budget=args.sim_budget, arms=arms, model=args.model,
                        model_cfg=model_cfg, view=_view_from_args(args, "operator"), batch_size=args.batch_size,
                        lr=args.lr, steps=args.steps, precompute_share=args.precompute_share, capacity=args.capacity,

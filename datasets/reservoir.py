@@ -12,7 +12,8 @@ examples (through the usual views) from what it holds, so a solve is reused inst
 - **draw**: ``"uniform"`` over the trajectories below the bound, ``"least_used"`` (the trajectory drawn
   least, then its least-drawn window: Melissa's pairing of rarely used samples and windows), or ``"priority"``
   (prioritized replay, Schaul et al. 2016: a trajectory is drawn with probability proportional to its last
-  reported training loss to the power ``priority_power``, mixed with a uniform share ``priority_floor``; a new
+  reported per-example loss (the training loop reports the relative L2 error, whatever the training loss) to the
+  power ``priority_power``, mixed with a uniform share ``priority_floor``; a new
   trajectory starts at the highest priority held, so it is drawn soon and its loss measured). At a fixed
   simulation budget this is the lever that reaches the initial conditions too: a proposal steers the
   parameters of the next solves, the priorities steer training toward the hard trajectories already solved,
@@ -259,9 +260,11 @@ class Reservoir:
                 pick = self.rng.choice(len(used))
                 out[j], used = used[pick], np.delete(used, pick)
         slots = np.concatenate([empty, out]).astype(np.int64)
-        held = self.serial >= 0
-        # new trajectories at the highest priority held: drawn soon, so their own loss replaces it
-        self.priority[slots] = self.priority[held].max() if held.any() else 1.0
+        # new trajectories at the highest priority among those still drawable (not the evicted, not those at their
+        # bound, whose priority no longer updates): drawn soon, so their own loss replaces it
+        keep = (self.serial >= 0) & (self.uses < self.cap_uses)
+        keep[out] = False
+        self.priority[slots] = self.priority[keep].max() if keep.any() else 1.0
         np.add.at(self.evicted_counts, self.uses[out], 1)
         self.evicted += k
         self.index[slots], self.uses[slots] = index[:b], 0
@@ -752,8 +755,8 @@ class ReservoirStream(IterableDataset):
             ints("evicted_counts", list(state["evicted_counts"]), 0, 2**62)
             if "priority" in state:
                 priority = np.asarray(state["priority"], np.float64)
-                if priority.shape != (n,) or not (np.isfinite(priority) & (priority > 0)).all():
-                    raise ValueError(f"reservoir state: priority must be {n} finite numbers > 0, one per slot")
+                if priority.shape != (n,) or not ((priority >= 1e-30) & (priority <= 1e30)).all():
+                    raise ValueError(f"reservoir state: priority must be {n} numbers in [1e-30, 1e30], one per slot")
         except (KeyError, TypeError) as err:
             raise ValueError(f"reservoir state is incomplete or malformed ({type(err).__name__}: {err})") from None
 

@@ -10,7 +10,7 @@ does: compiling, solving, writing and reading a cache, computing normalization s
 - ``reservoir_active``: the reservoir with active sampling (loss model + ensemble disagreement, a proposal that
   can hold a sharp mode, a uniform floor: ``datasets.proposal``, mode "active");
 - ``reservoir_priority``: the reservoir with uniform parameters and prioritized replay (draw "priority": each
-  trajectory drawn in proportion to its last training loss, over a uniform floor), the lever that reaches the
+  trajectory drawn in proportion to its last per-example relative L2 error in training, over a uniform floor), the lever that reaches the
   initial conditions, which no proposal over parameters steers. At a simulation budget its reuse bound is
   ``priority_cap`` times the mean reuse (the solves paced at the mean), so hard trajectories can be drawn more.
 

@@ -24,7 +24,10 @@ Modes that unroll predict one frame per network call and read ``frames_ahead`` f
 (``training_view`` sets k_out to that). All of them work in normalized units (``datasets.Normalization``).
 Every mode takes ``loss``: "mse" (default: mean squared error over the batch) or "relative" (the mean of the
 per-example relative L2 errors, the FNO paper's training loss): MSE spends nothing on a trajectory whose target
-is small (a decayed flow), while the relative L2 the evaluation reports weighs every trajectory alike.
+is small (a decayed flow), while the relative L2 the evaluation reports weighs every trajectory alike. Both are
+taken in normalized units: "relative" is the evaluation's physical relative L2 for fields whose normalization
+mean is about zero (velocities, vorticity, deviations); for a field with a large offset its denominator is the
+deviation from that offset, not the field.
 Randomness (pushforward's n, the oracle's j) is a pure function of (seed, step), so a resumed run draws what the
 uninterrupted one drew.
 """
