@@ -13,8 +13,8 @@ examples (through the usual views) from what it holds, so a solve is reused inst
   least, then its least-drawn window: Melissa's pairing of rarely used samples and windows), or ``"priority"``
   (prioritized replay, Schaul et al. 2016: a trajectory is drawn with probability proportional to its last
   reported per-example loss (the training loop reports the relative L2 error, whatever the training loss) to the
-  power ``priority_power``, mixed with a uniform share ``priority_floor``; a new
-  trajectory starts at the highest priority held, so it is drawn soon and its loss measured). At a fixed
+  power ``priority_power``, mixed with a uniform share ``priority_floor``; a new trajectory starts at the
+  highest priority among those still drawable, so it is drawn soon and its loss measured). At a fixed
   simulation budget this is the lever that reaches the initial conditions too: a proposal steers the
   parameters of the next solves, the priorities steer training toward the hard trajectories already solved,
   whatever made them hard. The reuse bound still holds.
@@ -324,8 +324,9 @@ class ReservoirStream(IterableDataset):
     pde: generator PDE or catalog name; view (+ view keyword arguments) as for TrajectoryStream; batch_size:
     examples per batch; capacity: trajectories held (>= batch_size and >= solve_batch); max_reuse (>= 1): the
     bound on uses per trajectory; warmup: trajectories held before the first batch (default
-    max(solve_batch, capacity // 4)); eviction "fifo" | "random"; draw "uniform" | "least_used" | "priority" (+ priority_power in [0, 8] and
-    priority_floor in (0, 1]: prioritized replay by the last reported loss, see the module docstring); mode
+    max(solve_batch, capacity // 4)); eviction "fifo" | "random"; draw "uniform" | "least_used" | "priority"
+    (+ priority_power in [0, 8] and priority_floor in (0, 1]: prioritized replay by the last reported loss, see
+    the module docstring); mode
     "async" | "deterministic" (see the module docstring); producer "thread" | "process" | "dask" (+ workers,
     scheduler); inflight: solve jobs submitted ahead (default: 2 per producer slot); target_reuse (in
     [1, max_reuse]): pace the solver so each trajectory pays for about this many uses (async: a solve is
