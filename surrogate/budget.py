@@ -240,7 +240,7 @@ def _loader(arm: str, pde, view, cfg: BudgetConfig, seed: int, out: Path, clock_
         # than an untrained model's, and the run is reproducible
         max_reuse=reuse, solve_batch=cfg.solve_batch, sim_budget=cfg.sim_budget,
         mode="deterministic" if cfg.sim_budget is not None else cfg.reservoir_mode,
-        target_reuse=target if cfg.sim_budget is None or draw == "priority" else None,
+        target_reuse=target,  # (at a sim budget = the bound unless it draws by priority: the same schedule)
         warmup=min(_warmup(cfg), cfg.capacity), draw=draw, priority_power=cfg.priority_power,
         priority_floor=cfg.priority_floor,
         proposal=PROPOSALS.get(arm, "uniform"), proposal_kwargs=_proposal_kwargs(cfg, arm))
