@@ -45,7 +45,7 @@ def _add_solver_args(p: argparse.ArgumentParser) -> None:
 
 def configure_solvers(args: argparse.Namespace) -> None:
     """--solver-workers / --solver-timeout for this process and the producers it starts (one line if bad)."""
-    from generator import external
+    from pdestream.generator.external import solver as external
 
     external.configure(getattr(args, "solver_workers", None), getattr(args, "solver_timeout", None))
 
@@ -96,7 +96,7 @@ def read_config(path: str) -> dict:
 def pde_from_args(name: str | None, args: argparse.Namespace, named: tuple[str | None, dict] | None = None):
     """The PDE named on the command line with --config then --set applied (``named``: the result of
     ``settings_from_args`` when the caller has it already, so the config file is read once)."""
-    import generator
+    from pdestream import generator
 
     name, settings = settings_from_args(name, args) if named is None else named
     if name is None:
@@ -105,7 +105,7 @@ def pde_from_args(name: str | None, args: argparse.Namespace, named: tuple[str |
 
 
 def cmd_list(args: argparse.Namespace) -> None:
-    import generator
+    from pdestream import generator
 
     if args.name is not None:
         return _list_entry(generator.get_pde(args.name), args.json)
@@ -204,7 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="with NAME: the settings as JSON")
     p.set_defaults(func=cmd_list)
 
-    for add in (add_generate, add_inspect, add_export, add_import, add_train, add_compare, add_bench):
+    for add in (add_generate, add_inspect, add_export, add_import, add_train, add_compare):
         add(sub)
     return parser
 
@@ -250,7 +250,7 @@ def _left_after_interrupt(out: str, resume: bool) -> str:
     """What an interrupted `generate` left at ``out``, in words (the writer has cleaned up by now)."""
     from pathlib import Path
 
-    from datasets.cache import is_complete, open_cache
+    from pdestream.datasets.cache import is_complete, open_cache
 
     if not Path(out).exists():
         return "nothing was written"
@@ -302,7 +302,7 @@ def check_disk_room(pde, out: str, n: int) -> None:
     import shutil
     from pathlib import Path
 
-    from datasets import max_index
+    from pdestream.datasets import max_index
 
     parent = Path(out).absolute().parent
     if not parent.is_dir() or isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= max_index() + 1:
@@ -317,14 +317,14 @@ def check_disk_room(pde, out: str, n: int) -> None:
 
 
 def _generate(pde, args: argparse.Namespace) -> None:
-    import datasets
+    from pdestream import datasets
 
     if not args.resume:
         check_disk_room(pde, args.out, args.n)
 
     kw = dict(seed=args.seed, resume=args.resume, overwrite=args.overwrite, block=args.block, on_blowup=args.on_blowup)
     if args.executor == "dask":
-        from datasets.distributed import write_cache_dask
+        from pdestream.datasets.distributed import write_cache_dask
 
         if args.scheduler and args.workers is not None:
             raise ValueError("--workers sizes the embedded cluster; with --scheduler the cluster has its own workers")
@@ -347,7 +347,7 @@ def add_inspect(sub) -> None:
 
 
 def cmd_inspect(args: argparse.Namespace) -> None:
-    from datasets import inspect
+    from pdestream.datasets import inspect
 
     print(inspect.summary(args.path))
     if args.plot:
@@ -371,7 +371,7 @@ def add_export(sub) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> None:
-    from datasets.export import export_cache
+    from pdestream.datasets.export import export_cache
 
     out = export_cache(args.cache, args.to, args.out, overwrite=args.overwrite)
     print(f"exported {args.cache} to {out} ({args.to})")
@@ -386,7 +386,7 @@ def add_import(sub) -> None:
 
 
 def cmd_import(args: argparse.Namespace) -> None:
-    from datasets.export import exported_as, import_export
+    from pdestream.datasets.export import exported_as, import_export
 
     out = import_export(args.path, args.out)
     print(f"imported {args.path} ({exported_as(args.path)}) to {out}")
@@ -531,7 +531,7 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
 
 
 def _add_mode_args(p: argparse.ArgumentParser, train: bool) -> None:
-    from surrogate.mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, takes
+    from pdestream.surrogate.mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, takes
 
     g = p.add_argument_group("interactive training modes (see surrogate/modes.py)")
     if train:
@@ -557,7 +557,7 @@ def _add_mode_args(p: argparse.ArgumentParser, train: bool) -> None:
 def mode_cfg(args: argparse.Namespace) -> dict:
     """The `train --mode` settings for train_run: the mode table's defaults, one line for an option the mode does
     not take (surrogate.mode_table.mode_settings); --k-out is checked with the view (surrogate.modes)."""
-    from surrogate.mode_table import mode_settings
+    from pdestream.surrogate.mode_table import mode_settings
 
     settings = mode_settings(args.mode, unroll=args.unroll, coarse_n=args.coarse_n)
     return settings if args.loss == "mse" else {**settings, "loss": args.loss}
@@ -567,7 +567,7 @@ def _interactive_compare(args: argparse.Namespace) -> None:
     """`compare PDE --modes ...`: training modes at equal steps (surrogate.interactive_compare)."""
     from pathlib import Path
 
-    from surrogate.interactive_compare import InteractiveConfig, interactive_compare
+    from pdestream.experiments.interactive_compare import InteractiveConfig, interactive_compare
 
     if args.budget is not None or args.sim_budget is not None:
         raise ValueError("--modes compares at equal --steps; --budget and --sim-budget go with the data-route comparison")
@@ -614,7 +614,7 @@ def _set_threads(threads: int | None) -> None:
 
 
 def _view_from_args(args, default: str):
-    import datasets
+    from pdestream import datasets
 
     name = args.view or default
     return datasets.make_view(name, k_in=args.k_in, k_out=args.k_out) if name == "next_step" else datasets.make_view(name)
@@ -666,7 +666,7 @@ def _settings_given_with_resume(args: argparse.Namespace) -> list[str]:
 
 def _train_ranks(args: argparse.Namespace) -> int:
     """The ranks this `train` runs on: --ddp N, or torchrun's WORLD_SIZE (they must agree when both are set)."""
-    from surrogate.ddp import env_world
+    from pdestream.surrogate.ddp import env_world
 
     env = env_world()
     if args.ddp is not None:
@@ -679,7 +679,7 @@ def _train_ranks(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> None:
-    from surrogate import ddp
+    from pdestream.surrogate import ddp
 
     configure_solvers(args)  # (environment variables: spawned ranks and their producers inherit them)
     ranks = _train_ranks(args)
@@ -722,8 +722,8 @@ def _check_new_train(args: argparse.Namespace, ranks: int):
 def _new_train(args: argparse.Namespace, ranks: int) -> None:
     from pathlib import Path
 
-    from surrogate import ddp
-    from surrogate.runs import remove_staging, replace_run, staging_dir, train_run
+    from pdestream.surrogate import ddp
+    from pdestream.surrogate.runs import remove_staging, replace_run, staging_dir, train_run
 
     pde, named, held = _check_new_train(args, ranks)
     _set_threads(default_threads(args.source, ranks) if args.threads is None else args.threads)
@@ -762,7 +762,7 @@ def _new_train(args: argparse.Namespace, ranks: int) -> None:
 def _overwrite_left(staging, out) -> str:
     """What an interrupted `train --overwrite` leaves, in words: the new run in place of the old one if it has a
     checkpoint to resume from, else the old run untouched (and the new one's files removed)."""
-    from surrogate.runs import CHECKPOINT, remove_staging, replace_run
+    from pdestream.surrogate.runs import CHECKPOINT, remove_staging, replace_run
 
     if (staging / CHECKPOINT).is_file():
         replace_run(staging, out)
@@ -785,8 +785,8 @@ def _train_left(out, before) -> str:
 
 def _resume_train(args: argparse.Namespace, ranks: int = 1) -> None:
     """`train --resume RUN_DIR`: everything from RUN_DIR/run.json; other settings are refused (one line)."""
-    from surrogate import ddp
-    from surrogate.runs import resume_run
+    from pdestream.surrogate import ddp
+    from pdestream.surrogate.runs import resume_run
 
     run = _check_resume(args, ranks)
     settings = run[0]
@@ -808,7 +808,7 @@ def _check_resume(args: argparse.Namespace, ranks: int) -> tuple[dict, dict]:
     """read_run's (settings, checkpoint) of `train --resume RUN_DIR`, after its checks (ValueError: one line)."""
     from pathlib import Path
 
-    from surrogate.runs import RUN_FILE, check_ranks, read_run
+    from pdestream.surrogate.runs import RUN_FILE, check_ranks, read_run
 
     given = _settings_given_with_resume(args)
     if given:
@@ -838,8 +838,8 @@ def _launch_train(args: argparse.Namespace, ranks: int) -> None:
         env = {}
         if data_cfg.get("producer") == "dask" and not data_cfg.get("scheduler"):
             # one pool for every rank: a cluster of --workers processes here, which all ranks' reservoirs submit to
-            from datasets.distributed import dask_client
-            from datasets.ranks import SHARED_SCHEDULER
+            from pdestream.datasets.distributed import dask_client
+            from pdestream.datasets.ranks import SHARED_SCHEDULER
 
             env[SHARED_SCHEDULER] = stack.enter_context(dask_client(None, data_cfg.get("workers", 1))).scheduler.address
         ctx = mp.get_context("spawn")  # JAX is not fork-safe
@@ -878,7 +878,7 @@ def _train_rank(rank: int, ranks: int, args: argparse.Namespace, tmp: str, env: 
     show once; ranks other than 0 print nothing."""
     from pathlib import Path
 
-    from surrogate.ddp import INIT_ENV
+    from pdestream.surrogate.ddp import INIT_ENV
 
     os.environ.update(RANK=str(rank), LOCAL_RANK=str(rank), WORLD_SIZE=str(ranks), LOCAL_WORLD_SIZE=str(ranks),
                       **{INIT_ENV: f"file://{tmp}/rendezvous"}, **env)
@@ -976,7 +976,7 @@ def compare_sets(args: argparse.Namespace) -> list[str]:
     """COMPARE_DEFAULTS as --set items ahead of the user's own: never a finer grid than the entry's default (a 3D
     entry keeps its n=32; n=64 was 8x the points and a reservoir past the machine's memory) and only the settings
     the entry has (a steady one has no frames: darcy2d was refused for an n_frames the user never set)."""
-    import generator
+    from pdestream import generator
 
     name, _ = settings_from_args(args.pde, args)
     try:
@@ -1040,7 +1040,7 @@ def _compare_left(out: str, before) -> str:
 def _compare(args: argparse.Namespace) -> None:
     from pathlib import Path
 
-    from surrogate.compare import CompareConfig, compare
+    from pdestream.experiments.compare import CompareConfig, compare
 
     budget = args.budget is not None or args.sim_budget is not None or args.quick
     if args.loss != "mse" and (args.modes is not None or not budget):
@@ -1059,7 +1059,7 @@ def _compare(args: argparse.Namespace) -> None:
     pde = pde_from_args(args.pde, args)
     _check_shift(pde, args)
     _set_threads(1 if args.threads is None else args.threads)
-    from surrogate.fno import COMPARE_FNO
+    from pdestream.surrogate.fno import COMPARE_FNO
 
     model_cfg = dict(COMPARE_FNO) if args.model.startswith("fno") else {}
     model_cfg.update(_parse_sets(args.model_set))
@@ -1076,7 +1076,7 @@ def _compare(args: argparse.Namespace) -> None:
 def _check_shift(pde, args: argparse.Namespace) -> None:
     """--shift and --shift-set checked (one line) before any cache or run is written: the shifted PDE is built
     once here the way the comparison builds it later (--shift 0 wrote a 256-sample cache before its refusal)."""
-    from surrogate.compare import shifted_pde
+    from pdestream.experiments.compare import shifted_pde
 
     if args.shift != args.shift or args.shift in (float("inf"), float("-inf")):
         raise ValueError(f"--shift {args.shift} not allowed: a finite fraction like 0.25 or -0.25")
@@ -1090,7 +1090,7 @@ def _budget_compare(args: argparse.Namespace) -> None:
     """`compare --budget S | --sim-budget N [--quick]`: every arm at the same cost (surrogate.budget)."""
     from pathlib import Path
 
-    from surrogate.budget import BudgetConfig, budget_compare
+    from pdestream.experiments.budget import BudgetConfig, budget_compare
 
     if args.quick:
         args.set = compare_sets(args)
@@ -1102,7 +1102,7 @@ def _budget_compare(args: argparse.Namespace) -> None:
     pde = pde_from_args(args.pde, args)
     _check_shift(pde, args)
     _set_threads(1 if args.threads is None else args.threads)
-    from surrogate.fno import COMPARE_FNO
+    from pdestream.surrogate.fno import COMPARE_FNO
 
     small = dict(COMPARE_FNO)
     model_cfg = (small if args.quick else {"width": 64, "modes": 16, "layers": 4}) if args.model.startswith("fno") else {}
@@ -1124,66 +1124,6 @@ def _budget_compare(args: argparse.Namespace) -> None:
     budget_compare(pde, args.out, cfg, shift_overrides=_parse_sets(args.shift_set))
     print((Path(args.out) / "compare.md").read_text(), end="")
     print(f"table: {args.out}/compare.md, compare.csv, compare.json; figure: {args.out}/compare.png")
-
-
-# --- bench (benchmarks) ------------------------------------------------------------------------------
-def add_bench(sub) -> None:
-    p = sub.add_parser("bench", help="benchmarks: generator vs Exponax, stream, cache (figures, not pass/fail)",
-                       description="Run the benchmark families (python -m benchmarks): generator (pdestream vs "
-                       "Exponax, FFT floor, warm start, memory, scaling), stream, cache, dask.")
-    p.add_argument("families", nargs="*", metavar="FAMILY", help="generator, stream, cache, dask (default: all)")
-    p.add_argument("--quick", action="store_true", help="smaller, faster runs")
-    p.add_argument("--json", metavar="OUT.json", help="write the generator figures as JSON")
-    p.set_defaults(func=cmd_bench)
-
-
-# what a benchmark family imports beyond the base install, and the extra that provides it
-BENCH_NEEDS = {"generator": ("exponax", "bench"), "dask": ("distributed", "dask")}
-
-
-def check_bench_extras(families: list[str]) -> None:
-    """ValueError naming the pip extra to install when a chosen family's optional package is missing."""
-    import importlib.util
-
-    missing = [(f, *BENCH_NEEDS[f]) for f in families if f in BENCH_NEEDS and importlib.util.find_spec(BENCH_NEEDS[f][0]) is None]
-    if missing:
-        need = "; ".join(f"the {f} benchmark needs {pkg}: pip install -e '.[{extra}]'" for f, pkg, extra in missing)
-        others = [f for f in families if f not in {m[0] for m in missing}]
-        hint = f" (or run the others: pdestream bench {' '.join(others)})" if others else ""
-        raise ValueError(need + hint)
-
-
-def import_benchmarks():
-    """The benchmarks package, from the source checkout beside this file (it is not in the wheel); ValueError
-    (one line) for an installed pdestream without it."""
-    import sys
-    from pathlib import Path
-
-    try:
-        import benchmarks.__main__ as bench
-    except ModuleNotFoundError:
-        root = Path(__file__).resolve().parent
-        if not (root / "benchmarks" / "__main__.py").is_file():
-            raise ValueError("pdestream bench runs the benchmarks of a source checkout (they are not in the wheel): "
-                             "clone the repository and run `pip install -e .` there") from None
-        sys.path.insert(0, str(root))  # an editable install maps only the packages it ships
-        import benchmarks.__main__ as bench
-    return bench
-
-
-def cmd_bench(args: argparse.Namespace) -> None:
-    from pathlib import Path
-
-    if args.json is not None:  # found before the benchmark runs, not after it
-        where = Path(args.json).absolute()
-        if where.is_dir() or not where.parent.is_dir():
-            raise ValueError(f"--json {args.json} not allowed: "
-                             + ("it is a directory" if where.is_dir() else f"its directory {where.parent} does not exist")
-                             + "; give a file in an existing directory")
-    bench = import_benchmarks()
-    families = args.families or bench.available()
-    check_bench_extras(families)
-    bench.run(families, args.quick, args.json)
 
 
 USER_ERRORS = (ValueError, FileExistsError, FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError)

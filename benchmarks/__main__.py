@@ -12,12 +12,38 @@ import argparse
 import importlib
 import importlib.util
 import sys
+from pathlib import Path
 
 FAMILIES = ("generator", "stream", "cache", "dask", "reservoir", "interactive", "darcy", "producer")
 
 
 def available() -> list[str]:
     return [f for f in FAMILIES if importlib.util.find_spec(f"benchmarks.{f}_bench") is not None]
+
+
+# what a benchmark family imports beyond the base install, and the extra that provides it
+NEEDS = {"generator": ("exponax", "bench"), "dask": ("distributed", "dask")}
+
+
+def check_extras(families: list[str]) -> None:
+    """ValueError naming the pip extra to install when a chosen family's optional package is missing."""
+    missing = [(f, *NEEDS[f]) for f in families if f in NEEDS and importlib.util.find_spec(NEEDS[f][0]) is None]
+    if missing:
+        need = "; ".join(f"the {f} benchmark needs {pkg}: pip install -e '.[{extra}]'" for f, pkg, extra in missing)
+        others = [f for f in families if f not in {m[0] for m in missing}]
+        hint = f" (or run the others: python -m benchmarks --only {','.join(others)})" if others else ""
+        raise ValueError(need + hint)
+
+
+def check_json_target(json_out: str | None) -> None:
+    """ValueError before any benchmark runs when --json names a directory or a file in a missing directory."""
+    if json_out is None:
+        return
+    where = Path(json_out).absolute()
+    if where.is_dir() or not where.parent.is_dir():
+        raise ValueError(f"--json {json_out} not allowed: "
+                         + ("it is a directory" if where.is_dir() else f"its directory {where.parent} does not exist")
+                         + "; give a file in an existing directory")
 
 
 def run(only: list[str] | None = None, quick: bool = False, json_out: str | None = None) -> None:
@@ -44,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     only = [f.strip() for f in args.only.split(",") if f.strip()] if args.only else None
     try:
+        check_json_target(args.json)
+        check_extras(only or available())
         run(only, args.quick, args.json)
     except ValueError as err:
         print(f"python -m benchmarks: error: {err}", file=sys.stderr)

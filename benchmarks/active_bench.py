@@ -42,7 +42,7 @@ def _seed_errors(out: Path, arm: str, seeds: int) -> np.ndarray:
 def _bins(result: dict) -> np.ndarray:
     """Bin id [N] of each test trajectory: its random parameters in the unit box, about 8 cells in all (8 bins
     for one parameter, 3 x 3 for two), so that each cell holds enough trajectories for its mean to mean something."""
-    from datasets.proposal import ParamProposal
+    from pdestream.datasets.proposal import ParamProposal
 
     domains = {k: tuple(v) if not isinstance(v, (list, tuple)) else (v[0], v[1], v[2], tuple(v[3]))
                for k, v in result["domains"].items()}
@@ -61,8 +61,7 @@ def summarize(out: Path) -> list[str]:
     budget = (f"{result['config']['sim_budget']} solves, {result['config']['steps']} steps" if result["config"]["sim_budget"]
               else f"{result['config']['budget_s']} s wall clock")
     lines = [f"{out.name}: {result['pde']['pde']} (n={result['pde'].get('n')}), {budget}, {seeds} seeds"]
-    import datasets
-    import generator
+    from pdestream import datasets, generator
 
     pde = generator.get_pde(result["pde"]["pde"], **{k: v for k, v in result["pde"].items() if k != "pde"})
     result["domains"] = datasets.param_domains(pde)
@@ -90,7 +89,7 @@ def summarize(out: Path) -> list[str]:
     lines.append(f"  parameters explain {100 * explained:.0f}% of the variance of log error (uniform arm); the worst "
                  f"bin holds {int((bins == worst).sum())} of {len(bins)} test trajectories and "
                  f"{int((bins[np.argsort(base.mean(0))[-max(1, len(bins) // 20):]] == worst).sum())} of the top 5%")
-    from surrogate.budget import stratified_test_set
+    from pdestream.experiments.budget import stratified_test_set
 
     last = np.concatenate([b["u"][:, -1].flatten(1).norm(dim=1).numpy() for b in
                            stratified_test_set(pde, result["config"]["n_test"], 0)])

@@ -17,13 +17,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-import datasets
-import generator
-from surrogate.data import test_set, train_loader
-from surrogate.metrics import rel_l2
-from surrogate.models import build_model
-from surrogate.predict import model_channels, pairs, predict
-from surrogate.train import train
+from pdestream import datasets, generator
+from pdestream.surrogate.data import test_set, train_loader
+from pdestream.surrogate.metrics import rel_l2
+from pdestream.surrogate.models import build_model
+from pdestream.surrogate.predict import model_channels, pairs, predict
+from pdestream.surrogate.train import train
 
 
 @torch.no_grad()

@@ -14,7 +14,7 @@ import time
 
 import jax
 
-import generator
+from pdestream import generator
 
 # (entry, its settings, the walls, batch)
 CASES = [

@@ -25,8 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-import datasets
-import generator
+from pdestream import datasets, generator
 
 CASES = {  # name: (overrides, n_samples, block)
     "burgers1d": ({"n": "256", "n_frames": "51"}, 512, 64),

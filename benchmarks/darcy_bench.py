@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
 
-import generator
+from pdestream import generator
 
 
 def _pde(n: int):
@@ -29,7 +29,7 @@ def _pde(n: int):
 
 
 def _darcy(n: int):
-    from generator.pdes.darcy2d import Darcy2D
+    from pdestream.generator.steady.darcy2d import Darcy2D
 
     return Darcy2D(n=n)
 

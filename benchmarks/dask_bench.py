@@ -25,9 +25,9 @@ import time
 
 import numpy as np
 
-import generator
-from datasets import open_cache, write_cache
-from datasets.distributed import _worker_env, write_cache_dask
+from pdestream import generator
+from pdestream.datasets import open_cache, write_cache
+from pdestream.datasets.distributed import _worker_env, write_cache_dask
 
 DEFAULT = {"n": "512", "n_frames": "51", "t_end": "1.0"}
 

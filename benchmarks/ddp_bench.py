@@ -27,10 +27,10 @@ def _rank(rank: int, world: int, work: str, n: int, steps: int, model_cfg: dict)
     """One rank: train ``steps`` steps; rank 0 writes the times of the steps after the warm-up."""
     torch.set_num_threads(1)
     torch.distributed.init_process_group("gloo", init_method=f"file://{work}/rendezvous", rank=rank, world_size=world)
-    import generator
-    from surrogate import build_model
-    from surrogate.data import train_loader
-    from surrogate.train import train
+    from pdestream import generator
+    from pdestream.surrogate import build_model
+    from pdestream.surrogate.data import train_loader
+    from pdestream.surrogate.train import train
 
     try:
         pde = generator.get_pde("burgers1d", n=n, nu=0.1, t_end=1.0, n_frames=2)

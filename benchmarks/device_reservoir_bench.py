@@ -36,7 +36,7 @@ N, NU, MODEL, BATCH = 1024, 0.1, {"width": 64, "modes": 16, "layers": 4}, 20
 
 
 def burgers():
-    import generator
+    from pdestream import generator
 
     return generator.get_pde("burgers1d", n=N, nu=NU, t_end=1.0, n_frames=2)
 
@@ -47,7 +47,7 @@ def sync(device: torch.device) -> None:
 
 
 def fno(pde, device):
-    from surrogate.models import build_model
+    from pdestream.surrogate.models import build_model
 
     torch.manual_seed(0)
     return build_model("fno", pde.NDIM, len(pde.FIELDS), len(pde.FIELDS), len(pde.PARAMS), bc=pde.grid.bc,
@@ -56,7 +56,7 @@ def fno(pde, device):
 
 def step_seconds(pde, device, norm, batch: dict, reps: int = 10) -> float:
     """Median seconds of one training step on ``batch`` (as the loop does it: loss, backward, Adam, loss.item())."""
-    from surrogate.modes import OneStep
+    from pdestream.surrogate.modes import OneStep
 
     model, mode = fno(pde, device), OneStep()
     opt = torch.optim.Adam(model.parameters(), lr=1e-3)
@@ -75,7 +75,7 @@ def step_seconds(pde, device, norm, batch: dict, reps: int = 10) -> float:
 def filled_stream(pde, storage, u, params, capacity: int = 1000):
     """A ReservoirStream whose store holds ``capacity`` copies of the solved ``u`` [16, ...] (indices distinct),
     drawn without a producer: its batches are the reservoir's own cost alone."""
-    import datasets
+    from pdestream import datasets
 
     stream = datasets.ReservoirStream(pde, view="operator", batch_size=BATCH, capacity=capacity, max_reuse=10**6,
                                       warmup=16, solve_batch=16, mode="deterministic", device=storage)
@@ -87,8 +87,8 @@ def filled_stream(pde, storage, u, params, capacity: int = 1000):
 
 
 def handover(devices: list[torch.device]) -> None:
-    import datasets
-    from surrogate.data import to_device
+    from pdestream import datasets
+    from pdestream.surrogate.data import to_device
 
     pde = burgers()
     solved = datasets.sample_tensors(pde, np.arange(16), 0)
@@ -153,8 +153,9 @@ def fft_floor(batch: int, n: int, steps: int, pairs: int):
 def solver(batches: tuple[int, ...], reps: int) -> None:
     import jax
 
-    import generator
-    from generator import dispatch, rollout
+    from pdestream import generator
+    from pdestream.generator import dispatch
+    from pdestream.generator.spectral import rollout
 
     pde = burgers()
     steps = pde.steps_per_frame * (pde.n_frames - 1)
@@ -186,8 +187,8 @@ def solver(batches: tuple[int, ...], reps: int) -> None:
 
 
 def training(seconds: float, arms: list[tuple[str, int]], device: torch.device) -> None:
-    import datasets
-    from surrogate.train import Stop, train
+    from pdestream import datasets
+    from pdestream.surrogate.train import Stop, train
 
     pde = burgers()
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else "the CPU"

@@ -16,8 +16,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import generator
-from generator import chunked, dispatch, rollout, sampler
+from pdestream import generator
+from pdestream.generator import chunked, dispatch, sampler
+from pdestream.generator.spectral import rollout
 
 CASES = [  # (name, settings, batch): defaults of the catalog and two long rollouts
     ("burgers1d", {}, 64),

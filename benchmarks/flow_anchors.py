@@ -197,8 +197,8 @@ def pdestream_trajectory(case: VortexCase, batch: int = 0):
     import jax
     import jax.numpy as jnp
 
-    from generator.flow import Geometry, Params, divergence, initial_state, run
-    from generator.flow.step import solid_mask
+    from pdestream.generator.flow import Geometry, Params, divergence, initial_state, run
+    from pdestream.generator.flow.step import solid_mask
 
     geom = Geometry(case.nx, case.ny, case.lx, case.ly, left="inflow", right="outflow")
     params = Params(nu=case.nu, inflow=1.5 * case.u_in, plug=1.0, circle=(*case.centre, case.radius))

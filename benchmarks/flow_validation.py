@@ -32,14 +32,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from generator.flow import Geometry, Params, initial_state, run, run_batch, step
+from pdestream.generator.flow import Geometry, Params, initial_state, run, run_batch, step
 
 
 def iterations(grids=((64, 32), (128, 64), (256, 128)), tol=1e-5):
     """Pressure-solve iterations on a karman-like channel (2 x 1, cylinder r 0.1 at (0.5, 0.52), parabolic
     inflow peak 1.5): the first step's projection from rest (cold start) and a warm-started step later."""
-    from generator.flow import pressure  # noqa: PLC0415 (the speed part also runs on trees without predict)
-    from generator.flow.step import operator, predict  # noqa: PLC0415
+    from pdestream.generator.flow import pressure  # noqa: PLC0415 (the speed part also runs on trees without predict)
+    from pdestream.generator.flow.step import operator, predict  # noqa: PLC0415
 
     rows = []
     for nx, ny in grids:
@@ -146,7 +146,7 @@ def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack"):
     nx = 2 * round(2.2 / h / 2)
     geom = Geometry(nx, ny, nx * h, 0.41, left="inflow", right="outflow")
     params = Params(nu=1e-3, inflow=1.5, circle=(0.2, 0.2, 0.05))
-    from generator.flow.step import operator, solid_mask  # noqa: PLC0415
+    from pdestream.generator.flow.step import operator, solid_mask  # noqa: PLC0415
 
     solid = solid_mask(geom, params)
     dt = 0.4 * h / 1.5

@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import generator
+from pdestream import generator
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,7 @@ def rate(pde, batch: int, device, reps: int) -> float:
     """Median trajectories/s of ``reps`` solves of ``batch`` samples on ``device`` (after one warm-up)."""
     import jax
 
-    import generator
+    from pdestream import generator
 
     times = []
     with jax.default_device(device):
@@ -51,7 +51,7 @@ def rate(pde, batch: int, device, reps: int) -> float:
 def solver_table(quick: bool) -> None:
     import jax
 
-    import generator
+    from pdestream import generator
 
     gpu, cpu = jax.devices("gpu")[0], jax.devices("cpu")[0]
     print("| pde | grid | batch | GPU traj/s | CPU traj/s | GPU / CPU |")
@@ -67,9 +67,8 @@ def solver_table(quick: bool) -> None:
 def zero_copy() -> None:
     import jax
 
-    import datasets
-    import generator
-    from datasets._bridge import to_torch
+    from pdestream import datasets, generator
+    from pdestream.datasets._bridge import to_torch
 
     traj = generator.sample("burgers1d", np.arange(8), 0)
     u = to_torch(traj.u)
@@ -80,9 +79,8 @@ def zero_copy() -> None:
 
 
 def training(seconds: float, quick: bool, solve_batch: int) -> None:
-    import datasets
-    import generator
-    from surrogate.budget import BudgetConfig, run_arm, stratified_test_set
+    from pdestream import datasets, generator
+    from pdestream.experiments.budget import BudgetConfig, run_arm, stratified_test_set
 
     n, model_cfg = (256, {"width": 32, "modes": 12, "layers": 3}) if quick else (1024, {"width": 64, "modes": 16, "layers": 4})
     pde = generator.get_pde("burgers1d", n=n, nu=0.1, t_end=1.0, n_frames=2)

@@ -44,8 +44,8 @@ def bench_case(name: str, settings: dict, batch: int, device: torch.device, min_
     """Rows (what, frames, seconds per call) for one PDE; the plain solve first."""
     import jax
 
-    import generator
-    from datasets import SolverOracle, SolverStep, _bridge
+    from pdestream import generator
+    from pdestream.datasets import SolverOracle, SolverStep, _bridge
 
     pde = generator.get_pde(name, **settings)
     t = _bridge.sample_tensors(pde, range(batch), seed=0)  # on JAX's default device: brought to the CPU first
@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.batch is not None and args.batch < 1:
         print(f"interactive_bench: error: --batch {args.batch} not allowed: need >= 1", file=sys.stderr)
         return 2
-    from datasets import _bridge
+    from pdestream.datasets import _bridge
 
     _bridge.configure_jax()
     min_s = 0.3 if args.quick else 1.5

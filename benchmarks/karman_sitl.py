@@ -52,13 +52,12 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     import torch
 
-    import datasets
-    import generator
-    from surrogate.budget import stratified_test_set
-    from surrogate.checkpoint import load_checkpoint
-    from surrogate.evaluate import rollout_errors
-    from surrogate.interactive_compare import InteractiveConfig, _identity_norm, interactive_compare
-    from surrogate.modes import make_mode
+    from pdestream import datasets, generator
+    from pdestream.experiments.budget import stratified_test_set
+    from pdestream.experiments.interactive_compare import InteractiveConfig, _identity_norm, interactive_compare
+    from pdestream.surrogate.checkpoint import load_checkpoint
+    from pdestream.surrogate.evaluate import rollout_errors
+    from pdestream.surrogate.modes import make_mode
 
     torch.set_num_threads(1)
     settings = dict(FINE, n=a.fine_n)

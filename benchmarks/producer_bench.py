@@ -28,8 +28,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-import generator
-from generator import ExternalSolver, Param, external
+from pdestream import generator
+from pdestream.generator import ExternalSolver, Param
+from pdestream.generator.external import solver as external
 
 
 @dataclass(frozen=True)
@@ -187,8 +188,8 @@ def kill_solver_worker(pde: Busy) -> None:
 def dask_arm(label: str, pde: Busy, n: int, repeats: int, one_worker: float, kill: bool) -> None:
     """A warm 2-worker LocalCluster, each worker solving half the samples (solve_job) with its own solver
     worker; with ``kill``, one Dask worker is killed mid-job."""
-    from datasets import _bridge
-    from datasets.distributed import dask_client
+    from pdestream.datasets import _bridge
+    from pdestream.datasets.distributed import dask_client
 
     external.configure(workers=1)
     config = pde.config()

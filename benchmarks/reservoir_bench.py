@@ -25,8 +25,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--capacity", type=int, default=1000, help="trajectories the reservoir holds")
     p.add_argument("--quick", action="store_true", help="n=256, a small FNO, 20 s per arm")
     args = p.parse_args(argv)
-    import generator
-    from surrogate.budget import BudgetConfig, run_arm, stratified_test_set
+    from pdestream import generator
+    from pdestream.experiments.budget import BudgetConfig, run_arm, stratified_test_set
 
     torch.set_num_threads(1)
     n, model_cfg, seconds = 1024, {"width": 64, "modes": 16, "layers": 4}, args.seconds
@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> None:
     cfg = BudgetConfig(budget_s=seconds, model_cfg=model_cfg, batch_size=20, lr=1e-3, capacity=args.capacity,
                        max_reuse=args.max_reuse, n_test=64, snapshots=1)
     tests = {"test": stratified_test_set(pde, cfg.n_test, 0)}
-    import datasets
+    from pdestream import datasets
 
     datasets.sample_tensors(pde, list(range(cfg.solve_batch)), 0)  # compile first: neither arm pays for it
 

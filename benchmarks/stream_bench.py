@@ -16,9 +16,9 @@ import time
 import numpy as np
 import torch
 
-import generator
-from datasets import TrajectoryStream, stream_loader
-from surrogate.fno import FNO, FNOConfig
+from pdestream import generator
+from pdestream.datasets import TrajectoryStream, stream_loader
+from pdestream.surrogate.fno import FNO, FNOConfig
 
 SEED = 0
 

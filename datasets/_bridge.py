@@ -31,7 +31,7 @@ def configure_jax() -> None:
     """Set JAX's process options; call before JAX computes anything (safe to call repeatedly)."""
     # Must be in the environment before the JAX backend starts: 75% GPU preallocation would starve torch.
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
-    import generator
+    from pdestream import generator
 
     if os.environ.get(CACHE_ENV) == "":  # set and empty: no persistent compilation cache (the test suite)
         return
@@ -103,7 +103,7 @@ def jax_provenance() -> dict:
     revision of pdestream's numerics (``generator.NUMERICS``)."""
     import jax
 
-    import generator
+    from pdestream import generator
 
     return {"jax_version": jax.__version__, "jax_threefry_partitionable": int(jax.config.jax_threefry_partitionable),
             "pdestream_numerics": generator.NUMERICS}
@@ -111,7 +111,7 @@ def jax_provenance() -> dict:
 
 def resolve_pde(pde):
     """A generator PDE from a PDE object or a catalog name."""
-    import generator
+    from pdestream import generator
 
     if isinstance(pde, str):
         return generator.get_pde(pde)
@@ -124,7 +124,7 @@ def sample_tensors(pde, indices, seed: int = 0, on_blowup: str = "raise", params
     """``trajectory_tensors(generator.sample(pde, indices, seed, on_blowup, params=params))``; NaN/Inf raises
     BlowUpError (on_blowup="skip": such samples are left out, "index" says which are there). params: optional
     explicit values {name: [B]} (the IC still comes from (seed, index))."""
-    import generator
+    from pdestream import generator
 
     traj = generator.sample(pde, indices, seed, on_blowup=on_blowup, params=params)
     warn_skipped(traj.skipped)
@@ -134,7 +134,7 @@ def sample_tensors(pde, indices, seed: int = 0, on_blowup: str = "raise", params
 def cancel_solves_on(event) -> None:
     """Solves in the calling thread stop at their next bounded call (raising generator.sampler.Cancelled) once
     the threading.Event ``event`` is set: how a producer thread learns that its consumer has gone."""
-    from generator.sampler import cancel_on
+    from pdestream.generator.sampler import cancel_on
 
     cancel_on(event)
 
@@ -144,7 +144,7 @@ def sample_numpy(pde, indices, seed: int = 0, on_blowup: str = "raise", params: 
     ``sample_channels``), {param: float32 [B]}, redraws int64 [B])."""
     import numpy as np
 
-    import generator
+    from pdestream import generator
 
     traj = generator.sample(pde, indices, seed, on_blowup=on_blowup, params=params)
     u = _joined(traj, np.concatenate, np.asarray)
@@ -163,7 +163,7 @@ def solve_job(config: dict, seed: int, indices, params: dict | None = None, on_b
     import jax
     import numpy as np
 
-    import generator
+    from pdestream import generator
 
     configure_jax()
     pde = _pde_of(json.dumps(config, sort_keys=True))
@@ -198,35 +198,35 @@ def param_domains(pde) -> dict:
 
 def warn_skipped(lines) -> None:
     """Each line of a solve's "skipped" list as a generator.sampler.SkippedSamples warning."""
-    from generator.sampler import warn_skipped as warn
+    from pdestream.generator.sampler import warn_skipped as warn
 
     warn(lines)
 
 
 def check_on_blowup(on_blowup) -> str:
     """``on_blowup`` if it is a policy (raise / redraw / skip), else a one-line ValueError."""
-    from generator.sampler import check_on_blowup as check
+    from pdestream.generator.sampler import check_on_blowup as check
 
     return check(on_blowup)
 
 
 def check_params(pde, params: dict, batch: int) -> None:
     """ValueError (one line) unless ``params`` {name: [batch]} are parameters of ``pde`` inside their domains."""
-    from generator.sampler import explicit_params
+    from pdestream.generator.sampler import explicit_params
 
     explicit_params(pde, params, batch)
 
 
 def pde_from_config(config: dict):
     """``generator.from_config``: the PDE of a stored ``PDE.config()`` dict."""
-    import generator
+    from pdestream import generator
 
     return generator.from_config(config)
 
 
 def max_index() -> int:
     """The largest sample index the generator accepts (indices are 0..max_index())."""
-    from generator.sampler import MAX_INDEX
+    from pdestream.generator.sampler import MAX_INDEX
 
     return MAX_INDEX
 
@@ -318,7 +318,7 @@ def _solver_inputs(pde, u, params, frames: int):
 def _blown_up(pde, finite, frames: int) -> None:
     import numpy as np
 
-    import generator
+    from pdestream import generator
 
     bad = np.flatnonzero(~np.asarray(finite))
     if bad.size:
@@ -332,7 +332,7 @@ def solver_advance(pde, u, params, frames: int = 1):
 
     BlowUpError if a result is NaN/Inf. The output may share memory with JAX's result buffer (not kept by JAX).
     """
-    from generator import interactive
+    from pdestream.generator.spectral import interactive
 
     u_j, p_j = _solver_inputs(pde, u, params, frames)
     out, finite = interactive.advance(pde, u_j, p_j, int(frames))
@@ -348,7 +348,7 @@ def solver_advance_vjp(pde, u, params, frames: int = 1, wrt_params: bool = True)
     import jax
     import torch
 
-    from generator import interactive
+    from pdestream.generator.spectral import interactive
 
     u_j, p_j = _solver_inputs(pde, u, params, frames)
     out, finite, vjp = interactive.advance_vjp(pde, u_j, p_j, int(frames), wrt_params)

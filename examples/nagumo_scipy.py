@@ -17,7 +17,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.sparse import diags
 
-from generator import ExternalSolver, Param
+from pdestream.generator import ExternalSolver, Param
 
 
 @dataclass(frozen=True)

@@ -20,18 +20,19 @@ JAX only (never imports torch). Public API::
                                       (not used, with a warning, if another user owns or may write it)
 """
 
-from . import interactive, user
+from . import user
 from .catalog import GROUP, GROUPS, PDES, get_pde, pde_class, register
 from .domains import Choice, Domain, Fixed, LogUniform, Uniform, parse_domain
-from .external import ExternalSolver
+from .external.solver import ExternalSolver
 from .grids import BC_TYPE, BOUNDARY_TYPES, NodeGrid
 from .ics import IC_KINDS, FourierSeries, GaussianRandomField, GrayScottSpots, InitialCondition, make_ic
 from .origin import rebuild
-from .pdes import PDE, LinearPDE, Param
-from .pdes.steady import SteadyProblem
 from .problem import Problem, ProblemBase
 from .sampler import BlowUpError, Trajectory, draw_params, sample, sample_keys, solve
-from .spectral import Grid
+from .spectral import interactive
+from .spectral.base import PDE, LinearPDE, Param
+from .spectral.fourier import Grid
+from .steady.base import SteadyProblem
 from .user import unregister
 
 # The revision of the numerics that decide a sample's bits for a given (config, seed, index): bumped by every change

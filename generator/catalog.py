@@ -14,26 +14,26 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 from . import user
-from .adapters.exponax import exponax_pde_class
-from .pdes.advection import Advection
-from .pdes.advection_diffusion import AdvectionDiffusion
-from .pdes.allen_cahn import AllenCahn
-from .pdes.base import PDE
-from .pdes.burgers import Burgers
-from .pdes.cahn_hilliard import CahnHilliard
-from .pdes.darcy2d import Darcy2D
-from .pdes.diffusion import Diffusion
-from .pdes.dispersion import Dispersion
-from .pdes.fisher_kpp import FisherKPP
-from .pdes.flows import Cavity2D, Channel2D, Karman2D, Smoke2D
-from .pdes.grayscott import GrayScott
-from .pdes.hyper_diffusion import HyperDiffusion
-from .pdes.kdv1d import KdV1D
-from .pdes.ks import KS
-from .pdes.ns2d import NS2D
-from .pdes.poisson import Helmholtz, Poisson
-from .pdes.swift_hohenberg import SwiftHohenberg
-from .pdes.wave import Wave
+from .external.exponax import exponax_pde_class
+from .flow.entries import Cavity2D, Channel2D, Karman2D, Smoke2D
+from .spectral.advection import Advection
+from .spectral.advection_diffusion import AdvectionDiffusion
+from .spectral.allen_cahn import AllenCahn
+from .spectral.base import PDE
+from .spectral.burgers import Burgers
+from .spectral.cahn_hilliard import CahnHilliard
+from .spectral.diffusion import Diffusion
+from .spectral.dispersion import Dispersion
+from .spectral.fisher_kpp import FisherKPP
+from .spectral.grayscott import GrayScott
+from .spectral.hyper_diffusion import HyperDiffusion
+from .spectral.kdv1d import KdV1D
+from .spectral.ks import KS
+from .spectral.ns2d import NS2D
+from .spectral.swift_hohenberg import SwiftHohenberg
+from .spectral.wave import Wave
+from .steady.darcy2d import Darcy2D
+from .steady.poisson import Helmholtz, Poisson
 
 # How `pdestream list` and the README group the catalog.
 GROUPS = ("linear", "nonlinear", "reaction-diffusion", "fluids", "steady")

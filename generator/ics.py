@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .spectral import Grid
+from .spectral.fourier import Grid
 
 # The spot loop is unrolled into the compiled set-up program (written out for bit-identity), so its size
 # bounds compile time and memory: 256 spots cover a 64^2 box many times over.

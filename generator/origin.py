@@ -9,10 +9,11 @@ that made it changed. Kept apart from ``generator.user`` (registration, entry po
 from __future__ import annotations
 
 import hashlib
-import importlib
 import inspect
 import sys
 from typing import Any
+
+from pdestream import load_object  # the package's root: no JAX, no torch
 
 # Problem classes made known by ``generator.register`` in this process, by name (a class defined inside a
 # function cannot be found again by its import path, so rebuild looks here first).
@@ -21,24 +22,12 @@ REGISTERED: dict[str, type] = {}
 
 def load(spec: str) -> Any:
     """The object at import path ``spec`` = "package.module:Class" (one-line ValueError if it cannot be had)."""
-    module_name, _, qualname = spec.partition(":")
-    if not module_name or not qualname:
-        raise ValueError(f"PDE {spec!r} not allowed: an import path is 'package.module:Class'")
-    try:
-        module = importlib.import_module(module_name)
-    except Exception as err:  # any error of the user's module: say which module and why, no traceback
-        raise ValueError(f"PDE {spec!r}: module {module_name!r} does not import: {type(err).__name__}: {err}") from None
-    obj: Any = module
-    for part in qualname.split("."):
-        if not hasattr(obj, part):
-            raise ValueError(f"PDE {spec!r}: module {module_name!r} has no {qualname!r}")
-        obj = getattr(obj, part)
-    return obj
+    return load_object(spec, "PDE")
 
 
 def user_class(cls: type) -> type | None:
     """The first class in ``cls``'s MRO from outside the package (a walled variant's user class), or None."""
-    return next((c for c in cls.__mro__ if c.__module__.split(".")[0] not in ("generator", "builtins", "abc")), None)
+    return next((c for c in cls.__mro__ if c.__module__.partition(".")[0] not in ("pdestream", "builtins", "abc")), None)
 
 
 def origin(cls: type) -> dict[str, Any] | None:

@@ -21,5 +21,5 @@ __all__ = sorted(_WHERE)
 
 def __getattr__(name: str):
     if name not in _WHERE:
-        raise AttributeError(f"module 'surrogate' has no attribute {name!r}")
+        raise AttributeError(f"module 'pdestream.surrogate' has no attribute {name!r}")
     return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)

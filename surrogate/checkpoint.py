@@ -16,9 +16,9 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from datasets.normalize import Normalization
-from datasets.ranks import check_world, keyed, placement
-from datasets.schema import atomic_write  # the one atomic write (fsyncs the file and its directory)
+from pdestream.datasets.normalize import Normalization
+from pdestream.datasets.ranks import check_world, keyed, placement
+from pdestream.datasets.schema import atomic_write  # the one atomic write (fsyncs the file and its directory)
 
 from .models import build_model, model_spec
 

@@ -11,9 +11,9 @@ from __future__ import annotations
 import torch
 from torch.utils.data import DataLoader, Sampler
 
-import datasets
-from datasets.export import as_cache
-from datasets.ranks import RankReservoirStream, placement
+from pdestream import datasets
+from pdestream.datasets.export import as_cache
+from pdestream.datasets.ranks import RankReservoirStream, placement
 
 from .checks import check_count
 

@@ -25,8 +25,8 @@ import os
 import torch
 from torch import nn
 
-from datasets.normalize import Normalization
-from datasets.ranks import placement
+from pdestream.datasets.normalize import Normalization
+from pdestream.datasets.ranks import placement
 
 INIT_ENV = "PDESTREAM_DDP_INIT"  # our launcher's rendezvous (a file:// URL); torchrun's env:// otherwise
 # a rank that died leaves the others waiting this long at most; rank 0 alone builds the test set at the end

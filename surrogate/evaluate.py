@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from datasets.normalize import Normalization
+from pdestream.datasets.normalize import Normalization
 
 from .data import model_device, to_device
 from .metrics import EPS, nrmse, rel_l2

@@ -41,8 +41,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-import datasets
-from datasets.normalize import Normalization
+from pdestream import datasets
+from pdestream.datasets.normalize import Normalization
 
 from .mode_table import DEFAULTS, MODE_NAMES, mode_settings
 from .predict import model_channels, net_step, pairs, predict, relative_errors, rollout, stack_frames

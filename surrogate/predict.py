@@ -11,8 +11,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from datasets.normalize import Normalization
-from datasets.views import collate, examples
+from pdestream.datasets.normalize import Normalization
+from pdestream.datasets.views import collate, examples
 
 
 def stack_frames(u: torch.Tensor, ndim: int) -> torch.Tensor:

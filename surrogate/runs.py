@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-import datasets
+from pdestream import datasets
 
 from . import ddp
 from .budget_plot import plot_reservoir_run
@@ -132,7 +132,7 @@ def resume_run(run_dir, run: tuple[dict, dict] | None = None, steps: int | None 
     run_dir = Path(run_dir)
     settings, ckpt = read_run(run_dir, steps) if run is None else run
     check_ranks(run_dir, settings, ddp.world()[1])
-    from datasets import pde_from_config  # the one door to the generator (surrogate never imports it)
+    from pdestream.datasets import pde_from_config  # the one door to the generator (surrogate never imports it)
 
     writes = ddp.world()[0] == 0
     for name in RUN_FILES:  # temp files of atomic writes cut short by the kill

@@ -31,7 +31,7 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader
 
-from datasets.normalize import Normalization
+from pdestream.datasets.normalize import Normalization
 
 from . import ddp
 from .checkpoint import (

@@ -12,27 +12,18 @@ refuses the settings and an output of the wrong shape are one line each.
 from __future__ import annotations
 
 import hashlib
-import importlib
 import inspect
 import sys
 
 import torch
 from torch import nn
 
+from pdestream import load_object
+
 
 def load_class(path: str) -> type:
     """The nn.Module class at ``path`` = "package.module:Class" (one-line ValueError otherwise)."""
-    module_name, _, qualname = path.partition(":")
-    if not module_name or not qualname:
-        raise ValueError(f"model {path!r} not allowed: an import path is 'package.module:Class'")
-    try:
-        obj = importlib.import_module(module_name)
-    except Exception as err:  # any error of the user's module, in one line
-        raise ValueError(f"model {path!r}: module {module_name!r} does not import: {type(err).__name__}: {err}") from None
-    for part in qualname.split("."):
-        if not hasattr(obj, part):
-            raise ValueError(f"model {path!r}: module {module_name!r} has no {qualname!r}")
-        obj = getattr(obj, part)
+    obj = load_object(path, "model")
     if not (inspect.isclass(obj) and issubclass(obj, nn.Module)):
         raise ValueError(f"model {path!r}: {obj!r} is not a torch nn.Module class")
     return obj

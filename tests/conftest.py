@@ -57,7 +57,7 @@ def solver_settings():
     """External solvers: each test starts from the default settings (1 worker, no timeout) and leaves the
     environment as it found it (configure(), and so the CLI's --solver-workers / --solver-timeout, write
     os.environ). Test files that run external solvers use it for every test."""
-    from generator import external
+    from pdestream.generator.external import solver as external
 
     names = (external.WORKERS_ENV, external.TIMEOUT_ENV)
     saved = {k: os.environ.pop(k, None) for k in names}

@@ -9,7 +9,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from generator import ExternalSolver, Param
+from pdestream.generator import ExternalSolver, Param
 
 
 @dataclass(frozen=True)

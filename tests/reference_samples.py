@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-import generator
+from pdestream import generator
 
 PATH = Path(__file__).parent / "data" / "reference_samples.json"
 SMALL = {"darcy2d": {"n": 9}}  # the steady entry: nodes per side; every other entry: the settings below

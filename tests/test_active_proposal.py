@@ -9,8 +9,8 @@ import pytest
 import torch
 from test_reservoir import same, stream, take
 
-import datasets.proposal as proposal_module
-from datasets.proposal import ParamProposal, loss_model
+from pdestream.datasets import proposal as proposal_module
+from pdestream.datasets.proposal import ParamProposal, loss_model
 
 DOMAINS = {"nu": ("loguniform", 0.01, 0.1, ()), "c": ("fixed", 1.0, 1.0, ()), "a": ("uniform", -1.0, 1.0, ())}
 
@@ -74,7 +74,7 @@ def test_an_ensemble_below_two_is_refused_in_one_line(ensemble):
 
 
 def test_cli_train_refuses_an_ensemble_of_one(capsys, tmp_path):
-    import cli
+    from pdestream import cli
 
     out = tmp_path / "run"
     assert cli.main(["train", "burgers1d", "--reservoir", "--proposal", "active", "--proposal-ensemble", "1",

@@ -7,12 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-import cli
-import datasets
-import generator
-from datasets.proposal import ParamProposal
-from surrogate.budget import BudgetConfig, budget_compare, stratified_test_set
-from surrogate.evaluate import error_stats
+from pdestream import cli, datasets, generator
+from pdestream.datasets.proposal import ParamProposal
+from pdestream.experiments.budget import BudgetConfig, budget_compare, stratified_test_set
+from pdestream.surrogate.evaluate import error_stats
 
 torch.set_num_threads(1)
 TINY = generator.get_pde("burgers1d", n=32, n_frames=5)
@@ -81,7 +79,7 @@ def test_time_budget_stops_every_arm_near_the_budget(tmp_path):
 
 
 def test_the_precomputed_arm_stores_the_operator_views_frames_bit_for_bit():
-    from surrogate.budget import stored_pde
+    from pdestream.experiments.budget import stored_pde
 
     pde = generator.get_pde("kdv1d", n=32, n_frames=9, t_end=0.2)
     stored = stored_pde(pde, datasets.make_view("operator"))
@@ -93,7 +91,7 @@ def test_the_precomputed_arm_stores_the_operator_views_frames_bit_for_bit():
 
 
 def test_the_precomputed_dataset_size_rule():
-    from surrogate.budget import precompute_size
+    from pdestream.experiments.budget import precompute_size
 
     cfg = BudgetConfig(budget_s=20.0, batch_size=32, max_reuse=16)
     # N / 100 s solving + N * 16 / 32 steps of 10 ms = 10 s left: N = 10 / (0.01 + 0.005)
@@ -104,7 +102,7 @@ def test_the_precomputed_dataset_size_rule():
 
 
 def test_verdicts_weigh_the_margin_against_the_seed_spread():
-    from surrogate.budget import verdicts
+    from pdestream.experiments.budget import verdicts
 
     arms = [{"arm": "precomputed", "test_mean": 0.10, "test_mean_std": 0.01, "test_max": 0.5, "test_max_std": 0.2},
             {"arm": "reservoir", "test_mean": 0.05, "test_mean_std": 0.01, "test_max": 0.4, "test_max_std": 0.2}]
@@ -160,7 +158,7 @@ def test_cli_quick_budget_compare_runs(capsys, tmp_path):
 
 
 def test_combine_seeds_reports_mean_and_spread():
-    from surrogate.budget import combine_seeds
+    from pdestream.experiments.budget import combine_seeds
 
     runs = [{"arm": "a", "test_mean": 1.0, "test_p95": 2.0, "test_max": 3.0, "steps": 5, "curve": [1]},
             {"arm": "a", "test_mean": 3.0, "test_p95": 4.0, "test_max": 9.0, "steps": 6, "curve": [2]}]

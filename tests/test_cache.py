@@ -9,10 +9,9 @@ import pytest
 import torch
 import xarray as xr
 
-import datasets
-import generator
-from datasets import cache as cache_mod
-from datasets.cache import is_complete
+from pdestream import datasets, generator
+from pdestream.datasets import cache as cache_mod
+from pdestream.datasets.cache import is_complete
 
 SEED = 3
 N = 10
@@ -150,7 +149,7 @@ def _interrupted(pde, path, monkeypatch):
 def test_prefetch_stops_when_consumer_and_producer_both_fail():
     """The consumer fails (a full disk, Ctrl-C) with a solved item waiting, then the producer's solve in
     flight raises: closing must still return (the producer's error hand-over must not block)."""
-    from datasets._prefetch import prefetch
+    from pdestream.datasets._prefetch import prefetch
 
     in_flight, release = threading.Event(), threading.Event()
 
@@ -361,7 +360,7 @@ def test_in_memory_and_per_example_reads_give_the_same_examples(tmp_path, suffix
 def test_resume_of_a_zarr_cache_without_its_complete_flags_says_what_to_do(tmp_path, capsys):
     import shutil
 
-    import cli
+    from pdestream import cli
 
     path = tmp_path / "c.zarr"
     argv = ["generate", "burgers1d", "--n", "4", "--set", "n=32", "--set", "n_frames=3", "--out", str(path)]

@@ -9,10 +9,10 @@ from typing import Any, ClassVar
 
 import pytest
 
-import generator as g
-from generator import catalog
-from generator.pdes.base import PDE, LinearPDE
-from generator.pdes.diffusion import Diffusion
+from pdestream import generator as g
+from pdestream.generator import catalog
+from pdestream.generator.spectral.base import PDE, LinearPDE
+from pdestream.generator.spectral.diffusion import Diffusion
 
 
 def test_every_entry_is_declared_once_with_a_group_and_its_dimension_in_its_name():
@@ -114,7 +114,7 @@ def test_no_module_fills_a_registry_at_import_time():
 
 
 def test_list_groups_the_catalog_and_says_each_dimension(capsys):
-    import cli
+    from pdestream import cli
 
     assert cli.main(["list"]) == 0
     out = capsys.readouterr().out

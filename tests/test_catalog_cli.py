@@ -6,8 +6,8 @@ adversarial pass over the catalog."""
 import numpy as np
 import pytest
 
-import cli
-import generator as g
+from pdestream import cli
+from pdestream import generator as g
 
 NAMES = list(g.PDES)
 
@@ -121,7 +121,7 @@ def test_compare_defaults_never_refine_an_entry_and_fit_its_settings(name):
 
 def test_a_budget_comparison_whose_arms_barely_trained_says_so():
     # compare grayscott2d --quick: 20 s per arm trained 0-1 steps per arm and the table ranked them anyway
-    from surrogate.budget import MIN_STEPS, too_few_steps_note
+    from pdestream.experiments.budget import MIN_STEPS, too_few_steps_note
 
     note = too_few_steps_note([{"arm": "precomputed", "steps": 0}, {"arm": "fifo", "steps": MIN_STEPS},
                                {"arm": "reservoir", "steps": 1}])

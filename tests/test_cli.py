@@ -11,9 +11,8 @@ import h5py
 import numpy as np
 import pytest
 
-import cli
-import datasets
-from datasets.cache import is_complete
+from pdestream import cli, datasets
+from pdestream.datasets.cache import is_complete
 
 SMALL = ["--set", "n=32", "--set", "n_frames=6"]
 
@@ -62,7 +61,7 @@ def test_a_cache_larger_than_the_disk_is_refused_up_front(capsys, tmp_path):
 
 @pytest.mark.parametrize("name", [["burgers1d"], None, 3])
 def test_a_pde_name_that_is_not_a_string_is_one_line(name):
-    import generator
+    from pdestream import generator
 
     with pytest.raises(ValueError, match=r"^unknown PDE .*; allowed: .*burgers1d"):
         generator.get_pde(name)
@@ -117,7 +116,7 @@ def test_refused_generate_creates_nothing(capsys, tmp_path, args, message):
 
 
 def test_no_traceback_through_a_real_process(tmp_path):
-    res = subprocess.run([sys.executable, "-m", "cli", "generate", "nosuchpde", "--n", "2", "--out",
+    res = subprocess.run([sys.executable, "-m", "pdestream.cli", "generate", "nosuchpde", "--n", "2", "--out",
                           str(tmp_path / "a.h5")], capture_output=True, text=True, timeout=120)
     assert res.returncode != 0 and "Traceback" not in res.stderr
     assert res.stderr.strip().splitlines() == [res.stderr.strip()] and "unknown PDE" in res.stderr
@@ -142,7 +141,7 @@ def _complete_flags(path):
 
 def _writer_with_4_samples_flagged(part):
     """A `generate` subprocess writing ``part``, returned once at least 4 samples are flagged complete."""
-    proc = subprocess.Popen([sys.executable, "-m", "cli", "generate", *SLOW, "--out", str(part)],
+    proc = subprocess.Popen([sys.executable, "-m", "pdestream.cli", "generate", *SLOW, "--out", str(part)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
@@ -222,7 +221,7 @@ def test_stream_training_leaves_the_solver_a_core(monkeypatch):
 def test_train_without_threads_applies_the_stream_default(capsys, monkeypatch, tmp_path):
     import torch
 
-    import surrogate.runs
+    from pdestream.surrogate import runs
 
     seen = []
 
@@ -230,7 +229,7 @@ def test_train_without_threads_applies_the_stream_default(capsys, monkeypatch, t
         seen.append(torch.get_num_threads())
         raise ValueError("stopped before training")
 
-    monkeypatch.setattr(surrogate.runs, "train_run", stop)
+    monkeypatch.setattr(runs, "train_run", stop)
     monkeypatch.setattr(cli.os, "sched_getaffinity", lambda pid: {0, 1, 2})
     before = torch.get_num_threads()
     try:

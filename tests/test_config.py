@@ -4,8 +4,8 @@ import argparse
 
 import pytest
 
-import cli
-import generator as g
+from pdestream import cli
+from pdestream import generator as g
 
 
 def args_for(tmp_path, text, sets=()):

@@ -9,9 +9,9 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
 
-import generator as g
-from generator import elliptic
-from generator.pdes.darcy2d import Darcy2D
+from pdestream import generator as g
+from pdestream.generator.steady import elliptic
+from pdestream.generator.steady.darcy2d import Darcy2D
 
 
 def darcy(**kw):
@@ -175,8 +175,7 @@ def test_cache_stream_and_cli_end_to_end(capsys, tmp_path):
     no time axis, and its operator examples are the generator's (a, u) bit for bit."""
     import torch
 
-    import cli
-    import datasets
+    from pdestream import cli, datasets
 
     path = tmp_path / "darcy.zarr"
     assert cli.main(["generate", "darcy2d", "--n", "6", "--set", "n=16", "--out", str(path)]) == 0
@@ -210,7 +209,7 @@ def test_cache_stream_and_cli_end_to_end(capsys, tmp_path):
 
 
 def test_new_parameters_never_recompile_and_domains_are_checked():
-    from generator.pdes.darcy2d import _compiled_setup, _compiled_solve
+    from pdestream.generator.steady.darcy2d import _compiled_setup, _compiled_solve
 
     pde = darcy(n=16, f="uniform(0.5, 2)", a_pos="uniform(10, 14)")
     g.sample(pde, [7, 8, 11], seed=5)

@@ -17,11 +17,10 @@ import numpy as np
 import pytest
 import zarr
 
-import cli
-import datasets
-from datasets import cache as cache_mod
-from datasets import store as store_mod
-from datasets.cache import is_complete
+from pdestream import cli, datasets
+from pdestream.datasets import cache as cache_mod
+from pdestream.datasets import store as store_mod
+from pdestream.datasets.cache import is_complete
 
 SMALL = ["--set", "n=32", "--set", "n_frames=5"]
 
@@ -110,7 +109,7 @@ def test_overwrite_failing_mid_run_keeps_the_old_cache(old_cache, capsys, monkey
 
 def test_overwrite_with_unreachable_scheduler_keeps_the_old_cache(tmp_path, capsys, monkeypatch):
     pytest.importorskip("distributed")
-    from datasets import distributed
+    from pdestream.datasets import distributed
 
     path = tmp_path / "old.zarr"
     assert generate(capsys, path)[0] == 0
@@ -157,7 +156,7 @@ SLOW = ["burgers1d", "--n", "24", "--seed", "5", "--block", "4", "--set", "n=64"
 
 def _overwriter_with_4_samples_flagged(path: Path):
     """An `--overwrite` subprocess of ``path`` (HDF5), returned once its hidden new cache has 4 samples flagged."""
-    proc = subprocess.Popen([sys.executable, "-m", "cli", "generate", *SLOW, "--out", str(path)],
+    proc = subprocess.Popen([sys.executable, "-m", "pdestream.cli", "generate", *SLOW, "--out", str(path)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
@@ -338,7 +337,7 @@ def test_second_writer_is_refused(tmp_path, capsys, suffix):
     path = tmp_path / f"c.{suffix}"
     lock = tmp_path / f".c.{suffix}.lock"
     slow = [a for a in SLOW if a != "--overwrite"]
-    proc = subprocess.Popen([sys.executable, "-m", "cli", "generate", *slow, "--out", str(path)],
+    proc = subprocess.Popen([sys.executable, "-m", "pdestream.cli", "generate", *slow, "--out", str(path)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120

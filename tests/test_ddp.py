@@ -12,10 +12,9 @@ import torch.distributed as dist
 import torch.multiprocessing as tmp
 from test_reservoir import take
 
-import cli
-import generator
-from datasets.ranks import RankReservoirStream, RankStates, check_world, placement
-from datasets.reservoir import ReservoirStream
+from pdestream import cli, generator
+from pdestream.datasets.ranks import RankReservoirStream, RankStates, check_world, placement
+from pdestream.datasets.reservoir import ReservoirStream
 
 try:
     import distributed
@@ -79,10 +78,10 @@ def _rank_main(rank: int, world: int, work: str) -> None:
     """One rank (spawned): the stream twice, then training runs; what the tests compare to work/rank{rank}.pt."""
     torch.set_num_threads(1)
     dist.init_process_group("gloo", init_method=f"file://{work}/rendezvous", rank=rank, world_size=world)
-    from surrogate import build_model
-    from surrogate.data import train_loader
-    from surrogate.runs import resume_run, train_run
-    from surrogate.train import train
+    from pdestream.surrogate import build_model
+    from pdestream.surrogate.data import train_loader
+    from pdestream.surrogate.runs import resume_run, train_run
+    from pdestream.surrogate.train import train
 
     try:
         out = {"placement": placement()}
@@ -141,7 +140,7 @@ def test_two_gloo_ranks_disjoint_reproducible_equal_weights_and_exact_resume(tmp
     assert set(states[0]["index"]).isdisjoint(states[1]["index"])
     assert json.loads((tmp_path / "whole" / "run.json").read_text())["world_size"] == 2
     # (5) resuming with another world size is refused in one line: here (one process) and by the CLI's --ddp
-    from surrogate.runs import resume_run
+    from pdestream.surrogate.runs import resume_run
 
     with pytest.raises(ValueError, match=r"trained on 2 rank\(s\) and this one has 1; resume it with the same "
                                          r"world size \(--ddp 2\)") as err:

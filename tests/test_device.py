@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from surrogate.data import check_device, model_device, to_device
+from pdestream.surrogate.data import check_device, model_device, to_device
 
 
 @pytest.mark.parametrize("bad", ["gpu", "cuda:x", "", "mps"])
@@ -29,8 +29,8 @@ def test_to_device_moves_tensors_and_keeps_other_entries():
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (run on a GPU machine)")
 def test_train_run_on_the_gpu(tmp_path):
-    import generator
-    from surrogate.runs import train_run
+    from pdestream import generator
+    from pdestream.surrogate.runs import train_run
 
     pde = generator.get_pde("burgers1d", n=64, n_frames=5)
     s = train_run(pde, "stream", tmp_path / "run", model_cfg={"width": 8, "modes": 4, "layers": 1}, steps=4,

@@ -11,11 +11,10 @@ import sys
 import numpy as np
 import pytest
 
-import cli
-import generator
-from datasets import open_cache, write_cache
-from datasets.distributed import _worker_env, write_cache_dask
-from datasets.store import format_of
+from pdestream import cli, generator
+from pdestream.datasets import open_cache, write_cache
+from pdestream.datasets.distributed import _worker_env, write_cache_dask
+from pdestream.datasets.store import format_of
 
 try:
     import cloudpickle

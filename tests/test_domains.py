@@ -2,7 +2,7 @@ import jax
 import numpy as np
 import pytest
 
-from generator.domains import Choice, Fixed, LogUniform, Uniform, parse_domain
+from pdestream.generator.domains import Choice, Fixed, LogUniform, Uniform, parse_domain
 
 
 @pytest.mark.parametrize("text, expected", [

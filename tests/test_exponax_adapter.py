@@ -11,10 +11,8 @@ import pytest
 
 exponax = pytest.importorskip("exponax")
 
-import cli  # noqa: E402
-import datasets  # noqa: E402
-import generator  # noqa: E402
-from generator.adapters import exponax as adapter  # noqa: E402
+from pdestream import cli, datasets, generator  # noqa: E402
+from pdestream.generator.external import exponax as adapter  # noqa: E402
 
 # (name, settings, a parameter given a random domain): different dimensions, small grids (2D KS and 3D: slow set)
 CASES = [

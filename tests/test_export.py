@@ -15,11 +15,10 @@ import numpy as np
 import pytest
 import xarray as xr
 
-import cli
-import datasets
-from datasets import schema
-from datasets.cache import open_cache
-from datasets.export import FORMATS, export_cache, import_export, read_export
+from pdestream import cli, datasets
+from pdestream.datasets import schema
+from pdestream.datasets.cache import open_cache
+from pdestream.datasets.export import FORMATS, export_cache, import_export, read_export
 
 ENTRIES = {  # tiny caches: a 1D entry, a 2D entry of two fields, a steady 2D entry (PDEBench's Darcy layout)
     "burgers1d": ["--n", "3", "--set", "n=32", "--set", "n_frames=4"],

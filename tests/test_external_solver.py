@@ -15,11 +15,9 @@ import pytest
 import torch
 from external_solvers import Cmd, CmdH5, CoordinateNamedParam, Decay, Faulty, Noisy, NoSolve
 
-import cli
-import datasets
-import generator
-from generator import external
-from generator.sampler import SkippedSamples
+from pdestream import cli, datasets, generator
+from pdestream.generator.external import solver as external
+from pdestream.generator.sampler import SkippedSamples
 
 pytestmark = pytest.mark.usefixtures("solver_settings")  # (tests/conftest.py)
 

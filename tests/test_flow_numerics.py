@@ -7,9 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from generator.flow import Geometry, Params, divergence, initial_state, is_finite, project
-from generator.flow.batch import run_batch
-from generator.flow.step import State
+from pdestream.generator.flow import Geometry, Params, divergence, initial_state, is_finite, project
+from pdestream.generator.flow.batch import run_batch
+from pdestream.generator.flow.step import State
 
 
 def _random_field(geom, key):
@@ -25,14 +25,14 @@ def test_projection_divergence_free_and_closed_faces():
     params = Params(nu=0.01, inflow=1.0, circle=(0.6, 0.5, 0.2))
     s = initial_state(geom, params)
     u, v = _random_field(geom, jax.random.PRNGKey(0))
-    from generator.flow.step import apply_bc, solid_mask
+    from pdestream.generator.flow.step import apply_bc, solid_mask
     u, v = apply_bc(geom, params, u, v)
     u, v, p, it = project(geom, params, u, v, 0.1, tol=1e-6)
     fluid = 1 - solid_mask(geom, params)
     assert float(jnp.abs(divergence(geom, u, v) * fluid).max()) < 1e-3
     assert float(jnp.abs(v[0]).max()) == 0 and float(jnp.abs(v[-1]).max()) == 0
     assert int(jnp.sum(1 - fluid)) > 0
-    from generator.flow.grid import velocity_masks
+    from pdestream.generator.flow.grid import velocity_masks
     mu, mv = velocity_masks(geom, solid_mask(geom, params))
     assert float(jnp.abs(u * (1 - mu)).max()) == 0 and float(jnp.abs(v * (1 - mv)).max()) == 0
     assert s.u.shape == (16, 33)
@@ -57,8 +57,8 @@ def test_vcycle_preconditioner_symmetric_positive_definite():
     # CG needs an SPD preconditioner: the V-cycle's matrix over fluid cells of a cylinder channel (the coarse
     # correction weighted by COARSE_WEIGHT, 3 Jacobi sweeps before and after) is symmetric to float32 rounding
     # and its smallest eigenvalue positive; a V-cycle with pre-smoothing only is measurably asymmetric.
-    from generator.flow import pressure
-    from generator.flow.step import operator
+    from pdestream.generator.flow import pressure
+    from pdestream.generator.flow.step import operator
     geom = Geometry(32, 16, 2.0, 1.0, left="inflow", right="outflow")
     op = operator(geom, Params(circle=(0.5, 0.52, 0.15)))
     fluid = np.flatnonzero(1 - np.asarray(op.levels[0].solid).reshape(-1))
@@ -91,8 +91,8 @@ def test_no_xla_eigen_decomposition_in_a_rollout_and_the_host_pseudo_inverse_is_
     """The coarsest level's pseudo-inverse is computed on the host: XLA's CPU eigh kernel blocks on XLA's own
     thread pool, and two programs decomposing at once (the stream sampling flows while solver-in-the-loop's step
     runs) hung both pool threads for good. No eigh primitive may come back into the rollout."""
-    from generator.flow import pressure
-    from generator.flow.step import operator, run
+    from pdestream.generator.flow import pressure
+    from pdestream.generator.flow.step import operator, run
 
     geom = Geometry(32, 16, 2.0, 1.0, left="inflow", right="outflow")
     params = Params(nu=1e-2, inflow=1.0, circle=(0.5, 0.5, 0.15))

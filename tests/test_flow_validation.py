@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from benchmarks.flow_validation import mms_error
-from generator.flow import Geometry, Params, divergence, initial_state, is_finite, pressure, run, step
-from generator.flow.step import operator, predict, solid_mask
+from pdestream.generator.flow import Geometry, Params, divergence, initial_state, is_finite, pressure, run, step
+from pdestream.generator.flow.step import operator, predict, solid_mask
 
 pytestmark = pytest.mark.slow  # each compiles the flow solver (~1 min on 2 cores)
 

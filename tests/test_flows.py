@@ -10,14 +10,12 @@ import pytest
 import torch
 import xarray as xr
 
-import cli
-import datasets
-import generator
-from datasets.reservoir import ReservoirStream
-from generator.flow import divergence, initial_state, run
-from generator.flow.grid import velocity_masks
-from generator.flow.problem import _programs
-from generator.flow.step import inflow_profile, solid_mask
+from pdestream import cli, datasets, generator
+from pdestream.datasets.reservoir import ReservoirStream
+from pdestream.generator.flow import divergence, initial_state, run
+from pdestream.generator.flow.grid import velocity_masks
+from pdestream.generator.flow.problem import _programs
+from pdestream.generator.flow.step import inflow_profile, solid_mask
 
 torch.set_num_threads(1)
 
@@ -234,7 +232,7 @@ def test_vorticity_of_a_solid_body_rotation_is_twice_its_rate_on_arrays_tensors_
     import torch
     import xarray as xr
 
-    import datasets
+    from pdestream import datasets
 
     n, h, rate = 8, 0.125, 0.7
     xc = (np.arange(n) + 0.5) * h  # cell centres; u lives at x = i h (left faces), v at y = j h (bottom faces)

@@ -18,10 +18,9 @@ import numpy as np
 import pytest
 from test_data_safety import SMALL, digest, generate, listing, run_cli
 
-import cli
-import datasets
-from datasets import cache as cache_mod
-from datasets.store import HDF5, ZARR, CacheSettings, format_of
+from pdestream import cli, datasets
+from pdestream.datasets import cache as cache_mod
+from pdestream.datasets.store import HDF5, ZARR, CacheSettings, format_of
 
 FORMATS = ["h5", "zarr"]
 
@@ -294,7 +293,7 @@ def test_dask_writer_takes_a_catalog_name(tmp_path):
     pytest.importorskip("distributed")
     from distributed import LocalCluster
 
-    from datasets.distributed import write_cache_dask
+    from pdestream.datasets.distributed import write_cache_dask
 
     with LocalCluster(n_workers=1, processes=False, dashboard_address=":0") as c:
         done = write_cache_dask("burgers1d", tmp_path / "d.zarr", 1, scheduler=c.scheduler_address, block=1,
@@ -367,7 +366,7 @@ def test_reader_during_an_overwrite_in_another_process(tmp_path, capsys):
 def test_field_stats_are_the_float64_moments_of_the_finite_samples():
     import xarray as xr
 
-    from datasets.inspect import field_stats
+    from pdestream.datasets.inspect import field_stats
 
     a = (np.random.default_rng(0).normal(size=(10, 5, 16)) * 3 + 1).astype(np.float32)
     a[4, 2, 3] = np.nan  # a damaged sample: left out, and named
@@ -384,7 +383,7 @@ def test_dask_writer_disk_full_is_one_line(tmp_path, monkeypatch):
     pytest.importorskip("distributed")
     from distributed import LocalCluster
 
-    from datasets.distributed import write_cache_dask
+    from pdestream.datasets.distributed import write_cache_dask
 
     _full_disk(monkeypatch)  # tasks run in this process (threads), so they see the patched write
     with LocalCluster(n_workers=1, processes=False, dashboard_address=":0") as c:

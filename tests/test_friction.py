@@ -4,8 +4,7 @@ nothing behind; a stream loop that ends promptly."""
 import numpy as np
 import pytest
 
-import cli
-import generator
+from pdestream import cli, generator
 
 
 def one_line(code, capsys, *words):
@@ -70,7 +69,7 @@ def test_an_unguarded_script_with_workers_gets_one_line(tmp_path):
                             "loader = datasets.stream_loader(datasets.TrajectoryStream(pde), num_workers=2)\n")
     assert out.returncode == 1 and "Traceback" not in out.stderr, out.stderr
     assert out.stderr.strip().splitlines() == [out.stderr.strip()] and "(line 3)" in out.stderr
-    from datasets.stream import MainGuardError
+    from pdestream.datasets.stream import MainGuardError
 
     assert issubclass(MainGuardError, ValueError)  # callers that catch the library's ValueError still do
 
@@ -102,7 +101,7 @@ def test_a_dask_blow_up_prints_our_line_and_not_the_clusters_report(tmp_path, ca
 
 
 def test_stream_loader_names_what_it_takes():
-    import datasets
+    from pdestream import datasets
 
     with pytest.raises(ValueError, match="stream_loader takes a TrajectoryStream, got Burgers"):
         datasets.stream_loader(generator.get_pde("burgers1d", n=16), num_workers=0)

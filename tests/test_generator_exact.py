@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-import generator as g
+from pdestream import generator as g
 
 
 def rel_err(a, b):

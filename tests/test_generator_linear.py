@@ -8,7 +8,7 @@ its energy on random samples.
 import numpy as np
 import pytest
 
-import generator as g
+from pdestream import generator as g
 
 TOL = 1e-5
 
@@ -123,7 +123,7 @@ def test_wave_refuses_initial_conditions_with_a_mean():
 @pytest.mark.parametrize("name", ["advection3d", "diffusion3d"])
 def test_default_3d_grid_fits_and_streams_in_chunks(name):
     # the default 3D grid solves in memory-sized rollout chunks (several per batch) to the same bits as alone
-    from generator.rollout import evolve_chunk
+    from pdestream.generator.spectral.rollout import evolve_chunk
 
     pde = g.get_pde(name)
     assert pde.n == 32 and 1 < evolve_chunk(pde) < 8

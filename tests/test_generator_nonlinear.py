@@ -13,7 +13,7 @@ fourth-order term, so the test gives its stepper the bilaplacian of the standard
 import numpy as np
 import pytest
 
-import generator as g
+from pdestream import generator as g
 
 exponax = pytest.importorskip("exponax")
 

@@ -6,8 +6,8 @@ import jax
 import numpy as np
 import pytest
 
-import generator as g
-from generator.rollout import compiled_coefficients, compiled_setup, compiled_stages
+from pdestream import generator as g
+from pdestream.generator.spectral.rollout import compiled_coefficients, compiled_setup, compiled_stages
 
 # Small but non-trivial versions of every catalog entry, by one rule (no per-PDE code): a coarser grid with the
 # same spacing (length shrinks with n, so CFL steps and resolution stay those of the default), 4 frames, and at
@@ -111,8 +111,8 @@ def test_fixed_parameters_share_one_sample_coefficients_with_the_same_bits(name)
     """All parameters fixed: the set-up skips the coefficients and the rollout takes one copy for the batch
     (rollout.shared_coefficients), bit-identical to the samples of the drawn domain given those values, in
     whole-frame calls and in calls of one step."""
-    from generator import dispatch
-    from generator.rollout import shared_coefficients
+    from pdestream.generator import dispatch
+    from pdestream.generator.spectral.rollout import shared_coefficients
 
     free = small(name)
     values = {k: float(np.mean(d.bounds)) for k, d in free.param_domains.items()}
@@ -132,8 +132,8 @@ def test_a_pde_without_parameters_samples():
     import dataclasses
     from typing import ClassVar
 
-    from generator.pdes.ks import KS
-    from generator.rollout import shared_coefficients
+    from pdestream.generator.spectral.ks import KS
+    from pdestream.generator.spectral.rollout import shared_coefficients
 
     @dataclasses.dataclass(frozen=True)
     class Unparametrised(KS):

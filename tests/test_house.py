@@ -79,7 +79,7 @@ class _Persistence(torch.nn.Module):
 
 
 def _identity_norm(c: int, p: int):
-    from datasets.normalize import Normalization
+    from pdestream.datasets.normalize import Normalization
 
     return Normalization(tuple(f"f{i}" for i in range(c)), torch.zeros(c), torch.ones(c),
                          tuple(f"p{i}" for i in range(p)), torch.zeros(p), torch.ones(p), 1)
@@ -88,8 +88,8 @@ def _identity_norm(c: int, p: int):
 def test_one_evaluator_against_hand_computed_errors():
     """Per-frame and whole-trajectory relative L2 of a persistence rollout, and the one-step and rollout figures
     a run reports, all from the one evaluator and equal to the errors computed by hand."""
-    import datasets
-    from surrogate.evaluate import error_stats, rollout_errors, test_errors
+    from pdestream import datasets
+    from pdestream.surrogate.evaluate import error_stats, rollout_errors, test_errors
 
     gen = torch.Generator().manual_seed(0)
     u = torch.randn(5, 4, 1, 16, generator=gen)  # [N, T, C, x]
@@ -130,7 +130,7 @@ class _Batches(torch.utils.data.IterableDataset):
 
 
 def _model():
-    from surrogate import build_model
+    from pdestream.surrogate import build_model
 
     torch.manual_seed(0)
     return build_model("fno", 1, 1, 1, 1, width=4, modes=2, layers=1)
@@ -138,7 +138,7 @@ def _model():
 
 def test_one_loop_stops_on_steps_seconds_or_the_end_of_one_pass(tmp_path):
     """The loop that `train`, `compare` and the budget arms share: a stop rule, and a hook after every step."""
-    from surrogate.train import Stop, train
+    from pdestream.surrogate.train import Stop, train
 
     seen = []
     s = train(_model(), torch.utils.data.DataLoader(_Batches(3), batch_size=None), Stop(steps=7), tmp_path / "a",
@@ -165,9 +165,9 @@ def test_a_mode_owns_its_settings_defaults_and_cli_choices():
     import subprocess
     import sys
 
-    import cli
-    from surrogate.mode_table import DEFAULTS, MODE_NAMES, mode_settings
-    from surrogate.modes import MODES, make_mode
+    from pdestream import cli
+    from pdestream.surrogate.mode_table import DEFAULTS, MODE_NAMES, mode_settings
+    from pdestream.surrogate.modes import MODES, make_mode
 
     assert tuple(MODES) == MODE_NAMES
     train = next(a for a in cli.build_parser()._subparsers._group_actions[0].choices["train"]._actions
@@ -196,8 +196,8 @@ def test_long_phases_report_plain_lines_when_stderr_is_not_a_terminal(tmp_path, 
     lines in a log (stderr is not a terminal under pytest's capture); a quick phase prints nothing."""
     import time
 
-    from surrogate import phases
-    from surrogate.train import train
+    from pdestream.surrogate import phases
+    from pdestream.surrogate.train import train
 
     with phases.phase("quick"):
         pass
@@ -213,7 +213,7 @@ def test_long_phases_report_plain_lines_when_stderr_is_not_a_terminal(tmp_path, 
 
 
 def _help_of(command: str, dest: str) -> str:
-    import cli
+    from pdestream import cli
 
     sub = cli.build_parser()._subparsers._group_actions[0].choices[command]
     return next(a.help for a in sub._actions if a.dest == dest)
@@ -226,8 +226,8 @@ def test_lr_defaults_are_stated_where_train_and_compare_differ():
 
 
 def test_compare_quick_alone_says_what_it_runs(tmp_path, capsys, monkeypatch):
-    import cli
-    import surrogate.budget
+    from pdestream import cli
+    from pdestream.experiments import budget
 
     ran = []
 
@@ -236,7 +236,7 @@ def test_compare_quick_alone_says_what_it_runs(tmp_path, capsys, monkeypatch):
         Path(out).mkdir(parents=True)
         (Path(out) / "compare.md").write_text("table\n")
 
-    monkeypatch.setattr(surrogate.budget, "budget_compare", stub)
+    monkeypatch.setattr(budget, "budget_compare", stub)
     assert cli.main(["compare", "--quick", "--out", str(tmp_path / "cmp")]) == 0
     out = capsys.readouterr().out
     assert ran[0].budget_s == 20.0 and "compare --quick: the budget comparison of the data routes" in out
@@ -245,7 +245,7 @@ def test_compare_quick_alone_says_what_it_runs(tmp_path, capsys, monkeypatch):
 def test_the_two_waiting_figures_are_named_apart(capsys):
     """The loop's data share (normalization draw included) and the reservoir's wait for solves (its own clock)
     were printed as two unexplained 'waiting' percentages."""
-    import cli
+    from pdestream import cli
 
     s = {"steps": 10, "wall": 5.0, "t_data": 1.0, "t_compute": 4.0, "data_share": 0.2, "trajectories_seen": 8,
          "final_loss": 0.1, "test": {"test": {"rel_l2": 0.1, "nrmse": 0.1}},
@@ -259,10 +259,10 @@ def test_the_two_waiting_figures_are_named_apart(capsys):
 def test_one_set_of_argument_checks(tmp_path):
     """Every surrogate config refuses the same bad values in the same words (surrogate/checks.py): a bool is no
     count, a learning rate must be finite and > 0."""
-    import generator
-    from surrogate.budget import BudgetConfig
-    from surrogate.compare import CompareConfig, compare
-    from surrogate.interactive_compare import InteractiveConfig
+    from pdestream import generator
+    from pdestream.experiments.budget import BudgetConfig
+    from pdestream.experiments.compare import CompareConfig, compare
+    from pdestream.experiments.interactive_compare import InteractiveConfig
 
     pde = generator.get_pde("burgers1d", n=32, n_frames=6)
     cases = [

@@ -5,15 +5,13 @@ import stat
 
 import pytest
 
-from datasets import schema
+from pdestream.datasets import schema
 
 
 def test_there_is_one_atomic_write_and_it_syncs_the_directory(tmp_path, monkeypatch):
-    import surrogate.checkpoint
-    import surrogate.runs
-    import surrogate.train
+    from pdestream.surrogate import checkpoint, runs, train
 
-    assert surrogate.train.atomic_write is schema.atomic_write is surrogate.runs.atomic_write is surrogate.checkpoint.atomic_write
+    assert train.atomic_write is schema.atomic_write is runs.atomic_write is checkpoint.atomic_write
     synced = []
     real = os.fsync
     monkeypatch.setattr(os, "fsync", lambda fd: synced.append(stat.S_ISDIR(os.fstat(fd).st_mode)) or real(fd))
@@ -52,7 +50,7 @@ def test_only_the_datasets_package_imports_its_private_bridge():
     import ast
     from pathlib import Path
 
-    import datasets
+    from pdestream import datasets
 
     root = Path(__file__).parent.parent
     outside = [root / "cli.py", *(root / "surrogate").rglob("*.py"), *(root / "generator").rglob("*.py")]
@@ -64,23 +62,42 @@ def test_only_the_datasets_package_imports_its_private_bridge():
     assert datasets.max_index() > 0 and callable(datasets.pde_from_config)  # the public door instead
 
 
-def test_the_wheel_leaves_the_benchmarks_out():
+def test_the_wheel_ships_pdestream_alone():
     import tomllib
     from pathlib import Path
 
-    from setuptools import find_packages
+    root = Path(__file__).parent.parent
+    setup = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
+    shipped = setup["packages"]
+    assert setup["package-dir"] == {"pdestream": "."} and all(p.split(".")[0] == "pdestream" for p in shipped)
+    # every folder of the package with Python files is shipped; benchmarks, tests, examples and docs are not
+    folders = {"pdestream." + ".".join(p.parent.relative_to(root).parts) for p in root.glob("*/**/*.py")
+               if p.parent.relative_to(root).parts[0] in ("generator", "datasets", "surrogate", "experiments")}
+    assert folders == set(shipped) - {"pdestream"}
+
+
+def test_the_library_never_imports_the_benchmarks():
+    import ast
+    from pathlib import Path
 
     root = Path(__file__).parent.parent
-    found = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]
-    shipped = find_packages(where=str(root), include=found["include"], exclude=found.get("exclude", ()))
-    assert "generator" in shipped and "surrogate" in shipped
-    assert not [p for p in shipped if p.split(".")[0] in ("benchmarks", "tests")]
+    files = [root / "cli.py", root / "__init__.py"]
+    files += [p for d in ("generator", "datasets", "surrogate", "experiments") for p in (root / d).rglob("*.py")]
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            assert not any(n.split(".")[0] == "benchmarks" for n in names), f"{path} imports the benchmarks"
+            if isinstance(node, ast.Attribute) and node.attr in ("insert", "append", "extend"):
+                target = node.value
+                edits = isinstance(target, ast.Attribute) and target.attr == "path" and getattr(target.value, "id", "") == "sys"
+                assert not edits, f"{path} edits sys.path"
 
 
 def test_bench_json_into_a_missing_directory_is_refused_before_the_benchmark(tmp_path, capsys, monkeypatch):
-    import cli
+    import benchmarks.__main__ as bench
 
-    monkeypatch.setattr(cli, "import_benchmarks", lambda: pytest.fail("the benchmark ran"))
-    code = cli.main(["bench", "generator", "--quick", "--json", str(tmp_path / "no" / "b.json")])
+    monkeypatch.setattr(bench, "run", lambda *a: pytest.fail("the benchmark ran"))
+    code = bench.main(["--only", "generator", "--quick", "--json", str(tmp_path / "no" / "b.json")])
     err = capsys.readouterr().err.strip()
     assert code != 0 and len(err.splitlines()) == 1 and "does not exist" in err and "Traceback" not in err

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-import cli
-from surrogate.fno import FNO, SpectralConv
-from surrogate.models import build_model, model_spec
-from surrogate.unet import UNet
+from pdestream import cli
+from pdestream.surrogate.fno import FNO, SpectralConv
+from pdestream.surrogate.models import build_model, model_spec
+from pdestream.surrogate.unet import UNet
 
 
 def test_spectral_conv_3d_matches_a_direct_sum_over_the_kept_modes():

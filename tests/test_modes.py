@@ -8,13 +8,19 @@ import json
 import pytest
 import torch
 
-import cli
-import datasets
-import generator
-import surrogate.train as T
-from surrogate import build_model
-from surrogate.modes import Oracle, Pushforward, SolverInTheLoop, check_fits, make_mode, subsample, training_view
-from surrogate.runs import resume_run, train_run
+from pdestream import cli, datasets, generator
+from pdestream.surrogate import build_model
+from pdestream.surrogate import train as T
+from pdestream.surrogate.modes import (
+    Oracle,
+    Pushforward,
+    SolverInTheLoop,
+    check_fits,
+    make_mode,
+    subsample,
+    training_view,
+)
+from pdestream.surrogate.runs import resume_run, train_run
 
 torch.set_num_threads(1)
 
@@ -274,7 +280,7 @@ def test_cli_compare_modes_quick(tmp_path, capsys):
 
 # --- the training loss: mse or relative -----------------------------------------------------------------
 def test_relative_loss_is_the_mean_per_example_relative_l2_and_weighs_small_targets_alike():
-    from surrogate.modes import objective
+    from pdestream.surrogate.modes import objective
 
     target = torch.tensor([[3.0, 4.0], [0.003, 0.004]])  # norms 5 and 0.005
     pred = target * torch.tensor([[1.1], [1.2]])  # 10% and 20% off

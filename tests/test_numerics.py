@@ -5,8 +5,7 @@ import pytest
 from test_data_safety import digest, generate
 from test_formats import FORMATS, _full_disk, _set_attr, one_line_error
 
-import datasets
-import generator
+from pdestream import datasets, generator
 
 
 @pytest.mark.parametrize("suffix", FORMATS)

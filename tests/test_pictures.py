@@ -11,10 +11,15 @@ import pytest  # noqa: E402
 import torch  # noqa: E402
 import xarray as xr  # noqa: E402
 
-import datasets  # noqa: E402
-import generator  # noqa: E402
-from datasets import inspect, schema  # noqa: E402
-from datasets.cache import open_cache  # noqa: E402
+from pdestream import (
+    datasets,  # noqa: E402
+    generator,  # noqa: E402
+)
+from pdestream.datasets import (
+    inspect,
+    schema,  # noqa: E402
+)
+from pdestream.datasets.cache import open_cache  # noqa: E402
 
 N = 3
 # Kolmogorov forcing depends on y only (f = -A k cos(k y)): started (nearly) from rest, the vorticity stays a function
@@ -217,7 +222,7 @@ def test_3d_fields_round_trip_and_plot_the_middle_slice():
 def test_a_schema_1_2d_cache_is_refused_in_one_line(tmp_path, ns_cache, capsys):
     import h5py
 
-    import cli
+    from pdestream import cli
 
     pde, _ = ns_cache
     old = tmp_path / "old.h5"
@@ -289,7 +294,7 @@ def test_every_entry_declares_the_units_of_its_fields():
 def test_list_name_shows_field_units(capsys):
     import json
 
-    import cli
+    from pdestream import cli
 
     assert cli.main(["list", "ns2d"]) == 0
     assert "fields (units): vorticity [1/time]" in capsys.readouterr().out
@@ -299,7 +304,7 @@ def test_list_name_shows_field_units(capsys):
 
 def test_rollouts_figure_of_a_flow_draws_vorticity_with_the_body_and_a_1d_entry_as_space_time(tmp_path):
     """solver-in-the-loop's rollouts.png: a flow's rows are vorticity (not u), the body in grey; 1D: space-time."""
-    from surrogate.rollout_figure import picture_of, plot_rollouts
+    from pdestream.experiments.rollout_figure import picture_of, plot_rollouts
 
     flow = generator.get_pde("karman2d")
     nx, ny = flow.grid.shape

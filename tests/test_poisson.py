@@ -7,8 +7,7 @@ import pytest
 import scipy.fft as sf
 import torch
 
-import datasets
-import generator
+from pdestream import datasets, generator
 
 
 def rel(a, b) -> float:
@@ -97,7 +96,7 @@ def test_identity_and_the_data_side(tmp_path):
 
 
 def test_train_on_a_poisson_cache_and_stream(tmp_path, capsys):
-    import cli
+    from pdestream import cli
 
     assert cli.main(["train", "poisson2d", "--set", "n=16", "--steps", "5", "--batch-size", "4", "--test-samples",
                      "2", "--model-set", "width=8", "--model-set", "modes=4", "--model-set", "layers=2", "--threads",

@@ -8,8 +8,8 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-import generator
-from datasets.reservoir import Reservoir, ReservoirStream
+from pdestream import generator
+from pdestream.datasets.reservoir import Reservoir, ReservoirStream
 
 PDE = generator.get_pde("burgers1d", n=32, n_frames=4)
 

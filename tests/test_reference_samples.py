@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-import generator
+from pdestream import generator
 from tests import reference_samples as ref
 
 SAVED = json.loads(ref.PATH.read_text())

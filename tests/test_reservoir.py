@@ -7,9 +7,9 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-import generator
-from datasets.proposal import ParamProposal
-from datasets.reservoir import Reservoir, ReservoirStream
+from pdestream import generator
+from pdestream.datasets.proposal import ParamProposal
+from pdestream.datasets.reservoir import Reservoir, ReservoirStream
 
 PDE = generator.get_pde("burgers1d", n=32, n_frames=4)
 
@@ -256,7 +256,7 @@ def test_kill9_and_resume_through_a_deterministic_reservoir_is_bit_identical(tmp
 
 
 def test_cli_reservoir_settings_are_checked(capsys, tmp_path):
-    import cli
+    from pdestream import cli
 
     out = tmp_path / "run"
     assert cli.main(["train", "burgers1d", "--reservoir", "--capacity", "4", "--out", str(out)]) == 2
@@ -341,7 +341,7 @@ def test_a_device_reservoir_gives_the_host_reservoirs_batches_on_its_device(devi
 
 
 def datasets_device(name: str) -> torch.device:
-    from datasets.reservoir import storage_device
+    from pdestream.datasets.reservoir import storage_device
 
     return storage_device(name)
 
@@ -362,8 +362,8 @@ def test_a_device_reservoir_keeps_the_bound_and_resumes_exactly(device):
 
 
 def test_the_training_loop_places_a_reservoir_built_without_a_device(tmp_path):
-    from surrogate.models import build_model
-    from surrogate.train import train
+    from pdestream.surrogate.models import build_model
+    from pdestream.surrogate.train import train
 
     s = stream(device=None, sim_budget=16, max_reuse=1)
     placed = []
@@ -376,7 +376,7 @@ def test_the_training_loop_places_a_reservoir_built_without_a_device(tmp_path):
 
 
 def test_a_thread_solve_reaches_the_reservoir_through_dlpack_with_the_same_values():
-    from datasets import _bridge
+    from pdestream.datasets import _bridge
 
     numpy_out = _bridge.solve_job(PDE.config(), 3, [0, 1, 2, 3])
     torch_out = _bridge.solve_job(PDE.config(), 3, [0, 1, 2, 3], on_device=True)
@@ -405,7 +405,7 @@ def test_cuda_without_a_gpu_is_one_line():
 
 
 def test_a_device_without_room_is_one_line_with_the_bytes_asked_and_free(monkeypatch):
-    import datasets.reservoir as reservoir
+    from pdestream.datasets import reservoir as reservoir
 
     monkeypatch.setattr(reservoir, "free_bytes", lambda device: (123456, 80 * 2**30))
     with pytest.raises(ValueError) as err:
@@ -425,7 +425,7 @@ def test_a_reservoir_larger_than_the_gpu_is_refused_in_one_line():
 
 @CUDA
 def test_train_run_with_a_reservoir_on_the_gpu(tmp_path):
-    from surrogate.runs import train_run
+    from pdestream.surrogate.runs import train_run
 
     cfg = {"kind": "reservoir", "capacity": 16, "max_reuse": 2, "solve_batch": 8, "mode": "deterministic"}
     s = train_run(PDE, "stream", tmp_path / "run", model_cfg={"width": 8, "modes": 4, "layers": 1}, steps=6,
@@ -434,7 +434,7 @@ def test_train_run_with_a_reservoir_on_the_gpu(tmp_path):
 
 
 def test_the_default_solve_batch_follows_the_training_device():
-    import cli
+    from pdestream import cli
 
     parse = cli.build_parser().parse_args
     assert cli.reservoir_cfg(parse(["train", "burgers1d", "--reservoir"]))["solve_batch"] == 16

@@ -16,11 +16,11 @@ import pytest
 import torch
 from torch.utils.data import DataLoader, IterableDataset
 
-import cli
-from surrogate import build_model
-from surrogate.data import EpochBatchSampler
-from surrogate.predict import relative_errors, stack_frames
-from surrogate.train import TIMINGS, _postfix, forever, train
+from pdestream import cli
+from pdestream.surrogate import build_model
+from pdestream.surrogate.data import EpochBatchSampler
+from pdestream.surrogate.predict import relative_errors, stack_frames
+from pdestream.surrogate.train import TIMINGS, _postfix, forever, train
 
 torch.set_num_threads(1)
 
@@ -149,8 +149,7 @@ def test_kill9_and_resume_on_the_stream_is_bit_identical(tmp_path, capsys):
 
 
 def test_kill9_and_resume_on_a_cache_is_bit_identical(tmp_path):
-    import datasets
-    import generator
+    from pdestream import datasets, generator
 
     pde_set = {"n": "32", "n_frames": "5"}
     cache = tmp_path / "c.h5"
@@ -349,7 +348,7 @@ def test_overwrite_never_loses_the_old_run_before_the_new_one_has_value(tmp_path
     assert _files(out) == old and sorted(p.name for p in tmp_path.iterdir()) == ["run"]
 
     # Ctrl-C before the new run's first checkpoint: the old run stays, the new one's files go
-    import surrogate.train as T
+    from pdestream.surrogate import train as T
 
     real = T.forever
 
@@ -428,8 +427,8 @@ def test_resume_with_more_steps_extends_a_finished_run_to_the_uninterrupted_long
 
 @pytest.mark.parametrize("name", ["cosine", "onecycle", "constant"])
 def test_a_longer_run_replans_its_schedule_as_if_planned_so_from_the_start(name):
-    from surrogate.checkpoint import replan_schedule
-    from surrogate.train import make_schedule
+    from pdestream.surrogate.checkpoint import replan_schedule
+    from pdestream.surrogate.train import make_schedule
 
     def adam():
         return torch.optim.Adam(torch.nn.Linear(2, 2).parameters(), lr=1e-2)

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 import zarr
 
-import datasets
-import generator
-from datasets.cache import is_complete
-from generator import chunked, dispatch, rollout, sampler
+from pdestream import datasets, generator
+from pdestream.datasets.cache import is_complete
+from pdestream.generator import chunked, dispatch, sampler
+from pdestream.generator.spectral import rollout
 
 
 def _setup(pde, batch):
@@ -67,7 +67,7 @@ def test_solve_and_advance_run_in_bounded_calls_with_the_bits_of_one_call(monkey
 
     import jax
 
-    from generator import interactive
+    from pdestream.generator.spectral import interactive
 
     pde = generator.get_pde("burgers1d", {"n": 32, "n_frames": 4, "t_end": 0.3})
     x = pde.grid.coords()
@@ -133,7 +133,7 @@ def test_a_cancelled_solve_stops_at_the_next_call():
 
 
 def test_prefetch_close_cancels_its_producer():
-    from datasets._prefetch import _LIVE, prefetch
+    from pdestream.datasets._prefetch import _LIVE, prefetch
 
     short, long = generator.get_pde("burgers1d", {**LONG, "t_end": 1}), generator.get_pde("burgers1d", LONG)
     generator.sample(short, np.arange(4))  # compiled
@@ -150,7 +150,7 @@ def test_prefetch_close_cancels_its_producer():
 
 @pytest.mark.parametrize("producer", ["thread", "process"])
 def test_closing_a_reservoir_stops_its_solves(producer):
-    from datasets.reservoir import ReservoirStream
+    from pdestream.datasets.reservoir import ReservoirStream
 
     stream = ReservoirStream(generator.get_pde("burgers1d", LONG), batch_size=4, capacity=8, solve_batch=4,
                              producer=producer)
@@ -163,7 +163,7 @@ def test_closing_a_reservoir_stops_its_solves(producer):
 
 
 def _generate(out, *extra):
-    return subprocess.Popen([sys.executable, "-m", "cli", "generate", "burgers1d", "--n", "8", "--block", "8",
+    return subprocess.Popen([sys.executable, "-m", "pdestream.cli", "generate", "burgers1d", "--n", "8", "--block", "8",
                              *(f"--set={k}={v}" for k, v in LONG.items()), "--out", str(out), *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
@@ -196,7 +196,7 @@ def test_ctrl_c_stops_generate_within_seconds(tmp_path, signals):
 
 def test_ctrl_c_stops_stream_training_within_seconds(tmp_path):
     out = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "cli", "train", "burgers1d", "--source", "stream", "--steps", "5",
+    proc = subprocess.Popen([sys.executable, "-m", "pdestream.cli", "train", "burgers1d", "--source", "stream", "--steps", "5",
                              "--batch-size", "4", "--test-samples", "1", *(f"--set={k}={v}" for k, v in LONG.items()),
                              "--model-set", "width=4", "--model-set", "modes=2", "--model-set", "layers=1",
                              "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -214,7 +214,7 @@ def test_ctrl_c_stops_stream_training_within_seconds(tmp_path):
 
 def test_ctrl_c_in_compare_removes_the_out_dir_it_created(tmp_path):
     out = tmp_path / "cmp"
-    proc = subprocess.Popen([sys.executable, "-m", "cli", "compare", "burgers1d", "--modes", "one-step", "--quick",
+    proc = subprocess.Popen([sys.executable, "-m", "pdestream.cli", "compare", "burgers1d", "--modes", "one-step", "--quick",
                              "--steps", "100000", "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     _wait_for_solving(proc, out / "one-step" / "run.json", seconds=1.0)  # the first arm is training
@@ -228,7 +228,7 @@ def test_ctrl_c_in_compare_removes_the_out_dir_it_created(tmp_path):
 def test_an_interrupt_raised_where_python_cannot_raise_is_sent_again(monkeypatch):
     """A Ctrl-C handled inside a gc callback (JAX has one) or a __del__ cannot raise there: Python prints the
     KeyboardInterrupt and drops it, and the CLI then ignored every later Ctrl-C. Its unraisable hook sends it again."""
-    import cli
+    from pdestream import cli
 
     class Dies:
         def __del__(self):
@@ -265,10 +265,10 @@ TRAIN = ["train", "burgers1d", "--set=n=32", "--set=n_frames=3", "--steps", "5"]
 
 
 def test_interrupted_train_keeps_a_checkpoint_and_only_what_it_did_not_create(tmp_path, monkeypatch, capsys):
-    import cli
+    from pdestream import cli
 
     out = tmp_path / "run"
-    _interrupting(monkeypatch, "surrogate.runs", "train_run", 2, ["run.json", "checkpoint.pt"])
+    _interrupting(monkeypatch, "pdestream.surrogate.runs", "train_run", 2, ["run.json", "checkpoint.pt"])
     assert cli.main([*TRAIN, "--out", str(out)]) == 130
     assert capsys.readouterr().err == (f"pdestream: interrupted; {out} holds a checkpoint; pdestream train --resume "
                                        f"{out} continues from it\n")
@@ -276,25 +276,25 @@ def test_interrupted_train_keeps_a_checkpoint_and_only_what_it_did_not_create(tm
     # --overwrite, no checkpoint yet: the new run (built beside the old one) goes, the old run and the user's file stay
     (out / "checkpoint.pt").unlink()
     (out / "notes.txt").write_text("mine")
-    _interrupting(monkeypatch, "surrogate.runs", "train_run", 2, ["run.json", "metrics.csv"])
+    _interrupting(monkeypatch, "pdestream.surrogate.runs", "train_run", 2, ["run.json", "metrics.csv"])
     assert cli.main([*TRAIN, "--out", str(out), "--overwrite"]) == 130
     assert "nothing of the new run was kept (no checkpoint yet)" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt", "run.json"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
     # a fresh run in a directory that was there: only what the command wrote goes
     (out / "run.json").unlink()
-    _interrupting(monkeypatch, "surrogate.runs", "train_run", 2, ["run.json", "metrics.csv"])
+    _interrupting(monkeypatch, "pdestream.surrogate.runs", "train_run", 2, ["run.json", "metrics.csv"])
     assert cli.main([*TRAIN, "--out", str(out)]) == 130
     assert "nothing was kept (no checkpoint yet)" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
 
 
 def test_interrupted_compare_keeps_finished_runs_and_what_it_did_not_create(tmp_path, monkeypatch, capsys):
-    import cli
+    from pdestream import cli
 
     argv = ["compare", "burgers1d", "--modes", "one-step,pushforward", "--quick", "--out"]
     out = tmp_path / "cmp"
-    _interrupting(monkeypatch, "surrogate.interactive_compare", "interactive_compare", 1,
+    _interrupting(monkeypatch, "pdestream.experiments.interactive_compare", "interactive_compare", 1,
                   ["one-step/run.json", "one-step/metrics.json", "pushforward/run.json"])
     assert cli.main([*argv, str(out)]) == 130
     assert capsys.readouterr().err == (f"pdestream: interrupted; {out} keeps 1 finished run (one-step/); pass "
@@ -303,7 +303,7 @@ def test_interrupted_compare_keeps_finished_runs_and_what_it_did_not_create(tmp_
     mine = tmp_path / "mine"  # a directory the user made: it stays, with what was in it
     mine.mkdir()
     (mine / "notes.txt").write_text("mine")
-    _interrupting(monkeypatch, "surrogate.interactive_compare", "interactive_compare", 1, ["one-step/run.json"])
+    _interrupting(monkeypatch, "pdestream.experiments.interactive_compare", "interactive_compare", 1, ["one-step/run.json"])
     assert cli.main([*argv, str(mine)]) == 130
     assert capsys.readouterr().err == "pdestream: interrupted; nothing was kept (no run had finished)\n"
     assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
@@ -314,7 +314,7 @@ def test_stale_work_copies_of_dead_writers_are_removed_by_the_next_run(tmp_path)
     which removes those whose writer is gone, and leaves a live writer's and anything else alone."""
     import os
 
-    import cli
+    from pdestream import cli
 
     dead = subprocess.Popen(["true"])
     dead.wait()  # a pid that no longer runs
@@ -333,7 +333,7 @@ def test_ctrl_c_after_a_block_leaves_a_resumable_cache(tmp_path, capsys):
     out = tmp_path / "a.zarr"
     setting = ["--set=n=32", "--set=n_frames=3", "--set=t_end=300"]  # ~1 s per sample (block of 1)
     args = ["generate", "burgers1d", "--n", "4", "--block", "1", *setting]
-    proc = subprocess.Popen([sys.executable, "-m", "cli", *args, "--out", str(out)], stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "pdestream.cli", *args, "--out", str(out)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while proc.poll() is None and time.monotonic() < deadline:
@@ -351,7 +351,7 @@ def test_ctrl_c_after_a_block_leaves_a_resumable_cache(tmp_path, capsys):
     ds = datasets.open_cache(out)
     assert not is_complete(ds)
     ds.close()
-    import cli
+    from pdestream import cli
 
     assert cli.main([*args, "--out", str(out), "--resume"]) == 0
     ref = tmp_path / "ref.zarr"

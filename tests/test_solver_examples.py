@@ -8,8 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import cli
-import generator
+from pdestream import cli, generator
 
 ROOT = Path(__file__).resolve().parents[1]
 

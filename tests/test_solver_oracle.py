@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-import generator
-from datasets import SolverOracle, SolverStep, _bridge
-from generator import interactive, rollout
-from generator.rollout import _coefficients
+from pdestream import generator
+from pdestream.datasets import SolverOracle, SolverStep, _bridge
+from pdestream.generator.spectral import interactive, rollout
+from pdestream.generator.spectral.rollout import _coefficients
 
 # tiny, quick configurations: few frames, few internal steps per frame
 BURGERS = dict(n=64, t_end=0.1, n_frames=6)

@@ -7,10 +7,10 @@ import pytest
 import torch
 from torch import nn
 
-from datasets.normalize import Normalization
-from surrogate import models
-from surrogate.checkpoint import load_checkpoint, save_checkpoint
-from surrogate.models import MODELS, build_model, model_spec
+from pdestream.datasets.normalize import Normalization
+from pdestream.surrogate import models
+from pdestream.surrogate.checkpoint import load_checkpoint, save_checkpoint
+from pdestream.surrogate.models import MODELS, build_model, model_spec
 
 
 def _norm(c: int, p: int) -> Normalization:
@@ -62,13 +62,13 @@ def test_a_newly_registered_model_keeps_its_name(tmp_path, monkeypatch):
 
 
 def test_train_reads_its_config_file_once(tmp_path, monkeypatch):
-    import cli
-    import surrogate.runs
+    from pdestream import cli
+    from pdestream.surrogate import runs as run_module
 
     reads, runs = [], []
     real = cli.read_config
     monkeypatch.setattr(cli, "read_config", lambda path: reads.append(path) or real(path))
-    monkeypatch.setattr(surrogate.runs, "train_run", lambda pde, source, out, **kw: runs.append((pde, kw)) or {})
+    monkeypatch.setattr(run_module, "train_run", lambda pde, source, out, **kw: runs.append((pde, kw)) or {})
     monkeypatch.setattr(cli, "_print_run", lambda *a: None)
     config = tmp_path / "b.toml"
     config.write_text('pde = "burgers1d"\nn = 32\nn_frames = 5\n')
@@ -81,8 +81,8 @@ def test_views_describe_their_models_and_evaluation():
     isinstance branch elsewhere."""
     from dataclasses import dataclass as dc
 
-    import datasets
-    from surrogate.predict import model_channels, pairs
+    from pdestream import datasets
+    from pdestream.surrogate.predict import model_channels, pairs
 
     class Pde:
         FIELDS = ("u", "v")

@@ -6,9 +6,9 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-import generator
-from datasets import _bridge, collate, examples, gather, make_view
-from datasets.stream import TrajectoryStream, stream_loader
+from pdestream import generator
+from pdestream.datasets import _bridge, collate, examples, gather, make_view
+from pdestream.datasets.stream import TrajectoryStream, stream_loader
 
 SEED = 5
 
@@ -231,7 +231,7 @@ def test_a_script_may_exit_with_a_stream_still_open(tmp_path):
 def test_progress_counts_snapshots_and_pickles_to_a_copy():
     import pickle
 
-    from datasets.progress import StreamPosition
+    from pdestream.datasets.progress import StreamPosition
 
     p = StreamPosition()
     p.set_epoch(2)

@@ -5,12 +5,12 @@ import json
 import pytest
 import torch
 
-import cli
-from datasets.normalize import Normalization
-from surrogate import MODELS, build_model
-from surrogate.checkpoint import load_checkpoint
-from surrogate.metrics import nrmse, rel_l2
-from surrogate.train import train
+from pdestream import cli
+from pdestream.datasets.normalize import Normalization
+from pdestream.surrogate import MODELS, build_model
+from pdestream.surrogate.checkpoint import load_checkpoint
+from pdestream.surrogate.metrics import nrmse, rel_l2
+from pdestream.surrogate.train import train
 
 torch.set_num_threads(1)
 
@@ -33,7 +33,7 @@ def test_conditioning_changes_the_output():
 
 def test_fno_spectral_layer_is_translation_equivariant():
     # A spectral convolution commutes with periodic shifts; a check the layer cannot pass by accident.
-    from surrogate.fno import SpectralConv
+    from pdestream.surrogate.fno import SpectralConv
 
     layer = SpectralConv(1, 2, 3, modes=8)
     x = torch.randn(1, 2, 32)
@@ -120,8 +120,7 @@ def test_normalization_from_batch_matches_torch_statistics():
 def test_cache_normalization_is_the_stream_draw_over_the_same_samples(tmp_path):
     import numpy as np
 
-    import datasets
-    import generator
+    from pdestream import datasets, generator
 
     pde = _tiny_pde()
     datasets.write_cache(pde, tmp_path / "c.h5", 6, seed=3, progress=False)
@@ -148,14 +147,14 @@ class Recording:
 
 
 def _tiny_pde():
-    import generator
+    from pdestream import generator
 
     return generator.get_pde("burgers1d", {"n": "32", "n_frames": "6", "t_end": "0.2"})
 
 
 def test_training_on_a_finite_stream_skips_no_epoch(tmp_path):
     # n_samples=2, one batch per epoch: epoch e must give samples 2e, 2e+1 (the loader owns the epochs)
-    import datasets
+    from pdestream import datasets
 
     stream = datasets.TrajectoryStream(_tiny_pde(), seed=0, view="operator", batch_size=2, n_samples=2,
                                        solve_batch=2, shuffle=False)
@@ -166,8 +165,8 @@ def test_training_on_a_finite_stream_skips_no_epoch(tmp_path):
 
 
 def test_training_on_a_cache_reshuffles_each_epoch(tmp_path):
-    import datasets
-    from surrogate.data import train_loader
+    from pdestream import datasets
+    from pdestream.surrogate.data import train_loader
 
     pde = _tiny_pde()
     datasets.write_cache(pde, tmp_path / "c.h5", 4, seed=0, progress=False)
@@ -184,8 +183,7 @@ TINY_MODEL = ["--model-set", "width=8", "--model-set", "modes=4", "--model-set",
 
 
 def test_train_end_to_end_stream_and_cache(tmp_path, capsys):
-    import datasets
-    import generator
+    from pdestream import datasets, generator
 
     out = tmp_path / "run"
     assert cli.main(["train", "burgers1d", *TINY, *TINY_MODEL, "--steps", "4", "--batch-size", "8",
@@ -248,8 +246,8 @@ def test_compare_end_to_end(tmp_path, capsys):
 
 
 def test_shifted_pde_lies_outside_the_training_domain():
-    import generator
-    from surrogate.compare import shifted_pde
+    from pdestream import generator
+    from pdestream.experiments.compare import shifted_pde
 
     pde = generator.get_pde("kdv1d")  # alpha uniform(1, 3), beta loguniform(0.5, 2)
     above, below = shifted_pde(pde, 0.25), shifted_pde(pde, -0.25)

@@ -8,9 +8,9 @@ import uuid
 import pytest
 import torch
 
-import cli
-import surrogate.train as T
-from surrogate import load_checkpoint
+from pdestream import cli
+from pdestream.surrogate import load_checkpoint
+from pdestream.surrogate import train as T
 
 NET = '''
 import torch

@@ -13,9 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import cli
-import datasets
-import generator
+from pdestream import cli, datasets, generator
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 SMALL = ["--set", "n=32", "--set", "n_frames=4", "--set", "t_end=0.3"]

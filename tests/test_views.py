@@ -3,8 +3,8 @@ at frame 0, read whole; the two operator views are evaluated as trained and make
 
 import torch
 
-import datasets
-from datasets.views import SteadyOperator, Whole
+from pdestream import datasets
+from pdestream.datasets.views import SteadyOperator, Whole
 
 
 def test_one_example_views_cut_whole_trajectories():

@@ -10,11 +10,10 @@ import pytest
 import torch
 import xarray as xr
 
-import datasets
-import generator
-from datasets import _bridge
-from datasets.reservoir import ReservoirStream
-from datasets.solver import SolverOracle, SolverStep
+from pdestream import datasets, generator
+from pdestream.datasets import _bridge
+from pdestream.datasets.reservoir import ReservoirStream
+from pdestream.datasets.solver import SolverOracle, SolverStep
 
 torch.set_num_threads(1)
 SETTINGS = {"n": 32, "n_frames": 5, "t_end": 0.2, "bc": "dirichlet", "bc_lo": "uniform(0, 1)", "bc_hi": "-0.5"}
@@ -120,7 +119,7 @@ def test_boundary_values_on_a_periodic_axis_and_offsets_on_dirichlet_walls_are_r
 
 
 def test_the_cli_lists_generates_and_refuses_walls(tmp_path, capsys):
-    import cli
+    from pdestream import cli
 
     assert cli.main(["list"]) == 0
     out = capsys.readouterr().out
@@ -142,7 +141,7 @@ def test_the_cli_lists_generates_and_refuses_walls(tmp_path, capsys):
 @pytest.mark.slow
 @pytest.mark.parametrize("mode", ["one-step", "pushforward", "oracle", "solver-in-the-loop"])
 def test_every_training_mode_trains_and_resumes_on_walls(tmp_path, capsys, mode):
-    import cli
+    from pdestream import cli
 
     out = tmp_path / "run"
     argv = ["train", "burgers1d", "--set", "n=64", "--set", "n_frames=6", "--set", "bc=dirichlet", "--set",
@@ -166,7 +165,7 @@ def test_every_training_mode_trains_and_resumes_on_walls(tmp_path, capsys, mode)
 def test_list_name_shows_every_setting_and_json(capsys):
     import json
 
-    import cli
+    from pdestream import cli
 
     assert cli.main(["list", "ns2d"]) == 0
     out = capsys.readouterr().out

@@ -8,8 +8,8 @@ import pytest
 import scipy.fft as sf
 from scipy.integrate import solve_ivp
 
-import generator
-from generator.bounded import BoundedGrid, cos_analysis, cos_synthesis, sin_analysis, sin_synthesis
+from pdestream import generator
+from pdestream.generator.spectral.bounded import BoundedGrid, cos_analysis, cos_synthesis, sin_analysis, sin_synthesis
 
 
 def rel(a, b) -> float:

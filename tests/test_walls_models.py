@@ -6,9 +6,9 @@ import pytest
 import torch
 from torch import nn
 
-from surrogate.models import build_model, model_spec
-from surrogate.modes import subsample
-from surrogate.unet import WallConv
+from pdestream.surrogate.models import build_model, model_spec
+from pdestream.surrogate.modes import subsample
+from pdestream.surrogate.unet import WallConv
 
 torch.set_num_threads(1)
 

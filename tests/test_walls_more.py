@@ -14,7 +14,7 @@ import pytest
 import scipy.fft as sf
 from scipy.integrate import simpson, solve_ivp
 
-import generator
+from pdestream import generator
 
 
 def rel(a, b) -> float:

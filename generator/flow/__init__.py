@@ -32,9 +32,9 @@ Modules: grid (Geometry, Params, obstacle masks, face coefficients), pressure (m
 batch (run_batch: lax.map over fixed chunks, batch-invariant bits), step (advection, viscosity, buoyancy, projection, step/run, derived fields).
 """
 
-from generator.flow.batch import run_batch
-from generator.flow.grid import Geometry, Params, box_solid, circle_solid, ellipse_solid
-from generator.flow.step import State, divergence, initial_state, is_finite, project, run, stable_dt, step, vorticity
+from .batch import run_batch
+from .grid import Geometry, Params, box_solid, circle_solid, ellipse_solid
+from .step import State, divergence, initial_state, is_finite, project, run, stable_dt, step, vorticity
 
 __all__ = ["Geometry", "Params", "State", "box_solid", "circle_solid", "ellipse_solid", "divergence",
            "initial_state", "is_finite", "project", "run", "run_batch", "stable_dt", "step", "vorticity"]

@@ -14,9 +14,9 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from generator.chunked import chunked_map
-from generator.flow.grid import Geometry, Params
-from generator.flow.step import State, initial_state, run
+from ..chunked import chunked_map
+from .grid import Geometry, Params
+from .step import State, initial_state, run
 
 
 def _leaves(params: Params, dt, batch: int, dtype):

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from generator.flow.grid import Faces
+from .grid import Faces
 
 
 def _ghost_pad(p, periodic_x, periodic_y):

@@ -18,8 +18,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from generator.flow import pressure
-from generator.flow.grid import Geometry, Params, circle_solid, faces, obstacles_solid, velocity_masks
+from . import pressure
+from .grid import Geometry, Params, circle_solid, faces, obstacles_solid, velocity_masks
 
 
 class State(NamedTuple):

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from datasets.derived import vorticity
+from pdestream.datasets.derived import vorticity
 
 
 def frame_vorticity(frames: torch.Tensor, fields: tuple[str, ...], h: float) -> np.ndarray:

@@ -18,15 +18,14 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import datasets
-
-from .checks import check_count, check_number
-from .data import test_set
-from .fno import COMPARE_FNO
-from .models import build_model
-from .phases import phase
-from .predict import model_channels
-from .runs import train_run
+from pdestream import datasets
+from pdestream.surrogate.checks import check_count, check_number
+from pdestream.surrogate.data import test_set
+from pdestream.surrogate.fno import COMPARE_FNO
+from pdestream.surrogate.models import build_model
+from pdestream.surrogate.phases import phase
+from pdestream.surrogate.predict import model_channels
+from pdestream.surrogate.runs import train_run
 
 
 @dataclass

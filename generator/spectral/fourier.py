@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .grids import GridBase
+from ..grids import GridBase
 
 CONTOUR_POINTS = 32  # points on a circle of radius 1 around each h*L (Kassam & Trefethen 2005)
 

@@ -17,9 +17,9 @@ import jax
 import jax.numpy as jnp
 
 from ..domains import Fixed
-from ..flow.grid import Params
-from ..flow.problem import FlowProblem
 from ..problem import Param
+from .grid import Params
+from .problem import FlowProblem
 
 MIN_CELLS_ACROSS = 4.0  # an obstacle narrower than this many cells is a staircase of a few cells, not a body
 CLEARANCE_CELLS = 2.0  # cells of fluid kept between an obstacle and a wall or the inflow

@@ -50,18 +50,18 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-import datasets
-from datasets.proposal import ParamProposal
+from pdestream import datasets
+from pdestream.datasets.proposal import ParamProposal
+from pdestream.surrogate.checks import check_count, check_number
+from pdestream.surrogate.data import TEST_SEED_OFFSET, EpochBatchSampler, check_device
+from pdestream.surrogate.evaluate import error_stats, rollout_errors
+from pdestream.surrogate.fno import COMPARE_FNO
+from pdestream.surrogate.models import build_model
+from pdestream.surrogate.modes import check_fits, make_mode, training_view
+from pdestream.surrogate.phases import phase
+from pdestream.surrogate.train import Stop, source_normalization, train
 
-from .checks import check_count, check_number
 from .compare import shifted_pde
-from .data import TEST_SEED_OFFSET, EpochBatchSampler, check_device
-from .evaluate import error_stats, rollout_errors
-from .fno import COMPARE_FNO
-from .models import build_model
-from .modes import check_fits, make_mode, training_view
-from .phases import phase
-from .train import Stop, source_normalization, train
 
 ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss", "reservoir_active", "reservoir_priority")
 DEFAULT_ARMS = ARMS[:4]  # the steered arms after them are named to be run (one more arm x seeds each)
@@ -371,7 +371,7 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
               "param_names": list(pde.PARAMS), "test_params": test_params, "arms": records}
     (out / "compare.json").write_text(json.dumps(result, indent=2, default=str))
     _write_tables(out, result, pde, cfg)
-    from .budget_plot import plot_budget
+    from pdestream.surrogate.budget_plot import plot_budget
 
     plot_budget(out / "compare.png", result, datasets.param_domains(pde))
     return result

@@ -9,9 +9,9 @@ import numpy as np
 
 from ..domains import LogUniform
 from ..ics import GaussianRandomField
-from ..spectral import cmul
 from .base import PDE, Param
 from .common import CFL
+from .fourier import cmul
 
 FORCINGS = ("none", "kolmogorov")
 

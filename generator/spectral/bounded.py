@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .grids import GridBase
+from ..grids import GridBase
 
 AXES = "xyz"
 

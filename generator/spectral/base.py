@@ -22,9 +22,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import rollout
 from ..problem import MAX_IC_BOUND, MAX_STEPS, Param, ProblemBase
-from ..spectral import Grid
+from . import rollout
+from .fourier import Grid
 from .walls import with_bc
 
 __all__ = ["LinearPDE", "PDE", "Param", "check_operators"]

@@ -16,11 +16,11 @@ from typing import Mapping
 import jax
 import jax.numpy as jnp
 
-from . import dispatch
-from .chunked import chunked_map
-from .domains import Fixed
-from .problem import Problem, resolve_params
-from .spectral import advance_frames, etdrk4_coefficients, etdrk4_step, rollout
+from .. import dispatch
+from ..chunked import chunked_map
+from ..domains import Fixed
+from ..problem import Problem, resolve_params
+from .fourier import advance_frames, etdrk4_coefficients, etdrk4_step, rollout
 
 PDE = Problem  # a spectral PDE (generator.pdes.base.PDE: linear, nonlinear, state_basis, time window): its
 # family imports this module, so the annotations name the protocol rather than import the family back

@@ -28,11 +28,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..bounded import AXES, BoundedGrid
 from ..domains import Fixed
 from ..grids import BOUNDARY_TYPES
 from ..problem import Param
-from ..spectral import Grid
+from .bounded import AXES, BoundedGrid
+from .fourier import Grid
 
 LIFT_PARAMS = {
     "bc_lo": Param("value of u on the wall x = 0 of the first Dirichlet axis", "field units"),

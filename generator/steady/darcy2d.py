@@ -22,12 +22,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import elliptic
 from ..chunked import chunked_map
 from ..domains import Fixed
 from ..grids import NodeGrid
 from ..problem import Param, resolve_params
-from .steady import SteadyProblem
+from . import elliptic
+from .base import SteadyProblem
 
 # Samples per compiled set-up / solve call: a fixed program shape makes a sample independent of its batch.
 CHUNK = 8

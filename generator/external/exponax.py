@@ -29,7 +29,7 @@ import numpy as np
 from ..dispatch import sync
 from ..ics import FourierSeries
 from ..problem import Param, ProblemBase, resolve_params
-from ..spectral import Grid
+from ..spectral.fourier import Grid
 
 PREFIX = "exponax:"
 MISSING = "exponax is not installed: pip install exponax"

@@ -29,13 +29,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..bounded import AXES
 from ..chunked import chunked_map
 from ..domains import Fixed, Uniform
 from ..ics import FourierSeries, GaussianRandomField
 from ..problem import Param, resolve_params
-from .steady import SteadyProblem
-from .walls import LIFT_PARAMS, WallGrid, fold, parse_bc
+from ..spectral.bounded import AXES
+from ..spectral.walls import LIFT_PARAMS, WallGrid, fold, parse_bc
+from .base import SteadyProblem
 
 CHUNK = 8  # samples per compiled call (generator.chunked)
 RESONANCE_GAP = 0.02  # |kappa^2 - k^2| >= gap * (pi / length)^2 for every eigenvalue kappa^2 of the walls

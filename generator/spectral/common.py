@@ -2,8 +2,8 @@
 
 import jax.numpy as jnp
 
-from ..spectral import cmul
 from .base import Param
+from .fourier import cmul
 
 # Advective CFL number for ETDRK4 with a spectral derivative: RK4's imaginary-axis limit 2.83 over the
 # largest dealiased wavenumber (2 pi/L)(n/3) gives dt <= 1.35 dx / max|u|; 1.0 keeps a margin.

@@ -51,9 +51,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .dispatch import Cancelled, cancelled
-from .grids import BOUNDARY_TYPES, GridBase
-from .problem import ProblemBase, resolve_params
+from ..dispatch import Cancelled, cancelled
+from ..grids import BOUNDARY_TYPES, GridBase
+from ..problem import ProblemBase, resolve_params
 
 WORKERS_ENV = "PDESTREAM_SOLVER_WORKERS"
 TIMEOUT_ENV = "PDESTREAM_SOLVER_TIMEOUT"
@@ -392,7 +392,7 @@ def _start_worker() -> subprocess.Popen:
     env["PYTHONPATH"] = os.pathsep.join(p or os.getcwd() for p in sys.path)
     env.setdefault("JAX_PLATFORMS", "cpu")  # a solver's JAX, if any, stays off a GPU the trainer uses
     env[WORKERS_ENV] = "0"
-    proc = subprocess.Popen([sys.executable, "-m", "generator._solver_worker"], stdin=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "pdestream.generator.external.worker"], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, env=env, process_group=0)
     # its own process group (a timeout kills the group: a COMMAND's children too), not its own session: a new
     # session would be a new scheduling autogroup on Linux, and take a larger CPU share than its caller's
@@ -523,7 +523,7 @@ def _serve() -> None:
     proto_out = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # the solver's prints go to stderr, never into the answers
     problems: dict[str, Any] = {}
-    from . import from_config
+    from .. import from_config
 
     while True:
         head = proto_in.read(8)

@@ -32,11 +32,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .chunked import join as _join
-from .chunked import split
-from .pdes import PDE
+from ..chunked import join as _join
+from ..chunked import split
+from .base import PDE
+from .fourier import rollout
 from .rollout import SETUP_CHUNK, _coefficients, _stepping, advance_bounded
-from .spectral import rollout
 
 
 def _advance_one(pde: PDE, frames: int, u: jax.Array, p: Mapping[str, jax.Array], coeffs) -> jax.Array:

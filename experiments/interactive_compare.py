@@ -28,18 +28,18 @@ from pathlib import Path
 
 import numpy as np
 
-import datasets
+from pdestream import datasets
+from pdestream.surrogate.checkpoint import load_checkpoint
+from pdestream.surrogate.checks import check_count, check_number
+from pdestream.surrogate.data import check_device
+from pdestream.surrogate.evaluate import error_stats, rollout_errors
+from pdestream.surrogate.mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, NETWORK_MODES, mode_settings
+from pdestream.surrogate.modes import make_mode
+from pdestream.surrogate.phases import phase
+from pdestream.surrogate.runs import train_run
 
 from .budget import stratified_test_set
-from .checkpoint import load_checkpoint
-from .checks import check_count, check_number
-from .data import check_device
-from .evaluate import error_stats, rollout_errors
-from .mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, NETWORK_MODES, mode_settings
-from .modes import make_mode
-from .phases import phase
 from .rollout_figure import plot_rollouts
-from .runs import train_run
 
 
 @dataclass
