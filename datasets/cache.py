@@ -263,6 +263,28 @@ def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, 
                         schema.disk_bytes(job.path), job.repaired)
 
 
+def write_solved(pde, path, seed: int, blocks: list, block: int, overwrite: bool = False) -> WriteSummary:
+    """``write_cache`` of samples already solved: ``blocks`` are ``(lo, hi, *solve_block(pde, seed, lo, hi, block,
+    "raise"))`` covering 0..N-1 in order, so the cache is the one ``write_cache(pde, path, N, seed, block=block)``
+    writes. For a caller that decides N while it solves (a time budget's deadline)."""
+    n = blocks[-1][1] if blocks else 0
+    if [b[0] for b in blocks] != [0, *(b[1] for b in blocks[:-1])]:
+        raise ValueError("write_solved: the blocks must cover samples 0..N-1 in order")
+    start = time.perf_counter()
+    with writing(pde, path, n, seed, overwrite=overwrite, block=block) as job:
+        store = job.fmt.open(job.work, writable=True)
+        try:
+            for item in blocks:
+                try:
+                    write_block(store, pde, *item)
+                except OSError as err:
+                    raise CacheWriteError(f"cannot write {job.path}: {os_error_cause(err)}") from None
+            job.fmt.mark_complete(store)
+        finally:
+            store.close()
+    return WriteSummary(str(job.path), n, n, time.perf_counter() - start, schema.disk_bytes(job.path))
+
+
 @dataclass
 class Job:
     """A cache being written: ``path`` (where it ends up), ``work`` (where blocks are written: ``path``, or a

@@ -21,7 +21,10 @@ Two budgets:
   would (``precompute_size``): it measures the solver's rate and the training step's, then solves as many
   trajectories as it can train over ``max_reuse`` epochs in the rest of the budget (each trajectory used as
   often as the reservoir arms may use one); ``precompute_share`` fixes the share of the budget spent solving
-  instead.
+  instead. The budget is a deadline, whatever the rates said: the arm solves in chunks of ``solve_batch``,
+  re-measuring the rate after each, and stops solving by ``MAX_SOLVE_SHARE`` (half) of the budget (or the
+  share given), so the rest is left to train; every arm's training loop stops at the budget (the last step or
+  chunk started before it may end after it).
 - ``sim_budget`` (solved trajectories per arm): every arm gets the same N trajectories and ``steps`` optimizer
   steps (the FIFO stream runs out after N trajectories' examples: it trains fewer steps, as it would). The
   reservoir arms run in deterministic mode there: ``sim_warmup_share`` of the solves (uniform) before the first
@@ -51,6 +54,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from pdestream import datasets
+from pdestream.datasets.cache import solve_block, write_solved
 from pdestream.datasets.proposal import ParamProposal
 from pdestream.surrogate.checks import check_count, check_number
 from pdestream.surrogate.data import TEST_SEED_OFFSET, EpochBatchSampler, check_device
@@ -172,6 +176,38 @@ def precompute_size(cfg: BudgetConfig, rate: float, step_s: float, left_s: float
     return max(cfg.batch_size, int(left_s / (1 / rate + cfg.max_reuse * per * step_s / cfg.batch_size)))
 
 
+MAX_SOLVE_SHARE = 0.5  # budget_s: the precomputed arm solves until at most this share of its budget, then trains
+
+
+def _solve_in_time(stored, cfg: BudgetConfig, seed: int, clock_start: float, step_s: float, per: int):
+    """The precomputed arm's solve phase at a time budget: ``cfg.solve_batch`` trajectories per chunk, the clock
+    read after each. The deadline is hard: no chunk starts once ``MAX_SOLVE_SHARE`` of the budget (or
+    ``cfg.precompute_share``) has passed since ``clock_start``, nor one the last chunk's time says would end past
+    it, so at least 1 - that share is left to train (less at most one chunk, should the solver slow down). Within
+    it, ``precompute_size`` at the rate just measured (re-measured every chunk; the first, compiling chunk is not
+    used to stop) says how many trajectories to solve. The first chunk is always solved. Returns (blocks for
+    ``datasets.cache.write_solved``, the plan's figures)."""
+    share = cfg.precompute_share if cfg.precompute_share is not None else MAX_SOLVE_SHARE
+    stop_at = clock_start + share * cfg.budget_s
+    blocks, n, rate, last, target = [], 0, None, 0.0, cfg.solve_batch
+    while True:
+        now = time.perf_counter()
+        if blocks and now >= stop_at:
+            break
+        if len(blocks) >= 2:  # measured on warm chunks: the rule and the deadline as they predict
+            target = precompute_size(cfg, rate, step_s, cfg.budget_s - (now - clock_start) + n / rate, per)
+            if n >= target or now + last > stop_at:
+                break
+        hi = n + max(1, min(cfg.solve_batch, target - n)) if len(blocks) >= 2 else n + cfg.solve_batch
+        t0 = time.perf_counter()
+        blocks.append((n, hi, *solve_block(stored, seed, n, hi, cfg.solve_batch, "raise")))
+        last = time.perf_counter() - t0  # a chunk is padded to solve_batch: one compile, the same cost
+        rate, n = cfg.solve_batch / max(last, 1e-9), hi
+    end = time.perf_counter() - clock_start
+    return blocks, {"solve_per_s": rate, "step_s": step_s, "solve_share": end / cfg.budget_s, "solve_cap": share,
+                    "epochs_planned": (cfg.budget_s - end) / step_s * cfg.batch_size / (n * per)}
+
+
 def _step_seconds(pde, view, cfg: BudgetConfig, mode) -> float:
     """Seconds per optimizer step of the arms' model at ``cfg.batch_size`` (random inputs; 2 warm-up steps,
     then the median of 5): the training rate the precomputed arm plans its dataset with."""
@@ -201,22 +237,17 @@ def _loader(arm: str, pde, view, cfg: BudgetConfig, seed: int, out: Path, clock_
         if cfg.sim_budget is not None:
             n = cfg.sim_budget
             plan["rule"] = "the simulation budget"
-        else:  # measure the solver on a warm block (the compiling one before it counts too) and the training
-            # step, then size the dataset (precompute_size)
-            datasets.sample_tensors(stored, np.arange(cfg.solve_batch), seed)
-            t0 = time.perf_counter()
-            datasets.sample_tensors(stored, np.arange(cfg.solve_batch), seed)
-            rate = cfg.solve_batch / (time.perf_counter() - t0)
+        else:  # measure the training step, then solve in chunks against the clock (_solve_in_time)
             step_s = _step_seconds(pde, view, cfg, make_mode(cfg.mode).bind(pde, seed))
-            left = cfg.budget_s - (time.perf_counter() - clock_start)
-            per = view.per_trajectory(pde.n_frames)
-            n = precompute_size(cfg, rate, step_s, left, per)
+            blocks, plan_more = _solve_in_time(stored, cfg, seed, clock_start, step_s, view.per_trajectory(pde.n_frames))
+            n = blocks[-1][1]
             plan.update(rule=f"share {cfg.precompute_share:g}" if cfg.precompute_share is not None else
-                        f"each trajectory trained on {cfg.max_reuse:g} times", solve_per_s=rate, step_s=step_s,
-                        solve_share=(cfg.budget_s - left + n / rate) / cfg.budget_s,
-                        epochs_planned=(left - n / rate) / step_s * cfg.batch_size / (n * per))
+                        f"each trajectory trained on {cfg.max_reuse:g} times", **plan_more)
         path = out / "cache.h5"
-        written = datasets.write_cache(stored, path, n, seed=seed, overwrite=path.exists(), progress=False)
+        if cfg.sim_budget is not None:
+            written = datasets.write_cache(stored, path, n, seed=seed, overwrite=path.exists(), progress=False)
+        else:
+            written = write_solved(stored, path, seed, blocks, cfg.solve_batch, overwrite=path.exists())
         log(f"  precomputed: {written.line()}")
         cached = datasets.CachedTrajectories(path, view=view)
         sampler = EpochBatchSampler(len(cached), cfg.batch_size, seed, drop_last=len(cached) >= cfg.batch_size)
@@ -444,7 +475,7 @@ def precompute_line(plan: dict, record: dict) -> str:
     if "solve_per_s" in plan:
         size += (f" (rule: {plan['rule']}; measured {plan['solve_per_s']:.0f} trajectories/s solving and "
                  f"{1e3 * plan['step_s']:.1f} ms per training step: {100 * plan['solve_share']:.0f}% of the budget "
-                 f"solving, {plan['epochs_planned']:.1f} epochs planned)")
+                 f"solving (capped at {100 * plan.get('solve_cap', 1):.0f}%), {plan['epochs_planned']:.1f} epochs planned)")
     else:
         size += f" ({plan['rule']})"
     return (f"Precomputed arm (seed 0): {size}; it stored {frames}: {record['cache_bytes'] / 2**20:.1f} MiB on "

@@ -107,7 +107,7 @@ def test_initial_conditions_follow_one_protocol():
 
 def test_no_module_fills_a_registry_at_import_time():
     # IC_KINDS is complete when generator.ics is imported alone; importing every PDE module changes nothing
-    code = ("import generator.ics as ics; before = dict(ics.IC_KINDS); import generator; "
+    code = ("import pdestream.generator.ics as ics; before = dict(ics.IC_KINDS); import pdestream.generator; "
             "assert dict(ics.IC_KINDS) == before, (before, ics.IC_KINDS); print(sorted(before))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "['fourier', 'grf', 'spots']"

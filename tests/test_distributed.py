@@ -141,8 +141,8 @@ RANK = r"""
 import json, sys
 import numpy as np, torch.distributed as dist
 from torch.utils.data import DataLoader
-import generator
-from datasets.stream import TrajectoryStream
+from pdestream import generator
+from pdestream.datasets.stream import TrajectoryStream
 
 rank, store, out = int(sys.argv[1]), sys.argv[2], sys.argv[3]
 dist.init_process_group("gloo", init_method=f"file://{store}", rank=rank, world_size=2)

@@ -97,12 +97,11 @@ def test_each_failure_is_one_line_naming_the_sample_its_params_and_the_cause(fai
 
 
 def test_a_solve_past_the_timeout_is_one_line_and_its_worker_is_replaced():
-    external.configure(timeout=1.0)
-    t0 = time.perf_counter()
+    external.configure(timeout=1.0)  # the hung solve sleeps 60 s: without the timeout it would end in another error
     with pytest.raises(generator.BlowUpError, match=r"index 0: timed out after 1 s \(--solver-timeout\); its "
                                                     r"worker was stopped \(params q=0.0717") as err:
         generator.sample(Faulty(fail="hang"), list(range(3)), seed=0)
-    assert "\n" not in str(err.value) and time.perf_counter() - t0 < 20
+    assert "\n" not in str(err.value)
     # the next solves run in a fresh worker
     assert generator.sample(Faulty(fail="hang"), [1, 2], seed=0).u.shape[0] == 2
 

@@ -338,8 +338,8 @@ def test_reader_during_an_overwrite_in_another_process(tmp_path, capsys):
     reader = datasets.CachedTrajectories(path, in_memory=False)
     want = [reader[k]["u"].numpy().copy() for k in range(len(reader))]
     script = textwrap.dedent(f"""
-        import sys; sys.path.insert(0, {str(Path(cli.__file__).parent)!r})
-        import cli
+        import sys
+        from pdestream import cli
         sys.exit(cli.main(["generate", "burgers1d", "--n", "8", "--seed", "1", "--block", "2", "--out", {str(path)!r},
                            "--overwrite", *{SMALL!r}]))
     """)

@@ -64,7 +64,7 @@ def _script(tmp_path, body: str):
 
 
 def test_an_unguarded_script_with_workers_gets_one_line(tmp_path):
-    out = _script(tmp_path, "import datasets, generator\n"
+    out = _script(tmp_path, "from pdestream import datasets, generator\n"
                             "pde = generator.get_pde('burgers1d', n=16, n_frames=3, t_end=0.01)\n"
                             "loader = datasets.stream_loader(datasets.TrajectoryStream(pde), num_workers=2)\n")
     assert out.returncode == 1 and "Traceback" not in out.stderr, out.stderr

@@ -136,8 +136,19 @@ def _model():
     return build_model("fno", 1, 1, 1, 1, width=4, modes=2, layers=1)
 
 
-def test_one_loop_stops_on_steps_seconds_or_the_end_of_one_pass(tmp_path):
+class FakeClock:
+    """``time.perf_counter`` for a module under test: 0.01 s more at every reading, whatever the machine does."""
+
+    now = 1000.0
+
+    def perf_counter(self) -> float:
+        self.now += 0.01
+        return self.now
+
+
+def test_one_loop_stops_on_steps_seconds_or_the_end_of_one_pass(tmp_path, monkeypatch):
     """The loop that `train`, `compare` and the budget arms share: a stop rule, and a hook after every step."""
+    from pdestream.surrogate import train as train_module
     from pdestream.surrogate.train import Stop, train
 
     seen = []
@@ -147,9 +158,14 @@ def test_one_loop_stops_on_steps_seconds_or_the_end_of_one_pass(tmp_path):
     s = train(_model(), torch.utils.data.DataLoader(_Batches(3), batch_size=None), Stop(steps=7, once=True),
               tmp_path / "b")
     assert s["steps"] == 3 and s["stop"] == "data"  # one pass of 3 batches, not 7 steps over epochs
+    clock = FakeClock()  # a run of seconds by a clock that moves 0.01 s a reading: the same on any machine
+    monkeypatch.setattr(train_module, "time", clock)
+    elapsed = []
     s = train(_model(), torch.utils.data.DataLoader(_Batches(10**6), batch_size=None), Stop(seconds=0.5),
-              tmp_path / "c", started=__import__("time").perf_counter() - 0.25)
-    assert s["stop"] == "seconds" and 0.5 <= s["wall"] < 2.0 and s["steps"] >= 1
+              tmp_path / "c", started=clock.now - 0.25, after_step=lambda step, fraction, t: elapsed.append(t))
+    # it stops at the first step that ends past the deadline (0.25 s of it spent before the call)
+    assert s["stop"] == "seconds" and s["steps"] == len(elapsed) >= 1
+    assert max(elapsed[:-1], default=0) < 0.5 <= elapsed[-1] <= s["wall"] < 0.5 + 0.1
     rows = (tmp_path / "c" / "metrics.csv").read_text().splitlines()
     assert rows[-1].split(",")[0] == str(s["steps"])  # the last step is logged wherever the clock ended the run
     with pytest.raises(ValueError, match="schedule 'onecycle' needs a number of steps"):
@@ -185,7 +201,7 @@ def test_a_mode_owns_its_settings_defaults_and_cli_choices():
         assert "isinstance(mode" not in text, path.name
         assert '"one-step", "pushforward"' not in text or path.name == "mode_table.py", path.name
     # the CLI's parser reads the table without loading torch
-    code = "import sys, cli; cli.build_parser(); print('torch' in sys.modules)"
+    code = "import sys; from pdestream import cli; cli.build_parser(); print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
                          env={"PYTHONPATH": str(ROOT), "PATH": ""})
     assert out.stdout.strip() == "False", out.stderr
@@ -194,18 +210,27 @@ def test_a_mode_owns_its_settings_defaults_and_cli_choices():
 def test_long_phases_report_plain_lines_when_stderr_is_not_a_terminal(tmp_path, capsys, monkeypatch):
     """Training and any phase longer than phases.EVERY seconds (test sets, rollouts) print plain periodic
     lines in a log (stderr is not a terminal under pytest's capture); a quick phase prints nothing."""
-    import time
+    import threading
 
     from pdestream.surrogate import phases
     from pdestream.surrogate.train import train
 
     with phases.phase("quick"):
         pass
+    ticked, line = threading.Event(), phases._line
+
+    def counted(text):  # the phase below lasts until its ticker has printed twice (no sleep racing the ticker)
+        line(text)
+        counted.n = getattr(counted, "n", 0) + ("still running" in text)
+        if counted.n >= 2:
+            ticked.set()
+
+    monkeypatch.setattr(phases, "_line", counted)
     with phases.phase("building the test set", every=0.05):
-        time.sleep(0.18)
+        assert ticked.wait(60), "the phase printed no periodic lines"  # 60 s: only a hang guard
     err = capsys.readouterr().err
     assert "quick" not in err and err.count("building the test set: still running") >= 2
-    assert "building the test set: done in 0 s" in err
+    assert re.search(r"building the test set: done in \d+ s", err)  # 0 s unless the machine is loaded
     monkeypatch.setattr(phases, "EVERY", 0.0)
     train(_model(), torch.utils.data.DataLoader(_Batches(3), batch_size=None), 4, tmp_path, log_every=1, label="arm")
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("arm: step")]

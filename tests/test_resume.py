@@ -37,7 +37,7 @@ RUNNER = r"""
 import json, os, signal, sys
 import torch
 torch.set_num_threads(1)
-import surrogate.train as T
+import pdestream.surrogate.train as T
 
 spec = json.loads(sys.argv[1])
 if spec.get("kill_at"):
@@ -51,10 +51,10 @@ if spec.get("kill_at"):
 
     T.forever = dying
 if "argv" in spec:
-    import cli
+    from pdestream import cli
     sys.exit(cli.main(spec["argv"]))
-import datasets, generator
-from surrogate.runs import train_run
+from pdestream import datasets, generator
+from pdestream.surrogate.runs import train_run
 kw = spec["train_run"]
 pde = generator.get_pde(kw.pop("pde"), kw.pop("pde_set"))
 train_run(pde, view=datasets.make_view(kw.pop("view"), **kw.pop("view_args")), **kw)

@@ -219,7 +219,7 @@ def test_a_script_may_exit_with_a_stream_still_open(tmp_path):
 
     script = tmp_path / "leave_open.py"
     script.write_text(
-        "import generator\nfrom datasets import TrajectoryStream\n"
+        "from pdestream import generator\nfrom pdestream.datasets import TrajectoryStream\n"
         "it = iter(TrajectoryStream(generator.get_pde('burgers1d', n=256), 0, view='whole', batch_size=16))\n"
         "next(it)\nprint('done')\n"
     )
@@ -286,7 +286,7 @@ def test_spawned_workers_need_the_main_guard(tmp_path):
 
     body = ("s = TrajectoryStream(generator.get_pde('burgers1d', n=32, n_frames=3), 0, view='whole', batch_size=2, "
             "n_samples=2)\nprint(sum(len(b['u']) for b in stream_loader(s, num_workers=1)))\n")
-    head = "import generator\nfrom datasets import TrajectoryStream\nfrom datasets.stream import stream_loader\n"
+    head = "from pdestream import generator\nfrom pdestream.datasets import TrajectoryStream\nfrom pdestream.datasets.stream import stream_loader\n"
     bad, good = tmp_path / "bad.py", tmp_path / "good.py"
     bad.write_text(head + body)
     good.write_text(head + "def main():\n" + "".join("    " + line + "\n" for line in body.splitlines())
