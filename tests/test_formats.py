@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from test_data_safety import SMALL, digest, generate, listing, run_cli
 
-from pdestream import cli, datasets
+from pdestream import datasets
 from pdestream.datasets import cache as cache_mod
 from pdestream.datasets.store import HDF5, ZARR, CacheSettings, format_of
 
