@@ -46,7 +46,7 @@ class Faulty(ExternalSolver):
     n: int = 16
     n_frames: int = 5
     q: Any = "uniform(0, 1)"
-    fail: str = "raise"  # raise | nan | shape | hang | crash | none
+    fail: str = "raise"  # raise | nan | shape | complex | hang | crash | none
     threshold: float = 0.3
 
     def solve(self, params, seed):
@@ -60,6 +60,8 @@ class Faulty(ExternalSolver):
             return out
         if self.fail == "shape":
             return out[:, 0]
+        if self.fail == "complex":  # was stored as its real part, cache complete, rc 0
+            return out + 0.5j
         if self.fail == "hang":
             time.sleep(60)
         if self.fail == "crash":

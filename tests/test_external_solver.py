@@ -4,6 +4,7 @@ raise / redraw / skip policies, caches never complete after a failure, the CLI p
 
 The solvers live in tests/external_solvers.py: worker processes import them by their module's name."""
 
+import dataclasses
 import os
 import signal
 import threading
@@ -83,6 +84,7 @@ CAUSES = {
     "raise": "raised RuntimeError: no convergence in the Newton loop",
     "nan": "returned NaN/Inf (first in frame 2",
     "shape": "returned shape (5, 16); expected (5, 1, 16)",
+    "complex": "returned complex values (dtype complex128); a sample holds real fields",
     "crash": "crashed: its worker process ended mid-solve (exit code 3) (solved 2 times)",
 }
 
@@ -118,6 +120,10 @@ def test_bad_classes_and_values_are_one_line_each():
     with pytest.raises(ValueError, match=r"class NoSolve lacks the required method solve\(self, params, seed\) "
                                          r"\(or a COMMAND\)$"):
         NoSolve()
+    for fields in ((), ("u", "u"), ("u", ""), ["u"]):  # () divided by zero when a cache was sized
+        bad = dataclasses.dataclass(frozen=True)(type("Bad", (Decay,), {"FIELDS": fields, "__module__": __name__}))
+        with pytest.raises(ValueError, match=r"^decay_ext1d: FIELDS=.* not allowed: "):
+            bad()
     with pytest.raises(ValueError, match="--solver-workers=-1 not allowed"):
         external.configure(workers=-1)
     with pytest.raises(ValueError, match="--solver-timeout=0 not allowed"):

@@ -104,6 +104,7 @@ def test_solver_step_gradients_match_float64_finite_differences():
     ({"bc": "wall"}, "bc='wall' not allowed; allowed: periodic, neumann"),
     ({"bc.z": "neumann"}, "bc.z not allowed: the axes of a 1D entry are x"),
     ({"bc_lo": "1"}, "unknown setting 'bc_lo'"),
+    ({"bc": "x=periodic,x=neumann"}, "bc='x=periodic,x=neumann' not allowed: axis x given twice"),  # kept the last
 ])
 def test_bad_boundary_settings_are_one_line(settings, message):
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")) as err:

@@ -177,6 +177,12 @@ class ExternalSolver(ProblemBase):
         if self.COMMAND and (isinstance(self.COMMAND, str) or not all(isinstance(a, str) for a in self.COMMAND)):
             raise ValueError(f"{self.NAME}: COMMAND={self.COMMAND!r} not allowed: an argv list of strings, e.g. "
                              "['python', 'solve.py', '{params}', '{out}']")
+        fields = self.FIELDS
+        if not isinstance(fields, tuple) or not fields or not all(isinstance(f, str) and f for f in fields):
+            raise ValueError(f"{self.NAME}: FIELDS={fields!r} not allowed: a tuple of one or more field names, "
+                             "e.g. ('u',)")
+        if len(set(fields)) != len(fields):
+            raise ValueError(f"{self.NAME}: FIELDS={fields!r} not allowed: names must differ")
         if self.OUTPUT not in (".npy", ".h5"):
             raise ValueError(f"{self.NAME}: OUTPUT={self.OUTPUT!r} not allowed; allowed: '.npy', '.h5'")
         if self.BC not in BOUNDARY_TYPES:
@@ -264,6 +270,9 @@ def check_result(problem: ExternalSolver, out) -> tuple[np.ndarray | None, str]:
         return None, f"returned {type(out).__name__}, not an array ({type(err).__name__}: {err})"
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
         return None, f"returned {type(out).__name__} of dtype {arr.dtype}, not numbers"
+    if np.iscomplexobj(arr):  # a cast to float32 would keep the real part and drop the rest silently
+        return None, (f"returned complex values (dtype {arr.dtype}); a sample holds real fields: return the real "
+                      "and imaginary parts as two FIELDS")
     if arr.shape != problem.shape:
         return None, (f"returned shape {tuple(arr.shape)}; expected {problem.shape} = [T={problem.n_frames}, "
                       f"C={len(problem.FIELDS)}, *space={problem.grid.shape}]")

@@ -63,6 +63,11 @@ def parse_bc(pde, spec: Mapping[str, Any], current: tuple[str, ...] | None = Non
         elif key == "bc":
             text = str(value)
             if "=" in text:
+                named = [part.partition("=")[0].strip() for part in text.split(",")]
+                twice = sorted({a for a in named if named.count(a) > 1})
+                if twice:  # the last one won, silently
+                    raise ValueError(f"{pde.NAME}: bc={text!r} not allowed: axis {', '.join(twice)} given twice; "
+                                     "give each axis once, e.g. 'x=dirichlet,y=periodic'")
                 for part in text.split(","):
                     axis, _, word = part.partition("=")
                     put(axis.strip(), word, f"bc.{axis.strip()}")
