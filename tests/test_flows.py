@@ -245,3 +245,12 @@ def test_vorticity_of_a_solid_body_rotation_is_twice_its_rate_on_arrays_tensors_
     assert np.allclose(datasets.flow_vorticity(ds).values, 2 * rate)
     shear = datasets.vorticity(np.zeros((n, n)), v, h)  # -du/dy dropped: the rate alone
     assert np.allclose(shear, rate)
+
+
+def test_a_pressure_solve_stopped_by_max_iter_fails_the_sample_in_one_line():
+    # cavity2d --set max_iter=1 left a divergence 58x the stated tolerance in the samples, rc 0, nothing said
+    small = {"n": 16, "n_frames": 2, "t_end": 0.05, "re": "uniform(100, 200)"}
+    with pytest.raises(generator.BlowUpError, match=r"pressure solve stopped at max_iter=1 above tol=1e-05") as err:
+        generator.sample(generator.get_pde("cavity2d", max_iter=1, **small), [0, 1])
+    assert "\n" not in str(err.value)
+    assert generator.sample(generator.get_pde("cavity2d", **small), [0, 1]).u.shape[0] == 2  # the default converges

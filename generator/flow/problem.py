@@ -238,7 +238,8 @@ class FlowProblem(ProblemBase):
 
     def failure(self) -> tuple[str, str]:
         return (f"flows blew up (NaN/Inf, or a speed above {BLOW_UP_FACTOR:g}x the largest boundary speed) with "
-                f"step {self.step_dt:.4g} s", "a smaller cfl or a narrower parameter domain avoids this")
+                f"step {self.step_dt:.4g} s, or a pressure solve stopped at max_iter={self.max_iter} above "
+                f"tol={self.tol:g}", "a smaller cfl, a larger max_iter or a narrower parameter domain avoids this")
 
     # --- a sample ------------------------------------------------------------------------------------
     def frame_fields(self, geom: Geometry, state: State, fp: Params) -> jax.Array:
@@ -291,11 +292,12 @@ class FlowProblem(ProblemBase):
         v = jnp.concatenate([v, v_top], 0)
         zero = jnp.zeros((geom.ny, geom.nx), frame.dtype)
         return State(u, v, field.get("p", zero), field.get("smoke", zero), jnp.zeros((), frame.dtype),
-                     jnp.zeros((), jnp.int32))
+                     jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32))
 
     def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
         """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, C, nx, ny], params {name: [B]},
-        ok bool [B] (finite and below the blow-up speed), None): the sampler's interface."""
+        ok bool [B] (finite, below the blow-up speed, every pressure solve within max_iter), None): the
+        sampler's interface."""
         start, advance, frame = _programs(self)
         speed_cap = BLOW_UP_FACTOR * self.speed_bound()
         cells = math.prod(self.grid.shape)
@@ -312,7 +314,7 @@ class FlowProblem(ProblemBase):
                     state = _advance(advance, state, fp, self.step_dt, self.steps_per_frame, per_step)
             u = jnp.stack(frames, axis=1)
             ok = jnp.all(jnp.isfinite(u), axis=tuple(range(1, u.ndim))) & jnp.all(
-                jnp.abs(u[:, :, :2]) <= speed_cap, axis=tuple(range(1, u.ndim)))
+                jnp.abs(u[:, :, :2]) <= speed_cap, axis=tuple(range(1, u.ndim))) & (state.capped == 0)
             results.append((u, p, ok))
         u, params, ok = join(results, int(keys.shape[0]))
         return u, params, ok, None

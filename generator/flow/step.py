@@ -24,7 +24,8 @@ from .grid import Geometry, Params, circle_solid, faces, obstacles_solid, veloci
 
 class State(NamedTuple):
     """u [ny, nx+1], v [ny+1, nx] (m/s), p [ny, nx] (pressure / density, m^2/s^2), smoke [ny, nx],
-    t (s), iterations of the last pressure solve."""
+    t (s), iterations of the last pressure solve, capped: how many steps' pressure solves stopped at max_iter
+    (int32; > 0 means the divergence may be above the tolerance, reported as a failed sample)."""
 
     u: jax.Array
     v: jax.Array
@@ -32,6 +33,7 @@ class State(NamedTuple):
     smoke: jax.Array
     t: jax.Array
     iterations: jax.Array
+    capped: jax.Array
 
 
 def solid_mask(geom: Geometry, params: Params):
@@ -54,7 +56,7 @@ def initial_state(geom: Geometry, params: Params, dtype=jnp.float32) -> State:
     """Fluid at rest (inflow faces set), zero smoke."""
     z = jnp.zeros
     s = State(z((geom.ny, geom.nx + 1), dtype), z((geom.ny + 1, geom.nx), dtype), z((geom.ny, geom.nx), dtype),
-              z((geom.ny, geom.nx), dtype), jnp.zeros((), dtype), jnp.zeros((), jnp.int32))
+              z((geom.ny, geom.nx), dtype), jnp.zeros((), dtype), jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32))
     u, v = apply_bc(geom, params, s.u, s.v)
     return s._replace(u=u, v=v)
 
@@ -281,7 +283,8 @@ def step(geom: Geometry, state: State, params: Params, dt, tol=1e-5, max_iter=20
     un, vn, p, it = project(geom, params, un, vn, dt, tol, max_iter, op, 0.5 * state.p if half else state.p)
     # p^{n+1} = 2 increment would take a pressure error e to -e (a neutral odd-even mode in time: the cavity
     # never settled); averaging with p^n damps it and keeps p at t^{n+1/2}, second order there.
-    return State(un, vn, 0.5 * (state.p + 2 * p) if half else p, smoke, state.t + dt, it)
+    capped = state.capped + (it >= max_iter).astype(jnp.int32)
+    return State(un, vn, 0.5 * (state.p + 2 * p) if half else p, smoke, state.t + dt, it, capped)
 
 
 def run(geom: Geometry, state: State, params: Params, dt, n_steps: int, tol=1e-5, max_iter=200,
