@@ -269,7 +269,10 @@ def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
         tmp = out.with_name(f"{out.name}.tmp-{os.getpid()}")
         try:
             fmt.write(ds, tmp)
-            os.replace(tmp, out)
+            if overwrite and out.exists():  # checked above: a pdestream export, replaced as asked
+                os.replace(tmp, out)
+            else:
+                schema.publish_new(tmp, out)  # a file another export made meanwhile is never replaced
         except BaseException:
             tmp.unlink(missing_ok=True)  # ours
             raise
@@ -386,7 +389,7 @@ def import_export(path, out) -> Path:
             fmt.mark_complete(store)
         finally:
             store.close()
-        os.replace(tmp, out)
+        schema.publish_new(tmp, out)  # never over a cache another import made meanwhile
     except BaseException:
         remove_any(tmp)
         raise

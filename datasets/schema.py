@@ -33,6 +33,7 @@ exclusive lock on the hidden sidecar ``.NAME.lock`` (``datasets.cache.write_lock
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import tempfile
@@ -278,6 +279,36 @@ def consolidate(path: str) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "consolidated metadata is not part of the Zarr v3 spec"
         zarr.consolidate_metadata(path)
+
+
+def publish_new(tmp: Path, out: Path) -> None:
+    """Move the finished file or directory ``tmp`` to ``out``, which must not exist, in one step that never replaces
+    what another process put there meanwhile (a check first and ``os.replace`` after it let the second of two
+    writers replace the first's file). A file is hard-linked into place (refused by the kernel if ``out`` exists),
+    then its temp name removed; a directory is renamed (refused onto anything but an empty directory).
+    FileExistsError naming ``out`` when it exists; ``tmp`` is left for the caller to remove."""
+    tmp, out = Path(tmp), Path(out)
+    taken = FileExistsError(f"{out} exists (another process wrote it meanwhile); choose another path")
+    if tmp.is_dir():
+        if out.exists() or out.is_symlink():
+            raise taken
+        try:
+            os.rename(tmp, out)
+        except OSError as err:
+            if err.errno in (errno.EEXIST, errno.ENOTEMPTY, errno.ENOTDIR, errno.EISDIR):
+                raise taken from None
+            raise
+        return
+    try:
+        os.link(tmp, out)
+    except FileExistsError:
+        raise taken from None
+    except OSError:  # a file system without hard links: the check-then-rename of before, the best it allows
+        if out.exists() or out.is_symlink():
+            raise taken from None
+        os.replace(tmp, out)
+        return
+    tmp.unlink()
 
 
 def atomic_write(path: Path, data: bytes) -> None:

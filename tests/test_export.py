@@ -203,3 +203,43 @@ def test_train_on_an_export_equals_training_on_the_cache(caches, tmp_path):
     assert losses[0] == losses[1]
     assert json.loads((tmp_path / "run_export" / "run.json").read_text())["source"] == str(out)
     assert not list((tmp_path / "tmp").glob("pdestream-import-*"))
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".zarr"])
+def test_an_import_never_replaces_a_cache_another_process_made_meanwhile(caches, tmp_path, monkeypatch, suffix):
+    # two `pdestream import` runs writing the same new file both exited 0; the file held only the second's data
+    from pdestream.datasets import store
+
+    export = tmp_path / "e.h5"
+    export_cache(caches["burgers1d"], "the-well", export)
+    out = tmp_path / f"c{suffix}"
+    fmt = store.format_of(out)
+    real = type(fmt).mark_complete
+
+    def the_other_import_finishes_first(self, handle):
+        real(self, handle)
+        out.mkdir() if suffix == ".zarr" else out.write_bytes(b"the other import's cache")
+        if suffix == ".zarr":
+            (out / "theirs").write_text("the other import's cache")
+
+    monkeypatch.setattr(type(fmt), "mark_complete", the_other_import_finishes_first)
+    with pytest.raises(FileExistsError, match=r"exists \(another process wrote it meanwhile\)"):
+        import_export(export, out)
+    kept = (out / "theirs") if suffix == ".zarr" else out
+    assert kept.read_bytes() == b"the other import's cache"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["e.h5", out.name])  # no temp left behind
+
+
+def test_an_export_never_replaces_a_file_another_export_made_meanwhile(caches, tmp_path, monkeypatch):
+    out = tmp_path / "e.h5"
+    fmt = FORMATS["pdebench"]
+    real = type(fmt).write
+
+    def the_other_export_finishes_first(self, ds, path):
+        real(self, ds, path)
+        out.write_bytes(b"theirs")
+
+    monkeypatch.setattr(type(fmt), "write", the_other_export_finishes_first)
+    with pytest.raises(FileExistsError, match="another process wrote it meanwhile"):
+        export_cache(caches["burgers1d"], "pdebench", out)
+    assert out.read_bytes() == b"theirs" and [p.name for p in tmp_path.iterdir()] == ["e.h5"]
