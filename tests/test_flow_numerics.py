@@ -9,7 +9,6 @@ import pytest
 
 from pdestream.generator.flow import Geometry, Params, divergence, initial_state, is_finite, project
 from pdestream.generator.flow.batch import run_batch
-from pdestream.generator.flow.step import State
 
 
 def _random_field(geom, key):
