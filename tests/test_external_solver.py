@@ -128,6 +128,9 @@ def test_bad_classes_and_values_are_one_line_each():
         external.configure(workers=-1)
     with pytest.raises(ValueError, match="--solver-timeout=0 not allowed"):
         external.configure(timeout=0)
+    with pytest.raises(ValueError, match=r"--solver-timeout=5 not allowed with --solver-workers 0"):
+        external.configure(workers=0, timeout=5)  # the solve then hung past the timeout
+    assert external.settings() == (1, None)  # a refused call changes nothing
     with pytest.raises(ValueError, match="on_blowup='drop' not allowed; allowed: 'raise', 'redraw', 'skip'"):
         generator.sample(Decay(), [0], on_blowup="drop")
 

@@ -112,10 +112,17 @@ def configure(workers: int | None = None, timeout: float | None = None) -> None:
     if workers is not None:
         if isinstance(workers, bool) or not isinstance(workers, int) or not 0 <= workers <= 256:
             raise ValueError(f"--solver-workers={workers!r} not allowed; must be an integer in [0, 256]")
-        os.environ[WORKERS_ENV] = str(workers)
     if timeout is not None:
         if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not 0 < timeout < math.inf:
             raise ValueError(f"--solver-timeout={timeout!r} not allowed; must be a number of seconds > 0")
+    now_workers, now_timeout = settings()
+    if (now_workers if workers is None else workers) == 0 and (now_timeout if timeout is None else timeout):
+        # a solve in the calling process cannot be stopped from outside: the timeout would be ignored
+        raise ValueError(f"--solver-timeout={(now_timeout if timeout is None else timeout):g} not allowed with "
+                         "--solver-workers 0 (a solve in the calling process cannot be stopped): use >= 1 worker")
+    if workers is not None:
+        os.environ[WORKERS_ENV] = str(workers)
+    if timeout is not None:
         os.environ[TIMEOUT_ENV] = repr(float(timeout))
 
 
