@@ -73,7 +73,12 @@ class UserModel(nn.Module):
                              f"n_params, {', '.join(self.config) or 'no --model-set keys'}): {err}") from None
 
     def forward(self, x: torch.Tensor, params: torch.Tensor | None = None) -> torch.Tensor:
-        out = self.net(x, params)  # [B, out_channels, *space]
+        try:
+            out = self.net(x, params)  # [B, out_channels, *space]
+        except Exception as err:  # the user's code: one line naming the model and the error (chained for Python)
+            first = str(err).strip().splitlines()[0] if str(err).strip() else ""
+            raise ValueError(f"model {self.name!r}: forward(x {tuple(x.shape)}, params) raised "
+                             f"{type(err).__name__}{': ' + first if first else ''}") from err
         want = (x.shape[0], self.out_channels, *x.shape[2:])
         if not isinstance(out, torch.Tensor) or tuple(out.shape) != want:
             got = tuple(out.shape) if isinstance(out, torch.Tensor) else type(out).__name__

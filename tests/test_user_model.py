@@ -36,6 +36,11 @@ class OtherNet(TinyNet):
     pass
 
 
+class BrokenNet(TinyNet):
+    def forward(self, x, params=None):
+        raise RuntimeError("mat1 and mat2 shapes cannot be multiplied (4x8 and 6x6)\\nmore detail")
+
+
 class MetaNet(TinyNet):
     """Keeps a function in its state_dict, as some libraries' models do (neuralop's '_metadata')."""
 
@@ -127,6 +132,9 @@ def test_bad_user_models_are_one_line(netpkg, tmp_path, capsys):
     assert not (tmp_path / "e").exists()  # refused before the run wrote anything
     (tmp_path / netpkg / "nets.py").write_text(NET)
     sys.modules.pop(f"{netpkg}.nets", None)
+    one_line(capsys, train(tmp_path / "g", f"{netpkg}.nets:BrokenNet"),  # was a 39-line traceback
+             "forward(x (1, 1, 32), params) raised RuntimeError: mat1 and mat2 shapes cannot be multiplied")
+    assert not (tmp_path / "g").exists()
     one_line(capsys, train(tmp_path / "f", f"{netpkg}.nets:MetaNet"),
              "its state_dict holds torch._C._nn.gelu, not only tensors")
     assert not (tmp_path / "f").exists()
