@@ -93,4 +93,7 @@ def _give_datasets_its_names() -> None:
     namespace.__doc__ = api.__doc__
 
 
-_give_datasets_its_names()
+# Only as pdestream: pytest collects the repository root as a package and imports this file under the folder's name
+# (a clone in a folder named like "pdestream-ci" gives "__init__"), where there is no package to give names to.
+if __name__ == "pdestream":
+    _give_datasets_its_names()

@@ -38,6 +38,7 @@ given and OUT is an export pdestream wrote (anything else is never replaced).
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Protocol
 
@@ -318,10 +319,17 @@ def read_export(path):
             raise ValueError(f"{path} is a {found[0].name} file not written by pdestream (no {schema.CONFIG_ATTR} "
                              "attribute): pdestream reads back only its own exports")
         fmt = FORMATS.get(plain(f.attrs.get("pdestream_export")), found[0])
-        got = fmt.read(f)
-        attrs = {k: plain(v) for k, v in f.attrs.items() if k not in (*got["drop"], "pdestream_export")}
-        sample = f[GROUP]["sample"][()].astype(np.int64)
-        redraws = f[GROUP]["redraws"][()].astype(np.int8)
+        try:
+            got = fmt.read(f)
+            attrs = {k: plain(v) for k, v in f.attrs.items() if k not in (*got["drop"], "pdestream_export")}
+            sample = f[GROUP]["sample"][()].astype(np.int64)
+            redraws = f[GROUP]["redraws"][()].astype(np.int8)
+        except KeyError as err:  # a dataset or attribute the format puts there is gone
+            text = str(err.args[0] if err.args else err)
+            named = re.search(r"object '([^']+)'", text)  # h5py: "Unable to ... open object (object 'nu' ...)"
+            raise ValueError(f"{path} is a damaged {fmt.name} export: {named.group(1) if named else text} is "
+                             "missing; export the cache again") from None
+    _check_export_attrs(path, attrs, got)
     space, ndim = got["space"], len(got["space"])
     disk = schema.disk_space_dims(ndim)
     timed = got["coords"].get("time") is not None
@@ -347,6 +355,29 @@ def read_export(path):
         dims = ("sample", *(("time",) if timed and name not in inputs else ()), *disk)
         data[name] = (dims, np.ascontiguousarray(schema.to_disk(a.astype(np.float32), ndim)), clean(at, got["drop_var"]))
     return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def _check_export_attrs(path: Path, attrs: dict, got: dict) -> None:
+    """One line for an export whose pdestream attributes do not describe its content: a config that is not JSON
+    (every reader of the imported cache would refuse it), a listed field or parameter that is not there."""
+    import json
+
+    try:
+        config = json.loads(attrs[schema.CONFIG_ATTR])
+        if not isinstance(config, dict):
+            raise ValueError("not a JSON object")
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{path} is a damaged export: its {schema.CONFIG_ATTR} attribute is not a JSON object "
+                         f"({err}); export the cache again") from None
+    for what, listed, have in (("field", attrs.get("pdestream_fields", ""), got["fields"]),
+                               ("input", attrs.get("pdestream_inputs", ""), got["fields"]),
+                               ("parameter", attrs.get("pdestream_params", ""), got["params"])):
+        missing = [n for n in str(listed).split() if n not in have]
+        if missing:
+            raise ValueError(f"{path} is a damaged export: {what} {', '.join(missing)} is listed but not in the "
+                             "file; export the cache again")
+    if not str(attrs.get("pdestream_fields", "")).split():
+        raise ValueError(f"{path} is a damaged export: it lists no fields (pdestream_fields); export the cache again")
 
 
 def import_export(path, out) -> Path:

@@ -243,3 +243,19 @@ def test_an_export_never_replaces_a_file_another_export_made_meanwhile(caches, t
     with pytest.raises(FileExistsError, match="another process wrote it meanwhile"):
         export_cache(caches["burgers1d"], "pdebench", out)
     assert out.read_bytes() == b"theirs" and [p.name for p in tmp_path.iterdir()] == ["e.h5"]
+
+
+@pytest.mark.parametrize("damage, words", [
+    (lambda f: f["t0_fields"].__delitem__("u"), "damaged the-well export: u is missing"),  # was a KeyError
+    (lambda f: f["scalars"].__delitem__("nu"), "damaged the-well export: nu is missing"),
+    (lambda f: f.attrs.__setitem__("pdestream_params", "nu kappa"), "parameter kappa is listed but not in the file"),
+    (lambda f: f.attrs.__setitem__("pdestream_config", "{not json"), "pdestream_config attribute is not a JSON object"),
+])
+def test_a_damaged_export_is_refused_in_one_line_and_nothing_is_written(caches, tmp_path, damage, words):
+    export = tmp_path / "e.h5"
+    export_cache(caches["burgers1d"], "the-well", export)
+    with h5py.File(export, "r+") as f:
+        damage(f)
+    with pytest.raises(ValueError, match=words) as err:
+        import_export(export, tmp_path / "c.h5")  # the bad config was imported with rc 0, then refused by readers
+    assert "\n" not in str(err.value) and [p.name for p in tmp_path.iterdir()] == ["e.h5"]
