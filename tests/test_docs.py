@@ -72,7 +72,7 @@ def parse_directive(block: Block, text: str) -> None:
         elif key == "append":
             block.append.append(value)
         elif key == "replace":
-            old, arrow, new = value.partition(" => ")
+            old, arrow, new = value.partition(" => ") if " => " in value else value.rpartition(" =>")  # "OLD =>": drop
             assert arrow, f"{block.name}: a replacement is 'OLD => NEW': {line!r}"
             block.replace.append((old, new))
         elif key == "cwd":
