@@ -1,6 +1,6 @@
-"""The README's "Your own solver" examples (examples/nagumo_scipy.py, examples/burgers_phiflow.py): each against
+"""The docs' "Your own solver" examples (docs/guides/own-solver.md) (examples/nagumo_scipy.py, examples/burgers_phiflow.py): each against
 an independent solution, and each streamed into training through the reservoir from the command line at small
-size. The README shows the files' code verbatim (checked here, so they cannot drift)."""
+size. The page shows the files' code verbatim (checked here, so they cannot drift)."""
 
 import re
 from pathlib import Path
@@ -16,18 +16,17 @@ ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.usefixtures("solver_settings")  # (tests/conftest.py)
 
 
-def readme_solver_blocks() -> list[str]:
-    text = (ROOT / "README.md").read_text()
-    section = text[text.index("## Your own solver"):]
-    section = section[: section.index("\n## ", 1)]
+def docs_solver_blocks() -> list[str]:
+    text = (ROOT / "docs" / "guides" / "own-solver.md").read_text()
+    section = text[text.index("# Your own solver"):]
     return re.findall(r"```python\n(.*?)```", section, re.S)
 
 
 @pytest.mark.parametrize("name", ["nagumo_scipy.py", "burgers_phiflow.py"])
-def test_the_readme_shows_the_example_files(name):
+def test_the_docs_show_the_example_files(name):
     source = (ROOT / "examples" / name).read_text()
     body = source[source.index("from dataclasses"):]  # the file less its docstring
-    assert any(body.strip() in block for block in readme_solver_blocks()), name
+    assert any(body.strip() in block for block in docs_solver_blocks()), name
 
 
 def test_nagumo_front_moves_at_the_travelling_wave_speed(monkeypatch):
@@ -63,7 +62,7 @@ def test_phiflow_burgers_at_small_amplitude_decays_as_the_heat_equation():
 
 
 def train_through_the_reservoir(tmp_path, capsys, monkeypatch, path, *settings):
-    monkeypatch.syspath_prepend(str(ROOT))  # as `PYTHONPATH=.` does for the README's commands
+    monkeypatch.syspath_prepend(str(ROOT))  # as `PYTHONPATH=.` does for the docs' commands
     code = cli.main(["train", "--pde", path, *settings, "--reservoir", "--capacity", "8", "--solve-batch", "4",
                      "--warmup", "4", "--batch-size", "4", "--view", "next_step", "--steps", "3",
                      "--test-samples", "2", "--proposal", "loss", "--solver-workers", "2", "--out", str(tmp_path / "r")])

@@ -1,4 +1,4 @@
-"""Your own PDE (generator.user): the README's example, installed as a package with an entry point in tmp_path,
+"""Your own PDE (generator.user): the docs' example (docs/guides/own-pde.md), installed as a package with an entry point in tmp_path,
 goes through list / generate / resume / stream / oracle / cache through the CLI; a changed source refuses the
 old cache; bad modules and classes are one line each; register() by Python."""
 
@@ -15,14 +15,14 @@ import pytest
 
 from pdestream import cli, datasets, generator
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "guides" / "own-pde.md"
 SMALL = ["--set", "n=32", "--set", "n_frames=4", "--set", "t_end=0.3"]
 
 
 def readme_example() -> str:
-    """The first python block of the README's "Your own PDE" section (so README and test cannot drift)."""
-    text = README.read_text()
-    section = text[text.index("## Your own PDE"):]
+    """The first python block of the docs' "Your own PDE" page (so page and test cannot drift)."""
+    text = PAGE.read_text()
+    section = text[text.index("# Your own PDE"):]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
@@ -57,10 +57,10 @@ def run(capsys, *argv):
 
 
 def test_readme_pde_matches_an_independent_solution():
-    """The README's PDE with mu > 0, nu fixed and a tiny amplitude is linear to first order: each Fourier mode
+    """The docs' PDE with mu > 0, nu fixed and a tiny amplitude is linear to first order: each Fourier mode
     decays as exp(-(nu k^2 + mu) t) (closed form, not the solver's own output)."""
     namespace: dict = {}
-    exec(compile(readme_example(), "README.md", "exec"), namespace)
+    exec(compile(readme_example(), str(PAGE), "exec"), namespace)
     pde = namespace["DampedBurgers"](n=32, t_end=0.5, n_frames=3, nu="0.02", mu="0.5", ic="fourier")
     pde = pde.replace({"ic.amplitude": 1e-4})
     traj = generator.sample(pde, [0])
@@ -120,7 +120,7 @@ BROKEN = {
     ("x = 1\n", "has no 'DampedBurgers'"),
 ])
 def test_bad_user_modules_are_one_line(tmp_path, monkeypatch, capsys, source, needle):
-    if source is None:  # the README's class without its stable step
+    if source is None:  # the docs' class without its stable step
         source = readme_example()
         source = source[:source.index("    def stable_dt")]
     elif source == "no dataclass":
@@ -136,7 +136,7 @@ def test_bad_user_modules_are_one_line(tmp_path, monkeypatch, capsys, source, ne
 
 def test_register_by_python_and_from_config():
     namespace: dict = {"__name__": "readme_example"}
-    exec(compile(readme_example(), "README.md", "exec"), namespace)
+    exec(compile(readme_example(), str(PAGE), "exec"), namespace)
     cls = namespace["DampedBurgers"]
     with pytest.raises(ValueError, match="it is a catalog entry"):
         generator.register("burgers1d", cls)
