@@ -141,12 +141,13 @@ class PrioritySampler(Sampler):
         return {**super().state_dict(slots), "priority": self.priority[slots].tolist()}
 
     def load_state_dict(self, slots, state):
+        """(A state saved by another sampler has no priorities: every one 1.)"""
         super().load_state_dict(slots, state)
-        self.priority[slots] = np.asarray(state["priority"], np.float64)
+        self.priority[slots] = np.asarray(state.get("priority", np.ones(len(slots))), np.float64)
 
     def check_state(self, state, n, ints):
         super().check_state(state, n, ints)
-        priority = np.asarray(state["priority"], np.float64)
+        priority = np.asarray(state.get("priority", np.ones(n)), np.float64)
         if priority.shape != (n,) or not ((priority >= 1e-30) & (priority <= 1e30)).all():
             raise ValueError(f"reservoir state: priority must be {n} numbers in [1e-30, 1e30], one per slot")
 
