@@ -8,7 +8,7 @@ and loads caches back; ``_bridge`` is the only module that touches JAX, and is p
 # `datasets` when the repository root is on sys.path).
 WHERE = {
     "CachedTrajectories": "loader", "NextStep": "views", "Normalization": "normalize", "Operator": "views",
-    "Reservoir": "reservoir", "ReservoirStream": "reservoir", "SolverOracle": "solver", "SolverStep": "solver",
+    "Reservoir": "reservoir", "ReservoirConfig": "reservoir_config", "ReservoirStream": "reservoir", "SolverOracle": "solver", "SolverStep": "solver",
     "SteadyOperator": "views", "StreamLoader": "stream", "TrajectoryStream": "stream", "VIEWS": "views",
     "Whole": "views", "WriteSummary": "cache", "collate": "views", "compute_normalization": "normalize",
     "examples": "views", "flow_vorticity": "derived", "for_sample": "views", "gather": "views", "make_view": "views",

@@ -14,14 +14,14 @@ from torch.utils.data import DataLoader, Sampler
 from pdestream import datasets
 from pdestream.datasets.export import as_cache
 from pdestream.datasets.ranks import RankReservoirStream, placement
+from pdestream.datasets.reservoir_config import ReservoirConfig
 
 from .checks import check_count
 
 TEST_SEED_OFFSET = 1_000_003  # test seeds never coincide with a training seed below this offset
-# data_cfg {"kind": "reservoir", ...}: the ReservoirStream keyword arguments a run may set
-RESERVOIR_SETTINGS = {"capacity", "max_reuse", "warmup", "eviction", "draw", "solve_batch", "mode", "producer",
-                      "workers", "scheduler", "inflight", "proposal", "proposal_kwargs", "sim_budget", "target_reuse",
-                      "on_blowup", "priority_power", "priority_floor"}
+# data_cfg {"kind": "reservoir", ...}: the ReservoirStream keyword arguments a run may set (ReservoirConfig's plain
+# settings: the device is the run's, a storage factory is not a value run.json can hold)
+RESERVOIR_SETTINGS = set(ReservoirConfig.names()) - {"device", "storage"}
 
 
 def to_device(batch: dict, device: torch.device | str) -> dict:

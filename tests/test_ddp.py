@@ -137,7 +137,7 @@ def test_two_gloo_ranks_disjoint_reproducible_equal_weights_and_exact_resume(tmp
     assert ckpts[0]["data"] == ckpts[1]["data"] and ckpts[0]["data"]["state"]["world_size"] == 2
     states = ckpts[0]["data"]["state"]["ranks"]
     assert [(s["rank"], s["world_size"]) for s in states] == [(0, 2), (1, 2)]
-    assert set(states[0]["index"]).isdisjoint(states[1]["index"])
+    assert set(states[0]["reservoir"]["storage"]["index"]).isdisjoint(states[1]["reservoir"]["storage"]["index"])
     assert json.loads((tmp_path / "whole" / "run.json").read_text())["world_size"] == 2
     # (5) resuming with another world size is refused in one line: here (one process) and by the CLI's --ddp
     from pdestream.surrogate.runs import resume_run

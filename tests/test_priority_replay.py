@@ -116,7 +116,7 @@ def test_priority_batches_repeat_resume_exactly_and_favour_the_hard_samples():
 @pytest.mark.parametrize("bad", [-1.0, 1e300, float("nan")])
 def test_a_damaged_priority_state_is_refused_in_one_line(bad):
     _, state = run(stream(), n=4, state_at=4)
-    state["priority"][0] = bad
+    state["reservoir"]["sampler"]["priority"][0] = bad
     with pytest.raises(ValueError, match=r"^reservoir state: priority must be .* numbers in \[1e-30, 1e30\]") as err:
         stream().load_state_dict(state)
     assert "\n" not in str(err.value)

@@ -96,16 +96,21 @@ def test_deterministic_batches_repeat_and_resume_exactly():
     assert same(head + take(resumed, 7), full)
 
 
+def _res(state: dict) -> dict:
+    return state["reservoir"]
+
+
 @pytest.mark.parametrize("edit, message", [
-    (lambda s: s["counters"].update(next_index=2**64), "counters.next_index holds 18446744073709551616"),
-    (lambda s: s["serial"].__setitem__(0, -1), "serial holds -1"),
-    (lambda s: s["slots"].__setitem__(0, 10**6), "slots holds 1000000"),
-    (lambda s: s["index"].pop(), "index has"),
-    (lambda s: s.pop("uses"), "incomplete or malformed"),
+    (lambda s: s["producer"].update(next_index=2**64), "producer.next_index holds 18446744073709551616"),
+    (lambda s: _res(s)["writer"]["serial"].__setitem__(0, -1), "writer.serial holds -1"),
+    (lambda s: _res(s)["slots"].__setitem__(0, 10**6), "slots holds 1000000"),
+    (lambda s: _res(s)["storage"]["index"].pop(), "storage.index has"),
+    (lambda s: _res(s)["sampler"].pop("uses"), "incomplete or malformed"),
     (lambda s: s.update(max_reuse=16.0), "max_reuse=16.0 but this stream has max_reuse=2.0"),
     (lambda s: s.update(view="next_step"), "view='next_step' but this stream has view='operator'"),
     (lambda s: s["proposal"].pop("rng"), "proposal entry is damaged"),
-    (lambda s: s["window_uses"].append([0]), "window_uses has"),
+    (lambda s: _res(s)["sampler"]["window_uses"].append([0]), "sampler.window_uses has"),
+    (lambda s: s["schedule"].update(batches=-1), "schedule.batches holds -1"),
 ])
 def test_a_loaded_state_with_bad_integers_is_refused_in_one_line(edit, message):
     first = stream(draw="uniform", eviction="random")
@@ -250,7 +255,7 @@ def test_kill9_and_resume_through_a_deterministic_reservoir_is_bit_identical(tmp
 
     ckpt = kill_and_resume(tmp_path / "whole", tmp_path / "killed", fresh, kill_at=26)
     state = ckpt["data"]["state"]
-    assert state["kind"] == "reservoir" and len(state["slots"]) == 16 and state["proposal"]["reports"] > 0
+    assert state["kind"] == "reservoir" and len(state["reservoir"]["slots"]) == 16 and state["proposal"]["reports"] > 0
     rows = (tmp_path / "whole" / "metrics.csv").read_text().splitlines()
     assert {"inserted", "evicted", "reuse_mean", "reuse_max", "wait_share"} <= set(rows[0].split(","))
 
@@ -405,7 +410,7 @@ def test_cuda_without_a_gpu_is_one_line():
 
 
 def test_a_device_without_room_is_one_line_with_the_bytes_asked_and_free(monkeypatch):
-    from pdestream.datasets import reservoir as reservoir
+    from pdestream.datasets import reservoir_storage as reservoir
 
     monkeypatch.setattr(reservoir, "free_bytes", lambda device: (123456, 80 * 2**30))
     with pytest.raises(ValueError) as err:

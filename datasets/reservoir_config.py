@@ -1,0 +1,121 @@
+"""The training reservoir's settings and their defaults, once: ``ReservoirConfig``.
+
+``ReservoirStream`` takes one (or the same names as keyword arguments), experiments' ``BudgetConfig`` and the
+CLI read their defaults from it. ``checked(batch_size)`` refuses a bad setting in one line (the stream's own
+checks that need the PDE and the view, e.g. target_reuse against the view's examples, stay in the stream).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from typing import Callable
+
+import numpy as np
+
+from .reservoir_sampler import SAMPLERS
+from .reservoir_writer import WRITERS
+
+MODES = ("async", "deterministic")
+DRAWS = tuple(SAMPLERS)
+EVICTIONS = tuple(WRITERS)
+
+
+def _check_int(name: str, value, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"{name}={value!r} not allowed; must be an integer >= {low}")
+    return int(value)
+
+
+def _check_choice(name: str, value, allowed: tuple) -> str:
+    if value not in allowed:
+        raise ValueError(f"{name}={value!r} not allowed; allowed: {', '.join(allowed)}")
+    return value
+
+
+def _is_number(value) -> bool:
+    return not isinstance(value, bool) and isinstance(value, (int, float))
+
+
+@dataclass(frozen=True)
+class ReservoirConfig:
+    """A training reservoir's settings (``datasets/reservoir.py``'s docstring says what each does).
+
+    capacity: trajectories held (>= batch_size and >= solve_batch); max_reuse (>= 1): the bound on uses per
+    trajectory, in FIFO passes; warmup: trajectories held before the first batch (None: max(solve_batch,
+    capacity // 4)); eviction: "fifo" | "random"; draw: "uniform" | "least_used" | "priority" (+ priority_power
+    in [0, 8], priority_floor in (0, 1]); solve_batch: trajectories per solve job; mode: "async" |
+    "deterministic"; producer: "thread" | "process" | "dask" (+ workers, scheduler); inflight: jobs submitted
+    ahead (None: 2 per producer slot); target_reuse: in [1, max_reuse], the solver's pace (None: flat out in
+    async, max_reuse's in deterministic); sim_budget: trajectories solved in all (None: endless); proposal:
+    "uniform" | "loss" | "active" (+ proposal_kwargs for ParamProposal); on_blowup: "raise" | "redraw" |
+    "skip"; device: where trajectories are kept ("cpu", "cuda", "cuda:N"; None: the training device); storage:
+    a factory (capacity, device) -> ``reservoir_storage.Storage`` (None: ``TensorStorage``).
+    """
+
+    capacity: int = 512
+    max_reuse: float = 16.0
+    warmup: int | None = None
+    eviction: str = "fifo"
+    draw: str = "uniform"
+    priority_power: float = 1.0
+    priority_floor: float = 0.25
+    solve_batch: int = 16
+    mode: str = "async"
+    producer: str = "thread"
+    workers: int = 1
+    scheduler: str | None = None
+    inflight: int | None = None
+    target_reuse: float | None = None
+    sim_budget: int | None = None
+    proposal: str = "uniform"
+    proposal_kwargs: dict | None = None
+    on_blowup: str = "raise"
+    device: object = None
+    storage: Callable | None = None
+
+    @classmethod
+    def names(cls) -> tuple:
+        """The settings' names."""
+        return tuple(f.name for f in fields(cls))
+
+    def checked(self, batch_size: int) -> ReservoirConfig:
+        """This config with its numbers normalized (max_reuse float, ...), or ValueError (one line) naming the
+        first bad setting; ``batch_size``: the stream's examples per batch (capacity must hold one batch)."""
+        solve_batch = _check_int("solve_batch", self.solve_batch, 1)
+        capacity = _check_int("capacity", self.capacity, 1)
+        if capacity < batch_size:
+            raise ValueError(f"capacity={self.capacity} not allowed: must be >= batch_size ({batch_size})")
+        if capacity < solve_batch:
+            raise ValueError(f"capacity={self.capacity} not allowed: must be >= solve_batch ({solve_batch})")
+        if not _is_number(self.max_reuse) or not self.max_reuse >= 1 or not math.isfinite(self.max_reuse):
+            raise ValueError(f"max_reuse={self.max_reuse!r} not allowed; must be a finite number >= 1")
+        warmup = self.warmup
+        if warmup is not None:
+            warmup = _check_int("warmup", warmup, 1)
+            if warmup > capacity:
+                raise ValueError(f"warmup={self.warmup} not allowed: must be <= capacity ({self.capacity})")
+        _check_choice("eviction", self.eviction, EVICTIONS)
+        _check_choice("draw", self.draw, DRAWS)
+        if not _is_number(self.priority_power) or not 0 <= self.priority_power <= 8:
+            raise ValueError(f"priority_power={self.priority_power!r} not allowed; must be in [0, 8] (0: uniform draws)")
+        if not _is_number(self.priority_floor) or not 0 < self.priority_floor <= 1:
+            raise ValueError(f"priority_floor={self.priority_floor!r} not allowed; must be in (0, 1] (the uniform "
+                             "share of draws)")
+        _check_choice("mode", self.mode, MODES)
+        sim_budget = None if self.sim_budget is None else _check_int("sim_budget", self.sim_budget, 1)
+        inflight = None if self.inflight is None else _check_int("inflight", self.inflight, 1)
+        target = self.target_reuse
+        if target is not None and (not _is_number(target) or not 1 <= target <= self.max_reuse):
+            raise ValueError(f"target_reuse={target!r} not allowed; must be a number in [1, max_reuse={self.max_reuse}]")
+        return replace(self, capacity=capacity, solve_batch=solve_batch, max_reuse=float(self.max_reuse),
+                       warmup=warmup, priority_power=float(self.priority_power),
+                       priority_floor=float(self.priority_floor), sim_budget=sim_budget, inflight=inflight,
+                       target_reuse=None if target is None else float(target))
+
+    def warmup_for(self) -> int:
+        """Trajectories held before the first batch: ``warmup``, else max(solve_batch, capacity // 4)."""
+        return min(max(self.solve_batch, self.capacity // 4), self.capacity) if self.warmup is None else self.warmup
+
+
+DEFAULTS = ReservoirConfig()

@@ -1,0 +1,121 @@
+"""compare.md, compare.csv and the verdicts of a budget-matched comparison (``experiments.budget``): one arm's
+record over seeds, the tables, the precomputed arm's sizing sentence, and the warning for arms that barely trained.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from pdestream import datasets
+
+
+def combine_seeds(runs: list[dict]) -> dict:
+    """One arm's record over seeds: seed 0's record (curves, plots) with every error column replaced by its mean
+    over seeds, its spread in COLUMN_std, and the per-seed values under "per_seed"."""
+    out = dict(runs[0])
+    out["per_seed"] = [{c: r[c] for c in (*COLUMNS, "steps", "trajectories_solved", "wall_s") if c in r} for r in runs]
+    for c in COLUMNS:
+        if c in out:
+            values = np.array([r[c] for r in runs])
+            out[c], out[c + "_std"] = float(values.mean()), float(values.std(ddof=1)) if len(values) > 1 else 0.0
+    return out
+
+
+COLUMNS = ("test_mean", "test_p95", "test_max", "shifted_mean", "shifted_p95", "shifted_max")
+
+
+def write_tables(out: Path, result: dict, pde, cfg) -> None:
+    """compare.csv and compare.md of ``result`` (``budget_compare``'s) for ``cfg`` (a BudgetConfig)."""
+    rows = []
+    for r in result["arms"]:
+        st = r["stats"] or {}
+        rows.append({"arm": r["arm"], **{c: r[c] for c in COLUMNS if c in r}, "steps": r["steps"],
+                     "trajectories_solved": r["trajectories_solved"], "wall_s": round(r["wall_s"], 1),
+                     "wait_share": round(r["wait_share"], 4), "reuse_mean": st.get("reuse_mean", ""),
+                     "reuse_max": st.get("reuse_max", ""), "cache_bytes": r["cache_bytes"]})
+    with open(out / "compare.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    budget = f"{cfg.budget_s:g} s wall clock per arm" if cfg.budget_s else \
+        f"{cfg.sim_budget} solved trajectories and {cfg.steps} optimizer steps per arm"
+    head = ["arm", *[c.replace("_", " ") for c in COLUMNS if c in rows[0]], "steps", "trajectories solved",
+            "wall s", "data wait", "mean reuse", "max reuse"]
+    lines = [f"{pde.NAME} (" + ", ".join(f"{k} ~ {v}" for k, v in pde.param_domains.items()) + f", n={pde.n}), "
+             f"budget: {budget}; {cfg.model} {cfg.model_cfg}, batch {cfg.batch_size}, lr {cfg.lr}, "
+             f"training loss {(cfg.mode or {}).get('loss', 'mse')}, view {datasets.make_view(cfg.view)}; errors: relative L2 per trajectory over {cfg.n_test} test "
+             "trajectories stratified over the parameter box (mean, p95, max)"
+             + (f", each the mean ± std over {cfg.seeds} seeds (steps, trajectories, wall: seed 0)"
+                if cfg.seeds > 1 else ""), "",
+             "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+    for r, rec in zip(rows, result["arms"]):
+        spread = [f" ± {rec[c + '_std']:.4f}" if cfg.seeds > 1 else "" for c in COLUMNS if c in r]
+        cells = [r["arm"], *[f"{r[c]:.4f}{sd}" for c, sd in zip([c for c in COLUMNS if c in r], spread)],
+                 str(r["steps"]), str(r["trajectories_solved"]),
+                 f"{r['wall_s']:.0f}", f"{100 * r['wait_share']:.1f}%",
+                 f"{r['reuse_mean']:.2f}" if r["reuse_mean"] != "" else "-",
+                 f"{r['reuse_max']:.2f}" if r["reuse_max"] != "" else "-"]
+        lines.append("| " + " | ".join(cells) + " |")
+    plan = next((a.get("precompute") for a in result["arms"] if a["arm"] == "precomputed"), None)
+    if plan:
+        lines += ["", precompute_line(plan, next(a for a in result["arms"] if a["arm"] == "precomputed"))]
+    if len(result["arms"]) > 1:
+        lines += ["", "Verdicts (the winner's margin over the runner-up against the seed spread, the sum of "
+                  "their two standard deviations):", "", *[f"- {v}" for v in verdicts(result["arms"], cfg.seeds)]]
+    note = too_few_steps_note(result["arms"])
+    if note:
+        lines += ["", note]
+    (out / "compare.md").write_text("\n".join(lines) + "\n")
+
+
+def precompute_line(plan: dict, record: dict) -> str:
+    """compare.md's sentence on how the precomputed arm sized and stored its dataset (seed 0)."""
+    frames = (f"frames 0 and {plan['frames'] - 1} only of {plan['frames']} (what the operator view uses; solved "
+              "with the stream's step, so the same values)" if plan["frames_stored"] < plan["frames"]
+              else f"all {plan['frames']} frames (its view uses them)")
+    size = f"{record['trajectories_solved']} trajectories"
+    if "solve_per_s" in plan:
+        size += (f" (rule: {plan['rule']}; measured {plan['solve_per_s']:.0f} trajectories/s solving and "
+                 f"{1e3 * plan['step_s']:.1f} ms per training step: {100 * plan['solve_share']:.0f}% of the budget "
+                 f"solving (capped at {100 * plan.get('solve_cap', 1):.0f}%), {plan['epochs_planned']:.1f} epochs planned)")
+    else:
+        size += f" ({plan['rule']})"
+    return (f"Precomputed arm (seed 0): {size}; it stored {frames}: {record['cache_bytes'] / 2**20:.1f} MiB on "
+            "disk.")
+
+
+def verdicts(arms: list[dict], seeds: int) -> list[str]:
+    """One line per error metric: which arm has the lowest mean over seeds, by how much it beats the runner-up,
+    and whether that margin exceeds the seed spread (std of the winner + std of the runner-up)."""
+    lines = []
+    for c in COLUMNS:
+        have = sorted((a for a in arms if c in a), key=lambda a: a[c])
+        if len(have) < 2:
+            continue
+        win, second = have[0], have[1]
+        margin, spread = second[c] - win[c], win.get(c + "_std", 0.0) + second.get(c + "_std", 0.0)
+        head = (f"{c.replace('_', ' ')}: {win['arm']} {win[c]:.4f} vs {second['arm']} {second[c]:.4f} "
+                f"(x{second[c] / max(win[c], 1e-300):.2f}, margin {margin:.4f})")
+        if seeds < 2:
+            lines.append(f"{head}: one seed, no spread to judge by (--seeds 3 for a verdict)")
+        elif margin > spread:
+            lines.append(f"{head}: {win['arm']} wins, outside the seed spread {spread:.4f}")
+        else:
+            lines.append(f"{head}: within the seed spread {spread:.4f}, no clear winner")
+    return lines
+
+
+MIN_STEPS = 20  # below this an arm's errors are those of a barely trained network, whichever arm it is
+
+
+def too_few_steps_note(arms: list[dict]) -> str:
+    """A warning line naming the arms (records with "arm", "steps") that trained fewer than MIN_STEPS steps, or ""
+    (a slow solver at a small --budget, e.g. grayscott2d --quick: 0-1 steps per arm, ranked as if compared)."""
+    few = [f"{a['arm']} ({a['steps']})" for a in arms if a["steps"] < MIN_STEPS]
+    if not few:
+        return ""
+    return (f"**Not a comparison:** {', '.join(few)} trained fewer than {MIN_STEPS} optimizer steps in the budget; "
+            "their errors are those of nearly untrained networks. Raise --budget (or use a coarser grid).")
