@@ -516,7 +516,8 @@ def open_cache(path, complete_only: bool = False):
         settings = CacheSettings.from_attrs(ds.attrs, path)
         store = fmt.open(path)  # the arrays themselves: consolidated metadata lists a deleted Zarr array too
         try:
-            gone = [v for v in (*settings.variables, "redraws") if v not in ds.variables or v not in store]
+            # the flags too: without them a resume is refused, so inspect must not advise one
+            gone = [v for v in (*settings.variables, "redraws", "complete") if v not in ds.variables or v not in store]
         finally:
             store.close()
         if gone:

@@ -369,8 +369,11 @@ def test_resume_of_a_zarr_cache_without_its_complete_flags_says_what_to_do(tmp_p
     before = sorted(p.name for p in path.iterdir())
     assert cli.main([*argv, "--resume"]) == 2  # it crashed with KeyError: 'complete'
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "its 'complete' flags are missing" in err and "--overwrite" in err
+    assert err.count("\n") == 1 and "complete" in err and "missing" in err and "--overwrite" in err, err
     assert sorted(p.name for p in path.iterdir()) == before
+    assert cli.main(["inspect", str(path)]) == 2  # it advised the --resume that is refused above
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "complete missing" in err and "--overwrite" in err and "--resume" not in err, err
 
 
 def test_a_source_tree_that_is_not_installed_still_writes_caches(pde, tmp_path, monkeypatch):
