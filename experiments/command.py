@@ -65,6 +65,10 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
     raised again as a KeyboardInterrupt saying what was kept (finished runs stay; else what it created goes)."""
     log = log or (lambda line: print(line, flush=True))  # (said before a long run: flushed)
     check_compare_out(cmd.out, cmd.overwrite)
+    if isinstance(cmd.pde, str):
+        from pdestream.catalog_names import check_name
+
+        check_name(cmd.pde)  # before JAX is imported
     before = snapshot(cmd.out)
     try:
         return _compare(cmd, log)
