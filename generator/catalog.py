@@ -12,7 +12,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from ..catalog_names import NAMES, unknown_pde
+from pdestream.catalog_names import NAMES, unknown_pde  # the names without JAX (the CLI checks them)
+
 from . import user
 from .external.exponax import exponax_pde_class
 from .flow.entries import Cavity2D, Channel2D, Karman2D, Smoke2D
