@@ -327,13 +327,16 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
     if args.out is None:
         raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
     name, settings = settings_from_args(args.pde, args)  # the --config file, read once
-    return TrainConfig(
+    cfg = TrainConfig(
         pde=name, settings=settings, source=args.source, out=args.out, overwrite=args.overwrite, seed=args.seed,
         test_samples=args.test_samples, checkpoint_every=args.checkpoint_every, ddp=args.ddp, model=args.model,
         model_cfg=parse_sets(args.model_set), view=args.view, k_in=args.k_in, k_out=args.k_out, steps=args.steps,
         batch_size=args.batch_size, lr=args.lr, schedule=args.schedule, threads=args.threads, device=args.device,
-        mode=args.mode, loss=args.loss, unroll=args.unroll, coarse_n=args.coarse_n, reservoir=reservoir_cfg(args),
+        mode=args.mode, loss=args.loss, unroll=args.unroll, coarse_n=args.coarse_n,
         solver_workers=args.solver_workers, solver_timeout=args.solver_timeout)
+    cfg.check()  # its own values first (a cache with --ddp is named as such, not as a cache with --reservoir)
+    cfg.reservoir = reservoir_cfg(args)
+    return cfg
 
 
 def cmd_train(args: argparse.Namespace) -> None:

@@ -6,6 +6,7 @@ No torch here (the parser reads these defaults before anything heavy is imported
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field, fields
 
 TRAIN_STEPS = 1000  # optimizer steps of a new run when ``steps`` is None (None lets --resume tell if it was given)
@@ -56,8 +57,41 @@ class TrainConfig:
     solver_workers: int | None = None
     solver_timeout: float | None = None
 
+    def ranks(self) -> int:
+        """The ranks this run trains on: ``ddp``, or torchrun's WORLD_SIZE (they must agree when both are set)."""
+        env = env_world()
+        if self.ddp is not None:
+            if isinstance(self.ddp, bool) or not isinstance(self.ddp, int) or self.ddp < 1:
+                raise ValueError(f"--ddp={self.ddp} not allowed; must be an integer >= 1 (ranks)")
+            if env > 1 and self.ddp != env:
+                raise ValueError(f"--ddp {self.ddp} but torchrun started {env} ranks (WORLD_SIZE={env}); drop --ddp or "
+                                 "make them agree")
+        return env if env > 1 else (self.ddp or 1)
+
+    def check(self) -> None:
+        """The checks of a new run's own values (one line each), before any file, PDE or rank."""
+        if self.test_samples < 1:
+            raise ValueError(f"--test-samples={self.test_samples} not allowed; must be >= 1")
+        if self.checkpoint_every < 0:
+            raise ValueError(f"--checkpoint-every={self.checkpoint_every} not allowed; must be >= 0 (0: only at the "
+                             "end)")
+        if self.ranks() > 1 and self.source != "stream":
+            raise ValueError(f"--ddp goes with --source stream (with or without --reservoir); a cache ({self.source}) "
+                             "is not sharded across ranks")
+        if self.reservoir is not None and self.source != "stream":
+            raise ValueError(f"--reservoir goes with --source stream (got --source {self.source})")
+
     def given_with_resume(self) -> list[str]:
         """The fields set besides those RESUME_ALLOWED (a resumed run takes its settings from its run.json)."""
         default = TrainConfig()
         return [f.name for f in fields(self) if f.name not in RESUME_ALLOWED
                 and getattr(self, f.name) != getattr(default, f.name)]
+
+
+def env_world() -> int:
+    """The world size torchrun (or surrogate.launch) gave this process through WORLD_SIZE; 1 when not set."""
+    value = os.environ.get("WORLD_SIZE", "1")
+    try:
+        return max(1, int(value))
+    except ValueError:
+        raise ValueError(f"WORLD_SIZE={value!r} not allowed; must be an integer >= 1 (set by torchrun)") from None

@@ -31,27 +31,13 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
     from pdestream.surrogate import ddp
 
     configure_solvers(cfg.solver_workers, cfg.solver_timeout)  # (environment: spawned ranks inherit it)
-    ranks = train_ranks(cfg)
+    ranks = cfg.ranks()
     if ranks > 1 and ddp.env_world() == 1:  # ddp=N: check here, then start the N ranks
         return launch_ranks(cfg, ranks)
     try:
         return _resume(cfg, ranks, log) if cfg.resume is not None else _new(cfg, ranks, log)
     finally:
         ddp.finish()
-
-
-def train_ranks(cfg: TrainConfig) -> int:
-    """The ranks this run trains on: ``ddp``, or torchrun's WORLD_SIZE (they must agree when both are set)."""
-    from pdestream.surrogate.ddp import env_world
-
-    env = env_world()
-    if cfg.ddp is not None:
-        if isinstance(cfg.ddp, bool) or not isinstance(cfg.ddp, int) or cfg.ddp < 1:
-            raise ValueError(f"--ddp={cfg.ddp} not allowed; must be an integer >= 1 (ranks)")
-        if env > 1 and cfg.ddp != env:
-            raise ValueError(f"--ddp {cfg.ddp} but torchrun started {env} ranks (WORLD_SIZE={env}); drop --ddp or "
-                             "make them agree")
-    return env if env > 1 else (cfg.ddp or 1)
 
 
 def default_threads(source: str, ranks: int = 1) -> int:
@@ -107,15 +93,7 @@ def check_new(cfg: TrainConfig, ranks: int):
     if pde.STEADY and cfg.mode != "one-step":  # the modes' own refusal would send the user to --view next_step
         raise ValueError(f"--mode {cfg.mode} unrolls over frames and {pde.NAME} is steady (no frames); allowed: "
                          "--mode one-step")
-    if cfg.test_samples < 1:
-        raise ValueError(f"--test-samples={cfg.test_samples} not allowed; must be >= 1")
-    if cfg.checkpoint_every < 0:
-        raise ValueError(f"--checkpoint-every={cfg.checkpoint_every} not allowed; must be >= 0 (0: only at the end)")
-    if ranks > 1 and cfg.source != "stream":
-        raise ValueError(f"--ddp goes with --source stream (with or without --reservoir); a cache ({cfg.source}) is "
-                         "not sharded across ranks")
-    if cfg.reservoir is not None and cfg.source != "stream":
-        raise ValueError(f"--reservoir goes with --source stream (got --source {cfg.source})")
+    cfg.check()
     return pde, held
 
 
