@@ -4,6 +4,7 @@
     budget                  the same at equal wall clock or equal simulation budget, arm by arm, resumable
     interactive_compare     one-step, pushforward, oracle and solver-in-the-loop training side by side
     rollout_figure          the error-against-time and snapshot figure of those comparisons
+    command                 the CLI's ``compare``: run_compare(CompareCommand(...)) picks one of the three
 
 Above ``surrogate`` and ``datasets`` (it imports both); nothing in the library imports it.
 """

@@ -9,9 +9,10 @@ setting defaults of that dimension. Each entry becomes a class of its own (``PDE
 from __future__ import annotations
 
 import dataclasses
-import difflib
 from dataclasses import dataclass
 from typing import Any, Mapping
+
+from pdestream.catalog_names import NAMES, unknown_pde  # the names without JAX (the CLI checks them)
 
 from . import user
 from .external.exponax import exponax_pde_class
@@ -117,6 +118,8 @@ def entry_class(entry: Entry) -> type[PDE]:
 
 PDES: dict[str, type[PDE]] = {e.name: entry_class(e) for e in ENTRIES}
 GROUP: dict[str, str] = {e.name: e.group for e in ENTRIES}
+if GROUP != NAMES or list(GROUP) != list(NAMES):  # the JAX-free copy the CLI checks names against
+    raise TypeError("catalog_names.NAMES differs from the catalog's ENTRIES: make it {name: group} of ENTRIES, in order")
 # The specialised classes by their own names (Diffusion2D, ...), so pickle finds them in this module.
 globals().update({cls.__name__: cls for cls in PDES.values() if cls.__module__ == __name__})
 
@@ -146,10 +149,5 @@ def pde_class(name: str) -> type[PDE]:
         return exponax_pde_class(name)
     found = user.lookup(name) if isinstance(name, str) and name else None
     if found is None:
-        near = [n for n in PDES if isinstance(name, str) and name and n.startswith(name)]
-        near = near or (difflib.get_close_matches(name, list(PDES), n=3) if isinstance(name, str) else [])
-        hint = f"; did you mean {' or '.join(near)}" if near else ""
-        mine = ", ".join(user.names())
-        raise ValueError(f"unknown PDE {name!r}{hint}; allowed: {', '.join(PDES)}{', ' + mine if mine else ''} "
-                         "or an import path package.module:Class, or an Exponax stepper exponax:Name")
+        raise ValueError(unknown_pde(name, user.names()))
     return found

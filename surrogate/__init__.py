@@ -6,7 +6,8 @@
     save/load_checkpoint, train_state, atomic_write                              checkpoint.py: a run's files
     rel_l2, nrmse; rollout_errors, test_errors                                   metrics.py, evaluate.py
     MODE_SPECS, mode_settings; MODES, make_mode                                  mode_table.py (no torch), modes.py
-    train_loader, test_set; train_run                                            data.py, runs.py (CLI `train`)
+    train_loader, test_set; train_run                                            data.py, runs.py
+    TrainConfig; train(cfg): a new, resumed or --ddp run (CLI `train`)          config.py (no torch), launch.py
     compare(pde, out_dir, CompareConfig())                                       compare.py (CLI `compare`)
 
 The names below load on first use, so that ``surrogate.mode_table`` (the CLI's choices) does not import torch.

@@ -28,6 +28,8 @@ from torch import nn
 from pdestream.datasets.normalize import Normalization
 from pdestream.datasets.ranks import placement
 
+from . import config
+
 INIT_ENV = "PDESTREAM_DDP_INIT"  # our launcher's rendezvous (a file:// URL); torchrun's env:// otherwise
 # a rank that died leaves the others waiting this long at most; rank 0 alone builds the test set at the end
 TIMEOUT = datetime.timedelta(minutes=30)
@@ -38,13 +40,7 @@ def world() -> tuple[int, int]:
     return placement()
 
 
-def env_world() -> int:
-    """The world size torchrun (or ``launch``) gave this process through WORLD_SIZE; 1 when not set."""
-    value = os.environ.get("WORLD_SIZE", "1")
-    try:
-        return max(1, int(value))
-    except ValueError:
-        raise ValueError(f"WORLD_SIZE={value!r} not allowed; must be an integer >= 1 (set by torchrun)") from None
+env_world = config.env_world  # the world size torchrun (or surrogate.launch) gave this process; 1 when not set
 
 
 def init_from_env(device: str = "cpu") -> int:

@@ -112,10 +112,10 @@ def test_an_unrolling_mode_on_a_steady_entry_is_refused_without_pointing_at_next
 def test_compare_defaults_never_refine_an_entry_and_fit_its_settings(name):
     # compare put n=64, n_frames=11 on every entry: 8x the points of a 3D entry (a reservoir refused for 16.5 GiB),
     # and an n_frames that darcy2d does not have ("unknown setting 'n_frames'", never typed by the user)
-    args = cli.build_parser().parse_args(["compare", name, "--quick", "--out", "x", "--set", "n=16"])
-    sets = cli.compare_sets(args)
-    assert sets[-1] == "n=16"  # the user's own --set comes last and wins
-    pde = g.get_pde(name, cli._parse_sets(sets[:-1]))
+    from pdestream.experiments.command import compare_settings
+
+    assert compare_settings(name, {"n": "16"})["n"] == "16"  # the user's own setting wins
+    pde = g.get_pde(name, compare_settings(name, {}))
     assert pde.n == min(64, g.get_pde(name).n)
 
 

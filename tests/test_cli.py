@@ -13,6 +13,7 @@ import pytest
 
 from pdestream import cli, datasets
 from pdestream.datasets.cache import is_complete
+from pdestream.surrogate import launch
 
 SMALL = ["--set", "n=32", "--set", "n_frames=6"]
 
@@ -212,9 +213,9 @@ def test_help_shows_defaults(capsys, monkeypatch, command, shown):
 
 def test_stream_training_leaves_the_solver_a_core(monkeypatch):
     for cores, threads in ((1, 1), (2, 1), (8, 7)):
-        monkeypatch.setattr(cli.os, "sched_getaffinity", lambda pid, cores=cores: set(range(cores)))
-        assert cli.default_threads("stream") == threads
-        assert cli.default_threads("burgers.h5") == threads  # a cache too: torch's threads on every core of a
+        monkeypatch.setattr(launch.os, "sched_getaffinity", lambda pid, cores=cores: set(range(cores)))
+        assert launch.default_threads("stream") == threads
+        assert launch.default_threads("burgers.h5") == threads  # a cache too: torch's threads on every core of a
         # busy machine trained 17-30x slower
 
 
@@ -230,7 +231,7 @@ def test_train_without_threads_applies_the_stream_default(capsys, monkeypatch, t
         raise ValueError("stopped before training")
 
     monkeypatch.setattr(runs, "train_run", stop)
-    monkeypatch.setattr(cli.os, "sched_getaffinity", lambda pid: {0, 1, 2})
+    monkeypatch.setattr(launch.os, "sched_getaffinity", lambda pid: {0, 1, 2})
     before = torch.get_num_threads()
     try:
         for extra, threads in (([], 2), (["--threads", "1"], 1)):

@@ -1,10 +1,10 @@
-"""PDE settings from TOML files and --set, as the CLI reads them (cli.pde_from_args)."""
+"""PDE settings from TOML files and --set, as the CLI reads them (settings.pde_from_args)."""
 
 import argparse
 
 import pytest
 
-from pdestream import cli
+from pdestream import cli, settings
 from pdestream import generator as g
 
 
@@ -15,15 +15,15 @@ def args_for(tmp_path, text, sets=()):
 
 
 def test_a_pde_table_and_top_level_keys_mean_the_same(tmp_path):
-    table = cli.pde_from_args(None, args_for(tmp_path, '[pde]\nname = "ns2d"\nn = 32\nnu = "uniform(0.01, 0.02)"\n'
+    table = settings.pde_from_args(None, args_for(tmp_path, '[pde]\nname = "ns2d"\nn = 32\nnu = "uniform(0.01, 0.02)"\n'
                                                       'ic = {kind = "grf", alpha = 3.0}\n'))
-    top = cli.pde_from_args(None, args_for(tmp_path, 'pde = "ns2d"\nn = 32\nnu = "uniform(0.01, 0.02)"\n'
+    top = settings.pde_from_args(None, args_for(tmp_path, 'pde = "ns2d"\nn = 32\nnu = "uniform(0.01, 0.02)"\n'
                                                     '[ic]\nkind = "grf"\nalpha = 3.0\n'))
     assert table == top == g.get_pde("ns2d", n=32, nu="uniform(0.01, 0.02)", ic={"kind": "grf", "alpha": 3.0})
 
 
 def test_set_overrides_the_file(tmp_path):
-    pde = cli.pde_from_args("burgers1d", args_for(tmp_path, "n = 64\nnu = 0.05\n", ["nu=0.02", "ic.tau=7"]))
+    pde = settings.pde_from_args("burgers1d", args_for(tmp_path, "n = 64\nnu = 0.05\n", ["nu=0.02", "ic.tau=7"]))
     assert pde.n == 64 and str(pde.nu) == "0.02" and pde.ic.tau == 7.0
 
 
@@ -37,7 +37,7 @@ def test_set_overrides_the_file(tmp_path):
 def test_bad_config_files_give_one_clear_error(tmp_path, text, words):
     name = "burgers1d" if "ns2d" in text else None
     with pytest.raises(ValueError) as err:
-        cli.pde_from_args(name, args_for(tmp_path, text))
+        settings.pde_from_args(name, args_for(tmp_path, text))
     for word in words:
         assert word in str(err.value)
 

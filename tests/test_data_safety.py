@@ -21,6 +21,7 @@ from pdestream import cli, datasets
 from pdestream.datasets import cache as cache_mod
 from pdestream.datasets import store as store_mod
 from pdestream.datasets.cache import is_complete
+from pdestream.experiments.command import check_compare_out
 
 SMALL = ["--set", "n=32", "--set", "n_frames=5"]
 
@@ -374,15 +375,15 @@ def test_compare_refuses_an_out_dir_with_earlier_output(tmp_path, capsys, earlie
 
 
 def test_compare_out_check_lets_new_dirs_and_overwrite_through(tmp_path):
-    cli.check_compare_out(str(tmp_path / "new"), overwrite=False)
+    check_compare_out(str(tmp_path / "new"), overwrite=False)
     (tmp_path / "notes.txt").write_text("unrelated")
-    cli.check_compare_out(str(tmp_path), overwrite=False)  # a directory without compare output
+    check_compare_out(str(tmp_path), overwrite=False)  # a directory without compare output
     (tmp_path / "compare.json").write_text("{}")
-    cli.check_compare_out(str(tmp_path), overwrite=True)
+    check_compare_out(str(tmp_path), overwrite=True)
     with pytest.raises(FileExistsError):
-        cli.check_compare_out(str(tmp_path), overwrite=False)
+        check_compare_out(str(tmp_path), overwrite=False)
     with pytest.raises(NotADirectoryError):
-        cli.check_compare_out(str(tmp_path / "notes.txt"), overwrite=False)
+        check_compare_out(str(tmp_path / "notes.txt"), overwrite=False)
 
 
 # --- a damaged cache that claims completeness -----------------------------------------------------------------

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from pdestream import cli, generator
+from pdestream.surrogate.launch import RUN_MARKERS
 
 
 def one_line(code, capsys, *words):
@@ -48,7 +49,7 @@ def test_a_refused_train_leaves_nothing_so_the_corrected_command_runs(tmp_path, 
     assert code != 0
     capsys.readouterr()
     assert not [p.name for p in out.glob("*")] if out.exists() else True  # nothing: no run.json to be refused by
-    assert not any((out / m).exists() for m in cli.RUN_MARKERS)
+    assert not any((out / m).exists() for m in RUN_MARKERS)
 
 
 def _script(tmp_path, body: str):

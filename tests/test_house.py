@@ -270,12 +270,12 @@ def test_compare_quick_alone_says_what_it_runs(tmp_path, capsys, monkeypatch):
 def test_the_two_waiting_figures_are_named_apart(capsys):
     """The loop's data share (normalization draw included) and the reservoir's wait for solves (its own clock)
     were printed as two unexplained 'waiting' percentages."""
-    from pdestream import cli
+    from pdestream.surrogate.launch import run_report
 
     s = {"steps": 10, "wall": 5.0, "t_data": 1.0, "t_compute": 4.0, "data_share": 0.2, "trajectories_seen": 8,
          "final_loss": 0.1, "test": {"test": {"rel_l2": 0.1, "nrmse": 0.1}},
          "data_stats": {"inserted": 8, "evicted": 0, "reuse_mean": 1.0, "reuse_max": 2.0, "wait_share": 0.05}}
-    cli._print_run(s, "fno", "stream", 4, "run")
+    print(run_report(s, "fno", "stream", 4, "run"))
     out = capsys.readouterr().out
     assert "waiting for data 1.0 s = 20.0% of the loop, normalization draw included" in out
     assert "waiting for solves 5.0% of the time since the first batch (the reservoir's own clock" in out

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pdestream import cli
+from pdestream import cli, settings
 from pdestream import generator as g
 from pdestream.generator import problem as base  # the limits every problem obeys
 
@@ -99,8 +99,8 @@ def args_for(path, sets=()):
 def test_a_dotted_toml_key_works_like_set(tmp_path):
     path = tmp_path / "c.toml"
     path.write_text('pde = "ns2d"\nn = 32\nic.alpha = 3.5\nic.mean = 0.5\n')
-    from_file = cli.pde_from_args(None, args_for(path))
-    from_set = cli.pde_from_args("ns2d", argparse.Namespace(config=None, set=["n=32", "ic.alpha=3.5", "ic.mean=0.5"]))
+    from_file = settings.pde_from_args(None, args_for(path))
+    from_set = settings.pde_from_args("ns2d", argparse.Namespace(config=None, set=["n=32", "ic.alpha=3.5", "ic.mean=0.5"]))
     assert from_file == from_set and from_file.ic.sigma == 12.0  # the PDE's own IC, two fields changed
     assert g.get_pde("ns2d", ic={"alpha": 3.5}).ic == dataclasses.replace(g.get_pde("ns2d").ic, alpha=3.5)
 
@@ -402,14 +402,14 @@ def test_example_configs_are_shipped():
 
 @pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
 def test_each_example_config_parses_builds_and_solves(path):
-    pde = cli.pde_from_args(None, args_for(path))
+    pde = settings.pde_from_args(None, args_for(path))
     assert pde.NAME in g.PDES
     small = pde.replace(n=32, n_frames=2, t_end=pde.t_end / 100)
     assert np.isfinite(np.asarray(g.sample(small, [0]).u)).all()
 
 
 def test_the_fno_config_is_the_fno_setup():
-    pde = cli.pde_from_args(None, args_for(ROOT / "configs" / "burgers_fno.toml"))
+    pde = settings.pde_from_args(None, args_for(ROOT / "configs" / "burgers_fno.toml"))
     assert pde == g.get_pde("burgers1d", n=1024, nu=0.1, t_end=1.0, n_frames=2)
 
 

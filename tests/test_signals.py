@@ -259,14 +259,14 @@ def test_ctrl_c_in_compare_removes_the_out_dir_it_created(tmp_path):
 def test_an_interrupt_raised_where_python_cannot_raise_is_sent_again(monkeypatch):
     """A Ctrl-C handled inside a gc callback (JAX has one) or a __del__ cannot raise there: Python prints the
     KeyboardInterrupt and drops it, and the CLI then ignored every later Ctrl-C. Its unraisable hook sends it again."""
-    from pdestream import cli
+    from pdestream import interrupts
 
     class Dies:
         def __del__(self):
-            raise KeyboardInterrupt  # as _first_interrupt does when the signal arrives in here
+            raise KeyboardInterrupt  # as first_interrupt does when the signal arrives in here
 
-    previous = signal.signal(signal.SIGINT, cli._first_interrupt)
-    monkeypatch.setattr(sys, "unraisablehook", cli._redeliver_interrupt)
+    previous = signal.signal(signal.SIGINT, interrupts.first_interrupt)
+    monkeypatch.setattr(sys, "unraisablehook", interrupts.redeliver_interrupt)
     try:
         with pytest.raises(KeyboardInterrupt):
             Dies()  # dropped at once: its __del__ runs

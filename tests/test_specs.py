@@ -62,14 +62,15 @@ def test_a_newly_registered_model_keeps_its_name(tmp_path, monkeypatch):
 
 
 def test_train_reads_its_config_file_once(tmp_path, monkeypatch):
-    from pdestream import cli
+    from pdestream import cli, settings
+    from pdestream.surrogate import launch
     from pdestream.surrogate import runs as run_module
 
     reads, runs = [], []
-    real = cli.read_config
-    monkeypatch.setattr(cli, "read_config", lambda path: reads.append(path) or real(path))
+    real = settings.read_config
+    monkeypatch.setattr(settings, "read_config", lambda path: reads.append(path) or real(path))
     monkeypatch.setattr(run_module, "train_run", lambda pde, source, out, **kw: runs.append((pde, kw)) or {})
-    monkeypatch.setattr(cli, "_print_run", lambda *a: None)
+    monkeypatch.setattr(launch, "run_report", lambda *a: "")
     config = tmp_path / "b.toml"
     config.write_text('pde = "burgers1d"\nn = 32\nn_frames = 5\n')
     assert cli.main(["train", "--config", str(config), "--out", str(tmp_path / "run")]) == 0

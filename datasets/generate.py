@@ -1,0 +1,113 @@
+"""``pdestream generate`` as a library call: ``generate(GenerateConfig(pde="burgers1d", n=64, out="b.h5"))``.
+
+The config's defaults are the CLI's (it reads them from here); this module imports nothing heavy until called,
+so the parser can read them without JAX or torch.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+@dataclass
+class GenerateConfig:
+    """Solve samples 0..n-1 of ``pde`` (a name, an import path or a PDE object; ``settings``: --config/--set
+    values) under ``seed`` and write them to the cache ``out`` (.h5/.hdf5 or .zarr, format by suffix)."""
+
+    pde: object = None
+    n: int = 0
+    out: str = ""
+    settings: dict = field(default_factory=dict)
+    seed: int = 0
+    resume: bool = False
+    overwrite: bool = False
+    block: int | None = None  # samples solved and written per block (None: ~32 MiB)
+    on_blowup: str = "raise"  # raise | redraw | skip (skip is refused: a cache holds every index)
+    executor: str = "local"  # local | dask (Zarr output only)
+    scheduler: str | None = None  # dask: a running scheduler's address (None: an embedded LocalCluster)
+    workers: int | None = None  # dask: worker processes of the embedded cluster (None: 2)
+    solver_workers: int | None = None  # external solvers: worker processes per solving process
+    solver_timeout: float | None = None  # external solvers: seconds per solve
+
+
+def configure_solvers(workers: int | None, timeout: float | None) -> None:
+    """External solvers' worker processes and timeout for this process and the producers it starts (one line if
+    bad; nothing imported when both are None)."""
+    if workers is None and timeout is None:
+        return
+    from pdestream.generator.external import solver as external
+
+    external.configure(workers, timeout)
+
+
+def generate(cfg: GenerateConfig) -> str:
+    """Write the cache of ``cfg``; returns the line saying what was written. A Ctrl-C is raised again as a
+    KeyboardInterrupt saying what was left at ``cfg.out`` (the writer has cleaned up by then)."""
+    from pdestream.settings import build_pde
+
+    configure_solvers(cfg.solver_workers, cfg.solver_timeout)
+    pde = build_pde(cfg.pde, cfg.settings)
+    try:
+        return _generate(pde, cfg)
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(left_after_interrupt(cfg.out, cfg.resume)) from None
+
+
+def _generate(pde, cfg: GenerateConfig) -> str:
+    from pdestream import datasets
+
+    if not cfg.resume:
+        check_disk_room(pde, cfg.out, cfg.n)
+    kw = dict(seed=cfg.seed, resume=cfg.resume, overwrite=cfg.overwrite, block=cfg.block, on_blowup=cfg.on_blowup)
+    if cfg.executor == "dask":
+        from pdestream.datasets.distributed import write_cache_dask
+
+        if cfg.scheduler and cfg.workers is not None:
+            raise ValueError("--workers sizes the embedded cluster; with --scheduler the cluster has its own workers")
+        done = write_cache_dask(pde, cfg.out, cfg.n, scheduler=cfg.scheduler, workers=cfg.workers or 2, **kw)
+    elif cfg.executor != "local":
+        raise ValueError(f"executor={cfg.executor!r} not allowed; allowed: local, dask")
+    elif cfg.scheduler or cfg.workers is not None:
+        raise ValueError("--scheduler and --workers go with --executor dask")
+    else:
+        done = datasets.write_cache(pde, cfg.out, cfg.n, **kw)
+    if cfg.resume and done.written == 0:
+        return f"{cfg.out} is already complete: all {done.n_samples} samples were written; nothing to solve"
+    return done.line()
+
+
+def left_after_interrupt(out: str, resume: bool) -> str:
+    """What an interrupted `generate` left at ``out``, in words (the writer has cleaned up by now)."""
+    from pdestream.datasets.cache import is_complete, open_cache
+
+    if not Path(out).exists():
+        return "nothing was written"
+    try:
+        with open_cache(out) as ds:
+            done, total, complete = int((ds["complete"].values == 1).sum()), ds.sizes["sample"], is_complete(ds)
+    except (ValueError, OSError):
+        return f"{out} is left as it was"
+    if complete:  # --overwrite: the old cache, untouched (its replacement was removed)
+        return f"{out} is unchanged"
+    return f"{out} holds {done} of {total} samples; run the command with --resume{'' if resume else ' added'} to finish it"
+
+
+def check_disk_room(pde, out: str, n: int) -> None:
+    """Refuse (one line) a new cache that cannot fit on its disk: n x the bytes of one sample vs the free space
+    where it goes (a huge --n would otherwise run until the disk is full)."""
+    import shutil
+
+    from pdestream.datasets import max_index
+
+    parent = Path(out).absolute().parent
+    if not parent.is_dir() or isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= max_index() + 1:
+        return  # the writer names these
+    frames = 1 if getattr(pde, "STEADY", False) else pde.n_frames
+    channels = len(pde.FIELDS) + len(getattr(pde, "INPUTS", ()))
+    need = n * (4 * channels * frames * math.prod(pde.grid.shape) + 4 * len(pde.PARAMS) + 2)
+    free = shutil.disk_usage(parent).free
+    if need > free:
+        raise ValueError(f"--n {n} makes a cache of {need / 2**30:,.1f} GiB ({need / n / 2**10:,.1f} KiB per sample); "
+                         f"the disk at {parent} has {free / 2**30:,.1f} GiB free: lower --n or write elsewhere")

@@ -1,0 +1,119 @@
+"""The training reservoir's command-line options (``train --reservoir``, ``compare``'s reservoir arms) and the
+reservoir settings they give (``reservoir_cfg``: train_run's data_cfg). argparse only: no torch, no JAX.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
+    g = p.add_argument_group("training reservoir (Melissa-style reuse of solves; see datasets/reservoir.py)")
+    if train:
+        g.add_argument("--reservoir", action="store_true",
+                       help="train through a training reservoir between the solver and the loop (--source stream)")
+    g.add_argument("--capacity", type=int, default=512, help="trajectories the reservoir holds")
+    g.add_argument("--max-reuse", type=float, default=16.0,
+                   help="bound on uses per trajectory (1 use = the examples a FIFO pass takes from it); the loop "
+                        "waits rather than exceed it")
+    g.add_argument("--reservoir-mode", choices=("async", "deterministic"), default="async",
+                   help="async: insert solves as they arrive (fast, not reproducible); deterministic: a fixed "
+                        "schedule, batches a pure function of the settings, exact --resume")
+    g.add_argument("--target-reuse", type=float, metavar="R",
+                   help="pace the solver so each trajectory pays for about R uses (<= --max-reuse): a solver "
+                        "faster than training then leaves its core to training (default: solve flat out)")
+    g.add_argument("--proposal-floor", type=float, default=0.25,
+                   help="loss-driven sampling: share of uniform parameter draws (no region starves)")
+    g.add_argument("--proposal-ensemble", type=int, default=5, metavar="K",
+                   help="active sampling: bootstrap loss models whose disagreement is the uncertainty signal (>= 2)")
+    g.add_argument("--proposal-kappa", type=float, default=1.0,
+                   help="active sampling: weight of that disagreement against the predicted log-loss")
+    g.add_argument("--priority-power", type=float, default=1.0, metavar="A",
+                   help="prioritized replay (--draw priority; compare's reservoir_priority and reservoir_active arms): "
+                        "a trajectory is drawn in proportion to its last training error (per-example relative L2) ** A "
+                        "(0: uniform)")
+    g.add_argument("--priority-floor", type=float, default=0.25,
+                   help="prioritized replay: share of uniform draws, in (0, 1]")
+    g.add_argument("--solve-batch", type=int, help=f"trajectories per solver job (default: {SOLVE_BATCH['cpu']}; "
+                                                    f"{SOLVE_BATCH['cuda']} with --device cuda, where small batches "
+                                                    "leave the GPU idle)")
+    if not train:
+        return
+    g.add_argument("--warmup", type=int, help="trajectories held before the first batch (default: capacity/4)")
+    g.add_argument("--eviction", choices=("fifo", "random"), default="fifo", help="which used trajectory makes way")
+    g.add_argument("--draw", choices=("uniform", "least_used", "priority"), default="uniform",
+                   help="which trajectories a batch draws: at random, the least used first, or by their last "
+                        "training loss (prioritized replay: --priority-power, --priority-floor)")
+    g.add_argument("--producer", choices=("thread", "process", "dask"), default="thread",
+                   help="who solves: a background thread, spawned processes, or a Dask cluster")
+    g.add_argument("--workers", type=int, default=1, help="solver processes (--producer process, or an embedded Dask cluster)")
+    g.add_argument("--scheduler", metavar="ADDRESS", help="--producer dask: a running scheduler, e.g. tcp://host:8786")
+    g.add_argument("--proposal", choices=("uniform", "loss", "active"), default="uniform",
+                   help="parameters of the next solves: the domain's own draws, steered toward high training loss, "
+                        "or active (a loss model + its ensemble's disagreement over the parameter box)")
+    g.add_argument("--on-blowup", choices=("raise", "redraw", "skip"), default="raise",
+                   help="a failed solve (NaN/Inf; an external solver's error, timeout, crash, wrong shape) stops "
+                        "the run (raise), is redrawn (redraw) or left out with one warning line (skip)")
+
+
+RESERVOIR_OPTIONS = ("capacity", "max_reuse", "reservoir_mode", "target_reuse", "proposal_floor", "solve_batch",
+                     "warmup", "eviction", "draw", "producer", "workers", "scheduler", "proposal",
+                     "proposal_ensemble", "proposal_kappa", "on_blowup", "priority_power", "priority_floor")
+
+
+def check_priority_options(args: argparse.Namespace, used: bool, needs: str) -> None:
+    """--priority-power / --priority-floor given where no draw is prioritized: one line (they would do nothing)."""
+    given = [name for name, default in (("--priority-power", 1.0), ("--priority-floor", 0.25))
+             if getattr(args, name[2:].replace("-", "_")) != default]
+    if given and not used:
+        raise ValueError(f"{', '.join(given)} {'goes' if len(given) == 1 else 'go'} with {needs} (prioritized replay)")
+
+
+def active_kwargs(args: argparse.Namespace) -> dict:
+    """--proposal-ensemble / --proposal-kappa as ParamProposal settings (an ensemble < 2 is refused there, in one
+    line: one model has no disagreement)."""
+    return {"ensemble": args.proposal_ensemble, "kappa": args.proposal_kappa}
+
+
+# trajectories per solver job by where training runs: on an H100 the FNO Burgers set-up's solver gave 179 traj/s at
+# 128 and 1102 at 1024 (README, "The reservoir on the training device"); 16 suits a 2-core CPU's cache
+SOLVE_BATCH = {"cpu": 16, "cuda": 128}
+
+
+def solve_batch(args: argparse.Namespace) -> int:
+    """--solve-batch, or its default for the training device."""
+    if args.solve_batch is not None:
+        return args.solve_batch
+    return SOLVE_BATCH["cuda" if str(getattr(args, "device", "cpu")).startswith("cuda") else "cpu"]
+
+
+def reservoir_cfg(args: argparse.Namespace) -> dict | None:
+    """data_cfg for train_run from `train --reservoir ...` (None without --reservoir; its options without it are
+    refused, naming them: they were silently ignored)."""
+    if not args.reservoir:
+        default = defaults()
+        given = [k for k in RESERVOIR_OPTIONS if getattr(args, k) != default[k]]
+        if given:
+            names = ", ".join("--" + k.replace("_", "-") for k in given)
+            raise ValueError(f"{names} {'goes' if len(given) == 1 else 'go'} with --reservoir (the training "
+                             "reservoir's settings); add --reservoir or drop them")
+        return None
+    if args.workers < 1:
+        raise ValueError(f"--workers={args.workers} not allowed; must be >= 1 (solver processes or Dask workers)")
+    if args.source != "stream":
+        raise ValueError(f"--reservoir goes with --source stream (got --source {args.source})")
+    check_priority_options(args, args.draw == "priority", "--draw priority")
+    cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,
+           "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
+           "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,
+           "proposal_kwargs": {"floor": args.proposal_floor, **active_kwargs(args)}, "solve_batch": solve_batch(args),
+           "target_reuse": args.target_reuse, "on_blowup": None if args.on_blowup == "raise" else args.on_blowup,
+           "priority_power": args.priority_power, "priority_floor": args.priority_floor}
+    return {k: v for k, v in cfg.items() if v is not None}
+
+
+def defaults(train: bool = True) -> dict:
+    """The reservoir options' defaults {dest: value}, as `train` (or `compare`: ``train=False``) parses them."""
+    p = argparse.ArgumentParser()
+    add_reservoir_args(p, train=train)
+    return vars(p.parse_args([]))

@@ -1,0 +1,258 @@
+"""``pdestream compare`` as a library call: ``run_compare(CompareCommand(pde="burgers1d", out="cmp", quick=True))``.
+
+One command, three comparisons: cache vs stream (experiments.compare), every data route at an equal budget
+(``budget`` / ``sim_budget`` / ``quick``: experiments.budget) and training modes at equal steps (``modes``:
+experiments.interactive_compare). This module imports nothing heavy until called (the CLI reads its defaults).
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pdestream.interrupts import remove_created, snapshot
+
+BUDGET_ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")  # experiments.budget.DEFAULT_ARMS
+COMPARE_DEFAULTS = {"n": "64", "n_frames": "11"}  # small enough for ~10 min on 2 CPU cores
+COMPARE_OUTPUTS = ("compare.md", "compare.csv", "compare.json", "compare.png", "cache.h5", "cache.zarr")
+RUN_FILES = ("model.pt", "metrics.json", "arm.json", "run.json", "checkpoint.pt")
+
+
+@dataclass
+class CompareCommand:
+    """Everything ``pdestream compare`` takes. settings: the PDE's --config/--set values; model_cfg: the user's
+    model settings over the comparison's own; reservoir: the reservoir options given (datasets.reservoir_options'
+    names; the rest take their defaults); seeds None: 3 (1 for a quick budget run)."""
+
+    pde: object = "burgers1d"
+    out: str = ""
+    settings: dict = field(default_factory=dict)
+    overwrite: bool = False
+    cache_samples: int = 32
+    seeds: int | None = None
+    test_samples: int = 128
+    shift: float = -0.25
+    shift_set: dict = field(default_factory=dict)
+    format: str = "h5"
+    budget: float | None = None
+    sim_budget: int | None = None
+    arms: tuple = BUDGET_ARMS
+    priority_cap: float = 4.0
+    precompute_share: float | None = None
+    sim_warmup_share: float = 0.5
+    quick: bool = False
+    model: str = "fno"
+    model_cfg: dict = field(default_factory=dict)
+    view: str | None = None
+    k_in: int = 1
+    k_out: int = 1
+    steps: int = 1000
+    batch_size: int = 32
+    lr: float = 3e-3
+    threads: int | None = None
+    device: str = "cpu"
+    modes: tuple | None = None
+    fine_n: int | None = None
+    loss: str = "mse"
+    unroll: int | None = None
+    coarse_n: int | None = None
+    reservoir: dict = field(default_factory=dict)
+
+
+def run_compare(cmd: CompareCommand, log=None) -> str:
+    """Run the comparison of ``cmd`` into ``cmd.out``; returns compare.md's text and the files' line. A Ctrl-C is
+    raised again as a KeyboardInterrupt saying what was kept (finished runs stay; else what it created goes)."""
+    log = log or (lambda line: print(line, flush=True))  # (said before a long run: flushed)
+    check_compare_out(cmd.out, cmd.overwrite)
+    if isinstance(cmd.pde, str):
+        from pdestream.catalog_names import check_name
+
+        check_name(cmd.pde)  # before JAX is imported
+    before = snapshot(cmd.out)
+    try:
+        return _compare(cmd, log)
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(compare_left(cmd.out, before)) from None
+
+
+def check_compare_out(out: str, overwrite: bool) -> None:
+    """Refuse an out DIR that already holds compare output (tables, cache, run directories) unless overwrite:
+    like `train`, a second run must not silently replace the first one's results."""
+    d = Path(out)
+    if d.exists() and not d.is_dir():
+        raise NotADirectoryError(f"--out {out} is a file; compare writes a directory")
+    if overwrite or not d.is_dir():
+        return
+    found = [n for n in COMPARE_OUTPUTS if (d / n).exists()]
+    found += [f"{p.name}/" for p in sorted(d.iterdir()) if p.is_dir() and any((p / f).exists() for f in RUN_FILES)]
+    if found:
+        raise FileExistsError(f"{out} already holds compare output ({', '.join(found[:4])}"
+                              f"{', ...' if len(found) > 4 else ''}); pass --overwrite or choose another --out")
+
+
+def compare_left(out: str, before) -> str:
+    """What an interrupted `compare` leaves, in words. Finished runs (and tables) are kept; without them nothing
+    of value was written (a rerun rewrites the cache too), so what the command created in out is removed."""
+    d = Path(out)
+    if not d.is_dir():
+        return "nothing was written"
+    tables = [n for n in ("compare.md", "compare.json") if (d / n).is_file()]
+    runs = sorted(p.name for p in d.iterdir() if p.is_dir() and ((p / "metrics.json").is_file()
+                                                                 or (p / "arm.json").is_file()))
+    if tables or runs:
+        kept = ", ".join(tables + [f"{r}/" for r in runs][:4]) + (", ..." if len(runs) > 4 else "")
+        return (f"{out} keeps {len(runs)} finished run{'' if len(runs) == 1 else 's'} ({kept}); "
+                "pass --overwrite to run the comparison again")
+    remove_created(d, before)
+    return "nothing was kept (no run had finished)"
+
+
+def compare_settings(name, settings: dict) -> dict:
+    """COMPARE_DEFAULTS under the user's settings: never a finer grid than the entry's default (a 3D entry keeps
+    its n=32; n=64 was 8x the points and a reservoir past the machine's memory) and only the settings the entry
+    has (a steady one has no frames: darcy2d was refused for an n_frames the user never set)."""
+    from pdestream import generator
+
+    try:
+        base = generator.pde_class(name)() if isinstance(name, str) else name
+    except (ValueError, TypeError):
+        return dict(settings)  # build_pde refuses the name in its own words
+    fields = base.config_fields()
+    defaults = {k: (str(min(int(v), base.n)) if k == "n" else v) for k, v in COMPARE_DEFAULTS.items() if k in fields}
+    return {**defaults, **settings}
+
+
+def _options(cmd: CompareCommand) -> argparse.Namespace:
+    """The reservoir options of ``cmd`` over their defaults (datasets.reservoir_options), with device and priority cap."""
+    from pdestream.datasets.reservoir_options import defaults
+
+    return argparse.Namespace(**{**defaults(train=False), **cmd.reservoir, "device": cmd.device,
+                                 "priority_cap": cmd.priority_cap})
+
+
+def check_priority_cap(cmd: CompareCommand, used: bool) -> None:
+    """priority_cap where no prioritized arm runs at a simulation budget: one line (it would do nothing)."""
+    if cmd.priority_cap != 4.0 and not used:
+        raise ValueError(f"--priority-cap={cmd.priority_cap:g} goes with --sim-budget and the arms reservoir_active or "
+                         "reservoir_priority (their reuse bound at a simulation budget)")
+
+
+def check_shift(pde, cmd: CompareCommand) -> None:
+    """shift and shift_set checked (one line) before any cache or run is written: the shifted PDE is built once
+    here the way the comparison builds it later (--shift 0 wrote a 256-sample cache before its refusal)."""
+    from pdestream.experiments.compare import shifted_pde
+
+    if cmd.shift != cmd.shift or cmd.shift in (float("inf"), float("-inf")):
+        raise ValueError(f"--shift {cmd.shift} not allowed: a finite fraction like 0.25 or -0.25")
+    try:
+        shifted_pde(pde, cmd.shift, dict(cmd.shift_set))
+    except ValueError as err:
+        raise ValueError(str(err).replace("shift=0", "--shift 0")) from None
+
+
+def _compare(cmd: CompareCommand, log) -> str:
+    from pdestream.datasets.reservoir_options import check_priority_options
+
+    budget = cmd.budget is not None or cmd.sim_budget is not None or cmd.quick
+    if cmd.loss != "mse" and (cmd.modes is not None or not budget):
+        raise ValueError(f"--loss {cmd.loss} goes with --budget or --sim-budget (and with train), not with "
+                         f"{'--modes' if cmd.modes is not None else 'the stream/cache comparison'}")
+    if cmd.modes is not None or not budget:
+        check_priority_options(_options(cmd), False, "compare --budget / --sim-budget")
+        check_priority_cap(cmd, False)
+    if cmd.modes is not None:
+        return _interactive(cmd)
+    if cmd.unroll is not None or cmd.coarse_n is not None or cmd.fine_n is not None:
+        raise ValueError("--unroll, --coarse-n and --fine-n go with --modes (compare training modes)")
+    if budget:
+        return _budget(cmd, log)
+    from pdestream.experiments import compare as module
+    from pdestream.settings import build_pde
+    from pdestream.surrogate.fno import COMPARE_FNO
+    from pdestream.surrogate.launch import make_view, set_threads
+
+    pde = build_pde(cmd.pde, compare_settings(cmd.pde, cmd.settings))
+    check_shift(pde, cmd)
+    set_threads(1 if cmd.threads is None else cmd.threads)
+    model_cfg = {**(COMPARE_FNO if cmd.model.startswith("fno") else {}), **cmd.model_cfg}
+    seeds = 3 if cmd.seeds is None else cmd.seeds
+    cfg = module.CompareConfig(model=cmd.model, model_cfg=model_cfg, view=make_view(cmd.view or "operator", cmd.k_in,
+                                                                                    cmd.k_out),
+                               steps=cmd.steps, batch_size=cmd.batch_size, lr=cmd.lr, cache_samples=cmd.cache_samples,
+                               seeds=tuple(range(seeds)), n_test=cmd.test_samples, shift=cmd.shift,
+                               cache_format=cmd.format, device=cmd.device)
+    module.compare(pde, cmd.out, cfg, shift_overrides=dict(cmd.shift_set))
+    return (Path(cmd.out) / "compare.md").read_text() + \
+        f"table: {cmd.out}/compare.md, compare.csv; figure: {cmd.out}/compare.png"
+
+
+def _budget(cmd: CompareCommand, log) -> str:
+    """budget / sim_budget [/ quick]: every arm at the same cost (experiments.budget)."""
+    from pdestream.datasets.reservoir_options import active_kwargs, check_priority_options, solve_batch
+    from pdestream.experiments import budget as module
+    from pdestream.settings import build_pde
+    from pdestream.surrogate.fno import COMPARE_FNO
+    from pdestream.surrogate.launch import make_view, set_threads
+
+    settings, budget_s = dict(cmd.settings), cmd.budget
+    if cmd.quick:
+        settings = compare_settings(cmd.pde, settings)
+        if cmd.budget is None and cmd.sim_budget is None:
+            budget_s = 20.0
+            log("compare --quick: the budget comparison of the data routes (--arms) at --budget 20 seconds per "
+                "arm; --sim-budget N for equal solves, --modes M1,M2 for the training modes, no --quick for cache "
+                "vs stream")
+    pde = build_pde(cmd.pde, settings)
+    check_shift(pde, cmd)
+    set_threads(1 if cmd.threads is None else cmd.threads)
+    small = dict(COMPARE_FNO)
+    model_cfg = (small if cmd.quick else {"width": 64, "modes": 16, "layers": 4}) if cmd.model.startswith("fno") else {}
+    model_cfg = {**model_cfg, **cmd.model_cfg}
+    arms = tuple(cmd.arms)
+    steered = bool({"reservoir_active", "reservoir_priority"} & set(arms))
+    o = _options(cmd)
+    check_priority_options(o, steered, "the arms reservoir_active or reservoir_priority")
+    check_priority_cap(cmd, steered and cmd.sim_budget is not None)
+    cfg = module.BudgetConfig(
+        budget_s=budget_s, sim_budget=cmd.sim_budget, arms=arms, model=cmd.model, model_cfg=model_cfg,
+        view=make_view(cmd.view or "operator", cmd.k_in, cmd.k_out), batch_size=cmd.batch_size, lr=cmd.lr,
+        steps=cmd.steps, precompute_share=cmd.precompute_share, capacity=o.capacity, max_reuse=o.max_reuse,
+        target_reuse=o.target_reuse, reservoir_mode=o.reservoir_mode, sim_warmup_share=cmd.sim_warmup_share,
+        proposal_floor=o.proposal_floor, proposal_kwargs=active_kwargs(o), priority_power=o.priority_power,
+        priority_floor=o.priority_floor, priority_cap=cmd.priority_cap, solve_batch=solve_batch(o),
+        n_test=32 if cmd.quick and cmd.test_samples == 128 else cmd.test_samples, shift=cmd.shift,
+        seeds=(1 if cmd.quick else 3) if cmd.seeds is None else cmd.seeds, device=cmd.device,
+        mode=None if cmd.loss == "mse" else {"name": "one-step", "loss": cmd.loss})
+    module.budget_compare(pde, cmd.out, cfg, shift_overrides=dict(cmd.shift_set))
+    return (Path(cmd.out) / "compare.md").read_text() + \
+        f"table: {cmd.out}/compare.md, compare.csv, compare.json; figure: {cmd.out}/compare.png"
+
+
+def _interactive(cmd: CompareCommand) -> str:
+    """modes: training modes at equal steps (experiments.interactive_compare)."""
+    from pdestream.experiments import interactive_compare as module
+    from pdestream.settings import build_pde
+    from pdestream.surrogate.launch import set_threads
+
+    if cmd.budget is not None or cmd.sim_budget is not None:
+        raise ValueError("--modes compares at equal --steps; --budget and --sim-budget go with the data-route comparison")
+    modes = tuple(m.strip() for m in cmd.modes if m.strip())
+    settings = {"n": "32", "n_frames": "11", **cmd.settings} if cmd.quick else dict(cmd.settings)  # tiny: tests
+    pde = build_pde(cmd.pde, settings)
+    set_threads(1 if cmd.threads is None else cmd.threads)
+    model_cfg = ({"width": 8, "modes": 4, "layers": 2} if cmd.quick else {"width": 32, "modes": 12, "layers": 3}) \
+        if cmd.model.startswith("fno") else {}
+    model_cfg = {**model_cfg, **cmd.model_cfg}
+    quick = cmd.quick and cmd.steps == 1000  # quick without steps: a few steps
+    given = {"unroll": cmd.unroll, "coarse_n": 16 if cmd.quick and cmd.coarse_n is None else cmd.coarse_n}
+    cfg = module.InteractiveConfig(
+        modes=modes, **{k: v for k, v in given.items() if v is not None},  # else the mode table's
+        steps=20 if quick else cmd.steps, batch_size=8 if quick else cmd.batch_size, lr=cmd.lr, model=cmd.model,
+        model_cfg=model_cfg, k_in=cmd.k_in, seed=0, n_test=4 if cmd.quick and cmd.test_samples == 128 else
+        cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device)
+    if cmd.k_out != 1:
+        raise ValueError(f"--k-out={cmd.k_out} not allowed with --modes: every mode predicts one frame per step")
+    module.interactive_compare(pde, cmd.out, cfg)
+    return (Path(cmd.out) / "compare.md").read_text() + \
+        f"table: {cmd.out}/compare.md, compare.csv, compare.json; figure: {cmd.out}/compare.png"

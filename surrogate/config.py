@@ -1,0 +1,97 @@
+"""TrainConfig: everything ``pdestream train`` takes, with its defaults (the CLI reads them from here).
+
+No torch here (the parser reads these defaults before anything heavy is imported); the work is
+``surrogate.launch.train(cfg)``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field, fields
+
+TRAIN_STEPS = 1000  # optimizer steps of a new run when ``steps`` is None (None lets --resume tell if it was given)
+# What may go with resume: how the run goes on (threads, ranks, external solver workers), and a new total of steps.
+RESUME_ALLOWED = ("resume", "threads", "steps", "ddp", "solver_workers", "solver_timeout")
+
+
+@dataclass
+class TrainConfig:
+    """A new run (``out``) or a resumed one (``resume``: a run directory, whose run.json gives the rest).
+
+    pde: a catalog name, a user PDE's name or import path, or a PDE object; settings: its --config/--set values.
+    source: "stream" (solved on the fly), a cache path, or a file written by `pdestream export`.
+    model_cfg: the model's settings (e.g. {"width": 64}); view: "next_step" or "operator" (None: next_step, operator
+    on a steady PDE); steps: optimizer steps (None: TRAIN_STEPS, or a resumed run's own); threads: torch CPU
+    threads (None: all cores but one, shared by the ranks); ddp: ranks started here (None: 1, or torchrun's).
+    mode / loss / unroll / coarse_n: the interactive training mode (surrogate/mode_table.py; None: its default).
+    reservoir: the training reservoir's settings (train_run's data_cfg, kind "reservoir"; None: no reservoir).
+    solver_workers / solver_timeout: external solvers' worker processes and seconds per solve.
+    """
+
+    pde: object = None
+    settings: dict = field(default_factory=dict)
+    source: str = "stream"
+    out: str | None = None
+    resume: str | None = None
+    overwrite: bool = False
+    seed: int = 0
+    test_samples: int = 32
+    checkpoint_every: int = 100
+    ddp: int | None = None
+    model: str = "fno"
+    model_cfg: dict = field(default_factory=dict)
+    view: str | None = None
+    k_in: int = 1
+    k_out: int = 1
+    steps: int | None = None
+    batch_size: int = 32
+    lr: float = 1e-3
+    schedule: str = "cosine"
+    threads: int | None = None
+    device: str = "cpu"
+    mode: str = "one-step"
+    loss: str = "mse"
+    unroll: int | None = None
+    coarse_n: int | None = None
+    reservoir: dict | None = None
+    solver_workers: int | None = None
+    solver_timeout: float | None = None
+
+    def ranks(self) -> int:
+        """The ranks this run trains on: ``ddp``, or torchrun's WORLD_SIZE (they must agree when both are set)."""
+        env = env_world()
+        if self.ddp is not None:
+            if isinstance(self.ddp, bool) or not isinstance(self.ddp, int) or self.ddp < 1:
+                raise ValueError(f"--ddp={self.ddp} not allowed; must be an integer >= 1 (ranks)")
+            if env > 1 and self.ddp != env:
+                raise ValueError(f"--ddp {self.ddp} but torchrun started {env} ranks (WORLD_SIZE={env}); drop --ddp or "
+                                 "make them agree")
+        return env if env > 1 else (self.ddp or 1)
+
+    def check(self) -> None:
+        """The checks of a new run's own values (one line each), before any file, PDE or rank."""
+        if self.test_samples < 1:
+            raise ValueError(f"--test-samples={self.test_samples} not allowed; must be >= 1")
+        if self.checkpoint_every < 0:
+            raise ValueError(f"--checkpoint-every={self.checkpoint_every} not allowed; must be >= 0 (0: only at the "
+                             "end)")
+        if self.ranks() > 1 and self.source != "stream":
+            raise ValueError(f"--ddp goes with --source stream (with or without --reservoir); a cache ({self.source}) "
+                             "is not sharded across ranks")
+        if self.reservoir is not None and self.source != "stream":
+            raise ValueError(f"--reservoir goes with --source stream (got --source {self.source})")
+
+    def given_with_resume(self) -> list[str]:
+        """The fields set besides those RESUME_ALLOWED (a resumed run takes its settings from its run.json)."""
+        default = TrainConfig()
+        return [f.name for f in fields(self) if f.name not in RESUME_ALLOWED
+                and getattr(self, f.name) != getattr(default, f.name)]
+
+
+def env_world() -> int:
+    """The world size torchrun (or surrogate.launch) gave this process through WORLD_SIZE; 1 when not set."""
+    value = os.environ.get("WORLD_SIZE", "1")
+    try:
+        return max(1, int(value))
+    except ValueError:
+        raise ValueError(f"WORLD_SIZE={value!r} not allowed; must be an integer >= 1 (set by torchrun)") from None

@@ -1,0 +1,298 @@
+"""``pdestream train`` as a library call: ``train(TrainConfig(pde="burgers1d", out="run"))``.
+
+A new run (its checks, torch's threads, ``--overwrite`` built beside the old run and swapped in when it has
+value), a resumed one, and ``ddp=N``: N spawned ranks meeting through a file. An interrupt is raised again as a
+KeyboardInterrupt saying what was kept. The runs themselves are ``surrogate.runs``'.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+from pdestream.interrupts import USER_ERRORS, remove_created, snapshot
+
+from .config import TRAIN_STEPS, TrainConfig
+
+RUN_MARKERS = ("run.json", "checkpoint.pt", "model.pt", "metrics.json")  # any of them: the directory holds a run
+
+
+def train(cfg: TrainConfig, log=print) -> dict | None:
+    """Train (or resume) the run of ``cfg``; ``log`` gets the report lines. Returns the run's summary (None on a
+    rank other than 0, and from the ``ddp`` launcher, whose ranks report). ValueError and friends: one line."""
+    if cfg.resume is None and cfg.out is None:  # before anything heavy is imported
+        raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
+    if cfg.resume is None and isinstance(cfg.pde, str):
+        from pdestream.catalog_names import check_name
+
+        check_name(cfg.pde)
+    from pdestream.datasets.generate import configure_solvers
+    from pdestream.surrogate import ddp
+
+    configure_solvers(cfg.solver_workers, cfg.solver_timeout)  # (environment: spawned ranks inherit it)
+    ranks = cfg.ranks()
+    if ranks > 1 and ddp.env_world() == 1:  # ddp=N: check here, then start the N ranks
+        return launch_ranks(cfg, ranks)
+    try:
+        return _resume(cfg, ranks, log) if cfg.resume is not None else _new(cfg, ranks, log)
+    finally:
+        ddp.finish()
+
+
+def default_threads(source: str, ranks: int = 1) -> int:
+    """torch CPU threads for `train` without --threads: the cores this process may use minus one (at least 1).
+    On the stream the solver thread needs that core (torch's threads fighting it ran 6x slower on 2 cores). On a
+    cache the loader, the OS and other programs do: torch's spinning OpenMP threads on both cores of a busy
+    2-core machine trained 17-30x slower than one thread (50 FNO steps of the README's command: 72.4 s vs 4.2 s,
+    41.9 s vs 1.5 s), same losses. ``source`` ("stream" or a cache path) is kept for callers; both get this.
+    ranks: processes training on this machine (--ddp N), which share its cores."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, cores // ranks - 1)
+
+
+def set_threads(threads: int | None) -> None:
+    """torch's CPU threads (None: left as they are); one line for a count < 1."""
+    import torch
+
+    if threads is not None:
+        if threads < 1:
+            raise ValueError(f"--threads={threads} not allowed; must be >= 1")
+        torch.set_num_threads(threads)
+
+
+def make_view(name: str, k_in: int = 1, k_out: int = 1):
+    """The training view ``name``: next_step takes k_in input frames and k_out predicted ones, operator neither."""
+    from pdestream import datasets
+
+    return datasets.make_view(name, k_in=k_in, k_out=k_out) if name == "next_step" else datasets.make_view(name)
+
+
+def mode_settings(cfg: TrainConfig) -> dict:
+    """The mode's settings for train_run: the mode table's defaults, one line for an option the mode does not
+    take (surrogate.mode_table.mode_settings); k_out is checked with the view (surrogate.modes)."""
+    from pdestream.surrogate import mode_table
+
+    settings = mode_table.mode_settings(cfg.mode, unroll=cfg.unroll, coarse_n=cfg.coarse_n)
+    return settings if cfg.loss == "mse" else {**settings, "loss": cfg.loss}
+
+
+def check_new(cfg: TrainConfig, ranks: int):
+    """(pde, held run files) of a new run, after its checks (ValueError: one line)."""
+    from pdestream.settings import build_pde
+
+    if cfg.out is None:
+        raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
+    held = [name for name in RUN_MARKERS if (Path(cfg.out) / name).exists()]
+    if held and not cfg.overwrite:
+        raise FileExistsError(f"{cfg.out} already holds a run ({', '.join(held)}); pass --resume {cfg.out} to "
+                              "continue it, --overwrite to replace it, or choose another --out")
+    if cfg.source != "stream" and not Path(cfg.source).exists():
+        raise FileNotFoundError(f"--source {cfg.source}: no such cache (or use --source stream)")
+    pde = build_pde(cfg.pde, cfg.settings)
+    if pde.STEADY and cfg.mode != "one-step":  # the modes' own refusal would send the user to --view next_step
+        raise ValueError(f"--mode {cfg.mode} unrolls over frames and {pde.NAME} is steady (no frames); allowed: "
+                         "--mode one-step")
+    cfg.check()
+    return pde, held
+
+
+def _new(cfg: TrainConfig, ranks: int, log) -> dict | None:
+    from pdestream.surrogate import ddp, runs
+
+    pde, held = check_new(cfg, ranks)
+    set_threads(default_threads(cfg.source, ranks) if cfg.threads is None else cfg.threads)
+    ddp.init_from_env(cfg.device)  # several ranks: every rank has passed the checks once all have joined
+    out = Path(cfg.out)
+    kw = dict(model=cfg.model, model_cfg=dict(cfg.model_cfg),
+              view=make_view(cfg.view or ("operator" if pde.STEADY else "next_step"), cfg.k_in, cfg.k_out),
+              steps=TRAIN_STEPS if cfg.steps is None else cfg.steps, batch_size=cfg.batch_size, lr=cfg.lr,
+              schedule=cfg.schedule, seed=cfg.seed, n_test=cfg.test_samples, explicit=dict(cfg.settings),
+              checkpoint_every=cfg.checkpoint_every, data_cfg=cfg.reservoir, device=cfg.device,
+              mode=mode_settings(cfg))
+    if ddp.world()[0] > 0:  # another rank than 0: trains, writes nothing, leaves the files and their clean-up to 0
+        runs.train_run(pde, cfg.source, out, **kw)
+        return None
+    # overwrite over a run: the new run is built beside it and moves in only when it finishes (or is interrupted
+    # with a checkpoint, which is then worth resuming); a refusal, a divergence or an early Ctrl-C leave the old one
+    target = runs.staging_dir(out) if held else out
+    before = snapshot(target)
+    try:
+        s = runs.train_run(pde, cfg.source, target, **kw)
+    except KeyboardInterrupt:
+        if target != out:
+            raise KeyboardInterrupt(_overwrite_left(target, out)) from None
+        raise KeyboardInterrupt(_train_left(out, before)) from None
+    except BaseException:  # refused or failed: the old run stays as it was, and a new one without a checkpoint goes
+        if target != out:
+            runs.remove_staging(target)
+        else:
+            _train_left(out, before)
+        raise
+    if target != out:
+        runs.replace_run(target, out)
+    log(run_report(s, cfg.model, cfg.source, cfg.test_samples, cfg.out))
+    return s
+
+
+def _overwrite_left(staging: Path, out: Path) -> str:
+    """What an interrupted `train --overwrite` leaves, in words: the new run in place of the old one if it has a
+    checkpoint to resume from, else the old run untouched (and the new one's files removed)."""
+    from pdestream.surrogate.runs import CHECKPOINT, remove_staging, replace_run
+
+    if (staging / CHECKPOINT).is_file():
+        replace_run(staging, out)
+        return f"{out} now holds the new run's checkpoint; pdestream train --resume {out} continues from it"
+    remove_staging(staging)
+    return f"nothing of the new run was kept (no checkpoint yet); {out} still holds the earlier run, untouched"
+
+
+def _train_left(out: Path, before) -> str:
+    """What an interrupted fresh `train` leaves, in words. With a checkpoint the run stays for --resume. Without
+    one nothing of the training is saved, so what the command created (run.json, the directory) is removed
+    rather than kept for a resume from step 0: the same command then starts again, with no --overwrite."""
+    if (out / "metrics.json").is_file():  # finished before the interrupt (or an old finished run, untouched)
+        return f"{out} holds a finished run"
+    if (out / "checkpoint.pt").is_file():
+        return f"{out} holds a checkpoint; pdestream train --resume {out} continues from it"
+    remove_created(out, before)
+    return "nothing was kept (no checkpoint yet); run the command again to start over"
+
+
+def check_resume(cfg: TrainConfig, ranks: int) -> tuple[dict, dict]:
+    """read_run's (settings, checkpoint) of a resumed run, after its checks (ValueError: one line)."""
+    from pdestream.surrogate.runs import RUN_FILE, check_ranks, read_run
+
+    given = cfg.given_with_resume()
+    if given:
+        raise ValueError(f"resume takes the run's settings from {Path(cfg.resume) / RUN_FILE}; drop "
+                         f"{', '.join(given)} (only threads, steps and ddp may go with it)")
+    run = read_run(Path(cfg.resume), cfg.steps)  # refuse a non-run or a finished run before anything else
+    check_ranks(cfg.resume, run[0], ranks)
+    return run
+
+
+def _resume(cfg: TrainConfig, ranks: int, log) -> dict | None:
+    """A resumed run: everything from RUN_DIR/run.json; other settings are refused (one line)."""
+    from pdestream.surrogate import ddp
+    from pdestream.surrogate.runs import resume_run
+
+    run = check_resume(cfg, ranks)
+    settings = run[0]
+    set_threads(default_threads(settings["source"], ranks) if cfg.threads is None else cfg.threads)
+    steps = settings["steps"] if cfg.steps is None else cfg.steps
+    ddp.init_from_env(settings.get("device", "cpu"))
+    ddp.barrier()  # every rank has read run.json before rank 0 may rewrite it (an extension)
+    writes = ddp.world()[0] == 0
+    if steps != settings["steps"] and writes:
+        log(f"extending {cfg.resume} from {settings['steps']} to {steps} steps at its step {run[1]['step']}; "
+            f"the {settings.get('schedule', 'cosine')} schedule is re-planned for {steps} steps")
+    s, step = resume_run(cfg.resume, run, steps)
+    if not writes:
+        return None
+    log(f"resumed {cfg.resume} at step {step} of {steps}")
+    log(run_report(s, settings["model"], settings["source"], settings["n_test"], cfg.resume))
+    return s
+
+
+def launch_ranks(cfg: TrainConfig, ranks: int) -> None:
+    """ddp=N: the checks here (one line, before anything starts), then N spawned ranks that meet through a file;
+    rank 0's output is shown, and the first failure's one line is raised here after the others are stopped. A
+    reservoir with producer dask and no scheduler gets one embedded cluster here that every rank submits to."""
+    import contextlib
+    import multiprocessing as mp
+    import tempfile
+    from multiprocessing.connection import wait
+
+    if cfg.resume is not None:
+        data_cfg = check_resume(cfg, ranks)[0]["data_cfg"] or {}
+    else:
+        check_new(cfg, ranks)
+        data_cfg = cfg.reservoir or {}
+    with tempfile.TemporaryDirectory(prefix="pdestream-ddp-") as tmp, contextlib.ExitStack() as stack:
+        env = {}
+        if data_cfg.get("producer") == "dask" and not data_cfg.get("scheduler"):
+            # one pool for every rank: a cluster of `workers` processes here, which all ranks' reservoirs submit to
+            from pdestream.datasets.distributed import dask_client
+            from pdestream.datasets.ranks import SHARED_SCHEDULER
+
+            env[SHARED_SCHEDULER] = stack.enter_context(dask_client(None, data_cfg.get("workers", 1))).scheduler.address
+        ctx = mp.get_context("spawn")  # JAX is not fork-safe
+        procs = [ctx.Process(target=train_rank, args=(r, ranks, cfg, tmp, env), daemon=False) for r in range(ranks)]
+        for proc in procs:
+            proc.start()
+        interrupted = False
+        try:
+            while any(p.exitcode is None for p in procs) and all(p.exitcode in (None, 0) for p in procs):
+                wait([p.sentinel for p in procs if p.exitcode is None], timeout=1.0)
+        except KeyboardInterrupt:  # the terminal's Ctrl-C reached the ranks too: they leave as one process would
+            interrupted = True
+        for proc in procs:  # a failed rank leaves the others waiting in a collective: stop them
+            proc.join(60 if interrupted else 0.5)
+            if proc.exitcode is None:
+                proc.terminate()
+                proc.join()
+        failed = [r for r, p in enumerate(procs) if p.exitcode != 0]
+        if not failed and not interrupted:
+            return None
+        said = [(Path(tmp) / f"rank{r}.err") for r in range(ranks)]
+        said = [f.read_text() for f in said if f.is_file()]
+        if interrupted or any(procs[r].exitcode == 130 for r in failed):
+            raise KeyboardInterrupt(said[0] if said else "")
+        if said:
+            raise ValueError(said[0])
+        log = Path(tmp) / f"rank{failed[0]}.log"
+        tail = log.read_text().strip().splitlines()[-1:] if log.is_file() else []
+        raise RuntimeError(f"rank {failed[0]} of {ranks} failed (exit code {procs[failed[0]].exitcode})"
+                           + (f": {tail[0]}" if tail else ""))
+
+
+def train_rank(rank: int, ranks: int, cfg: TrainConfig, tmp: str, env: dict) -> None:
+    """One rank of ddp=N (a spawned process): the environment torchrun would give it (and ``env``: the shared
+    Dask cluster's address), then ``train``. Its user error goes to TMP/rank{rank}.err for the launcher to show
+    once; ranks other than 0 print nothing."""
+    from pdestream.surrogate.ddp import INIT_ENV
+
+    os.environ.update(RANK=str(rank), LOCAL_RANK=str(rank), WORLD_SIZE=str(ranks), LOCAL_WORLD_SIZE=str(ranks),
+                      **{INIT_ENV: f"file://{tmp}/rendezvous"}, **env)
+    if rank > 0:  # their output would repeat rank 0's; a crash's traceback is kept for the launcher
+        sys.stdout = open(os.devnull, "w")
+        sys.stderr = open(Path(tmp) / f"rank{rank}.log", "w", buffering=1)
+    try:
+        train(cfg)
+    except USER_ERRORS as err:
+        (Path(tmp) / f"rank{rank}.err").write_text(str(err))
+        sys.exit(2)
+    except KeyboardInterrupt as err:
+        (Path(tmp) / f"rank{rank}.err").write_text(str(err))
+        sys.exit(130)
+
+
+def run_report(s: dict, model: str, source: str, n_test: int, out) -> str:
+    """The lines that say what a run did: steps, time and its waiting share, test errors, the reservoir's counts."""
+    mode = s.get("mode") or {"name": "one-step"}
+    shown = {k: v for k, v in mode.items() if k != "name"}  # (unroll, coarse_n, loss when not mse)
+    how = f" ({', '.join(f'{k} {v}' for k, v in shown.items())})" if shown else ""
+    if mode["name"] != "one-step":
+        how = f" --mode {mode['name']}{how}"
+    on = f" on {s['ranks']} ranks" if s.get("ranks") else ""  # (each rank its own data; the counts are all ranks')
+    lines = [f"trained {model}{how} on {source}{on} for {s['steps']} steps in {s['wall']:.1f} s "
+             f"(waiting for data {s['t_data']:.1f} s = {100 * s['data_share']:.1f}% of the loop, normalization draw "
+             f"included; computing {s['t_compute']:.1f} s); "
+             f"{s['trajectories_seen']} trajectories, final loss {s['final_loss']:.4g}"]
+    t = s["test"]["test"]
+    if mode["name"] == "solver-in-the-loop":  # the corrected coarse solver against the fine solution subsampled
+        lines.append(f"(errors on the coarse grid n={mode['coarse_n']}, against the fine solution subsampled)")
+    lines.append(f"test ({n_test} held-out trajectories): rel L2 {t['rel_l2']:.4f}, nRMSE {t['nrmse']:.4f}"
+                 + (f", rollout rel L2 at the last frame {t['rollout_final']:.4f}" if "rollout_final" in t else ""))
+    reservoir = "data_stats" in s and "reuse_mean" in s["data_stats"]
+    if reservoir:
+        d = s["data_stats"]
+        who = f"rank 0's reservoir (of {s['ranks']} ranks)" if s.get("ranks") else "reservoir"
+        lines.append(f"{who}: {d['inserted']} trajectories solved, {d['evicted']} evicted, reuse mean "
+                     f"{d['reuse_mean']:.2f} (max {d['reuse_max']:.2f}); waiting for solves {100 * d['wait_share']:.1f}% "
+                     "of the time since the first batch (the reservoir's own clock: the loop's waiting share above "
+                     "also counts the normalization draw and handing batches over)")
+    extra = ", reservoir.json, reservoir.png" if reservoir else ""
+    lines.append(f"run: {out}/metrics.csv, metrics.json, model.pt, checkpoint.pt{extra}")
+    return "\n".join(lines)

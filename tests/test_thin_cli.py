@@ -1,0 +1,94 @@
+"""The CLI parses and dispatches: every command is a library call with its config, the options' defaults are the
+configs', and a refused command or --help answers before JAX or torch is imported."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from pdestream import catalog_names, cli
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# each: argv for cli.main, the exit status, what stderr (or stdout) says
+LIGHT = [
+    (["--help"], 0, "generate"),
+    (["train", "burgers1d"], 2, "give --out RUN_DIR for a new run"),
+    (["generate", "nosuchpde", "--n", "2", "--out", "x.h5"], 2, "unknown PDE 'nosuchpde'"),
+    (["train", "nosuchpde", "--out", "run"], 2, "unknown PDE 'nosuchpde'"),
+    (["compare", "burgers1d", "--out", "cmp", "--loss", "relative"], 2, "--loss relative goes with --budget"),
+]
+
+
+@pytest.mark.parametrize("argv, code, said", LIGHT)
+def test_help_and_refusals_import_neither_jax_nor_torch(tmp_path, argv, code, said):
+    script = ("import contextlib, io, json, sys\nfrom pdestream import cli\nout, err = io.StringIO(), io.StringIO()\n"
+              "with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):\n"
+              f"    try:\n        rc = cli.main({argv!r})\n    except SystemExit as e:\n        rc = e.code\n"
+              "print(json.dumps([rc, out.getvalue() + err.getvalue(), 'jax' in sys.modules, 'torch' in sys.modules]))")
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    rc, said_there, jax, torch = json.loads(res.stdout.strip().splitlines()[-1])
+    assert rc == code and said in said_there, (rc, said_there, res.stderr)
+    assert not jax and not torch, f"{argv}: jax imported {jax}, torch imported {torch}"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_jax_free_names_are_the_catalogs():
+    from pdestream import generator
+
+    assert list(catalog_names.NAMES.items()) == [(n, generator.GROUP[n]) for n in generator.PDES]
+    for name in ("burgers1d", "mypkg.module:MyPDE", "exponax:Burgers", None):
+        catalog_names.check_name(name)  # passes by form; the catalog loads it
+    with pytest.raises(ValueError) as err:
+        generator.pde_class("burgrs")
+    assert str(err.value) == catalog_names.unknown_pde("burgrs", generator.user.names())
+
+
+def test_the_options_defaults_are_the_configs():
+    from pdestream.datasets.generate import GenerateConfig
+    from pdestream.experiments.command import CompareCommand
+    from pdestream.surrogate.config import TrainConfig
+
+    parse = cli.build_parser().parse_args
+    assert cli.train_config(parse(["train", "burgers1d", "--out", "run"])) == TrainConfig(pde="burgers1d", out="run")
+    args = vars(parse(["generate", "burgers1d", "--n", "2", "--out", "a.h5"]))
+    for key, value in vars(GenerateConfig()).items():
+        if key in args and key not in ("n", "out", "pde"):
+            assert args[key] == value, key
+    got, want = vars(cli.compare_command(parse(["compare", "--out", "cmp"]))), vars(CompareCommand(out="cmp"))
+    assert {k: v for k, v in got.items() if k != "reservoir"} == {k: v for k, v in want.items() if k != "reservoir"}
+
+
+def test_generate_and_train_are_callable_with_their_configs(tmp_path, capsys):
+    from pdestream.datasets import open_cache
+    from pdestream.datasets.generate import GenerateConfig, generate
+    from pdestream.surrogate.config import TrainConfig
+    from pdestream.surrogate.launch import train
+
+    tiny = {"n": 32, "n_frames": 4}
+    cache = tmp_path / "b.h5"
+    line = generate(GenerateConfig(pde="burgers1d", settings=tiny, n=3, out=str(cache), seed=1))
+    assert str(cache) in line
+    with open_cache(cache) as ds:
+        assert ds.sizes["sample"] == 3
+    lines = []
+    s = train(TrainConfig(pde="burgers1d", settings=tiny, source=str(cache), out=str(tmp_path / "run"), steps=2,
+                          batch_size=2, test_samples=1, threads=1,
+                          model_cfg={"width": 4, "modes": 2, "layers": 1}), log=lines.append)
+    assert s["steps"] == 2 and (tmp_path / "run" / "metrics.json").is_file()
+    assert lines and lines[0].startswith("trained fno on ")
+    # the same through the command line, which builds the same config
+    assert cli.main(["train", "burgers1d", "--set", "n=32", "--set", "n_frames=4", "--source", str(cache), "--out",
+                     str(tmp_path / "run2"), "--steps", "2", "--batch-size", "2", "--test-samples", "1",
+                     "--threads", "1", "--model-set", "width=4", "--model-set", "modes=2", "--model-set",
+                     "layers=1"]) == 0
+    assert "trained fno on" in capsys.readouterr().out
+
+
+def test_the_cli_only_parses_and_dispatches():
+    text = (ROOT / "cli.py").read_text()
+    assert len(text.splitlines()) < 400
+    for heavy in ("import jax", "import torch", "os._exit", "signal.signal", "multiprocessing", "shutil"):
+        assert heavy not in text, heavy
