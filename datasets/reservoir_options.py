@@ -6,17 +6,20 @@ from __future__ import annotations
 
 import argparse
 
+from .reservoir_config import DEFAULTS as R
+from .reservoir_config import DRAWS, EVICTIONS, MODES
+
 
 def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
     g = p.add_argument_group("training reservoir (Melissa-style reuse of solves; see datasets/reservoir.py)")
     if train:
         g.add_argument("--reservoir", action="store_true",
                        help="train through a training reservoir between the solver and the loop (--source stream)")
-    g.add_argument("--capacity", type=int, default=512, help="trajectories the reservoir holds")
-    g.add_argument("--max-reuse", type=float, default=16.0,
+    g.add_argument("--capacity", type=int, default=R.capacity, help="trajectories the reservoir holds")
+    g.add_argument("--max-reuse", type=float, default=R.max_reuse,
                    help="bound on uses per trajectory (1 use = the examples a FIFO pass takes from it); the loop "
                         "waits rather than exceed it")
-    g.add_argument("--reservoir-mode", choices=("async", "deterministic"), default="async",
+    g.add_argument("--reservoir-mode", choices=MODES, default=R.mode,
                    help="async: insert solves as they arrive (fast, not reproducible); deterministic: a fixed "
                         "schedule, batches a pure function of the settings, exact --resume")
     g.add_argument("--target-reuse", type=float, metavar="R",
@@ -28,30 +31,31 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                    help="active sampling: bootstrap loss models whose disagreement is the uncertainty signal (>= 2)")
     g.add_argument("--proposal-kappa", type=float, default=1.0,
                    help="active sampling: weight of that disagreement against the predicted log-loss")
-    g.add_argument("--priority-power", type=float, default=1.0, metavar="A",
+    g.add_argument("--priority-power", type=float, default=R.priority_power, metavar="A",
                    help="prioritized replay (--draw priority; compare's reservoir_priority and reservoir_active arms): "
                         "a trajectory is drawn in proportion to its last training error (per-example relative L2) ** A "
                         "(0: uniform)")
-    g.add_argument("--priority-floor", type=float, default=0.25,
+    g.add_argument("--priority-floor", type=float, default=R.priority_floor,
                    help="prioritized replay: share of uniform draws, in (0, 1]")
-    g.add_argument("--solve-batch", type=int, help=f"trajectories per solver job (default: {SOLVE_BATCH['cpu']}; "
-                                                    f"{SOLVE_BATCH['cuda']} with --device cuda, where small batches "
+    g.add_argument("--solve-batch", type=int, help=f"trajectories per solver job (default: {R.solve_batch}; "
+                                                    f"{SOLVE_BATCH_CUDA} with --device cuda, where small batches "
                                                     "leave the GPU idle)")
     if not train:
         return
-    g.add_argument("--warmup", type=int, help="trajectories held before the first batch (default: capacity/4)")
-    g.add_argument("--eviction", choices=("fifo", "random"), default="fifo", help="which used trajectory makes way")
-    g.add_argument("--draw", choices=("uniform", "least_used", "priority"), default="uniform",
+    g.add_argument("--warmup", type=int, help="trajectories held before the first batch (default: the larger of "
+                   "capacity/4 and --solve-batch)")
+    g.add_argument("--eviction", choices=EVICTIONS, default=R.eviction, help="which used trajectory makes way")
+    g.add_argument("--draw", choices=DRAWS, default=R.draw,
                    help="which trajectories a batch draws: at random, the least used first, or by their last "
                         "training loss (prioritized replay: --priority-power, --priority-floor)")
-    g.add_argument("--producer", choices=("thread", "process", "dask"), default="thread",
+    g.add_argument("--producer", choices=("thread", "process", "dask"), default=R.producer,
                    help="who solves: a background thread, spawned processes, or a Dask cluster")
-    g.add_argument("--workers", type=int, default=1, help="solver processes (--producer process, or an embedded Dask cluster)")
+    g.add_argument("--workers", type=int, default=R.workers, help="solver processes (--producer process, or an embedded Dask cluster)")
     g.add_argument("--scheduler", metavar="ADDRESS", help="--producer dask: a running scheduler, e.g. tcp://host:8786")
-    g.add_argument("--proposal", choices=("uniform", "loss", "active"), default="uniform",
+    g.add_argument("--proposal", choices=("uniform", "loss", "active"), default=R.proposal,
                    help="parameters of the next solves: the domain's own draws, steered toward high training loss, "
                         "or active (a loss model + its ensemble's disagreement over the parameter box)")
-    g.add_argument("--on-blowup", choices=("raise", "redraw", "skip"), default="raise",
+    g.add_argument("--on-blowup", choices=("raise", "redraw", "skip"), default=R.on_blowup,
                    help="a failed solve (NaN/Inf; an external solver's error, timeout, crash, wrong shape) stops "
                         "the run (raise), is redrawn (redraw) or left out with one warning line (skip)")
 
@@ -63,7 +67,7 @@ RESERVOIR_OPTIONS = ("capacity", "max_reuse", "reservoir_mode", "target_reuse", 
 
 def check_priority_options(args: argparse.Namespace, used: bool, needs: str) -> None:
     """--priority-power / --priority-floor given where no draw is prioritized: one line (they would do nothing)."""
-    given = [name for name, default in (("--priority-power", 1.0), ("--priority-floor", 0.25))
+    given = [name for name, default in (("--priority-power", R.priority_power), ("--priority-floor", R.priority_floor))
              if getattr(args, name[2:].replace("-", "_")) != default]
     if given and not used:
         raise ValueError(f"{', '.join(given)} {'goes' if len(given) == 1 else 'go'} with {needs} (prioritized replay)")
@@ -77,14 +81,14 @@ def active_kwargs(args: argparse.Namespace) -> dict:
 
 # trajectories per solver job by where training runs: on an H100 the FNO Burgers set-up's solver gave 179 traj/s at
 # 128 and 1102 at 1024 (README, "The reservoir on the training device"); 16 suits a 2-core CPU's cache
-SOLVE_BATCH = {"cpu": 16, "cuda": 128}
+SOLVE_BATCH_CUDA = 128  # (on the CPU: ReservoirConfig's solve_batch)
 
 
 def solve_batch(args: argparse.Namespace) -> int:
     """--solve-batch, or its default for the training device."""
     if args.solve_batch is not None:
         return args.solve_batch
-    return SOLVE_BATCH["cuda" if str(getattr(args, "device", "cpu")).startswith("cuda") else "cpu"]
+    return SOLVE_BATCH_CUDA if str(getattr(args, "device", "cpu")).startswith("cuda") else R.solve_batch
 
 
 def reservoir_cfg(args: argparse.Namespace) -> dict | None:
