@@ -66,7 +66,8 @@ def _generate(pde, cfg: GenerateConfig) -> str:
 
         if cfg.scheduler and cfg.workers is not None:
             raise ValueError("--workers sizes the embedded cluster; with --scheduler the cluster has its own workers")
-        done = write_cache_dask(pde, cfg.out, cfg.n, scheduler=cfg.scheduler, workers=cfg.workers or 2, **kw)
+        done = write_cache_dask(pde, cfg.out, cfg.n, scheduler=cfg.scheduler,
+                                workers=2 if cfg.workers is None else cfg.workers, **kw)  # 0 is refused there
     elif cfg.executor != "local":
         raise ValueError(f"executor={cfg.executor!r} not allowed; allowed: local, dask")
     elif cfg.scheduler or cfg.workers is not None:

@@ -73,6 +73,18 @@ def check_priority_options(args: argparse.Namespace, used: bool, needs: str) -> 
         raise ValueError(f"{', '.join(given)} {'goes' if len(given) == 1 else 'go'} with {needs} (prioritized replay)")
 
 
+def check_proposal_options(args: argparse.Namespace, floor_used: bool, active_used: bool, needs: str) -> None:
+    """--proposal-floor (loss-driven and active proposals) / --proposal-ensemble, --proposal-kappa (active only) given
+    where nothing uses them: one line (they were silently ignored)."""
+    default = defaults(train=False)
+    given = [(name, used) for name, used in (("proposal_floor", floor_used), ("proposal_ensemble", active_used),
+                                             ("proposal_kappa", active_used)) if getattr(args, name) != default[name]]
+    unused = ["--" + name.replace("_", "-") for name, used in given if not used]
+    if unused:
+        raise ValueError(f"{', '.join(unused)} {'goes' if len(unused) == 1 else 'go'} with {needs}; nothing here "
+                         "uses it: drop it")
+
+
 def active_kwargs(args: argparse.Namespace) -> dict:
     """--proposal-ensemble / --proposal-kappa as ParamProposal settings (an ensemble < 2 is refused there, in one
     line: one model has no disagreement)."""
@@ -107,6 +119,8 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
     if args.source != "stream":
         raise ValueError(f"--reservoir goes with --source stream (got --source {args.source})")
     check_priority_options(args, args.draw == "priority", "--draw priority")
+    check_proposal_options(args, args.proposal != "uniform", args.proposal == "active",
+                           "--proposal loss / active (--proposal-floor) or --proposal active (the others)")
     cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,
            "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
            "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,

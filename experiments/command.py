@@ -152,7 +152,7 @@ def check_shift(pde, cmd: CompareCommand) -> None:
 
 
 def _compare(cmd: CompareCommand, log) -> str:
-    from pdestream.datasets.reservoir_options import check_priority_options
+    from pdestream.datasets.reservoir_options import check_priority_options, check_proposal_options
 
     budget = cmd.budget is not None or cmd.sim_budget is not None or cmd.quick
     if cmd.loss != "mse" and (cmd.modes is not None or not budget):
@@ -160,6 +160,7 @@ def _compare(cmd: CompareCommand, log) -> str:
                          f"{'--modes' if cmd.modes is not None else 'the stream/cache comparison'}")
     if cmd.modes is not None or not budget:
         check_priority_options(_options(cmd), False, "compare --budget / --sim-budget")
+        check_proposal_options(_options(cmd), False, False, "compare --budget / --sim-budget (the steered arms)")
         check_priority_cap(cmd, False)
     if cmd.modes is not None:
         return _interactive(cmd)
@@ -189,7 +190,12 @@ def _compare(cmd: CompareCommand, log) -> str:
 
 def _budget(cmd: CompareCommand, log) -> str:
     """budget / sim_budget [/ quick]: every arm at the same cost (experiments.budget)."""
-    from pdestream.datasets.reservoir_options import active_kwargs, check_priority_options, solve_batch
+    from pdestream.datasets.reservoir_options import (
+        active_kwargs,
+        check_priority_options,
+        check_proposal_options,
+        solve_batch,
+    )
     from pdestream.experiments import budget as module
     from pdestream.settings import build_pde
     from pdestream.surrogate.fno import COMPARE_FNO
@@ -213,6 +219,8 @@ def _budget(cmd: CompareCommand, log) -> str:
     steered = bool({"reservoir_active", "reservoir_priority"} & set(arms))
     o = _options(cmd)
     check_priority_options(o, steered, "the arms reservoir_active or reservoir_priority")
+    check_proposal_options(o, bool({"reservoir_loss", "reservoir_active"} & set(arms)), "reservoir_active" in arms,
+                           "the arms reservoir_loss / reservoir_active (--proposal-floor) or reservoir_active")
     check_priority_cap(cmd, steered and cmd.sim_budget is not None)
     cfg = module.BudgetConfig(
         budget_s=budget_s, sim_budget=cmd.sim_budget, arms=arms, model=cmd.model, model_cfg=model_cfg,

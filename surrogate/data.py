@@ -59,9 +59,15 @@ def check_cache_matches(cached, pde, explicit: dict | None = None) -> None:
         raise ValueError(f"cache {cached.path} holds {name!r} samples, not {pde.NAME!r}; "
                          f"train on {name} or generate a {pde.NAME} cache")
     wanted = pde.config()
-    differ = [k for k in (explicit or {}) if k.split(".")[0] in wanted and _lookup(wanted, k) != _lookup(cached.config, k)]
+    # a setting the cache recorded counts too when the asked PDE leaves it out of its config (bc=periodic is the
+    # default, so a periodic entry records no bc: asked on a Dirichlet cache, it trained on the Dirichlet data)
+    differ = [k for k in (explicit or {}) if (k.split(".")[0] in wanted or k.split(".")[0] in cached.config)
+              and _lookup(wanted, k) != _lookup(cached.config, k)]
     if differ:
-        detail = ", ".join(f"{k}: cache {_lookup(cached.config, k)!r} vs asked {_lookup(wanted, k)!r}" for k in differ)
+        shown = {k: (_lookup(cached.config, k), _lookup(wanted, k)) for k in differ}
+        shown = {k: tuple("periodic" if v is None and k.split(".")[0] == "bc" else v for v in pair)
+                 for k, pair in shown.items()}
+        detail = ", ".join(f"{k}: cache {c!r} vs asked {w!r}" for k, (c, w) in shown.items())
         raise ValueError(f"cache {cached.path} was written with other settings ({detail})")
 
 

@@ -195,6 +195,25 @@ def _resume(cfg: TrainConfig, ranks: int, log) -> dict | None:
     return s
 
 
+def check_rank_count(ranks: int, device: str) -> None:
+    """ddp=N started here: at most one rank per CPU core (64 ranks on 2 cores were started), or per GPU with a
+    cuda device (refused in one line where torch sees none, before any rank starts)."""
+    import torch
+
+    if str(device).startswith("cuda"):
+        gpus = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if gpus == 0:
+            raise ValueError(f"--ddp {ranks} --device {device}: torch sees no GPU here (a CPU-only torch build or no "
+                             "driver); use --device cpu")
+        if ranks > gpus:
+            raise ValueError(f"--ddp {ranks} not allowed with --device {device}: torch sees {gpus} GPU(s), one per rank")
+        return
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if ranks > cores:
+        raise ValueError(f"--ddp {ranks} not allowed on the CPU here: {cores} core(s), at most one rank per core "
+                         "(torchrun across machines for more)")
+
+
 def launch_ranks(cfg: TrainConfig, ranks: int) -> None:
     """ddp=N: the checks here (one line, before anything starts), then N spawned ranks that meet through a file;
     rank 0's output is shown, and the first failure's one line is raised here after the others are stopped. A
@@ -204,6 +223,7 @@ def launch_ranks(cfg: TrainConfig, ranks: int) -> None:
     import tempfile
     from multiprocessing.connection import wait
 
+    check_rank_count(ranks, cfg.device)
     if cfg.resume is not None:
         data_cfg = check_resume(cfg, ranks)[0]["data_cfg"] or {}
     else:

@@ -240,3 +240,13 @@ def test_train_without_threads_applies_the_stream_default(capsys, monkeypatch, t
             assert seen.pop() == threads
     finally:
         torch.set_num_threads(before)
+
+
+def test_dask_with_zero_workers_is_refused_not_run_with_two(tmp_path, capsys):
+    pytest.importorskip("distributed")
+    out = tmp_path / "c.zarr"
+    code = cli.main(["generate", "burgers1d", "--n", "2", *SMALL, "--executor", "dask", "--workers", "0",
+                     "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "workers=0 not allowed" in err, err
+    assert not out.exists()

@@ -51,3 +51,17 @@ def test_train_refuses_a_cache_whose_settings_differ_from_the_config_file(tmp_pa
                      "--steps", "1", "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err
     assert code != 0 and "other settings" in err and "n: cache 32 vs asked 64" in err
+
+
+@pytest.mark.parametrize("asked", ["periodic", "neumann"])
+def test_train_refuses_other_boundaries_than_the_caches(tmp_path, capsys, asked):
+    # bc=periodic on a Dirichlet cache trained on the Dirichlet data, rc 0 (bc=neumann was refused)
+    cache = tmp_path / "c.h5"
+    assert cli.main(["generate", "burgers1d", "--n", "4", "--set", "n=32", "--set", "n_frames=3",
+                     "--set", "bc=dirichlet", "--out", str(cache)]) == 0
+    capsys.readouterr()
+    code = cli.main(["train", "burgers1d", "--source", str(cache), "--set", "n=32", "--set", "n_frames=3",
+                     "--set", f"bc={asked}", "--steps", "1", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and f"bc: cache 'dirichlet' vs asked '{asked}'" in err, err
+    assert not (tmp_path / "run").exists()

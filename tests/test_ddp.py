@@ -172,3 +172,19 @@ def test_cli_ddp_one_dask_pool_equals_a_thread_per_rank_and_resumes(tmp_path, ca
     assert cli.main([*common, "--steps", "2", "--source", str(tmp_path / "x.h5"), "--out", str(tmp_path / "c")]) == 2
     err = capfd.readouterr().err
     assert err.count("\n") == 1 and "--ddp goes with --source stream" in err and not (tmp_path / "c").exists()
+
+
+def test_more_ranks_than_cores_or_gpus_are_refused_in_one_line(tmp_path, capsys):
+    # 64 ranks were started on a 2-core machine; --device cuda without a GPU failed inside the ranks
+    import os
+
+    base = ["train", "burgers1d", "--set", "n=32", "--set", "n_frames=3", "--source", "stream", "--steps", "1"]
+    cores = len(os.sched_getaffinity(0))
+    assert cli.main([*base, "--ddp", str(cores + 1), "--out", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--ddp {cores + 1} not allowed on the CPU here: {cores} core(s)" in err, err
+    if not torch.cuda.is_available():
+        assert cli.main([*base, "--ddp", "2", "--device", "cuda", "--out", str(tmp_path / "b")]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "torch sees no GPU here" in err, err
+    assert list(tmp_path.iterdir()) == []
