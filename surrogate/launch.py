@@ -7,6 +7,7 @@ KeyboardInterrupt saying what was kept. The runs themselves are ``surrogate.runs
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from pathlib import Path
@@ -32,12 +33,39 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
 
     configure_solvers(cfg.solver_workers, cfg.solver_timeout)  # (environment: spawned ranks inherit it)
     ranks = cfg.ranks()
-    if ranks > 1 and ddp.env_world() == 1:  # ddp=N: check here, then start the N ranks
-        return launch_ranks(cfg, ranks)
+    # one process trains a run at a time: two `train --resume RUN` at once both ran and both wrote the run (the ranks
+    # of a ddp launch or torchrun are one training, their launcher holds it)
+    with holding_run(cfg.resume if cfg.resume is not None and ddp.env_world() == 1 else None):
+        if ranks > 1 and ddp.env_world() == 1:  # ddp=N: check here, then start the N ranks
+            return launch_ranks(cfg, ranks)
+        try:
+            return _resume(cfg, ranks, log) if cfg.resume is not None else _new(cfg, ranks, log)
+        finally:
+            ddp.finish()
+
+
+@contextlib.contextmanager
+def holding_run(run_dir):
+    """An exclusive lock on the directory RUN_DIR (flock: the kernel drops it when the process ends, kill -9 too; no
+    file is written) while a run is resumed; a second process resuming it meanwhile is refused in one line.
+    None: nothing to hold."""
+    import fcntl
+
     try:
-        return _resume(cfg, ranks, log) if cfg.resume is not None else _new(cfg, ranks, log)
+        fd = None if run_dir is None else os.open(run_dir, os.O_RDONLY)
+    except OSError:  # not there, or not a directory: the resume's own checks say so
+        fd = None
+    try:
+        if fd is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise ValueError(f"{run_dir} is being trained by another process right now (a --resume of it is "
+                                 "running); wait for it to end or stop it, then resume") from None
+        yield
     finally:
-        ddp.finish()
+        if fd is not None:
+            os.close(fd)
 
 
 def default_threads(source: str, ranks: int = 1) -> int:

@@ -459,3 +459,24 @@ def test_a_longer_run_replans_its_schedule_as_if_planned_so_from_the_start(name)
     got, want = longer.param_groups[0], reference.param_groups[0]
     assert got["lr"] == want["lr"] and got["betas"] == want["betas"]
     assert (got["lr"] != short.param_groups[0]["lr"]) == (name != "constant")  # the 20-step curve was elsewhere
+
+
+def test_a_run_being_resumed_refuses_a_second_resume_in_one_line(tmp_path, capsys):
+    # two `train --resume RUN` at once both ran and both wrote the run
+    import fcntl
+    import os
+
+    out = tmp_path / "run"
+    assert cli.main(_tiny_train(out)) == 0
+    capsys.readouterr()
+    before = _files(out)
+    fd = os.open(out, os.O_RDONLY)  # what the first resume holds while it trains (the same lock, taken here)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        assert cli.main(["train", "--resume", str(out), "--steps", "6"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "is being trained by another process right now" in err, err
+        assert _files(out) == before  # nothing touched
+    finally:
+        os.close(fd)
+    assert cli.main(["train", "--resume", str(out), "--steps", "6"]) == 0  # free again: it resumes
