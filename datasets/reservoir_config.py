@@ -8,21 +8,19 @@ checks that need the PDE and the view, e.g. target_reuse against the view's exam
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, fields, replace
 from typing import Callable
 
-import numpy as np
-
-from .reservoir_sampler import SAMPLERS
-from .reservoir_writer import WRITERS
-
 MODES = ("async", "deterministic")
-DRAWS = tuple(SAMPLERS)
-EVICTIONS = tuple(WRITERS)
+# the names of the samplers (reservoir_sampler.SAMPLERS) and writers (reservoir_writer.WRITERS), here without their
+# classes so that the CLI's parser reads them without numpy; those modules check their registries against these
+DRAWS = ("uniform", "least_used", "priority")
+EVICTIONS = ("fifo", "random")
 
 
 def _check_int(name: str, value, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
         raise ValueError(f"{name}={value!r} not allowed; must be an integer >= {low}")
     return int(value)
 

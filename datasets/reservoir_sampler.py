@@ -15,6 +15,8 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from .reservoir_config import DRAWS
+
 _EMPTY = (np.zeros(0, np.int64), np.zeros(0, np.int64))
 
 
@@ -153,3 +155,5 @@ class PrioritySampler(Sampler):
 
 
 SAMPLERS = {cls.name: cls for cls in (UniformSampler, LeastUsedSampler, PrioritySampler)}
+if tuple(SAMPLERS) != DRAWS:
+    raise ImportError(f"reservoir_config.DRAWS {DRAWS} and the samplers {tuple(SAMPLERS)} disagree")

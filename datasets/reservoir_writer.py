@@ -15,6 +15,8 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from .reservoir_config import EVICTIONS
+
 
 class Writer(ABC):
     """Where inserted trajectories go. capacity: slots; cap_uses: the reuse bound (the histogram's last bin)."""
@@ -102,3 +104,5 @@ class RandomWriter(Writer):
 
 
 WRITERS = {cls.name: cls for cls in (FifoWriter, RandomWriter)}
+if tuple(WRITERS) != EVICTIONS:
+    raise ImportError(f"reservoir_config.EVICTIONS {EVICTIONS} and the writers {tuple(WRITERS)} disagree")
