@@ -87,9 +87,8 @@ class Operator(NamedTuple):
 
 
 def prepare(fc: Faces, periodic_x: bool, periodic_y: bool) -> Operator:
-    """The multigrid hierarchy of ``fc`` and the pseudo-inverse of its coarsest operator (eigen-decomposition of
-    the symmetric matrix, eigenvalues below 1e-5 of the largest dropped: the singular constant mode of a box
-    without an open side, and cells cut off by obstacles)."""
+    """The multigrid hierarchy of ``fc`` and the pseudo-inverse of its coarsest operator (its null space: the
+    constant mode of a box without an open side, and of cells cut off by obstacles; see _pseudo_inverse)."""
     levels = hierarchy(fc)
     coarse = levels[-1]
     shape = coarse.solid.shape
@@ -97,22 +96,67 @@ def prepare(fc: Faces, periodic_x: bool, periodic_y: bool) -> Operator:
     eye = jnp.eye(m, dtype=coarse.solid.dtype).reshape(m, *shape)
     a = jax.vmap(lambda e: apply(coarse, e, periodic_x, periodic_y).reshape(m))(eye)
     a = jax.lax.stop_gradient(0.5 * (a + a.T))  # geometry only: nothing to differentiate
-    # On the host (numpy's LAPACK), one matrix at a time: XLA's own CPU eigh kernel waits on XLA's intra-op
-    # thread pool from inside it, so two programs decomposing at once (a stream thread sampling flows while the
-    # training thread runs solver-in-the-loop's differentiable step) parked both pool threads and hung for good
-    # (gdb: both tf_XLAEigen threads in EigenvalueDecompositionSymmetric, on 2 cores).
+    # On the host (numpy, elementwise operations only: the same bits on every CPU), one matrix at a time: XLA's
+    # own CPU eigh kernel waits on XLA's intra-op thread pool from inside it, so two programs decomposing at once
+    # (a stream thread sampling flows while the training thread runs solver-in-the-loop's differentiable step)
+    # parked both pool threads and hung for good (gdb: both tf_XLAEigen threads in
+    # EigenvalueDecompositionSymmetric, on 2 cores).
     shape = jax.ShapeDtypeStruct(a.shape, a.dtype)
     return Operator(levels, jax.pure_callback(_pseudo_inverse, shape, a, vmap_method="sequential"))
 
 
+def _components(a) -> tuple[np.ndarray, int]:
+    """Labels [m] of the connected components of the graph of symmetric a's nonzero off-diagonal entries, and
+    their count."""
+    m = a.shape[0]
+    adj = (a != 0) & ~np.eye(m, dtype=bool)
+    label = np.full(m, -1)
+    count = 0
+    for seed in range(m):
+        if label[seed] >= 0:
+            continue
+        label[seed] = count
+        todo = [seed]
+        while todo:
+            nb = np.flatnonzero(adj[todo.pop()] & (label < 0))
+            label[nb] = count
+            todo.extend(nb.tolist())
+        count += 1
+    return label, count
+
+
 def _pseudo_inverse(a) -> np.ndarray:
-    """Pseudo-inverse of symmetric a [m, m] by its eigen-decomposition in float64, eigenvalues below 1e-5 of the
-    largest dropped; returned in a's dtype."""
+    """Pseudo-inverse of symmetric positive semi-definite a [m, m] in float64, returned in a's dtype: the same
+    bits on every CPU. LAPACK's eigh (and any BLAS product) differs in the last bits between CPU kernels
+    (OpenBLAS picks them per CPU: 1e-14 relative), so this uses elementwise numpy operations only (each
+    correctly rounded, in a fixed order). a = A is a weighted graph Laplacian plus a non-negative diagonal (the
+    coarse operator), so its null space is spanned by the indicators of the connected components whose
+    normalised indicator has a Rayleigh quotient of zero (below 1e-5 of a's Gershgorin bound here: no Dirichlet
+    face, no solid cell; e.g. a closed box, or cells cut off by obstacles). With N those indicators normalised,
+    pinv(A) = (A + N N^T)^-1 - N N^T, the inverse by Gauss-Jordan elimination (A + N N^T is positive
+    definite: no pivoting needed)."""
     a = np.asarray(a)
-    w, q = np.linalg.eigh(a.astype(np.float64))
-    keep = w > 1e-5 * w.max()
-    inv_w = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
-    return ((q * inv_w) @ q.T).astype(a.dtype)
+    s = a.astype(np.float64)
+    s = 0.5 * (s + s.T)
+    m = s.shape[0]
+    label, count = _components(s)
+    bound = np.max(np.sum(np.abs(s), 1))  # only compared with: its last bits do not matter
+    nn = np.zeros_like(s)
+    for c in range(count):
+        idx = np.flatnonzero(label == c)
+        block = np.ix_(idx, idx)
+        if np.sum(s[block]) / idx.size <= 1e-5 * bound:
+            nn[block] = 1.0 / idx.size
+    x = s + nn
+    inv = np.eye(m)
+    for k in range(m):
+        rx, ri = x[k] / x[k, k], inv[k] / x[k, k]
+        col = x[:, k].copy()
+        col[k] = 0.0
+        x -= np.multiply.outer(col, rx)
+        inv -= np.multiply.outer(col, ri)
+        x[k], inv[k] = rx, ri
+    return (0.5 * (inv + inv.T) - nn).astype(a.dtype)
 
 
 def _jacobi(fc: Faces, x, r, inv_d, px, py, sweeps: int):
