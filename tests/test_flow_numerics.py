@@ -150,3 +150,25 @@ def test_the_host_pseudo_inverse_is_exact_and_the_same_on_every_blas_kernel():
         env = {**os.environ, "OPENBLAS_CORETYPE": core}
         out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
         assert bytes.fromhex(out.stdout) == x.tobytes(), core
+
+
+def test_the_pressure_solve_has_the_same_bits_at_every_vector_width():
+    """CG's sums are added in a fixed order (pressure._tree_sum): with jnp.sum the solve's bits followed the vector
+    width XLA prefers on the host CPU (three widths, three results at 64x32), so the flows' bits differed between
+    CPUs of one instruction set."""
+    import subprocess
+    import sys
+
+    code = ("import hashlib, jax, numpy as np; from generator.flow import Geometry, Params, pressure;"
+            "from generator.flow.step import faces, solid_mask;"
+            "g = Geometry(64, 32, 2.0, 1.0, left='inflow', right='outflow');"
+            "fc = faces(g, solid_mask(g, Params(nu=1e-2, inflow=1.0, circle=(0.5, 0.5, 0.15))));"
+            "b = jax.random.normal(jax.random.PRNGKey(0), (32, 64)) * (1 - fc.solid);"
+            "p = jax.jit(lambda b: pressure.solve(fc, b, False, False, g.singular).p)(b);"
+            "print(hashlib.sha256(np.asarray(p).tobytes()).hexdigest())")
+    outs = set()
+    for width in (128, 512):
+        env = {**os.environ, "XLA_FLAGS": f"--xla_cpu_prefer_vector_width={width}"}
+        outs.add(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                check=True).stdout)
+    assert len(outs) == 1
