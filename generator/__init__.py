@@ -36,9 +36,11 @@ from .steady.base import SteadyProblem
 from .user import unregister
 
 # The revision of the numerics that decide a sample's bits for a given (config, seed, index): bumped by every change
-# that alters them (2: ETDRK4 coefficients with one exponential per wavenumber; 3: Gray-Scott spots kept in range).
+# that alters them (2: ETDRK4 coefficients with one exponential per wavenumber; 3: Gray-Scott spots kept in range;
+# 4: the flows' coarse pseudo-inverse by elementwise Gauss-Jordan, not LAPACK's eigh, and their pressure solve's
+# sums in a fixed order: every flow's bits).
 # Caches record it and --resume compares it, so a cache is never finished with samples of other bits.
-NUMERICS = 3
+NUMERICS = 4
 
 _REFUSED_CACHE_DIRS: set[str] = set()
 CACHE_MAX_BYTES = 2 * 1024**3  # the compilation cache's bound (least recently used programs go first)

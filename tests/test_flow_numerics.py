@@ -2,6 +2,8 @@
 bit-identity alone and in batches (run_batch: per-sample programs under jax.lax.map, the house's way), blow-up
 flag. Slow: the multigrid-preconditioned CG compiles for about a minute on 2 cores."""
 
+import os
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -106,3 +108,66 @@ def test_no_xla_eigen_decomposition_in_a_rollout_and_the_host_pseudo_inverse_is_
     x = np.asarray(op.coarse_inverse, np.float64)
     assert np.allclose(a @ x @ a, a, atol=1e-4 * np.abs(a).max())  # a pseudo-inverse: A X A = A
     assert np.allclose(x, x.T, atol=1e-6 * np.abs(x).max())
+
+
+
+def _closed_box_laplacian(ny=8, nx=16, seed=0):
+    """float64 [ny nx, ny nx]: a closed box's graph Laplacian, random face weights in [0.5, 1.5], with a 2x2 block
+    cut off (its outer faces closed) and the corner cell cut off with a solid term (diagonal +1): the null space
+    is spanned by the constants of the box's rest and of the block; the corner is not singular."""
+    rng = np.random.default_rng(seed)
+    idx = np.arange(ny * nx).reshape(ny, nx)
+    part = np.zeros((ny, nx), int)
+    part[2:4, 5:7], part[-1, -1] = 1, 2
+    faces = [((i, j), (i, j + 1)) for i, j in np.ndindex(ny, nx - 1)]
+    faces += [((i, j), (i + 1, j)) for i, j in np.ndindex(ny - 1, nx)]
+    a = np.zeros((ny * nx, ny * nx))
+    for f, g in faces:
+        if part[f] == part[g]:
+            w, p, q = rng.uniform(0.5, 1.5), idx[f], idx[g]
+            a[[p, q], [p, q]] += w
+            a[[p, q], [q, p]] -= w
+    a[idx[-1, -1], idx[-1, -1]] += 1.0
+    return a
+
+
+def test_the_host_pseudo_inverse_is_exact_and_the_same_on_every_blas_kernel():
+    """The coarse pseudo-inverse uses elementwise numpy only: LAPACK's eigh differs in the last bits between the
+    CPU kernels OpenBLAS picks (1e-14 relative on the flows' coarse operators), which changed float64 flows."""
+    import subprocess
+    import sys
+
+    from generator.flow import pressure
+
+    a = _closed_box_laplacian()
+    x = pressure._pseudo_inverse(a)
+    assert x.dtype == np.float64
+    np.testing.assert_allclose(x, np.linalg.pinv(a, rcond=1e-10, hermitian=True), rtol=0, atol=1e-10 * np.abs(x).max())
+    code = ("import sys, numpy as np; from generator.flow import pressure; from tests.test_flow_numerics import "
+            "_closed_box_laplacian as f; sys.stdout.write(pressure._pseudo_inverse(f()).tobytes().hex())")
+    for core in ("Prescott", "Haswell"):  # OpenBLAS kernels any x86-64 CPU can run
+        env = {**os.environ, "OPENBLAS_CORETYPE": core}
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+        assert bytes.fromhex(out.stdout) == x.tobytes(), core
+
+
+def test_the_pressure_solve_has_the_same_bits_at_every_vector_width():
+    """CG's sums are added in a fixed order (pressure._tree_sum): with jnp.sum the solve's bits followed the vector
+    width XLA prefers on the host CPU (three widths, three results at 64x32), so the flows' bits differed between
+    CPUs of one instruction set."""
+    import subprocess
+    import sys
+
+    code = ("import hashlib, jax, numpy as np; from generator.flow import Geometry, Params, pressure;"
+            "from generator.flow.step import faces, solid_mask;"
+            "g = Geometry(64, 32, 2.0, 1.0, left='inflow', right='outflow');"
+            "fc = faces(g, solid_mask(g, Params(nu=1e-2, inflow=1.0, circle=(0.5, 0.5, 0.15))));"
+            "b = jax.random.normal(jax.random.PRNGKey(0), (32, 64)) * (1 - fc.solid);"
+            "p = jax.jit(lambda b: pressure.solve(fc, b, False, False, g.singular).p)(b);"
+            "print(hashlib.sha256(np.asarray(p).tobytes()).hexdigest())")
+    outs = set()
+    for width in (128, 512):
+        env = {**os.environ, "XLA_FLAGS": f"--xla_cpu_prefer_vector_width={width}"}
+        outs.add(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                check=True).stdout)
+    assert len(outs) == 1

@@ -7,7 +7,9 @@ piecewise-constant P over 2x2 blocks: the coarse face coefficient is the sum of 
 V-cycle (damped Jacobi, nu1 = nu2, the same sweeps before and after, the coarse correction weighted; the coarsest level, at most COARSE_CELLS
 cells, solved by a dense pseudo-inverse prepared once per rollout) is a symmetric preconditioner.
 Without a Dirichlet side A is singular: the rhs and each preconditioned residual have their mean projected
-out. Each sample stops on its own relative residual (a masked while loop), so batches don't change bits.
+out. Each sample stops on its own relative residual (a masked while loop), so batches don't change bits. Its
+sums (CG's dot products, the mean, the coarse solve's product) are added in a fixed order (_tree_sum), not by
+XLA's reductions, whose order follows the vector width XLA prefers on the host CPU.
 """
 
 from __future__ import annotations
@@ -87,9 +89,8 @@ class Operator(NamedTuple):
 
 
 def prepare(fc: Faces, periodic_x: bool, periodic_y: bool) -> Operator:
-    """The multigrid hierarchy of ``fc`` and the pseudo-inverse of its coarsest operator (eigen-decomposition of
-    the symmetric matrix, eigenvalues below 1e-5 of the largest dropped: the singular constant mode of a box
-    without an open side, and cells cut off by obstacles)."""
+    """The multigrid hierarchy of ``fc`` and the pseudo-inverse of its coarsest operator (its null space: the
+    constant mode of a box without an open side, and of cells cut off by obstacles; see _pseudo_inverse)."""
     levels = hierarchy(fc)
     coarse = levels[-1]
     shape = coarse.solid.shape
@@ -97,22 +98,85 @@ def prepare(fc: Faces, periodic_x: bool, periodic_y: bool) -> Operator:
     eye = jnp.eye(m, dtype=coarse.solid.dtype).reshape(m, *shape)
     a = jax.vmap(lambda e: apply(coarse, e, periodic_x, periodic_y).reshape(m))(eye)
     a = jax.lax.stop_gradient(0.5 * (a + a.T))  # geometry only: nothing to differentiate
-    # On the host (numpy's LAPACK), one matrix at a time: XLA's own CPU eigh kernel waits on XLA's intra-op
-    # thread pool from inside it, so two programs decomposing at once (a stream thread sampling flows while the
-    # training thread runs solver-in-the-loop's differentiable step) parked both pool threads and hung for good
-    # (gdb: both tf_XLAEigen threads in EigenvalueDecompositionSymmetric, on 2 cores).
+    # On the host (numpy, elementwise operations only: the same bits on every CPU), one matrix at a time: XLA's
+    # own CPU eigh kernel waits on XLA's intra-op thread pool from inside it, so two programs decomposing at once
+    # (a stream thread sampling flows while the training thread runs solver-in-the-loop's differentiable step)
+    # parked both pool threads and hung for good (gdb: both tf_XLAEigen threads in
+    # EigenvalueDecompositionSymmetric, on 2 cores).
     shape = jax.ShapeDtypeStruct(a.shape, a.dtype)
     return Operator(levels, jax.pure_callback(_pseudo_inverse, shape, a, vmap_method="sequential"))
 
 
+def _components(a) -> tuple[np.ndarray, int]:
+    """Labels [m] of the connected components of the graph of symmetric a's nonzero off-diagonal entries, and
+    their count."""
+    m = a.shape[0]
+    adj = (a != 0) & ~np.eye(m, dtype=bool)
+    label = np.full(m, -1)
+    count = 0
+    for seed in range(m):
+        if label[seed] >= 0:
+            continue
+        label[seed] = count
+        todo = [seed]
+        while todo:
+            nb = np.flatnonzero(adj[todo.pop()] & (label < 0))
+            label[nb] = count
+            todo.extend(nb.tolist())
+        count += 1
+    return label, count
+
+
 def _pseudo_inverse(a) -> np.ndarray:
-    """Pseudo-inverse of symmetric a [m, m] by its eigen-decomposition in float64, eigenvalues below 1e-5 of the
-    largest dropped; returned in a's dtype."""
+    """Pseudo-inverse of symmetric positive semi-definite a [m, m] in float64, returned in a's dtype: the same
+    bits on every CPU. LAPACK's eigh (and any BLAS product) differs in the last bits between CPU kernels
+    (OpenBLAS picks them per CPU: 1e-14 relative), so this uses elementwise numpy operations only (each
+    correctly rounded, in a fixed order). a = A is a weighted graph Laplacian plus a non-negative diagonal (the
+    coarse operator), so its null space is spanned by the indicators of the connected components whose
+    normalised indicator has a Rayleigh quotient of zero (below 1e-5 of a's Gershgorin bound here: no Dirichlet
+    face, no solid cell; e.g. a closed box, or cells cut off by obstacles). With N those indicators normalised,
+    pinv(A) = (A + N N^T)^-1 - N N^T, the inverse by Gauss-Jordan elimination (A + N N^T is positive
+    definite: no pivoting needed)."""
     a = np.asarray(a)
-    w, q = np.linalg.eigh(a.astype(np.float64))
-    keep = w > 1e-5 * w.max()
-    inv_w = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
-    return ((q * inv_w) @ q.T).astype(a.dtype)
+    s = a.astype(np.float64)
+    s = 0.5 * (s + s.T)
+    m = s.shape[0]
+    label, count = _components(s)
+    bound = np.max(np.sum(np.abs(s), 1))  # only compared with: its last bits do not matter
+    nn = np.zeros_like(s)
+    for c in range(count):
+        idx = np.flatnonzero(label == c)
+        block = np.ix_(idx, idx)
+        if np.sum(s[block]) / idx.size <= 1e-5 * bound:
+            nn[block] = 1.0 / idx.size
+    x = s + nn
+    inv = np.eye(m)
+    for k in range(m):
+        rx, ri = x[k] / x[k, k], inv[k] / x[k, k]
+        col = x[:, k].copy()
+        col[k] = 0.0
+        x -= np.multiply.outer(col, rx)
+        inv -= np.multiply.outer(col, ri)
+        x[k], inv[k] = rx, ri
+    return (0.5 * (inv + inv.T) - nn).astype(a.dtype)
+
+
+def _tree_sum(x):
+    """Sum over x's last axis in a fixed order: zero-padded to a power of two, the halves added elementwise until
+    one is left. XLA vectorises a reduction (jnp.sum, a dot) by the width it prefers on the host CPU, which
+    reorders the additions: the flows' bits then differed between CPUs of one instruction set."""
+    n = x.shape[-1]
+    size = 1 << max(0, (n - 1).bit_length())
+    x = jnp.pad(x, [(0, 0)] * (x.ndim - 1) + [(0, size - n)])
+    while x.shape[-1] > 1:
+        half = x.shape[-1] // 2
+        x = x[..., :half] + x[..., half:]
+    return x[..., 0]
+
+
+def _total(x):
+    """Sum of all of x's elements in a fixed order (_tree_sum)."""
+    return _tree_sum(x.reshape(-1))
 
 
 def _jacobi(fc: Faces, x, r, inv_d, px, py, sweeps: int):
@@ -127,7 +191,7 @@ def vcycle(op: Operator, r, px, py, sweeps=SWEEPS, omega=OMEGA, level: int = 0):
     exactly; a symmetric positive definite preconditioner. r [ny, nx] -> [ny, nx]."""
     levels = op.levels
     if level == len(levels) - 1:
-        return (op.coarse_inverse @ r.reshape(-1)).reshape(r.shape)
+        return _tree_sum(op.coarse_inverse * r.reshape(1, -1)).reshape(r.shape)
     fc = levels[level]
     inv_d = omega / jnp.maximum(diagonal(fc, px, py), 1e-30)
     x = _jacobi(fc, inv_d * r, r, inv_d, px, py, sweeps - 1)
@@ -156,10 +220,10 @@ def solve(fc: Faces, b, periodic_x: bool, periodic_y: bool, singular: bool, tol:
     pressure: CG then solves for the correction, and stops at the same absolute residual)."""
     op = prepare(fc, periodic_x, periodic_y) if op is None else op
     fluid = 1.0 - fc.solid
-    nfl = jnp.maximum(jnp.sum(fluid), 1.0)
+    nfl = jnp.maximum(_total(fluid), 1.0)
 
     def proj(x):
-        return x - fluid * (jnp.sum(x * fluid) / nfl) if singular else x
+        return x - fluid * (_total(x * fluid) / nfl) if singular else x
 
     def prec(r):
         return proj(vcycle(op, r, periodic_x, periodic_y))
@@ -169,7 +233,7 @@ def solve(fc: Faces, b, periodic_x: bool, periodic_y: bool, singular: bool, tol:
 
     def cg(_, rhs):  # (x, iterations): also the transposed solve of reverse-mode derivatives (A is symmetric)
         rhs = proj(rhs)
-        bn2 = jnp.sum(rhs * rhs)
+        bn2 = _total(rhs * rhs)
         stop2 = jnp.maximum(tol * tol * bn2, floor2)  # floor2: the warm start's target, tol ||b||, squared
 
         def cond(s):
@@ -178,24 +242,24 @@ def solve(fc: Faces, b, periodic_x: bool, periodic_y: bool, singular: bool, tol:
         def body(s):
             k, x, r, d, rz, _, checks = s
             ad = matvec(d)
-            alpha = rz / jnp.sum(d * ad)
+            alpha = rz / _total(d * ad)
             x = x + alpha * d
             r = r - alpha * ad
             # In float32 the recursive residual drifts below the true one (measured 3x at 32x16): when it claims
             # tol ||b||, replace it by the true residual b - A x, stop if that is within tol ||b|| too, else
             # restart from it (beta = 0); at most MAX_CHECKS times, so a target under the rounding floor cannot
             # spin to max_iter. (Claiming at tol / 2 cost float64 solves a 14th iteration at 256x128.)
-            claims = jnp.sum(r * r) <= stop2
+            claims = _total(r * r) <= stop2
             r = jax.lax.cond(claims, lambda: proj(rhs - matvec(x)), lambda: r)
-            done = claims & (jnp.sum(r * r) <= stop2)
+            done = claims & (_total(r * r) <= stop2)
             z = prec(r)
-            rz_new = jnp.sum(r * z)
+            rz_new = _total(r * z)
             beta = jnp.where(claims, 0.0, rz_new / rz).astype(rz.dtype)
             return k + 1, x, r, z + beta * d, rz_new, done, checks + claims.astype(jnp.int32)
 
         z0 = prec(rhs)
         zero = jnp.zeros((), jnp.int32)
-        s0 = (zero, jnp.zeros_like(rhs), rhs, z0, jnp.sum(rhs * z0), bn2 <= 0, zero)
+        s0 = (zero, jnp.zeros_like(rhs), rhs, z0, _total(rhs * z0), bn2 <= 0, zero)
         k, x, *_ = jax.lax.while_loop(cond, body, s0)
         return proj(x), k
 
@@ -206,13 +270,13 @@ def solve(fc: Faces, b, periodic_x: bool, periodic_y: bool, singular: bool, tol:
         x, k = jax.lax.custom_linear_solve(matvec, b, cg, symmetric=True, has_aux=True)
     else:
         x0 = proj(jax.lax.stop_gradient(x0) * fluid)  # a guess: derivatives do not flow through it
-        floor2 = tol * tol * jnp.sum(b * b)
+        floor2 = tol * tol * _total(b * b)
         # A guess worse than zero (the impulsive start's pressure, measured 3.9 ||b||) is dropped: its rounding
         # (||x0|| ~ 60 ||b||) put the float32 floor of ||b - A (x0 + dx)|| at ~4e-5 ||b||, above tol.
         r0 = b - matvec(x0)
-        good = jnp.sum(r0 * r0) < jnp.sum(b * b)
+        good = _total(r0 * r0) < _total(b * b)
         x0, r0 = jnp.where(good, x0, 0.0), jnp.where(good, r0, b)
         dx, k = jax.lax.custom_linear_solve(matvec, r0, cg, symmetric=True, has_aux=True)
         x = x0 + dx
     r = b - matvec(x)
-    return Solve(x, k, jnp.sqrt(jnp.sum(r * r) / jnp.maximum(jnp.sum(b * b), 1e-30)))
+    return Solve(x, k, jnp.sqrt(_total(r * r) / jnp.maximum(_total(b * b), 1e-30)))
