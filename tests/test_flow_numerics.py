@@ -137,13 +137,13 @@ def test_the_host_pseudo_inverse_is_exact_and_the_same_on_every_blas_kernel():
     import subprocess
     import sys
 
-    from generator.flow import pressure
+    from pdestream.generator.flow import pressure
 
     a = _closed_box_laplacian()
     x = pressure._pseudo_inverse(a)
     assert x.dtype == np.float64
     np.testing.assert_allclose(x, np.linalg.pinv(a, rcond=1e-10, hermitian=True), rtol=0, atol=1e-10 * np.abs(x).max())
-    code = ("import sys, numpy as np; from generator.flow import pressure; from tests.test_flow_numerics import "
+    code = ("import sys, numpy as np; from pdestream.generator.flow import pressure; from tests.test_flow_numerics import "
             "_closed_box_laplacian as f; sys.stdout.write(pressure._pseudo_inverse(f()).tobytes().hex())")
     for core in ("Prescott", "Haswell"):  # OpenBLAS kernels any x86-64 CPU can run
         env = {**os.environ, "OPENBLAS_CORETYPE": core}
@@ -158,8 +158,8 @@ def test_the_pressure_solve_has_the_same_bits_at_every_vector_width():
     import subprocess
     import sys
 
-    code = ("import hashlib, jax, numpy as np; from generator.flow import Geometry, Params, pressure;"
-            "from generator.flow.step import faces, solid_mask;"
+    code = ("import hashlib, jax, numpy as np; from pdestream.generator.flow import Geometry, Params, pressure;"
+            "from pdestream.generator.flow.step import faces, solid_mask;"
             "g = Geometry(64, 32, 2.0, 1.0, left='inflow', right='outflow');"
             "fc = faces(g, solid_mask(g, Params(nu=1e-2, inflow=1.0, circle=(0.5, 0.5, 0.15))));"
             "b = jax.random.normal(jax.random.PRNGKey(0), (32, 64)) * (1 - fc.solid);"
