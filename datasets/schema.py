@@ -311,6 +311,21 @@ def publish_new(tmp: Path, out: Path) -> None:
     tmp.unlink()
 
 
+def _umask() -> int:
+    """The process's umask: from /proc (Linux), else by setting it and setting it back (which other threads could
+    see for that instant)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write(path: Path, data: bytes) -> None:
     """Replace ``path`` with ``data`` all at once: a temp file in the same directory (unique, so two writers never
     share one), fsync, os.replace, then fsync of the directory; readers, a kill or a power cut see the old file or
@@ -319,6 +334,7 @@ def atomic_write(path: Path, data: bytes) -> None:
     path = Path(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes it 0600: a run's or cache's files read as any file would
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()

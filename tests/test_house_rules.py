@@ -20,6 +20,12 @@ def test_there_is_one_atomic_write_and_it_syncs_the_directory(tmp_path, monkeypa
     schema.atomic_write(target, b"new")
     assert target.read_bytes() == b"new" and synced == [False, True]  # the file, then its directory
     assert [p.name for p in tmp_path.iterdir()] == ["meta.json"]  # no temp file left
+    old = os.umask(0o022)
+    try:  # metadata files were created readable by their owner only (mkstemp's 0600)
+        schema.atomic_write(tmp_path / "run.json", b"{}")
+        assert stat.S_IMODE(os.stat(tmp_path / "run.json").st_mode) == 0o644
+    finally:
+        os.umask(old)
 
 
 def test_a_failed_atomic_write_leaves_the_old_file(tmp_path, monkeypatch):
