@@ -167,6 +167,9 @@ def _fields(ds) -> list[str]:
     return ds.attrs.get("pdestream_inputs", "").split() + ds.attrs["pdestream_fields"].split()
 
 
+OUTLIER_RATIO = 3.0  # largest |value| over the 99.5th percentile beyond which the extremes saturate
+
+
 def colour_scale(values: np.ndarray) -> dict:
     """imshow keywords (cmap, vmin, vmax) shared by every panel of one field: a diverging map centred on zero
     when the values take both signs, a sequential one when they keep one sign (e.g. concentrations). Values
@@ -176,6 +179,11 @@ def colour_scale(values: np.ndarray) -> dict:
     lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
     span = max(abs(lo), abs(hi)) or 1.0
     if lo < -0.1 * span and hi > 0.1 * span:
+        # a few cells far above the rest (a flow's vorticity at a body's corners, +-100 where the wake is +-3)
+        # would wash the picture out: then the range is the 99.5th percentile of |value| and those cells saturate
+        bulk = float(np.percentile(np.abs(finite), 99.5))
+        if 0 < bulk < span / OUTLIER_RATIO:
+            span = bulk
         return {"cmap": "RdBu_r", "vmin": -span, "vmax": span}
     return {"cmap": "viridis", "vmin": lo, "vmax": hi if hi > lo else lo + 1.0}
 

@@ -197,6 +197,13 @@ def test_colour_scale():
     ringing = inspect.colour_scale(np.array([-0.05, 0.66]))  # Gibbs undershoot of a concentration
     assert ringing["cmap"] == "viridis" and ringing["vmin"] == -0.05
     assert inspect.colour_scale(np.array([np.nan, 1.0, 1.0]))["vmax"] > 1.0  # constant: a non-empty range
+    # a karman vorticity: a wake of +-3 and a few body-corner cells at +-100 (the range was +-100: a blank picture)
+    wake = np.sin(np.linspace(0, 20, 4000)) * 3.0
+    wake[:8] = [100, -100, 90, -95, 100, -100, 80, -85]
+    scale = inspect.colour_scale(wake)
+    assert scale["cmap"] == "RdBu_r" and 2.9 < scale["vmax"] < 3.01 and scale["vmin"] == -scale["vmax"]
+    spread = np.linspace(-3.0, 3.0, 1000)  # no outliers: the full range, as before
+    assert inspect.colour_scale(spread)["vmax"] == 3.0
 
 
 def test_3d_fields_round_trip_and_plot_the_middle_slice():
