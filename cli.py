@@ -10,6 +10,7 @@ User errors print one line ``pdestream: error: ...`` and exit with status 2; no 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -373,7 +374,16 @@ def cmd_compare(args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if argv is None:  # the `pdestream` command: a plug-in's import path (mypdes.damped:Damped) resolves in the
+        importable_here()  # current directory, as with `python -m` (the console script's sys.path lacks it)
     return run(lambda: args.func(args), standalone=argv is None)
+
+
+def importable_here() -> None:
+    """The current directory at the end of sys.path (the only sys.path edit of the package), if not there."""
+    here = os.getcwd()
+    if not any((p or ".") in (here, ".") or os.path.abspath(p or ".") == here for p in sys.path):
+        sys.path.append(here)
 
 
 if __name__ == "__main__":

