@@ -13,7 +13,8 @@ HDF5 allows one writer per file, so the Dask executor writes Zarr only.
 
 Running on a real cluster: start workers however the site does it (``dask-jobqueue``'s ``SLURMCluster``,
 ``dask scheduler`` + ``dask worker``, Kubernetes) with pdestream installed and the output directory on a
-shared filesystem, then pass the scheduler's address (``--scheduler tcp://host:8786``).
+shared filesystem, then pass the scheduler's address (``--scheduler tcp://host:8786``); the recipe for
+``dask scheduler`` + ``dask worker`` on machines of your own: docs/guides/dask.md, "A cluster of machines".
 """
 
 from __future__ import annotations
