@@ -1,6 +1,6 @@
 """External solvers as producers: overhead against a plain loop, and scaling with worker processes and Dask.
 
-    python -m benchmarks.producer_bench [--quick] [--solve-ms 50] [--n 40] [--repeats 3]
+    python -m benchmarks.producer_bench [--quick] [--solve-ms 50] [--n 40] [--repeats 3] [--dask-only]
 
 The solver (``Busy`` below) does ~``--solve-ms`` of single-threaded NumPy work per sample. Timed, in one process,
 median of ``--repeats`` (the arms alternate, so the shared machine's load hits them alike):
@@ -9,7 +9,8 @@ median of ``--repeats`` (the arms alternate, so the shared machine's load hits t
 - producer, 0 workers: ``generator.sample(pde, range(N))`` solving in this process (draws, checks, conversion);
 - producer, 1 / 2 workers: the same through 1 or 2 solver worker processes (--solver-workers);
 - Dask: a warm 2-worker LocalCluster, each worker running ``solve_job`` on half the samples with one solver
-  worker of its own, against the 1-worker producer;
+  worker of its own, alternated with the 1- and 2-worker producers in the same window (speedups are ratios of
+  medians measured under the same load; CPU per solve, from /proc, does not depend on the load);
 - kill: a solver worker killed (SIGKILL) mid-solve, and a Dask worker killed mid-job: does the run finish, with
   the undisturbed bits, and how much later.
 Overhead = producer time / plain time - 1; speedup = 1-worker time / k-worker time. Figures, not pass/fail.
@@ -58,11 +59,18 @@ class Busy(ExternalSolver):
 
 
 def calibrate(solve_ms: float) -> Busy:
-    """A Busy whose solve takes about ``solve_ms`` here."""
+    """A Busy whose solve takes about ``solve_ms`` of CPU here (CPU time, not wall: on the shared cores a wall-time
+    calibration gave 21 ms solves for 50 asked)."""
     probe = Busy(reps=50)
     probe.solve({"k": 1.0}, 0)
-    t = min(_timed(lambda: probe.solve({"k": 1.0}, 0)) for _ in range(5))
+    t = min(_cpu_timed(lambda: probe.solve({"k": 1.0}, 0)) for _ in range(5))
     return Busy(reps=max(1, round(50 * solve_ms / 1e3 / t)))
+
+
+def _cpu_timed(fn) -> float:
+    start = time.process_time()
+    fn()
+    return time.process_time() - start
 
 
 def _timed(fn) -> float:
@@ -116,6 +124,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n", type=int, default=40, help="solves per timed run")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--no-dask", action="store_true")
+    ap.add_argument("--dask-only", action="store_true", help="only the Dask arms (with their own 1- and 2-worker "
+                    "producer runs alternated in the same window)")
     args = ap.parse_args(argv)
     n, repeats = (8, 1) if args.quick else (args.n, args.repeats)
     from benchmarks.producer_bench import calibrate  # Busy by its module's name, not __main__: workers import it
@@ -123,13 +133,13 @@ def main(argv: list[str] | None = None) -> int:
     pde = calibrate(args.solve_ms)
     print(f"{os.cpu_count()} cores, shared with other sessions (load average {os.getloadavg()[0]:.1f}); {n} solves "
           f"per run, median of {repeats}")
-    one = {}
-    for label, solver in (("CPU-bound", pde), ("waiting", type(pde)(sleep=args.solve_ms / 1e3))):
-        one[label] = measure(label, solver, n, repeats)
-    kill_solver_worker(pde)
+    if not args.dask_only:
+        for label, solver in (("CPU-bound", pde), ("waiting", type(pde)(sleep=args.solve_ms / 1e3))):
+            measure(label, solver, n, repeats)
+        kill_solver_worker(pde)
     if not args.no_dask:
         for label, solver in (("CPU-bound", pde), ("waiting", type(pde)(sleep=args.solve_ms / 1e3))):
-            dask_arm(label, solver, n, repeats, one[label], kill=label == "CPU-bound")
+            dask_arm(label, solver, n, repeats, kill=label == "CPU-bound")
     return 0
 
 
@@ -185,9 +195,25 @@ def kill_solver_worker(pde: Busy) -> None:
           f"{t:.2f} s vs {t_clean:.2f} s undisturbed (the job re-run in a fresh worker)")
 
 
-def dask_arm(label: str, pde: Busy, n: int, repeats: int, one_worker: float, kill: bool) -> None:
+def _tree_cpu(pids) -> float:
+    """CPU seconds (utime + stime) used so far by processes ``pids`` and all their descendants (Linux /proc)."""
+    tick, total, todo = os.sysconf("SC_CLK_TCK"), 0.0, list(pids)
+    while todo:
+        pid = todo.pop()
+        try:
+            fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / tick
+            for tid in os.listdir(f"/proc/{pid}/task"):
+                todo += [int(c) for c in open(f"/proc/{pid}/task/{tid}/children").read().split()]
+        except (OSError, IndexError, ValueError):
+            pass
+    return total
+
+
+def dask_arm(label: str, pde: Busy, n: int, repeats: int, kill: bool) -> None:
     """A warm 2-worker LocalCluster, each worker solving half the samples (solve_job) with its own solver
-    worker; with ``kill``, one Dask worker is killed mid-job."""
+    worker, alternated ``repeats`` times with the 1- and 2-worker producers in the same window (the shared
+    machine's load hits the three alike); with ``kill``, one Dask worker is killed mid-job."""
     from pdestream.datasets import _bridge
     from pdestream.datasets.distributed import dask_client
 
@@ -196,19 +222,35 @@ def dask_arm(label: str, pde: Busy, n: int, repeats: int, one_worker: float, kil
     want = producer(pde, n, 1)
     halves = [np.arange(n)[: n // 2], np.arange(n)[n // 2:]]
     with dask_client(None, 2) as client:
+        dask_pids = list(client.run(os.getpid).values())
+
         def run():
             futures = [client.submit(_bridge.solve_job, config, 0, h, pure=False) for h in halves]
             return np.concatenate([f.result()["u"] for f in futures])
 
         assert np.array_equal(run(), want)  # warm: each worker imports, starts its solver worker
-        t = statistics.median(_timed(run) for _ in range(repeats))
-        print(f"  {label}: dask, 2 workers {t:7.3f} s  {n / t:6.2f} solves/s   speedup vs the 1-worker producer "
-              f"{one_worker / t:.2f}x")
+        producer(pde, min(n, 4), 2)
+        arms = {"producer, 1 worker": (lambda: producer(pde, n, 1), _cpu), "producer, 2 workers":
+                (lambda: producer(pde, n, 2), _cpu), "dask, 2 workers": (run, lambda: _tree_cpu(dask_pids))}
+        times, cpus, loads = {a: [] for a in arms}, {a: [] for a in arms}, []
+        for _ in range(repeats):
+            for name, (fn, cpu_of) in arms.items():
+                cpu = cpu_of()
+                times[name].append(_timed(fn))
+                cpus[name].append(cpu_of() - cpu)
+            loads.append(os.getloadavg()[0])
+        one = statistics.median(times["producer, 1 worker"])
+        print(f"  {label}, alternated {repeats}x in one window (load average {min(loads):.1f}-{max(loads):.1f}):")
+        for name in arms:
+            t = statistics.median(times[name])
+            ratios = " ".join(f"{a / b:.2f}" for a, b in zip(times["producer, 1 worker"], times[name]))
+            print(f"    {name:20s} {t:7.3f} s  {n / t:6.2f} solves/s  speedup vs 1 worker {one / t:.2f}x (each "
+                  f"round: {ratios})  CPU {1e3 * statistics.median(cpus[name]) / n:.1f} ms per solve")
         if not kill:
             return
         pids = client.run(os.getpid)
         futures = [client.submit(_bridge.solve_job, config, 0, h, pure=False) for h in halves]
-        time.sleep(min(1.0, 0.3 * t))
+        time.sleep(min(1.0, 0.3 * statistics.median(times["dask, 2 workers"])))
         os.kill(next(iter(pids.values())), signal.SIGKILL)
         start = time.perf_counter()
         try:

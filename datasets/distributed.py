@@ -13,7 +13,8 @@ HDF5 allows one writer per file, so the Dask executor writes Zarr only.
 
 Running on a real cluster: start workers however the site does it (``dask-jobqueue``'s ``SLURMCluster``,
 ``dask scheduler`` + ``dask worker``, Kubernetes) with pdestream installed and the output directory on a
-shared filesystem, then pass the scheduler's address (``--scheduler tcp://host:8786``).
+shared filesystem, then pass the scheduler's address (``--scheduler tcp://host:8786``); the recipe for
+``dask scheduler`` + ``dask worker`` on machines of your own: docs/guides/dask.md, "A cluster of machines".
 """
 
 from __future__ import annotations
@@ -128,12 +129,38 @@ def dask_client(scheduler: str | None = None, workers: int = 2):
         return
     # set_as_default=False: leave the caller's dask scheduler (e.g. for xarray's .compute()) untouched
     with ExitStack() as stack:
+        restore = _nanny_environ_undone()
+        stack.callback(restore)  # (a nanny that restarts a dead worker writes them again: undone at the end too)
         with _sigint_blocked():
-            cluster = stack.enter_context(dist.LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                silence_logs=logging.CRITICAL, env=_worker_env()))  # a task's error reaches us as an exception
-            # (our one line); at ERROR the workers also printed their own 8-line "Compute Failed" report first
+            try:
+                cluster = stack.enter_context(dist.LocalCluster(
+                    n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                    silence_logs=logging.CRITICAL, env=_worker_env()))  # a task's error reaches us as an exception
+                # (our one line); at ERROR the workers also printed their own 8-line "Compute Failed" report first
+            finally:
+                restore()
         yield stack.enter_context(dist.Client(cluster, set_as_default=False))
+
+
+def _nanny_environ_undone():
+    """A function that puts back this process's values of the variables a Dask nanny sets before it spawns its
+    worker (``distributed.nanny.pre-spawn-environ``: MALLOC_TRIM_THRESHOLD_=65536, OMP_NUM_THREADS=1, ...). The
+    nanny writes them into its own process's os.environ, here the caller's, and leaves them there: every process the
+    caller started afterwards inherited them (a solver worker with MALLOC_TRIM_THRESHOLD_ spent 2.2x the CPU per
+    NumPy solve; a DataLoader or producer process got OMP_NUM_THREADS=1)."""
+    import dask
+
+    names = [str(k) for k in dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {}]
+    saved = {k: os.environ.get(k) for k in names}
+
+    def restore():
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+    return restore
 
 
 @contextmanager

@@ -5,8 +5,10 @@ blocks of 4. Each test that starts a Dask cluster costs ~10-20 s of start-up on 
 import json
 import logging
 import os
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -59,9 +61,17 @@ def assert_same_cache(got, want):
 
 
 @needs_dask
-def test_two_workers_equal_single_process_bit_for_bit(pde, reference, tmp_path):
+def test_two_workers_equal_single_process_bit_for_bit(pde, reference, tmp_path, monkeypatch):
+    import dask
+
+    spawn_env = dask.config.get("distributed.nanny.pre-spawn-environ")  # MALLOC_TRIM_THRESHOLD_, OMP_NUM_THREADS...
+    for name in spawn_env:
+        monkeypatch.delenv(name, raising=False)
     out = tmp_path / "dask.zarr"
     done = write_cache_dask(pde, out, N, seed=SEED, workers=2, block=BLOCK, progress=False)  # embedded cluster
+    # its nannies wrote these into this process's environment to pass them on: undone (a solver worker started
+    # here later inherited MALLOC_TRIM_THRESHOLD_ and spent 2.2x the CPU per NumPy solve)
+    assert not set(spawn_env) & set(os.environ)
     assert (done.written, done.n_samples) == (N, N)
     assert_same_cache(out, reference)
     ref = np.asarray(generator.sample(pde, [5], SEED).u[0])  # sample 5 solved alone, not by any writer
@@ -135,6 +145,84 @@ def test_cli_dask_executor_and_its_errors(reference, cluster, tmp_path, capsys):
         assert cli.main([*small, *extra]) == 2
         err = capsys.readouterr().err
         assert err.startswith("pdestream: error: ") and message in err and err.count("\n") == 1, err
+
+
+STARTUP_S = 180  # the longest a scheduler or worker process may take to come up (2 loaded cores: tens of seconds)
+
+
+def _start_dask_process(args, log_path, env) -> subprocess.Popen:
+    """``python -m distributed.cli.<args>`` (what ``dask scheduler`` / ``dask worker`` run) in its own process group,
+    its output in a log file (read on failure)."""
+    log = open(log_path, "w")
+    try:
+        return subprocess.Popen([sys.executable, "-m", *args], stdout=log, stderr=subprocess.STDOUT, env=env,
+                                process_group=0)
+    finally:
+        log.close()
+
+
+def _stop_dask_process(proc: subprocess.Popen) -> None:
+    """SIGTERM to its process group (a worker's nanny and the worker it spawned), a bounded wait, then SIGKILL."""
+    for sig, wait_s in ((signal.SIGTERM, 30), (signal.SIGKILL, 10)):
+        try:
+            os.killpg(proc.pid, sig)
+        except (ProcessLookupError, PermissionError):
+            pass
+        try:
+            proc.wait(wait_s)
+            return
+        except subprocess.TimeoutExpired:
+            continue
+
+
+def _scheduler_address(path, proc, log_path) -> str:
+    """The address a ``dask scheduler --scheduler-file`` wrote, waiting at most STARTUP_S seconds."""
+    for _ in range(STARTUP_S * 10):
+        if proc.poll() is not None:
+            pytest.fail(f"dask scheduler exited with {proc.returncode}: {open(log_path).read()[-2000:]}")
+        try:
+            return json.loads(path.read_text())["address"]
+        except (OSError, ValueError, KeyError):
+            time.sleep(0.1)
+    pytest.fail(f"no scheduler address after {STARTUP_S} s: {open(log_path).read()[-2000:]}")
+
+
+@needs_dask
+@pytest.mark.slow
+def test_cluster_of_separate_processes_equals_single_process_bit_for_bit(pde, reference, tmp_path):
+    """docs/guides/dask.md, "A cluster of machines": a scheduler and two workers started as separate processes
+    (``dask scheduler``, ``dask worker ADDRESS --nworkers 1 --nthreads 1`` with the documented environment), each
+    worker standing in for a machine; write_cache_dask(..., scheduler=address) writes the plain cache bit for bit."""
+    env = {**os.environ, **_worker_env()}  # JAX on the CPU, one XLA thread (as docs/guides/dask.md says)
+    procs = []
+    try:
+        file, log = tmp_path / "scheduler.json", tmp_path / "scheduler.log"
+        procs.append(_start_dask_process(["distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0",
+                                          "--no-dashboard", "--scheduler-file", str(file)], log, env))
+        address = _scheduler_address(file, procs[0], log)
+        assert address.startswith("tcp://127.0.0.1:")
+        for i in range(2):  # two "machines"
+            procs.append(_start_dask_process(
+                ["distributed.cli.dask_worker", address, "--nworkers", "1", "--nthreads", "1", "--host", "127.0.0.1",
+                 "--no-dashboard", "--name", f"node-{i}", "--local-directory", str(tmp_path / f"node-{i}"),
+                 "--death-timeout", "60"], tmp_path / f"node-{i}.log", env))
+        with Client(address, timeout="60s", set_as_default=False) as client:
+            try:
+                client.wait_for_workers(2, timeout=STARTUP_S)
+            except TimeoutError:
+                logs = "; ".join(open(tmp_path / f"node-{i}.log").read()[-1000:] for i in range(2))
+                pytest.fail(f"the 2 workers did not join within {STARTUP_S} s: {logs}")
+            names = sorted(w["name"] for w in client.scheduler_info()["workers"].values())
+            assert names == ["node-0", "node-1"]
+            for w in client.run(lambda: os.environ.get("XLA_FLAGS", "")).values():
+                assert "--xla_cpu_multi_thread_eigen=false" in w
+        out = tmp_path / "cluster.zarr"
+        done = write_cache_dask(pde, out, N, seed=SEED, scheduler=address, block=BLOCK, progress=False)
+        assert (done.written, done.n_samples) == (N, N)
+        assert_same_cache(out, reference)
+    finally:
+        for proc in reversed(procs):  # the workers first, then the scheduler
+            _stop_dask_process(proc)
 
 
 RANK = r"""
