@@ -14,6 +14,8 @@ from contextlib import contextmanager
 
 from tqdm import tqdm
 
+from pdestream.meter import Meter, progress_to
+
 EVERY = 10.0  # seconds between plain progress lines when stderr is not a terminal
 
 
@@ -52,10 +54,20 @@ class RunProgress:
 
 
 @contextmanager
-def phase(what: str, every: float | None = None):
+def phase(what: str, every: float | None = None, total: int | None = None, unit: str = "trajectories",
+          solves: int = 1):
     """Report a phase (``what``: e.g. "test set: 32 trajectories") that may run long: a plain line every
     ``every`` seconds while it runs ("... still running, 20 s"), and one with its time when it ends if any was
-    printed; a quick phase prints nothing."""
+    printed; a quick phase prints nothing.
+
+    With ``total`` (the ``unit`` the phase makes, in ``solves`` solves of equal size, as a test set's padded
+    batches): the lines give a count, a rate and the time left instead, moved by the progress the phase's solves
+    report (``pdestream.meter``): "what: 12.50/32 trajectories, 2.1 s/trajectory, ~41 s left (30 s so far)",
+    the first after meter.FIRST s, then every meter.EVERY s."""
+    if total is not None:
+        with _counted(what, total, unit, solves):
+            yield
+        return
     done, t0, every = threading.Event(), time.perf_counter(), EVERY if every is None else every
 
     def tick():
@@ -71,3 +83,29 @@ def phase(what: str, every: float | None = None):
         ticker.join()
         if time.perf_counter() - t0 >= every:
             _line(f"{what}: done in {time.perf_counter() - t0:.0f} s")
+
+
+def solve_counter(meter: Meter, solves: int):
+    """A ``progress_to`` callback moving ``meter`` over ``solves`` solves of equal size, one after another: a
+    report after one that reached its total starts the next solve."""
+    state = {"finished": 0, "last": 0.0}
+
+    def moved(done: int, of: int) -> None:
+        if state["last"] >= 1.0:
+            state["finished"] += 1
+        state["last"] = done / of
+        meter.set(min(1.0, (state["finished"] + state["last"]) / max(solves, 1)) * meter.total)
+
+    return moved
+
+
+@contextmanager
+def _counted(what: str, total: int, unit: str, solves: int):
+    meter = Meter(what, total, unit, terminal=False)  # plain lines, as every phase (a training bar may be up)
+    try:
+        with progress_to(solve_counter(meter, solves)):
+            yield
+    finally:
+        meter.close()
+        if meter.lines:
+            _line(f"{what}: done in {meter.clock() - meter.t0:.0f} s")
