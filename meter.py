@@ -143,7 +143,7 @@ class Meter:
     def tick(self, now: float | None = None) -> bool:
         """Show the count if due: a bar refresh on a terminal, else a plain line FIRST s after the start, then at
         most every EVERY s. Returns whether a plain line was printed."""
-        if not self.enabled:
+        if not self.enabled or self._stop.is_set():  # closed: a solve still reporting (a stream's prefetch) is quiet
             return False
         with self._show:
             return self._tick(self.clock() if now is None else now)
@@ -176,6 +176,6 @@ class Meter:
         if self._thread is not None:
             self._thread.join()
         if self.bar is not None:
-            self.tick()
             with self._show:
+                self._tick(self.clock())
                 self.bar.close()
