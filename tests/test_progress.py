@@ -113,3 +113,20 @@ def test_a_phase_counts_the_trajectories_its_solves_report(capsys, monkeypatch):
     counts = [line.split(": ")[1].split(" ")[0] for line in lines if "trajectories, " in line]
     assert "8/64" in counts and "32/64" in counts and "40/64" in counts and "64/64" in counts
     assert lines[-1].startswith("building the test set (64 trajectories): done in")
+
+
+@pytest.mark.parametrize("workers", ["0", "2"])
+def test_an_external_solver_reports_each_finished_sample(workers, monkeypatch):
+    from external_solvers import Decay
+
+    from pdestream.generator.external import solver as external
+
+    monkeypatch.setenv(external.WORKERS_ENV, workers)  # in this process / in worker processes
+    pde = Decay(delay=0.3 if workers != "0" else 0.0)  # in workers: the wait sees some samples finish apart
+    reports = []
+    with dispatch.progress_to(lambda d, t: reports.append((d, t))):
+        u = np.asarray(generator.sample(pde, [0, 1, 2, 3], seed=1).u)
+    assert reports[-1] == (4, 4) and all(t == 4 for _, t in reports)
+    assert all(b[0] > a[0] for a, b in itertools.pairwise(reports))
+    assert len(reports) == 4 if workers == "0" else len(reports) >= 1
+    assert np.array_equal(u, np.asarray(generator.sample(pde, [0, 1, 2, 3], seed=1).u))  # no callback: same bits
