@@ -14,7 +14,7 @@ from contextlib import contextmanager
 
 from tqdm import tqdm
 
-from pdestream.meter import Meter, progress_to
+from pdestream.meter import FIRST, Meter, duration, progress_to
 
 EVERY = 10.0  # seconds between plain progress lines when stderr is not a terminal
 
@@ -28,13 +28,15 @@ def _line(text: str) -> None:
 
 
 class RunProgress:
-    """The training loop's progress: a tqdm bar on a terminal, else a plain line every ``every`` seconds.
+    """The training loop's progress: a tqdm bar on a terminal, else a plain line (steps, their rate, the time left)
+    meter.FIRST seconds in, then every ``every`` seconds.
     total: steps of the run (None: a run of seconds); initial: steps already done (a resumed run)."""
 
     def __init__(self, label: str, total: int | None, initial: int = 0, every: float | None = None):
         self.label, self.total, self.every = label, total, EVERY if every is None else every
         self.bar = tqdm(total=total, initial=initial, desc=label, leave=False) if _terminal() else None
-        self.step, self.last_line, self.start = initial, time.perf_counter(), time.perf_counter()
+        self.step, self.initial, self.start = initial, initial, time.perf_counter()
+        self.last_line = self.start - self.every + min(FIRST, self.every)  # the first line FIRST s in
 
     def show(self, step: int, postfix: dict) -> None:
         """Training reached ``step``; postfix: a few figures (loss, the data source's waiting)."""
@@ -43,7 +45,11 @@ class RunProgress:
             self.bar.set_postfix(postfix)
         elif time.perf_counter() - self.last_line >= self.every:
             of = f"/{self.total}" if self.total else ""
-            _line(f"{self.label}: step {step}{of}, {time.perf_counter() - self.start:.0f} s, "
+            elapsed = time.perf_counter() - self.start
+            rate = (step - self.initial) / elapsed if elapsed > 0 and step > self.initial else None
+            pace = f"{rate:.3g} steps/s, " if rate else ""
+            left = f"~{duration((self.total - step) / rate)} left, " if rate and self.total else ""
+            _line(f"{self.label}: step {step}{of}, {elapsed:.0f} s, {pace}{left}"
                   + ", ".join(f"{k} {v}" for k, v in postfix.items()))
             self.last_line = time.perf_counter()
         self.step = step

@@ -130,3 +130,13 @@ def test_an_external_solver_reports_each_finished_sample(workers, monkeypatch):
     assert all(b[0] > a[0] for a, b in itertools.pairwise(reports))
     assert len(reports) == 4 if workers == "0" else len(reports) >= 1
     assert np.array_equal(u, np.asarray(generator.sample(pde, [0, 1, 2, 3], seed=1).u))  # no callback: same bits
+
+
+def test_training_lines_give_the_rate_and_the_time_left(capsys):
+    from pdestream.surrogate.phases import RunProgress
+
+    run = RunProgress("arm", 4, every=0.0)
+    run.show(1, {"loss": "0.5"})
+    run.close()
+    line = capsys.readouterr().err.strip()
+    assert line.startswith("arm: step 1/4, ") and " steps/s, ~" in line and " left, loss 0.5" in line, line
