@@ -7,7 +7,8 @@
     pdestream.experiments   compare, the time and simulation budgets, the interactive-mode comparison.
     pdestream.cli           the ``pdestream`` command: parses and hands each command to the library.
     pdestream.settings      a command's PDE settings (--config, --set); pdestream.catalog_names: the catalog's
-                            names without JAX; pdestream.interrupts: Ctrl-C and the exit status of a command.
+                            names without JAX; pdestream.interrupts: Ctrl-C and the exit status of a command;
+                            pdestream.meter: solves' progress reports and the count / rate / time-left lines.
 
 This module imports nothing heavy (no JAX, no torch), so ``pdestream --help`` and a refused command answer fast.
 The repository's folders are these packages (pyproject maps ``pdestream`` to the repository root); ``datasets/``

@@ -5,7 +5,8 @@ while batch k is trained on). JAX releases the GIL while it computes, so the two
 
 Stopping is prompt: the producer's solves stop at their next bounded call once the consumer has gone
 (``generator.sampler.cancel_on``), and the consumer waits at most JOIN_S for that, so a Ctrl-C is not held up
-by a long solve in flight.
+by a long solve in flight. The producer's solves report their progress to the ``meter.progress_to`` callback of
+the thread that first iterates the prefetch (the consumer's).
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import atexit
 import queue
 import threading
 from collections.abc import Callable, Iterable, Iterator
+
+from pdestream import meter
 
 _DONE = object()
 _LIVE: set = set()  # (stop event, thread) of every running producer
@@ -51,6 +54,7 @@ def prefetch(make: Callable[[], Iterable], depth: int = 1, name: str = "pdestrea
         raise ValueError(f"depth={depth!r} not allowed: need an integer >= 1")
     ready: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()
+    progress = meter.current()  # the producer's solves report to the consumer thread's progress callback
 
     def put(item) -> bool:  # False once the consumer has gone
         while not stop.is_set():
@@ -66,9 +70,10 @@ def prefetch(make: Callable[[], Iterable], depth: int = 1, name: str = "pdestrea
 
         try:
             _bridge.cancel_solves_on(stop)  # a solve of this thread stops at its next call once we are closed
-            for item in make():
-                if not put(item):
-                    return
+            with meter.progress_to(progress):
+                for item in make():
+                    if not put(item):
+                        return
             put(_DONE)
         except BaseException as err:  # re-raised by the consumer (nobody reads it once stopped: no-op then)
             put(_Raised(err))

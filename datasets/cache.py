@@ -13,7 +13,6 @@ import glob
 import hashlib
 import math
 import os
-import sys
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -249,8 +248,9 @@ def write_cache(pde, path, n_samples: int, seed: int = 0, resume: bool = False, 
     Fields are float32 [sample, time, x(, y)] (schema in ``datasets.schema``). ``block`` samples are
     solved per batch (default: ~32 MiB); ``resume`` finishes an interrupted cache of the same set-up
     (bit-identical to an uninterrupted run); ``overwrite`` replaces an existing pdestream cache (the new one
-    is built beside it and swapped in only once complete). ``progress`` shows a tqdm bar when stderr is a
-    terminal. An OS failure while writing (disk full) is one ValueError line naming the path, the cause and
+    is built beside it and swapped in only once complete). ``progress`` shows the samples solved (fractional within a
+    block), their rate and the time left: a tqdm bar when stderr is a terminal, else plain lines
+    (``pdestream.meter.Meter``). An OS failure while writing (disk full) is one ValueError line naming the path, the cause and
     what was kept.
     """
     from ._bridge import resolve_pde
@@ -453,17 +453,26 @@ def pending_blocks(store, block: int) -> list[tuple[int, int]]:
 
 def _fill(pde, job: Job, progress: bool) -> int:
     """Solve and write every pending block of ``job``, then mark it complete; returns the samples written."""
-    from tqdm import tqdm
+    from pdestream.meter import Meter
 
     s, block = job.settings, job.block
     store = job.fmt.open(job.work, writable=True)
     written = 0
     try:
         todo = pending_blocks(store, block)
-        bar = tqdm(total=s.n_samples, initial=s.n_samples - sum(hi - lo for lo, hi in todo), unit="sample",
-                   desc=pde.NAME, smoothing=0.1, disable=not progress or not sys.stderr.isatty())
-        # one block solved ahead of the one being written; each padded to ``block`` samples (one compile)
-        solved = prefetch(lambda: ((lo, hi, *solve_block(pde, s.seed, lo, hi, block, s.on_blowup)) for lo, hi in todo))
+        initial = s.n_samples - sum(hi - lo for lo, hi in todo)
+        # samples solved (fractional within a block: its solve reports after each bounded call), rate, time left
+        bar = Meter(pde.NAME, s.n_samples, "samples", initial=initial, enabled=progress)
+
+        def solve_all():  # in the prefetch thread: one block solved ahead of the one being written
+            base = initial
+            for lo, hi in todo:
+                with bar.solving(base, hi - lo):  # each padded to ``block`` samples (one compile)
+                    item = (lo, hi, *solve_block(pde, s.seed, lo, hi, block, s.on_blowup))
+                base += hi - lo
+                yield item
+
+        solved = prefetch(solve_all)
         try:
             for item in solved:
                 lo, hi = item[:2]
@@ -472,7 +481,6 @@ def _fill(pde, job: Job, progress: bool) -> int:
                 except OSError as err:  # disk full, I/O error: one line, not the library's report
                     raise CacheWriteError(f"cannot write {job.path} (samples {lo}..{hi - 1}): {os_error_cause(err)}") from None
                 written += hi - lo
-                bar.update(hi - lo)
         finally:
             # stops the solver thread: it ends at its next bounded compiled call (rollouts run in pieces)
             solved.close()

@@ -196,7 +196,7 @@ def _block_task(config: dict, seed: int, path: str, lo: int, hi: int, block: int
 
 def _run_blocks(client, name: str, settings, path: str, todo, block: int, progress: bool) -> None:
     """One task per (lo, hi) block; raises the first task error after cancelling the rest."""
-    from tqdm import tqdm
+    from pdestream.meter import Meter
 
     if progress and "dashboard" in client.scheduler_info().get("services", {}):
         hint = "" if importlib.util.find_spec("bokeh") else " (install bokeh to see its plots)"
@@ -207,12 +207,12 @@ def _run_blocks(client, name: str, settings, path: str, todo, block: int, progre
     futures = [client.submit(_block_task, config, seed, path, lo, hi, block, on_blowup, key=f"{tag}-{lo}-{hi}",
                              pure=False) for lo, hi in todo]
     n = settings.n_samples
-    bar = tqdm(total=n, initial=n - sum(hi - lo for lo, hi in todo), unit="sample", desc=f"{name} (dask)",
-               smoothing=0.1, disable=not progress or not sys.stderr.isatty())
+    # samples of finished blocks (tasks run in other processes: no count inside a block), rate, time left
+    bar = Meter(f"{name} (dask)", n, "samples", initial=n - sum(hi - lo for lo, hi in todo), enabled=progress)
     try:
         for future in _distributed().as_completed(futures, loop=client.loop):
             lo, hi = future.result()  # a task's error (e.g. generator.BlowUpError) is raised here
-            bar.update(hi - lo)
+            bar.add(hi - lo)
     except BaseException:
         client.cancel(futures)
         raise

@@ -385,7 +385,9 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     shifted = shifted_pde(pde, cfg.shift, shift_overrides)
-    with phase(f"building the test sets ({cfg.n_test} stratified trajectories each)"):
+    sets = 1 if shifted is None else 2  # each in chunks of 32 (stratified_test_set)
+    with phase(f"building the test sets ({cfg.n_test} stratified trajectories each)", total=sets * cfg.n_test,
+               solves=sets * -(-cfg.n_test // 32)):
         tests = {"test": stratified_test_set(pde, cfg.n_test, 0)}
         if shifted is not None:
             tests["shifted"] = stratified_test_set(shifted, cfg.n_test, 0)

@@ -92,7 +92,9 @@ def compare(pde, out_dir, cfg: CompareConfig = CompareConfig(), shift_overrides:
     log(written.line())
     t0 = time.perf_counter()
     shifted = shifted_pde(pde, cfg.shift, shift_overrides)
-    with phase(f"building the test sets ({cfg.n_test} trajectories each)"):
+    sets = 1 if shifted is None else 2  # each in batches of up to 32 (test_set)
+    with phase(f"building the test sets ({cfg.n_test} trajectories each)", total=sets * cfg.n_test,
+               solves=sets * -(-cfg.n_test // 32)):
         tests = {"test": test_set(pde, 0, cfg.n_test)}
         if shifted is not None:
             tests["shifted"] = test_set(shifted, 0, cfg.n_test)

@@ -100,14 +100,15 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
     arms = []
     if net_modes:
         t0 = time.perf_counter()
-        with phase(f"building the test set ({cfg.n_test} trajectories)"):
+        with phase(f"building the test set ({cfg.n_test} trajectories)", total=cfg.n_test, solves=-(-cfg.n_test // 32)):
             test = stratified_test_set(pde, cfg.n_test, cfg.seed)
         log(f"test set: {cfg.n_test} trajectories of {pde.n_frames} frames in {time.perf_counter() - t0:.1f} s")
         for name in net_modes:
             settings = _settings(cfg, name)
             arms.append(_train_arm(name, pde, settings, test, cfg, out / name, log))
     if sitl:
-        with phase(f"building the fine test set ({cfg.n_test} trajectories, n={fine.n})"):
+        with phase(f"building the fine test set ({cfg.n_test} trajectories, n={fine.n})", total=cfg.n_test,
+                   solves=-(-cfg.n_test // 32)):  # stratified_test_set's chunks of 32
             test = stratified_test_set(fine, cfg.n_test, cfg.seed)
         k = _settings(cfg, "solver-in-the-loop")["unroll"]
         coarse = make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)

@@ -9,6 +9,9 @@ solves in steps (the spectral rollouts, interactive advances) splits its work wi
 the solves of one thread inside a ``with`` block (tests, benchmarks), read with ``work()`` / ``step_overhead()``.
 On an accelerator (the default device is a GPU) a call does ACCELERATOR_WORK: a GPU runs 2**24 point-steps in
 about a millisecond, so the host sync after each call, not the steps, set the pace (benchmarks/device_reservoir_bench.py).
+Progress: after each sync a solving loop calls ``report(done, total)`` (steps, or samples of an external solver),
+read by the callback of ``progress_to(callback)`` in force in the calling thread (``pdestream.meter``, no JAX);
+a report only reads counters, so a solve's calls and bits do not depend on it.
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ import contextlib
 import threading
 
 import jax
+
+from pdestream.meter import progress_to, report  # noqa: F401  (the progress hook: see the docstring)
 
 DISPATCH_WORK = 2**24
 ACCELERATOR_WORK = 2**28  # ~0.1 s per call for a full batch on an H100, a Ctrl-C still seen within that

@@ -231,7 +231,8 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     def finish(model, normalizer) -> dict:
         sets = tests
         if sets is None:
-            with phase(f"{s['label']}: building the test set ({s['n_test']} trajectories)"):
+            with phase(f"{s['label']}: building the test set ({s['n_test']} trajectories)", total=s["n_test"],
+                       solves=-(-s["n_test"] // 32)):  # test_set's batches of up to 32
                 sets = {"test": test_set(data_pde, s["data_seed"], s["n_test"])}
         with phase(f"{s['label']}: test errors" + (" and rollouts" if view.rollout_k_in else "")):
             return {"test": {name: test_errors(model, normalizer, view, t, mode) for name, t in sets.items()}}

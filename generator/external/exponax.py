@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..dispatch import sync
+from ..dispatch import report, sync
 from ..ics import FourierSeries
 from ..problem import Param, ProblemBase, resolve_params
 from ..spectral.fourier import Grid
@@ -165,6 +165,7 @@ class ExponaxProblem(ProblemBase):
         for i in range(u0.shape[0]):
             us.append(roll(self.stepper({k: float(v[i]) for k, v in p.items()}), u0[i]))
             sync([(us[-1],)])
+            report(i + 1, u0.shape[0])
         u = jnp.stack(us)
         return u, jnp.all(jnp.isfinite(u.reshape(u.shape[0], -1)), axis=1)
 
@@ -178,6 +179,7 @@ class ExponaxProblem(ProblemBase):
             p, u0 = setup(keys[i], explicit[i], given[i])
             u = roll(self.stepper({k: float(v) for k, v in p.items()}), u0)
             sync([(u,)])
+            report(i + 1, keys.shape[0])
             us.append(u)
             ps.append(p)
         u = jnp.stack(us)

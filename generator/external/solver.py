@@ -53,7 +53,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..dispatch import Cancelled, cancelled
+from ..dispatch import Cancelled, cancelled, report
 from ..grids import BOUNDARY_TYPES, GridBase
 from ..problem import ProblemBase, resolve_params
 
@@ -299,7 +299,11 @@ def solve_all(problem: ExternalSolver, jobs: list[tuple[dict, int]]) -> list[tup
     in parallel, or in this process with workers = 0."""
     workers, timeout = settings()
     if workers == 0:
-        return [_solve_here(problem, p, s) for p, s in jobs]
+        out = []
+        for p, s in jobs:
+            out.append(_solve_here(problem, p, s))
+            report(len(out), len(jobs))  # progress: one report per finished sample
+        return out
     where = (problem.config().get("origin") or {}).get("module")
     if where == "__main__":
         raise ValueError(f"{problem.NAME}: class {type(problem).__name__} is defined in the script being run "
@@ -308,11 +312,16 @@ def solve_all(problem: ExternalSolver, jobs: list[tuple[dict, int]]) -> list[tup
     pool = _pool(workers)
     config = problem.config()
     futures = [pool.submit(config, *job, timeout) for job in jobs]
-    while wait(futures, timeout=0.2).not_done:
+    finished = 0
+    while (waited := wait(futures, timeout=0.2)).not_done:
+        if len(waited.done) > finished:  # progress: samples finished so far
+            finished = len(waited.done)
+            report(finished, len(jobs))
         if cancelled():  # the consumer has gone (a closed reservoir): stop waiting; the solves in flight end alone
             for f in futures:
                 f.cancel()
             raise Cancelled("external solves cancelled: their consumer stopped")
+    report(len(jobs), len(jobs))
     return [f.result() for f in futures]
 
 

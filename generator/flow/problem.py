@@ -303,15 +303,17 @@ class FlowProblem(ProblemBase):
         cells = math.prod(self.grid.shape)
         per_step = CHUNK * cells * STEP_WORK_PER_CELL + dispatch.step_overhead()
         results = []
-        for part in split([jnp.asarray(keys), jnp.asarray(explicit), jnp.asarray(given)], CHUNK):
+        parts = split([jnp.asarray(keys), jnp.asarray(explicit), jnp.asarray(given)], CHUNK)
+        count = _Steps(len(parts) * (self.warmup_steps + (self.n_frames - 1) * self.steps_per_frame))
+        for part in parts:
             p, fp, state = start(*part)
             state = _advance(advance, state, fp, self.t_start / max(self.warmup_steps, 1), self.warmup_steps,
-                             per_step)
+                             per_step, count)
             frames = []
             for i in range(self.n_frames):
                 frames.append(frame(state, fp))
                 if i < self.n_frames - 1:
-                    state = _advance(advance, state, fp, self.step_dt, self.steps_per_frame, per_step)
+                    state = _advance(advance, state, fp, self.step_dt, self.steps_per_frame, per_step, count)
             u = jnp.stack(frames, axis=1)
             ok = jnp.all(jnp.isfinite(u), axis=tuple(range(1, u.ndim))) & jnp.all(
                 jnp.abs(u[:, :, :2]) <= speed_cap, axis=tuple(range(1, u.ndim))) & (state.capped == 0)
@@ -320,13 +322,27 @@ class FlowProblem(ProblemBase):
         return u, params, ok, None
 
 
-def _advance(advance, state, fp, dt: float, n_steps: int, per_step: int):
-    """state advanced n_steps steps of dt in calls of at most ~DISPATCH_WORK point-steps (a sync between two)."""
+class _Steps:
+    """Steps done of a solve's ``total`` (warm-up and frames of every chunk), reported after each call."""
+
+    def __init__(self, total: int):
+        self.done, self.total = 0, total
+
+    def add(self, k: int) -> None:
+        self.done += k
+        dispatch.report(self.done, self.total)
+
+
+def _advance(advance, state, fp, dt: float, n_steps: int, per_step: int, count: _Steps | None = None):
+    """state advanced n_steps steps of dt in calls of at most ~DISPATCH_WORK point-steps (a sync between two),
+    each call's steps added to ``count`` (progress)."""
     if n_steps == 0:
         return state
     for k in dispatch.pieces(n_steps, per_step):
         state = advance(k)(state, fp, jnp.float32(dt))
         dispatch.sync([(state.u,)])
+        if count is not None:
+            count.add(k)
     return state
 
 

@@ -180,17 +180,22 @@ def evolve_bounded(pde: PDE, parts, shared: bool = False):
     batch = sum(int(u0.shape[0]) for u0, _, _ in parts)
     spf, last = pde.steps_per_frame, pde.n_frames - 1
     per_step = batch * len(pde.FIELDS) * pde.n**pde.NDIM + len(parts) * dispatch.step_overhead()
+    done, total = 0, last * spf  # steps, for dispatch.report
     if per_step * spf <= dispatch.work():  # whole frames per call
         k = dispatch.work() // (per_step * spf)
         for lo in range(0, last, k):
             states = [(*frames(v, buf, p, c, lo, min(lo + k, last)), p, c) for v, buf, p, c in states]
             dispatch.sync(states)
+            done += (min(lo + k, last) - lo) * spf
+            dispatch.report(done, total)
     else:  # a frame takes longer than one call: record it, then its steps in pieces
         for i in range(last):
             states = [(v, record(v, buf, p, i), p, c) for v, buf, p, c in states]
             for k in dispatch.pieces(spf, per_step):
                 states = [(steps(v, p, c, k), buf, p, c) for v, buf, p, c in states]
                 dispatch.sync(states)
+                done += k
+                dispatch.report(done, total)
     return [finish(v, buf, p) for v, buf, p, _ in states]
 
 
@@ -235,9 +240,12 @@ def advance_bounded(pde: PDE, u: jax.Array, p: Mapping[str, jax.Array], coeffs, 
         return whole(u, p, coeffs, n_steps)
     steps = compiled_stages(pde)[3]
     v = enter(u, p)
+    done = 0
     for k in pieces:
         v = steps(v, p, coeffs, k)
         dispatch.sync([(v,)])
+        done += k
+        dispatch.report(done, n_steps)
     return leave(v, p)
 
 

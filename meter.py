@@ -1,0 +1,181 @@
+"""Counts, rates and time left of long work, and the hook through which solves report their progress. No JAX,
+no torch (the surrogate side and the CLI import it).
+
+Solves report: ``report(done, total)`` after each bounded call (``generator.dispatch`` re-exports it; the spectral
+rollouts, the flows' advance and the external solvers call it), read by the callback of ``progress_to(callback)``
+in force in the calling thread (``datasets``' prefetch thread inherits its consumer's). Reports only read
+counters: a solve's calls and bits are the same with or without a callback.
+
+``Meter`` shows a count (fractional within a solve), a rate and the time left: a tqdm bar on a terminal, else a
+plain line FIRST seconds after it starts and then at most every EVERY seconds (a ticker thread, so a line comes
+while the work is inside one long solve).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from typing import Callable
+
+FIRST = 3.0  # seconds before the first plain line of a Meter
+EVERY = 5.0  # seconds between a Meter's plain lines
+BAR_REFRESH = 0.5  # seconds between refreshes of a terminal bar
+
+_HOOK = threading.local()
+
+
+@contextmanager
+def progress_to(callback: Callable[[int, int], None] | None):
+    """Inside the block, solves in the calling thread call ``callback(done, total)`` (steps or samples of the
+    solve, 0 < done <= total) after each bounded call; the callback before it comes back after it."""
+    before = getattr(_HOOK, "callback", None)
+    _HOOK.callback = callback
+    try:
+        yield
+    finally:
+        _HOOK.callback = before
+
+
+def current() -> Callable[[int, int], None] | None:
+    """The callback of the calling thread's ``progress_to`` (None: none)."""
+    return getattr(_HOOK, "callback", None)
+
+
+def report(done: int, total: int) -> None:
+    """A solve of the calling thread has done ``done`` of its ``total`` steps (or samples): to the callback of
+    ``progress_to`` if any (clamped to [0, total]; nothing for total <= 0)."""
+    callback = getattr(_HOOK, "callback", None)
+    if callback is not None and total > 0:
+        callback(min(max(done, 0), total), total)
+
+
+def duration(seconds: float) -> str:
+    """'4 s', '3 min 10 s', '2 h 5 min'."""
+    s = max(0, round(seconds))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60} s"
+    return f"{s // 3600} h {s % 3600 // 60} min"
+
+
+def _count(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() else f"{x:.2f}"
+
+
+class Meter:
+    """``done`` of ``total`` ``unit`` (``initial`` already done before it started: a resumed cache), with a rate
+    and the time left. ``set``/``add`` may come from any thread (a solve's callback); the lines come from a ticker
+    thread (``live``), or from ``tick(now)`` (tests, with a fake ``clock``). ``terminal``: a tqdm bar instead of
+    plain lines (default: whether stderr is a terminal); ``enabled=False`` shows nothing."""
+
+    def __init__(self, label: str, total: float, unit: str = "samples", initial: float = 0.0,
+                 first: float | None = None, every: float | None = None, clock: Callable[[], float] | None = None,
+                 terminal: bool | None = None, enabled: bool = True, live: bool = True):
+        self.label, self.total, self.unit = label, float(total), unit
+        self.clock = clock or time.monotonic
+        self.first, self.every = FIRST if first is None else first, EVERY if every is None else every
+        self.done = self.initial = float(initial)
+        self.t0, self.last_line, self.lines = self.clock(), None, 0
+        self.enabled = enabled
+        self._mark = None  # (time, count) of the first count above ``initial``: the rate is measured from there
+        self._lock, self._show, self._stop = threading.Lock(), threading.Lock(), threading.Event()
+        terminal = sys.stderr.isatty() if terminal is None else terminal
+        self.bar = None
+        if enabled and terminal:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=self.total, initial=self.initial, desc=label, unit=unit.rstrip("s") or unit,
+                            bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.2f}/{total:.0f} "
+                                       "[{elapsed}<{remaining}, {rate_fmt}]", smoothing=0.1)
+        self._shown = self.initial
+        self._thread = None
+        if enabled and live:
+            self._thread = threading.Thread(target=self._run, daemon=True, name="pdestream-meter")
+            self._thread.start()
+
+    # --- counting ----------------------------------------------------------------------------------------
+    def set(self, done: float) -> None:
+        """``done`` units done in all (never goes back; at most ``total``); a line if one is due."""
+        with self._lock:
+            self.done = max(self.done, min(float(done), self.total))
+            if self._mark is None and self.done > self.initial:
+                self._mark = (self.clock(), self.done)
+        self.tick()
+
+    def add(self, n: float) -> None:
+        self.set(self.done + n)
+
+    @contextmanager
+    def solving(self, base: float, n: float):
+        """Inside the block the calling thread's solves cover units base..base+n: their reports move the count
+        within that range; the count is base+n after the block."""
+        def moved(done: int, total: int) -> None:
+            self.set(base + n * done / total)
+
+        with progress_to(moved):
+            yield
+        self.set(base + n)
+
+    # --- showing -----------------------------------------------------------------------------------------
+    def rate(self, now: float | None = None) -> float | None:
+        """Units per second: since the first count above ``initial`` once a second has passed and more was done
+        since (a first call's compile does not count), else since the start; None before any count."""
+        now = self.clock() if now is None else now
+        gained = self.done - self.initial
+        if gained <= 0 or now <= self.t0:
+            return None
+        if self._mark is not None and now - self._mark[0] >= 1.0 and self.done > self._mark[1]:
+            return (self.done - self._mark[1]) / (now - self._mark[0])
+        return gained / (now - self.t0)
+
+    def text(self, now: float | None = None) -> str:
+        """'karman2d: 1.25/4 samples, 22 s/sample, ~1 min 0 s left (40 s so far)'."""
+        now = self.clock() if now is None else now
+        rate = self.rate(now)
+        one = self.unit[:-1] if self.unit.endswith("s") else self.unit
+        pace = f"{rate:.3g} {self.unit}/s" if rate and rate >= 1 else f"{1 / rate:.3g} s/{one}" if rate else ""
+        speed = f"{pace}, ~{duration((self.total - self.done) / rate)} left" if rate else "no rate yet, time left unknown"
+        return f"{self.label}: {_count(self.done)}/{_count(self.total)} {self.unit}, {speed} ({duration(now - self.t0)} so far)"
+
+    def tick(self, now: float | None = None) -> bool:
+        """Show the count if due: a bar refresh on a terminal, else a plain line FIRST s after the start, then at
+        most every EVERY s. Returns whether a plain line was printed."""
+        if not self.enabled or self._stop.is_set():  # closed: a solve still reporting (a stream's prefetch) is quiet
+            return False
+        with self._show:
+            return self._tick(self.clock() if now is None else now)
+
+    def _tick(self, now: float) -> bool:
+        if self.bar is not None:
+            with self._lock:
+                done = self.done
+            if done > self._shown:
+                self.bar.update(done - self._shown)
+                self._shown = done
+            else:
+                self.bar.refresh()
+            return False
+        due = self.t0 + self.first if self.last_line is None else self.last_line + self.every
+        if now < due:
+            return False
+        print(self.text(now), file=sys.stderr, flush=True)
+        self.last_line, self.lines = now, self.lines + 1
+        return True
+
+    def _run(self) -> None:
+        wait = BAR_REFRESH if self.bar is not None else max(0.05, min(0.5, self.first, self.every))
+        while not self._stop.wait(wait):
+            self.tick()
+
+    def close(self) -> None:
+        """Stop the ticker; a terminal bar shows the final count and goes."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if self.bar is not None:
+            with self._show:
+                self._tick(self.clock())
+                self.bar.close()

@@ -1,0 +1,145 @@
+"""Progress of long solves: the dispatch hook (reports inside a solve, bits unchanged), the Meter's count, rate and
+time left (a fake clock: no wall times asserted), generate's plain lines off a terminal, and a phase's count."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from pdestream import cli, generator, meter
+from pdestream.generator import dispatch
+from pdestream.surrogate.phases import phase
+
+SPECTRAL = dict(n=32, n_frames=6)
+FLOW = dict(n=16, radius="uniform(0.15, 0.2)", re="uniform(20, 40)", t_start=0.3, t_end=0.6, n_frames=3)
+
+
+def solve_reporting(pde, indices, seed=1, work=None):
+    """(u as numpy, [(done, total)] reported by the solve) with calls of ``work`` point-steps (several calls)."""
+    reports = []
+    with dispatch.call_size(work or dispatch.DISPATCH_WORK), dispatch.progress_to(lambda d, t: reports.append((d, t))):
+        u = np.asarray(generator.sample(pde, indices, seed=seed).u)
+    return u, reports
+
+
+def check_fractions(reports):
+    assert len(reports) >= 3  # split into several calls
+    fractions = [d / t for d, t in reports]
+    assert all(b > a for a, b in itertools.pairwise(fractions)) and fractions[-1] == 1.0
+    assert len({t for _, t in reports}) == 1
+
+
+@pytest.mark.parametrize("name, settings, work", [
+    ("burgers1d", SPECTRAL, 2**10),
+    pytest.param("karman2d", FLOW, 2**12, marks=pytest.mark.slow),  # flow compiles: ~35 s on 2 loaded cores
+])
+def test_a_solve_reports_increasing_fractions_ending_at_one_and_the_same_bits(name, settings, work):
+    pde = generator.get_pde(name, **settings)
+    u, reports = solve_reporting(pde, [0, 3], work=work)
+    check_fractions(reports)
+    with dispatch.call_size(work):  # the same calls without a callback: the same bits
+        quiet = np.asarray(generator.sample(pde, [0, 3], seed=1).u)
+    assert np.array_equal(u, quiet)
+
+
+def test_the_hook_is_per_thread_and_restored():
+    seen = []
+    with dispatch.progress_to(lambda d, t: seen.append((d, t))):
+        dispatch.report(2, 4)
+        with dispatch.progress_to(None):
+            dispatch.report(3, 4)
+        dispatch.report(7, 4)  # clamped
+    dispatch.report(1, 4)
+    assert seen == [(2, 4), (4, 4)] and meter.current() is None
+
+
+class Clock:
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self):
+        return self.t
+
+
+def test_the_meter_gives_a_count_a_rate_and_the_time_left(capsys):
+    clock = Clock()
+    m = meter.Meter("karman2d", 4, "samples", clock=clock, terminal=False, live=False)
+    clock.t += 2
+    assert not m.tick()  # before FIRST
+    clock.t += 2
+    assert m.tick() and "0/4 samples, no rate yet" in capsys.readouterr().err
+    clock.t += 1
+    m.set(0.5)  # a first report: no line yet (EVERY s after the last one)
+    clock.t += 5
+    m.set(1.5)  # 1 sample in 5 s since the first report: 5 s/sample, 2.5 samples left
+    err = capsys.readouterr().err
+    assert err.strip() == "karman2d: 1.50/4 samples, 5 s/sample, ~12 s left (10 s so far)"
+    m.set(1.0)  # never goes back
+    assert m.done == 1.5
+    m.close()
+
+
+def test_generate_off_a_terminal_prints_a_count_a_rate_and_the_time_left(capsys, tmp_path, monkeypatch):
+    clock = Clock()
+
+    def ticking():  # a second per look: every report is due for a line
+        clock.t += 1
+        return clock.t
+
+    monkeypatch.setattr(meter.time, "monotonic", ticking)
+    monkeypatch.setattr(dispatch, "DISPATCH_WORK", 2**10)  # several calls per block (bits do not depend on it)
+    code = cli.main(["generate", "burgers1d", "--n", "4", "--block", "2", "--out", str(tmp_path / "b.h5"),
+                     "--set", "n=32", "--set", "n_frames=6"])
+    err = capsys.readouterr().err
+    assert code == 0
+    lines = [line for line in err.splitlines() if line.startswith("burgers1d: ")]
+    assert lines and all("/4 samples" in line for line in lines)
+    assert any(("samples/s" in line or "s/sample" in line) and " left " in line and "/4 samples" in line
+               and not line.startswith("burgers1d: 0/") for line in lines), err
+
+
+def test_a_phase_counts_the_trajectories_its_solves_report(capsys, monkeypatch):
+    clock = Clock()
+
+    def ticking():
+        clock.t += 1
+        return clock.t
+
+    monkeypatch.setattr(meter.time, "monotonic", ticking)
+    monkeypatch.setattr(meter, "FIRST", 0.0)
+    monkeypatch.setattr(meter, "EVERY", 0.0)
+    with phase("building the test set (64 trajectories)", total=64, solves=2):
+        for _ in range(2):  # two padded batches of 32, each reporting its steps
+            for done in (1, 2, 4):
+                dispatch.report(done, 4)
+    lines = capsys.readouterr().err.splitlines()
+    counts = [line.split(": ")[1].split(" ")[0] for line in lines if "trajectories, " in line]
+    assert "8/64" in counts and "32/64" in counts and "40/64" in counts and "64/64" in counts
+    assert lines[-1].startswith("building the test set (64 trajectories): done in")
+
+
+@pytest.mark.parametrize("workers", ["0", "2"])
+def test_an_external_solver_reports_each_finished_sample(workers, monkeypatch):
+    from external_solvers import Decay
+
+    from pdestream.generator.external import solver as external
+
+    monkeypatch.setenv(external.WORKERS_ENV, workers)  # in this process / in worker processes
+    pde = Decay(delay=0.3 if workers != "0" else 0.0)  # in workers: the wait sees some samples finish apart
+    reports = []
+    with dispatch.progress_to(lambda d, t: reports.append((d, t))):
+        u = np.asarray(generator.sample(pde, [0, 1, 2, 3], seed=1).u)
+    assert reports[-1] == (4, 4) and all(t == 4 for _, t in reports)
+    assert all(b[0] > a[0] for a, b in itertools.pairwise(reports))
+    assert len(reports) == 4 if workers == "0" else len(reports) >= 1
+    assert np.array_equal(u, np.asarray(generator.sample(pde, [0, 1, 2, 3], seed=1).u))  # no callback: same bits
+
+
+def test_training_lines_give_the_rate_and_the_time_left(capsys):
+    from pdestream.surrogate.phases import RunProgress
+
+    run = RunProgress("arm", 4, every=0.0)
+    run.show(1, {"loss": "0.5"})
+    run.close()
+    line = capsys.readouterr().err.strip()
+    assert line.startswith("arm: step 1/4, ") and " steps/s, ~" in line and " left, loss 0.5" in line, line
