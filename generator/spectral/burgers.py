@@ -6,6 +6,7 @@ from typing import Any, ClassVar
 
 import jax.numpy as jnp
 
+from ...boundaries import pins_value
 from ..domains import LogUniform
 from ..ics import GaussianRandomField
 from .base import PDE, Param
@@ -75,4 +76,4 @@ class Burgers(PDE):
     def wall_flux(self, grid, p):
         """1D between Dirichlet walls: -(u^2 / 2)_x, as on the periodic box (u^2 is even about the walls, so its
         cosine series differentiates into the sine basis exactly: one transform fewer than u u_x)."""
-        return (lambda u: [0.5 * u * u]) if grid.bc == ("dirichlet",) else None
+        return (lambda u: [0.5 * u * u]) if len(grid.bc) == 1 and pins_value(grid.bc) else None
