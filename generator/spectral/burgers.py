@@ -6,7 +6,7 @@ from typing import Any, ClassVar
 
 import jax.numpy as jnp
 
-from ...boundaries import pins_value
+from ...boundaries import BOUNDARY_TYPES, pins_value
 from ..domains import LogUniform
 from ..ics import GaussianRandomField
 from .base import PDE, Param
@@ -40,7 +40,7 @@ class Burgers(PDE):
             "nu": LogUniform(0.04, 0.1)},
     }
     EQUATION: ClassVar[str] = "u_t + u u_x = nu u_xx"
-    BOUNDARIES: ClassVar[tuple] = ("periodic", "dirichlet", "neumann")  # `--set bc=...` (generator.pdes.walls)
+    BOUNDARIES: ClassVar[tuple] = BOUNDARY_TYPES  # `--set bc=...` (generator.pdes.walls)
     PARAMS: ClassVar[dict] = {"nu": Param("viscosity", "length^2/time", positive=True)}
     FIELD_UNITS: ClassVar[dict] = {name: "length/time" for name in VELOCITY_FIELDS}  # velocity components
 
