@@ -88,8 +88,9 @@ PERIODIC, DIRICHLET, NEUMANN = Boundary.PERIODIC, Boundary.DIRICHLET, Boundary.N
 
 
 def is_periodic(word: Any) -> bool:
-    """``word`` names the periodic boundary (any other word, a flow side kind such as 'wall' included: False)."""
-    return str(word).strip().lower() == Boundary.PERIODIC.value
+    """``word`` is the periodic boundary's word, as stored (any other word, a flow side kind such as 'wall'
+    included: False). Exact: user text is read with ``Boundary.of`` or ``parse``."""
+    return str(word) == Boundary.PERIODIC.value
 
 
 def kinds(bcs: Iterable[Any]) -> tuple[Boundary, ...]:
@@ -98,8 +99,9 @@ def kinds(bcs: Iterable[Any]) -> tuple[Boundary, ...]:
 
 
 def _known(word: Any) -> Boundary | None:
+    """The Boundary whose stored word ``word`` is exactly, else None."""
     try:
-        return Boundary.of(word)
+        return Boundary(str(word))
     except ValueError:
         return None
 

@@ -110,3 +110,5 @@ def test_the_helpers_on_words():
     assert boundaries.pins_value(("neumann", "dirichlet")) and not boundaries.pins_value(("neumann", "foo"))
     assert boundaries.first_pinned(("neumann", "dirichlet")) == 1
     assert boundaries.is_periodic("periodic") and not boundaries.is_periodic("wall")
+    # exact on stored words (as the comparisons they replace were): a model's bc=("Periodic",) is refused by its check
+    assert not boundaries.all_periodic(("Periodic",)) and not boundaries.pins_value(("Dirichlet",))
