@@ -9,6 +9,8 @@
     pdestream.settings      a command's PDE settings (--config, --set); pdestream.catalog_names: the catalog's
                             names without JAX; pdestream.interrupts: Ctrl-C and the exit status of a command;
                             pdestream.meter: solves' progress reports and the count / rate / time-left lines.
+    pdestream.boundaries    the boundary kinds (periodic, dirichlet, neumann) declared once, below JAX and torch:
+                            what each is asked (periodic, bc_type, pad_mode, ...), the ``bc`` setting's parsing.
 
 This module imports nothing heavy (no JAX, no torch), so ``pdestream --help`` and a refused command answer fast.
 The repository's folders are these packages (pyproject maps ``pdestream`` to the repository root); ``datasets/``

@@ -44,6 +44,7 @@ from typing import Protocol
 
 import numpy as np
 
+from ..boundaries import PERIODIC
 from . import schema
 from .store import plain
 
@@ -139,7 +140,7 @@ class TheWell:
                 v.attrs.update({"sample_varying": False, "time_varying": d == "time"})
             bcs = f.create_group("boundary_conditions")
             for d in space:
-                kind = str(ds[d].attrs.get("bc_type", "periodic")).upper()
+                kind = str(ds[d].attrs.get("bc_type", PERIODIC.bc_type)).upper()
                 g = bcs.create_group(f"{d}_{kind.lower()}")
                 g.attrs.update({"associated_dims": [d], "associated_fields": [], "bc_type": kind,
                                 "sample_varying": False, "time_varying": False,

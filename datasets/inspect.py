@@ -7,6 +7,7 @@ import textwrap
 
 import numpy as np
 
+from ..boundaries import PERIODIC
 from . import schema
 from .cache import is_complete, open_cache
 from .derived import flow_vorticity
@@ -44,7 +45,7 @@ def field_stats(ds, name: str, rows: np.ndarray, block: int = 64) -> dict:
 def boundary_line(attrs: dict, ndim: int) -> str:
     """'x dirichlet (wall), y periodic (periodic)': each space axis's boundary condition and The Well's word."""
     bcs = schema.cache_boundaries(attrs, ndim)
-    types = str(attrs.get("bc_type") or " ".join(["periodic"] * ndim)).split()
+    types = str(attrs.get("bc_type") or " ".join([PERIODIC.bc_type] * ndim)).split()
     recorded = "" if attrs.get("bc") else " (not recorded: a cache written before boundaries were)"
     return ", ".join(f"{schema.SPACE[i]} {b} ({t})" for i, (b, t) in enumerate(zip(bcs, types))) + recorded
 

@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..boundaries import words as stored_words
+
 SCHEMA_VERSION = 2  # 2: space axes stored reversed ((y, x), (z, y, x)); 1: generator order
 SPACE = ("x", "y", "z")  # the generator's space axes, in its array order
 SUFFIXES = {".h5": "hdf5", ".hdf5": "hdf5", ".zarr": "zarr"}
@@ -147,8 +149,7 @@ def boundaries(pde) -> tuple[str, ...]:
 def cache_boundaries(attrs: dict, ndim: int) -> tuple[str, ...]:
     """Per-axis boundary conditions recorded in a cache's root attributes; a cache written before they were
     recorded is periodic (every pdestream domain was)."""
-    text = attrs.get("bc")
-    return tuple(str(text).split()) if text else ("periodic",) * ndim
+    return stored_words(attrs.get("bc"), ndim)
 
 
 def disk_space_dims(ndim: int) -> tuple[str, ...]:

@@ -13,9 +13,7 @@ from typing import ClassVar
 
 import numpy as np
 
-BOUNDARY_TYPES = ("periodic", "dirichlet", "neumann")
-# The Well's per-axis vocabulary: a Dirichlet (given-value) boundary is a wall, a zero-gradient one is open.
-BC_TYPE = {"periodic": "periodic", "dirichlet": "wall", "neumann": "open"}
+from ..boundaries import BC_TYPE, BOUNDARY_TYPES, Boundary  # noqa: F401 (BC_TYPE, BOUNDARY_TYPES: re-exported)
 
 
 @dataclass(frozen=True)
@@ -40,7 +38,7 @@ class GridBase:
     @property
     def bc_type(self) -> tuple[str, ...]:
         """Per-axis boundary type in The Well's vocabulary (periodic / wall / open)."""
-        return tuple(BC_TYPE[b] for b in self.bc)
+        return tuple(Boundary.of(b).bc_type for b in self.bc)
 
     def coords(self, axis: int = 0) -> np.ndarray:
         """Point positions along ``axis``, float32 [n] (length units)."""
@@ -63,7 +61,7 @@ class NodeGrid(GridBase):
 
     @property
     def bc(self) -> tuple[str, ...]:
-        return ("dirichlet",) * self.ndim
+        return (Boundary.DIRICHLET.value,) * self.ndim
 
     def coords(self, axis: int = 0) -> np.ndarray:
         """Node positions along ``axis``, float32 [n] (0 and length included; the same on every axis)."""

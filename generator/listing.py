@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+from ..boundaries import PERIODIC
 from . import user
 from .catalog import GROUP, GROUPS, PDES, get_pde
 
@@ -52,7 +53,7 @@ def entry_settings(pde, as_json: bool = False) -> str:
     fields = {f: units.get(f, "?") for f in (*getattr(pde, "INPUTS", ()), *pde.FIELDS)}
     offered = getattr(pde, "BOUNDARIES", None)
     if offered:
-        rows.setdefault("bc", {"default": "periodic"})["allowed"] = list(offered)
+        rows.setdefault("bc", {"default": PERIODIC.value})["allowed"] = list(offered)
     if as_json:
         where = {"origin": config["origin"]} if "origin" in config else {}  # a user's PDE: where its code is
         return json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, **where, "fields": fields, "settings": rows},

@@ -16,6 +16,7 @@ from pdestream.datasets.export import as_cache
 from pdestream.datasets.ranks import RankReservoirStream, placement
 from pdestream.datasets.reservoir_config import ReservoirConfig
 
+from ..boundaries import PERIODIC
 from .checks import check_count
 
 TEST_SEED_OFFSET = 1_000_003  # test seeds never coincide with a training seed below this offset
@@ -65,7 +66,7 @@ def check_cache_matches(cached, pde, explicit: dict | None = None) -> None:
               and _lookup(wanted, k) != _lookup(cached.config, k)]
     if differ:
         shown = {k: (_lookup(cached.config, k), _lookup(wanted, k)) for k in differ}
-        shown = {k: tuple("periodic" if v is None and k.split(".")[0] == "bc" else v for v in pair)
+        shown = {k: tuple(PERIODIC.value if v is None and k.split(".")[0] == "bc" else v for v in pair)
                  for k, pair in shown.items()}
         detail = ", ".join(f"{k}: cache {c!r} vs asked {w!r}" for k, (c, w) in shown.items())
         raise ValueError(f"cache {cached.path} was written with other settings ({detail})")

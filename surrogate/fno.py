@@ -19,6 +19,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..boundaries import BOUNDARY_TYPES, all_periodic, kinds
+
 
 @dataclass(frozen=True)
 class FNOConfig:
@@ -43,7 +45,7 @@ def wall_padding(bc: tuple[str, ...] | None, space: tuple[int, ...]) -> tuple[in
     """Points of zero padding per spatial axis: 0 on periodic axes, max(MIN_PAD, PAD_FRACTION n) on the others."""
     if bc is None:
         return (0,) * len(space)
-    return tuple(0 if b == "periodic" else max(MIN_PAD, round(PAD_FRACTION * n)) for b, n in zip(bc, space))
+    return tuple(0 if b.periodic else max(MIN_PAD, round(PAD_FRACTION * n)) for b, n in zip(kinds(bc), space))
 
 
 def check_bc(bc, ndim: int, name: str) -> tuple[str, ...] | None:
@@ -52,10 +54,9 @@ def check_bc(bc, ndim: int, name: str) -> tuple[str, ...] | None:
     if bc is None:
         return None
     bc = tuple(str(b) for b in bc)
-    allowed = ("periodic", "dirichlet", "neumann")
-    if len(bc) != ndim or any(b not in allowed for b in bc):
-        raise ValueError(f"{name}: bc={list(bc)} not allowed: need {ndim} of {', '.join(allowed)} (one per axis)")
-    return None if all(b == "periodic" for b in bc) else bc
+    if len(bc) != ndim or any(b not in BOUNDARY_TYPES for b in bc):
+        raise ValueError(f"{name}: bc={list(bc)} not allowed: need {ndim} of {', '.join(BOUNDARY_TYPES)} (one per axis)")
+    return None if all_periodic(bc) else bc
 
 
 # the FNO of the compare commands (model_cfg), small enough for a comparison in ~10 minutes on 2 CPU cores

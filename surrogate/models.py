@@ -13,6 +13,7 @@ from typing import Protocol
 
 from torch import nn
 
+from ..boundaries import all_periodic
 from .fno import FNO
 from .unet import UNet
 from .user_model import UserModel
@@ -77,7 +78,7 @@ def build_model(name: str, ndim: int, in_channels: int, out_channels: int, n_par
             values[key] = int(value)
         except (TypeError, ValueError):
             raise ValueError(f"model {base!r}: {key}={value!r} is not an integer") from None
-    walls = bc is not None and any(b != "periodic" for b in bc)  # a periodic model is built as it always was
+    walls = not all_periodic(bc)  # a periodic model is built as it always was
     if walls and "bc" not in inspect.signature(cls).parameters:
         raise ValueError(f"model {base!r} has no padding for walls (its class takes no bc); the data's boundaries are "
                          f"{', '.join(bc)}; allowed: {', '.join(n for n, c in MODELS.items() if 'bc' in inspect.signature(c).parameters)}")

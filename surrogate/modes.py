@@ -44,6 +44,7 @@ from torch import nn
 from pdestream import datasets
 from pdestream.datasets.normalize import Normalization
 
+from ..boundaries import kinds, periodic_words
 from .mode_table import DEFAULTS, MODE_NAMES, mode_settings
 from .predict import model_channels, net_step, pairs, predict, relative_errors, rollout, stack_frames
 
@@ -319,9 +320,9 @@ def subsample(u: torch.Tensor, factor: int, ndim: int, bc: tuple[str, ...] | Non
     if locations:
         return torch.stack([_restrict(u.select(-ndim - 1, c), factor, ndim, where)
                             for c, where in enumerate(locations)], dim=-ndim - 1)
-    for axis, b in enumerate(bc or ("periodic",) * ndim):
+    for axis, b in enumerate(kinds(bc or periodic_words(ndim))):
         dim = u.ndim - ndim + axis
-        if b == "periodic":
+        if b.periodic:
             u = u[(slice(None),) * dim + (slice(None, None, factor),)]
         else:
             lo, hi = (factor - 1) // 2, factor // 2  # the same point for an odd factor

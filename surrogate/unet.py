@@ -16,9 +16,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..boundaries import Boundary
 from .fno import check_bc, check_input, condition, pointwise
 
-PAD_MODE = {"periodic": "circular", "dirichlet": "constant", "neumann": "replicate"}
+PAD_MODE = {b.value: b.pad_mode for b in Boundary}  # boundary word -> torch padding mode (Boundary.pad_mode)
 CONV = {1: nn.Conv1d, 2: nn.Conv2d, 3: nn.Conv3d}
 POOL = {1: F.avg_pool1d, 2: F.avg_pool2d, 3: F.avg_pool3d}
 
@@ -43,7 +44,7 @@ class WallConv(nn.Module):
     def __init__(self, ndim: int, c_in: int, c_out: int, bc: tuple[str, ...]):
         super().__init__()
         self.conv = CONV[ndim](c_in, c_out, 3)
-        self.modes = [PAD_MODE[b] for b in bc]
+        self.modes = [Boundary.of(b).pad_mode for b in bc]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         ndim = len(self.modes)

@@ -53,8 +53,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ...boundaries import BOUNDARY_TYPES, Boundary, is_periodic
 from ..dispatch import Cancelled, cancelled, report
-from ..grids import BOUNDARY_TYPES, GridBase
+from ..grids import GridBase
 from ..problem import ProblemBase, resolve_params
 
 WORKERS_ENV = "PDESTREAM_SOLVER_WORKERS"
@@ -89,7 +90,7 @@ class SolverGrid(GridBase):
     """``n`` points per axis on [0, length]^ndim with one boundary type on every axis: periodic (points i h,
     h = length / n) or dirichlet / neumann (nodes i h, h = length / (n - 1), both ends included)."""
 
-    walls: str = "periodic"
+    walls: str = Boundary.PERIODIC.value
     POINTS: ClassVar[str] = "the external solver's grid points"
 
     @property
@@ -98,12 +99,12 @@ class SolverGrid(GridBase):
 
     def coords(self, axis: int = 0) -> np.ndarray:
         """Point positions along ``axis``, float32 [n] (length units)."""
-        if self.walls == "periodic":
+        if is_periodic(self.walls):
             return (np.arange(self.n) * (self.length / self.n)).astype(np.float32)
         return np.linspace(0.0, self.length, self.n).astype(np.float32)
 
     def describe(self) -> str:
-        box = f"[0, {self.length:g})" if self.walls == "periodic" else f"[0, {self.length:g}]"
+        box = f"[0, {self.length:g})" if is_periodic(self.walls) else f"[0, {self.length:g}]"
         return f"{'x'.join(map(str, self.shape))} points on {box}^{self.ndim} ({self.walls})"
 
 
@@ -147,7 +148,7 @@ class ExternalSolver(ProblemBase):
     EQUATION: ClassVar[str] = "an external solver"
     IC_KINDS: ClassVar[dict] = {SolverIC.kind: SolverIC}
     IC_LABEL: ClassVar[str] = "initial condition"
-    BC: ClassVar[str] = "periodic"  # the boundary type of every axis, one of generator.BOUNDARY_TYPES
+    BC: ClassVar[str] = Boundary.PERIODIC.value  # the boundary type of every axis, one of generator.BOUNDARY_TYPES
     COMMAND: ClassVar[tuple] = ()  # argv with "{params}" and "{out}"; empty: the solve method
     OUTPUT: ClassVar[str] = ".npy"  # what the command writes: ".npy", or ".h5" (dataset "u")
     ADVANCES: ClassVar[bool] = False  # no solve from a given state: --mode oracle and the interactive modes refuse it

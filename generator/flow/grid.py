@@ -14,7 +14,11 @@ from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
-SIDE_KINDS = ("wall", "inflow", "outflow", "periodic")
+from ...boundaries import Boundary, is_periodic
+
+# A side's conditions on velocity and pressure; not boundaries.Boundary (a per-axis condition on a field, which
+# FlowGrid.bc derives from a pair of sides): only 'periodic' is shared, and is asked of that module (is_periodic).
+SIDE_KINDS = ("wall", "inflow", "outflow", Boundary.PERIODIC.value)
 
 
 @dataclass(frozen=True)
@@ -34,9 +38,9 @@ class Geometry:
         for name in ("left", "right", "bottom", "top"):
             if getattr(self, name) not in SIDE_KINDS:
                 raise ValueError(f"{name}={getattr(self, name)!r}: allowed side kinds are {SIDE_KINDS}")
-        if (self.left == "periodic") != (self.right == "periodic"):
+        if is_periodic(self.left) != is_periodic(self.right):
             raise ValueError(f"left={self.left!r}, right={self.right!r}: periodic sides come in pairs")
-        if (self.bottom == "periodic") != (self.top == "periodic"):
+        if is_periodic(self.bottom) != is_periodic(self.top):
             raise ValueError(f"bottom={self.bottom!r}, top={self.top!r}: periodic sides come in pairs")
         if abs(self.lx / self.nx - self.ly / self.ny) > 1e-9 * self.lx / self.nx:
             raise ValueError(f"lx/nx={self.lx / self.nx} != ly/ny={self.ly / self.ny}: cells must be square")
@@ -47,11 +51,11 @@ class Geometry:
 
     @property
     def periodic_x(self) -> bool:
-        return self.left == "periodic"
+        return is_periodic(self.left)
 
     @property
     def periodic_y(self) -> bool:
-        return self.bottom == "periodic"
+        return is_periodic(self.bottom)
 
     @property
     def singular(self) -> bool:

@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ...boundaries import DIRICHLET, NEUMANN, PERIODIC, is_periodic
 from .. import dispatch
 from ..chunked import join, split
 from ..grids import GridBase
@@ -67,7 +68,7 @@ class FlowGrid(GridBase):
     def bc(self) -> tuple[str, ...]:
         """Per axis (x, y): periodic; dirichlet where both sides are walls; neumann where a side is open."""
         left, right, bottom, top = self.sides
-        return tuple("periodic" if lo == "periodic" else "dirichlet" if lo == hi == "wall" else "neumann"
+        return tuple((PERIODIC if is_periodic(lo) else DIRICHLET if lo == hi == "wall" else NEUMANN).value
                      for lo, hi in ((left, right), (bottom, top)))
 
     def coords(self, axis: int = 0) -> np.ndarray:
@@ -278,8 +279,8 @@ class FlowProblem(ProblemBase):
         left, right, bottom, top = self.SIDES
         if right == top == "outflow":
             raise ValueError(f"{self.NAME}: a box open on the right and the top has no unique corner state")
-        v_top = v[:1] if top == "periodic" else jnp.zeros_like(v[:1])  # an outflow top: set below
-        if right == "periodic":
+        v_top = v[:1] if is_periodic(top) else jnp.zeros_like(v[:1])  # an outflow top: set below
+        if is_periodic(right):
             u_right = u[:, :1]
         elif right == "outflow":  # continuity of the last column: u_R = u_L - (v_top - v_bottom)
             v_up = jnp.concatenate([v[1:, -1:], v_top[:, -1:]], 0)

@@ -3,6 +3,7 @@
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from ...boundaries import BOUNDARY_TYPES
 from ..domains import LogUniform, Uniform
 from ..ics import FourierSeries
 from .base import LinearPDE, Param
@@ -22,7 +23,7 @@ class AdvectionDiffusion(LinearPDE):
     EQUATION: ClassVar[str] = "u_t + c u_x = nu u_xx"
     PARAMS: ClassVar[dict] = {}  # set per dimension by for_dimension
     DIMENSIONS: ClassVar[dict] = {1: {}, 2: {"n": 64}}
-    BOUNDARIES: ClassVar[tuple] = ("periodic", "dirichlet", "neumann")  # `--set bc=...` (generator.pdes.walls)
+    BOUNDARIES: ClassVar[tuple] = BOUNDARY_TYPES  # `--set bc=...` (generator.pdes.walls)
 
     n: int = 128
     length: float = 1.0

@@ -3,6 +3,7 @@
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from ...boundaries import BOUNDARY_TYPES
 from ..domains import LogUniform
 from ..ics import FourierSeries
 from .base import PDE, Param
@@ -27,7 +28,7 @@ class AllenCahn(PDE):
     """
 
     EQUATION: ClassVar[str] = "u_t = nu Laplacian(u) + u - u^3"
-    BOUNDARIES: ClassVar[tuple] = ("periodic", "dirichlet", "neumann")  # `--set bc=...` (generator.pdes.walls)
+    BOUNDARIES: ClassVar[tuple] = BOUNDARY_TYPES  # `--set bc=...` (generator.pdes.walls)
     DIMENSIONS: ClassVar[dict] = {1: {}, 2: {"n": 64, "nu": LogUniform(2e-3, 1e-2)}}
     PARAMS: ClassVar[dict] = {"nu": Param("interface diffusivity (width^2 / 2)", "length^2/time", positive=True)}
 

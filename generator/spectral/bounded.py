@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ...boundaries import DIRICHLET, NEUMANN, Boundary, kinds
 from ..grids import GridBase
 
 AXES = "xyz"
@@ -111,9 +112,9 @@ def _mode_down(y: jax.Array) -> jax.Array:
     return jnp.concatenate([y[..., 1:], jnp.zeros_like(y[..., :1])], -1)
 
 
-ANALYSIS = {"dirichlet": sin_analysis, "neumann": cos_analysis}
-SYNTHESIS = {"dirichlet": sin_synthesis, "neumann": cos_synthesis}
-DERIVATIVE = {"dirichlet": ("neumann", 1), "neumann": ("dirichlet", -1)}  # d/dx: the other basis, and the sign
+ANALYSIS = {DIRICHLET: sin_analysis, NEUMANN: cos_analysis}  # keyed by Boundary (a StrEnum: its word works too)
+SYNTHESIS = {DIRICHLET: sin_synthesis, NEUMANN: cos_synthesis}
+DERIVATIVE = {b: b.derivative for b in (DIRICHLET, NEUMANN)}  # d/dx: the other basis, and the sign
 
 
 @dataclass(frozen=True)
@@ -134,11 +135,11 @@ class BoundedGrid(GridBase):
 
     @property
     def periodic_axes(self) -> tuple[int, ...]:
-        return tuple(a for a, b in enumerate(self.bcs) if b == "periodic")
+        return tuple(a for a, b in enumerate(kinds(self.bcs)) if b.periodic)
 
     @property
     def wall_axes(self) -> tuple[int, ...]:
-        return tuple(a for a, b in enumerate(self.bcs) if b != "periodic")
+        return tuple(a for a, b in enumerate(kinds(self.bcs)) if b.walled)
 
     @property
     def kshape(self) -> tuple[int, ...]:
@@ -153,7 +154,7 @@ class BoundedGrid(GridBase):
 
     def coords(self, axis: int = 0) -> np.ndarray:
         """Point positions along ``axis``, float32 [n]: cell centres on a wall axis, cell-left on a periodic one."""
-        shift = 0.0 if self.bcs[axis] == "periodic" else 0.5
+        shift = 0.0 if Boundary.of(self.bcs[axis]).periodic else 0.5
         return ((np.arange(self.n) + shift) * self.dx).astype(np.float32)
 
     def describe(self) -> str:
@@ -165,10 +166,10 @@ class BoundedGrid(GridBase):
         """Mode numbers per axis, float64, broadcastable to kshape: m (sine, 1..n), k (cosine, 0..n-1), or the
         FFT's signed m on periodic axes (rfft layout on the last periodic one)."""
         out = []
-        for axis, bc in enumerate(self.bcs):
-            if bc == "dirichlet":
+        for axis, bc in enumerate(kinds(self.bcs)):
+            if bc.pins_value:
                 m = np.arange(1, self.n + 1, dtype=np.float64)
-            elif bc == "neumann":
+            elif bc.walled:
                 m = np.arange(self.n, dtype=np.float64)
             elif axis == self.periodic_axes[-1]:
                 m = np.fft.rfftfreq(self.n, 1.0 / self.n)
@@ -182,8 +183,8 @@ class BoundedGrid(GridBase):
     def wavenumbers(self) -> tuple[np.ndarray, ...]:
         """Angular wavenumbers per axis, float32 broadcastable to kshape: pi m / length on wall axes (the half
         wave fits the box), 2 pi m / length on periodic ones."""
-        return tuple((np.pi * (1 if bc != "periodic" else 2) / self.length * m).astype(np.float32)
-                     for bc, m in zip(self.bcs, self.integer_wavenumbers()))
+        return tuple((np.pi * (1 if bc.walled else 2) / self.length * m).astype(np.float32)
+                     for bc, m in zip(kinds(self.bcs), self.integer_wavenumbers()))
 
     def laplacian(self) -> np.ndarray:
         """Symbol of the Laplacian, -|k|^2, float32 broadcastable to kshape (exact eigenvalues of the bases)."""
@@ -193,8 +194,8 @@ class BoundedGrid(GridBase):
         """The 2/3 rule per axis: |m| <= n/3 on periodic axes, m <= 2n/3 on wall axes (the same fraction of the
         highest mode: a wall axis is the half of a periodic box of 2n points), bool kshape."""
         keep = np.ones(self.kshape, bool)
-        for bc, m in zip(self.bcs, self.integer_wavenumbers()):
-            keep = keep & (np.abs(m) <= (self.n // 3 if bc == "periodic" else (2 * self.n) // 3))
+        for bc, m in zip(kinds(self.bcs), self.integer_wavenumbers()):
+            keep = keep & (np.abs(m) <= (self.n // 3 if bc.periodic else (2 * self.n) // 3))
         return keep
 
     # --- transforms --------------------------------------------------------------------------------------
@@ -224,17 +225,17 @@ class BoundedGrid(GridBase):
         w is expanded in the other basis along ``axis`` and differentiated in coefficient space, one transform
         instead of the two of ``rfft(gradient(...))``. On a periodic axis: i k times the Fourier coefficients."""
         k = self.wavenumbers()[axis]
-        bc = self.bcs[axis]
-        if bc == "periodic":
+        bc = Boundary.of(self.bcs[axis])
+        if bc.periodic:
             v = self.rfft(w)
             return jax.lax.complex(-k * v.imag, k * v.real)
         other, _ = DERIVATIVE[bc]
         x = _along(w, axis - self.ndim, ANALYSIS[other])
-        if bc == "dirichlet":  # cosine amplitudes a_k -> sine b_m = -a_m pi m / L at m = k (m = n: none)
+        if bc.pins_value:  # cosine amplitudes a_k -> sine b_m = -a_m pi m / L at m = k (m = n: none)
             x = _along(x, axis - self.ndim, _mode_down)
         else:  # sine amplitudes b_m (m = 1..n) -> cosine a_k = b_k pi k / L at k = m (k = 0: none; m = n vanishes)
             x = _along(x, axis - self.ndim, _mode_up)
-        x = (-k if bc == "dirichlet" else k) * x
+        x = (-k if bc.pins_value else k) * x
         x = self._walls(x, ANALYSIS, skip=axis)
         axes = tuple(a - self.ndim for a in self.periodic_axes)
         return jnp.fft.rfftn(x, axes=axes) if axes else x
@@ -243,13 +244,13 @@ class BoundedGrid(GridBase):
         """d u / d x_axis in physical space [..., *shape] from the coefficients v [..., *kshape] of u (exact for
         the series: a sine series' derivative is a cosine series and vice versa; the periodic ones as ``ddx``)."""
         k = self.wavenumbers()[axis]
-        if self.bcs[axis] == "periodic":
+        if Boundary.of(self.bcs[axis]).periodic:
             return self.irfft(jax.lax.complex(-k * v.imag, k * v.real))
         x = self._unperiodic(v)
         other, sign = DERIVATIVE[self.bcs[axis]]
         x = sign * k * x  # b_m (pi m / L) cos(.) for a sine series; -a_k (pi k / L) sin(.) for a cosine one
         # re-index to the other basis: sine m = 1..n <-> cosine k = m; cosine k = 0..n-1 <-> sine m = k
-        if other == "neumann":  # sine amplitudes at m = 1..n -> cosine at k = 0..n-1 (k = m; m = n vanishes)
+        if not other.pins_value:  # sine amplitudes at m = 1..n -> cosine at k = 0..n-1 (k = m; m = n vanishes)
             x = _along(x, axis - self.ndim, _mode_up)
         else:  # cosine at k = 0..n-1 -> sine at m = 1..n (m = k; k = 0 has no derivative)
             x = _along(x, axis - self.ndim, _mode_down)

@@ -6,6 +6,7 @@ from typing import Any, ClassVar
 
 import jax.numpy as jnp
 
+from ...boundaries import BOUNDARY_TYPES, pins_value
 from ..domains import LogUniform
 from ..ics import GaussianRandomField
 from .base import PDE, Param
@@ -39,7 +40,7 @@ class Burgers(PDE):
             "nu": LogUniform(0.04, 0.1)},
     }
     EQUATION: ClassVar[str] = "u_t + u u_x = nu u_xx"
-    BOUNDARIES: ClassVar[tuple] = ("periodic", "dirichlet", "neumann")  # `--set bc=...` (generator.pdes.walls)
+    BOUNDARIES: ClassVar[tuple] = BOUNDARY_TYPES  # `--set bc=...` (generator.pdes.walls)
     PARAMS: ClassVar[dict] = {"nu": Param("viscosity", "length^2/time", positive=True)}
     FIELD_UNITS: ClassVar[dict] = {name: "length/time" for name in VELOCITY_FIELDS}  # velocity components
 
@@ -75,4 +76,4 @@ class Burgers(PDE):
     def wall_flux(self, grid, p):
         """1D between Dirichlet walls: -(u^2 / 2)_x, as on the periodic box (u^2 is even about the walls, so its
         cosine series differentiates into the sine basis exactly: one transform fewer than u u_x)."""
-        return (lambda u: [0.5 * u * u]) if grid.bc == ("dirichlet",) else None
+        return (lambda u: [0.5 * u * u]) if len(grid.bc) == 1 and pins_value(grid.bc) else None

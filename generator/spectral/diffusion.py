@@ -3,6 +3,7 @@
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from ...boundaries import BOUNDARY_TYPES
 from ..domains import LogUniform
 from ..ics import FourierSeries
 from .base import LinearPDE, Param
@@ -19,7 +20,7 @@ class Diffusion(LinearPDE):
     EQUATION: ClassVar[str] = "u_t = nu u_xx"
     PARAMS: ClassVar[dict] = {"nu": Param("diffusivity", "length^2/time", positive=True)}
     DIMENSIONS: ClassVar[dict] = {1: {}, 2: {"n": 64}, 3: {"n": 32, "n_frames": 26}}
-    BOUNDARIES: ClassVar[tuple] = ("periodic", "dirichlet", "neumann")  # `--set bc=...` (generator.pdes.walls)
+    BOUNDARIES: ClassVar[tuple] = BOUNDARY_TYPES  # `--set bc=...` (generator.pdes.walls)
 
     n: int = 128
     length: float = 1.0

@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ...boundaries import periodic_words
 from ..grids import GridBase
 
 CONTOUR_POINTS = 32  # points on a circle of radius 1 around each h*L (Kassam & Trefethen 2005)
@@ -30,7 +31,7 @@ class Grid(GridBase):
 
     @property
     def bc(self) -> tuple[str, ...]:
-        return ("periodic",) * self.ndim
+        return periodic_words(self.ndim)
 
     def describe(self) -> str:
         return f"{'x'.join(map(str, self.shape))} on [0, {self.length:g})^{self.ndim}"

@@ -28,8 +28,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ... import boundaries
 from ..domains import Fixed
-from ..grids import BOUNDARY_TYPES
 from ..problem import Param
 from .bounded import AXES, BoundedGrid
 from .fourier import Grid
@@ -43,45 +43,13 @@ LIFT_PARAMS = {
 def parse_bc(pde, spec: Mapping[str, Any], current: tuple[str, ...] | None = None) -> tuple[str, ...]:
     """The per-axis boundary conditions after applying ``spec`` ({"bc": "dirichlet" | "x=dirichlet,y=periodic" |
     {"x": ...}, "bc.x": "neumann", ...}) to those of ``pde``; ValueError naming a bad value and what is allowed."""
-    ndim, allowed = pde.NDIM, pde.BOUNDARIES
-    bcs = list(current or getattr(pde, "BCS", ("periodic",) * ndim))
-    axes = AXES[:ndim]
-
-    def put(axis: str, value: Any, shown: str) -> None:
-        if axis not in axes:
-            raise ValueError(f"{pde.NAME}: bc.{axis} not allowed: the axes of a {ndim}D entry are {', '.join(axes)}")
-        word = str(value).strip().lower()
-        if word not in allowed:
-            extra = f" ({word} is not among this entry's boundaries)" if word in BOUNDARY_TYPES else ""
-            raise ValueError(f"{pde.NAME}: {shown}={value!r} not allowed{extra}; allowed: {', '.join(allowed)}")
-        bcs[axes.index(axis)] = word
-
-    for key, value in spec.items():
-        if key == "bc" and isinstance(value, Mapping):  # a TOML dotted key bc.x = "neumann"
-            for axis, word in value.items():
-                put(axis, word, f"bc.{axis}")
-        elif key == "bc":
-            text = str(value)
-            if "=" in text:
-                named = [part.partition("=")[0].strip() for part in text.split(",")]
-                twice = sorted({a for a in named if named.count(a) > 1})
-                if twice:  # the last one won, silently
-                    raise ValueError(f"{pde.NAME}: bc={text!r} not allowed: axis {', '.join(twice)} given twice; "
-                                     "give each axis once, e.g. 'x=dirichlet,y=periodic'")
-                for part in text.split(","):
-                    axis, _, word = part.partition("=")
-                    put(axis.strip(), word, f"bc.{axis.strip()}")
-            else:
-                for axis in axes:
-                    put(axis, text, "bc")
-        else:
-            put(key[3:], value, key)
-    return tuple(bcs)
+    now = current or getattr(pde, "BCS", None)
+    return boundaries.parse(spec, pde.NDIM, allowed=pde.BOUNDARIES, current=now, name=pde.NAME)
 
 
 def bc_text(bcs: tuple[str, ...]) -> str:
     """The canonical ``bc`` setting: one word when every axis has it, else 'x=dirichlet,y=periodic'."""
-    return bcs[0] if len(set(bcs)) == 1 else ",".join(f"{AXES[a]}={b}" for a, b in enumerate(bcs))
+    return boundaries.text(bcs)
 
 
 def with_bc(pde, spec: Mapping[str, Any]):
@@ -90,7 +58,7 @@ def with_bc(pde, spec: Mapping[str, Any]):
     bcs = parse_bc(pde, spec)
     base = getattr(type(pde), "PERIODIC", type(pde))
     fields = {f.name: getattr(pde, f.name) for f in dataclasses.fields(base)}
-    if all(b == "periodic" for b in bcs):
+    if boundaries.all_periodic(bcs):
         return base(**fields)
     cls = wall_class(base, bcs)
     lifted = {k: getattr(pde, k) for k in LIFT_PARAMS if k in cls.PARAMS and hasattr(pde, k)}
@@ -100,7 +68,7 @@ def with_bc(pde, spec: Mapping[str, Any]):
 @functools.lru_cache(maxsize=None)
 def wall_class(base: type, bcs: tuple[str, ...]) -> type:
     """The entry class ``base`` specialised to boundary conditions ``bcs`` (created once per pair)."""
-    lifts = "dirichlet" in bcs and len(base.FIELDS) == 1
+    lifts = boundaries.pins_value(bcs) and len(base.FIELDS) == 1
     params = {**base.PARAMS, **(LIFT_PARAMS if lifts else {})}
     annotations = {"bc": str, **({k: Any for k in LIFT_PARAMS} if lifts else {})}
     name = f"{base.__name__}_{'_'.join(b[0] for b in bcs)}"  # e.g. Burgers1D_d, Diffusion2D_n_p
@@ -119,14 +87,14 @@ def fold(u: jax.Array, bcs: tuple[str, ...], n: int) -> jax.Array:
     """A field drawn on the periodic box of twice the side, [C, *(2n,)], folded to [C, *(n,)] on walls ``bcs``: its
     odd part about the walls on a Dirichlet axis (a sine series), its even part on a Neumann axis (a cosine
     series), the mean of its two halves on a periodic axis (L-periodic). Band limits and means carry over."""
-    for axis, bc in enumerate(bcs):
+    for axis, bc in enumerate(boundaries.kinds(bcs)):
         a = axis + 1  # the field axis comes first
         first = jax.lax.slice_in_dim(u, 0, n, axis=a)
-        if bc == "periodic":  # the two halves of a 2L-periodic field sum to an L-periodic one
+        if bc.periodic:  # the two halves of a 2L-periodic field sum to an L-periodic one
             u = 0.5 * (first + jax.lax.slice_in_dim(u, n, 2 * n, axis=a))
         else:  # the mirror image about x = 0 of point j is point 2n-1-j (points at cell centres)
             mirror = jax.lax.slice_in_dim(jnp.flip(u, a), 0, n, axis=a)
-            u = 0.5 * (first - mirror) if bc == "dirichlet" else 0.5 * (first + mirror)
+            u = 0.5 * (first - mirror) if bc.pins_value else 0.5 * (first + mirror)
     return u
 
 
@@ -153,7 +121,7 @@ class WallGrid:
             self.ic.check(self.box)
         except ValueError as err:
             raise ValueError(f"{self.NAME}: {err}") from None
-        if "dirichlet" in self.BCS:
+        if boundaries.pins_value(self.BCS):
             for name in ("offset", "mean"):
                 value = getattr(self.ic, name, 0.0)
                 if value:
@@ -177,7 +145,7 @@ class Walls(WallGrid):
 
     # --- the lifting of Dirichlet values ----------------------------------------------------------------
     def _lift_axis(self) -> int:
-        return self.BCS.index("dirichlet")
+        return boundaries.first_pinned(self.BCS)
 
     def lift(self, p) -> jax.Array:
         """g [*space]: bc_lo + (bc_hi - bc_lo) x / length along the first Dirichlet axis (0 without values)."""
@@ -223,7 +191,7 @@ class Walls(WallGrid):
             return None  # no explicit part (diffusion: L g = 0 for the affine lifting g)
         g = self.lift(p)[None]
         keep = None
-        if self.wall_drops_mean(grid) and "dirichlet" not in grid.bc:  # a constant mode exists: index 0 on all axes
+        if self.wall_drops_mean(grid) and not boundaries.pins_value(grid.bc):  # a constant mode exists: index 0 on all axes
             keep = np.ones(grid.kshape, np.float32)
             keep[(0,) * grid.ndim] = 0.0
 

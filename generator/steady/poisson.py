@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ... import boundaries
 from ..chunked import chunked_map
 from ..domains import Fixed, Uniform
 from ..ics import FourierSeries, GaussianRandomField
@@ -66,7 +67,7 @@ class Poisson(WallGrid, SteadyProblem):
 
     @property
     def BCS(self) -> tuple[str, ...]:  # noqa: N802 (the walls, as the spectral family's walled classes name them)
-        return parse_bc(self, {"bc": self.bc}, current=("periodic",) * self.NDIM)
+        return parse_bc(self, {"bc": self.bc}, current=boundaries.periodic_words(self.NDIM))
 
     def k2(self, p) -> jax.Array:
         """The Helmholtz shift k^2 (0 for Poisson)."""
@@ -76,12 +77,12 @@ class Poisson(WallGrid, SteadyProblem):
         object.__setattr__(self, "bc", _canonical(self.BCS))
         if self.n % 2:
             raise ValueError(f"{self.NAME}: n={self.n} not allowed: cells per axis must be even")
-        if "dirichlet" not in self.BCS:
+        if not boundaries.pins_value(self.BCS):
             for name in ("bc_lo", "bc_hi"):
                 if getattr(self, name).bounds != (0.0, 0.0):
                     raise ValueError(f"{self.NAME}: {name}={getattr(self, name)} not allowed: no axis is Dirichlet "
                                      f"(bc={self.bc}); wall values need bc=dirichlet on an axis")
-        constant_mode = "dirichlet" not in self.BCS
+        constant_mode = not boundaries.pins_value(self.BCS)
         mean = getattr(self.ic, "mean", 0.0) if getattr(self.ic, "zero_mean", True) else None
         mean = getattr(self.ic, "offset", mean)
         if constant_mode and not self.SHIFTED and mean != 0.0:
@@ -98,9 +99,9 @@ class Poisson(WallGrid, SteadyProblem):
 
     def lift(self, p) -> jax.Array:
         """g [*space]: bc_lo + (bc_hi - bc_lo) x / length along the first Dirichlet axis (0 without one)."""
-        if "dirichlet" not in self.BCS:
+        if not boundaries.pins_value(self.BCS):
             return jnp.zeros(self.grid.shape, jnp.float32)
-        axis = self.BCS.index("dirichlet")
+        axis = boundaries.first_pinned(self.BCS)
         shape = [1] * self.NDIM
         shape[axis] = -1
         x = jnp.asarray((self.grid.coords(axis) / self.length).reshape(shape))
@@ -112,7 +113,7 @@ class Poisson(WallGrid, SteadyProblem):
         g = self.lift(p)
         rhs = grid.rfft(f + k2 * g)
         denom = -jnp.asarray(grid.laplacian()) - k2  # |kappa|^2 - k^2
-        if "dirichlet" not in self.BCS and not self.SHIFTED:
+        if not boundaries.pins_value(self.BCS) and not self.SHIFTED:
             denom = denom.at[(0,) * self.NDIM].set(1.0)  # the constant mode: u's mean is set to 0 below
             keep = np.ones(grid.kshape, np.float32)
             keep[(0,) * self.NDIM] = 0.0
