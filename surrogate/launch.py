@@ -251,12 +251,12 @@ def launch_ranks(cfg: TrainConfig, ranks: int) -> None:
     import tempfile
     from multiprocessing.connection import wait
 
-    check_rank_count(ranks, cfg.device)
     if cfg.resume is not None:
         data_cfg = check_resume(cfg, ranks)[0]["data_cfg"] or {}
     else:
         check_new(cfg, ranks)
         data_cfg = cfg.reservoir or {}
+    check_rank_count(ranks, cfg.device)  # (after the run's own checks: a resume names its world size first)
     with tempfile.TemporaryDirectory(prefix="pdestream-ddp-") as tmp, contextlib.ExitStack() as stack:
         env = {}
         if data_cfg.get("producer") == "dask" and not data_cfg.get("scheduler"):
