@@ -68,6 +68,11 @@ def holding_run(run_dir):
             os.close(fd)
 
 
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity where the platform has one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def default_threads(source: str, ranks: int = 1) -> int:
     """torch CPU threads for `train` without --threads: the cores this process may use minus one (at least 1).
     On the stream the solver thread needs that core (torch's threads fighting it ran 6x slower on 2 cores). On a
@@ -75,7 +80,7 @@ def default_threads(source: str, ranks: int = 1) -> int:
     2-core machine trained 17-30x slower than one thread (50 FNO steps of the README's command: 72.4 s vs 4.2 s,
     41.9 s vs 1.5 s), same losses. ``source`` ("stream" or a cache path) is kept for callers; both get this.
     ranks: processes training on this machine (--ddp N), which share its cores."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cores = usable_cores()
     return max(1, cores // ranks - 1)
 
 
@@ -236,7 +241,7 @@ def check_rank_count(ranks: int, device: str) -> None:
         if ranks > gpus:
             raise ValueError(f"--ddp {ranks} not allowed with --device {device}: torch sees {gpus} GPU(s), one per rank")
         return
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cores = usable_cores()
     if ranks > cores:
         raise ValueError(f"--ddp {ranks} not allowed on the CPU here: {cores} core(s), at most one rank per core "
                          "(torchrun across machines for more)")
