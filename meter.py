@@ -8,11 +8,14 @@ counters: a solve's calls and bits are the same with or without a callback.
 
 ``Meter`` shows a count (fractional within a solve), a rate and the time left: a tqdm bar on a terminal, else a
 plain line FIRST seconds after it starts and then at most every EVERY seconds (a ticker thread, so a line comes
-while the work is inside one long solve).
+while the work is inside one long solve). PDESTREAM_PROGRESS=0 in the environment turns every Meter off (logs
+that want only the results; the test suite, whose one-line checks would otherwise depend on how busy the
+machine is).
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import time
@@ -79,7 +82,8 @@ class Meter:
         self.first, self.every = FIRST if first is None else first, EVERY if every is None else every
         self.done = self.initial = float(initial)
         self.t0, self.last_line, self.lines = self.clock(), None, 0
-        self.enabled = enabled
+        self.enabled = enabled and os.environ.get("PDESTREAM_PROGRESS", "1") != "0"
+        enabled = self.enabled
         self._mark = None  # (time, count) of the first count above ``initial``: the rate is measured from there
         self._lock, self._show, self._stop = threading.Lock(), threading.Lock(), threading.Event()
         terminal = sys.stderr.isatty() if terminal is None else terminal

@@ -11,6 +11,17 @@ from pdestream.generator import dispatch
 from pdestream.surrogate.phases import phase
 
 SPECTRAL = dict(n=32, n_frames=6)
+
+
+@pytest.fixture(autouse=True)
+def _progress_on(monkeypatch):
+    monkeypatch.setenv("PDESTREAM_PROGRESS", "1")  # tests/conftest.py turns it off for every other test
+
+
+def test_pdestream_progress_0_turns_a_meter_off(monkeypatch, capsys):
+    monkeypatch.setenv("PDESTREAM_PROGRESS", "0")
+    m = meter.Meter("karman2d", 4, "samples", clock=lambda: 100.0, terminal=False, live=False)
+    assert not m.enabled and not m.tick(100.0) and capsys.readouterr().err == ""
 FLOW = dict(n=16, radius="uniform(0.15, 0.2)", re="uniform(20, 40)", t_start=0.3, t_end=0.6, n_frames=3)
 
 

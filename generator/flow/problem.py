@@ -41,7 +41,7 @@ from ..grids import GridBase
 from ..problem import MAX_STEPS, ProblemBase, resolve_params
 from . import interactive
 from .grid import SIDE_KINDS, Geometry, Params
-from .step import ADVECTION, State, initial_state, run, solid_mask
+from .step import ADVECTION, State, initial_state, run_counted, solid_mask
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
 # Work of one flow step per cell, in the spectral family's point-steps (generator.dispatch): a projection's
@@ -340,7 +340,7 @@ def _advance(advance, state, fp, dt: float, n_steps: int, per_step: int, count: 
     if n_steps == 0:
         return state
     for k in dispatch.pieces(n_steps, per_step):
-        state = advance(k)(state, fp, jnp.float32(dt))
+        state = advance(state, fp, jnp.float32(dt), jnp.int32(k))
         dispatch.sync([(state.u,)])
         if count is not None:
             count.add(k)
@@ -349,9 +349,9 @@ def _advance(advance, state, fp, dt: float, n_steps: int, per_step: int, count: 
 
 @functools.lru_cache(maxsize=16)
 def _programs(problem: FlowProblem):
-    """(start, advance(k), frame): compiled per-chunk programs, each sample the same unbatched program inside
+    """(start, advance, frame): compiled per-chunk programs, each sample the same unbatched program inside
     jax.lax.map. start: (keys [K], explicit [K, P], given [K, P]) -> (params {name: [K]}, Params [K], State [K]);
-    advance(k): (State, Params, dt) -> State k steps later; frame: (State, Params) -> [K, C, nx, ny]."""
+    advance: (State, Params, dt, k) -> State k steps later; frame: (State, Params) -> [K, C, nx, ny]."""
     geom = problem.grid.geometry()
 
     def start_one(key, explicit, given):
@@ -362,15 +362,14 @@ def _programs(problem: FlowProblem):
 
     start = jax.jit(lambda keys, ex, gv: jax.lax.map(lambda t: start_one(*t), (keys, ex, gv)))
 
-    @functools.lru_cache(maxsize=8)
-    def advance(k: int):
-        def one(t):
-            state, fp, dt = t
-            return run(geom, state, fp, dt, k, tol=problem.tol, max_iter=problem.max_iter, advection=problem.advection)
+    def advance_one(state, fp, dt, k):
+        return run_counted(geom, state, fp, dt, k, tol=problem.tol, max_iter=problem.max_iter,
+                           advection=problem.advection)
 
-        # vectorised over the fixed chunk (a GPU's batch; on a CPU as fast as a loop): every chunk has CHUNK rows
-        # (padded), and a row's bits do not depend on its place or its chunk-mates (tests/test_flows.py)
-        return jax.jit(lambda states, fps, dt: jax.vmap(one)((states, fps, jnp.broadcast_to(dt, (CHUNK,)))))
+    # vectorised over the fixed chunk (a GPU's batch; on a CPU as fast as a loop): every chunk has CHUNK rows
+    # (padded), and a row's bits do not depend on its place or its chunk-mates (tests/test_flows.py); the step
+    # count k is traced and shared by the rows, so one program serves every count
+    advance = jax.jit(lambda states, fps, dt, k: jax.vmap(advance_one, (0, 0, None, None))(states, fps, dt, k))
 
     frame = jax.jit(lambda states, fps: jax.lax.map(lambda t: problem.frame_fields(geom, *t), (states, fps)))
     return start, advance, frame
