@@ -84,20 +84,29 @@ def source_rate(geom: Geometry, params: Params, dtype=jnp.float32):
     return rate * circle_solid(geom, sx, sy, r, dtype).astype(dtype)
 
 
-def _sample(a, x, y, per_x: int, per_y: int):
-    """Bilinear sample of a [m, n] at fractional indices (x along n, y along m): indices wrap modulo per_x /
-    per_y on a periodic axis (the number of cells), else clamp to the array."""
+def _corners(a, x0, y0, per_x: int, per_y: int):
+    """a [m, n] at the 4 integer index pairs (x0, y0), (x0+1, y0), (x0, y0+1), (x0+1, y0+1) (x0, y0 whole numbers
+    as floats, x along n): [4, *x0.shape]. Indices wrap modulo per_x / per_y on a periodic axis (the number of
+    cells), else clamp to the array. One gather for all 4: XLA compiles each gather on its own, and the flow
+    step's interpolations were most of its compile time (4 gathers each)."""
     m, n = a.shape
-    x0, y0 = jnp.floor(x), jnp.floor(y)
-    fx, fy = x - x0, y - y0
 
     def idx(i, size, per):
         i = i.astype(jnp.int32)
         return jnp.mod(i, per) if per else jnp.clip(i, 0, size - 1)
 
     i0, i1 = idx(x0, n, per_x), idx(x0 + 1, n, per_x)
-    j0, j1 = idx(y0, m, per_y), idx(y0 + 1, m, per_y)
-    return (1 - fy) * ((1 - fx) * a[j0, i0] + fx * a[j0, i1]) + fy * ((1 - fx) * a[j1, i0] + fx * a[j1, i1])
+    j0, j1 = idx(y0, m, per_y) * n, idx(y0 + 1, m, per_y) * n
+    return a.reshape(-1)[jnp.stack([j0 + i0, j0 + i1, j1 + i0, j1 + i1])]
+
+
+def _sample(a, x, y, per_x: int, per_y: int):
+    """Bilinear sample of a [m, n] at fractional indices (x along n, y along m): indices wrap modulo per_x /
+    per_y on a periodic axis (the number of cells), else clamp to the array."""
+    x0, y0 = jnp.floor(x), jnp.floor(y)
+    fx, fy = x - x0, y - y0
+    c = _corners(a, x0, y0, per_x, per_y)
+    return (1 - fy) * ((1 - fx) * c[0] + fx * c[1]) + fy * ((1 - fx) * c[2] + fx * c[3])
 
 
 def _sampler(geom: Geometry, a, ox: float, oy: float):
@@ -129,10 +138,9 @@ def _stencil_bounds(geom: Geometry, q, ox: float, oy: float, x, y):
     """Min and max of the 4 values of q that bilinear interpolation at (x, y) [m] blends."""
     px = geom.nx if geom.periodic_x else 0
     py = geom.ny if geom.periodic_y else 0
-    fx, fy = jnp.floor(x / geom.h - ox), jnp.floor(y / geom.h - oy)
-    corners = [_sample(q, fx + i, fy + j, px, py) for i in (0, 1) for j in (0, 1)]  # integer points: exact values
-    return jnp.minimum(jnp.minimum(corners[0], corners[1]), jnp.minimum(corners[2], corners[3])), \
-        jnp.maximum(jnp.maximum(corners[0], corners[1]), jnp.maximum(corners[2], corners[3]))
+    c = _corners(q, jnp.floor(x / geom.h - ox), jnp.floor(y / geom.h - oy), px, py)
+    return jnp.minimum(jnp.minimum(c[0], c[1]), jnp.minimum(c[2], c[3])), \
+        jnp.maximum(jnp.maximum(c[0], c[1]), jnp.maximum(c[2], c[3]))
 
 
 def advect_maccormack(geom: Geometry, u, v, q, ox: float, oy: float, dt):
