@@ -242,7 +242,10 @@ FORMATS: dict[str, ExportFormat] = {f.name: f for f in (TheWell(), PDEBench())}
 
 # --- export ----------------------------------------------------------------------------------------
 def _check_out(out: Path, overwrite: bool) -> None:
-    """Refuse an OUT that exists (unless ``overwrite`` and it is a pdestream export) or whose directory is missing."""
+    """Refuse an OUT that exists (unless ``overwrite`` and it is a pdestream export) or whose directory is missing
+    or not writable."""
+    from .cache import _check_writable
+
     if out.suffix.lower() not in (".h5", ".hdf5"):
         raise ValueError(f"--out {str(out)!r} must end in .h5 or .hdf5 (got {out.suffix or 'no suffix'!r}): both "
                          "formats are HDF5 files")
@@ -255,9 +258,7 @@ def _check_out(out: Path, overwrite: bool) -> None:
         if exported_as(out) is None:
             raise ValueError(f"refusing to overwrite {out}: it is not an export written by pdestream (remove it "
                              "yourself or choose another path)")
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise FileNotFoundError(f"cannot write {out}: directory {parent} does not exist")
+    _check_writable(out)  # a directory that is missing or read-only: before the cache is read
 
 
 def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:

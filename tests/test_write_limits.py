@@ -4,6 +4,7 @@ Each is one line and a nonzero exit, no traceback, no crash after the line, and 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 
@@ -82,3 +83,39 @@ def test_a_full_disk_is_refused_before_writing(big, tmp_path, capsys, monkeypatc
         err = capsys.readouterr().err
         assert err.startswith(f"pdestream: error: cannot write {tmp_path}/a.") and "no space left on device (" in err
     assert os.listdir(tmp_path) == []
+
+
+# --- a read-only output directory ---------------------------------------------------------------------------
+def _as_user(argv, cwd):
+    """``pdestream ARGV`` with the file permissions a user has: as root, without the capability to override them
+    (setpriv), since root writes into a read-only directory."""
+    cmd = [sys.executable, "-m", "pdestream.cli", *argv]
+    if os.geteuid() == 0:
+        if not shutil.which("setpriv"):
+            pytest.skip("root without setpriv: a read-only directory is writable")
+        cmd = ["setpriv", "--bounding-set", "-dac_override,-dac_read_search", "--", *cmd]
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+READ_ONLY = {
+    "export": ["export", "CACHE", "--to", "the-well", "--out", "ro/a.hdf5"],
+    "train": ["train", "burgers1d", *SMALL, "--steps", "2", "--out", "ro/run"],
+    "train-nested": ["train", "burgers1d", *SMALL, "--steps", "2", "--out", "ro/sub/run"],
+    "train-ddp": ["train", "burgers1d", *SMALL, "--steps", "2", "--ddp", "2", "--reservoir", "--out", "ro/run"],
+    "train-existing": ["train", "burgers1d", *SMALL, "--steps", "2", "--out", "ro"],
+    "compare": ["compare", "burgers1d", "--quick", "--modes", "one-step", "--steps", "2", "--out", "ro/cmp"],
+}
+
+
+@pytest.mark.parametrize("command", list(READ_ONLY))
+def test_a_read_only_directory_is_refused_in_one_line_before_any_work(big, tmp_path, command):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        proc = _as_user([str(big / "c.h5") if a == "CACHE" else a for a in READ_ONLY[command]], tmp_path)
+        _one_line(proc, "pdestream: error: ")
+        assert "ro is not writable" in proc.stderr and READ_ONLY[command][-1] in proc.stderr, proc.stderr
+        assert os.listdir(ro) == [] and sorted(os.listdir(tmp_path)) == ["ro"]
+    finally:
+        ro.chmod(0o755)
