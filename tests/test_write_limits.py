@@ -47,6 +47,7 @@ COMMANDS = {
 }
 
 
+@pytest.mark.slow  # a process per case (~3 s each)
 @pytest.mark.parametrize("kib", [8, 200])
 @pytest.mark.parametrize("command", list(COMMANDS))
 def test_a_file_size_limit_is_one_line_and_leaves_nothing(big, tmp_path, command, kib):
@@ -59,6 +60,7 @@ def test_a_file_size_limit_is_one_line_and_leaves_nothing(big, tmp_path, command
     assert os.listdir(tmp_path / "out") == []  # no hidden work copy, no lock file
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["generate-h5", "export-well", "import-h5"])
 def test_an_hdf5_write_failing_halfway_is_one_line_and_leaves_nothing(big, tmp_path, command):
     """Past the up-front room check (a disk that fills meanwhile): HDF5 fails inside its writes or its close;
