@@ -121,3 +121,19 @@ def test_a_read_only_directory_is_refused_in_one_line_before_any_work(big, tmp_p
         assert os.listdir(ro) == [] and sorted(os.listdir(tmp_path)) == ["ro"]
     finally:
         ro.chmod(0o755)
+
+
+@pytest.mark.parametrize("suffix", [".zarr", ".h5"])
+def test_a_disk_filling_during_an_import_is_one_line_and_leaves_nothing(big, tmp_path, capsys, monkeypatch, suffix):
+    import errno
+
+    from pdestream.datasets import store
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(store.ZarrFormat if suffix == ".zarr" else store.Hdf5Format, "mark_complete", full)
+    out = tmp_path / f"a{suffix}"
+    assert cli.main(["import", str(big / "the-well.hdf5"), "--out", str(out)]) == 2
+    assert capsys.readouterr().err == f"pdestream: error: cannot write {out}: no space left on device; nothing was written\n"
+    assert os.listdir(tmp_path) == []  # the hidden work copy is gone
