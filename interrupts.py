@@ -83,6 +83,19 @@ def run(call, standalone: bool) -> int:
     return 0
 
 
+def check_writable_dir(d, option: str = "--out") -> None:
+    """One-line PermissionError (NotADirectoryError) when the directory ``d`` cannot be written or created: checked
+    before a command starts its work, so a read-only place is refused at once and nothing is created."""
+    d = Path(d)
+    there = d
+    while not there.exists() and there != there.parent:  # the nearest existing ancestor: where ``d`` is created
+        there = there.parent if str(there.parent) else Path(".")
+    if not there.is_dir():
+        raise NotADirectoryError(f"{option} {d}: {there} is not a directory")
+    if not os.access(there, os.W_OK | os.X_OK):
+        raise PermissionError(f"{option} {d}: directory {there} is not writable")
+
+
 def snapshot(d) -> dict[str, tuple[int, int]] | None:
     """{name: (inode, mtime ns)} of the entries of directory ``d``, or None when there is no such directory (the
     command will create it): what was there before a command, so an interrupt removes only what it created."""

@@ -197,23 +197,57 @@ def _check_resume(path: Path, cached: CacheSettings, asked: CacheSettings) -> No
                          "use the same PDE settings, seed and --n, or --overwrite to start again")
 
 
-def os_error_cause(err: OSError) -> str:
-    """An OS error in words, without the library's wrapping (h5py puts a whole report in its message)."""
+def _errno_of(err: BaseException) -> int | None:
     code = getattr(err, "errno", None)
     if code is None and "errno = " in str(err):  # h5py: "... errno = 28, error message = ..."
         digits = str(err).split("errno = ", 1)[1].split(",", 1)[0]
         code = int(digits) if digits.isdigit() else None
-    if code in (errno.ENOSPC, errno.EDQUOT):
+    return code
+
+
+def os_error_cause(err: BaseException) -> str:
+    """An OS error in words, without the library's wrapping (h5py puts a whole report in its message)."""
+    code, strerror = _errno_of(err), getattr(err, "strerror", None)
+    if code in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
         return os.strerror(code).lower()
-    if code is not None and (err.strerror is None or "(" in str(err.strerror)):
+    if code is not None and (strerror is None or "(" in str(strerror)):
         return os.strerror(code).lower()
-    text = err.strerror or str(err)
+    text = strerror or str(err)
     return text.splitlines()[0] if text else type(err).__name__
+
+
+def is_write_failure(err: BaseException) -> bool:
+    """An OSError, or h5py's RuntimeError around one (a failed close reports the OS's errno in its text)."""
+    return isinstance(err, OSError) or (isinstance(err, RuntimeError) and _errno_of(err) is not None)
 
 
 class CacheWriteError(ValueError):
     """Writing a block or the completion flag failed at the OS level (disk full, I/O error): one line naming the
     cache and the cause; ``writing`` adds what was kept."""
+
+
+ROOM_MARGIN = 2**16  # bytes beyond the arrays: HDF5's metadata
+
+
+def check_room(path: Path, nbytes: int) -> None:
+    """CacheWriteError when an HDF5 file of ``nbytes`` array bytes cannot fit at ``path``: above the process's file
+    size limit (``ulimit -f``) or the free space of its filesystem. Checked before writing, since HDF5 may crash
+    the process on a write that fails halfway through its bookkeeping."""
+    import resource
+
+    need = nbytes + ROOM_MARGIN
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    if limit != resource.RLIM_INFINITY and need > limit:
+        raise CacheWriteError(f"cannot write {path}: it needs {_mib(need)}, the file size limit (ulimit -f) is "
+                              f"{_mib(limit)}")
+    st = os.statvfs(path.parent if str(path.parent) else ".")
+    if need > st.f_bavail * st.f_frsize:
+        raise CacheWriteError(f"cannot write {path}: no space left on device ({_mib(need)} needed, "
+                              f"{_mib(st.f_bavail * st.f_frsize)} free)")
+
+
+def _mib(n: int) -> str:
+    return f"{n / 2**20:.2f} MiB" if n >= 2**20 else f"{n // 1024} KiB"
 
 
 def solve_block(pde, seed: int, lo: int, hi: int, block: int, on_blowup: str):
@@ -356,6 +390,8 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
                             settings.provenance)
         _remove_stale(path)
         repaired = _reopen_damaged(path, fmt, settings) if stored else 0
+        if fmt.name == "hdf5" and not stored:
+            check_room(path, schema.hdf5_bytes(lay))
         job = Job(path, _hidden(path, "tmp") if exists and overwrite else path, fmt, settings, lay, repaired)
         created = not stored
         try:

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import os
 import re
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Protocol
 
@@ -108,6 +109,17 @@ def _common(ds, f, fmt: str) -> None:
     g.create_dataset("redraws", data=np.asarray(ds["redraws"].values, np.int8))
 
 
+def _new_hdf5(out: Path):
+    """A new HDF5 file (h5py.File) without HDF5's sieve buffer: a failed data write (disk full, file size limit)
+    raises at the write, instead of when a dataset is closed (garbage-collected), where h5py can only print it."""
+    import h5py
+
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_sieve_buf_size(0)
+    fapl.set_fclose_degree(h5py.h5f.CLOSE_STRONG)
+    return h5py.File(h5py.h5f.create(os.fsencode(out), h5py.h5f.ACC_TRUNC, fapl=fapl))
+
+
 def _param_data(ds, name: str) -> np.ndarray:
     return np.asarray(ds[name].values, np.float32)
 
@@ -119,15 +131,13 @@ class TheWell:
     name = "the-well"
 
     def write(self, ds, out: Path) -> None:
-        import h5py
-
         _, fields, params = _names(ds)
         if "time" not in ds.dims:
             raise ValueError(f"{ds.attrs.get('pde')} is steady (no time axis); The Well holds time series: "
                              "export it with --to pdebench")
         space = _space(ds)
         n = ds.sizes["sample"]
-        with h5py.File(out, "w") as f:
+        with _new_hdf5(out) as f:
             _common(ds, f, self.name)
             f.attrs.update({"dataset_name": str(ds.attrs["pde"]), "grid_type": "cartesian",
                             "n_spatial_dims": len(space), "n_trajectories": n,
@@ -185,12 +195,10 @@ class PDEBench:
     name = "pdebench"
 
     def write(self, ds, out: Path) -> None:
-        import h5py
-
         inputs, fields, params = _names(ds)
         space = _space(ds)
         n, timed = ds.sizes["sample"], "time" in ds.dims
-        with h5py.File(out, "w") as f:
+        with _new_hdf5(out) as f:
             _common(ds, f, self.name)
             for d in space:
                 f.create_dataset(f"{d}-coordinate", data=ds[d].values).attrs.update(_attrs(ds[d].attrs))
@@ -234,7 +242,10 @@ FORMATS: dict[str, ExportFormat] = {f.name: f for f in (TheWell(), PDEBench())}
 
 # --- export ----------------------------------------------------------------------------------------
 def _check_out(out: Path, overwrite: bool) -> None:
-    """Refuse an OUT that exists (unless ``overwrite`` and it is a pdestream export) or whose directory is missing."""
+    """Refuse an OUT that exists (unless ``overwrite`` and it is a pdestream export) or whose directory is missing
+    or not writable."""
+    from .cache import _check_writable
+
     if out.suffix.lower() not in (".h5", ".hdf5"):
         raise ValueError(f"--out {str(out)!r} must end in .h5 or .hdf5 (got {out.suffix or 'no suffix'!r}): both "
                          "formats are HDF5 files")
@@ -247,16 +258,14 @@ def _check_out(out: Path, overwrite: bool) -> None:
         if exported_as(out) is None:
             raise ValueError(f"refusing to overwrite {out}: it is not an export written by pdestream (remove it "
                              "yourself or choose another path)")
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise FileNotFoundError(f"cannot write {out}: directory {parent} does not exist")
+    _check_writable(out)  # a directory that is missing or read-only: before the cache is read
 
 
 def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
     """Write the complete cache at ``cache`` to ``out`` in format ``to`` ("the-well" or "pdebench"); returns
     ``out``. One-line ValueError for an unknown format, an incomplete or unreadable cache, an existing ``out``
     (without ``overwrite``, or one that is not a pdestream export)."""
-    from .cache import is_complete, open_cache
+    from .cache import check_room, is_complete, open_cache
 
     if to not in FORMATS:
         raise ValueError(f"--to {to!r} not allowed; allowed: {', '.join(FORMATS)}")
@@ -268,9 +277,11 @@ def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
             done = int((ds["complete"].values == 1).sum())
             raise ValueError(f"{cache} is incomplete ({done} of {ds.sizes['sample']} samples written); only a "
                              "complete cache is exported: finish it with `pdestream generate ... --resume`")
+        check_room(out, sum(int(ds[v].size) * 4 for v in ds.data_vars))  # float32 fields, the rest is small
         tmp = out.with_name(f"{out.name}.tmp-{os.getpid()}")
         try:
-            fmt.write(ds, tmp)
+            with _write_failures(out):
+                fmt.write(ds, tmp)
             if overwrite and out.exists():  # checked above: a pdestream export, replaced as asked
                 os.replace(tmp, out)
             else:
@@ -281,6 +292,20 @@ def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
     finally:
         ds.close()
     return out
+
+
+@contextmanager
+def _write_failures(out: Path):
+    """A write that fails at the OS level (disk full, file size limit, I/O error) as one line naming ``out``;
+    the caller removes its temporary file."""
+    from .cache import CacheWriteError, is_write_failure, os_error_cause
+
+    try:
+        yield
+    except (OSError, RuntimeError) as err:
+        if not is_write_failure(err):
+            raise
+        raise CacheWriteError(f"cannot write {out}: {os_error_cause(err)}; nothing was written") from None
 
 
 # --- reading back ----------------------------------------------------------------------------------
@@ -385,7 +410,7 @@ def import_export(path, out) -> Path:
     """Write the export at ``path`` back as a complete pdestream cache at ``out`` (.h5/.hdf5 or .zarr; the layout
     ``pdestream generate`` writes), so `pdestream train NAME --source OUT` trains on it. Refuses an existing
     ``out``; built under a hidden name and renamed into place."""
-    from .cache import _check_name, _check_writable, _hidden
+    from .cache import _check_name, _check_writable, _hidden, check_room
     from .store import format_of, remove_any
 
     out = Path(out)
@@ -408,19 +433,22 @@ def import_export(path, out) -> Path:
         attrs={**ds.attrs, "pdestream_complete": 0},
     )
     block = int(ds.attrs.get("pdestream_block", ds.sizes["sample"]))
+    if fmt.name == "hdf5":
+        check_room(out, schema.hdf5_bytes(lay))
     tmp = _hidden(out, "new")
     try:
-        fmt.create(tmp, lay, min(block, ds.sizes["sample"]))
-        store = fmt.open(tmp, writable=True)
-        try:
-            for n in (*inputs, *fields, *params, "redraws"):
-                store[n][...] = ds[n].values
-            store.flush()
-            store["complete"][...] = np.ones(ds.sizes["sample"], np.int8)
-            store.flush()
-            fmt.mark_complete(store)
-        finally:
-            store.close()
+        with _write_failures(out):
+            fmt.create(tmp, lay, min(block, ds.sizes["sample"]))
+            store = fmt.open(tmp, writable=True)
+            try:
+                for n in (*inputs, *fields, *params, "redraws"):
+                    store[n][...] = ds[n].values
+                store.flush()
+                store["complete"][...] = np.ones(ds.sizes["sample"], np.int8)
+                store.flush()
+                fmt.mark_complete(store)
+            finally:
+                store.close()
         schema.publish_new(tmp, out)  # never over a cache another import made meanwhile
     except BaseException:
         remove_any(tmp)

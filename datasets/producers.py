@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+import signal
 import threading
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 
@@ -50,8 +51,8 @@ def open_producer(kind: str = "thread", workers: int = 1, scheduler: str | None 
         from .stream import check_main_guard
 
         check_main_guard(f"producer='process' with {workers} worker(s)")
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                                   initializer=_bridge.configure_worker)
+        pool = _QuietProcessPool(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                 initializer=_process_worker_init)
         closer.callback(_stop_processes, pool)
         return pool, closer, workers
     from .distributed import dask_client  # (a Dask cluster's workers are stopped by closing the client)
@@ -59,6 +60,24 @@ def open_producer(kind: str = "thread", workers: int = 1, scheduler: str | None 
     client = closer.enter_context(dask_client(scheduler, workers))
     slots = sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()) or workers
     return client.get_executor(pure=False), closer, slots
+
+
+class _QuietProcessPool(ProcessPoolExecutor):
+    """A process pool whose workers never see SIGINT: a terminal's Ctrl-C reaches the whole process group, and
+    each idle worker printed a KeyboardInterrupt traceback; the producer's owner handles it and stops them. They
+    are started (on a submit) with SIGINT blocked, a mask they inherit, and then ignore it."""
+
+    def submit(self, *args, **kwargs):
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})  # this thread only; a Ctrl-C meanwhile
+        try:  # is handled by the main thread, or delivered when the block ends
+            return super().submit(*args, **kwargs)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def _process_worker_init() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _bridge.configure_worker()
 
 
 def _stop_processes(pool: ProcessPoolExecutor) -> None:

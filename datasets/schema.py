@@ -216,11 +216,19 @@ def _early_dcpl(zero: bool = False):
     return dcpl
 
 
+def hdf5_bytes(lay: Layout) -> int:
+    """The bytes of the arrays of ``lay`` in an HDF5 cache (all allocated at creation)."""
+    field = int(np.prod([lay.dims[d] for d in lay.field_dims])) * 4
+    sample = sum(np.dtype(dtype).itemsize for dtype, _ in lay.per_sample.values()) * lay.dims["sample"]
+    return field * len(lay.fields) + sample + sum(data.nbytes for _, data, _ in lay.coords.values())
+
+
 def create_hdf5(path: str, lay: Layout) -> None:
     """A netCDF4-compatible HDF5 file (dimension scales through h5netcdf) with every array allocated."""
     import h5netcdf
 
-    with h5netcdf.File(path, "w") as f:
+    f = h5netcdf.File(path, "w")
+    try:
         f.dimensions = lay.dims
         for name, (dims, data, attrs) in lay.coords.items():
             f.create_variable(name, dims, data=data).attrs.update(attrs)
@@ -230,6 +238,23 @@ def create_hdf5(path: str, lay: Layout) -> None:
         for name, attrs in lay.fields.items():
             f.create_variable(name, lay.field_dims, "float32", dcpl=_early_dcpl()).attrs.update(attrs)
         f.attrs.update(lay.attrs)
+        f.close()
+    except BaseException:
+        _abandon(f)
+        raise
+
+
+def _abandon(f) -> None:
+    """Release an h5netcdf file whose writing or closing failed (disk full, file size limit) without closing it
+    again: h5netcdf's ``__del__`` would flush it when it is collected, into HDF5 objects the failed close left
+    half-freed, and crash the process (a segfault after the command's error line)."""
+    h5 = None if f._closed else getattr(f, "_File__h5file", None)
+    f._closed = True  # h5netcdf's own flag: close() and __del__ then do nothing
+    try:
+        if h5 is not None:
+            h5.id.close()  # the file descriptor (HDF5 reports the failed flush again: ignored)
+    except Exception:
+        pass
 
 
 def create_zarr(path: str, lay: Layout, block: int) -> None:

@@ -11,7 +11,7 @@ import argparse
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pdestream.interrupts import remove_created, snapshot
+from pdestream.interrupts import check_writable_dir, remove_created, snapshot
 
 BUDGET_ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")  # experiments.budget.DEFAULT_ARMS
 COMPARE_DEFAULTS = {"n": "64", "n_frames": "11"}  # small enough for ~10 min on 2 CPU cores
@@ -65,6 +65,7 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
     raised again as a KeyboardInterrupt saying what was kept (finished runs stay; else what it created goes)."""
     log = log or (lambda line: print(line, flush=True))  # (said before a long run: flushed)
     check_compare_out(cmd.out, cmd.overwrite)
+    check_writable_dir(cmd.out)
     if isinstance(cmd.pde, str):
         from pdestream.catalog_names import check_name
 

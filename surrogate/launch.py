@@ -12,7 +12,7 @@ import os
 import sys
 from pathlib import Path
 
-from pdestream.interrupts import USER_ERRORS, remove_created, snapshot
+from pdestream.interrupts import USER_ERRORS, check_writable_dir, remove_created, snapshot
 
 from .config import TRAIN_STEPS, TrainConfig
 
@@ -24,6 +24,10 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
     rank other than 0, and from the ``ddp`` launcher, whose ranks report). ValueError and friends: one line."""
     if cfg.resume is None and cfg.out is None:  # before anything heavy is imported
         raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
+    if cfg.resume is None:
+        check_writable_dir(cfg.out)
+    elif Path(cfg.resume).is_dir():
+        check_writable_dir(cfg.resume, "--resume")
     if cfg.resume is None and isinstance(cfg.pde, str):
         from pdestream.catalog_names import check_name
 

@@ -4,6 +4,7 @@ leaving a cache that does not read as complete and that --resume finishes."""
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -243,6 +244,61 @@ def test_ctrl_c_stops_stream_training_within_seconds(tmp_path):
     assert proc.returncode == 130, err[-2000:]
     assert err == "pdestream: interrupted; nothing was kept (no checkpoint yet); run the command again to start over\n"
     assert not out.exists()  # the run directory it created, with run.json: the same command starts again
+
+
+def _live_in_group(pgid: int) -> list[str]:
+    """The processes of group ``pgid`` still running (zombies awaiting their reaper left out)."""
+    ps = subprocess.run(["ps", "-eo", "pgid=,stat=,args="], capture_output=True, text=True).stdout
+    return [line for line in ps.splitlines() if line.split()[0] == str(pgid) and not line.split()[1].startswith("Z")]
+
+
+PRODUCER_SCRIPT = """
+import os, signal, sys, time
+from pdestream.datasets.producers import open_producer
+
+if __name__ == "__main__":
+    pool, closer, _ = open_producer("process", 2)
+    for f in [pool.submit(int) for _ in range(4)]:
+        f.result()  # both workers are up, and idle now
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # this process: its owner's Ctrl-C handling, elsewhere
+    os.killpg(0, signal.SIGINT)  # a terminal's Ctrl-C reaches the whole process group
+    time.sleep(3)
+    print(pool.submit(int, "7").result())  # the workers are still there, and work
+    closer.close()
+"""
+
+
+def test_a_process_producers_workers_leave_ctrl_c_to_their_owner(tmp_path):
+    (tmp_path / "producer.py").write_text(PRODUCER_SCRIPT)
+    proc = subprocess.run([sys.executable, str(tmp_path / "producer.py")], capture_output=True, text=True,
+                          timeout=300, start_new_session=True)
+    assert proc.returncode == 0 and proc.stdout == "7\n", proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr and "KeyboardInterrupt" not in proc.stderr, proc.stderr[-3000:]
+
+
+@pytest.mark.slow
+def test_ctrl_c_of_ddp_reservoir_training_with_process_producers(tmp_path):
+    """A terminal's Ctrl-C reaches the launcher, both ranks and their producers' workers: one line, exit 130, a
+    checkpoint to resume from, no traceback from any process and none of them left running."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "pdestream.cli", "train", "burgers1d", "--ddp", "2", "--reservoir",
+                             "--producer", "process", "--workers", "2", "--capacity", "8", "--solve-batch", "4", "--steps", "100000",
+                             "--batch-size", "4", "--test-samples", "1", "--checkpoint-every", "5",
+                             "--set=n=32", "--set=n_frames=5", "--set=t_end=0.5", "--model-set", "width=4",
+                             "--model-set", "modes=2", "--model-set", "layers=1", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    _wait_for_solving(proc, out / "checkpoint.pt", seconds=2.0)  # training, its producers solving or idle
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, err[-3000:]
+    *progress, last = err.splitlines()
+    assert last == f"pdestream: interrupted; {out} holds a checkpoint; pdestream train --resume {out} continues from it"
+    assert all(line.startswith("train: ") for line in progress), err[-3000:]
+    deadline = time.monotonic() + 30  # the launcher has exited; what it stopped may take a moment to go
+    while _live_in_group(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert _live_in_group(proc.pid) == []
+    assert {"checkpoint.pt", "run.json"} <= {p.name for p in out.iterdir()} and not (out / "metrics.json").exists()
 
 
 def test_ctrl_c_in_compare_removes_the_out_dir_it_created(tmp_path):
