@@ -203,3 +203,25 @@ def test_unsupported_settings_are_refused_in_one_line():
         assert said in str(err.value) and "\n" not in str(err.value), str(err.value)
     assert g.get_pde("euler1d", **{"bc.x": "wall"}).grid.bc == ("dirichlet",)
     assert g.get_pde("euler1d", bc="wall,outflow").grid.sides == ("wall", "outflow")
+
+
+@pytest.mark.slow  # ~30 s on 2 cores: torch, and compiling the reverse-mode scan
+def test_the_oracle_and_the_differentiable_step_continue_sampled_frames():
+    import torch
+
+    from pdestream.datasets import SolverOracle, SolverStep, _bridge
+
+    pde = g.get_pde("euler1d", n=100, t_end=0.1, n_frames=3, gamma="uniform(1.3, 1.67)")
+    t = _bridge.sample_tensors(pde, range(3), seed=2)
+    u, params = t["u"], t["params"]
+    oracle = SolverOracle(pde)
+    # the primitive frame re-enters the solver as conserved variables: equal to float32 rounding, not bit for bit
+    got = oracle(u[:, 0], params)
+    assert float((got - u[:, 1]).abs().max() / u[:, 1].abs().max()) < 1e-5
+    assert torch.equal(oracle(u[1:2, 0], params[1:2])[0], got[1])  # alone as in the batch
+    x = u[:, 0].clone().requires_grad_(True)
+    p = params.clone().requires_grad_(True)
+    out = SolverStep(pde)(x, p)
+    assert float((out.detach() - got).abs().max() / got.abs().max()) < 1e-5
+    out[:, 0].sum().backward()  # total density after a frame: its gradient flows back through HLLC and minmod
+    assert torch.isfinite(x.grad).all() and torch.isfinite(p.grad).all() and x.grad[:, 0].abs().sum() > 0
