@@ -47,6 +47,7 @@ NAMES: dict[str, str] = {
     "cavity2d": "fluids",
     "channel2d": "fluids",
     "smoke2d": "fluids",
+    "euler1d": "fluids",
     "darcy2d": "steady",
     "poisson1d": "steady",
     "poisson2d": "steady",

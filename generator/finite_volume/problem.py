@@ -1,0 +1,462 @@
+"""The finite-volume family's one entry so far: ``euler1d``, 1D compressible Euler with shocks (a
+``generator.problem.Problem``; the scheme is ``generator.finite_volume.euler``'s).
+
+A sample is u [T, 3, n] float32 at ``times()``: the primitive fields rho, u, p at the cell centres (from the
+solver's conserved cell averages), n cells of h = length / n on [0, length]. Both ends are ``bc``: outflow
+(zero gradient), periodic or wall (reflective); one word for both, or two ("wall,outflow").
+
+Time: one fixed step per configuration, dt = frame_dt / steps_per_frame <= cfl h / s0, with s0 the largest
+|u| + c the initial condition's distribution allows (at the largest gamma), so the compiled program never depends
+on a sample. Waves speed up after t = 0 (Sod: 2.19 behind the shock against 1.18 at t = 0); a sample whose own
+CFL number max(|u| + c) dt / h passes MAX_CFL fails with that cause, as does one whose density or pressure goes
+non-positive or non-finite: ``ok`` is False, the sampler raises BlowUpError, redraws or skips it (on_blowup) and
+``failure_causes`` says which and when. A failed sample's state is held at its last good step (no NaN written).
+
+Identity: the key of (seed, index) splits into a parameter key and an IC key; every sample runs the same
+unbatched program inside ``jax.lax.map`` over a fixed chunk of CHUNK rows (padded, ``generator.chunked``), so its
+bits are the same alone and in any batch; the steps run in bounded calls (``generator.dispatch``).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import threading
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ...boundaries import DIRICHLET, NEUMANN, PERIODIC
+from .. import dispatch
+from ..chunked import chunked_map, join, split
+from ..domains import Fixed, parse_domain
+from ..grids import GridBase
+from ..problem import MAX_STEPS, Param, ProblemBase, resolve_params
+from . import euler
+from .euler import CAUSES, LIMITERS, SIDE_KINDS, Health
+
+CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
+MAX_CFL = 0.8  # a sample whose own CFL number passes this fails (the step no longer resolves its fastest wave)
+STEP_WORK_PER_CELL = 32  # one RK3 step's work per cell in the spectral family's point-steps (generator.dispatch)
+
+
+@dataclass(frozen=True)
+class FVGrid(GridBase):
+    """n cells of side h = length / n on [0, length]; ``sides`` (left, right) each one of SIDE_KINDS."""
+
+    POINTS: ClassVar[str] = "cell centres of a finite-volume grid (values from the cell averages)"
+
+    sides: tuple = ("outflow", "outflow")
+
+    @property
+    def bc(self) -> tuple[str, ...]:
+        """periodic; dirichlet where both ends are walls (u = 0 there); neumann where an end is open."""
+        lo, hi = self.sides
+        return ((PERIODIC if lo == "periodic" else DIRICHLET if lo == hi == "wall" else NEUMANN).value,)
+
+    def coords(self, axis: int = 0) -> np.ndarray:
+        """Cell-centre positions, float32 [n] (length units)."""
+        return ((np.arange(self.n) + 0.5) * (self.length / self.n)).astype(np.float32)
+
+    def describe(self) -> str:
+        return f"{self.n} cells on [0, {self.length:g}] (left={self.sides[0]}, right={self.sides[1]})"
+
+
+# --- initial conditions: primitive (rho, u, p) [3, n] at the cell centres -----------------------------------------
+def _step_profile(grid, left, right, x0):
+    """[3, n]: the left state (3 scalars) at cell centres x < x0, the right one elsewhere."""
+    x = jnp.asarray(grid.coords())
+    return jnp.where(x[None] < x0, jnp.stack(left)[:, None], jnp.stack(right)[:, None]).astype(jnp.float32)
+
+
+@dataclass(frozen=True)
+class Riemann:
+    """A random Riemann problem: left and right states (rho, u, p) and the discontinuity position x0, each drawn
+    from its domain (a domain string, as for parameters)."""
+
+    rho_l: str = "uniform(0.2, 1)"
+    u_l: str = "uniform(-0.5, 0.5)"
+    p_l: str = "loguniform(0.1, 1)"
+    rho_r: str = "uniform(0.2, 1)"
+    u_r: str = "uniform(-0.5, 0.5)"
+    p_r: str = "loguniform(0.1, 1)"
+    x0: str = "uniform(0.3, 0.7)"
+    kind = "riemann"
+    field_count = 3
+    NAMES: ClassVar[tuple] = ("rho_l", "u_l", "p_l", "rho_r", "u_r", "p_r", "x0")
+
+    def domains(self) -> dict:
+        return {name: parse_domain(getattr(self, name)) for name in self.NAMES}
+
+    def sample(self, key: jax.Array, grid, n_fields: int = 3) -> jax.Array:
+        v = [d.sample(jax.random.fold_in(key, j)) for j, d in enumerate(self.domains().values())]
+        return _step_profile(grid, v[0:3], v[3:6], v[6])
+
+    def check(self, grid) -> None:
+        try:
+            doms = self.domains()
+        except ValueError as err:
+            raise ValueError(f"ic: {err}") from None
+        for name in ("rho_l", "p_l", "rho_r", "p_r"):
+            if not min(doms[name].bounds) > 0:
+                raise ValueError(f"ic.{name}={doms[name]} not allowed: densities and pressures must be > 0")
+        lo, hi = doms["x0"].bounds
+        if not 0 < lo <= hi < grid.length:
+            raise ValueError(f"ic.x0={doms['x0']} not allowed: the discontinuity must lie in (0, {grid.length:g})")
+
+    def bound(self, grid) -> float:
+        return max(max(abs(b) for b in d.bounds) for d in self.domains().values())
+
+    def speed(self, gamma: float) -> float:
+        """Largest |u| + c of the initial states over the domains (c = sqrt(gamma p / rho))."""
+        d = self.domains()
+        return max(max(abs(b) for b in d[f"u_{s}"].bounds) + math.sqrt(gamma * max(d[f"p_{s}"].bounds)
+                                                                        / min(d[f"rho_{s}"].bounds)) for s in "lr")
+
+    def __str__(self) -> str:
+        return ("Riemann problem: left (rho, u, p) = ({rho_l}, {u_l}, {p_l}), right ({rho_r}, {u_r}, {p_r}), "
+                "jump at x0 = {x0}").format(**{n: getattr(self, n) for n in self.NAMES})
+
+
+@dataclass(frozen=True)
+class _Classic:
+    """A named Riemann problem of fixed states (rho, u, p) left and right of x0 (nothing random)."""
+
+    x0: float = 0.5
+    field_count = 3
+    LEFT: ClassVar[tuple] = ()
+    RIGHT: ClassVar[tuple] = ()
+    TITLE: ClassVar[str] = ""
+
+    def sample(self, key: jax.Array, grid, n_fields: int = 3) -> jax.Array:
+        return _step_profile(grid, [jnp.float32(v) for v in self.LEFT], [jnp.float32(v) for v in self.RIGHT],
+                             jnp.float32(self.x0))
+
+    def check(self, grid) -> None:
+        if not 0 < self.x0 < grid.length:
+            raise ValueError(f"ic.x0={self.x0:g} not allowed: the discontinuity must lie in (0, {grid.length:g})")
+
+    def bound(self, grid) -> float:
+        return max(map(abs, (*self.LEFT, *self.RIGHT)))
+
+    def speed(self, gamma: float) -> float:
+        return max(abs(u) + math.sqrt(gamma * p / r) for r, u, p in (self.LEFT, self.RIGHT))
+
+    def __str__(self) -> str:
+        return f"{self.TITLE}: left (rho, u, p) = {self.LEFT}, right {self.RIGHT}, jump at x0 = {self.x0:g}"
+
+
+@dataclass(frozen=True)
+class Sod(_Classic):
+    kind = "sod"
+    LEFT: ClassVar[tuple] = (1.0, 0.0, 1.0)
+    RIGHT: ClassVar[tuple] = (0.125, 0.0, 0.1)
+    TITLE: ClassVar[str] = "Sod's shock tube (compare at t = 0.2)"
+
+
+@dataclass(frozen=True)
+class Lax(_Classic):
+    kind = "lax"
+    LEFT: ClassVar[tuple] = (0.445, 0.698, 3.528)
+    RIGHT: ClassVar[tuple] = (0.5, 0.0, 0.571)
+    TITLE: ClassVar[str] = "Lax's shock tube (compare at t = 0.14)"
+
+
+@dataclass(frozen=True)
+class Toro123(_Classic):
+    kind = "123"
+    LEFT: ClassVar[tuple] = (1.0, -2.0, 0.4)
+    RIGHT: ClassVar[tuple] = (1.0, 2.0, 0.4)
+    TITLE: ClassVar[str] = "Toro's test 2, two strong rarefactions (compare at t = 0.15)"
+
+
+@dataclass(frozen=True)
+class Smooth:
+    """A random smooth periodic state: rho = 1 + amplitude f1, u = amplitude f2, p = 1 + amplitude f3, each f a
+    random Fourier series of modes 1..max_mode on [0, length) scaled to max |f| = 1."""
+
+    amplitude: float = 0.2
+    max_mode: int = 3
+    kind = "smooth"
+    field_count = 3
+
+    def sample(self, key: jax.Array, grid, n_fields: int = 3) -> jax.Array:
+        x = jnp.asarray(grid.coords()) * (2 * np.pi / grid.length)
+        m = jnp.arange(1, self.max_mode + 1, dtype=jnp.float32)
+        a, b = jax.random.normal(key, (2, 3, self.max_mode), jnp.float32) / m
+        f = a @ jnp.cos(m[:, None] * x) + b @ jnp.sin(m[:, None] * x)  # [3, n]
+        f = f / jnp.max(jnp.abs(f), axis=1, keepdims=True)
+        return jnp.array([1.0, 0.0, 1.0], jnp.float32)[:, None] + self.amplitude * f
+
+    def check(self, grid) -> None:
+        if not 0 < self.amplitude < 1:
+            raise ValueError(f"ic.amplitude={self.amplitude:g} not allowed: must be in (0, 1) (density and "
+                             "pressure stay positive)")
+        if not 1 <= self.max_mode <= grid.n // 8:
+            raise ValueError(f"ic.max_mode={self.max_mode} not allowed on n={grid.n}: need 1 <= max_mode <= n//8 = "
+                             f"{grid.n // 8}")
+
+    def bound(self, grid) -> float:
+        return 1 + self.amplitude
+
+    def speed(self, gamma: float) -> float:
+        return self.amplitude + math.sqrt(gamma * (1 + self.amplitude) / (1 - self.amplitude))
+
+    def __str__(self) -> str:
+        return f"smooth periodic state, amplitude {self.amplitude:g} about (1, 0, 1), modes 1..{self.max_mode}"
+
+
+IC_KINDS: dict[str, type] = {c.kind: c for c in (Riemann, Sod, Lax, Toro123, Smooth)}
+
+_LAST = threading.local()  # the causes of this thread's last run_keys (failure_causes)
+
+
+@dataclass(frozen=True)
+class Euler1D(ProblemBase):
+    """1D compressible Euler of an ideal gas; dimensionless (length, time and density units of the IC)."""
+
+    NAME: ClassVar[str] = "euler1d"
+    EQUATION: ClassVar[str] = ("rho_t + (rho u)_x = 0, (rho u)_t + (rho u^2 + p)_x = 0, E_t + ((E + p) u)_x = 0, "
+                               "E = p / (gamma - 1) + rho u^2 / 2; stored: primitive rho, u, p")
+    FIELDS: ClassVar[tuple] = ("rho", "u", "p")
+    FIELD_UNITS: ClassVar[dict] = {"rho": "mass/length^3", "u": "length/time", "p": "mass/(length time^2)"}
+    NDIM: ClassVar[int] = 1
+    PARAMS: ClassVar[dict] = {"gamma": Param("ratio of specific heats (ideal gas)", "1", positive=True)}
+    IC_KINDS: ClassVar[Mapping[str, type]] = IC_KINDS
+    BOUNDARIES: ClassVar[tuple] = SIDE_KINDS  # what `--set bc=` takes: one word, or two (left,right)
+
+    n: int = 256  # cells
+    length: float = 1.0
+    ic: Any = Riemann()
+    t_end: float = 0.2
+    n_frames: int = 21
+    bc: str = "outflow"  # one of SIDE_KINDS for both ends, or "left,right" (e.g. "wall,outflow")
+    cfl: float = 0.4  # s0 dt / h at the initial condition's largest speed s0
+    limiter: str = "minmod"  # MUSCL slope limiter: one of LIMITERS
+    gamma: Any = Fixed(1.4)
+
+    # --- settings ------------------------------------------------------------------------------------
+    def replace(self, overrides: Mapping[str, Any] | None = None, **kwargs) -> "Euler1D":
+        """``ProblemBase.replace``; ``bc.x`` is ``bc`` (the one axis)."""
+        changes = {("bc" if k == "bc.x" else k): v for k, v in {**(overrides or {}), **kwargs}.items()}
+        return super().replace(changes)
+
+    @property
+    def sides(self) -> tuple[str, str]:
+        words = [w.strip().lower() for w in self.bc.split(",")]
+        return (words[0], words[0]) if len(words) == 1 else tuple(words)
+
+    @property
+    def grid(self) -> FVGrid:
+        return FVGrid(1, self.n, self.length, self.sides)
+
+    @property
+    def h(self) -> float:
+        return self.length / self.n
+
+    def times(self) -> np.ndarray:
+        """Frame times, float32 [n_frames]."""
+        return np.linspace(0.0, self.t_end, self.n_frames).astype(np.float32)
+
+    def speed_bound(self) -> float:
+        """Largest |u| + c of the initial states the IC distribution allows, at the largest gamma."""
+        return self.ic.speed(max(self.gamma.bounds))
+
+    @property
+    def frame_dt(self) -> float:
+        return self.t_end / (self.n_frames - 1)
+
+    @property
+    def steps_per_frame(self) -> int:
+        return max(1, math.ceil(self.frame_dt * self.speed_bound() / (self.cfl * self.h) * (1 - 1e-9)))
+
+    @property
+    def step_dt(self) -> float:
+        return self.frame_dt / self.steps_per_frame
+
+    def validate(self) -> None:
+        if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < 16:
+            raise ValueError(f"{self.NAME}: n={self.n!r} not allowed: cells must be an integer >= 16")
+        self._check_length()
+        if not (self.t_end > 0 and math.isfinite(self.t_end)):
+            raise ValueError(f"{self.NAME}: t_end={self.t_end} not allowed: must be a finite number > 0")
+        if self.n_frames < 2:
+            raise ValueError(f"{self.NAME}: n_frames={self.n_frames} not allowed: need an integer >= 2 (t=0 and t_end)")
+        sides = [w.strip().lower() for w in self.bc.split(",")]
+        if len(sides) > 2 or any(w not in SIDE_KINDS for w in sides):
+            raise ValueError(f"{self.NAME}: bc={self.bc!r} not allowed; allowed: {', '.join(SIDE_KINDS)}, one for "
+                             "both ends or two as left,right (e.g. wall,outflow)")
+        if len(sides) == 2 and (sides[0] == "periodic") != (sides[1] == "periodic"):
+            raise ValueError(f"{self.NAME}: bc={self.bc!r} not allowed: periodic ends come in pairs")
+        if not 0 < self.cfl <= MAX_CFL:
+            raise ValueError(f"{self.NAME}: cfl={self.cfl:g} not allowed: must be in (0, {MAX_CFL:g}]")
+        if self.limiter not in LIMITERS:
+            raise ValueError(f"{self.NAME}: limiter={self.limiter!r} not allowed; allowed: {', '.join(LIMITERS)}")
+        if not min(self.gamma.bounds) > 1:
+            raise ValueError(f"{self.NAME}: gamma={self.gamma} not allowed: the ratio of specific heats must be > 1")
+        if getattr(self.ic, "field_count", None) != 3:
+            raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed; allowed: {', '.join(IC_KINDS)}")
+        self._check_size()
+        self._check_ic_on_grid()
+        steps = (self.n_frames - 1) * self.frame_dt * self.speed_bound() / (self.cfl * self.h)
+        if not steps <= MAX_STEPS:
+            raise ValueError(f"{self.NAME}: t_end={self.t_end:g} would take ~{steps:.3g} steps per trajectory; the "
+                             f"limit is {MAX_STEPS} (a shorter time window or a coarser grid)")
+
+    def describe_setup(self) -> str:
+        return (f"  fields: {', '.join(self.FIELDS)} (primitive)   grid: {self.grid.describe()}\n"
+                f"  t in [0, {self.t_end:g}], {self.n_frames} frames, step {self.step_dt:.4g} ({self.steps_per_frame}/"
+                f"frame, CFL {self.cfl:g} at the initial speed bound {self.speed_bound():.3g}); finite volumes: "
+                f"MUSCL ({self.limiter}) on (rho, u, p), HLLC, SSP-RK3")
+
+    def failure(self) -> tuple[str, str]:
+        return (f"trajectories failed (a non-positive density or pressure, a NaN/Inf, or a CFL number above "
+                f"{MAX_CFL:g} with step {self.step_dt:.4g})",
+                "a smaller cfl, a finer grid or a narrower ic domain avoids this")
+
+    def failure_causes(self) -> list[str]:
+        return list(getattr(_LAST, "causes", ()))
+
+    # --- solving ---------------------------------------------------------------------------------------
+    def consts(self, dtype=jnp.float32) -> tuple:
+        """The stepping program's traced settings: (dt, h, sides int32 [2], limiter int32)."""
+        return (jnp.asarray(self.step_dt, dtype), jnp.asarray(self.h, dtype),
+                jnp.asarray([SIDE_KINDS.index(s) for s in self.sides], jnp.int32),
+                jnp.int32(LIMITERS.index(self.limiter)))
+
+    def _causes(self, health: Health) -> list[str]:
+        code, step, cfl = (np.asarray(a) for a in (health.code, health.step, health.cfl))
+        return ["" if c == euler.OK else
+                f"{CAUSES[int(c)]} at t = {s * self.step_dt:.4g}" + (f" (CFL {v:.3g})" if c == euler.CFL_EXCEEDED else "")
+                for c, s, v in zip(code, step, cfl)]
+
+    def _rollout(self, q, hl, gamma, count):
+        """One chunk from its initial state: (u [K, T, 3, n], health)."""
+        consts = self.consts()
+        frames = [_frame(q, gamma)]
+        per_step = CHUNK * self.n * STEP_WORK_PER_CELL + dispatch.step_overhead()
+        for _ in range(self.n_frames - 1):
+            for k in dispatch.pieces(self.steps_per_frame, per_step):
+                q, hl = _advance(q, hl, gamma, *consts, jnp.int32(k))
+                dispatch.sync([(q,)])
+                count[0] += k
+                dispatch.report(count[0], count[1])
+            frames.append(_frame(q, gamma))
+        return jnp.stack(frames, axis=1), hl
+
+    def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
+        """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, 3, n], params {name: [B]}, ok bool
+        [B], None); why a sample failed in ``failure_causes()``."""
+        start = _start(self)
+        parts = split([jnp.asarray(keys), jnp.asarray(explicit), jnp.asarray(given)], CHUNK)
+        count = [0, len(parts) * (self.n_frames - 1) * self.steps_per_frame]
+        results = []
+        for part in parts:
+            p, q, hl = start(*part)
+            results.append((*self._rollout(q, hl, p["gamma"], count), p))
+        u, health, params = join(results, int(keys.shape[0]))
+        _LAST.causes = self._causes(health)
+        return u, params, health.code == euler.OK, None
+
+    def evolve(self, u0: jax.Array, p: Mapping[str, jax.Array]):
+        """A caller's primitive states u0 [B, 3, n], params {name: [B]} -> (u [B, T, 3, n], ok [B])."""
+        gamma = jnp.broadcast_to(jnp.asarray(p["gamma"], jnp.float32), (u0.shape[0],))
+        parts = split([jnp.asarray(u0, jnp.float32), gamma], CHUNK)
+        count = [0, len(parts) * (self.n_frames - 1) * self.steps_per_frame]
+        results = []
+        for w, g in parts:
+            q, hl = _conserved(w, g)
+            results.append(self._rollout(q, hl, g, count))
+        u, health = join(results, u0.shape[0])
+        _LAST.causes = self._causes(health)
+        return u, health.code == euler.OK
+
+    def advance_frames(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int):
+        """Frames u [B, 3, n] advanced ``frames`` frame intervals: (u_k, ok [B]) (generator.interactive): the
+        sampler's step sequence, so frame i advanced once is frame i + 1 to the rounding of the primitive round trip."""
+        gamma = jnp.asarray(params["gamma"], u.dtype)
+        consts = self.consts(u.dtype)
+        k = jnp.int32(frames * self.steps_per_frame)
+        return chunked_map(lambda w, g: _oracle(w, g, *consts, k), CHUNK, u, gamma)
+
+    def advance_frames_vjp(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int, wrt_params: bool):
+        """``advance_frames`` with its VJP: (u_k, ok, vjp); vjp(g) -> (g_u, g_params or None). A vmapped scan of
+        the same steps, equal to ``advance_frames`` to rounding."""
+        gamma = jnp.asarray(params["gamma"], u.dtype)
+        out, ok, vjp = _oracle_vjp(frames * self.steps_per_frame, wrt_params)(u, gamma, *self.consts(u.dtype))
+
+        def back(g):
+            got = _apply(vjp, jnp.asarray(g, out.dtype))
+            return (got[0], {"gamma": got[1]}) if wrt_params else (got[0], None)
+
+        return out, ok, back
+
+
+# --- compiled programs: each row the unbatched solver inside jax.lax.map over a fixed chunk (batch-invariant
+# bits); the settings (dt, h, sides, limiter, steps) are traced, so one program serves every entry of a grid size
+@jax.jit
+def _advance(q, hl, gamma, dt, h, sides, limiter, k):
+    """(q [K, 3, n], Health [K], gamma [K]) -> (q, health) k steps of dt later."""
+    return jax.lax.map(lambda t: euler.run(t[0], t[1], t[2], dt, k, h, sides, limiter, MAX_CFL), (q, hl, gamma))
+
+
+@jax.jit
+def _frame(q, gamma):
+    """Conserved q [K, 3, n] -> primitive [K, 3, n]."""
+    return jax.lax.map(lambda t: euler.to_primitive(*t), (q, gamma))
+
+
+@jax.jit
+def _conserved(w, gamma):
+    """A caller's primitive w [K, 3, n] -> (conserved q, Health [K])."""
+    return jax.lax.map(lambda t: (euler.to_conserved(*t), euler.healthy(t[0].dtype)), (w, gamma))
+
+
+@functools.lru_cache(maxsize=16)
+def _start(problem: Euler1D):
+    """jit of (keys [K], explicit [K, P], given [K, P]) -> (params {gamma: [K]}, conserved q [K, 3, n], Health)."""
+    grid = problem.grid
+
+    def one(key, explicit, given):
+        k_param, k_ic = jax.random.split(key)
+        p = resolve_params(problem, k_param, explicit, given)
+        return p, euler.to_conserved(problem.ic.sample(k_ic, grid, 3), p["gamma"]), euler.healthy()
+
+    return jax.jit(lambda keys, ex, gv: jax.lax.map(lambda t: one(*t), (keys, ex, gv)))
+
+
+def _oracle_one(w, gamma, dt, h, sides, limiter, k):
+    """A primitive frame w [3, n] k steps later, and whether it stayed healthy."""
+    q, hl = euler.run(euler.to_conserved(w, gamma), euler.healthy(w.dtype), gamma, dt, k, h, sides, limiter, MAX_CFL)
+    return euler.to_primitive(q, gamma), hl.code == euler.OK
+
+
+@jax.jit
+def _oracle(u, gamma, dt, h, sides, limiter, k):
+    return jax.lax.map(lambda t: _oracle_one(t[0], t[1], dt, h, sides, limiter, k), (u, gamma))
+
+
+@functools.lru_cache(maxsize=32)
+def _oracle_vjp(k: int, wrt_params: bool):
+    """jit of (u [B, 3, n], gamma [B], dt, h, sides, limiter) -> (u_k, ok, vjp): k a Python int (a scan)."""
+    def go(u, gamma, dt, h, sides, limiter):
+        many = jax.vmap(lambda w, g: _oracle_one(w, g, dt, h, sides, limiter, k))
+
+        def fn(*args):  # the frames, with ok as an undifferentiated output
+            return many(*args) if wrt_params else many(args[0], gamma)
+
+        out, vjp, ok = jax.vjp(fn, *((u, gamma) if wrt_params else (u,)), has_aux=True)
+        return out, ok, vjp
+
+    return jax.jit(go)
+
+
+@jax.jit
+def _apply(vjp, g):
+    return vjp(g)
+
+
+__all__ = ["Euler1D", "FVGrid", "IC_KINDS", "Lax", "MAX_CFL", "Riemann", "Smooth", "Sod", "Toro123"]
