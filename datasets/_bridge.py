@@ -109,6 +109,14 @@ def jax_provenance() -> dict:
             "pdestream_numerics": generator.NUMERICS}
 
 
+def progress_key(kind: str, pde, block: int) -> str:
+    """The key under which a run's measured times are recorded (``meter.remember``): what it runs, the entry's
+    config hash, its block and JAX's backend (a GPU's times are not a CPU's)."""
+    import jax
+
+    return f"{kind} {pde.NAME} {pde.config_hash()} block={block} {jax.default_backend()}"
+
+
 def resolve_pde(pde):
     """A generator PDE from a PDE object or a catalog name."""
     from pdestream import generator

@@ -10,6 +10,7 @@ import pytest
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 os.environ.setdefault("PDESTREAM_JAX_CACHE", "")
+os.environ.setdefault("PDESTREAM_PROGRESS_HISTORY", "")  # no record of measured times under ~/.cache
 
 
 MAPPINGS_BEFORE_RELEASE = 30_000  # of Linux's default 65,530 per process (vm.max_map_count)

@@ -143,3 +143,77 @@ def test_training_lines_give_the_rate_and_the_time_left(capsys):
     run.close()
     line = capsys.readouterr().err.strip()
     assert line.startswith("arm: step 1/4, ") and " steps/s, ~" in line and " left, loss 0.5" in line, line
+
+
+def test_a_recorded_run_gives_the_time_left_within_first_seconds_before_any_count(capsys):
+    clock = Clock()  # the last run: 40 s to its first count (the compile), then 20 s per sample
+    m = meter.Meter("karman2d", 4, "samples", clock=clock, terminal=False, live=False,
+                    last={"startup_s": 40.0, "unit_s": 20.0}, starting="compiling the solver")
+    clock.t += meter.FIRST
+    assert m.tick()  # nothing counted yet: the estimate is the last run's start-up left and its 4 samples
+    assert capsys.readouterr().err.strip() == ("karman2d: 0/4 samples, ~20 s/sample last time, ~1 min 57 s left "
+                                               "(compiling the solver: about 40 s last time) (3 s so far)")
+    clock.t += 60  # later than the last start-up, still nothing: at least the 4 samples are left
+    assert "~1 min 20 s left" in m.text()
+    clock.t += 1
+    m.set(0.1)  # the first count: the start-up is over; no rate of its own within a second
+    assert m.text().startswith("karman2d: 0.10/4 samples, ~20 s/sample last time, ~1 min 18 s left (")
+    clock.t += 2
+    m.set(0.2)  # its own rate: 0.1 sample in 2 s
+    assert m.text() == "karman2d: 0.20/4 samples, 20 s/sample, ~1 min 16 s left (1 min 6 s so far)"
+    m.close()
+
+
+def test_without_a_record_the_meter_says_what_it_waits_for_and_no_rate_from_the_start_up(capsys):
+    clock = Clock()
+    m = meter.Meter("karman2d", 4, "samples", clock=clock, terminal=False, live=False, starting="compiling the solver")
+    clock.t += meter.FIRST
+    assert m.tick() and capsys.readouterr().err.strip() == \
+        "karman2d: 0/4 samples, compiling the solver, time left unknown (3 s so far)"
+    clock.t += 40.5
+    m.set(0.04)  # a first count after a 43.5 s compile: a rate since the start would say ~1 h left
+    clock.t += 0.5
+    assert m.text().endswith("0.04/4 samples, no rate yet, time left unknown (44 s so far)")
+    clock.t += 1
+    m.set(0.1)  # 0.06 in 1.5 s: 25 s/sample
+    assert m.text() == "karman2d: 0.10/4 samples, 25 s/sample, ~1 min 38 s left (45 s so far)"
+    m.close()
+
+
+def test_a_coarse_count_gets_a_rate_since_the_start_once_it_is_every_seconds_old():
+    clock = Clock()
+    m = meter.Meter("darcy2d (dask)", 4, "samples", clock=clock, terminal=False, live=False)
+    clock.t += 10
+    m.add(2)  # a first block of 2, after 10 s; the next one comes only when it is finished
+    assert m.rate() is None
+    clock.t += meter.EVERY
+    assert m.rate() == pytest.approx(2 / 15)
+    m.close()
+
+
+def test_the_measured_times_are_recorded_by_key_and_read_back(tmp_path, monkeypatch):
+    path = tmp_path / "progress.json"
+    monkeypatch.setenv(meter.HISTORY_ENV, str(path))
+    clock = Clock()
+    m = meter.Meter("karman2d", 4, "samples", clock=clock, terminal=False, live=False, key="generate karman2d abc")
+    assert m.last is None
+    clock.t += 40
+    m.set(0.5)
+    clock.t += 30
+    m.set(2)  # 1.5 samples in 30 s after the first count
+    clock.t += 100  # written after the solves: not counted
+    m.close()
+    assert meter.recall("generate karman2d abc") == {"startup_s": 40.0, "unit_s": 20.0}
+    assert meter.Meter("karman2d", 4, key="generate karman2d abc", clock=clock, terminal=False, live=False).last == \
+        {"startup_s": 40.0, "unit_s": 20.0}
+    assert meter.recall("generate karman2d other") is None
+    path.write_text("{not json")
+    assert meter.recall("generate karman2d abc") is None  # garbled: as if nothing was recorded
+    monkeypatch.setenv(meter.HISTORY_ENV, "")  # off: nothing read or written
+    path.unlink()
+    m = meter.Meter("x", 2, key="k", clock=clock, terminal=False, live=False)
+    m.set(1)
+    clock.t += 5
+    m.set(2)
+    m.close()
+    assert meter.history_path() is None and not path.exists()
