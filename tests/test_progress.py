@@ -217,3 +217,12 @@ def test_the_measured_times_are_recorded_by_key_and_read_back(tmp_path, monkeypa
     m.set(2)
     m.close()
     assert meter.history_path() is None and not path.exists()
+
+
+@pytest.mark.parametrize("name, settings", [("darcy2d", dict(n=16)), ("poisson2d", dict(n=16))])
+def test_a_steady_solve_reports_each_finished_chunk_and_the_same_bits(name, settings):
+    pde = generator.get_pde(name, **settings)
+    indices = list(range(20))  # 3 chunks of 8 (padded)
+    u, reports = solve_reporting(pde, indices)
+    assert reports == [(1, 3), (2, 3), (3, 3)]
+    assert np.array_equal(u, np.asarray(generator.sample(pde, indices, seed=1).u))  # no callback: the same bits
