@@ -8,28 +8,22 @@ counters: a solve's calls and bits are the same with or without a callback.
 
 ``Meter`` shows a count (fractional within a solve), a rate and the time left: a tqdm bar on a terminal, else a
 plain line FIRST seconds after it starts and then at most every EVERY seconds (a ticker thread, so a line comes
-while the work is inside one long solve). A Meter with a ``key`` (generate: the entry's config hash, block and
-JAX backend) records its start-up (seconds to the first count: the solver's compile) and seconds per unit in a
-small JSON (``history_path()``; PDESTREAM_PROGRESS_HISTORY names another file, empty: none kept), and the next
-Meter of that key gives a time left from them until it has measured its own rate.
+while the work is inside one long solve). Given the times of a previous run (``last``: its start-up, the
+seconds to its first count, which is mostly the solver's compile, and its seconds per unit; ``measured()``
+gives them, ``datasets.timings`` keeps them), a Meter gives a time left from them until it has a rate of its own.
 """
 
 from __future__ import annotations
 
-import json
-import os
 import sys
 import threading
 import time
 from contextlib import contextmanager
-from pathlib import Path
 from typing import Callable
 
 FIRST = 3.0  # seconds before the first plain line of a Meter
 EVERY = 5.0  # seconds between a Meter's plain lines
 BAR_REFRESH = 0.5  # seconds between refreshes of a terminal bar
-HISTORY_ENV = "PDESTREAM_PROGRESS_HISTORY"
-HISTORY_KEYS = 200  # records kept (the most recent)
 
 _HOOK = threading.local()
 
@@ -69,50 +63,6 @@ def duration(seconds: float) -> str:
     return f"{s // 3600} h {s % 3600 // 60} min"
 
 
-def history_path() -> Path | None:
-    """The JSON of measured times: $PDESTREAM_PROGRESS_HISTORY, else ~/.cache/pdestream/progress.json (under
-    $XDG_CACHE_HOME if set); None when the variable is set and empty (nothing read or written)."""
-    named = os.environ.get(HISTORY_ENV)
-    if named is not None:
-        return Path(named) if named else None
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "pdestream" / "progress.json"
-
-
-def _history() -> dict:
-    path = history_path()
-    try:
-        data = json.loads(path.read_text()) if path is not None else {}
-    except (OSError, ValueError):
-        return {}  # none yet, unreadable or garbled: as if nothing was recorded
-    return data if isinstance(data, dict) else {}
-
-
-def recall(key: str) -> dict | None:
-    """The last record of ``key``: {"startup_s": seconds to the first count, "unit_s": seconds per unit}, or None."""
-    rec = _history().get(key)
-    ok = isinstance(rec, dict) and all(isinstance(rec.get(k), (int, float)) and rec[k] >= 0 for k in ("startup_s", "unit_s"))
-    return {"startup_s": float(rec["startup_s"]), "unit_s": float(rec["unit_s"])} if ok and rec["unit_s"] > 0 else None
-
-
-def remember(key: str, startup_s: float, unit_s: float) -> None:
-    """Record the times of ``key`` (replacing its last record; the HISTORY_KEYS most recent kept). A file that
-    cannot be written only costs the next run its early estimate."""
-    path = history_path()
-    if path is None:
-        return
-    data = _history()
-    data.pop(key, None)
-    data[key] = {"startup_s": round(startup_s, 3), "unit_s": unit_s, "at": round(time.time())}
-    data = dict(list(data.items())[-HISTORY_KEYS:])
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}")
-        tmp.write_text(json.dumps(data, indent=0))
-        os.replace(tmp, path)  # whole or not at all: a concurrent run reads the old or the new file
-    except OSError:
-        pass
-
-
 def _count(x: float) -> str:
     return str(int(x)) if float(x).is_integer() else f"{x:.2f}"
 
@@ -121,18 +71,16 @@ class Meter:
     """``done`` of ``total`` ``unit`` (``initial`` already done before it started: a resumed cache), with a rate
     and the time left. ``set``/``add`` may come from any thread (a solve's callback); the lines come from a ticker
     thread (``live``), or from ``tick(now)`` (tests, with a fake ``clock``). ``terminal``: a tqdm bar instead of
-    plain lines (default: whether stderr is a terminal); ``enabled=False`` shows nothing. ``key``: the times of
-    the last Meter of that key (``recall``) give the time left before this one has a rate, and this one's are
-    recorded at ``close`` (``remember``); ``last`` gives such times directly. ``starting``: what a line says
-    before the first count (e.g. 'compiling the solver')."""
+    plain lines (default: whether stderr is a terminal); ``enabled=False`` shows nothing. ``last``: a previous
+    run's ``measured()`` times, the time left until this one has a rate. ``starting``: what a line says before
+    the first count (e.g. 'compiling the solver')."""
 
     def __init__(self, label: str, total: float, unit: str = "samples", initial: float = 0.0,
                  first: float | None = None, every: float | None = None, clock: Callable[[], float] | None = None,
-                 terminal: bool | None = None, enabled: bool = True, live: bool = True, key: str | None = None,
-                 last: dict | None = None, starting: str = "no rate yet"):
+                 terminal: bool | None = None, enabled: bool = True, live: bool = True, last: dict | None = None,
+                 starting: str = "no rate yet"):
         self.label, self.total, self.unit = label, float(total), unit
-        self.key, self.starting = key, starting
-        self.last = last if last is not None or key is None or not enabled else recall(key)
+        self.starting, self.last = starting, last
         self.clock = clock or time.monotonic
         self.first, self.every = FIRST if first is None else first, EVERY if every is None else every
         self.done = self.initial = float(initial)
@@ -254,12 +202,16 @@ class Meter:
         while not self._stop.wait(wait):
             self.tick()
 
+    def measured(self) -> dict | None:
+        """{"startup_s": seconds from the start to the first count, "unit_s": seconds per unit of the counts
+        after it, up to the last that moved}; None before a second count."""
+        with self._lock:
+            if self._mark is None or self.done <= self._mark[1]:
+                return None
+            return {"startup_s": self._mark[0] - self.t0, "unit_s": (self._latest - self._mark[0]) / (self.done - self._mark[1])}
+
     def close(self) -> None:
-        """Stop the ticker; a terminal bar shows the final count and goes; with a ``key``, record the start-up
-        and the seconds per unit measured (when both were)."""
-        if self.key is not None and self.enabled and self._mark is not None and self.done > self._mark[1]:
-            # the counts after the first (the start-up apart), up to the last that moved
-            remember(self.key, self._mark[0] - self.t0, (self._latest - self._mark[0]) / (self.done - self._mark[1]))
+        """Stop the ticker; a terminal bar shows the final count and goes."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join()

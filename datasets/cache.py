@@ -455,6 +455,7 @@ def _fill(pde, job: Job, progress: bool) -> int:
     """Solve and write every pending block of ``job``, then mark it complete; returns the samples written."""
     from pdestream.meter import Meter
 
+    from . import timings
     from ._bridge import progress_key
 
     s, block = job.settings, job.block
@@ -465,8 +466,9 @@ def _fill(pde, job: Job, progress: bool) -> int:
         initial = s.n_samples - sum(hi - lo for lo, hi in todo)
         # samples solved (fractional within a block: its solve reports after each bounded call), rate, time left
         # (from the last run's times until this one's rate is measured: the first call compiles the solver)
+        key = progress_key("generate", pde, block)
         bar = Meter(pde.NAME, s.n_samples, "samples", initial=initial, enabled=progress,
-                    key=progress_key("generate", pde, block), starting="compiling the solver")
+                    last=timings.recall(key) if progress else None, starting="compiling the solver")
 
         def solve_all():  # in the prefetch thread: one block solved ahead of the one being written
             base = initial
@@ -489,6 +491,8 @@ def _fill(pde, job: Job, progress: bool) -> int:
             # stops the solver thread: it ends at its next bounded compiled call (rollouts run in pieces)
             solved.close()
             bar.close()
+            if progress:
+                timings.remember(key, bar.measured())
         if not (np.asarray(store["complete"][:]) == 1).all():
             raise RuntimeError(f"{job.path}: blocks missing after writing (a bug)")
         try:

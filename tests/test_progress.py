@@ -2,6 +2,7 @@
 time left (a fake clock: no wall times asserted), generate's plain lines off a terminal, and a phase's count."""
 
 import itertools
+import json
 
 import numpy as np
 import pytest
@@ -192,31 +193,45 @@ def test_a_coarse_count_gets_a_rate_since_the_start_once_it_is_every_seconds_old
 
 
 def test_the_measured_times_are_recorded_by_key_and_read_back(tmp_path, monkeypatch):
+    from pdestream.datasets import timings
+
     path = tmp_path / "progress.json"
-    monkeypatch.setenv(meter.HISTORY_ENV, str(path))
+    monkeypatch.setenv(timings.HISTORY_ENV, str(path))
     clock = Clock()
-    m = meter.Meter("karman2d", 4, "samples", clock=clock, terminal=False, live=False, key="generate karman2d abc")
-    assert m.last is None
+    m = meter.Meter("karman2d", 4, "samples", clock=clock, terminal=False, live=False)
+    assert m.measured() is None
     clock.t += 40
     m.set(0.5)
+    assert m.measured() is None  # one count: no seconds per unit yet
     clock.t += 30
     m.set(2)  # 1.5 samples in 30 s after the first count
     clock.t += 100  # written after the solves: not counted
     m.close()
-    assert meter.recall("generate karman2d abc") == {"startup_s": 40.0, "unit_s": 20.0}
-    assert meter.Meter("karman2d", 4, key="generate karman2d abc", clock=clock, terminal=False, live=False).last == \
-        {"startup_s": 40.0, "unit_s": 20.0}
-    assert meter.recall("generate karman2d other") is None
+    timings.remember("generate karman2d abc", m.measured())
+    assert timings.recall("generate karman2d abc") == {"startup_s": 40.0, "unit_s": 20.0}
+    assert timings.recall("generate karman2d other") is None
     path.write_text("{not json")
-    assert meter.recall("generate karman2d abc") is None  # garbled: as if nothing was recorded
-    monkeypatch.setenv(meter.HISTORY_ENV, "")  # off: nothing read or written
+    assert timings.recall("generate karman2d abc") is None  # garbled: as if nothing was recorded
+    monkeypatch.setenv(timings.HISTORY_ENV, "")  # off: nothing read or written
     path.unlink()
-    m = meter.Meter("x", 2, key="k", clock=clock, terminal=False, live=False)
-    m.set(1)
-    clock.t += 5
-    m.set(2)
-    m.close()
-    assert meter.history_path() is None and not path.exists()
+    timings.remember("generate karman2d abc", {"startup_s": 1.0, "unit_s": 2.0})
+    assert timings.history_path() is None and not path.exists()
+
+
+def test_generate_records_its_times_and_the_next_run_starts_from_them(capsys, tmp_path, monkeypatch):
+    from pdestream.datasets import timings
+
+    monkeypatch.setenv(timings.HISTORY_ENV, str(tmp_path / "progress.json"))
+    monkeypatch.setattr(dispatch, "DISPATCH_WORK", 2**10)  # several reports per block
+    args = ["generate", "burgers1d", "--n", "4", "--block", "2", "--set", "n=32", "--set", "n_frames=6"]
+    assert cli.main([*args, "--out", str(tmp_path / "a.h5")]) == 0
+    (key, rec), = json.loads((tmp_path / "progress.json").read_text()).items()
+    assert key.startswith("generate burgers1d ") and " block=2 cpu" in key and rec["unit_s"] > 0
+    first, seen = timings.recall(key), []
+    real = meter.Meter.__init__
+    monkeypatch.setattr(meter.Meter, "__init__", lambda self, *a, **k: seen.append(k.get("last")) or real(self, *a, **k))
+    assert cli.main([*args, "--out", str(tmp_path / "b.h5")]) == 0
+    assert first is not None and seen == [first]  # the second run's meter had the first run's times
 
 
 @pytest.mark.parametrize("name, settings", [("darcy2d", dict(n=16)), ("poisson2d", dict(n=16))])
@@ -226,3 +241,22 @@ def test_a_steady_solve_reports_each_finished_chunk_and_the_same_bits(name, sett
     u, reports = solve_reporting(pde, indices)
     assert reports == [(1, 3), (2, 3), (3, 3)]
     assert np.array_equal(u, np.asarray(generator.sample(pde, indices, seed=1).u))  # no callback: the same bits
+
+
+def test_the_dask_count_moves_with_the_fractions_running_tasks_report():
+    from pdestream.datasets.distributed import BlockCount
+
+    clock = Clock()
+    bar = meter.Meter("darcy2d (dask)", 12, "samples", initial=4, clock=clock, terminal=False, live=False)
+    count = BlockCount(bar)  # blocks 4..7 and 8..11 to do, 0..3 done before (a resume)
+    count.event((0.0, (4, 8, 0.25)))
+    count.event((0.0, (8, 12, 0.5)))
+    assert bar.done == 4 + 1 + 2  # inside both blocks, before either finished
+    count.event((0.0, (4, 8, 0.1)))  # out of order: a block's count never goes back
+    assert bar.done == 7
+    count.finished(4, 8)
+    count.event((0.0, (4, 8, 1.0)))  # late, after its block finished: not counted twice
+    assert bar.done == 8 + 2
+    count.finished(8, 12)
+    assert bar.done == 12
+    bar.close()
