@@ -96,7 +96,7 @@ class Meter:
 
             self.bar = tqdm(total=self.total, initial=self.initial, desc=label, unit=unit.rstrip("s") or unit,
                             bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.2f}/{total:.0f} "
-                                       "[{elapsed}<{remaining}, {rate_fmt}]", smoothing=0.1)
+                                       "[{elapsed}<{remaining}, {rate_fmt}{postfix}]", smoothing=0.1)
         self._shown = self.initial
         self._thread = None
         if enabled and live:
@@ -184,6 +184,8 @@ class Meter:
         if self.bar is not None:
             with self._lock:
                 done = self.done
+            est = self.left(now) if self.last else None  # before its own rate: the last run's time left
+            self.bar.set_postfix_str(f"~{duration(est[1])} left, last time" if est and est[2] else "", refresh=False)
             if done > self._shown:
                 self.bar.update(done - self._shown)
                 self._shown = done

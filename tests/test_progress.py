@@ -260,3 +260,17 @@ def test_the_dask_count_moves_with_the_fractions_running_tasks_report():
     count.finished(8, 12)
     assert bar.done == 12
     bar.close()
+
+
+def test_a_terminal_bar_shows_the_last_runs_time_left_until_it_has_a_rate(capsys):
+    clock = Clock()
+    m = meter.Meter("karman2d", 4, "samples", clock=clock, terminal=True, live=False,
+                    last={"startup_s": 40.0, "unit_s": 20.0})
+    clock.t += 3
+    m.tick()
+    assert "~1 min 57 s left, last time" in capsys.readouterr().err
+    m.set(0.5)
+    clock.t += 2
+    m.set(1.0)  # its own rate: tqdm's remaining, no postfix
+    assert "last time" not in m.bar.postfix
+    m.close()
