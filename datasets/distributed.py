@@ -222,24 +222,17 @@ def _block_task(config: dict, seed: int, path: str, lo: int, hi: int, block: int
     return lo, hi
 
 
-def _run_blocks(client, name: str, settings, path: str, todo, block: int, progress: bool) -> None:
-    """One task per (lo, hi) block; raises the first task error after cancelling the rest."""
-    from pdestream.meter import Meter
-
-    from . import timings
-
+def _run_blocks(client, name: str, settings, path: str, todo, block: int, bar) -> None:
+    """One task per (lo, hi) block, counted on ``bar`` (a Meter; disabled: no progress); raises the first task
+    error after cancelling the rest."""
+    progress = bar.enabled
     if progress and "dashboard" in client.scheduler_info().get("services", {}):
         hint = "" if importlib.util.find_spec("bokeh") else " (install bokeh to see its plots)"
         print(f"dask dashboard: {client.dashboard_link}{hint}", file=sys.stderr)
     seed, on_blowup = settings.seed, settings.on_blowup
     config = settings.config  # tasks rebuild the PDE from it: plain data travels
     tag = f"pdestream-{settings.config_hash}-s{seed}"  # readable task names on the dashboard
-    n = settings.n_samples
-    # samples of finished blocks plus the fractions that running tasks report (Dask events), rate, time left
-    workers = len(client.scheduler_info().get("workers", {}))
-    key = f"dask workers={workers} {name} {settings.config_hash} block={block}"
-    bar = Meter(f"{name} (dask)", n, "samples", initial=n - sum(hi - lo for lo, hi in todo), enabled=progress,
-                last=timings.recall(key) if progress else None, starting="starting the workers and compiling the solver")
+    # samples of finished blocks plus the fractions that running tasks report (Dask events)
     count = BlockCount(bar)
     topic = f"{tag}-progress" if progress else None
     if topic:
@@ -256,6 +249,23 @@ def _run_blocks(client, name: str, settings, path: str, todo, block: int, progre
     finally:
         if topic:
             client.unsubscribe_topic(topic)
+
+
+@contextmanager
+def _meter(name: str, settings, todo, block: int, cluster: str, progress: bool):
+    """The Meter of a Dask run, started before its cluster (a line within FIRST s, the estimate from the last run
+    of the same ``cluster`` (its workers or scheduler) and set-up); its times recorded at the end."""
+    from pdestream.meter import Meter
+
+    from . import timings
+
+    n = settings.n_samples
+    key = f"dask {cluster} {name} {settings.config_hash} block={block}"
+    bar = Meter(f"{name} (dask)", n, "samples", initial=n - sum(hi - lo for lo, hi in todo), enabled=progress,
+                last=timings.recall(key) if progress else None, starting="starting the workers and compiling the solver")
+    try:
+        yield bar
+    finally:
         bar.close()
         if progress:
             timings.remember(key, bar.measured())
@@ -315,9 +325,11 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
         todo = cache.pending_blocks(store, block)
         try:
             if todo:  # a finished cache needs no cluster
-                with dask_client(scheduler, workers) as client:
+                cluster = f"scheduler={scheduler}" if scheduler else f"workers={workers}"
+                with _meter(pde.NAME, job.settings, todo, block, cluster, progress) as bar, \
+                        dask_client(scheduler, workers) as client:
                     # an absolute path: remote workers run in another directory (of a shared filesystem)
-                    _run_blocks(client, pde.NAME, job.settings, str(work.resolve()), todo, block, progress)
+                    _run_blocks(client, pde.NAME, job.settings, str(work.resolve()), todo, block, bar)
             if not (store["complete"][:] == 1).all():
                 raise RuntimeError(f"{path}: blocks missing after the Dask run (a bug)")
             job.fmt.mark_complete(store)
