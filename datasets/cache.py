@@ -466,7 +466,7 @@ def _fill(pde, job: Job, progress: bool) -> int:
         initial = s.n_samples - sum(hi - lo for lo, hi in todo)
         # samples solved (fractional within a block: its solve reports after each bounded call), rate, time left
         # (from the last run's times until this one's rate is measured: the first call compiles the solver)
-        key = progress_key("generate", pde, block)
+        key = progress_key("generate", pde)
         bar = Meter(pde.NAME, s.n_samples, "samples", initial=initial, enabled=progress,
                     last=timings.recall(key) if progress else None, starting="compiling the solver")
 

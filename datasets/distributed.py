@@ -252,7 +252,7 @@ def _run_blocks(client, name: str, settings, path: str, todo, block: int, bar) -
 
 
 @contextmanager
-def _meter(name: str, settings, todo, block: int, cluster: str, progress: bool):
+def _meter(name: str, settings, todo, cluster: str, progress: bool):
     """The Meter of a Dask run, started before its cluster (a line within FIRST s, the estimate from the last run
     of the same ``cluster`` (its workers or scheduler) and set-up); its times recorded at the end."""
     from pdestream.meter import Meter
@@ -260,7 +260,7 @@ def _meter(name: str, settings, todo, block: int, cluster: str, progress: bool):
     from . import timings
 
     n = settings.n_samples
-    key = f"dask {cluster} {name} {settings.config_hash} block={block}"
+    key = f"dask {cluster} {name} {settings.config_hash}"
     bar = Meter(f"{name} (dask)", n, "samples", initial=n - sum(hi - lo for lo, hi in todo), enabled=progress,
                 last=timings.recall(key) if progress else None, starting="starting the workers and compiling the solver")
     try:
@@ -326,7 +326,7 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
         try:
             if todo:  # a finished cache needs no cluster
                 cluster = f"scheduler={scheduler}" if scheduler else f"workers={workers}"
-                with _meter(pde.NAME, job.settings, todo, block, cluster, progress) as bar, \
+                with _meter(pde.NAME, job.settings, todo, cluster, progress) as bar, \
                         dask_client(scheduler, workers) as client:
                     # an absolute path: remote workers run in another directory (of a shared filesystem)
                     _run_blocks(client, pde.NAME, job.settings, str(work.resolve()), todo, block, bar)

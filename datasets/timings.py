@@ -3,7 +3,7 @@ still compiles (``meter.Meter(last=...)``).
 
 One small JSON (``history_path()``: ~/.cache/pdestream/progress.json; $PDESTREAM_PROGRESS_HISTORY names another
 file, set and empty: nothing read or written) maps a key (``_bridge.progress_key``: the command, the entry's
-config hash, its block, JAX's backend) to the last run's {"startup_s": seconds to its first count (mostly the
+config hash, JAX's backend) to the last run's {"startup_s": seconds to its first count (mostly the
 compile), "unit_s": seconds per sample after it}. A missing, unreadable or garbled file is an empty one; one that
 cannot be written only costs the next run its early estimate.
 """
