@@ -206,9 +206,9 @@ class Meter:
 
     def measured(self) -> dict | None:
         """{"startup_s": seconds from the start to the first count, "unit_s": seconds per unit of the counts
-        after it, up to the last that moved}; None before a second count."""
+        after it, up to the last that moved}; None before a second count a second or more after the first."""
         with self._lock:
-            if self._mark is None or self.done <= self._mark[1]:
+            if self._mark is None or self.done <= self._mark[1] or self._latest - self._mark[0] < 1.0:
                 return None
             return {"startup_s": self._mark[0] - self.t0, "unit_s": (self._latest - self._mark[0]) / (self.done - self._mark[1])}
 

@@ -203,7 +203,10 @@ def test_the_measured_times_are_recorded_by_key_and_read_back(tmp_path, monkeypa
     clock.t += 40
     m.set(0.5)
     assert m.measured() is None  # one count: no seconds per unit yet
-    clock.t += 30
+    clock.t += 0.5
+    m.set(0.6)
+    assert m.measured() is None  # a burst: under a second after the first count
+    clock.t += 29.5
     m.set(2)  # 1.5 samples in 30 s after the first count
     clock.t += 100  # written after the solves: not counted
     m.close()
@@ -222,6 +225,13 @@ def test_generate_records_its_times_and_the_next_run_starts_from_them(capsys, tm
     from pdestream.datasets import timings
 
     monkeypatch.setenv(timings.HISTORY_ENV, str(tmp_path / "progress.json"))
+    clock = Clock()
+
+    def ticking():  # a second per look: the counts are seconds apart
+        clock.t += 1
+        return clock.t
+
+    monkeypatch.setattr(meter.time, "monotonic", ticking)
     monkeypatch.setattr(dispatch, "DISPATCH_WORK", 2**10)  # several reports per block
     args = ["generate", "burgers1d", "--n", "4", "--block", "2", "--set", "n=32", "--set", "n_frames=6"]
     assert cli.main([*args, "--out", str(tmp_path / "a.h5")]) == 0
