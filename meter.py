@@ -8,7 +8,9 @@ counters: a solve's calls and bits are the same with or without a callback.
 
 ``Meter`` shows a count (fractional within a solve), a rate and the time left: a tqdm bar on a terminal, else a
 plain line FIRST seconds after it starts and then at most every EVERY seconds (a ticker thread, so a line comes
-while the work is inside one long solve). PDESTREAM_PROGRESS=0 in the environment turns every Meter off (logs
+while the work is inside one long solve). Given the times of a previous run (``last``: its start-up, the
+seconds to its first count, which is mostly the solver's compile, and its seconds per unit; ``measured()``
+gives them, ``datasets.timings`` keeps them), a Meter gives a time left from them until it has a rate of its own. PDESTREAM_PROGRESS=0 in the environment turns every Meter off (logs
 that want only the results; the test suite, whose one-line checks would otherwise depend on how busy the
 machine is).
 """
@@ -72,12 +74,16 @@ class Meter:
     """``done`` of ``total`` ``unit`` (``initial`` already done before it started: a resumed cache), with a rate
     and the time left. ``set``/``add`` may come from any thread (a solve's callback); the lines come from a ticker
     thread (``live``), or from ``tick(now)`` (tests, with a fake ``clock``). ``terminal``: a tqdm bar instead of
-    plain lines (default: whether stderr is a terminal); ``enabled=False`` shows nothing."""
+    plain lines (default: whether stderr is a terminal); ``enabled=False`` shows nothing. ``last``: a previous
+    run's ``measured()`` times, the time left until this one has a rate. ``starting``: what a line says before
+    the first count (e.g. 'compiling the solver')."""
 
     def __init__(self, label: str, total: float, unit: str = "samples", initial: float = 0.0,
                  first: float | None = None, every: float | None = None, clock: Callable[[], float] | None = None,
-                 terminal: bool | None = None, enabled: bool = True, live: bool = True):
+                 terminal: bool | None = None, enabled: bool = True, live: bool = True, last: dict | None = None,
+                 starting: str = "no rate yet"):
         self.label, self.total, self.unit = label, float(total), unit
+        self.starting, self.last = starting, last
         self.clock = clock or time.monotonic
         self.first, self.every = FIRST if first is None else first, EVERY if every is None else every
         self.done = self.initial = float(initial)
@@ -85,6 +91,7 @@ class Meter:
         self.enabled = enabled and os.environ.get("PDESTREAM_PROGRESS", "1") != "0"
         enabled = self.enabled
         self._mark = None  # (time, count) of the first count above ``initial``: the rate is measured from there
+        self._latest = None  # time of the last count that moved
         self._lock, self._show, self._stop = threading.Lock(), threading.Lock(), threading.Event()
         terminal = sys.stderr.isatty() if terminal is None else terminal
         self.bar = None
@@ -93,7 +100,7 @@ class Meter:
 
             self.bar = tqdm(total=self.total, initial=self.initial, desc=label, unit=unit.rstrip("s") or unit,
                             bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.2f}/{total:.0f} "
-                                       "[{elapsed}<{remaining}, {rate_fmt}]", smoothing=0.1)
+                                       "[{elapsed}<{remaining}, {rate_fmt}{postfix}]", smoothing=0.1)
         self._shown = self.initial
         self._thread = None
         if enabled and live:
@@ -104,9 +111,11 @@ class Meter:
     def set(self, done: float) -> None:
         """``done`` units done in all (never goes back; at most ``total``); a line if one is due."""
         with self._lock:
-            self.done = max(self.done, min(float(done), self.total))
+            before, self.done = self.done, max(self.done, min(float(done), self.total))
+            if self.done > before:
+                self._latest = self.clock()
             if self._mark is None and self.done > self.initial:
-                self._mark = (self.clock(), self.done)
+                self._mark = (self._latest, self.done)
         self.tick()
 
     def add(self, n: float) -> None:
@@ -125,24 +134,47 @@ class Meter:
 
     # --- showing -----------------------------------------------------------------------------------------
     def rate(self, now: float | None = None) -> float | None:
-        """Units per second: since the first count above ``initial`` once a second has passed and more was done
-        since (a first call's compile does not count), else since the start; None before any count."""
+        """Units per second measured by this Meter: since the first count above ``initial`` once a second has
+        passed and more was done since (the first call's compile does not count); since the start once the
+        first count is EVERY s old with nothing more (coarse counts: finished blocks); else None."""
         now = self.clock() if now is None else now
-        gained = self.done - self.initial
-        if gained <= 0 or now <= self.t0:
+        if self._mark is None or now <= self.t0:
             return None
-        if self._mark is not None and now - self._mark[0] >= 1.0 and self.done > self._mark[1]:
-            return (self.done - self._mark[1]) / (now - self._mark[0])
-        return gained / (now - self.t0)
+        since, at = now - self._mark[0], self._mark[1]
+        if since >= 1.0 and self.done > at:
+            return (self.done - at) / since
+        return (self.done - self.initial) / (now - self.t0) if since >= self.every else None
 
-    def text(self, now: float | None = None) -> str:
-        """'karman2d: 1.25/4 samples, 22 s/sample, ~1 min 0 s left (40 s so far)'."""
+    def left(self, now: float | None = None) -> tuple[float, float, bool] | None:
+        """(units per second, seconds left, whether from the last record) or None: the measured rate, else the
+        last record's (its start-up still to come before the first count), else None."""
         now = self.clock() if now is None else now
         rate = self.rate(now)
+        if rate:
+            return rate, (self.total - self.done) / rate, False
+        if not self.last:
+            return None
+        startup = 0.0 if self._mark is not None else max(0.0, self.last["startup_s"] - (now - self.t0))
+        return 1 / self.last["unit_s"], startup + (self.total - self.done) * self.last["unit_s"], True
+
+    def text(self, now: float | None = None) -> str:
+        """'karman2d: 1.25/4 samples, 22 s/sample, ~1 min 0 s left (40 s so far)'; before a rate of its own, from
+        the last record: 'karman2d: 0/4 samples, ~22 s/sample last time, ~2 min 10 s left (compiling the solver:
+        about 44 s last time) (12 s so far)'."""
+        now = self.clock() if now is None else now
+        est = self.left(now)
+        so_far = f"({duration(now - self.t0)} so far)"
+        head = f"{self.label}: {_count(self.done)}/{_count(self.total)} {self.unit}"
+        if est is None:
+            what = self.starting if self._mark is None else "no rate yet"
+            return f"{head}, {what}, time left unknown {so_far}"
+        rate, left, recorded = est
         one = self.unit[:-1] if self.unit.endswith("s") else self.unit
-        pace = f"{rate:.3g} {self.unit}/s" if rate and rate >= 1 else f"{1 / rate:.3g} s/{one}" if rate else ""
-        speed = f"{pace}, ~{duration((self.total - self.done) / rate)} left" if rate else "no rate yet, time left unknown"
-        return f"{self.label}: {_count(self.done)}/{_count(self.total)} {self.unit}, {speed} ({duration(now - self.t0)} so far)"
+        pace = f"{rate:.3g} {self.unit}/s" if rate >= 1 else f"{1 / rate:.3g} s/{one}"
+        if not recorded:
+            return f"{head}, {pace}, ~{duration(left)} left {so_far}"
+        start = f" ({self.starting}: about {duration(self.last['startup_s'])} last time)" if self._mark is None else ""
+        return f"{head}, ~{pace} last time, ~{duration(left)} left{start} {so_far}"
 
     def tick(self, now: float | None = None) -> bool:
         """Show the count if due: a bar refresh on a terminal, else a plain line FIRST s after the start, then at
@@ -156,6 +188,8 @@ class Meter:
         if self.bar is not None:
             with self._lock:
                 done = self.done
+            est = self.left(now) if self.last else None  # before its own rate: the last run's time left
+            self.bar.set_postfix_str(f"~{duration(est[1])} left, last time" if est and est[2] else "", refresh=False)
             if done > self._shown:
                 self.bar.update(done - self._shown)
                 self._shown = done
@@ -173,6 +207,14 @@ class Meter:
         wait = BAR_REFRESH if self.bar is not None else max(0.05, min(0.5, self.first, self.every))
         while not self._stop.wait(wait):
             self.tick()
+
+    def measured(self) -> dict | None:
+        """{"startup_s": seconds from the start to the first count, "unit_s": seconds per unit of the counts
+        after it, up to the last that moved}; None before a second count a second or more after the first."""
+        with self._lock:
+            if self._mark is None or self.done <= self._mark[1] or self._latest - self._mark[0] < 1.0:
+                return None
+            return {"startup_s": self._mark[0] - self.t0, "unit_s": (self._latest - self._mark[0]) / (self.done - self._mark[1])}
 
     def close(self) -> None:
         """Stop the ticker; a terminal bar shows the final count and goes."""

@@ -109,6 +109,15 @@ def jax_provenance() -> dict:
             "pdestream_numerics": generator.NUMERICS}
 
 
+def progress_key(kind: str, pde) -> str:
+    """The key under which a run's measured times are recorded (``datasets.timings``): what it runs, the entry's
+    config hash and JAX's backend (a GPU's times are not a CPU's). Not the block: solves compile per fixed chunk,
+    so another --n (and so another default block) starts from the same record."""
+    import jax
+
+    return f"{kind} {pde.NAME} {pde.config_hash()} {jax.default_backend()}"
+
+
 def resolve_pde(pde):
     """A generator PDE from a PDE object or a catalog name."""
     from pdestream import generator

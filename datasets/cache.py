@@ -491,6 +491,9 @@ def _fill(pde, job: Job, progress: bool) -> int:
     """Solve and write every pending block of ``job``, then mark it complete; returns the samples written."""
     from pdestream.meter import Meter
 
+    from . import timings
+    from ._bridge import progress_key
+
     s, block = job.settings, job.block
     store = job.fmt.open(job.work, writable=True)
     written = 0
@@ -498,7 +501,10 @@ def _fill(pde, job: Job, progress: bool) -> int:
         todo = pending_blocks(store, block)
         initial = s.n_samples - sum(hi - lo for lo, hi in todo)
         # samples solved (fractional within a block: its solve reports after each bounded call), rate, time left
-        bar = Meter(pde.NAME, s.n_samples, "samples", initial=initial, enabled=progress)
+        # (from the last run's times until this one's rate is measured: the first call compiles the solver)
+        key = progress_key("generate", pde)
+        bar = Meter(pde.NAME, s.n_samples, "samples", initial=initial, enabled=progress,
+                    last=timings.recall(key) if progress else None, starting="compiling the solver")
 
         def solve_all():  # in the prefetch thread: one block solved ahead of the one being written
             base = initial
@@ -521,6 +527,8 @@ def _fill(pde, job: Job, progress: bool) -> int:
             # stops the solver thread: it ends at its next bounded compiled call (rollouts run in pieces)
             solved.close()
             bar.close()
+            if progress:
+                timings.remember(key, bar.measured())
         if not (np.asarray(store["complete"][:]) == 1).all():
             raise RuntimeError(f"{job.path}: blocks missing after writing (a bug)")
         try:

@@ -179,13 +179,41 @@ def _sigint_blocked():
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
-def _block_task(config: dict, seed: int, path: str, lo: int, hi: int, block: int, on_blowup: str):
-    """Runs on a worker: solve samples lo..hi-1 and write them (data, then flags) into the Zarr store."""
+PROGRESS_EVERY = 1.0  # seconds between a task's progress events (and its last one)
+
+
+def _progress_events(topic: str | None, lo: int, hi: int, clock=time.monotonic):
+    """A ``meter.progress_to`` callback for a task: its block's fraction done as a Dask event (topic, (lo, hi,
+    fraction)) to the client, at most every PROGRESS_EVERY s and at the end; None without a topic or a worker."""
+    if topic is None:
+        return None
+    try:
+        worker = _distributed().get_worker()
+    except ValueError:  # not on a worker (a task run in the client)
+        return None
+    last = [None]
+
+    def send(done: int, total: int) -> None:
+        now = clock()
+        if done == total or last[0] is None or now - last[0] >= PROGRESS_EVERY:
+            last[0] = now
+            worker.log_event(topic, (lo, hi, done / total))
+
+    return send
+
+
+def _block_task(config: dict, seed: int, path: str, lo: int, hi: int, block: int, on_blowup: str,
+                topic: str | None = None):
+    """Runs on a worker: solve samples lo..hi-1 and write them (data, then flags) into the Zarr store; the
+    solve's progress goes to the client as events of ``topic`` (``_progress_events``)."""
+    from pdestream.meter import progress_to
+
     from ._bridge import configure_jax, pde_from_config
 
     configure_jax()  # persistent compilation cache: a (re)started worker does not recompile from scratch
     pde = pde_from_config(config)
-    data = cache.solve_block(pde, seed, lo, hi, block, on_blowup)
+    with progress_to(_progress_events(topic, lo, hi)):
+        data = cache.solve_block(pde, seed, lo, hi, block, on_blowup)
     store = format_of(path).open(Path(path), writable=True)
     try:
         cache.write_block(store, pde, lo, hi, *data)
@@ -194,30 +222,77 @@ def _block_task(config: dict, seed: int, path: str, lo: int, hi: int, block: int
     return lo, hi
 
 
-def _run_blocks(client, name: str, settings, path: str, todo, block: int, progress: bool) -> None:
-    """One task per (lo, hi) block; raises the first task error after cancelling the rest."""
-    from pdestream.meter import Meter
-
+def _run_blocks(client, name: str, settings, path: str, todo, block: int, bar) -> None:
+    """One task per (lo, hi) block, counted on ``bar`` (a Meter; disabled: no progress); raises the first task
+    error after cancelling the rest."""
+    progress = bar.enabled
     if progress and "dashboard" in client.scheduler_info().get("services", {}):
         hint = "" if importlib.util.find_spec("bokeh") else " (install bokeh to see its plots)"
         print(f"dask dashboard: {client.dashboard_link}{hint}", file=sys.stderr)
     seed, on_blowup = settings.seed, settings.on_blowup
     config = settings.config  # tasks rebuild the PDE from it: plain data travels
     tag = f"pdestream-{settings.config_hash}-s{seed}"  # readable task names on the dashboard
-    futures = [client.submit(_block_task, config, seed, path, lo, hi, block, on_blowup, key=f"{tag}-{lo}-{hi}",
+    # samples of finished blocks plus the fractions that running tasks report (Dask events)
+    count = BlockCount(bar)
+    topic = f"{tag}-progress" if progress else None
+    if topic:
+        client.subscribe_topic(topic, count.event)
+    futures = [client.submit(_block_task, config, seed, path, lo, hi, block, on_blowup, topic, key=f"{tag}-{lo}-{hi}",
                              pure=False) for lo, hi in todo]
-    n = settings.n_samples
-    # samples of finished blocks (tasks run in other processes: no count inside a block), rate, time left
-    bar = Meter(f"{name} (dask)", n, "samples", initial=n - sum(hi - lo for lo, hi in todo), enabled=progress)
     try:
         for future in _distributed().as_completed(futures, loop=client.loop):
             lo, hi = future.result()  # a task's error (e.g. generator.BlowUpError) is raised here
-            bar.add(hi - lo)
+            count.finished(lo, hi)
     except BaseException:
         client.cancel(futures)
         raise
     finally:
+        if topic:
+            client.unsubscribe_topic(topic)
+
+
+@contextmanager
+def _meter(name: str, settings, todo, cluster: str, progress: bool):
+    """The Meter of a Dask run, started before its cluster (a line within FIRST s, the estimate from the last run
+    of the same ``cluster`` (its workers or scheduler) and set-up); its times recorded at the end."""
+    from pdestream.meter import Meter
+
+    from . import timings
+
+    n = settings.n_samples
+    key = f"dask {cluster} {name} {settings.config_hash}"
+    bar = Meter(f"{name} (dask)", n, "samples", initial=n - sum(hi - lo for lo, hi in todo), enabled=progress,
+                last=timings.recall(key) if progress else None, starting="starting the workers and compiling the solver")
+    try:
+        yield bar
+    finally:
         bar.close()
+        if progress:
+            timings.remember(key, bar.measured())
+
+
+class BlockCount:
+    """Moves a Meter by the blocks of a Dask run: the finished ones (``finished(lo, hi)``) plus the fractions
+    that running tasks report (``event``: the handler of ``client.subscribe_topic``, called with a Dask event
+    (time, (lo, hi, fraction))). A block's late event after it finished is ignored."""
+
+    def __init__(self, bar):
+        self.bar, self.done, self.running, self.ended = bar, bar.initial, {}, set()
+        self._lock = threading.Lock()
+
+    def event(self, event) -> None:
+        lo, hi, fraction = event[1]
+        with self._lock:
+            if lo not in self.ended:
+                self.running[lo] = max(self.running.get(lo, 0.0), (hi - lo) * min(max(fraction, 0.0), 1.0))
+                self.bar.set(self.done + sum(self.running.values()))
+
+    def finished(self, lo: int, hi: int) -> None:
+        with self._lock:
+            self.running.pop(lo, None)
+            self.ended.add(lo)
+            self.done += hi - lo
+            self.bar.set(self.done + sum(self.running.values()))
 
 
 def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | None = None, workers: int = 2,
@@ -250,9 +325,11 @@ def write_cache_dask(pde, path, n_samples: int, seed: int = 0, scheduler: str | 
         todo = cache.pending_blocks(store, block)
         try:
             if todo:  # a finished cache needs no cluster
-                with dask_client(scheduler, workers) as client:
+                cluster = f"scheduler={scheduler}" if scheduler else f"workers={workers}"
+                with _meter(pde.NAME, job.settings, todo, cluster, progress) as bar, \
+                        dask_client(scheduler, workers) as client:
                     # an absolute path: remote workers run in another directory (of a shared filesystem)
-                    _run_blocks(client, pde.NAME, job.settings, str(work.resolve()), todo, block, progress)
+                    _run_blocks(client, pde.NAME, job.settings, str(work.resolve()), todo, block, bar)
             if not (store["complete"][:] == 1).all():
                 raise RuntimeError(f"{path}: blocks missing after the Dask run (a bug)")
             job.fmt.mark_complete(store)

@@ -18,6 +18,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import dispatch
+
 
 def pad_rows(x, chunk: int):
     """x [B, ...] (numpy or jax) -> [ceil(B / chunk) * chunk, ...], padded by repeating row 0."""
@@ -41,8 +43,15 @@ def join(parts, batch: int):
     return jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:batch], *parts)
 
 
-def chunked_map(program: Callable, chunk: int, *arrays):
+def chunked_map(program: Callable, chunk: int, *arrays, report: bool = False):
     """``program`` (a compiled function of ``chunk``-row arrays) over a batch of any size B: the batch padded to
-    whole chunks, one call per chunk (dispatched asynchronously), results joined and trimmed to B rows."""
+    whole chunks, one call per chunk (dispatched asynchronously), results joined and trimmed to B rows.
+    ``report``: a whole solve (a steady family's), reporting its chunks as each finishes (``dispatch.report``:
+    progress within a block; the calls and bits are the same)."""
     batch = arrays[0].shape[0]
-    return join([program(*part) for part in split(arrays, chunk)], batch)
+    parts = [program(*part) for part in split(arrays, chunk)]
+    if report:
+        for i, part in enumerate(parts):  # all dispatched already: waiting on one lets the next run
+            dispatch.sync([(leaf,) for leaf in jax.tree_util.tree_leaves(part)])
+            dispatch.report(i + 1, len(parts))
+    return join(parts, batch)

@@ -13,6 +13,7 @@ os.environ.setdefault("PDESTREAM_JAX_CACHE", "")
 # No progress lines unless a test asks for them (tests/test_progress.py): on a loaded machine a command passes
 # the Meter's first 3 s and prints one, and the checks that an error is one line would then depend on the load.
 os.environ.setdefault("PDESTREAM_PROGRESS", "0")
+os.environ.setdefault("PDESTREAM_PROGRESS_HISTORY", "")  # no record of measured times under ~/.cache
 
 
 MAPPINGS_BEFORE_RELEASE = 30_000  # of Linux's default 65,530 per process (vm.max_map_count)

@@ -108,6 +108,25 @@ def test_killed_worker_block_is_redone(pde, reference, cluster, tmp_path):
 
 
 @needs_dask
+def test_running_tasks_report_their_block_fractions_to_the_client(pde, reference, cluster, tmp_path, monkeypatch):
+    from pdestream.datasets import distributed
+
+    events = []
+    counted = distributed.BlockCount.event
+
+    def event(self, ev):  # the client's handler of the tasks' events (this process)
+        events.append(ev[1])
+        counted(self, ev)
+
+    monkeypatch.setattr(distributed.BlockCount, "event", event)
+    out = tmp_path / "dask.zarr"
+    write_cache_dask(pde, out, N, seed=SEED, scheduler=cluster.scheduler_address, block=BLOCK, progress=True)
+    blocks = {(lo, lo + BLOCK) for lo in range(0, N, BLOCK)}
+    assert events and all((lo, hi) in blocks and 0 < f <= 1 for lo, hi, f in events), events
+    assert_same_cache(out, reference)
+
+
+@needs_dask
 def test_resume_redoes_only_missing_blocks_and_hdf5_is_refused(pde, reference, cluster, tmp_path):
     with pytest.raises(ValueError, match="one writer per file"):
         write_cache_dask(pde, tmp_path / "x.h5", N, seed=SEED, block=BLOCK)

@@ -2,6 +2,7 @@
 time left (a fake clock: no wall times asserted), generate's plain lines off a terminal, and a phase's count."""
 
 import itertools
+import json
 
 import numpy as np
 import pytest
@@ -154,3 +155,143 @@ def test_training_lines_give_the_rate_and_the_time_left(capsys):
     run.close()
     line = capsys.readouterr().err.strip()
     assert line.startswith("arm: step 1/4, ") and " steps/s, ~" in line and " left, loss 0.5" in line, line
+
+
+def test_a_recorded_run_gives_the_time_left_within_first_seconds_before_any_count(capsys):
+    clock = Clock()  # the last run: 40 s to its first count (the compile), then 20 s per sample
+    m = meter.Meter("karman2d", 4, "samples", clock=clock, terminal=False, live=False,
+                    last={"startup_s": 40.0, "unit_s": 20.0}, starting="compiling the solver")
+    clock.t += meter.FIRST
+    assert m.tick()  # nothing counted yet: the estimate is the last run's start-up left and its 4 samples
+    assert capsys.readouterr().err.strip() == ("karman2d: 0/4 samples, ~20 s/sample last time, ~1 min 57 s left "
+                                               "(compiling the solver: about 40 s last time) (3 s so far)")
+    clock.t += 60  # later than the last start-up, still nothing: at least the 4 samples are left
+    assert "~1 min 20 s left" in m.text()
+    clock.t += 1
+    m.set(0.1)  # the first count: the start-up is over; no rate of its own within a second
+    assert m.text().startswith("karman2d: 0.10/4 samples, ~20 s/sample last time, ~1 min 18 s left (")
+    clock.t += 2
+    m.set(0.2)  # its own rate: 0.1 sample in 2 s
+    assert m.text() == "karman2d: 0.20/4 samples, 20 s/sample, ~1 min 16 s left (1 min 6 s so far)"
+    m.close()
+
+
+def test_without_a_record_the_meter_says_what_it_waits_for_and_no_rate_from_the_start_up(capsys):
+    clock = Clock()
+    m = meter.Meter("karman2d", 4, "samples", clock=clock, terminal=False, live=False, starting="compiling the solver")
+    clock.t += meter.FIRST
+    assert m.tick() and capsys.readouterr().err.strip() == \
+        "karman2d: 0/4 samples, compiling the solver, time left unknown (3 s so far)"
+    clock.t += 40.5
+    m.set(0.04)  # a first count after a 43.5 s compile: a rate since the start would say ~1 h left
+    clock.t += 0.5
+    assert m.text().endswith("0.04/4 samples, no rate yet, time left unknown (44 s so far)")
+    clock.t += 1
+    m.set(0.1)  # 0.06 in 1.5 s: 25 s/sample
+    assert m.text() == "karman2d: 0.10/4 samples, 25 s/sample, ~1 min 38 s left (45 s so far)"
+    m.close()
+
+
+def test_a_coarse_count_gets_a_rate_since_the_start_once_it_is_every_seconds_old():
+    clock = Clock()
+    m = meter.Meter("darcy2d (dask)", 4, "samples", clock=clock, terminal=False, live=False)
+    clock.t += 10
+    m.add(2)  # a first block of 2, after 10 s; the next one comes only when it is finished
+    assert m.rate() is None
+    clock.t += meter.EVERY
+    assert m.rate() == pytest.approx(2 / 15)
+    m.close()
+
+
+def test_the_measured_times_are_recorded_by_key_and_read_back(tmp_path, monkeypatch):
+    from pdestream.datasets import timings
+
+    path = tmp_path / "progress.json"
+    monkeypatch.setenv(timings.HISTORY_ENV, str(path))
+    clock = Clock()
+    m = meter.Meter("karman2d", 4, "samples", clock=clock, terminal=False, live=False)
+    assert m.measured() is None
+    clock.t += 40
+    m.set(0.5)
+    assert m.measured() is None  # one count: no seconds per unit yet
+    clock.t += 0.5
+    m.set(0.6)
+    assert m.measured() is None  # a burst: under a second after the first count
+    clock.t += 29.5
+    m.set(2)  # 1.5 samples in 30 s after the first count
+    clock.t += 100  # written after the solves: not counted
+    m.close()
+    timings.remember("generate karman2d abc", m.measured())
+    assert timings.recall("generate karman2d abc") == {"startup_s": 40.0, "unit_s": 20.0}
+    assert timings.recall("generate karman2d other") is None
+    path.write_text("{not json")
+    assert timings.recall("generate karman2d abc") is None  # garbled: as if nothing was recorded
+    monkeypatch.setenv(timings.HISTORY_ENV, "")  # off: nothing read or written
+    path.unlink()
+    timings.remember("generate karman2d abc", {"startup_s": 1.0, "unit_s": 2.0})
+    assert timings.history_path() is None and not path.exists()
+
+
+def test_generate_records_its_times_and_the_next_run_starts_from_them(capsys, tmp_path, monkeypatch):
+    from pdestream.datasets import timings
+
+    monkeypatch.setenv(timings.HISTORY_ENV, str(tmp_path / "progress.json"))
+    clock = Clock()
+
+    def ticking():  # a second per look: the counts are seconds apart
+        clock.t += 1
+        return clock.t
+
+    monkeypatch.setattr(meter.time, "monotonic", ticking)
+    monkeypatch.setattr(dispatch, "DISPATCH_WORK", 2**10)  # several reports per block
+    args = ["generate", "burgers1d", "--n", "4", "--block", "2", "--set", "n=32", "--set", "n_frames=6"]
+    assert cli.main([*args, "--out", str(tmp_path / "a.h5")]) == 0
+    (key, rec), = json.loads((tmp_path / "progress.json").read_text()).items()
+    assert key.startswith("generate burgers1d ") and key.endswith(" cpu") and rec["unit_s"] > 0
+    first, seen = timings.recall(key), []
+    real = meter.Meter.__init__
+    monkeypatch.setattr(meter.Meter, "__init__", lambda self, *a, **k: seen.append(k.get("last")) or real(self, *a, **k))
+    assert cli.main([*args, "--out", str(tmp_path / "b.h5")]) == 0
+    assert first is not None and seen == [first]  # the second run's meter had the first run's times
+
+
+@pytest.mark.parametrize("name, settings", [("darcy2d", dict(n=16)), ("poisson2d", dict(n=16))])
+def test_a_steady_solve_reports_each_finished_chunk_and_the_same_bits(name, settings):
+    pde = generator.get_pde(name, **settings)
+    indices = list(range(20))  # 3 chunks of 8 (padded)
+    u, reports = solve_reporting(pde, indices)
+    assert reports == [(1, 3), (2, 3), (3, 3)]
+    assert np.array_equal(u, np.asarray(generator.sample(pde, indices, seed=1).u))  # no callback: the same bits
+
+
+def test_the_dask_count_moves_with_the_fractions_running_tasks_report():
+    from pdestream.datasets.distributed import BlockCount
+
+    clock = Clock()
+    bar = meter.Meter("darcy2d (dask)", 12, "samples", initial=4, clock=clock, terminal=False, live=False)
+    count = BlockCount(bar)  # blocks 4..7 and 8..11 to do, 0..3 done before (a resume)
+    count.event((0.0, (4, 8, 0.25)))
+    count.event((0.0, (8, 12, 0.5)))
+    assert bar.done == 4 + 1 + 2  # inside both blocks, before either finished
+    count.event((0.0, (4, 8, 0.1)))  # out of order: a block's count never goes back
+    assert bar.done == 7
+    count.finished(4, 8)
+    count.event((0.0, (4, 8, 1.0)))  # late, after its block finished: not counted twice
+    assert bar.done == 8 + 2
+    count.finished(8, 12)
+    assert bar.done == 12
+    bar.close()
+
+
+def test_a_terminal_bar_shows_the_last_runs_time_left_until_it_has_a_rate(capsys):
+    clock = Clock()
+    m = meter.Meter("karman2d", 4, "samples", clock=clock, terminal=True, live=False,
+                    last={"startup_s": 40.0, "unit_s": 20.0})
+    clock.t += 3
+    m.tick()
+    assert "~1 min 57 s left, last time" in capsys.readouterr().err
+    m.set(0.5)
+    clock.t += 2
+    m.set(1.0)  # its own rate: tqdm's remaining, no postfix
+    assert "last time" not in m.bar.postfix
+    m.close()

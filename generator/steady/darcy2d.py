@@ -157,7 +157,7 @@ class Darcy2D(SteadyProblem):
             params, a = setup(keys, explicit, given)
             return (params, a, *solve(a, params["f"]))
 
-        params, a, u, ok, iters = chunked_map(chunk, CHUNK, keys, explicit, given)
+        params, a, u, ok, iters = chunked_map(chunk, CHUNK, keys, explicit, given, report=True)
         return u[:, None], params, ok, a[:, None], iters
 
 

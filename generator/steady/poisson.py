@@ -133,7 +133,7 @@ class Poisson(WallGrid, SteadyProblem):
 
     def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
         """keys [B] -> (u [B, 1, *space], params {name: [B]}, finite [B], inputs f [B, 1, *space])."""
-        p, f, u, ok = chunked_map(_compiled(self), CHUNK, keys, explicit, given)
+        p, f, u, ok = chunked_map(_compiled(self), CHUNK, keys, explicit, given, report=True)
         return u[:, None], p, ok, f[:, None]
 
 
