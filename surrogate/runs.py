@@ -227,7 +227,7 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
         for name in RUN_OUTPUTS:  # a fresh run in a directory (a staging one for --overwrite) leaves no stale file
             (out / name).unlink(missing_ok=True)
         atomic_write(out / RUN_FILE, text.encode())
-    if resume is not None and s.get("normalization") not in (None, resume["normalization"]):
+    if resume is not None and s.get("normalization") not in (None, json.loads(json.dumps(resume["normalization"]))):
         raise ValueError(f"--resume {out}: run.json's normalization statistics differ from checkpoint.pt's; the run "
                          "would go on with other statistics than it started with")
 

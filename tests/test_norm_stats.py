@@ -85,6 +85,9 @@ def test_the_well_export_carries_the_statistics(cache, tmp_path):
     train.mkdir(parents=True)
     export_cache(cache, "the-well", train / "b.hdf5")
     assert read_stats(tmp_path / "well" / "stats.yaml") == json.loads(json.dumps(cache_stats(cache)))
+    (tmp_path / "well" / "stats.yaml").write_text("mean: {u: 1.0}\n")  # someone else's: left alone
+    export_cache(cache, "the-well", train / "b.hdf5", overwrite=True)
+    assert (tmp_path / "well" / "stats.yaml").read_text() == "mean: {u: 1.0}\n"
 
 
 def test_incomplete_or_foreign_stats_are_one_line(tmp_path):
@@ -116,8 +119,11 @@ def test_training_records_its_statistics_and_applies_them_to_the_test_set(cache,
     assert not torch.equal(own.mean, train_norm.mean)
     assert s["test"]["test"]["rel_l2"] == test_errors(model, train_norm, view, test)["rel_l2"]
     assert s["test"]["test"]["rel_l2"] != test_errors(model, own, view, test)["rel_l2"]
+    assert resume_run(tmp_path / "run", steps=3)[1] == 2  # an extension goes on with the recorded statistics
+    run = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert run["normalization"] == json.loads(json.dumps(train_norm.to_dict())) and run["steps"] == 3
     run["normalization"]["mean"] = [m + 1.0 for m in run["normalization"]["mean"]]  # a resume never trains on others
     (tmp_path / "run" / "run.json").write_text(json.dumps(run))
     with pytest.raises(ValueError, match="normalization statistics differ") as err:
-        resume_run(tmp_path / "run", steps=3)
+        resume_run(tmp_path / "run", steps=4)
     assert "\n" not in str(err.value)
