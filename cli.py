@@ -117,6 +117,7 @@ def add_inspect(sub) -> None:
     p = sub.add_parser("inspect", help="what a cache holds: PDE, config, completeness, parameter ranges, statistics")
     p.add_argument("path", help="cache file (.h5/.hdf5) or directory (.zarr)")
     p.add_argument("--plot", metavar="FILE.png", help="also draw a few samples (space-time for 1D, snapshots for 2D)")
+    p.add_argument("--stats", action="store_true", help="write the normalization statistics to CACHE.stats.yaml")
     p.set_defaults(func=cmd_inspect)
 
 
@@ -161,11 +162,13 @@ def cmd_generate(args: argparse.Namespace) -> None:
 
 
 def cmd_inspect(args: argparse.Namespace) -> None:
-    from pdestream.datasets import inspect
+    from pdestream.datasets import inspect, stats
 
     print(inspect.summary(args.path))
     if args.plot:
         print(f"plot: {inspect.plot(args.path, args.plot)}")
+    if args.stats:
+        print(f"stats: {stats.write_stats(args.path)}")
 
 
 def cmd_export(args: argparse.Namespace) -> None:

@@ -20,7 +20,9 @@ with each parameter as a sample-varying, time-constant scalar [N] (WellDataset's
 ``t0_fields`` with every field as a scalar field [N, T, x(, y, z)] in x-first order (a velocity's components
 stay separate t0 fields; ``t1_fields``/``t2_fields`` are empty). WellDataset reads a directory of such files,
 ``DIR/data/SPLIT/*.hdf5``: export to ``DIR/data/train/NAME.hdf5`` and load
-``WellDataset(path=DIR, well_split_name="train")``. Steady caches (no time axis) are refused: The Well holds
+``WellDataset(path=DIR, well_split_name="train")``. The cache's statistics (``datasets.stats``) go to
+``DIR/stats.yaml``, where WellDataset's ``use_normalization`` reads them (an export elsewhere writes none:
+``pdestream inspect CACHE --stats`` writes them beside the cache). Steady caches (no time axis) are refused: The Well holds
 time series.
 
 PDEBench (``--to pdebench``): one HDF5 file in the layout of PDEBench's own loaders (``FNODatasetSingle`` /
@@ -291,7 +293,27 @@ def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
             raise
     finally:
         ds.close()
+    stats = well_stats_path(out) if to == "the-well" else None
+    if stats is not None:
+        from .stats import write_stats
+
+        write_stats(cache, stats)
     return out
+
+
+def well_stats_path(out: Path) -> Path | None:
+    """Where a The Well export's statistics go: ``DIR/stats.yaml`` (where WellDataset looks) for an export to
+    ``DIR/data/train/NAME.hdf5``; None (nothing written) elsewhere, or where a stats.yaml pdestream did not write
+    is (left alone)."""
+    from .stats import read_stats
+
+    well = out.parent.parent.parent / "stats.yaml"
+    if out.parent.name != "train" or out.parent.parent.name != "data":
+        return None
+    try:
+        return well if not well.exists() or read_stats(well) else None
+    except ValueError:  # someone else's statistics
+        return None
 
 
 @contextmanager

@@ -33,13 +33,13 @@ def field_stats(ds, name: str, rows: np.ndarray, block: int = 64) -> dict:
         damaged.extend(part[~finite])
         a = a[finite]
         if a.size:
-            moments.add(torch.from_numpy(a.reshape(-1, 1)))  # [values, 1 channel]
+            moments.add(torch.from_numpy(a.reshape(len(a), -1, 1)), index=part[finite])  # [b, values, 1 channel]
             lo, hi = min(lo, float(a.min())), max(hi, float(a.max()))
-    if moments.count == 0:
+    raw = moments.raw()
+    if raw is None:
         return {"mean": np.nan, "std": np.nan, "min": np.nan, "max": np.nan, "damaged": damaged}
-    mean = float(moments.s1[0]) / moments.count  # the raw moments: a constant field reports std 0, not 1
-    return {"mean": mean, "std": np.sqrt(max(float(moments.s2[0]) / moments.count - mean * mean, 0.0)), "min": lo,
-            "max": hi, "damaged": damaged}
+    _, mean, var = raw  # the raw moments: a constant field reports std 0, not 1
+    return {"mean": float(mean[0]), "std": float(np.sqrt(var[0])), "min": lo, "max": hi, "damaged": damaged}
 
 
 def boundary_line(attrs: dict, ndim: int) -> str:

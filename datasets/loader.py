@@ -129,10 +129,17 @@ class CachedTrajectories(torch.utils.data.Dataset):
     def normalization(self, chunk: int = 64):
         """Per-field mean/std over every stored sample (all frames and grid points) and per-parameter mean/std,
         accumulated as for a stream's calibration draw (datasets.normalize.Moments); reads ``chunk`` samples at once."""
+        moments, _ = self.moments(chunk)
+        return moments.result(self.fields, self.param_names, samples=len(self.rows), inputs=self.n_inputs)
+
+    def moments(self, chunk: int = 64, delta: bool = False):
+        """(Moments of every stored sample's fields and parameters, Moments of the time differences u[t+1] - u[t]
+        per field, or None unless ``delta`` and the samples have a time axis), keyed by sample index."""
         from .normalize import Moments
 
         store = self._open()
         moments = Moments(self._ndim)
+        deltas = Moments(self._ndim) if delta and self._axis == 2 else None
         for s in range(0, len(self.rows), chunk):
             rows = self.rows[s:s + chunk]
             lo = int(rows[0])
@@ -147,8 +154,10 @@ class CachedTrajectories(torch.utils.data.Dataset):
             bad = np.flatnonzero(~np.isfinite(u.reshape(len(u), -1)).all(1))
             if len(bad):
                 raise self._damaged(s + bad)
-            moments.add(torch.from_numpy(u), self.params[s:s + chunk])  # [b, T, C, *space], [b, P]
-        return moments.result(self.fields, self.param_names, samples=len(self.rows), inputs=self.n_inputs)
+            moments.add(torch.from_numpy(u), self.params[s:s + chunk], index=self.indices[s:s + chunk])  # [b, T, C, *space]
+            if deltas is not None and u.shape[1] > 1:
+                deltas.add(torch.from_numpy(np.diff(u.astype(np.float64), axis=1)), index=self.indices[s:s + chunk])
+        return moments, deltas
 
     def _damaged(self, positions) -> ValueError:
         """The error for readable samples at ``positions`` whose data is non-finite (never true of a written one)."""

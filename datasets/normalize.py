@@ -1,6 +1,6 @@
 """Normalization statistics: per-field mean/std of u, per-parameter mean/std.
 
-One accumulator (``Moments``, float64 sums) serves every source: a stream's calibration draw
+One accumulator (``Moments``: float64 Welford/Chan partials per sample, merged in sample order) serves every source: a stream's calibration draw
 (``compute_normalization``), a cache's stored samples (``CachedTrajectories.normalization``) and, as a
 fallback for other loaders, one batch (``Normalization.from_batch``).
 """
@@ -92,40 +92,107 @@ class Normalization:
 
 
 def _safe_std(var: torch.Tensor, mean: torch.Tensor) -> torch.Tensor:
-    # a constant field or fixed parameter is left unscaled; var = E[u^2] - E[u]^2 leaves a rounding residue
-    # of ~1e-8 |mean| for constants, hence the relative floor
+    # a constant field or fixed parameter is left unscaled (a relative floor: rounding leaves a residue)
     std = var.clamp_min(0).sqrt()
     return torch.where(std > torch.maximum(1e-6 * mean.abs(), torch.full_like(std, 1e-12)), std, torch.ones_like(std))
 
 
+def _partial(x: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """(count, mean [C], M2 [C]) of x [C, N] float64: the sum of squared deviations, not E[u^2] - E[u]^2."""
+    x = np.ascontiguousarray(x, dtype=np.float64)  # a fresh copy: the same bits whatever array it came from
+    mean = x.sum(1) / x.shape[1]
+    return x.shape[1], mean, ((x - mean[:, None]) ** 2).sum(1)
+
+
+def _merge(a: tuple, b: tuple) -> tuple:
+    """Chan et al.'s pairwise merge of two (count, mean, M2) partials (a first: the order fixes the bits)."""
+    n = a[0] + b[0]
+    d = b[1] - a[1]
+    return n, a[1] + d * (b[0] / n), a[2] + b[2] + d * d * (a[0] * b[0] / n)
+
+
 class Moments:
-    """Float64 running sums of u and u^2 per field and of p and p^2 per parameter (the one place that
-    accumulates normalization statistics: calibration draws, caches and single batches)."""
+    """Welford/Chan moments per field of u and per parameter (the one place that accumulates normalization
+    statistics: calibration draws, caches, single batches and ``datasets.stats``).
+
+    Each sample's (count, mean, M2) is kept apart, keyed by its sample index (``add(..., index=)``), and
+    ``result`` / ``raw`` merge them in index order: the same samples give the same bits however they were split
+    into reads, workers or ranks (``merge`` joins partial accumulators; a sample may be in only one of them).
+    Adds without an index are keyed after every earlier one, in the order they came.
+    """
 
     def __init__(self, ndim: int):
         self.ndim = ndim
-        self.s1 = self.s2 = self.p1 = self.p2 = 0
-        self.count = self.n_params = 0
+        self.parts: dict[tuple, list] = {}  # key -> [u partial or None, params partial or None]
+        self._serial = 0
 
-    def add(self, u: torch.Tensor | None = None, params: torch.Tensor | None = None) -> None:
-        """u: [..., C, *space] (any leading axes); params: [B, P]."""
+    def _keys(self, index, b: int) -> list[tuple]:
+        if index is None:
+            self._serial += 1
+            return [(1, self._serial)] * b
+        index = np.asarray(index).reshape(-1)
+        if len(index) != b:
+            raise ValueError(f"index has {len(index)} entries for {b} samples")
+        return [(0, int(i)) for i in index]
+
+    def _put(self, key: tuple, slot: int, part: tuple) -> None:
+        have = self.parts.setdefault(key, [None, None])
+        have[slot] = part if have[slot] is None else _merge(have[slot], part)
+
+    def add(self, u=None, params=None, index=None) -> None:
+        """u: [B, ..., C, *space] with index [B] sample indices (each sample its own partial), or without an index
+        [..., C, *space] (any leading axes, one partial); params: [B, P] (with index, one row per sample)."""
         if u is not None:
-            u = u.double().movedim(-self.ndim - 1, 0).flatten(1)  # [C, N]
-            self.s1, self.s2, self.count = self.s1 + u.sum(1), self.s2 + (u * u).sum(1), self.count + u.shape[1]
+            u = np.asarray(torch.as_tensor(u).detach().cpu().double())
+            if index is None:
+                keys, blocks = self._keys(None, 1), [u]
+            else:
+                keys, blocks = self._keys(index, len(u)), list(u)
+            for key, x in zip(keys, blocks):
+                self._put(key, 0, _partial(np.moveaxis(x, x.ndim - self.ndim - 1, 0).reshape(x.shape[-self.ndim - 1], -1)))
         if params is not None:
-            p = params.double()
-            self.p1, self.p2, self.n_params = self.p1 + p.sum(0), self.p2 + (p * p).sum(0), self.n_params + len(p)
+            p = np.asarray(torch.as_tensor(params).detach().cpu().double())
+            keys = self._keys(None, 1) if index is None else self._keys(index, len(p))
+            for key, rows in zip(keys, [p] if index is None else [row[None] for row in p]):
+                self._put(key, 1, _partial(rows.T))
+
+    def merge(self, other: "Moments") -> "Moments":
+        """This accumulator joined with ``other``'s samples (in place; returned). ValueError when a sample index is
+        in both (it would be counted twice)."""
+        twice = sorted(k[1] for k in other.parts if k[0] == 0 and k in self.parts)
+        if twice:
+            raise ValueError(f"samples {twice[:8]} are in both partial statistics; each sample is counted once")
+        for (kind, i), slots in other.parts.items():
+            self.parts[(kind, i + self._serial if kind else i)] = list(slots)
+        self._serial += other._serial
+        return self
+
+    @property
+    def count(self) -> int:
+        """Values per field accumulated so far (every frame and grid point of every sample)."""
+        return sum(p[0][0] for p in self.parts.values() if p[0] is not None)
+
+    def raw(self, slot: int = 0) -> tuple[int, np.ndarray, np.ndarray] | None:
+        """(count, mean [C], variance [C]) in float64, merged in key order (slot 0: fields, 1: parameters); None
+        when nothing was added there. The variance is the population one, not floored."""
+        total = None
+        for key in sorted(self.parts):
+            part = self.parts[key][slot]
+            if part is not None:
+                total = part if total is None else _merge(total, part)
+        return None if total is None else (total[0], total[1], total[2] / total[0])
 
     def result(self, fields, params, samples: int = 0, inputs: int = 0) -> Normalization:
         """Population mean/std (std floored to 1 where ~0) as float32 Normalization (``inputs``: see there)."""
-        if not self.count or not self.n_params:
+        u, p = self.raw(0), self.raw(1)
+        if u is None or p is None:
             raise ValueError("no data to compute normalization statistics from (empty draw or batch)")
-        mean, pmean = self.s1 / self.count, self.p1 / self.n_params
+        (_, mean, var), (_, pmean, pvar) = u, p
+        mean, var, pmean, pvar = (torch.from_numpy(a) for a in (mean, var, pmean, pvar))
         return Normalization(
-            fields=tuple(fields), mean=mean.float(), std=_safe_std(self.s2 / self.count - mean**2, mean).float(),
-            params=tuple(params), params_mean=pmean.float(),
-            params_std=_safe_std(self.p2 / self.n_params - pmean**2, pmean).float(), ndim=self.ndim, samples=int(samples),
-            inputs=int(inputs),
+            fields=tuple(fields), mean=mean.float(), std=_safe_std(var, mean).float(),
+            params=tuple(params), params_mean=pmean.float(), params_std=_safe_std(pvar, pmean).float(),
+            ndim=self.ndim, samples=int(samples), inputs=int(inputs),
         )
 
 
@@ -140,5 +207,5 @@ def compute_normalization(pde, seed: int = 0, n: int = 64, solve_batch: int = 16
     for lo in range(0, n, solve_batch):
         indices = np.arange(lo, min(lo + solve_batch, n))
         data = _bridge.sample_tensors(pde, np.resize(indices, solve_batch), seed)
-        moments.add(data["u"][: len(indices)], data["params"][: len(indices)])  # [B, T, C, *space], [B, P]
+        moments.add(data["u"][: len(indices)], data["params"][: len(indices)], index=indices)  # [B, T, C, *space], [B, P]
     return moments.result(_bridge.sample_channels(pde), pde.PARAMS, samples=n, inputs=len(pde.INPUTS))

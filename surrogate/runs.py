@@ -1,6 +1,8 @@
 """One training run end to end: data source -> model -> train -> held-out test errors (used by the CLI).
 
-A run directory holds ``run.json`` (written first: every setting ``resume_run`` needs to rebuild the run),
+A run directory holds ``run.json`` (written first: every setting ``resume_run`` needs to rebuild the run; then
+"normalization" is added: the statistics, from the training data only, that training, the test errors and a
+resumed run all use),
 ``checkpoint.pt`` (the training state, every ``checkpoint_every`` steps and at the end), and when finished
 ``metrics.csv``, ``model.pt`` and ``metrics.json`` (written last: its presence marks a finished run).
 """
@@ -225,6 +227,14 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
         for name in RUN_OUTPUTS:  # a fresh run in a directory (a staging one for --overwrite) leaves no stale file
             (out / name).unlink(missing_ok=True)
         atomic_write(out / RUN_FILE, text.encode())
+    if resume is not None and s.get("normalization") not in (None, json.loads(json.dumps(resume["normalization"]))):
+        raise ValueError(f"--resume {out}: run.json's normalization statistics differ from checkpoint.pt's; the run "
+                         "would go on with other statistics than it started with")
+
+    def record(normalizer) -> None:  # the statistics the run trains with (train, test and rollouts alike)
+        if writes:
+            atomic_write(out / RUN_FILE, json.dumps({**s, "normalization": normalizer.to_dict()}, indent=2).encode())
+
     meta = {"pde": data_pde.config(), "source": s["source"], "view": view.name, "view_args": view_args,
             "seed": s["seed"], "data_seed": s["data_seed"], "batch_size": s["batch_size"], "mode": mode.settings()}
 
@@ -241,7 +251,7 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     try:
         summary = train(net, loader, s["steps"], out, lr=s["lr"], schedule=s["schedule"], meta=meta,
                         label=s["label"], checkpoint_every=s["checkpoint_every"], resume=resume, finish=finish,
-                        mode=mode)
+                        mode=mode, on_normalization=record)
         if hasattr(dataset, "report") and writes:  # a reservoir: its reuse and where it simulated (rank 0's)
             report = dataset.report()
             atomic_write(out / "reservoir.json", json.dumps(report, indent=2).encode())

@@ -166,7 +166,7 @@ def _plain(stats: dict) -> dict:
 def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1e-3, schedule: str = "cosine",
           normalizer: Normalization | None = None, log_every: int = 10, meta: dict | None = None,
           label: str = "train", checkpoint_every: int = 0, resume: dict | None = None, finish=None,
-          mode=None, started: float | None = None, after_step=None) -> dict:
+          mode=None, started: float | None = None, after_step=None, on_normalization=None) -> dict:
     """Train ``model`` on batches from ``loader`` until ``steps`` (an int: optimizer steps; or a ``Stop``: steps
     or seconds, optionally one pass over the data) says stop; returns the summary dict.
 
@@ -181,7 +181,8 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
     started: ``time.perf_counter()`` when the run's clock started (default: now), for a ``Stop(seconds=)``
     that counts what the caller did before (solving a cache). after_step: ``after_step(step, fraction,
     elapsed)`` after every optimizer step (fraction: of the run done, ``Stop.fraction``), e.g. to snapshot the
-    model. The summary's "stop" says what ended the run: "steps", "seconds" or "data" (a ``once`` pass ran out).
+    model. on_normalization: ``on_normalization(normalizer)`` once a fresh run has its statistics (every rank's,
+    rank 0's), e.g. to record them in run.json. The summary's "stop" says what ended the run: "steps", "seconds" or "data" (a ``once`` pass ran out).
     Under torch.distributed (``surrogate.ddp``) every rank calls this with its own loader: gradients are averaged
     each step, the logged loss and example counts are the ranks' mean and sum, and rank 0 alone writes files.
     """
@@ -211,6 +212,8 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
             progress.t_data += time.perf_counter() - t0  # a calibration draw (or reading a cache) is data time
     ddp.broadcast_model(model)  # several ranks: one start (after a resume they all loaded the same weights)
     normalizer = ddp.agree(normalizer)
+    if on_normalization is not None and resume is None and normalizer is not None:
+        on_normalization(normalizer)
     if isinstance(loader, DataLoader) and loader.generator is None:
         # Each pass over a DataLoader draws its workers' base seed from its generator, else from the global torch
         # RNG. A resumed run starts a pass where the uninterrupted one did not, so that draw would shift the RNG
