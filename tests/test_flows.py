@@ -97,7 +97,7 @@ def test_the_solver_holds_boundary_values_and_closes_walls_and_bodies(name):
     # body faces carry nothing across, and the projection leaves the velocity nearly divergence-free
     pde = small(name)
     keys = generator.sample_keys(0, np.array([1]))
-    p, fp, _ = _programs(pde)[0](*[jnp.asarray(a) for a in generator.chunked.split(
+    p, fp, *_ = _programs(pde)[0](*[jnp.asarray(a) for a in generator.chunked.split(
         [keys, np.zeros((1, len(pde.PARAMS)), np.float32), np.zeros((1, len(pde.PARAMS)), bool)], 4)[0]])
     fp = jax.tree_util.tree_map(lambda a: a[0], fp)
     geom = pde.grid.geometry()

@@ -41,7 +41,7 @@ from ..grids import GridBase
 from ..problem import MAX_STEPS, ProblemBase, resolve_params
 from . import interactive
 from .grid import SIDE_KINDS, Geometry, Params
-from .step import ADVECTION, State, initial_state, run_counted, solid_mask
+from .step import ADVECTION, State, initial_state, operator, run_counted, solid_mask
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
 # Work of one flow step per cell, in the spectral family's point-steps (generator.dispatch): a projection's
@@ -307,14 +307,14 @@ class FlowProblem(ProblemBase):
         parts = split([jnp.asarray(keys), jnp.asarray(explicit), jnp.asarray(given)], CHUNK)
         count = _Steps(len(parts) * (self.warmup_steps + (self.n_frames - 1) * self.steps_per_frame))
         for part in parts:
-            p, fp, state = start(*part)
-            state = _advance(advance, state, fp, self.t_start / max(self.warmup_steps, 1), self.warmup_steps,
+            p, fp, state, op = start(*part)
+            state = _advance(advance, state, fp, op, self.t_start / max(self.warmup_steps, 1), self.warmup_steps,
                              per_step, count)
             frames = []
             for i in range(self.n_frames):
                 frames.append(frame(state, fp))
                 if i < self.n_frames - 1:
-                    state = _advance(advance, state, fp, self.step_dt, self.steps_per_frame, per_step, count)
+                    state = _advance(advance, state, fp, op, self.step_dt, self.steps_per_frame, per_step, count)
             u = jnp.stack(frames, axis=1)
             ok = jnp.all(jnp.isfinite(u), axis=tuple(range(1, u.ndim))) & jnp.all(
                 jnp.abs(u[:, :, :2]) <= speed_cap, axis=tuple(range(1, u.ndim))) & (state.capped == 0)
@@ -334,13 +334,13 @@ class _Steps:
         dispatch.report(self.done, self.total)
 
 
-def _advance(advance, state, fp, dt: float, n_steps: int, per_step: int, count: _Steps | None = None):
+def _advance(advance, state, fp, op, dt: float, n_steps: int, per_step: int, count: _Steps | None = None):
     """state advanced n_steps steps of dt in calls of at most ~DISPATCH_WORK point-steps (a sync between two),
     each call's steps added to ``count`` (progress)."""
     if n_steps == 0:
         return state
     for k in dispatch.pieces(n_steps, per_step):
-        state = advance(state, fp, jnp.float32(dt), jnp.int32(k))
+        state = advance(state, fp, op, jnp.float32(dt), jnp.int32(k))
         dispatch.sync([(state.u,)])
         if count is not None:
             count.add(k)
@@ -350,26 +350,27 @@ def _advance(advance, state, fp, dt: float, n_steps: int, per_step: int, count: 
 @functools.lru_cache(maxsize=16)
 def _programs(problem: FlowProblem):
     """(start, advance, frame): compiled per-chunk programs, each sample the same unbatched program inside
-    jax.lax.map. start: (keys [K], explicit [K, P], given [K, P]) -> (params {name: [K]}, Params [K], State [K]);
-    advance: (State, Params, dt, k) -> State k steps later; frame: (State, Params) -> [K, C, nx, ny]."""
+    jax.lax.map. start: (keys [K], explicit [K, P], given [K, P]) -> (params {name: [K]}, Params [K], State [K],
+    pressure Operator [K]); advance: (State, Params, Operator, dt, k) -> State k steps later; frame: (State, Params) -> [K, C, nx, ny]."""
     geom = problem.grid.geometry()
 
     def start_one(key, explicit, given):
         k_param, k_geom = jax.random.split(key)
         p = resolve_params(problem, k_param, explicit, given)
         fp = problem.flow_params(p, k_geom)
-        return p, fp, initial_state(geom, fp)
+        return p, fp, initial_state(geom, fp), operator(geom, fp)
 
     start = jax.jit(lambda keys, ex, gv: jax.lax.map(lambda t: start_one(*t), (keys, ex, gv)))
 
-    def advance_one(state, fp, dt, k):
-        return run_counted(geom, state, fp, dt, k, tol=problem.tol, max_iter=problem.max_iter,
+    def advance_one(state, fp, op, dt, k):
+        return run_counted(geom, state, fp, dt, k, op, tol=problem.tol, max_iter=problem.max_iter,
                            advection=problem.advection)
 
     # vectorised over the fixed chunk (a GPU's batch; on a CPU as fast as a loop): every chunk has CHUNK rows
     # (padded), and a row's bits do not depend on its place or its chunk-mates (tests/test_flows.py); the step
     # count k is traced and shared by the rows, so one program serves every count
-    advance = jax.jit(lambda states, fps, dt, k: jax.vmap(advance_one, (0, 0, None, None))(states, fps, dt, k))
+    advance = jax.jit(lambda states, fps, ops, dt, k: jax.vmap(advance_one, (0, 0, 0, None, None))(
+        states, fps, ops, dt, k))
 
     frame = jax.jit(lambda states, fps: jax.lax.map(lambda t: problem.frame_fields(geom, *t), (states, fps)))
     return start, advance, frame

@@ -304,12 +304,13 @@ def run(geom: Geometry, state: State, params: Params, dt, n_steps: int, tol=1e-5
                         length=n_steps)[0]
 
 
-def run_counted(geom: Geometry, state: State, params: Params, dt, n_steps, tol=1e-5, max_iter=200,
-                advection: str = "semi_lagrangian") -> State:
-    """``run`` with a traced step count n_steps (int32 []): one compiled program serves every count (the sampler
-    calls it with a few different counts: one compile instead of one each, 30-60 s apiece on 2 cores at n=16).
+def run_counted(geom: Geometry, state: State, params: Params, dt, n_steps, op: pressure.Operator, tol=1e-5,
+                max_iter=200, advection: str = "semi_lagrangian") -> State:
+    """``run`` with a traced step count n_steps (int32 []) and the pressure operator op given (``operator``): one
+    compiled program serves every count (the sampler calls it with a few different counts: one compile instead
+    of one each, 30-60 s apiece on 2 cores at n=16), and it holds no host callback (the operator's
+    pseudo-inverse is one), so JAX's persistent compilation cache can keep it for the next run.
     Not reverse-differentiable (a loop of traced length): differentiate ``run``."""
-    op = operator(geom, params)
     return jax.lax.fori_loop(0, n_steps, lambda _, s: step(geom, s, params, dt, tol, max_iter, op, advection), state)
 
 
