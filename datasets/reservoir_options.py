@@ -65,24 +65,25 @@ RESERVOIR_OPTIONS = ("capacity", "max_reuse", "reservoir_mode", "target_reuse", 
                      "proposal_ensemble", "proposal_kappa", "on_blowup", "priority_power", "priority_floor")
 
 
+def _refuse_unused(args: argparse.Namespace, used: dict[str, bool], needs: str, why: str) -> None:
+    """Options {dest: whether something uses it} given off their defaults where nothing uses them: one line naming
+    them and what they go with (they were silently ignored)."""
+    default = defaults(train=False)
+    unused = ["--" + name.replace("_", "-") for name, u in used.items() if not u and getattr(args, name) != default[name]]
+    if unused:
+        raise ValueError(f"{', '.join(unused)} {'goes' if len(unused) == 1 else 'go'} with {needs}{why}")
+
+
 def check_priority_options(args: argparse.Namespace, used: bool, needs: str) -> None:
     """--priority-power / --priority-floor given where no draw is prioritized: one line (they would do nothing)."""
-    given = [name for name, default in (("--priority-power", R.priority_power), ("--priority-floor", R.priority_floor))
-             if getattr(args, name[2:].replace("-", "_")) != default]
-    if given and not used:
-        raise ValueError(f"{', '.join(given)} {'goes' if len(given) == 1 else 'go'} with {needs} (prioritized replay)")
+    _refuse_unused(args, {"priority_power": used, "priority_floor": used}, needs, " (prioritized replay)")
 
 
 def check_proposal_options(args: argparse.Namespace, floor_used: bool, active_used: bool, needs: str) -> None:
     """--proposal-floor (loss-driven and active proposals) / --proposal-ensemble, --proposal-kappa (active only) given
-    where nothing uses them: one line (they were silently ignored)."""
-    default = defaults(train=False)
-    given = [(name, used) for name, used in (("proposal_floor", floor_used), ("proposal_ensemble", active_used),
-                                             ("proposal_kappa", active_used)) if getattr(args, name) != default[name]]
-    unused = ["--" + name.replace("_", "-") for name, used in given if not used]
-    if unused:
-        raise ValueError(f"{', '.join(unused)} {'goes' if len(unused) == 1 else 'go'} with {needs}; nothing here "
-                         "uses it: drop it")
+    where nothing uses them: one line."""
+    _refuse_unused(args, {"proposal_floor": floor_used, "proposal_ensemble": active_used,
+                          "proposal_kappa": active_used}, needs, "; nothing here uses it: drop it")
 
 
 def active_kwargs(args: argparse.Namespace) -> dict:
