@@ -197,6 +197,8 @@ def test_unsupported_settings_are_refused_in_one_line():
                            ({"limiter": "superbee"}, "limiter='superbee' not allowed"),
                            ({"gamma": "uniform(0.9, 1.4)"}, "must be > 1"),
                            ({"ic.rho_l": "uniform(-1, 1)"}, "ic.rho_l=uniform(-1.0, 1.0) not allowed"),
+                           ({"ic.p_r": "inf"}, "ic.p_r='inf' not allowed: must be a finite number"),
+                           ({"ic.x0": "uniform(0.2, nan)"}, "ic.x0='uniform(0.2, nan)' not allowed: must be a finite"),
                            ({"ic": "grf"}, "unknown ic kind 'grf'; allowed: riemann, sod, lax, 123, smooth")]:
         with pytest.raises(ValueError, match="^euler1d: ") as err:
             g.get_pde("euler1d", **settings)

@@ -38,8 +38,8 @@ def numeric_settings():
         for f in dataclasses.fields(cls):
             if f.name in cls.config_fields() and f.name not in cls.PARAMS and not isinstance(f.default, (bool, str)):
                 yield name, f.name
-        for f in dataclasses.fields(pde.ic):
-            if not isinstance(f.default, bool):
+        for f in dataclasses.fields(pde.ic):  # domain strings (euler1d's Riemann states) as at the PDE level
+            if not isinstance(f.default, (bool, str)):
                 yield name, f"ic.{f.name}"
 
 

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ...boundaries import DIRICHLET, NEUMANN, PERIODIC
+from ...boundaries import DIRICHLET, NEUMANN, PERIODIC, is_periodic
 from .. import dispatch
 from ..chunked import chunked_map, join, split
 from ..domains import Fixed, parse_domain
@@ -55,7 +55,7 @@ class FVGrid(GridBase):
     def bc(self) -> tuple[str, ...]:
         """periodic; dirichlet where both ends are walls (u = 0 there); neumann where an end is open."""
         lo, hi = self.sides
-        return ((PERIODIC if lo == "periodic" else DIRICHLET if lo == hi == "wall" else NEUMANN).value,)
+        return ((PERIODIC if is_periodic(lo) else DIRICHLET if lo == hi == "wall" else NEUMANN).value,)
 
     def coords(self, axis: int = 0) -> np.ndarray:
         """Cell-centre positions, float32 [n] (length units)."""
@@ -89,17 +89,22 @@ class Riemann:
     NAMES: ClassVar[tuple] = ("rho_l", "u_l", "p_l", "rho_r", "u_r", "p_r", "x0")
 
     def domains(self) -> dict:
-        return {name: parse_domain(getattr(self, name)) for name in self.NAMES}
+        """{name: Domain} of the seven settings; a bad one is refused naming it (ic.NAME=...)."""
+        doms = {}
+        for name in self.NAMES:
+            try:
+                doms[name] = parse_domain(getattr(self, name))
+            except ValueError as err:
+                raise ValueError(f"ic.{name}={getattr(self, name)!r} not allowed: must be a finite number or a domain "
+                                 f"of finite numbers ({err})") from None
+        return doms
 
     def sample(self, key: jax.Array, grid, n_fields: int = 3) -> jax.Array:
         v = [d.sample(jax.random.fold_in(key, j)) for j, d in enumerate(self.domains().values())]
         return _step_profile(grid, v[0:3], v[3:6], v[6])
 
     def check(self, grid) -> None:
-        try:
-            doms = self.domains()
-        except ValueError as err:
-            raise ValueError(f"ic: {err}") from None
+        doms = self.domains()
         for name in ("rho_l", "p_l", "rho_r", "p_r"):
             if not min(doms[name].bounds) > 0:
                 raise ValueError(f"ic.{name}={doms[name]} not allowed: densities and pressures must be > 0")
@@ -289,7 +294,7 @@ class Euler1D(ProblemBase):
         if len(sides) > 2 or any(w not in SIDE_KINDS for w in sides):
             raise ValueError(f"{self.NAME}: bc={self.bc!r} not allowed; allowed: {', '.join(SIDE_KINDS)}, one for "
                              "both ends or two as left,right (e.g. wall,outflow)")
-        if len(sides) == 2 and (sides[0] == "periodic") != (sides[1] == "periodic"):
+        if len(sides) == 2 and is_periodic(sides[0]) != is_periodic(sides[1]):
             raise ValueError(f"{self.NAME}: bc={self.bc!r} not allowed: periodic ends come in pairs")
         if not 0 < self.cfl <= MAX_CFL:
             raise ValueError(f"{self.NAME}: cfl={self.cfl:g} not allowed: must be in (0, {MAX_CFL:g}]")
