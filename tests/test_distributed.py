@@ -111,6 +111,7 @@ def test_killed_worker_block_is_redone(pde, reference, cluster, tmp_path):
 def test_running_tasks_report_their_block_fractions_to_the_client(pde, reference, cluster, tmp_path, monkeypatch):
     from pdestream.datasets import distributed
 
+    monkeypatch.setenv("PDESTREAM_PROGRESS", "1")  # tests/conftest.py turns progress off; the events go with it
     events = []
     counted = distributed.BlockCount.event
 
