@@ -125,14 +125,16 @@ def _taylor_green_error(n, advection, nu=0.002, t_end=0.5, cfl=0.5):
 
 
 def test_taylor_green_second_order_with_maccormack():
-    # dt ~ h (CFL 0.5): the slope fitted over 16/32/64 cells is the order in space and time together. Measured
-    # errors 0.0107 / 0.0024 / 0.00053 (maccormack, orders 2.15, 2.19) against 0.223 / 0.132 / 0.073 for the
-    # first-order semi-Lagrangian default (0.8).
-    ns = np.array([16, 32, 64])
+    # dt ~ h (CFL 0.5): the error ratio 16 -> 32 cells is the order in space and time together. Measured
+    # errors 0.0107 / 0.0024 / 0.00053 at 16/32/64 (maccormack, orders 2.15, 2.19) against 0.223 / 0.132 / 0.073
+    # for the first-order semi-Lagrangian default (0.8). 64 cells left out: a third compile and most of the
+    # test's time, for an order the two coarser grids already show (--parts mms of benchmarks/flow_validation.py
+    # sweeps a manufactured flow to 128 cells).
+    ns = np.array([16, 32])
     errors = np.array([_taylor_green_error(n, "maccormack") for n in ns])
-    order = -np.polyfit(np.log(ns), np.log(errors), 1)[0]
-    assert order > 1.9 and errors[-1] < 1e-3, (errors, order)
-    first = [_taylor_green_error(n, "semi_lagrangian") for n in ns[:2]]
+    order = np.log2(errors[0] / errors[1])
+    assert order > 1.9 and errors[-1] < 4e-3, (errors, order)
+    first = [_taylor_green_error(n, "semi_lagrangian") for n in ns]
     assert np.log2(first[0] / first[1]) < 1.2 and errors[0] < 0.5 * first[0], first  # the check tells them apart
 
 
