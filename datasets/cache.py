@@ -229,15 +229,17 @@ class CacheWriteError(ValueError):
 ROOM_MARGIN = 2**16  # bytes beyond the arrays: HDF5's metadata
 
 
-def check_room(path: Path, nbytes: int) -> None:
-    """CacheWriteError when an HDF5 file of ``nbytes`` array bytes cannot fit at ``path``: above the process's file
-    size limit (``ulimit -f``) or the free space of its filesystem. Checked before writing, since HDF5 may crash
-    the process on a write that fails halfway through its bookkeeping."""
+def check_room(path: Path, nbytes: int, one_file: bool = True) -> None:
+    """CacheWriteError when ``nbytes`` array bytes cannot fit at ``path``: above the free space of its filesystem,
+    or, written as one file (HDF5), above the process's file size limit (``ulimit -f``). Checked before writing,
+    since HDF5 may crash the process on a write that fails halfway through its bookkeeping, and a cache too large
+    for its disk would otherwise solve until the disk is full. (A Zarr store is checked at its raw size: its
+    compression is not known before the data.)"""
     import resource
 
     need = nbytes + ROOM_MARGIN
     limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
-    if limit != resource.RLIM_INFINITY and need > limit:
+    if one_file and limit != resource.RLIM_INFINITY and need > limit:
         raise CacheWriteError(f"cannot write {path}: it needs {_mib(need)}, the file size limit (ulimit -f) is "
                               f"{_mib(limit)}")
     st = os.statvfs(path.parent if str(path.parent) else ".")
@@ -247,6 +249,8 @@ def check_room(path: Path, nbytes: int) -> None:
 
 
 def _mib(n: int) -> str:
+    if n >= 2**30:
+        return f"{n / 2**30:,.1f} GiB"
     return f"{n / 2**20:.2f} MiB" if n >= 2**20 else f"{n // 1024} KiB"
 
 
@@ -378,6 +382,8 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
                              "cache (remove it yourself or choose another path)")
         configure_jax()
         stored = cache_settings(path) if resume and exists else None  # clear error if it is not a cache
+        if not stored:  # the one room check of a new cache (generate, the Dask writer), before its layout is built
+            check_room(path, schema.cache_bytes(pde, n_samples), one_file=fmt.name == "hdf5")
         if block is None:
             block = stored.block if stored else default_block(pde, n_samples)
         settings = CacheSettings.of(pde, n_samples, seed, min(block, n_samples), on_blowup, jax_provenance())
@@ -390,8 +396,6 @@ def writing(pde, path, n_samples, seed=0, resume=False, overwrite=False, block=N
                             settings.provenance)
         _remove_stale(path)
         repaired = _reopen_damaged(path, fmt, settings) if stored else 0
-        if fmt.name == "hdf5" and not stored:
-            check_room(path, schema.hdf5_bytes(lay))
         job = Job(path, _hidden(path, "tmp") if exists and overwrite else path, fmt, settings, lay, repaired)
         created = not stored
         try:

@@ -6,7 +6,6 @@ so the parser can read them without JAX or torch.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -58,8 +57,6 @@ def generate(cfg: GenerateConfig) -> str:
 def _generate(pde, cfg: GenerateConfig) -> str:
     from pdestream import datasets
 
-    if not cfg.resume:
-        check_disk_room(pde, cfg.out, cfg.n)
     kw = dict(seed=cfg.seed, resume=cfg.resume, overwrite=cfg.overwrite, block=cfg.block, on_blowup=cfg.on_blowup)
     if cfg.executor == "dask":
         from pdestream.datasets.distributed import write_cache_dask
@@ -93,22 +90,3 @@ def left_after_interrupt(out: str, resume: bool) -> str:
     if complete:  # --overwrite: the old cache, untouched (its replacement was removed)
         return f"{out} is unchanged"
     return f"{out} holds {done} of {total} samples; run the command with --resume{'' if resume else ' added'} to finish it"
-
-
-def check_disk_room(pde, out: str, n: int) -> None:
-    """Refuse (one line) a new cache that cannot fit on its disk: n x the bytes of one sample vs the free space
-    where it goes (a huge --n would otherwise run until the disk is full)."""
-    import shutil
-
-    from pdestream.datasets import max_index
-
-    parent = Path(out).absolute().parent
-    if not parent.is_dir() or isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= max_index() + 1:
-        return  # the writer names these
-    frames = 1 if getattr(pde, "STEADY", False) else pde.n_frames
-    channels = len(pde.FIELDS) + len(getattr(pde, "INPUTS", ()))
-    need = n * (4 * channels * frames * math.prod(pde.grid.shape) + 4 * len(pde.PARAMS) + 2)
-    free = shutil.disk_usage(parent).free
-    if need > free:
-        raise ValueError(f"--n {n} makes a cache of {need / 2**30:,.1f} GiB ({need / n / 2**10:,.1f} KiB per sample); "
-                         f"the disk at {parent} has {free / 2**30:,.1f} GiB free: lower --n or write elsewhere")

@@ -223,6 +223,14 @@ def hdf5_bytes(lay: Layout) -> int:
     return field * len(lay.fields) + sample + sum(data.nbytes for _, data, _ in lay.coords.values())
 
 
+def cache_bytes(pde, n_samples: int) -> int:
+    """``hdf5_bytes`` of a cache of ``n_samples`` samples of ``pde``, without building its layout (whose sample
+    coordinate alone would take 8 bytes per sample): the bytes grow linearly with the samples, so they are read off
+    the layouts of 1 and 2 samples."""
+    one, two = (hdf5_bytes(layout(pde, k, 0, 1, "raise", {})) for k in (1, 2))
+    return one + (two - one) * (n_samples - 1)
+
+
 def create_hdf5(path: str, lay: Layout) -> None:
     """A netCDF4-compatible HDF5 file (dimension scales through h5netcdf) with every array allocated."""
     import h5netcdf

@@ -66,7 +66,7 @@ def test_an_hdf5_write_failing_halfway_is_one_line_and_leaves_nothing(big, tmp_p
     """Past the up-front room check (a disk that fills meanwhile): HDF5 fails inside its writes or its close;
     the file is released without a second flush, which used to crash the process (rc 139) after the line."""
     (tmp_path / "out").mkdir()
-    skip_check = "import pdestream.datasets.cache as c; c.check_room = lambda *a: None; "
+    skip_check = "import pdestream.datasets.cache as c; c.check_room = lambda *a, **k: None; "
     proc = _limited(COMMANDS[command](big), tmp_path, 200, skip_check + "from pdestream.cli import main; "
                     "sys.exit(main())")
     _one_line(proc, "pdestream: error: cannot ")
