@@ -173,8 +173,9 @@ class Meter:
         pace = f"{rate:.3g} {self.unit}/s" if rate >= 1 else f"{1 / rate:.3g} s/{one}"
         if not recorded:
             return f"{head}, {pace}, ~{duration(left)} left {so_far}"
-        start = f" ({self.starting}: about {duration(self.last['startup_s'])} last time)" if self._mark is None else ""
-        return f"{head}, ~{pace} last time, ~{duration(left)} left{start} {so_far}"
+        basis = self.last.get("basis", "last time")
+        start = f" ({self.starting}: about {duration(self.last['startup_s'])} {basis})" if self._mark is None else ""
+        return f"{head}, ~{pace} {basis}, ~{duration(left)} left{start} {so_far}"
 
     def tick(self, now: float | None = None) -> bool:
         """Show the count if due: a bar refresh on a terminal, else a plain line FIRST s after the start, then at
@@ -189,7 +190,8 @@ class Meter:
             with self._lock:
                 done = self.done
             est = self.left(now) if self.last else None  # before its own rate: the last run's time left
-            self.bar.set_postfix_str(f"~{duration(est[1])} left, last time" if est and est[2] else "", refresh=False)
+            basis = self.last.get("basis", "last time") if self.last else ""
+            self.bar.set_postfix_str(f"~{duration(est[1])} left, {basis}" if est and est[2] else "", refresh=False)
             if done > self._shown:
                 self.bar.update(done - self._shown)
                 self._shown = done

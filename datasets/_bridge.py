@@ -118,6 +118,22 @@ def progress_key(kind: str, pde) -> str:
     return f"{kind} {pde.NAME} {pde.config_hash()} {jax.default_backend()}"
 
 
+def typical_times(pde) -> dict | None:
+    """The entry's declared times of a default run (``TYPICAL_TIMES``: {"startup_s", "unit_s"} measured on 2 CPU
+    cores), for a progress line's first estimate on a machine with no record yet; None when it declares none, runs
+    on another backend, or ``pde`` is not at its defaults (another grid compiles and solves at another cost)."""
+    import jax
+
+    typical = getattr(pde, "TYPICAL_TIMES", None)
+    if not typical or jax.default_backend() != "cpu":
+        return None
+    try:
+        default = type(pde)().config_hash()
+    except Exception:  # a plug-in without defaults for every argument: no typical run to speak of
+        return None
+    return {**typical, "basis": "typical of its defaults on 2 CPU cores"} if default == pde.config_hash() else None
+
+
 def resolve_pde(pde):
     """A generator PDE from a PDE object or a catalog name."""
     from pdestream import generator

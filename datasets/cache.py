@@ -496,7 +496,7 @@ def _fill(pde, job: Job, progress: bool) -> int:
     from pdestream.meter import Meter
 
     from . import timings
-    from ._bridge import progress_key
+    from ._bridge import progress_key, typical_times
 
     s, block = job.settings, job.block
     store = job.fmt.open(job.work, writable=True)
@@ -508,7 +508,7 @@ def _fill(pde, job: Job, progress: bool) -> int:
         # (from the last run's times until this one's rate is measured: the first call compiles the solver)
         key = progress_key("generate", pde)
         bar = Meter(pde.NAME, s.n_samples, "samples", initial=initial, enabled=progress,
-                    last=timings.recall(key) if progress else None, starting="compiling the solver")
+                    last=timings.recall(key, typical_times(pde)) if progress else None, starting="compiling the solver")
 
         def solve_all():  # in the prefetch thread: one block solved ahead of the one being written
             base = initial

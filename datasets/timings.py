@@ -39,9 +39,29 @@ def _history() -> dict:
     return data if isinstance(data, dict) else {}
 
 
-def recall(key: str) -> dict | None:
-    """The last record of ``key``, {"startup_s": s, "unit_s": s per unit > 0}, or None."""
-    rec = _history().get(key)
+def recall(key: str, typical: dict | None = None) -> dict | None:
+    """The times to start a progress line from, {"startup_s": s, "unit_s": s per unit > 0, "basis": words}, or
+    None: ``key``'s last record ("last time"); else the newest record of the same command, entry and backend under
+    another config ("last time, another config": the compile costs about the same); else ``typical``, the entry's
+    own declared times ("typical on 2 CPU cores", ``Problem.TYPICAL_TIMES``), so a first run on a fresh machine
+    also has an estimate while it compiles."""
+    data = _history()
+    rec = _valid(data.get(key))
+    if rec:
+        return {**rec, "basis": "last time"}
+    parts = key.split(" ")  # _bridge.progress_key: "COMMAND ENTRY CONFIG_HASH BACKEND"
+    same = (parts[0], parts[1], parts[-1]) if len(parts) >= 4 else None
+    for other in reversed(list(data)):
+        theirs = other.split(" ")
+        if same and len(theirs) >= 4 and (theirs[0], theirs[1], theirs[-1]) == same:
+            rec = _valid(data[other])
+            if rec:
+                return {**rec, "basis": "last time, another config"}
+    rec = _valid(typical)
+    return {**rec, "basis": typical.get("basis", "typical")} if rec else None
+
+
+def _valid(rec) -> dict | None:
     if not isinstance(rec, dict):
         return None
     times = {k: rec.get(k) for k in ("startup_s", "unit_s")}

@@ -126,6 +126,9 @@ class ProblemBase(abc.ABC):
     # Fields of a dimension-generic class that an entry of lower dimension does not use (c_z in 2D):
     # not part of its configuration (set by for_dimension).
     UNUSED: ClassVar[frozenset] = frozenset()
+    # What a run at the defaults took on 2 CPU cores, {"startup_s": s to the first sample (mostly the compile),
+    # "unit_s": s per sample after it}: a progress line's estimate on a machine that has no record of its own yet.
+    TYPICAL_TIMES: ClassVar[Mapping[str, float] | None] = None
 
     n: int = 128  # grid points per dimension
     length: float = 1.0  # domain side

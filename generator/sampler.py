@@ -244,6 +244,9 @@ def solve(pde: PDE | str, u0, params: Mapping[str, float | Sequence[float]]) -> 
             raise ValueError(f"{pde.NAME}: {name}={np.asarray(p[name])} not allowed: {spec.description} must be > 0")
     u, finite = pde.evolve(u0, p)  # the family's rollout in bounded calls (a Ctrl-C stops it within one)
     bad = np.flatnonzero(~np.asarray(finite))
-    if bad.size:
-        raise BlowUpError(f"{pde.NAME}: solve blew up (NaN/Inf) for batch entries {bad[:10].tolist()} with step {pde.step_dt:.4g}")
+    if bad.size:  # the family's words for a failure and each failed entry's cause (euler1d: which and when)
+        what, avoid = pde.failure()
+        causes = _causes(pde, batch)
+        entries = "; ".join(f"{b}: {causes[b]}" if causes[b] else str(b) for b in bad[:10].tolist())
+        raise BlowUpError(f"{pde.NAME}: solve: {what} for batch entries {entries}; {avoid}")
     return Trajectory(u=u, t=pde.times(), params=p, pde=pde)

@@ -189,6 +189,11 @@ def test_a_failing_sample_is_named_with_its_cause_not_written_as_nan():
         g.sample(pde, [0])
     traj = g.sample(pde, [0, 1], on_blowup="skip")
     assert len(traj.indices) == 0 and "the waves outran the step" in traj.skipped[0]
+    # a caller's own initial state: the same cause, not "blew up"
+    u0 = np.asarray(g.sample(pde.replace(cfl=0.4), [0]).u[0, 0])
+    with pytest.raises(g.BlowUpError, match=r"^euler1d: solve: trajectories failed .* for batch entries 0: the waves "
+                                            r"outran the step at t = 0\.0\d+ \(CFL 1\.\d+\); a smaller cfl"):
+        g.solve(pde, u0, {"gamma": 1.4})
 
 
 def test_unsupported_settings_are_refused_in_one_line():

@@ -221,14 +221,18 @@ def test_the_measured_times_are_recorded_by_key_and_read_back(tmp_path, monkeypa
     m.set(2)  # 1.5 samples in 30 s after the first count
     clock.t += 100  # written after the solves: not counted
     m.close()
-    timings.remember("generate karman2d abc", m.measured())
-    assert timings.recall("generate karman2d abc") == {"startup_s": 40.0, "unit_s": 20.0}
-    assert timings.recall("generate karman2d other") is None
+    timings.remember("generate karman2d abc cpu", m.measured())
+    assert timings.recall("generate karman2d abc cpu") == {"startup_s": 40.0, "unit_s": 20.0, "basis": "last time"}
+    # another config of the same entry and backend: its compile costs about the same
+    assert timings.recall("generate karman2d other cpu")["basis"] == "last time, another config"
+    assert timings.recall("generate karman2d other gpu") is None and timings.recall("generate cavity2d abc cpu") is None
+    typical = {"startup_s": 5.0, "unit_s": 1.0, "basis": "typical"}
+    assert timings.recall("generate cavity2d abc cpu", typical) == typical  # no record: the entry's own figures
     path.write_text("{not json")
-    assert timings.recall("generate karman2d abc") is None  # garbled: as if nothing was recorded
+    assert timings.recall("generate karman2d abc cpu") is None  # garbled: as if nothing was recorded
     monkeypatch.setenv(timings.HISTORY_ENV, "")  # off: nothing read or written
     path.unlink()
-    timings.remember("generate karman2d abc", {"startup_s": 1.0, "unit_s": 2.0})
+    timings.remember("generate karman2d abc cpu", {"startup_s": 1.0, "unit_s": 2.0})
     assert timings.history_path() is None and not path.exists()
 
 
