@@ -51,9 +51,15 @@ def pytest_collection_modifyitems(config, items):
     # the measured long tests (slow_tests.txt) join the slow set, so the quick default stays a few minutes
     with open(SLOW_TESTS) as f:
         listed = {line.strip() for line in f if line.strip() and not line.startswith("#")}
+    from pdestream import generator
+
     for item in items:
-        if item.nodeid in listed:
+        if item.nodeid.split("@")[0] in listed:  # (xdist's loadgroup appends "@GROUP" to a grouped test's id)
             item.add_marker(pytest.mark.slow)
+        # --dist loadgroup (CI): an entry's tests run in one worker, which compiles its programs once, not in each
+        entry = getattr(getattr(item, "callspec", None), "params", {}).get("name")
+        if isinstance(entry, str) and entry in generator.PDES:
+            item.add_marker(pytest.mark.xdist_group(entry))
 
 
 @pytest.fixture
