@@ -86,6 +86,9 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
     sizes = {k: len(v) for k, v in (result["arms"][0].get("errors") or {}).items()}
     if sizes:
         lines += ["", tail_note(sizes)]
+    gate = gate_line(result["arms"], (getattr(cfg, "proposal_kwargs", None) or {}).get("gate", True))
+    if gate:
+        lines += ["", gate]
     plan = next((a.get("precompute") for a in result["arms"] if a["arm"] == "precomputed"), None)
     if plan:
         lines += ["", precompute_line(plan, next(a for a in result["arms"] if a["arm"] == "precomputed"))]
@@ -114,6 +117,20 @@ def interval_table(arms: list[dict]) -> list[str]:
         cells = [f"{a[c]:.4f} [{ci[c][0]:.4f}, {ci[c][1]:.4f}]" if c in ci else "-" for c in cols]
         lines.append("| " + " | ".join([a["arm"], *cells]) + " |")
     return lines
+
+
+def gate_line(arms: list[dict], gate: bool = True) -> str:
+    """compare.md's line on the steered arms' skill gate (``datasets.proposal``) at the end of seed 0's run: the
+    measured skill and the share of steered draws it allowed (gate off: 1 - floor whatever the skill); "" when
+    no arm steers."""
+    parts = [f"{a['arm']} skill {a['stats']['proposal_skill']:.2f}, steered share {a['stats']['proposal_steer']:.2f}"
+             for a in arms if "proposal_skill" in (a.get("stats") or {})]
+    if not parts:
+        return ""
+    rule = ("steered share = (1 - floor) x clip(skill / 0.5, 0, 1)" if gate else
+            "--proposal-gate off: steered share 1 - floor whatever the skill")
+    return (f"Proposal skill gate (seed 0, at the end; {rule}; skill = the correlation of predicted and realized "
+            "log-losses of fresh solves - 2 / sqrt(n - 1)): " + "; ".join(parts) + ".")
 
 
 def precompute_line(plan: dict, record: dict) -> str:

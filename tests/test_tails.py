@@ -77,3 +77,14 @@ def test_combined_records_keep_the_errors_and_carry_intervals_and_tail_verdicts(
     assert "rests on the worst 3 of 128 test trajectories: no tail claim below 1024" in lines[2]
     assert "rests on the worst 7 of 128" in lines[3] and "rests on the worst 1 of 128" in lines[4]
     assert "rests on" not in lines[0] + lines[1]
+
+
+def test_compare_md_states_the_skill_gate_of_the_steered_arms():
+    from pdestream.experiments.budget_report import gate_line
+
+    arms = [{"arm": "reservoir", "stats": {}}, {"arm": "reservoir_active",
+                                                "stats": {"proposal_skill": 0.123, "proposal_steer": 0.185}}]
+    line = gate_line(arms)
+    assert line.startswith("Proposal skill gate (seed 0, at the end; steered share = (1 - floor) x clip(skill / 0.5")
+    assert line.endswith("reservoir_active skill 0.12, steered share 0.18.") and "reservoir skill" not in line
+    assert "--proposal-gate off" in gate_line(arms, gate=False) and gate_line(arms[:1]) == ""
