@@ -125,7 +125,7 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
         raise ValueError(f"--reservoir goes with --source stream (got --source {args.source})")
     check_priority_options(args, args.draw == "priority", "--draw priority")
     check_proposal_options(args, args.proposal != "uniform", args.proposal == "active",
-                           "--proposal loss / active (--proposal-floor) or --proposal active (the others)")
+                           "--proposal loss / active (--proposal-floor, --proposal-gate) or --proposal active (the others)")
     cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,
            "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
            "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,
