@@ -268,3 +268,18 @@ def test_the_reservoir_scores_only_first_draws():
     fresh = np.concatenate(marks)
     assert 0 < fresh.sum() < len(fresh)  # trajectories come back (reuse) and are not scored again
     assert set(s.stats()) >= {"proposal_skill", "proposal_steer"}
+
+
+def test_a_state_saved_before_the_gate_loads_with_the_gate_closed():
+    prop, _ = fed_by(smooth, n=1024)
+    old = prop.state_dict()
+    for key in ("skill_pred", "skill_real"):
+        del old[key]
+    for key in ("fit", "next_fit"):
+        old[key] = {k: v for k, v in old[key].items() if k != "coef"}  # fits had no mean weights then
+    again = ParamProposal(BOX, mode="active", seed=0, refit=256)
+    again.load_state_dict(old)
+    assert len(again.skill_pred) == 0 and again.steer == 0.0 and again.predict(np.zeros((1, 2))) is None
+    out = again.propose(100)
+    assert np.isfinite(out["x"]).all()
+    prop.close()
