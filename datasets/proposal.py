@@ -28,6 +28,32 @@ window and is used from the next refit on (one refit interval later, ``refit`` l
 done, so the loop does not wait for it. Which fit a proposal uses is therefore fixed by the count of losses
 reported, not by timing: the proposals stay a pure function of (seed, losses, call order).
 
+**The skill gate (never do harm).** A steered draw only helps if the loss model can tell where the loss will be
+high; on a problem whose error lives in the initial condition, not in the parameters, it cannot, and steering
+then only thins the draws elsewhere. So in "loss" and "active" mode the proposal measures its own skill on
+fresh solves and moves its weight between the steered and the uniform draw by it:
+
+- **skill pairs**: when ``record`` gets the loss of a sample trained on for the first time (``fresh``; the
+  reservoir marks a trajectory's first draw), the proposal's loss model predicts the log-loss at its parameters
+  *before* the loss joins the window (out of sample: the model never saw that solve) -- "active": the mean of the
+  ensemble fit in use, "loss": a kernel (Nadaraya-Watson, width ``bandwidth``) average of the recent log-losses.
+  The last ``skill_window`` (prediction, realized log-loss) pairs are kept.
+- **skill** = the correlation (Pearson) of those predicted and realized log-losses minus its null standard error,
+  r - 2 / sqrt(n - 1) (a lower confidence bound: with no structure r scatters around 0 by about 1 / sqrt(n - 1),
+  whatever the losses' distribution, and the bound keeps that scatter from opening the gate), floored at 0; no
+  skill (0) until ``skill_min`` pairs exist. A correlation, not R^2: the loss level falls as the model trains and
+  the ridge fit shrinks, so an R^2 of the raw predictions is negative for a model that places the high losses
+  right; a correlation only asks whether the predictions go up where the losses do (r^2 is the share of the
+  log-loss variance the predictions explain once recalibrated). Of log-losses because per-sample losses are
+  heavy-tailed and the proposal works in log. Not a rank correlation: where a sharp region of high loss sits in
+  a bulk of noisy low losses (the case steering is for), the bulk's random order drowns Spearman's rho (0.23
+  against r = 0.83 on the test suite's sharp-mode problem) although the model finds the region.
+- **the steered share** w = (1 - floor) * clip(skill / skill_full, 0, 1): each draw is steered with probability
+  w and uniform otherwise. No skill: w = 0, the draws are uniform; skill >= ``skill_full``: w = 1 - floor, the
+  ungated proposal. ``gate=False`` keeps w = 1 - floor always (the proposal before the gate). ``skill`` and
+  ``steer`` (w) are in the reservoir's ``stats()`` (metrics.csv: ``proposal_skill``, ``proposal_steer``) and in
+  ``state_dict``.
+
 Everything is numpy and seeded: the sequence of proposals is a pure function of (seed, the losses recorded
 and the order of calls), so a deterministic reservoir stays deterministic. ``state_dict`` captures it all.
 """
@@ -50,12 +76,15 @@ class ParamProposal:
     key as usual), "loss" or "active" (the module docstring). floor: share of uniform draws in "loss" and
     "active" mode, in (0, 1]. window: recent losses kept. "active" only: ensemble (>= 2) bootstrap loss models,
     kappa (>= 0) the weight of their spread against their mean (log-loss units), refit: losses between fits,
-    candidates: uniform points of the box the proposal resamples.
+    candidates: uniform points of the box the proposal resamples. The skill gate ("loss" and "active", the module
+    docstring): gate (False: always steer 1 - floor), skill_window: fresh (prediction, loss) pairs kept,
+    skill_min: pairs before any steering, skill_full: the skill at which the steered share is 1 - floor.
     """
 
     def __init__(self, domains: dict, mode: str = "loss", floor: float = 0.25, window: int = 2048,
                  bandwidth: float = 0.05, power: float = 1.0, seed: int = 0, ensemble: int = 5, kappa: float = 1.0,
-                 refit: int = 256, candidates: int = 2048):
+                 refit: int = 256, candidates: int = 2048, gate: bool = True, skill_window: int = 256,
+                 skill_min: int = 32, skill_full: float = 0.5):
         if mode not in MODES:
             raise ValueError(f"proposal={mode!r} not allowed; allowed: {', '.join(MODES)}")
         if not (isinstance(floor, (int, float)) and 0 < floor <= 1):
@@ -71,11 +100,18 @@ class ParamProposal:
                              "signal is the disagreement of its members)")
         if not (isinstance(kappa, (int, float)) and 0 <= kappa <= 100):
             raise ValueError(f"proposal kappa={kappa!r} not allowed; must be in [0, 100] (weight of the ensemble spread)")
-        for name, value in (("refit", refit), ("candidates", candidates)):
+        if not isinstance(gate, bool):
+            raise ValueError(f"proposal gate={gate!r} not allowed; must be True or False")
+        if not (isinstance(skill_full, (int, float)) and 0 < skill_full <= 1):
+            raise ValueError(f"proposal skill_full={skill_full!r} not allowed; must be in (0, 1] (a rank correlation)")
+        if isinstance(skill_min, bool) or not isinstance(skill_min, int) or skill_min < 3:
+            raise ValueError(f"proposal skill_min={skill_min!r} not allowed; must be an integer >= 3")
+        for name, value in (("refit", refit), ("candidates", candidates), ("skill_window", skill_window)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"proposal {name}={value!r} not allowed; must be an integer >= 1")
         self.mode, self.floor, self.window, self.bandwidth, self.power = mode, float(floor), window, float(bandwidth), float(power)
         self.ensemble, self.kappa, self.refit, self.candidates = ensemble, float(kappa), refit, candidates
+        self.gate, self.skill_window, self.skill_min, self.skill_full = gate, skill_window, skill_min, float(skill_full)
         self.seed = seed
         self.names = list(domains)  # every PDE parameter, PARAMS order (the columns of batch["params"])
         self.domains = {k: tuple(v) for k, v in domains.items()}
@@ -92,6 +128,8 @@ class ParamProposal:
         self._fit, self._next, self.fits = None, None, 0
         self._fit_at = 0  # reports when the last fit was started
         self._pool = None
+        # the skill gate: out-of-sample (predicted, realized) log-losses of fresh solves, the last skill_window
+        self.skill_pred, self.skill_real = np.zeros(0), np.zeros(0)
 
     # --- unit box <-> parameter values -------------------------------------------------------------
     def to_unit(self, values: np.ndarray) -> np.ndarray:
@@ -129,16 +167,21 @@ class ParamProposal:
         return out
 
     # --- the loop's feedback and the proposals -----------------------------------------------------
-    def record(self, params: np.ndarray, losses: np.ndarray) -> None:
+    def record(self, params: np.ndarray, losses: np.ndarray, fresh: np.ndarray | None = None) -> None:
         """Per-sample training losses [B] of samples with parameters [B, P] (PARAMS order). A row whose loss or
         parameters are not finite (a diverged step, a NaN parameter) is dropped and counted in ``dropped``: one
-        such row would otherwise turn the pick weights, and then the proposals sent to the solver, into NaN."""
+        such row would otherwise turn the pick weights, and then the proposals sent to the solver, into NaN.
+        fresh: bool [B], which rows are samples trained on for the first time (their losses measure the skill
+        gate, before they join the window); None: every row (a caller that reports each sample once)."""
         losses = np.asarray(losses, np.float64).reshape(-1)
         params = np.asarray(params, np.float64).reshape(len(losses), len(self.names))
         ok = np.isfinite(losses) & np.isfinite(params).all(axis=1)
         self.dropped += int((~ok).sum())
         if not ok.any() or not self.random:
             return
+        fresh = np.ones(len(losses), bool) if fresh is None else np.asarray(fresh, bool).reshape(len(losses))
+        if self.mode != "uniform" and (ok & fresh).any():
+            self._score(self.to_unit(params[ok & fresh]), losses[ok & fresh])
         self.points = np.concatenate([self.points, self.to_unit(params[ok])])[-self.window :]
         self.losses = np.concatenate([self.losses, losses[ok]])[-self.window :]
         self.reports += int(ok.sum())
@@ -158,16 +201,62 @@ class ParamProposal:
         self.fits += 1
         self._fit_at = self.reports
 
+    def _score(self, z: np.ndarray, losses: np.ndarray) -> None:
+        """The skill gate's pairs: the loss model's out-of-sample log-loss prediction at fresh unit points z [F, D]
+        against their realized losses [F] (nothing while there is no model: no fit yet, an empty window)."""
+        pred = self.predict(z)
+        if pred is None:
+            return
+        positive = np.concatenate([self.losses, losses])
+        positive = positive[positive > 0]
+        real = np.log(np.maximum(losses, positive.min() if len(positive) else 1e-30))  # 0 as the smallest positive
+        self.skill_pred = np.concatenate([self.skill_pred, pred])[-self.skill_window :]
+        self.skill_real = np.concatenate([self.skill_real, real])[-self.skill_window :]
+
+    def predict(self, z: np.ndarray) -> np.ndarray | None:
+        """The loss model's predicted log-loss at unit points z [N, D], or None without one: "active", the mean
+        of the ensemble fit in use; "loss", the kernel average (width ``bandwidth``) of the recorded log-losses."""
+        if self.mode == "active":
+            if self._fit is None or len(self._fit) < 3:  # no fit yet (or one restored from before the gate)
+                return None
+            return features(z, lattice(z.shape[1])) @ self._fit[2]
+        if self.mode == "loss" and len(self.losses):
+            positive = self.losses[self.losses > 0]
+            y = np.log(np.maximum(self.losses, positive.min() if len(positive) else 1e-30))
+            k = np.exp(-0.5 * ((z[:, None, :] - self.points[None]) ** 2).sum(-1) / self.bandwidth**2)  # [N, W]
+            total = k.sum(1)
+            return np.where(total > 1e-12, (k @ y) / np.maximum(total, 1e-300), y.mean())
+        return None
+
+    @property
+    def skill(self) -> float:
+        """The correlation of the fresh (predicted, realized) log-losses minus 2 / sqrt(n - 1), floored at 0; 0 below
+        ``skill_min`` pairs."""
+        n = len(self.skill_pred)
+        if n < self.skill_min:
+            return 0.0
+        return max(0.0, correlation(self.skill_pred, self.skill_real) - 2.0 / math.sqrt(n - 1))
+
+    @property
+    def steer(self) -> float:
+        """The share of steered draws: (1 - floor) * clip(skill / skill_full, 0, 1); 1 - floor without the gate;
+        0 in "uniform" mode."""
+        if self.mode == "uniform":
+            return 0.0
+        if not self.gate:
+            return 1.0 - self.floor
+        return (1.0 - self.floor) * min(1.0, max(0.0, self.skill / self.skill_full))
+
     def propose(self, n: int) -> dict[str, np.ndarray] | None:
         """Explicit values {name: float64 [n]} for the next n solves; None in "uniform" mode (key draws)."""
         if self.mode == "uniform" or not self.random:
             return None
         d = len(self.random)
         z = self.rng.random((n, d))  # the uniform part
-        steer = self.rng.random(n) >= self.floor
+        steer = self.rng.random(n) >= 1.0 - self.steer  # ungated (steer = 1 - floor): the draws of before the gate
         if self.mode == "active":
             if steer.any() and self._fit is not None:
-                cand, prob = self._fit
+                cand, prob = self._fit[:2]
                 pick = self.rng.choice(len(prob), size=int(steer.sum()), p=prob)
                 # about one candidate spacing: the density is continuous, yet as sharp as the candidates resolve
                 width = 0.5 * len(prob) ** (-1.0 / d)
@@ -222,7 +311,8 @@ class ParamProposal:
                 "losses": self.losses.tolist(), "proposed": list(self.proposed), "reports": self.reports, "dropped": self.dropped,
                 "weights": None if self._w is None else self._w.tolist(), "weights_at": self._w_at,
                 "fit": _fit_plain(self._fit), "next_fit": _fit_plain(None if self._next is None else self._next.result()),
-                "fits": self.fits, "fit_at": self._fit_at}
+                "fits": self.fits, "fit_at": self._fit_at, "skill_pred": self.skill_pred.tolist(),
+                "skill_real": self.skill_real.tolist()}
 
     def load_state_dict(self, state: dict) -> None:
         """Restore ``state_dict()`` output (the same domains and mode are required)."""
@@ -243,6 +333,9 @@ class ParamProposal:
             self._next = Future()
             self._next.set_result(following)
         self.fits, self._fit_at = int(state.get("fits", 0)), int(state.get("fit_at", 0))
+        # states saved before the gate have no pairs: the gate starts closed and opens on measured skill
+        self.skill_pred = np.asarray(state.get("skill_pred", []), np.float64)
+        self.skill_real = np.asarray(state.get("skill_real", []), np.float64)
 
     def __getstate__(self):
         # copy.deepcopy / pickle: the background fit is resolved into its result, the thread pool is not copied
@@ -299,14 +392,15 @@ def features(z: np.ndarray, centres: np.ndarray) -> np.ndarray:
 
 
 def loss_model(points: np.ndarray, losses: np.ndarray, at: np.ndarray, ensemble: int,
-               rng: np.random.Generator, ridge: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
+               rng: np.random.Generator, ridge: float = 1e-2, return_coef: bool = False) -> tuple:
     """Predicted log-loss at ``at`` [C, D] from recorded (points [W, D], losses [W]): the mean [C] and the spread
     (std, [C]) of ``ensemble`` ridge regressions, each fitted to a bootstrap resample of the window and shrunk
     toward its own random prior weights (Osband et al.'s randomized priors) rather than toward zero: where losses
     were seen the data outweigh the priors and the members agree; where none were, each keeps its prior and they
     disagree (plain bootstrapped ridge regressions would all shrink to the same value there, with no spread).
     The priors' scale is the spread of the log-losses. Losses <= 0 count as the smallest positive one (log of 0
-    is not a number); inputs are finite (``record``)."""
+    is not a number); inputs are finite (``record``). return_coef: also the members' mean weights [1 + D + M] (the
+    mean prediction anywhere is ``features(z, lattice(D)) @ coef``: what the skill gate scores)."""
     positive = losses[losses > 0]
     y = np.log(np.maximum(losses, positive.min() if len(positive) else 1e-30))
     centres = lattice(points.shape[1])
@@ -315,7 +409,7 @@ def loss_model(points: np.ndarray, losses: np.ndarray, at: np.ndarray, ensemble:
     reg = ridge * np.eye(k)
     reg[0, 0] = 0.0  # the mean level is not shrunk
     scale = max(float(y.std()), 1e-3)
-    preds = np.empty((ensemble, len(at)))
+    preds, coef = np.empty((ensemble, len(at))), np.zeros(k)
     for e in range(ensemble):
         b = rng.integers(len(y), size=len(y))
         prior = scale * rng.standard_normal(k)
@@ -323,29 +417,43 @@ def loss_model(points: np.ndarray, losses: np.ndarray, at: np.ndarray, ensemble:
         a = phi[b]
         w = np.linalg.solve(a.T @ a / len(b) + reg, a.T @ y[b] / len(b) + reg @ prior)
         preds[e] = phi_at @ w
+        coef += w / ensemble
+    if return_coef:
+        return preds.mean(0), preds.std(0, ddof=1), coef
     return preds.mean(0), preds.std(0, ddof=1)
 
 
 def active_fit(points: np.ndarray, losses: np.ndarray, candidates: int, ensemble: int, kappa: float,
-               power: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+               power: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One refit of the "active" proposal: ``candidates`` uniform points of the unit box [C, D] and their
     probabilities [C], proportional to exp(power (mean + kappa spread)) of the loss model's predicted log-loss
-    (``loss_model``): a resampling of uniform points, so the proposal's density follows that acquisition."""
+    (``loss_model``): a resampling of uniform points, so the proposal's density follows that acquisition; and the
+    mean model's weights (the skill gate's predictor)."""
     cand = rng.random((candidates, points.shape[1]))
-    mean, spread = loss_model(points, losses, cand, ensemble, rng)
+    mean, spread, coef = loss_model(points, losses, cand, ensemble, rng, return_coef=True)
     score = power * (mean + kappa * spread)
     w = np.exp(score - score.max())
-    return cand, w / w.sum()
+    return cand, w / w.sum(), coef
+
+
+def correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Pearson's correlation of a [N] and b [N]; 0 when either is constant (a flat prediction has no skill)."""
+    a, b = a - a.mean(), b - b.mean()
+    denom = math.sqrt(float(a @ a) * float(b @ b))
+    return float(a @ b) / denom if denom > 1e-300 else 0.0
 
 
 def _fit_plain(fit):
-    return None if fit is None else {"candidates": fit[0].tolist(), "prob": fit[1].tolist()}
+    if fit is None:
+        return None
+    return {"candidates": fit[0].tolist(), "prob": fit[1].tolist(), **({"coef": fit[2].tolist()} if len(fit) > 2 else {})}
 
 
 def _fit_array(fit, d: int):
     if fit is None:
         return None
-    return np.asarray(fit["candidates"], np.float64).reshape(-1, d), np.asarray(fit["prob"], np.float64)
+    out = (np.asarray(fit["candidates"], np.float64).reshape(-1, d), np.asarray(fit["prob"], np.float64))
+    return out + (np.asarray(fit["coef"], np.float64),) if "coef" in fit else out
 
 
 def _plain(state):

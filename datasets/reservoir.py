@@ -151,7 +151,7 @@ class ReservoirStream(IterableDataset):
                                       self.scheduler, self.inflight, self.on_blowup, self.sim_budget,
                                       propose=lambda n: self.proposal.propose(n), sample_indices=self._sample_indices,
                                       paced=self._paced)
-        self._drawn = None  # (the last batch's params tensor, its slots, their serials): where its losses go
+        self._drawn = None  # (the last batch's params tensor, its slots, their serials, first draws?, sample indices)
         self.drawn_since_insert = 0
         self.progress = StreamPosition(slots=1)  # batches handed out (one producer-side "worker": this process)
         self.t_gather = 0.0  # seconds spent gathering batches (host clock)
@@ -268,13 +268,17 @@ class ReservoirStream(IterableDataset):
                 s, w = self._draw(self.batch_size - got)
                 if not len(s):
                     break
-                parts.append((self._gather(s, w), s, self.res.serial[s].copy(), self.res.params_host[s]))
+                # fresh: the trajectory's first draw (its loss, reported after the step, measures the proposal's
+                # skill before the proposal has seen it)
+                parts.append((self._gather(s, w), s, self.res.serial[s].copy(), self.res.params_host[s],
+                              self.res.uses[s] == 1))
                 got += len(s)
             if not got:
                 return
             batch = parts[0][0] if len(parts) == 1 else {k: torch.cat([p[0][k] for p in parts]) for k in parts[0][0]}
             slots, serial = np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts])
-            self._drawn = (batch["params"], slots, serial)
+            self._drawn = (batch["params"], slots, serial, np.concatenate([p[4] for p in parts]),
+                           self.res.index[slots].copy())
             if self._where.type != "cpu":  # the host's copy of the batch's parameters, for report_losses
                 self._last = (batch["params"], torch.from_numpy(np.concatenate([p[3] for p in parts])))
             self.progress.add(0, 1)
@@ -296,7 +300,13 @@ class ReservoirStream(IterableDataset):
         if self._last is not None and params is self._last[0]:
             params = self._last[1]  # the same values, from the host: no wait for the device
         losses = per_example.detach().cpu().numpy()
-        self.proposal.record(params.detach().cpu().numpy(), losses)
+        # which rows are first draws (the proposal's skill gate scores those): known for the batch last drawn (the
+        # same tensor, or a copy moved to the model's device: the same sample indices); any other batch has none
+        fresh = np.zeros(len(losses), bool)
+        if self._drawn is not None and len(self._drawn[3]) == len(losses):
+            if batch["params"] is self._drawn[0] or np.array_equal(batch["index"].detach().cpu().numpy(), self._drawn[4]):
+                fresh = self._drawn[3]
+        self.proposal.record(params.detach().cpu().numpy(), losses, fresh=fresh)
         if self.draw == "priority":
             self._prioritize(batch, losses)
 
@@ -326,7 +336,9 @@ class ReservoirStream(IterableDataset):
                 "reuse_mean": float(counts @ np.arange(len(counts))) / total / self.per_trajectory if total else 0.0,
                 "reuse_max": float(used[-1]) / self.per_trajectory if total else 0.0,
                 "solver_traj_per_s": res.inserted / elapsed, "examples_per_s": res.drawn / elapsed,
-                "wait_share": self.t_wait / elapsed, "skipped": self.skipped}
+                "wait_share": self.t_wait / elapsed, "skipped": self.skipped,
+                **({"proposal_skill": self.proposal.skill, "proposal_steer": self.proposal.steer}
+                   if self.proposal.mode != "uniform" else {})}
 
     def report(self) -> dict:
         """What a run saves about its data: stats, reuse of every trajectory (1 = one FIFO pass), and where

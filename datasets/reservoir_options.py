@@ -27,6 +27,9 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                         "faster than training then leaves its core to training (default: solve flat out)")
     g.add_argument("--proposal-floor", type=float, default=0.25,
                    help="loss-driven sampling: share of uniform parameter draws (no region starves)")
+    g.add_argument("--proposal-gate", choices=("on", "off"), default="on",
+                   help="loss-driven and active sampling: steer only as far as the loss model's measured skill on "
+                        "fresh solves allows (no skill: uniform draws); off: always steer 1 - floor of the draws")
     g.add_argument("--proposal-ensemble", type=int, default=5, metavar="K",
                    help="active sampling: bootstrap loss models whose disagreement is the uncertainty signal (>= 2)")
     g.add_argument("--proposal-kappa", type=float, default=1.0,
@@ -60,8 +63,8 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                         "the run (raise), is redrawn (redraw) or left out with one warning line (skip)")
 
 
-RESERVOIR_OPTIONS = ("capacity", "max_reuse", "reservoir_mode", "target_reuse", "proposal_floor", "solve_batch",
-                     "warmup", "eviction", "draw", "producer", "workers", "scheduler", "proposal",
+RESERVOIR_OPTIONS = ("capacity", "max_reuse", "reservoir_mode", "target_reuse", "proposal_floor", "proposal_gate",
+                     "solve_batch", "warmup", "eviction", "draw", "producer", "workers", "scheduler", "proposal",
                      "proposal_ensemble", "proposal_kappa", "on_blowup", "priority_power", "priority_floor")
 
 
@@ -80,16 +83,17 @@ def check_priority_options(args: argparse.Namespace, used: bool, needs: str) -> 
 
 
 def check_proposal_options(args: argparse.Namespace, floor_used: bool, active_used: bool, needs: str) -> None:
-    """--proposal-floor (loss-driven and active proposals) / --proposal-ensemble, --proposal-kappa (active only) given
+    """--proposal-floor, --proposal-gate (loss-driven and active proposals) / --proposal-ensemble, --proposal-kappa (active only) given
     where nothing uses them: one line."""
-    _refuse_unused(args, {"proposal_floor": floor_used, "proposal_ensemble": active_used,
+    _refuse_unused(args, {"proposal_floor": floor_used, "proposal_gate": floor_used, "proposal_ensemble": active_used,
                           "proposal_kappa": active_used}, needs, "; nothing here uses it: drop it")
 
 
 def active_kwargs(args: argparse.Namespace) -> dict:
-    """--proposal-ensemble / --proposal-kappa as ParamProposal settings (an ensemble < 2 is refused there, in one
-    line: one model has no disagreement)."""
-    return {"ensemble": args.proposal_ensemble, "kappa": args.proposal_kappa}
+    """--proposal-ensemble / --proposal-kappa / --proposal-gate as ParamProposal settings (an ensemble < 2 is refused
+    there, in one line: one model has no disagreement)."""
+    return {"ensemble": args.proposal_ensemble, "kappa": args.proposal_kappa,
+            "gate": getattr(args, "proposal_gate", "on") == "on"}
 
 
 # trajectories per solver job by where training runs: on an H100 the FNO Burgers set-up's solver gave 179 traj/s at
@@ -121,7 +125,7 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
         raise ValueError(f"--reservoir goes with --source stream (got --source {args.source})")
     check_priority_options(args, args.draw == "priority", "--draw priority")
     check_proposal_options(args, args.proposal != "uniform", args.proposal == "active",
-                           "--proposal loss / active (--proposal-floor) or --proposal active (the others)")
+                           "--proposal loss / active (--proposal-floor, --proposal-gate) or --proposal active (the others)")
     cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,
            "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
            "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,

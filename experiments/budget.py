@@ -36,7 +36,7 @@ with the same internal step, so they are the stream's frames bit for bit), as a 
 Test sets are stratified over the parameter box (a Latin hypercube in the unit box: linear for uniform, log for
 loguniform), with ICs from a held-out seed, plus the shifted domain. Errors are per trajectory (relative L2 of
 the operator's output, or of the whole autoregressive rollout for next-step models) and reported as mean,
-p95 and max. The models are snapshotted along the run and evaluated afterwards, so evaluation never eats an
+p95, p99, CVaR_0.95 and max, with bootstrap intervals (``experiments.budget_report``, ``surrogate.tails``). The models are snapshotted along the run and evaluated afterwards, so evaluation never eats an
 arm's budget or competes with its solver. Outputs: compare.md/csv/json and compare.png.
 """
 
@@ -356,8 +356,8 @@ def run_arm(arm: str, pde, view, cfg: BudgetConfig, out: Path, tests: dict, log=
 
 # --- the comparison ----------------------------------------------------------------------------------------
 def _snapshot_curve(model, norm, view, mode, snapshots: list, tests: dict) -> list[dict]:
-    """Each snapshot (elapsed, step, state dict) loaded into ``model`` and evaluated: mean, p95 and max of the
-    per-trajectory errors on every test set."""
+    """Each snapshot (elapsed, step, state dict) loaded into ``model`` and evaluated: mean, p95, p99, CVaR_0.95 and
+    max of the per-trajectory errors on every test set."""
     curve = []
     for t, s, state in snapshots:
         model.load_state_dict(state)
@@ -399,7 +399,8 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
         for seed in range(cfg.seeds):
             rec = run_arm(arm, pde, view, cfg, out / (arm if cfg.seeds == 1 else f"{arm}_seed{seed}"), tests, log, seed)
             runs.append(rec)
-            log(f"{arm:15s} seed {seed}: test mean {rec['test_mean']:.4f} p95 {rec['test_p95']:.4f} max "
+            log(f"{arm:15s} seed {seed}: test mean {rec['test_mean']:.4f} p95 {rec['test_p95']:.4f} p99 {rec['test_p99']:.4f} "
+                f"cvar95 {rec['test_cvar95']:.4f} max "
                 f"{rec['test_max']:.4f}; {rec['steps']} steps, {rec['trajectories_solved']} trajectories, "
                 f"{rec['wall_s']:.0f} s, loop waiting for data {100 * rec['wait_share']:.0f}%")
         records.append(combine_seeds(runs))

@@ -1,5 +1,11 @@
 """compare.md, compare.csv and the verdicts of a budget-matched comparison (``experiments.budget``): one arm's
 record over seeds, the tables, the precomputed arm's sizing sentence, and the warning for arms that barely trained.
+
+Error columns, per test set (in-domain "test", "shifted"), over the per-trajectory relative L2 errors
+(``surrogate.tails``): mean, p95, p99 (numpy percentiles, linear interpolation), CVaR_0.95 ("cvar95": the mean of
+the worst ceil(0.05 N) trajectories) and max; each the mean over seeds, with a second table of 95% percentile
+bootstrap intervals over the test trajectories (1000 resamples, seed 0) and a line saying how many trajectories
+the tail figures rest on (a warning below 1024).
 """
 
 from __future__ import annotations
@@ -10,21 +16,34 @@ from pathlib import Path
 import numpy as np
 
 from pdestream import datasets
+from pdestream.surrogate.tails import METRICS, TAIL_MIN, bootstrap_intervals, rests_on, tail_note
 
 
 def combine_seeds(runs: list[dict]) -> dict:
     """One arm's record over seeds: seed 0's record (curves, plots) with every error column replaced by its mean
-    over seeds, its spread in COLUMN_std, and the per-seed values under "per_seed"."""
+    over seeds, its spread in COLUMN_std, the per-seed values and per-trajectory errors under "per_seed" (so a
+    reader can recompute every figure), and under "intervals" {COLUMN: [lo, hi]} the percentile bootstrap
+    interval of each error column over the test trajectories (``surrogate.tails.bootstrap_intervals``: BOOTSTRAP
+    resamples, a fixed seed, paired across seeds), where the runs carry their per-trajectory "errors"."""
     out = dict(runs[0])
-    out["per_seed"] = [{c: r[c] for c in (*COLUMNS, "steps", "trajectories_solved", "wall_s") if c in r} for r in runs]
+    out["per_seed"] = [{**{c: r[c] for c in (*COLUMNS, "steps", "trajectories_solved", "wall_s") if c in r},
+                        **({"errors": r["errors"]} if "errors" in r else {})} for r in runs]
     for c in COLUMNS:
         if c in out:
             values = np.array([r[c] for r in runs])
             out[c], out[c + "_std"] = float(values.mean()), float(values.std(ddof=1)) if len(values) > 1 else 0.0
+    if all("errors" in r for r in runs):
+        out["intervals"] = {}
+        for name in runs[0]["errors"]:
+            per_seed = np.array([r["errors"][name] for r in runs], np.float64)  # [S, N]
+            for m, (lo, hi) in bootstrap_intervals(per_seed, **BOOTSTRAP).items():
+                if f"{name}_{m}" in COLUMNS:
+                    out["intervals"][f"{name}_{m}"] = [lo, hi]
     return out
 
 
-COLUMNS = ("test_mean", "test_p95", "test_max", "shifted_mean", "shifted_p95", "shifted_max")
+COLUMNS = tuple(f"{name}_{m}" for name in ("test", "shifted") for m in METRICS)
+BOOTSTRAP = {"resamples": 1000, "level": 0.95, "seed": 0}  # compare.md's intervals: fixed, so a report reproduces
 
 
 def write_tables(out: Path, result: dict, pde, cfg) -> None:
@@ -32,7 +51,10 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
     rows = []
     for r in result["arms"]:
         st = r["stats"] or {}
-        rows.append({"arm": r["arm"], **{c: r[c] for c in COLUMNS if c in r}, "steps": r["steps"],
+        ci = r.get("intervals", {})
+        rows.append({"arm": r["arm"], **{c: r[c] for c in COLUMNS if c in r},
+                     **{f"{c}_{end}": ci[c][i] for c in COLUMNS if c in ci for i, end in enumerate(("lo", "hi"))},
+                     "steps": r["steps"],
                      "trajectories_solved": r["trajectories_solved"], "wall_s": round(r["wall_s"], 1),
                      "wait_share": round(r["wait_share"], 4), "reuse_mean": st.get("reuse_mean", ""),
                      "reuse_max": st.get("reuse_max", ""), "cache_bytes": r["cache_bytes"]})
@@ -47,7 +69,8 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
     lines = [f"{pde.NAME} (" + ", ".join(f"{k} ~ {v}" for k, v in pde.param_domains.items()) + f", n={pde.n}), "
              f"budget: {budget}; {cfg.model} {cfg.model_cfg}, batch {cfg.batch_size}, lr {cfg.lr}, "
              f"training loss {(cfg.mode or {}).get('loss', 'mse')}, view {datasets.make_view(cfg.view)}; errors: relative L2 per trajectory over {cfg.n_test} test "
-             "trajectories stratified over the parameter box (mean, p95, max)"
+             "trajectories stratified over the parameter box (mean, p95, p99, cvar95 = CVaR_0.95: the mean of the "
+             "worst 5%, max)"
              + (f", each the mean ± std over {cfg.seeds} seeds (steps, trajectories, wall: seed 0)"
                 if cfg.seeds > 1 else ""), "",
              "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
@@ -59,6 +82,13 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
                  f"{r['reuse_mean']:.2f}" if r["reuse_mean"] != "" else "-",
                  f"{r['reuse_max']:.2f}" if r["reuse_max"] != "" else "-"]
         lines.append("| " + " | ".join(cells) + " |")
+    lines += interval_table(result["arms"])
+    sizes = {k: len(v) for k, v in (result["arms"][0].get("errors") or {}).items()}
+    if sizes:
+        lines += ["", tail_note(sizes)]
+    gate = gate_line(result["arms"], (getattr(cfg, "proposal_kwargs", None) or {}).get("gate", True))
+    if gate:
+        lines += ["", gate]
     plan = next((a.get("precompute") for a in result["arms"] if a["arm"] == "precomputed"), None)
     if plan:
         lines += ["", precompute_line(plan, next(a for a in result["arms"] if a["arm"] == "precomputed"))]
@@ -69,6 +99,38 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
     if note:
         lines += ["", note]
     (out / "compare.md").write_text("\n".join(lines) + "\n")
+
+
+def interval_table(arms: list[dict]) -> list[str]:
+    """compare.md's second table: each error column as ``value [lo, hi]``, the 95% percentile bootstrap interval
+    over the test trajectories (``combine_seeds``'s "intervals"); [] when no arm has intervals."""
+    cols = [c for c in COLUMNS if any(c in a.get("intervals", {}) for a in arms)]
+    if not cols:
+        return []
+    b = BOOTSTRAP
+    lines = ["", f"Bootstrap intervals ({100 * b['level']:.0f}%, percentile bootstrap over the test trajectories, "
+             f"{b['resamples']} resamples, seed {b['seed']}, the same resamples for every model seed): how far each "
+             "figure could move with another test set of the same size; the seed spread is not in them.", "",
+             "| " + " | ".join(["arm", *[c.replace("_", " ") for c in cols]]) + " |", "|" + " --- |" * (len(cols) + 1)]
+    for a in arms:
+        ci = a.get("intervals", {})
+        cells = [f"{a[c]:.4f} [{ci[c][0]:.4f}, {ci[c][1]:.4f}]" if c in ci else "-" for c in cols]
+        lines.append("| " + " | ".join([a["arm"], *cells]) + " |")
+    return lines
+
+
+def gate_line(arms: list[dict], gate: bool = True) -> str:
+    """compare.md's line on the steered arms' skill gate (``datasets.proposal``) at the end of seed 0's run: the
+    measured skill and the share of steered draws it allowed (gate off: 1 - floor whatever the skill); "" when
+    no arm steers."""
+    parts = [f"{a['arm']} skill {a['stats']['proposal_skill']:.2f}, steered share {a['stats']['proposal_steer']:.2f}"
+             for a in arms if "proposal_skill" in (a.get("stats") or {})]
+    if not parts:
+        return ""
+    rule = ("steered share = (1 - floor) x clip(skill / 0.5, 0, 1)" if gate else
+            "--proposal-gate off: steered share 1 - floor whatever the skill")
+    return (f"Proposal skill gate (seed 0, at the end; {rule}; skill = the correlation of predicted and realized "
+            "log-losses of fresh solves - 2 / sqrt(n - 1)): " + "; ".join(parts) + ".")
 
 
 def precompute_line(plan: dict, record: dict) -> str:
@@ -89,8 +151,10 @@ def precompute_line(plan: dict, record: dict) -> str:
 
 def verdicts(arms: list[dict], seeds: int) -> list[str]:
     """One line per error metric: which arm has the lowest mean over seeds, by how much it beats the runner-up,
-    and whether that margin exceeds the seed spread (std of the winner + std of the runner-up)."""
+    and whether that margin exceeds the seed spread (std of the winner + std of the runner-up); a tail metric (p99,
+    cvar95, max) of a test set under TAIL_MIN trajectories says how many trajectories it rests on."""
     lines = []
+    sizes = {k: len(v) for k, v in (arms[0].get("errors") or {}).items()}
     for c in COLUMNS:
         have = sorted((a for a in arms if c in a), key=lambda a: a[c])
         if len(have) < 2:
@@ -100,11 +164,17 @@ def verdicts(arms: list[dict], seeds: int) -> list[str]:
         head = (f"{c.replace('_', ' ')}: {win['arm']} {win[c]:.4f} vs {second['arm']} {second[c]:.4f} "
                 f"(x{second[c] / max(win[c], 1e-300):.2f}, margin {margin:.4f})")
         if seeds < 2:
-            lines.append(f"{head}: one seed, no spread to judge by (--seeds 3 for a verdict)")
+            line = f"{head}: one seed, no spread to judge by (--seeds 3 for a verdict)"
         elif margin > spread:
-            lines.append(f"{head}: {win['arm']} wins, outside the seed spread {spread:.4f}")
+            line = f"{head}: {win['arm']} wins, outside the seed spread {spread:.4f}"
         else:
-            lines.append(f"{head}: within the seed spread {spread:.4f}, no clear winner")
+            line = f"{head}: within the seed spread {spread:.4f}, no clear winner"
+        name, metric = c.split("_", 1)
+        n = sizes.get(name)
+        if n is not None and n < TAIL_MIN and metric in ("p99", "cvar95", "max"):
+            line += (f" (rests on the worst {rests_on(n)[metric]} of {n} test trajectories: no tail claim below "
+                     f"{TAIL_MIN})")
+        lines.append(line)
     return lines
 
 

@@ -7,7 +7,7 @@ A test set is a list of whole-trajectory batches {"u": [B, T, C, *space], "param
   L2 norm of the error and of the truth ([N, T] each). A next-step model is rolled out autoregressively from
   the first k_in frames (by its mode: a network, or a corrected coarse solver); an operator model's one output
   counts as one frame (T = 1). Per-frame relative errors, whole-trajectory relative errors, curves and the mean,
-  p95 and max over trajectories all derive from it.
+  p95, p99, CVaR and max over trajectories all derive from it.
 - ``test_errors``: one-step errors (relative L2 and PDEBench nRMSE) over every pair of the test trajectories,
   plus the rollout curve for next-step views: what a training run reports.
 """
@@ -26,6 +26,7 @@ from .data import model_device, to_device
 from .metrics import EPS, nrmse, rel_l2
 from .modes import Mode, OneStep
 from .predict import pairs, predict
+from .tails import tail_metrics
 
 
 @dataclass(frozen=True)
@@ -50,8 +51,9 @@ class RolloutErrors:
 
 
 def error_stats(errors: np.ndarray) -> dict:
-    """mean, p95 and max over trajectories of per-trajectory errors [N]."""
-    return {"mean": float(errors.mean()), "p95": float(np.percentile(errors, 95)), "max": float(errors.max())}
+    """mean, p95, p99, CVaR_0.95 ("cvar95": the mean of the worst ceil(0.05 N)) and max over trajectories of
+    per-trajectory errors [N] (``surrogate.tails``)."""
+    return tail_metrics(errors)
 
 
 def _rolled_out(mode: Mode, model, norm: Normalization, batch: dict, view) -> tuple[torch.Tensor, torch.Tensor]:

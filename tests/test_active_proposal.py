@@ -57,7 +57,10 @@ def test_ensemble_spread_is_high_where_no_loss_was_seen_and_kappa_sends_draws_th
     assert spread[1] > 3 * spread[0]
     shares = []
     for kappa in (0.0, 4.0):
-        prop = ParamProposal({"x": ("uniform", 0.0, 1.0, ())}, mode="active", kappa=kappa, floor=0.1, refit=200, seed=0)
+        # gate off: this tests the acquisition; the losses have no structure, so the skill gate would (rightly) make
+        # both proposals uniform (test_the_gate_makes_a_proposal_without_skill_uniform)
+        prop = ParamProposal({"x": ("uniform", 0.0, 1.0, ())}, mode="active", kappa=kappa, floor=0.1, refit=200, seed=0,
+                             gate=False)
         for lo in range(0, 400, 100):
             prop.record(points[lo: lo + 100], losses[lo: lo + 100])
         prop._start_fit()  # the second fit's predecessor goes into use
@@ -107,6 +110,11 @@ def test_state_dict_round_trip_continues_the_same_proposals(tmp_path):
     again = ParamProposal(DOMAINS, mode="active", seed=0)
     again.load_state_dict(torch.load(path, weights_only=True))
     copied = copy.deepcopy(prop)  # the reservoir checks a state on a deep copy: the thread pool is not copied
+    # the skill gate's pairs travel with the state: the resumed proposal steers the same share
+    assert len(prop.skill_pred) > 32 and prop.steer > 0
+    for p in (again, copied):
+        assert np.array_equal(p.skill_pred, prop.skill_pred) and np.array_equal(p.skill_real, prop.skill_real)
+        assert p.skill == prop.skill and p.steer == prop.steer
     rng = np.random.default_rng(5)
     for _ in range(20):  # across further refits: the resumed fits follow the same sequence
         params = np.stack([np.exp(rng.uniform(np.log(0.01), np.log(0.1), 32)), np.ones(32), rng.uniform(-1, 1, 32)], 1)
@@ -116,6 +124,7 @@ def test_state_dict_round_trip_continues_the_same_proposals(tmp_path):
             p.record(params, losses)
             outs.append(p.propose(8))
         assert all(np.array_equal(o["nu"], outs[0]["nu"]) and np.array_equal(o["a"], outs[0]["a"]) for o in outs)
+        assert prop.steer == again.steer == copied.steer
     for p in (prop, again, copied):
         p.close()
     with pytest.raises(ValueError, match="proposal state has mode 'active', this proposal 'loss'"):
@@ -157,3 +166,120 @@ def test_active_reservoir_is_bit_reproducible_in_deterministic_mode():
     resumed = stream(proposal="active", proposal_kwargs={"floor": 0.3, "refit": 8})
     resumed.load_state_dict(state)
     assert len(take(resumed, 3)) == 3
+
+
+# --- the skill gate: never do harm -------------------------------------------------------------------------
+BOX = {"x": ("uniform", 0.0, 1.0, ()), "y": ("uniform", 0.0, 1.0, ())}
+
+
+def noise(z, rng):
+    return rng.lognormal(0.0, 1.0, len(z))  # i.i.d. losses, independent of the parameters: nothing to steer by
+
+
+def smooth(z, rng):
+    return np.exp(3 * np.cos(np.pi * z[:, 0])) * rng.lognormal(0.0, 0.3, len(z))  # high at x = 0, none in y
+
+
+def fed_by(loss, mode="active", gate=True, seed=0, n=4096):
+    """A proposal fed ``n`` fresh losses of its own proposals (batches of 32, as the reservoir does); returns it and
+    the steered share after each batch."""
+    prop = ParamProposal(BOX, mode=mode, seed=seed, refit=256, gate=gate)
+    rng = np.random.default_rng(seed + 100)
+    z, steer = rng.random((32, 2)), []
+    for _ in range(n // 32):
+        prop.record(z, loss(z, rng))
+        out = prop.propose(32)
+        z = np.stack([out["x"], out["y"]], 1)
+        steer.append(prop.steer)
+    return prop, steer
+
+
+def ks(u):
+    """Kolmogorov-Smirnov statistic against uniform(0, 1), times sqrt(n) (1.63: the 1% critical value)."""
+    u, n = np.sort(u), len(u)
+    i = np.arange(1, n + 1)
+    return max((i / n - u).max(), (u - (i - 1) / n).max()) * np.sqrt(n)
+
+
+def chi2(z, bins=5):
+    """Pearson's chi-square of a bins x bins histogram of z [N, 2] against uniform (24 dof: 43.0 at 1%)."""
+    h = np.histogram2d(z[:, 0], z[:, 1], bins=bins, range=[[0, 1], [0, 1]])[0].ravel()
+    return float(((h - len(z) / bins**2) ** 2 / (len(z) / bins**2)).sum())
+
+
+@pytest.mark.parametrize("mode", ["active", "loss"])
+def test_the_gate_makes_a_proposal_without_skill_uniform(mode):
+    prop, steer = fed_by(noise, mode)
+    assert len(prop.skill_pred) == 256 and prop.skill < 0.05 and prop.steer == 0.0
+    assert np.mean(steer) < 0.02 and max(steer) < 0.2  # uniform throughout, bar a rare blip of chance skill
+    out = prop.propose(20000)
+    z = np.stack([out["x"], out["y"]], 1)
+    assert ks(z[:, 0]) < 1.63 and ks(z[:, 1]) < 1.63 and chi2(z) < 43.0
+    # without the gate the same proposal steers by a loss model of noise: its draws are far from uniform
+    ungated, _ = fed_by(noise, mode, gate=False)
+    out = ungated.propose(20000)
+    z = np.stack([out["x"], out["y"]], 1)
+    assert max(ks(z[:, 0]), ks(z[:, 1])) > 1.63 and chi2(z) > 100.0
+
+
+@pytest.mark.parametrize("mode", ["active", "loss"])
+def test_the_gate_opens_on_skill_and_the_draws_go_where_the_loss_is_high(mode):
+    prop, steer = fed_by(smooth, mode)
+    assert prop.skill > 0.6 and prop.steer == steer[-1] == 1.0 - prop.floor
+    out = prop.propose(20000)
+    assert (out["x"] < 0.2).mean() > 0.35  # uniform: 0.2
+    assert abs((out["y"] < 0.2).mean() - 0.2) < 0.03  # y carries no loss: left uniform
+
+
+def test_the_steered_share_rule():
+    prop = ParamProposal(BOX, mode="active", floor=0.2, skill_full=0.5, skill_min=8)
+    assert prop.skill == 0.0 and prop.steer == 0.0  # nothing measured: uniform
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=400)
+    for r, expected in ((0.3, None), (0.95, 0.8)):
+        prop.skill_pred, prop.skill_real = x, r * x + np.sqrt(1 - r**2) * rng.normal(size=400)
+        skill = np.corrcoef(prop.skill_pred, prop.skill_real)[0, 1] - 2 / np.sqrt(399)
+        assert prop.skill == pytest.approx(skill)
+        assert prop.steer == pytest.approx(expected if expected is not None else 0.8 * skill / 0.5)
+    assert ParamProposal(BOX, mode="active", floor=0.2, gate=False).steer == pytest.approx(0.8)
+    assert ParamProposal(BOX, mode="uniform").steer == 0.0
+    with pytest.raises(ValueError, match="proposal skill_full=0 not allowed"):
+        ParamProposal(BOX, skill_full=0)
+
+
+def test_the_reservoir_scores_only_first_draws():
+    s = stream(proposal="loss", proposal_kwargs={"floor": 0.5}, max_reuse=4)
+    seen, marks = set(), []
+    record = s.proposal.record
+
+    def spy(params, losses, fresh=None):
+        marks.append(fresh.copy())
+        record(params, losses, fresh=fresh)
+
+    s.proposal.record = spy
+    for batch in torch.utils.data.DataLoader(s, batch_size=None):
+        index = batch["index"].tolist()
+        s.report_losses(batch, torch.ones(len(index), dtype=torch.float64))
+        assert marks[-1].tolist() == [i not in seen for i in index]
+        seen.update(index)
+        if len(marks) == 30:
+            break
+    s.close()
+    fresh = np.concatenate(marks)
+    assert 0 < fresh.sum() < len(fresh)  # trajectories come back (reuse) and are not scored again
+    assert set(s.stats()) >= {"proposal_skill", "proposal_steer"}
+
+
+def test_a_state_saved_before_the_gate_loads_with_the_gate_closed():
+    prop, _ = fed_by(smooth, n=1024)
+    old = prop.state_dict()
+    for key in ("skill_pred", "skill_real"):
+        del old[key]
+    for key in ("fit", "next_fit"):
+        old[key] = {k: v for k, v in old[key].items() if k != "coef"}  # fits had no mean weights then
+    again = ParamProposal(BOX, mode="active", seed=0, refit=256)
+    again.load_state_dict(old)
+    assert len(again.skill_pred) == 0 and again.steer == 0.0 and again.predict(np.zeros((1, 2))) is None
+    out = again.propose(100)
+    assert np.isfinite(out["x"]).all()
+    prop.close()

@@ -31,7 +31,8 @@ def test_stratified_test_set_puts_one_sample_in_every_stratum():
 
 
 def test_error_stats():
-    assert error_stats(np.array([1.0, 2.0, 3.0, 4.0])) == {"mean": 2.5, "p95": pytest.approx(3.85), "max": 4.0}
+    assert error_stats(np.array([1.0, 2.0, 3.0, 4.0])) == {"mean": 2.5, "p95": pytest.approx(3.85),
+                                                          "p99": pytest.approx(3.97), "cvar95": 4.0, "max": 4.0}
 
 
 def test_sim_budget_gives_every_arm_the_same_solves(tmp_path):
@@ -47,15 +48,28 @@ def test_sim_budget_gives_every_arm_the_same_solves(tmp_path):
     # FIFO uses each solve once: 16 trajectories x 4 windows... operator view: 16 examples = 2 batches of 8
     assert arms["fifo"]["steps"] == 2
     for r in arms.values():
-        assert {"test_mean", "test_p95", "test_max", "shifted_mean"} <= set(r)
-        assert r["test_mean"] <= r["test_p95"] <= r["test_max"] and len(r["errors"]["test"]) == 8
+        assert {"test_mean", "test_p95", "test_p99", "test_cvar95", "test_max", "shifted_mean", "shifted_p99",
+                "shifted_cvar95"} <= set(r)
+        assert r["test_mean"] <= r["test_p95"] <= r["test_p99"] <= r["test_max"] and len(r["errors"]["test"]) == 8
+        assert r["test_p95"] <= r["test_cvar95"] <= r["test_max"] and set(r["intervals"]) == {
+            f"{s}_{m}" for s in ("test", "shifted") for m in ("mean", "p95", "p99", "cvar95", "max")}
         assert [p["step"] for p in r["curve"]] == sorted(p["step"] for p in r["curve"])
     for name in ("compare.md", "compare.csv", "compare.json", "compare.png"):
         assert (tmp_path / name).stat().st_size > 0
     table = (tmp_path / "compare.md").read_text()
-    assert table.count("\n| ") == 6 and "16 solved trajectories and 12 optimizer steps per arm" in table
+    # two tables (the figures, their bootstrap intervals): header + separator + 4 arms each
+    assert table.count("\n| ") == 12 and "16 solved trajectories and 12 optimizer steps per arm" in table
+    assert "| arm | test mean | test p95 | test p99 | test cvar95 | test max | shifted mean |" in table
+    assert "Bootstrap intervals (95%, percentile bootstrap over the test trajectories, 1000 resamples, seed 0" in table
+    assert "**Too few test trajectories for a tail claim** (test, shifted)" in table
+    assert "test: 8 trajectories, p99 rests on the worst 2, CVaR_0.95 on the worst 1, max on 1" in table
+    assert "test p99: " in table and "(rests on the worst 2 of 8 test trajectories: no tail claim below 1024)" in table
     saved = json.loads((tmp_path / "compare.json").read_text())
     assert saved["param_names"] == ["nu"] and len(saved["test_params"]["test"]) == 8
+    for arm in saved["arms"]:  # the per-trajectory errors every figure comes from, per seed
+        assert len(arm["per_seed"][0]["errors"]["test"]) == 8 and len(arm["per_seed"][0]["errors"]["shifted"]) == 8
+    header = (tmp_path / "compare.csv").read_text().splitlines()[0].split(",")
+    assert {"test_p99", "test_cvar95", "shifted_p99", "test_p99_lo", "test_p99_hi"} <= set(header)
 
 
 class FakeClock:
@@ -191,6 +205,8 @@ def test_verdicts_weigh_the_margin_against_the_seed_spread():
      "--priority-cap=0.5 not allowed; must be a number >= 1"),
     (["--sim-budget", "16", "--arms", "reservoir_priority", "--priority-floor", "0"],
      "priority_floor=0.0 not allowed; must be in (0, 1] (the uniform share of draws)"),
+    (["--sim-budget", "16", "--arms", "fifo,reservoir", "--proposal-gate", "off"],
+     "--proposal-gate goes with the arms reservoir_loss / reservoir_active (--proposal-floor, --proposal-gate)"),
     (["--sim-budget", "16", "--arms", "reservoir,reservoir_active", "--proposal-ensemble", "1"],
      "proposal ensemble=1 not allowed; must be an integer >= 2 (the uncertainty signal is the disagreement of its members)"),
 ])
