@@ -1,7 +1,7 @@
 """Interactive training modes compared at equal optimizer steps: rollout error against time per mode.
 
-Network modes (``one-step``, ``pushforward``, ``oracle``, ``noise``): the same model, from the same initial weights, trained
-on the same stream (next-step windows of the PDE) for the same number of steps, each with its own mode
+Network modes (``one-step``, ``pushforward``, ``oracle``, ``noise``): the same model, from the same initial
+weights, trained on the same stream (next-step windows of the PDE) for the same number of steps, each with its own mode
 (``surrogate.modes``); then rolled out autoregressively from the first frame of held-out trajectories (a Latin
 hypercube over the parameter box, ICs from a held-out seed: ``budget.stratified_test_set``) over all their
 frames. Reported per mode: relative L2 per frame (mean over trajectories), the error at the last frame (mean,
