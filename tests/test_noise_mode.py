@@ -210,3 +210,10 @@ def test_cli_train_records_the_noise_and_compare_lists_a_noise_arm(tmp_path, cap
     arms = json.loads((cmp / "compare.json").read_text())["arms"]
     assert [(a["arm"], a.get("noise")) for a in arms] == [("one-step", None), ("noise", 0.05)]
     assert arms[1]["steps"] == 20 and all(v == v for v in arms[1]["curve"])
+
+
+def test_cli_refuses_noise_on_a_steady_entry_in_one_line(tmp_path, capsys):
+    rc = cli.main(["train", "darcy2d", "--set", "n=17", "--mode", "noise", "--steps", "2", "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "--mode noise perturbs input frames and darcy2d is steady" in err, err
+    assert list(tmp_path.iterdir()) == []
