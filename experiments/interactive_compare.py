@@ -109,10 +109,11 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
         for name in net_modes:
             settings = _settings(cfg, name)
             arms.append(_train_arm(name, pde, settings, test, cfg, out / name, log))
-    if sitl:
+    if sitl and not (net_modes and fine is pde):  # (the network modes' test set is the fine one: not solved twice)
         with phase(f"building the fine test set ({cfg.n_test} trajectories, n={fine.n})", total=cfg.n_test,
                    solves=-(-cfg.n_test // 32)):  # stratified_test_set's chunks of 32
             test = stratified_test_set(fine, cfg.n_test, cfg.seed)
+    if sitl:
         k = _settings(cfg, "solver-in-the-loop")["unroll"]
         coarse = make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)
         t0 = time.perf_counter()
