@@ -233,6 +233,9 @@ def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
     g.add_argument("--coarse-n", type=int, metavar="N",
                    help=f"{takes('coarse_n')}: grid of the coarse solver, a divisor of the fine n "
                         f"(default {DEFAULTS['coarse_n']})")
+    g.add_argument("--noise", metavar="SIGMA",  # checked by the mode table (one line for a bad value)
+                   help=f"{takes('noise')}: std of the input noise on the newest input frame, a fraction of the "
+                        f"data's std (a number >= 0; default {DEFAULTS['noise']})")
 
 
 def add_train(sub) -> None:
@@ -336,7 +339,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
         test_samples=args.test_samples, checkpoint_every=args.checkpoint_every, ddp=args.ddp, model=args.model,
         model_cfg=parse_sets(args.model_set), view=args.view, k_in=args.k_in, k_out=args.k_out, steps=args.steps,
         batch_size=args.batch_size, lr=args.lr, schedule=args.schedule, threads=args.threads, device=args.device,
-        mode=args.mode, loss=args.loss, unroll=args.unroll, coarse_n=args.coarse_n,
+        mode=args.mode, loss=args.loss, unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise,
         solver_workers=args.solver_workers, solver_timeout=args.solver_timeout)
     cfg.check()  # its own values first (a cache with --ddp is named as such, not as a cache with --reservoir)
     cfg.reservoir = reservoir_cfg(args)
@@ -365,7 +368,7 @@ def compare_command(args: argparse.Namespace) -> CompareCommand:
         model=args.model, model_cfg=parse_sets(args.model_set), view=args.view, k_in=args.k_in, k_out=args.k_out,
         steps=args.steps, batch_size=args.batch_size, lr=args.lr, threads=args.threads, device=args.device,
         modes=None if args.modes is None else tuple(args.modes.split(",")), fine_n=args.fine_n, loss=args.loss,
-        unroll=args.unroll, coarse_n=args.coarse_n, reservoir=reservoir)
+        unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise, reservoir=reservoir)
 
 
 def cmd_compare(args: argparse.Namespace) -> None:

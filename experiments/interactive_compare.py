@@ -1,7 +1,7 @@
 """Interactive training modes compared at equal optimizer steps: rollout error against time per mode.
 
-Network modes (``one-step``, ``pushforward``, ``oracle``): the same model, from the same initial weights, trained
-on the same stream (next-step windows of the PDE) for the same number of steps, each with its own mode
+Network modes (``one-step``, ``pushforward``, ``oracle``, ``noise``): the same model, from the same initial
+weights, trained on the same stream (next-step windows of the PDE) for the same number of steps, each with its own mode
 (``surrogate.modes``); then rolled out autoregressively from the first frame of held-out trajectories (a Latin
 hypercube over the parameter box, ICs from a held-out seed: ``budget.stratified_test_set``) over all their
 frames. Reported per mode: relative L2 per frame (mean over trajectories), the error at the last frame (mean,
@@ -33,7 +33,7 @@ from pdestream.surrogate.checkpoint import load_checkpoint
 from pdestream.surrogate.checks import check_count, check_number
 from pdestream.surrogate.data import check_device
 from pdestream.surrogate.evaluate import error_stats, rollout_errors
-from pdestream.surrogate.mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, NETWORK_MODES, mode_settings
+from pdestream.surrogate.mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, NETWORK_MODES, check_noise, mode_settings
 from pdestream.surrogate.modes import make_mode
 from pdestream.surrogate.phases import phase
 from pdestream.surrogate.runs import train_run
@@ -45,7 +45,8 @@ from .rollout_figure import plot_rollouts
 @dataclass
 class InteractiveConfig:
     """What every arm shares. unroll: k of pushforward, oracle and solver-in-the-loop (sitl_unroll overrides the
-    last); coarse_n / fine_n: the solver-in-the-loop grids (fine_n None: the PDE's n)."""
+    last); coarse_n / fine_n: the solver-in-the-loop grids (fine_n None: the PDE's n); noise: the noise arm's
+    std as a fraction of the data's std (``surrogate.modes.Noise``)."""
 
     modes: tuple = NETWORK_MODES
     unroll: int = DEFAULTS["unroll"]
@@ -60,6 +61,7 @@ class InteractiveConfig:
     n_test: int = 32
     coarse_n: int = DEFAULTS["coarse_n"]
     fine_n: int | None = None
+    noise: float = DEFAULTS["noise"]
     device: str = "cpu"
 
     def check(self, pde) -> None:
@@ -69,6 +71,7 @@ class InteractiveConfig:
             raise ValueError(f"--modes {','.join(self.modes)} not allowed; choose from {', '.join(MODE_NAMES)}")
         for name in self.modes:
             _settings(self, name)
+        self.noise = check_noise(self.noise)  # a bad --noise is refused even without the noise arm
         for name, value in (("--steps", self.steps), ("--batch-size", self.batch_size), ("--test-samples", self.n_test),
                             ("--k-in", self.k_in)):
             check_count(name, value)
@@ -83,7 +86,7 @@ def _settings(cfg: InteractiveConfig, name: str, **override) -> dict:
     """Mode ``name``'s settings in this comparison: the config's unroll (sitl_unroll for solver-in-the-loop) and
     coarse grid where the mode takes them (the mode table decides), ``override`` on top."""
     unroll = cfg.sitl_unroll if name == "solver-in-the-loop" and cfg.sitl_unroll else cfg.unroll
-    given = {"unroll": unroll, "coarse_n": cfg.coarse_n, **override}
+    given = {"unroll": unroll, "coarse_n": cfg.coarse_n, "noise": cfg.noise, **override}
     return mode_settings(name, **{k: v for k, v in given.items() if k in MODE_SPECS[name].settings})
 
 
@@ -106,10 +109,11 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
         for name in net_modes:
             settings = _settings(cfg, name)
             arms.append(_train_arm(name, pde, settings, test, cfg, out / name, log))
-    if sitl:
+    if sitl and not (net_modes and fine is pde):  # (the network modes' test set is the fine one: not solved twice)
         with phase(f"building the fine test set ({cfg.n_test} trajectories, n={fine.n})", total=cfg.n_test,
                    solves=-(-cfg.n_test // 32)):  # stratified_test_set's chunks of 32
             test = stratified_test_set(fine, cfg.n_test, cfg.seed)
+    if sitl:
         k = _settings(cfg, "solver-in-the-loop")["unroll"]
         coarse = make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)
         t0 = time.perf_counter()
@@ -170,6 +174,8 @@ def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: Interacti
         errors = rollout_errors(model, norm, test, datasets.NextStep(cfg.k_in, 1), mode).relative()  # [N, T - k_in]
     rec = _record(label, settings["name"], errors, summary["wall"], summary, settings.get("coarse_n", pde.n))
     rec["unroll"] = settings.get("unroll", 1)
+    if "noise" in settings:
+        rec["noise"] = settings["noise"]
     rec["mode_stats"] = summary.get("mode_stats", {})
     log(f"{label:32s} end error mean {rec['end_mean']:.4f} p95 {rec['end_p95']:.4f} max {rec['end_max']:.4f}; "
         f"rollout mean {rec['rollout_mean']:.4f}; train loss {summary['final_loss']:.3g}; {summary['wall']:.0f} s")
@@ -196,9 +202,11 @@ def _write_tables(out: Path, result: dict, pde, cfg: InteractiveConfig) -> None:
         writer.writeheader()
         writer.writerows(rows)
     frames = result["arms"][0]["frames"]
+    noise = (f", noise: input noise of std {cfg.noise:g} x the data's std on the newest frame, clean targets"
+             if "noise" in cfg.modes else "")
     lines = [f"{pde.NAME} ({', '.join(f'{k} ~ {v}' for k, v in pde.param_domains.items())}), {cfg.model} "
              f"{cfg.model_cfg}, {cfg.steps} optimizer steps x batch {cfg.batch_size} per trained arm, lr {cfg.lr}, "
-             f"unroll {cfg.unroll}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "
+             f"unroll {cfg.unroll}{noise}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "
              f"(Latin hypercube over the parameters), rolled out {frames} frames from the first; end: the last "
              "frame (mean, p95, max over trajectories); rollout mean: over all frames and trajectories; wall: "
              "training time of the arm (solver calls included)", "",
@@ -210,7 +218,7 @@ def _write_tables(out: Path, result: dict, pde, cfg: InteractiveConfig) -> None:
                      f"{r['rollout_mean']:.4f} | {r['wall_s']:.0f} | {r['steps']} | {loss} |")
     by = {a["mode"]: a for a in result["arms"] if a["mode"] in NETWORK_MODES}
     if "one-step" in by:
-        for name in ("pushforward", "oracle"):
+        for name in ("pushforward", "oracle", "noise"):
             if name in by:
                 lines.append(f"\n{name}: end error {by['one-step']['end_mean'] / by[name]['end_mean']:.2f}x lower "
                              "than one-step (>1: better)")
@@ -238,7 +246,8 @@ def plot(path: Path, result: dict) -> None:
     for ax, group in zip(axes[0], groups):
         for a in group:
             t = dt * (1 + np.arange(a["frames"]))
-            k = f", k={a['unroll']}" if a["mode"] in ("pushforward", "oracle") else ""
+            k = f", k={a['unroll']}" if a["mode"] in ("pushforward", "oracle") else \
+                f", sigma={a['noise']:g}" if a["mode"] == "noise" else ""
             ax.plot(t, a["curve"], label=f"{a['arm']}{k} (end {a['end_mean']:.3f})")
         ax.set(yscale="log", xlabel="time (rolled out from t=0)", ylabel="relative L2 error (mean over trajectories)")
         fine = result["fine_pde"]["n"] if result["fine_pde"] else None

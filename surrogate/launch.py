@@ -110,7 +110,7 @@ def mode_settings(cfg: TrainConfig) -> dict:
     take (surrogate.mode_table.mode_settings); k_out is checked with the view (surrogate.modes)."""
     from pdestream.surrogate import mode_table
 
-    settings = mode_table.mode_settings(cfg.mode, unroll=cfg.unroll, coarse_n=cfg.coarse_n)
+    settings = mode_table.mode_settings(cfg.mode, unroll=cfg.unroll, coarse_n=cfg.coarse_n, noise=cfg.noise)
     return settings if cfg.loss == "mse" else {**settings, "loss": cfg.loss}
 
 
@@ -128,7 +128,8 @@ def check_new(cfg: TrainConfig, ranks: int):
         raise FileNotFoundError(f"--source {cfg.source}: no such cache (or use --source stream)")
     pde = build_pde(cfg.pde, cfg.settings)
     if pde.STEADY and cfg.mode != "one-step":  # the modes' own refusal would send the user to --view next_step
-        raise ValueError(f"--mode {cfg.mode} unrolls over frames and {pde.NAME} is steady (no frames); allowed: "
+        verb = "perturbs input frames" if cfg.mode == "noise" else "unrolls over frames"
+        raise ValueError(f"--mode {cfg.mode} {verb} and {pde.NAME} is steady (no frames); allowed: "
                          "--mode one-step")
     cfg.check()
     return pde, held
@@ -328,7 +329,7 @@ def train_rank(rank: int, ranks: int, cfg: TrainConfig, tmp: str, env: dict) -> 
 def run_report(s: dict, model: str, source: str, n_test: int, out) -> str:
     """The lines that say what a run did: steps, time and its waiting share, test errors, the reservoir's counts."""
     mode = s.get("mode") or {"name": "one-step"}
-    shown = {k: v for k, v in mode.items() if k != "name"}  # (unroll, coarse_n, loss when not mse)
+    shown = {k: v for k, v in mode.items() if k not in ("name", "rule")}  # (unroll, coarse_n, noise, loss when not mse)
     how = f" ({', '.join(f'{k} {v}' for k, v in shown.items())})" if shown else ""
     if mode["name"] != "one-step":
         how = f" --mode {mode['name']}{how}"

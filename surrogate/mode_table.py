@@ -7,11 +7,13 @@ user gave (the CLI, a config, run.json) into a mode's complete settings or one l
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 
 from .checks import check_count
 
-DEFAULTS = {"unroll": 4, "coarse_n": 64}  # a setting's default for every mode that takes it
+DEFAULTS = {"unroll": 4, "coarse_n": 64, "noise": 0.01}  # a setting's default for every mode that takes it
 
 
 @dataclass(frozen=True)
@@ -34,10 +36,16 @@ MODE_SPECS = {spec.name: spec for spec in (
              "train on states the network reaches in 0..K steps, labelled by the solver"),
     ModeSpec("solver-in-the-loop", ("unroll", "coarse_n"), False,
              "a correction network on a coarse differentiable solver, unrolled K steps, against the fine solve"),
+    ModeSpec("noise", ("noise",), True,
+             "Gaussian noise on the input frames (random walk, the newest frame's std SIGMA x the data's std), "
+             "target the clean next frames (Sanchez-Gonzalez et al. 2020)"),
 )}
 MODE_NAMES = tuple(MODE_SPECS)
 NETWORK_MODES = tuple(name for name, spec in MODE_SPECS.items() if spec.network)
-OPTION = {"unroll": "--unroll", "coarse_n": "--coarse-n"}  # how the CLI spells each setting
+# run.json's words for the noise mode's rule (``surrogate.modes.Noise``), beside its scale
+NOISE_RULE = ("x + eps, eps a Gaussian random walk over the k_in input frames whose newest frame has std noise x the "
+              "data's std per channel (frame j of k_in: noise x sqrt(j / k_in)); target the clean next k_out frames")
+OPTION = {"unroll": "--unroll", "coarse_n": "--coarse-n", "noise": "--noise"}  # how the CLI spells each setting
 
 
 def takes(setting: str) -> str:
@@ -60,5 +68,23 @@ def mode_settings(name: str, **given) -> dict:
             raise ValueError(f"{OPTION[key]}={value} goes with {takes(key)}, not {name}")
     out = {"name": name}
     for key in spec.settings:
-        out[key] = check_count(OPTION[key], DEFAULTS[key] if given.get(key) is None else given[key])
+        value = DEFAULTS[key] if given.get(key) is None else given[key]
+        out[key] = check_noise(value) if key == "noise" else check_count(OPTION[key], value)
     return out
+
+
+def check_noise(value) -> float:
+    """The noise scale as a float: a finite number >= 0 (a fraction of the data's std; the CLI passes the text
+    as typed, "0.05"), else one line naming the value and what is allowed."""
+    if isinstance(value, str):
+        try:
+            number = float(value)
+        except ValueError:
+            number = None
+    else:
+        number = value
+    if (isinstance(number, bool) or not isinstance(number, numbers.Real) or not math.isfinite(number)
+            or number < 0):
+        raise ValueError(f"--noise={value!r} not allowed; must be a finite number >= 0: the std of the input noise "
+                         f"as a fraction of the data's std (e.g. {DEFAULTS['noise']}; 0: no noise)")
+    return float(number)

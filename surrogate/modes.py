@@ -19,6 +19,9 @@ per-mode branches:
 - ``SolverInTheLoop(k, coarse_n)``: a correction network applied after each step of a coarse differentiable
   solver (``datasets.SolverStep`` on a coarse grid of the same PDE), unrolled k steps with gradients through
   the solver; the target is the fine solve of the same sample, subsampled (Um et al. 2020).
+- ``Noise(sigma)``: one-step training on perturbed inputs (Sanchez-Gonzalez et al. 2020, "Learning to simulate
+  complex physics with graph networks"): Gaussian noise on the input frames, the target the clean next frames,
+  so the network learns to undo an error in its input as well as to advance it (the error a rollout feeds it).
 
 Modes that unroll predict one frame per network call and read ``frames_ahead`` frames from a next-step view
 (``training_view`` sets k_out to that). All of them work in normalized units (``datasets.Normalization``).
@@ -28,7 +31,7 @@ is small (a decayed flow), while the relative L2 the evaluation reports weighs e
 taken in normalized units: "relative" is the evaluation's physical relative L2 for fields whose normalization
 mean is about zero (velocities, vorticity, deviations); for a field with a large offset its denominator is the
 deviation from that offset, not the field.
-Randomness (pushforward's n, the oracle's j) is a pure function of (seed, step), so a resumed run draws what the
+Randomness (pushforward's n, the oracle's j, the noise) is a pure function of (seed, step), so a resumed run draws what the
 uninterrupted one drew.
 """
 
@@ -45,7 +48,7 @@ from pdestream import datasets
 from pdestream.datasets.normalize import Normalization
 
 from ..boundaries import kinds, periodic_words
-from .mode_table import DEFAULTS, MODE_NAMES, mode_settings
+from .mode_table import DEFAULTS, MODE_NAMES, NOISE_RULE, mode_settings
 from .predict import model_channels, net_step, pairs, predict, relative_errors, rollout, stack_frames
 
 LOSSES = ("mse", "relative")
@@ -442,21 +445,102 @@ class SolverInTheLoop:
         return pred[:, 0], truth[:, 0]
 
 
-MODES = {cls.name: cls for cls in (OneStep, Pushforward, Oracle, SolverInTheLoop)}  # one per MODE_SPECS row
+def random_walk(seed: int, step: int, shape: tuple, sigma: float) -> torch.Tensor:
+    """The noise of optimizer step ``step``, float32 CPU ``shape`` = [B, k_in, C, *space]: a random walk over the
+    k_in frames (oldest first) whose increments are N(0, sigma^2 / k_in), so frame j = 1..k_in has std
+    sigma * sqrt(j / k_in) and the newest frame std sigma; independent across examples, channels and points. A pure
+    function of (seed, step): a resumed run draws what the uninterrupted one drew."""
+    gen = torch.Generator().manual_seed(seed * 1_000_003 + step)
+    steps = torch.randn(shape, generator=gen) * (sigma / shape[1] ** 0.5)
+    return steps.cumsum(dim=1)
+
+
+@dataclass
+class Noise:
+    """One-step training on noisy inputs (Sanchez-Gonzalez et al. 2020, "SGGP+20").
+
+    The rule, in normalized units (``datasets.Normalization``: each channel's std is 1, so ``noise`` = sigma is
+    the fraction of the data's std per channel): the input window x = [x_{t-k_in+1}, ..., x_t] becomes x + eps,
+    eps a random walk over the frames (``random_walk``): increments N(0, sigma^2 / k_in) per frame, so the newest
+    frame x_t carries std sigma and frame j (1 = oldest) std sigma * sqrt(j / k_in), as SGGP+20 accumulate their
+    noise over the input sequence so that its last step has the stated std. k_in = 1: eps ~ N(0, sigma^2).
+    The target is corrected for the perturbation: the network outputs states, not increments, so the target that
+    SGGP+20's correction gives (the one that lands on the true next state from the noisy input) is the clean
+    next frames y = [x_{t+1}, ..., x_{t+k_out}], every one of the k_out frames unchanged; the network learns to
+    remove eps while it advances the state, the error its own rollout will feed it. (The uncorrected target
+    y + eps_t would teach it to carry the error along.)
+    Channels that are geometry, not state (a flow's obstacle mask: ``FIELD_LOCATIONS`` "mask") get no noise.
+    The noise is a pure function of (seed, optimizer step). noise = 0 trains exactly as ``OneStep``.
+    Needs a next-step view (any k_in, any k_out); the rollout and one-step evaluation are one-step's.
+    """
+
+    noise: float = DEFAULTS["noise"]
+    seed: int = 0
+    keep: tuple[bool, ...] | None = None  # per channel: perturbed (False: a mask channel, left as it is)
+    loss: str = "mse"
+    unroll: ClassVar[int] = 1
+    name: ClassVar[str] = "noise"
+
+    def settings(self) -> dict:
+        return _with_loss({"name": self.name, "noise": self.noise, "rule": NOISE_RULE}, self.loss)
+
+    def bind(self, pde, seed: int = 0) -> "Noise":
+        """seed: the run's seed (the noise draws); the PDE's mask channels are left unperturbed."""
+        where = getattr(pde, "FIELD_LOCATIONS", {}) or {}
+        self.seed, self.keep = seed, tuple(where.get(f) != "mask" for f in pde.FIELDS)
+        return self
+
+    def frames_ahead(self, view) -> int:
+        return view.frames_out
+
+    def train_view(self, view):
+        if view.rollout_k_in is None:
+            raise ValueError(f"--mode noise perturbs the input frames of the next_step view, not {view.name!r}; use "
+                             "--view next_step")
+        return view
+
+    def channels(self, pde, view) -> tuple[int, int]:
+        return model_channels(pde, view)
+
+    def perturbation(self, step: int, x: torch.Tensor) -> torch.Tensor:
+        """eps for the normalized window x [B, k_in, C, *space] at optimizer step ``step`` (x's device and dtype)."""
+        eps = random_walk(self.seed, step, tuple(x.shape), self.noise).to(device=x.device, dtype=x.dtype)
+        if self.keep is not None and not all(self.keep):
+            keep = torch.tensor(self.keep, dtype=x.dtype, device=x.device)
+            eps = eps * keep.reshape(-1, *([1] * (x.ndim - 3)))
+        return eps
+
+    def step_loss(self, model, batch, norm, step):
+        x = norm.of_x.normalize(batch["x"])  # [B, k_in, C, *space]
+        if self.noise > 0:
+            x = x + self.perturbation(step, x)
+        target = stack_frames(norm.of_y.normalize(batch["y"]), model.ndim)  # the clean frames: [B, k_out*C, *space]
+        pred = model(stack_frames(x, model.ndim), norm.normalize_params(batch["params"]))
+        return objective(self.loss, pred, target), relative_errors(pred, target)
+
+    def rollout(self, model, norm, u, params, k_in):
+        return _net_rollout(model, norm, u, params, k_in)
+
+    def one_step(self, model, norm, batch, view):
+        return _net_one_step(model, norm, batch, view)
+
+
+MODES = {cls.name: cls for cls in (OneStep, Pushforward, Oracle, SolverInTheLoop, Noise)}  # one per MODE_SPECS row
 assert tuple(MODES) == MODE_NAMES
 
 
-def check_mode_settings(name: str, unroll: int | None = None, coarse_n: int | None = None) -> None:
-    """ValueError (one line) naming a bad mode name, unroll or coarse grid (``mode_table.mode_settings``)."""
-    mode_settings(name, unroll=unroll, coarse_n=coarse_n)
+def check_mode_settings(name: str, unroll: int | None = None, coarse_n: int | None = None, noise=None) -> None:
+    """ValueError (one line) naming a bad mode name, unroll, coarse grid or noise (``mode_table.mode_settings``)."""
+    mode_settings(name, unroll=unroll, coarse_n=coarse_n, noise=noise)
 
 
 def make_mode(settings: dict | None) -> Mode:
-    """The mode of run.json's "mode" settings ({"name", "unroll", "coarse_n", "loss"}; None: one-step; a setting left
+    """The mode of run.json's "mode" settings ({"name", "unroll", "coarse_n", "noise", "loss"}; None: one-step; a setting left
     out: its default, ``mode_table.DEFAULTS``), not yet bound to a PDE: ``mode.bind(pde, seed)`` gives it its
     solver. ValueError (one line) for a bad name or setting."""
     s = dict(settings or {"name": "one-step"})
     loss = s.pop("loss", "mse")
+    s.pop("rule", None)  # the noise mode's rule in words (run.json), not a setting
     if loss not in LOSSES:
         raise ValueError(f"--loss={loss!r} not allowed; allowed: {', '.join(LOSSES)}")
     s = mode_settings(s.pop("name", "one-step"), **s)

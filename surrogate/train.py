@@ -177,7 +177,7 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
     dict (``load_train_state``) to continue from, with the same model architecture, loader and steps; the
     result is the uninterrupted run's, bit for bit on the CPU. finish: ``finish(model, normalizer) -> dict``,
     merged into the summary before metrics.json is written (e.g. test errors). mode: how a batch becomes a
-    loss (``surrogate.modes``: one-step, pushforward, oracle, solver-in-the-loop; None: one-step).
+    loss (``surrogate.modes``: one-step, pushforward, oracle, solver-in-the-loop, noise; None: one-step).
     started: ``time.perf_counter()`` when the run's clock started (default: now), for a ``Stop(seconds=)``
     that counts what the caller did before (solving a cache). after_step: ``after_step(step, fraction,
     elapsed)`` after every optimizer step (fraction: of the run done, ``Stop.fraction``), e.g. to snapshot the

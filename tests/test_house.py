@@ -189,7 +189,9 @@ def test_a_mode_owns_its_settings_defaults_and_cli_choices():
     train = next(a for a in cli.build_parser()._subparsers._group_actions[0].choices["train"]._actions
                  if a.dest == "mode")
     assert tuple(train.choices) == MODE_NAMES
-    assert make_mode({"name": "solver-in-the-loop"}).settings() == {"name": "solver-in-the-loop", **DEFAULTS}
+    assert make_mode({"name": "solver-in-the-loop"}).settings() == {
+        "name": "solver-in-the-loop", "unroll": DEFAULTS["unroll"], "coarse_n": DEFAULTS["coarse_n"]}
+    assert make_mode({"name": "noise"}).settings()["noise"] == mode_settings("noise")["noise"] == DEFAULTS["noise"]
     assert make_mode({"name": "pushforward"}).settings() == mode_settings("pushforward") == {
         "name": "pushforward", "unroll": DEFAULTS["unroll"]}
     with pytest.raises(ValueError, match="--coarse-n=8 goes with solver-in-the-loop, not pushforward"):
