@@ -139,6 +139,9 @@ def test_a_sample_alone_has_the_outputs_it_has_in_the_batch(karman):
     alone = generator.sample(pde, [1], seed=0, params={k: v[1] for k, v in GIVEN.items()})
     for name in pde.OUTPUTS:
         assert np.array_equal(np.asarray(alone.outputs[name][0]), np.asarray(traj.outputs[name][1])), name
+    from pdestream.generator.flow.problem import _outputs_program
+
+    assert _outputs_program(pde)._cache_size() == 1  # other parameters and batch sizes: the same program
 
 
 @pytest.mark.slow
