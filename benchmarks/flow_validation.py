@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from pdestream.generator.flow import Geometry, Params, initial_state, run, run_batch, step
+from pdestream.generator.flow.forces import body_force  # the library's force (karman2d's drag and lift)
 
 
 def iterations(grids=((64, 32), (128, 64), (256, 128)), tol=1e-5):
@@ -114,26 +115,6 @@ def cavity(n=64, t_end=20.0, advection="maccormack"):
     print(f"  v(x) on y = 0.5: max |dev| {np.max(np.abs(dv)):.4f}, rms {np.sqrt(np.mean(np.square(dv))):.4f}; "
           f"v_max {vc.max():.4f} (Ghia 0.17527), v_min {vc.min():.4f} (Ghia -0.24533)")
     return du, dv
-
-
-def body_force(geom, solid, state, nu):
-    """Force on the masked body per unit depth and density (Fx, Fy) [m^3/s^2]: pressure on each fluid-solid
-    cell face (the fluid cell's p, h wide) plus wall shear nu du/dn over the half cell between the fluid cell's
-    centre velocity and the no-slip face. A staircase surface: first order in h."""
-    f = 1.0 - solid.astype(state.p.dtype)
-    sol = 1.0 - f
-    p, h = state.p, geom.h
-    uc = 0.5 * (state.u[:, 1:] + state.u[:, :-1])
-    vc = 0.5 * (state.v[1:] + state.v[:-1])
-    left = f[:, :-1] * sol[:, 1:]   # fluid cell (i) left of solid (i+1): pushes the body in +x
-    right = sol[:, :-1] * f[:, 1:]
-    below = f[:-1] * sol[1:]
-    above = sol[:-1] * f[1:]
-    fx = h * (jnp.sum(left * p[:, :-1]) - jnp.sum(right * p[:, 1:]))
-    fy = h * (jnp.sum(below * p[:-1]) - jnp.sum(above * p[1:]))
-    fx = fx + 2 * nu * (jnp.sum(below * uc[:-1]) + jnp.sum(above * uc[1:]))
-    fy = fy + 2 * nu * (jnp.sum(left * vc[:, :-1]) + jnp.sum(right * vc[:, 1:]))
-    return fx, fy
 
 
 def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack"):

@@ -66,7 +66,8 @@ def _joined(traj, concat, convert):
 
 def trajectory_tensors(traj) -> dict:
     """generator.Trajectory -> {"u": [B, T, C, *space] (steady PDEs: [B, C_in + C, *space], see
-    ``sample_channels``), "t": [T], "params": [B, P], "index": [B]} (torch).
+    ``sample_channels``), "t": [T], "params": [B, P], "index": [B]} (torch), and one key per output the PDE
+    declares (``Problem.OUTPUTS``: [B, *dims], e.g. karman2d's "drag" [B, T], "sdf" [B, nx, ny], "developed" [B]).
 
     Parameter columns follow the PDE's PARAMS order; "param_names" lists them.
     """
@@ -85,6 +86,7 @@ def trajectory_tensors(traj) -> dict:
         "params": params,
         "index": torch.from_numpy(np.asarray(traj.indices, dtype=np.int64)),
         "param_names": names,
+        **{k: torch.from_numpy(np.array(v)) for k, v in traj.outputs.items()},
     }
 
 
@@ -164,16 +166,19 @@ def cancel_solves_on(event) -> None:
     cancel_on(event)
 
 
-def sample_numpy(pde, indices, seed: int = 0, on_blowup: str = "raise", params: dict | None = None):
+def sample_numpy(pde, indices, seed: int = 0, on_blowup: str = "raise", params: dict | None = None,
+                 with_outputs: bool = False):
     """``generator.sample`` as numpy: (u float32 [B, T, C, *space] (steady PDEs: [B, C_in + C, *space], see
-    ``sample_channels``), {param: float32 [B]}, redraws int64 [B])."""
+    ``sample_channels``), {param: float32 [B]}, redraws int64 [B]), and with ``with_outputs`` the problem's
+    per-sample outputs {name: [B, *dims]} (``Problem.OUTPUTS``) as a fourth item."""
     import numpy as np
 
     from pdestream import generator
 
     traj = generator.sample(pde, indices, seed, on_blowup=on_blowup, params=params)
     u = _joined(traj, np.concatenate, np.asarray)
-    return u, {k: np.asarray(v) for k, v in traj.params.items()}, np.asarray(traj.redraws)
+    out = (u, {k: np.asarray(v) for k, v in traj.params.items()}, np.asarray(traj.redraws))
+    return (*out, {k: np.asarray(v) for k, v in traj.outputs.items()}) if with_outputs else out
 
 
 def solve_job(config: dict, seed: int, indices, params: dict | None = None, on_blowup: str = "raise",

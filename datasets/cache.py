@@ -256,22 +256,27 @@ def _mib(n: int) -> str:
 
 def solve_block(pde, seed: int, lo: int, hi: int, block: int, on_blowup: str):
     """Samples lo..hi-1 solved as one batch padded to ``block`` (one compile for every block):
-    (u float32 [hi-lo, T, C, *space], {param: float32 [hi-lo]}, redraws int8 [hi-lo]) as numpy."""
+    (u float32 [hi-lo, T, C, *space], {param: float32 [hi-lo]}, redraws int8 [hi-lo], {output: [hi-lo, ...]})
+    as numpy (the outputs: the problem's OUTPUTS, empty where it declares none)."""
     from ._bridge import sample_numpy
 
     idx = np.minimum(np.arange(lo, lo + block), hi - 1)  # pad by repeating the last index
-    u, params, redraws = sample_numpy(pde, idx, seed, on_blowup)
+    u, params, redraws, outputs = sample_numpy(pde, idx, seed, on_blowup, with_outputs=True)
     return (u[: hi - lo], {k: v[: hi - lo] for k, v in params.items()},
-            np.minimum(redraws[: hi - lo], 127).astype(np.int8))
+            np.minimum(redraws[: hi - lo], 127).astype(np.int8), {k: v[: hi - lo] for k, v in outputs.items()})
 
 
-def write_block(store, pde, lo: int, hi: int, u, params, redraws) -> None:
-    """Write one block's data, then its ``complete`` flags (the flags vouch for data already written)."""
+def write_block(store, pde, lo: int, hi: int, u, params, redraws, outputs=None) -> None:
+    """Write one block's data, then its ``complete`` flags (the flags vouch for data already written).
+    outputs: {name: [hi-lo, *dims]} of the problem's OUTPUTS (a "space" one in the generator's axis order)."""
     axis = u.ndim - pde.NDIM - 1  # the channel axis: [B, T, C, *space], or [B, C_in + C, *space] when steady
     for c, name in enumerate((*pde.INPUTS, *pde.FIELDS)):  # datasets._bridge.sample_channels
         store[name][lo:hi] = schema.to_disk(np.take(u, c, axis=axis), pde.NDIM)  # stored (z,) y, x: see datasets.schema
     for name, values in params.items():
         store[name][lo:hi] = values
+    for name, out in getattr(pde, "OUTPUTS", {}).items():
+        values = np.asarray(outputs[name]).astype(out.dtype)
+        store[name][lo:hi] = schema.to_disk(values, pde.NDIM) if out.dims == "space" else values
     store["redraws"][lo:hi] = redraws
     store.flush()  # data reaches the file before the flags that vouch for it
     store["complete"][lo:hi] = np.ones(hi - lo, np.int8)

@@ -42,6 +42,24 @@ def field_stats(ds, name: str, rows: np.ndarray, block: int = 64) -> dict:
     return {"mean": float(mean[0]), "std": float(np.sqrt(var[0])), "min": lo, "max": hi, "damaged": damaged}
 
 
+def output_line(ds, name: str, rows: np.ndarray) -> tuple[str, np.ndarray]:
+    """One line on a per-sample output over samples ``rows``: a 0/1 flag's count, else mean / std / min / max
+    with its dims and units; and the rows whose values are non-finite (a written output is always finite)."""
+    var = ds[name]
+    values = var.values[rows]
+    finite = np.isfinite(values.reshape(len(rows), -1)).all(1) if len(rows) else np.zeros(0, bool)
+    values = values[finite]
+    dims = ", ".join(var.dims)
+    if "flag_values" in var.attrs:
+        return f"  output {name}: {int((values == 1).sum())} of {len(values)} samples  ({var.attrs.get('long_name', '')})", \
+            rows[~finite]
+    units = var.attrs.get("units", "1")
+    if not values.size:
+        return f"  output {name} [{units}] ({dims}): (none written)", rows[~finite]
+    return (f"  output {name} [{units}] ({dims}): mean {values.mean():.4g}  std {values.std():.4g}  "
+            f"min {values.min():.4g}  max {values.max():.4g}"), rows[~finite]
+
+
 def boundary_line(attrs: dict, ndim: int) -> str:
     """'x dirichlet (wall), y periodic (periodic)': each space axis's boundary condition and The Well's word."""
     bcs = schema.cache_boundaries(attrs, ndim)
@@ -87,6 +105,10 @@ def summary(path) -> str:
             s = field_stats(ds, name, rows)
             damaged.update(s["damaged"])
             lines.append(f"  field {name}: mean {s['mean']:.4g}  std {s['std']:.4g}  min {s['min']:.4g}  max {s['max']:.4g}")
+        for name in str(a.get("pdestream_outputs", "")).split():  # the PDE's per-sample outputs (PDE.OUTPUTS)
+            line, bad = output_line(ds, name, rows)
+            damaged.update(bad)
+            lines.append(line)
         if damaged:
             idx = [int(i) for i in ds["sample"].values[sorted(damaged)]]
             shown = ", ".join(map(str, idx[:8])) + (f", ... ({len(idx)} in all)" if len(idx) > 8 else "")

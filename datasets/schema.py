@@ -9,8 +9,12 @@ Readable by plain xarray (``xr.open_dataset(path, engine="h5netcdf")``, ``xr.ope
     coords       time [T] float32, x [n], y [n], z [n] float32 (cell-left points), sample [N] int64 (global
                  index), one float32 [sample] per PDE parameter (units, long_name), redraws int8 [sample]
                  (blow-up redraws used), complete int8 [sample] (1 once the sample is written)
+    outputs      one per declared per-sample output (PDE.OUTPUTS, e.g. karman2d's drag, lift, sdf, strouhal,
+                 developed): float32 or int8 (a 0/1 flag) over [sample], [sample, time] or [sample, (z,) (y,) x]
+                 (per sample, per frame, or a static field), with long_name and units; listed in the attribute
+                 pdestream_outputs
     attributes   pde, equation, pdestream_config (full resolved config, JSON), pdestream_config_hash,
-                 pdestream_fields, pdestream_params (names in PDE order, space-separated),
+                 pdestream_fields, pdestream_params, pdestream_outputs (names in PDE order, space-separated),
                  pdestream_seed, pdestream_n_samples, pdestream_block, pdestream_on_blowup,
                  pdestream_version, jax_version, jax_threefry_partitionable, pdestream_numerics, pdestream_schema,
                  pdestream_complete (0 until every block is written; set last)
@@ -69,6 +73,7 @@ class Layout:
     fields: dict[str, dict]  # name -> attrs, float32 over field_dims
     field_dims: tuple[str, ...]
     attrs: dict = field(default_factory=dict)
+    outputs: dict[str, tuple[tuple[str, ...], str, dict]] = field(default_factory=dict)  # name -> (dims, dtype, attrs)
 
 
 def package_version() -> str:
@@ -101,7 +106,8 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
     per_sample = {name: ("float32", {"long_name": p.description, "units": p.units,
                                      "domain": str(getattr(pde, name))})
                   for name, p in pde.PARAMS.items()}
-    taken = {*coords, *pde.INPUTS, *pde.FIELDS, "redraws", "complete"}
+    declared = getattr(pde, "OUTPUTS", {})
+    taken = {*coords, *pde.INPUTS, *pde.FIELDS, *declared, "redraws", "complete"}
     clash = sorted(set(pde.PARAMS) & taken)
     if clash:  # (a user's parameter "x" made Zarr fail with "array exists at path 'x'" half-way through the write)
         raise ValueError(f"{pde.NAME}: parameter(s) {clash} would be stored under a name the cache already uses; "
@@ -114,6 +120,13 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
     units = getattr(pde, "FIELD_UNITS", {})
     fields = {f: {"long_name": f, "coordinates": link, **({"units": units[f]} if f in units else {})}
               for f in (*pde.INPUTS, *pde.FIELDS)}
+    outputs = {}
+    for name, out in declared.items():  # a problem's per-sample outputs (generator.problem.Output)
+        extra = {"": (), "time": time, "space": space}[out.dims]
+        attrs = {"long_name": out.description, "units": out.units}
+        if out.dtype == "int8":
+            attrs.update(flag_values=[0, 1], flag_meanings="no yes")
+        outputs[name] = (("sample", *extra), out.dtype, attrs)
     attrs = {
         "Conventions": "CF-1.10",
         "title": f"pdestream cache: {pde.NAME}, samples 0..{n_samples - 1}, seed {seed}",
@@ -129,6 +142,7 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
         "sides": " ".join(f"{k}={v}" for k, v in zip(("left", "right", "bottom", "top"), getattr(pde.grid, "sides", ()))),
         "pdestream_inputs": " ".join(pde.INPUTS),  # a steady PDE's input fields (variables too), else empty
         "pdestream_params": " ".join(pde.PARAMS),  # parameter coordinates, in PDE.PARAMS order
+        "pdestream_outputs": " ".join(declared),  # per-sample outputs (PDE.OUTPUTS order), variables too
         "pdestream_seed": int(seed),
         "pdestream_n_samples": int(n_samples),
         "pdestream_block": int(block),
@@ -138,7 +152,7 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
         "pdestream_schema": SCHEMA_VERSION,
         "pdestream_complete": 0,
     }
-    return Layout(dims, coords, per_sample, fields, ("sample", *time, *space), attrs)
+    return Layout(dims, coords, per_sample, fields, ("sample", *time, *space), attrs, outputs)
 
 
 def boundaries(pde) -> tuple[str, ...]:
@@ -220,7 +234,9 @@ def hdf5_bytes(lay: Layout) -> int:
     """The bytes of the arrays of ``lay`` in an HDF5 cache (all allocated at creation)."""
     field = int(np.prod([lay.dims[d] for d in lay.field_dims])) * 4
     sample = sum(np.dtype(dtype).itemsize for dtype, _ in lay.per_sample.values()) * lay.dims["sample"]
-    return field * len(lay.fields) + sample + sum(data.nbytes for _, data, _ in lay.coords.values())
+    outputs = sum(np.dtype(dtype).itemsize * int(np.prod([lay.dims[d] for d in dims]))
+                  for dims, dtype, _ in lay.outputs.values())
+    return field * len(lay.fields) + sample + outputs + sum(data.nbytes for _, data, _ in lay.coords.values())
 
 
 def cache_bytes(pde, n_samples: int) -> int:
@@ -245,6 +261,8 @@ def create_hdf5(path: str, lay: Layout) -> None:
             f.create_variable(name, ("sample",), dtype, dcpl=_early_dcpl(zero)).attrs.update(attrs)
         for name, attrs in lay.fields.items():
             f.create_variable(name, lay.field_dims, "float32", dcpl=_early_dcpl()).attrs.update(attrs)
+        for name, (dims, dtype, attrs) in lay.outputs.items():
+            f.create_variable(name, dims, dtype, dcpl=_early_dcpl(dtype == "int8")).attrs.update(attrs)
         f.attrs.update(lay.attrs)
         f.close()
     except BaseException:
@@ -286,6 +304,11 @@ def create_zarr(path: str, lay: Layout, block: int) -> None:
         group.create_array(name, shape=shape, dtype="float32", chunks=(chunk, *shape[1:]), fill_value=np.nan,
                            compressors=ZstdCodec(level=1, checksum=True), dimension_names=lay.field_dims,
                            attributes=attrs)
+    for name, (dims, dtype, attrs) in lay.outputs.items():
+        shape = tuple(lay.dims[d] for d in dims)
+        chunk = chunk_samples(np.dtype(dtype).itemsize * int(np.prod(shape[1:])), block)
+        group.create_array(name, shape=shape, dtype=dtype, chunks=(chunk, *shape[1:]),
+                           fill_value=np.nan if dtype == "float32" else 0, dimension_names=dims, attributes=attrs)
     consolidate(path)
 
 

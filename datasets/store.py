@@ -47,13 +47,14 @@ class CacheSettings:
     params: tuple[str, ...]
     provenance: dict
     inputs: tuple[str, ...] = ()
+    outputs: tuple[str, ...] = ()  # the PDE's per-sample outputs (PDE.OUTPUTS), each a variable
 
     @classmethod
     def of(cls, pde, n_samples: int, seed: int, block: int, on_blowup: str, provenance: dict) -> CacheSettings:
         """The settings of a new cache of ``pde`` (a generator PDE)."""
         return cls(pde.config(), pde.config_hash(), int(seed), int(n_samples), int(block), on_blowup,
                    tuple(pde.FIELDS), tuple(pde.PARAMS), {**provenance, "pdestream_schema": schema.SCHEMA_VERSION},
-                   tuple(getattr(pde, "INPUTS", ())))
+                   tuple(getattr(pde, "INPUTS", ())), tuple(getattr(pde, "OUTPUTS", {})))
 
     @classmethod
     def from_attrs(cls, attrs, path) -> CacheSettings:
@@ -87,12 +88,14 @@ class CacheSettings:
             provenance={k: plain(attrs.get(k)) for k in PROVENANCE},
             inputs=tuple(plain(attrs.get("pdestream_inputs", "")).split())
             if isinstance(plain(attrs.get("pdestream_inputs", "")), str) else (),
+            outputs=tuple(plain(attrs.get("pdestream_outputs", "")).split())  # absent in caches before them
+            if isinstance(plain(attrs.get("pdestream_outputs", "")), str) else (),
         )
 
     @property
     def variables(self) -> tuple[str, ...]:
-        """Every per-sample data variable: the input fields (steady PDEs), the fields, the parameters."""
-        return (*self.inputs, *self.fields, *self.params)
+        """Every per-sample data variable: the input fields (steady PDEs), the fields, the parameters, the outputs."""
+        return (*self.inputs, *self.fields, *self.params, *self.outputs)
 
     def differences(self, other: CacheSettings) -> list[str]:
         """What differs from ``other`` that makes samples differ, as "name: cache X vs asked Y" (self: the cache)."""

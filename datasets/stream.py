@@ -182,8 +182,11 @@ class TrajectoryStream(IterableDataset):
                 pos = 0
                 while pos < len(traj):
                     take = min(self.batch_size - filled, len(traj) - pos)
-                    pieces.append(gather(self.view, data["u"], data["t"], data["params"], data["index"],
-                                         traj[pos : pos + take], start[pos : pos + take]))
+                    piece = gather(self.view, data["u"], data["t"], data["params"], data["index"],
+                                   traj[pos : pos + take], start[pos : pos + take])
+                    for name in getattr(self.pde, "OUTPUTS", {}):  # the sample's outputs, whole (drag [T], sdf)
+                        piece[name] = data[name][traj[pos : pos + take]]
+                    pieces.append(piece)
                     pos, filled = pos + take, filled + take
                     if filled == self.batch_size:
                         yield self._emit(pieces, wid, in_main)
@@ -211,7 +214,8 @@ class TrajectoryStream(IterableDataset):
         # each index once (the padding repeats them), in order; with on_blowup="skip" the failed ones are gone
         _, first = np.unique(data["index"].numpy(), return_index=True)
         rows = torch.from_numpy(np.sort(first))
-        data = {k: (v[rows] if k in ("u", "params", "index") else v) for k, v in data.items()}
+        rowwise = ("u", "params", "index", *getattr(self.pde, "OUTPUTS", {}))
+        data = {k: (v[rows] if k in rowwise else v) for k, v in data.items()}
         indices = data["index"].numpy()
         traj, start = [], []
         for b, i in enumerate(indices):

@@ -43,6 +43,28 @@ class Param:
     positive: bool = False
 
 
+# Where an Output's values lie (its dims after the sample's): one per sample, one per frame, one per grid point.
+OUTPUT_DIMS = ("", "time", "space")
+
+
+@dataclass(frozen=True)
+class Output:
+    """A per-sample variable a problem computes beside its fields (``Problem.OUTPUTS``, ``Problem.outputs``): what
+    it means, its units, ``dims`` (one of OUTPUT_DIMS: "" one value per sample, "time" one per frame [T],
+    "space" one per grid point [*space], constant in time) and ``dtype`` ("float32", or "int8" for a 0/1 flag).
+    Stored as a cache variable of that name, handed out as a stream key, listed by ``pdestream inspect``."""
+
+    description: str
+    units: str = "1"
+    dims: str = ""
+    dtype: str = "float32"
+
+    def __post_init__(self):
+        if self.dims not in OUTPUT_DIMS or self.dtype not in ("float32", "int8"):
+            raise ValueError(f"Output dims={self.dims!r}, dtype={self.dtype!r}: allowed dims {OUTPUT_DIMS}, "
+                             "dtypes float32 / int8")
+
+
 class Problem(Protocol):
     """What every problem offers its users (sampler, stream, cache, oracle, CLI).
 
@@ -86,6 +108,12 @@ class Problem(Protocol):
 
     def failure_causes(self) -> list[str]: ...  # why each sample of this thread's last run_keys failed ('' if not)
 
+    # OUTPUTS {name: Output}: per-sample variables beside the fields (forces, distances, flags); ``outputs``
+    # computes them from the final samples u [B, ...] and params {name: [B]}: {name: [B, *dims]} ({} if none)
+    OUTPUTS: Mapping[str, Output]
+
+    def outputs(self, u: jax.Array, params: Mapping[str, jax.Array]) -> dict[str, jax.Array]: ...
+
 
 def draw_params(problem, key: jax.Array) -> dict[str, jax.Array]:
     """One draw of every parameter from its domain: {name: float32 scalar}."""
@@ -112,6 +140,8 @@ class ProblemBase(abc.ABC):
     PARAMS: ClassVar[dict[str, Param]] = {}
     STEADY: ClassVar[bool] = False
     INPUTS: ClassVar[tuple[str, ...]] = ()
+    # Per-sample variables computed beside the fields ({name: Output}; see ``outputs``). Empty: none.
+    OUTPUTS: ClassVar[Mapping[str, Output]] = {}
     IC_KINDS: ClassVar[Mapping[str, type]] = IC_KINDS  # the ic kinds this problem takes
     # Where each field lives when not at the grid's points (a staggered grid): {field: location}, locations
     # "face_x" / "face_y" (on the cell's lower face along that axis), "centre" (cell average), "mask" (a cell set,
@@ -158,6 +188,11 @@ class ProblemBase(abc.ABC):
         """Why each sample of this thread's last ``run_keys`` failed, one line each ('' where it did not); empty:
         the family has no per-sample cause (a NaN/Inf is its only failure, said by ``failure``)."""
         return []
+
+    def outputs(self, u: jax.Array, params: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
+        """The OUTPUTS of samples u [B, ...] with parameters params {name: [B]}: {name: [B, *dims]} in OUTPUTS
+        order, a pure function of each sample (its bits do not depend on its batch). None declared: {}."""
+        return {}
 
     def check_settings(self) -> None:  # noqa: B027 (an optional hook: most problems have nothing more to check)
         """Subclass hook: refuse values of the problem's own settings (types and finiteness are already checked)."""

@@ -53,7 +53,9 @@ class Trajectory:
     u: float32 [B, T, C, *space] (jax array), or [B, C, *space] for a steady PDE (``pde.STEADY``: no time
     axis, t is empty); t: float32 [T]; params: {name: float32 [B]}; indices: int64 [B] global sample indices
     (None for ``solve``); redraws: int [B] blow-up redraws used; inputs: float32 [B, C_in, *space], the
-    random input fields ``pde.INPUTS`` of a steady PDE (darcy2d's coefficient a), else None.
+    random input fields ``pde.INPUTS`` of a steady PDE (darcy2d's coefficient a), else None; outputs:
+    {name: [B, *dims]}, the problem's per-sample variables ``pde.OUTPUTS`` (forces, distances, flags) of these
+    samples ({} where it declares none).
     """
 
     u: jax.Array
@@ -64,6 +66,7 @@ class Trajectory:
     redraws: np.ndarray | None = field(default=None)
     inputs: jax.Array | None = None
     skipped: tuple[str, ...] = ()  # on_blowup="skip": one line per sample left out (index, params, cause)
+    outputs: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.u.shape[0])
@@ -167,14 +170,17 @@ def sample(
         params = {k: v.at[sel].set(p2[k][: bad.size]) for k, v in params.items()}
         redraws[bad] = attempt
         bad = bad[~np.asarray(f2[: bad.size])]
-    if bad.size and on_blowup == "skip":
-        return _skipping(pde, u, params, idx, redraws, inputs, bad, causes)
-    if bad.size:
+    if bad.size and on_blowup != "skip":
         detail = "; ".join(_failed(pde.NAME, idx[b], causes[b], params, b) for b in bad[:5])
         hint = "" if on_blowup == "redraw" else " (on_blowup='redraw' draws replacements, 'skip' leaves them out)"
         what, remedy = pde.failure()
         raise BlowUpError(f"{pde.NAME}: {bad.size} of {len(idx)} {what}: {detail}{hint}; {remedy}")
-    return Trajectory(u=u, t=pde.times(), params=params, pde=pde, indices=idx, redraws=redraws, inputs=inputs)
+    # the per-sample outputs of the final samples (after redraws): a pure function of each sample's u and params
+    outputs = pde.outputs(u, params) if getattr(pde, "OUTPUTS", None) else {}
+    if bad.size:
+        return _skipping(pde, u, params, idx, redraws, inputs, bad, causes, outputs)
+    return Trajectory(u=u, t=pde.times(), params=params, pde=pde, indices=idx, redraws=redraws, inputs=inputs,
+                      outputs=outputs)
 
 
 def warn_skipped(lines) -> None:
@@ -200,14 +206,14 @@ def _failed(name: str, index: int, cause: str, params: dict, b: int) -> str:
     return f"index {index}: " + ", ".join(f"{k}={float(v[b]):.4g}" for k, v in params.items())
 
 
-def _skipping(pde, u, params, idx, redraws, inputs, bad, causes) -> Trajectory:
+def _skipping(pde, u, params, idx, redraws, inputs, bad, causes, outputs) -> Trajectory:
     """on_blowup="skip": the Trajectory of the samples that did not fail, with one line per failure."""
     lines = tuple(f"{pde.NAME}: skipped sample {_failed(pde.NAME, idx[b], causes[b], params, b)}" for b in bad)
     keep = np.setdiff1d(np.arange(len(idx)), bad)
     sel = jnp.asarray(keep)
     return Trajectory(u=u[sel], t=pde.times(), params={k: v[sel] for k, v in params.items()}, pde=pde,
                       indices=idx[keep], redraws=redraws[keep], inputs=None if inputs is None else inputs[sel],
-                      skipped=lines)
+                      skipped=lines, outputs={k: v[sel] for k, v in outputs.items()})
 
 
 def solve(pde: PDE | str, u0, params: Mapping[str, float | Sequence[float]]) -> Trajectory:

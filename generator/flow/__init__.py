@@ -29,7 +29,8 @@ API (geom is static, params traced: changing Reynolds number, inflow, lid or cir
     sb = run_batch(geom, Params(nu=1e-3, inflow=jnp.array([0.5, 1.0])), dt, 100)  # bit-identical per sample
 
 Modules: grid (Geometry, Params, obstacle masks, face coefficients), pressure (multigrid-preconditioned CG),
-batch (run_batch: lax.map over fixed chunks, batch-invariant bits), step (advection, viscosity, buoyancy, projection, step/run, derived fields).
+batch (run_batch: lax.map over fixed chunks, batch-invariant bits), step (advection, viscosity, buoyancy, projection, step/run, derived fields),
+forces (body force and C_d / C_l, signed distance to a circle, shedding detection: karman2d's per-sample outputs).
 """
 
 from .batch import run_batch

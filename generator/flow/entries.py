@@ -17,7 +17,8 @@ import jax
 import jax.numpy as jnp
 
 from ..domains import Fixed
-from ..problem import Param
+from ..problem import Output, Param
+from . import forces
 from .grid import Params
 from .problem import FlowProblem
 
@@ -37,7 +38,17 @@ FLOW_UNITS = {"u": "m/s", "v": "m/s", "p": "m^2/s^2"}
 class Karman2D(FlowProblem):
     """Flow past a cylinder in a channel: parabolic (or blunter) inflow on the left, outflow on the right, no-slip
     walls at the bottom and top. Re = U D / nu with U the mean inflow speed and D = 2 radius; a vortex street
-    forms for Re above ~47. The cylinder sits off the centre line at random, which starts the shedding early."""
+    forms for Re above ~47. The cylinder sits off the centre line at random, which starts the shedding early.
+
+    Outputs beside the fields (``OUTPUTS``, computed from each stored frame in JAX by ``sample_outputs``):
+    ``drag`` and ``lift`` [T], C_d, C_l = 2 (Fx, Fy) / (U^2 D) with F the force per unit depth and density on the
+    masked cylinder, a surface integral of pressure and wall shear over its staircase faces
+    (``generator.flow.forces.body_force``, first order in h), U the mean inflow speed (``speed``: Schaefer and
+    Turek's U_mean) and D = 2 radius; ``sdf`` [nx, ny], the exact signed distance of each cell centre to the
+    circle (m, negative inside: solid == sdf < 0); ``strouhal``, ``sheds``, ``developed``, ``lift_amplitude``,
+    ``lift_drift``: ``forces.shedding`` of the lift over the stored window (St = f D / U from the lift's mean
+    crossings; developed: the fitted amplitude drifts < 2% over 3 periods and the window holds 3; a sample that
+    does not shed has sheds = 0 and St = amplitude = drift = 0, never NaN)."""
 
     NAME: ClassVar[str] = "karman2d"
     EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u, div u = 0; cylinder in a channel, "
@@ -65,6 +76,36 @@ class Karman2D(FlowProblem):
     cy: Any = "uniform(0.42, 0.58)"
     speed: Any = Fixed(1.0)
     plug: Any = "uniform(0, 0.3)"
+
+    OUTPUTS: ClassVar[dict] = {
+        "drag": Output("drag coefficient C_d = 2 Fx / (U^2 D) on the cylinder (U mean inflow, D diameter; pressure "
+                       "and wall shear over the mask's faces)", "1", "time"),
+        "lift": Output("lift coefficient C_l = 2 Fy / (U^2 D) on the cylinder", "1", "time"),
+        "sdf": Output("signed distance of the cell centre to the cylinder's surface (negative inside)", "m", "space"),
+        "strouhal": Output("Strouhal number f D / U of the lift over the stored window (0 where sheds = 0)", "1"),
+        "sheds": Output("1 where the lift oscillates (>= 3 mean crossings, amplitude >= "
+                        f"{forces.MIN_LIFT_AMPLITUDE:g}), else 0", "1", "", "int8"),
+        "developed": Output(f"1 where the shedding is developed: the lift amplitude drifts < {forces.MAX_DRIFT:.0%} "
+                            f"over {forces.DRIFT_PERIODS} periods, and the window holds that many", "1", "", "int8"),
+        "lift_amplitude": Output("fitted lift amplitude at the window's middle (0 where sheds = 0)", "1"),
+        "lift_drift": Output(f"relative change of the lift amplitude over {forces.DRIFT_PERIODS} periods "
+                             "(0 where sheds = 0)", "1"),
+    }
+
+    def sample_outputs(self, frames: jax.Array, p: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
+        geom = self.grid.geometry()
+        fp = self.flow_params(p, None)
+        diameter, speed = 2 * p["radius"], p["speed"]
+        solid = frames[0, self.FIELDS.index("solid")].T > 0.5
+
+        def coefficients(frame):
+            fx, fy = forces.body_force(geom, solid, self.state_of(frame, fp), fp.nu)
+            return jnp.stack(forces.force_coefficients(fx, fy, speed, diameter))
+
+        cd, cl = jax.lax.map(coefficients, frames).T
+        st, sheds, developed, amp, drift = forces.shedding(cl, jnp.asarray(self.times()), diameter, speed)
+        return {"drag": cd, "lift": cl, "sdf": forces.circle_distance(geom, p["cx"], p["cy"], p["radius"]).T,
+                "strouhal": st, "sheds": sheds, "developed": developed, "lift_amplitude": amp, "lift_drift": drift}
 
     def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array | None) -> Params:
         nu = p["speed"] * 2 * p["radius"] / p["re"]

@@ -262,6 +262,22 @@ class FlowProblem(ProblemBase):
             fp = fp._replace(mask=frame[self.FIELDS.index("solid")].T > 0.5)
         return fp
 
+    def sample_outputs(self, frames: jax.Array, p: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
+        """Subclass hook: the OUTPUTS of one sample, frames [T, C, nx, ny] and parameters p {name: scalar},
+        traced: {name: array [*dims]} (an entry that declares OUTPUTS defines it)."""
+        raise NotImplementedError(f"{self.NAME} declares no per-sample outputs")
+
+    def outputs(self, u: jax.Array, params: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
+        """The OUTPUTS of samples u [B, T, C, nx, ny] (params {name: [B]}): ``sample_outputs`` of each sample in
+        one compiled per-sample program inside jax.lax.map over chunks of CHUNK rows (padded), so a sample's
+        outputs have the same bits alone and in any batch; {} where the entry declares none."""
+        if not self.OUTPUTS:
+            return {}
+        cols = [jnp.asarray(params[name], jnp.float32) for name in self.PARAMS]
+        parts = [_outputs_program(self)(*part) for part in split([jnp.asarray(u), *cols], CHUNK)]
+        out = join(parts, int(u.shape[0]))
+        return {name: out[name] for name in self.OUTPUTS}  # OUTPUTS order (a pytree's dict comes back sorted)
+
     def advance_frames(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int):
         """Frames u [B, C, nx, ny] advanced ``frames`` frame intervals: (u_k, finite [B]) (generator.interactive)."""
         return interactive.advance(self, u, params, frames)
@@ -345,6 +361,19 @@ def _advance(advance, state, fp, op, dt: float, n_steps: int, per_step: int, cou
         if count is not None:
             count.add(k)
     return state
+
+
+@functools.lru_cache(maxsize=16)
+def _outputs_program(problem: FlowProblem):
+    """(u [K, T, C, nx, ny], *params [K]) -> {name: [K, *dims]}: ``sample_outputs`` one row at a time."""
+    names = list(problem.PARAMS)
+
+    def one(row):
+        frames, *values = row
+        out = problem.sample_outputs(frames, dict(zip(names, values)))
+        return {name: out[name].astype(spec.dtype) for name, spec in problem.OUTPUTS.items()}
+
+    return jax.jit(lambda u, *cols: jax.lax.map(one, (u, *cols)))
 
 
 @functools.lru_cache(maxsize=16)
