@@ -97,7 +97,8 @@ class BudgetConfig:
     precompute_share: float | None = None  # budget_s: share of the budget spent solving (None: precompute_size)
     capacity: int = RESERVOIR.capacity
     max_reuse: float = RESERVOIR.max_reuse
-    target_reuse: float | None = RESERVOIR.target_reuse  # time budget: pace the reservoirs' solver (None: solve flat out)
+    target_reuse: float | str | None = RESERVOIR.target_reuse  # time budget: the reservoirs' solver pace ("auto": by
+    # measured rates, datasets/reservoir_pacer.py; a number: fixed; None / "off": flat out)
     sim_warmup_share: float = 0.5  # sim budget: share of the solves a reservoir arm makes before training starts
     reservoir_mode: str = RESERVOIR.mode
     proposal_floor: float = 0.25
