@@ -287,6 +287,15 @@ def _loader(arm: str, pde, view, cfg: BudgetConfig, seed: int, out: Path, clock_
     return DataLoader(stream, batch_size=None), {}
 
 
+def _paced(stats: dict) -> str:
+    """The arm's log words on its producer's pacing (datasets/reservoir_pacer.py): "" without a reuse target."""
+    r = (stats or {}).get("target_reuse")
+    if r is None or r != r:
+        return ""
+    return (f", reuse target {r:.2f} (mean reuse {stats['reuse_mean']:.2f}), producer idle "
+            f"{100 * stats['producer_idle_share']:.0f}%")
+
+
 def _proposal_kwargs(cfg: BudgetConfig, arm: str) -> dict:
     """ParamProposal settings of ``arm``: the floor, plus ``cfg.proposal_kwargs`` those of its mode accepts
     (the "active" mode's ensemble, kappa, refit and candidates go to reservoir_active only)."""
@@ -403,7 +412,7 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
             log(f"{arm:15s} seed {seed}: test mean {rec['test_mean']:.4f} p95 {rec['test_p95']:.4f} p99 {rec['test_p99']:.4f} "
                 f"cvar95 {rec['test_cvar95']:.4f} max "
                 f"{rec['test_max']:.4f}; {rec['steps']} steps, {rec['trajectories_solved']} trajectories, "
-                f"{rec['wall_s']:.0f} s, loop waiting for data {100 * rec['wait_share']:.0f}%")
+                f"{rec['wall_s']:.0f} s, loop waiting for data {100 * rec['wait_share']:.0f}%" + _paced(rec["stats"]))
         records.append(combine_seeds(runs))
     if len(records) > 1:
         for line in verdicts(records, cfg.seeds):
