@@ -204,3 +204,19 @@ def test_the_cli_takes_auto_off_or_a_number(capsys):
     with pytest.raises(SystemExit):
         p.parse_args(["--reservoir", "--target-reuse", "soon"])
     assert "'soon' is not auto, off or a number" in capsys.readouterr().err
+
+
+def test_compare_md_says_what_pacing_chose_and_what_it_cost():
+    from pdestream.experiments.budget_report import pacing_line
+
+    st = {"target_reuse": 7.5, "step_s": 0.03, "solve_s_per_traj": 0.0013, "pace_slowdown": 0.33, "reuse_mean": 6.9,
+          "producer_idle_share": 0.8}
+    arms = [{"arm": "precomputed", "stats": {}, "trajectories_solved": 900, "steps": 2000},
+            {"arm": "reservoir", "stats": st, "trajectories_solved": 1000, "steps": 2100}]
+    line = pacing_line(arms)
+    assert "R = clip(b (s k / (1 + k) + i) / (per t 0.05), 1, max reuse)" in line
+    assert ("reservoir R 7.50 (step 30.0 ms, solve 1.30 ms/trajectory, a solve slowing a step by k = 0.33), 1000 "
+            "solves for 2100 steps, mean reuse 6.90, producer idle 80% of its time") in line
+    assert "precomputed" not in line and "--target-reuse 4" in pacing_line(arms, 4)
+    off = [{**arms[1], "stats": {**st, "target_reuse": float("nan")}}]  # --target-reuse off: nothing to say
+    assert pacing_line(off) == ""
