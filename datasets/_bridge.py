@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import time
 from pathlib import Path
 
 CACHE_ENV = "PDESTREAM_JAX_CACHE"
@@ -185,7 +186,8 @@ def solve_job(config: dict, seed: int, indices, params: dict | None = None, on_b
               on_device: bool = False) -> dict:
     """A producer's job (thread, spawned process or Dask worker): solve samples ``indices`` of the PDE of
     ``config`` under ``seed`` with optional explicit ``params`` {name: [B]}. Returns
-    {"u": float32 [B, T, C, *space], "params": float32 [B, P] (PARAMS order), "index": int64 [B], "skipped": lines},
+    {"u": float32 [B, T, C, *space], "params": float32 [B, P] (PARAMS order), "index": int64 [B], "skipped": lines,
+    "seconds": the job's own wall time, where it ran (the reservoir's pacing reads it)},
     all numpy, or with ``on_device`` (a job run in the consumer's process) "u" as a torch tensor on JAX's device
     that shares JAX's finished buffer (DLPack: no host round trip; read it, never write it). Same values either
     way. With on_blowup="skip" the samples that failed are left out (B rows fewer; "index" says which are there)
@@ -195,6 +197,7 @@ def solve_job(config: dict, seed: int, indices, params: dict | None = None, on_b
 
     from pdestream import generator
 
+    t0 = time.perf_counter()
     configure_jax()
     pde = _pde_of(json.dumps(config, sort_keys=True))
     traj = generator.sample(pde, np.asarray(indices, np.int64), seed, on_blowup=on_blowup, params=params)
@@ -207,7 +210,8 @@ def solve_job(config: dict, seed: int, indices, params: dict | None = None, on_b
         u = _joined(traj, np.concatenate, np.asarray)
     cols = [np.asarray(traj.params[n]) for n in pde.PARAMS]
     return {"u": u, "params": np.stack(cols, 1) if cols else np.zeros((len(u), 0), np.float32),
-            "index": np.asarray(traj.indices, np.int64), "skipped": list(traj.skipped)}
+            "index": np.asarray(traj.indices, np.int64), "skipped": list(traj.skipped),
+            "seconds": time.perf_counter() - t0}
 
 
 @functools.lru_cache(maxsize=16)

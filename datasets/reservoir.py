@@ -19,6 +19,12 @@ examples (through the usual views) from what it holds, so a solve is reused inst
   parameters of the next solves, the priorities steer training toward the hard trajectories already solved,
   whatever made them hard. The reuse bound still holds.
 - **warmup**: no batch before ``warmup`` trajectories are in.
+- **pacing** (async mode, ``target_reuse``): the producer solves what training consumes at a reuse target R and
+  holds its next job otherwise (``reservoir_pacer``, whose docstring states the rule): by default ("auto") R is
+  the smallest reuse at which solving costs training at most 5% of its steps, from rates re-measured as the run
+  goes (solve seconds per trajectory, step seconds, batch size, and how much a running solve slows a step);
+  a number fixes R, None ("off") solves flat out. When nothing held is drawable (the loop would wait) it
+  solves regardless. Pacing changes when jobs are submitted, never which samples they solve.
 - **mode** ``"deterministic"``: solves are inserted in submission order at fixed points of the draw sequence
   (after the warm-up, one solve batch of B trajectories each time B x max_reuse uses have been drawn, or
   earlier when nothing can be drawn), and draws come from a seeded generator, so the batch sequence is a pure
@@ -65,6 +71,7 @@ from . import _bridge
 from .progress import StreamPosition
 from .proposal import ParamProposal
 from .reservoir_config import DRAWS, EVICTIONS, MODES, ReservoirConfig, _check_int
+from .reservoir_pacer import Pacer
 from .reservoir_producer import SolvePipeline
 from .reservoir_storage import check_room, free_bytes, physical_memory, storage_device
 from .reservoir_store import Reservoir, from_flat, ints
@@ -121,9 +128,12 @@ class ReservoirStream(IterableDataset):
         self.n_windows = self.view.n_starts(n_frames) if hasattr(self.view, "n_starts") else 1
         self.per_trajectory = len(self.view.starts(n_frames, torch.Generator().manual_seed(0)))
         self.cap_uses = max(1, round(self.max_reuse * self.per_trajectory))
-        # draws that pay for one solve batch: the deterministic schedule's step, and async mode's solver pacing
-        self.uses_per_solve = self.cap_uses if self.target_reuse is None else \
-            max(1, round(self.target_reuse * self.per_trajectory))
+        # draws that pay for one solve batch: the deterministic schedule's step (the bound unless a number fixes
+        # it: "auto" reads clocks, which the schedule must not), and a fixed target's pacing in async mode
+        fixed = isinstance(self.target_reuse, float)
+        self.uses_per_solve = max(1, round(self.target_reuse * self.per_trajectory)) if fixed else self.cap_uses
+        self.pacer = Pacer(self.batch_size, self.per_trajectory, self.max_reuse, self.target_reuse)
+        self._clock = time.perf_counter  # the host clock pacing reads (a test drives its own)
         self.config = self.pde.config()
         capacity = self.capacity
         need = capacity * n_frames * len(_bridge.sample_channels(self.pde)) * math.prod(self.pde.grid.shape) * 4
@@ -150,7 +160,8 @@ class ReservoirStream(IterableDataset):
         self.pipeline = SolvePipeline(self.config, self.seed, self.solve_batch, self.producer, self.workers,
                                       self.scheduler, self.inflight, self.on_blowup, self.sim_budget,
                                       propose=lambda n: self.proposal.propose(n), sample_indices=self._sample_indices,
-                                      paced=self._paced)
+                                      paced=self._paced, clock=lambda: self._clock(), pacer=self.pacer)
+        self._paid, self._paid_drawn = float(self.warmup), 0  # pacing: trajectories the draws so far paid for
         self._drawn = None  # (the last batch's params tensor, its slots, their serials, first draws?, sample indices)
         self.drawn_since_insert = 0
         self.progress = StreamPosition(slots=1)  # batches handed out (one producer-side "worker": this process)
@@ -197,12 +208,34 @@ class ReservoirStream(IterableDataset):
         return np.arange(first, first + n, dtype=np.int64)
 
     def _paced(self) -> bool:
-        """Async mode with target_reuse: hold the next solve until the draws so far have paid for the solves
-        submitted (one batch ahead), so a solver faster than that leaves its core to training."""
-        if self.mode != "async" or self.target_reuse is None or not len(self.res.eligible()):
+        """Async mode with a reuse target (``reservoir_pacer``'s rule): hold the next solve until the draws so far
+        have paid for the solves submitted (one batch ahead): warmup + the uses drawn, each at the target R in
+        force when it was drawn, / R. A solver faster than that leaves its core to training."""
+        if self.mode != "async" or self.target_reuse is None:
+            return False
+        r = self.pacer.target()
+        uses = self.uses_per_solve if isinstance(self.target_reuse, float) else r * self.per_trajectory
+        drawn = self.res.drawn
+        self._paid += (drawn - self._paid_drawn) / uses
+        self._paid_drawn = drawn
+        if not len(self.res.eligible()):
             return False  # (nothing drawable: the loop is waiting, so solve regardless)
-        paid = self.warmup + self.res.drawn / self.uses_per_solve
-        return self.next_index >= paid + self.solve_batch
+        return self.next_index >= self._paid + self.solve_batch
+
+    def _step_done(self, busy: bool, t0: float) -> None:
+        """The training step between a batch handed out at ``t0`` and now, for pacing: its seconds and the share
+        of them a solve ran (no job is submitted during a step: one running at its start ran until ``last_done``
+        or throughout)."""
+        t1 = self._clock()
+        if t1 <= t0:
+            return
+        pipe = self.pipeline
+        if not busy:
+            share = 0.0 if not pipe.busy() else None
+        else:
+            share = 1.0 if pipe.busy() else min(max((pipe.last_done - t0) / (t1 - t0), 0.0), 1.0)
+        if share is not None:
+            self.pacer.step(t1 - t0, share)
 
     def _take_oldest(self) -> None:
         self.pipeline.take_oldest(self.res)
@@ -282,7 +315,9 @@ class ReservoirStream(IterableDataset):
             if self._where.type != "cpu":  # the host's copy of the batch's parameters, for report_losses
                 self._last = (batch["params"], torch.from_numpy(np.concatenate([p[3] for p in parts])))
             self.progress.add(0, 1)
+            busy, t0 = self.pipeline.busy(), self._clock()
             yield batch
+            self._step_done(busy, t0)
 
     def _gather(self, slots: np.ndarray, starts: np.ndarray) -> dict:
         """The examples (slots [m], window starts [m]) as a batch, gathered where the storage is
@@ -332,11 +367,19 @@ class ReservoirStream(IterableDataset):
         counts = res.use_counts()  # [cap_uses + 1]: reuse statistics without listing every trajectory
         total, used = int(counts.sum()), np.flatnonzero(counts)
         elapsed = max(self._elapsed(), 1e-9)
+        pace = self.pacer.stats()
+        if self.mode == "deterministic":  # the schedule's reuse per solve, whatever the clocks say
+            pace["target_reuse"] = self.uses_per_solve / self.per_trajectory
+        elif self.target_reuse is None:
+            pace["target_reuse"] = float("nan")  # off: flat out
+        # the producer's idle time: its slots' time since the first batch less the solving they did
+        idle = max(0.0, elapsed * self.pipeline.slots - self.pacer.solve_s)
         return {"inserted": res.inserted, "evicted": res.evicted, "held": len(res.live()),
                 "reuse_mean": float(counts @ np.arange(len(counts))) / total / self.per_trajectory if total else 0.0,
                 "reuse_max": float(used[-1]) / self.per_trajectory if total else 0.0,
                 "solver_traj_per_s": res.inserted / elapsed, "examples_per_s": res.drawn / elapsed,
-                "wait_share": self.t_wait / elapsed, "skipped": self.skipped,
+                "wait_share": self.t_wait / elapsed, "skipped": self.skipped, **pace, "producer_idle_s": idle,
+                "producer_idle_share": idle / (elapsed * self.pipeline.slots),
                 **({"proposal_skill": self.proposal.skill, "proposal_steer": self.proposal.steer}
                    if self.proposal.mode != "uniform" else {})}
 

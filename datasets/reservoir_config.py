@@ -44,8 +44,10 @@ class ReservoirConfig:
     capacity // 4)); eviction: "fifo" | "random"; draw: "uniform" | "least_used" | "priority" (+ priority_power
     in [0, 8], priority_floor in (0, 1]); solve_batch: trajectories per solve job; mode: "async" |
     "deterministic"; producer: "thread" | "process" | "dask" (+ workers, scheduler); inflight: jobs submitted
-    ahead (None: 2 per producer slot); target_reuse: in [1, max_reuse], the solver's pace (None: flat out in
-    async, max_reuse's in deterministic); sim_budget: trajectories solved in all (None: endless); proposal:
+    ahead (None: 2 per producer slot); target_reuse: the solver's pace in async mode (``reservoir_pacer``):
+    "auto" (the default: a reuse target chosen from rates re-measured as the run goes, so that solving costs
+    training at most 5% of its steps), a number in [1, max_reuse] (fixed; also the deterministic schedule's
+    reuse per solve, else max_reuse's), or None / "off" (flat out); sim_budget: trajectories solved in all (None: endless); proposal:
     "uniform" | "loss" | "active" (+ proposal_kwargs for ParamProposal); on_blowup: "raise" | "redraw" |
     "skip"; device: where trajectories are kept ("cpu", "cuda", "cuda:N"; None: the training device); storage:
     a factory (capacity, device) -> ``reservoir_storage.Storage`` (None: ``TensorStorage``).
@@ -64,7 +66,7 @@ class ReservoirConfig:
     workers: int = 1
     scheduler: str | None = None
     inflight: int | None = None
-    target_reuse: float | None = None
+    target_reuse: float | str | None = "auto"
     sim_budget: int | None = None
     proposal: str = "uniform"
     proposal_kwargs: dict | None = None
@@ -103,13 +105,14 @@ class ReservoirConfig:
         _check_choice("mode", self.mode, MODES)
         sim_budget = None if self.sim_budget is None else _check_int("sim_budget", self.sim_budget, 1)
         inflight = None if self.inflight is None else _check_int("inflight", self.inflight, 1)
-        target = self.target_reuse
-        if target is not None and (not _is_number(target) or not 1 <= target <= self.max_reuse):
-            raise ValueError(f"target_reuse={target!r} not allowed; must be a number in [1, max_reuse={self.max_reuse}]")
+        target = None if self.target_reuse == "off" else self.target_reuse
+        if target is not None and target != "auto" and (not _is_number(target) or not 1 <= target <= self.max_reuse):
+            raise ValueError(f"target_reuse={target!r} not allowed; must be a number in [1, max_reuse={self.max_reuse}], "
+                             "'auto' (paced by measured rates) or 'off' / None (flat out)")
         return replace(self, capacity=capacity, solve_batch=solve_batch, max_reuse=float(self.max_reuse),
                        warmup=warmup, priority_power=float(self.priority_power),
                        priority_floor=float(self.priority_floor), sim_budget=sim_budget, inflight=inflight,
-                       target_reuse=None if target is None else float(target))
+                       target_reuse=target if target in (None, "auto") else float(target))
 
     def warmup_for(self) -> int:
         """Trajectories held before the first batch: ``warmup``, else max(solve_batch, capacity // 4)."""

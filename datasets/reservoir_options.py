@@ -22,9 +22,11 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
     g.add_argument("--reservoir-mode", choices=MODES, default=R.mode,
                    help="async: insert solves as they arrive (fast, not reproducible); deterministic: a fixed "
                         "schedule, batches a pure function of the settings, exact --resume")
-    g.add_argument("--target-reuse", type=float, metavar="R",
-                   help="pace the solver so each trajectory pays for about R uses (<= --max-reuse): a solver "
-                        "faster than training then leaves its core to training (default: solve flat out)")
+    g.add_argument("--target-reuse", type=_target, default=R.target_reuse, metavar="auto|off|R",
+                   help="async mode: pace the solver so each trajectory pays for about R uses (<= --max-reuse), so a "
+                        "solver faster than training leaves its core to training; auto: R chosen, and re-chosen as "
+                        "the run goes, from measured rates so that solving costs training at most 5%% of its steps "
+                        "(datasets/reservoir_pacer.py); off: solve flat out (default: auto)")
     g.add_argument("--proposal-floor", type=float, default=0.25,
                    help="loss-driven sampling: share of uniform parameter draws (no region starves)")
     g.add_argument("--proposal-gate", choices=("on", "off"), default="on",
@@ -66,6 +68,16 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
 RESERVOIR_OPTIONS = ("capacity", "max_reuse", "reservoir_mode", "target_reuse", "proposal_floor", "proposal_gate",
                      "solve_batch", "warmup", "eviction", "draw", "producer", "workers", "scheduler", "proposal",
                      "proposal_ensemble", "proposal_kappa", "on_blowup", "priority_power", "priority_floor")
+
+
+def _target(text: str):
+    """--target-reuse: "auto", "off" or a number (checked against --max-reuse by ReservoirConfig)."""
+    if text in ("auto", "off"):
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not auto, off or a number") from None
 
 
 def _refuse_unused(args: argparse.Namespace, used: dict[str, bool], needs: str, why: str) -> None:

@@ -4,12 +4,14 @@
 submits jobs of ``solve_batch`` samples ahead (numbered by ``sample_indices``, parameters from ``propose``),
 and inserts finished ones into a ``Reservoir``: in submission order (``take_oldest``, the deterministic
 schedule) or as they finish, when there is room (``collect``, async). Its state is where submission stands:
-the next sample index and the jobs in flight (re-submitted on resume).
+the next sample index and the jobs in flight (re-submitted on resume). It tells the stream's pacing
+(``reservoir_pacer.Pacer``, ``pacer``) what each job cost, and whether a solve is running (``busy``, ``last_done``).
 """
 
 from __future__ import annotations
 
 import collections
+import math
 import time
 from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, wait
 
@@ -38,11 +40,13 @@ class SolvePipeline:
     job padded to it: one compiled shape); producer, workers, scheduler: ``open_producer``'s; inflight: jobs
     submitted ahead (None: 2 per producer slot); on_blowup: the solver's rule for a failed sample; sim_budget:
     samples to solve in all (None: endless); propose(n) -> params dict or None; sample_indices(first, n) ->
-    int64 [n]; paced() -> True to hold the next submission back.
+    int64 [n]; paced() -> True to hold the next submission back; clock: the host clock the stream reads (the time a
+    job finished, ``last_done``, is on it); pacer: told each job's solve seconds and insertion seconds (None: none).
     """
 
     def __init__(self, config: dict, seed: int, solve_batch: int, producer: str, workers: int, scheduler,
-                 inflight: int | None, on_blowup: str, sim_budget: int | None, propose, sample_indices, paced):
+                 inflight: int | None, on_blowup: str, sim_budget: int | None, propose, sample_indices, paced,
+                 clock=time.perf_counter, pacer=None):
         self.config, self.seed, self.solve_batch = config, seed, solve_batch
         self.producer, self.workers, self.scheduler, self.inflight = producer, workers, scheduler, inflight
         self.on_blowup, self.sim_budget = on_blowup, sim_budget
@@ -53,6 +57,9 @@ class SolvePipeline:
         self.t_wait = self.t_insert = 0.0  # seconds waiting for solves, and inserting them (host clock)
         self.skipped = 0  # samples left out by on_blowup="skip"
         self.executor = self._closer = None
+        self.clock, self.pacer = clock, pacer
+        self.slots = 1  # jobs the producer runs at once
+        self.last_done = -math.inf  # when (clock) a job last finished
 
     @property
     def open(self) -> bool:
@@ -62,7 +69,7 @@ class SolvePipeline:
         """Open the producer, once (one line for a bad producer name)."""
         if self.executor is None:
             self.executor, self._closer, slots = open_producer(self.producer, self.workers, self.scheduler)
-            self.max_inflight = self.inflight or 2 * slots
+            self.max_inflight, self.slots = self.inflight or 2 * slots, slots
 
     def start(self) -> None:
         """Open the producer (once) and submit: the jobs restored or stopped, in their order, then new ones."""
@@ -76,8 +83,18 @@ class SolvePipeline:
         padded_params = None if params is None else {k: np.asarray(v)[pad] for k, v in params.items()}
         # a thread solves in this process: its result stays in JAX's buffer (on its device) and is copied into
         # the storage from there; a worker process's or Dask's comes back as numpy (pickled)
-        return self.executor.submit(_bridge.solve_job, self.config, self.seed, indices[pad], padded_params,
-                                    self.on_blowup, self.producer == "thread")
+        future = self.executor.submit(_bridge.solve_job, self.config, self.seed, indices[pad], padded_params,
+                                      self.on_blowup, self.producer == "thread")
+        future.add_done_callback(self._finished)
+        return future
+
+    def _finished(self, _future) -> None:
+        # (in the thread that finished it: this process's clock whatever ran the job)
+        self.last_done = max(self.last_done, self.clock())
+
+    def busy(self) -> bool:
+        """A job submitted and not finished (the producer is solving, or about to)."""
+        return any(f is not None and not f.done() for _i, _p, f in self.pending)
 
     def fill(self) -> None:
         """Submit new jobs up to ``max_inflight`` in flight, within the simulation budget and the pacing."""
@@ -114,7 +131,11 @@ class SolvePipeline:
             else:  # numpy from a worker process (writable: torch wants that)
                 u = torch.from_numpy(np.require(u[pick], requirements="W"))
             res.insert(u, torch.from_numpy(np.asarray(result["params"][rows])), result["index"][rows])
-        self.t_insert += time.perf_counter() - t0
+        spent = time.perf_counter() - t0
+        self.t_insert += spent
+        if self.pacer is not None:
+            self.pacer.solved(len(indices), result.get("seconds", -1.0))
+            self.pacer.inserted(len(rows), spent)
 
     def take_oldest(self, res) -> None:
         """Deterministic mode: wait for the oldest job and insert it into ``res``."""

@@ -97,7 +97,8 @@ class BudgetConfig:
     precompute_share: float | None = None  # budget_s: share of the budget spent solving (None: precompute_size)
     capacity: int = RESERVOIR.capacity
     max_reuse: float = RESERVOIR.max_reuse
-    target_reuse: float | None = RESERVOIR.target_reuse  # time budget: pace the reservoirs' solver (None: solve flat out)
+    target_reuse: float | str | None = RESERVOIR.target_reuse  # time budget: the reservoirs' solver pace ("auto": by
+    # measured rates, datasets/reservoir_pacer.py; a number: fixed; None / "off": flat out)
     sim_warmup_share: float = 0.5  # sim budget: share of the solves a reservoir arm makes before training starts
     reservoir_mode: str = RESERVOIR.mode
     proposal_floor: float = 0.25
@@ -286,6 +287,15 @@ def _loader(arm: str, pde, view, cfg: BudgetConfig, seed: int, out: Path, clock_
     return DataLoader(stream, batch_size=None), {}
 
 
+def _paced(stats: dict) -> str:
+    """The arm's log words on its producer's pacing (datasets/reservoir_pacer.py): "" without a reuse target."""
+    r = (stats or {}).get("target_reuse")
+    if r is None or r != r:
+        return ""
+    return (f", reuse target {r:.2f} (mean reuse {stats['reuse_mean']:.2f}), producer idle "
+            f"{100 * stats['producer_idle_share']:.0f}%")
+
+
 def _proposal_kwargs(cfg: BudgetConfig, arm: str) -> dict:
     """ParamProposal settings of ``arm``: the floor, plus ``cfg.proposal_kwargs`` those of its mode accepts
     (the "active" mode's ensemble, kappa, refit and candidates go to reservoir_active only)."""
@@ -402,7 +412,7 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
             log(f"{arm:15s} seed {seed}: test mean {rec['test_mean']:.4f} p95 {rec['test_p95']:.4f} p99 {rec['test_p99']:.4f} "
                 f"cvar95 {rec['test_cvar95']:.4f} max "
                 f"{rec['test_max']:.4f}; {rec['steps']} steps, {rec['trajectories_solved']} trajectories, "
-                f"{rec['wall_s']:.0f} s, loop waiting for data {100 * rec['wait_share']:.0f}%")
+                f"{rec['wall_s']:.0f} s, loop waiting for data {100 * rec['wait_share']:.0f}%" + _paced(rec["stats"]))
         records.append(combine_seeds(runs))
     if len(records) > 1:
         for line in verdicts(records, cfg.seeds):

@@ -57,7 +57,8 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
                      "steps": r["steps"],
                      "trajectories_solved": r["trajectories_solved"], "wall_s": round(r["wall_s"], 1),
                      "wait_share": round(r["wait_share"], 4), "reuse_mean": st.get("reuse_mean", ""),
-                     "reuse_max": st.get("reuse_max", ""), "cache_bytes": r["cache_bytes"]})
+                     "reuse_max": st.get("reuse_max", ""), "target_reuse": _number(st.get("target_reuse")),
+                     "producer_idle_share": _number(st.get("producer_idle_share")), "cache_bytes": r["cache_bytes"]})
     with open(out / "compare.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
@@ -65,7 +66,7 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
     budget = f"{cfg.budget_s:g} s wall clock per arm" if cfg.budget_s else \
         f"{cfg.sim_budget} solved trajectories and {cfg.steps} optimizer steps per arm"
     head = ["arm", *[c.replace("_", " ") for c in COLUMNS if c in rows[0]], "steps", "trajectories solved",
-            "wall s", "data wait", "mean reuse", "max reuse"]
+            "wall s", "data wait", "mean reuse", "max reuse", "reuse target", "producer idle"]
     lines = [f"{pde.NAME} (" + ", ".join(f"{k} ~ {v}" for k, v in pde.param_domains.items()) + f", n={pde.n}), "
              f"budget: {budget}; {cfg.model} {cfg.model_cfg}, batch {cfg.batch_size}, lr {cfg.lr}, "
              f"training loss {(cfg.mode or {}).get('loss', 'mse')}, view {datasets.make_view(cfg.view)}; errors: relative L2 per trajectory over {cfg.n_test} test "
@@ -80,12 +81,18 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
                  str(r["steps"]), str(r["trajectories_solved"]),
                  f"{r['wall_s']:.0f}", f"{100 * r['wait_share']:.1f}%",
                  f"{r['reuse_mean']:.2f}" if r["reuse_mean"] != "" else "-",
-                 f"{r['reuse_max']:.2f}" if r["reuse_max"] != "" else "-"]
+                 f"{r['reuse_max']:.2f}" if r["reuse_max"] != "" else "-",
+                 f"{r['target_reuse']:.2f}" if r["target_reuse"] != "" else "-",
+                 f"{100 * r['producer_idle_share']:.0f}%" if r["producer_idle_share"] != "" else "-"]
         lines.append("| " + " | ".join(cells) + " |")
     lines += interval_table(result["arms"])
     sizes = {k: len(v) for k, v in (result["arms"][0].get("errors") or {}).items()}
     if sizes:
         lines += ["", tail_note(sizes)]
+    paced = getattr(cfg, "sim_budget", None) is None and getattr(cfg, "reservoir_mode", "async") == "async"
+    pacing = pacing_line(result["arms"], getattr(cfg, "target_reuse", "auto")) if paced else ""
+    if pacing:
+        lines += ["", pacing]
     gate = gate_line(result["arms"], (getattr(cfg, "proposal_kwargs", None) or {}).get("gate", True))
     if gate:
         lines += ["", gate]
@@ -117,6 +124,36 @@ def interval_table(arms: list[dict]) -> list[str]:
         cells = [f"{a[c]:.4f} [{ci[c][0]:.4f}, {ci[c][1]:.4f}]" if c in ci else "-" for c in cols]
         lines.append("| " + " | ".join([a["arm"], *cells]) + " |")
     return lines
+
+
+def _number(value):
+    """A stats figure for the tables: the number, or "" when absent or not measured (nan)."""
+    return "" if value is None or value != value else value
+
+
+def pacing_line(arms: list[dict], target="auto") -> str:
+    """compare.md's line on the reservoir arms' pacing (``datasets.reservoir_pacer``) at the end of seed 0's run:
+    the reuse target, what it was chosen from and what it left idle; "" when no arm was paced (a simulation
+    budget's deterministic schedule, or --target-reuse off)."""
+    parts = []
+    for a in arms:
+        st = a.get("stats") or {}
+        if _number(st.get("target_reuse")) == "" or _number(st.get("step_s")) == "":
+            continue
+        solve = _number(st.get("solve_s_per_traj"))
+        parts.append(f"{a['arm']} R {st['target_reuse']:.2f} (step {1e3 * st['step_s']:.1f} ms, solve "
+                     + (f"{1e3 * solve:.2f} ms/trajectory" if solve != "" else "not measured")
+                     + f", a solve slowing a step by k = {st['pace_slowdown']:.2f}), {a['trajectories_solved']} "
+                     f"solves for {a['steps']} steps, mean reuse {st.get('reuse_mean', 0):.2f}, producer idle "
+                     f"{100 * st.get('producer_idle_share', 0):.0f}% of its time")
+    if not parts:
+        return ""
+    rule = ("R = clip(b (s k / (1 + k) + i) / (per t 0.05), 1, max reuse), the least reuse at which solving costs "
+            "training at most 5% of its steps, from rates re-measured as the run goes: b examples per batch, per "
+            "examples per use of a trajectory, t the step's seconds, s and i the seconds per trajectory of solving and "
+            "of inserting, k how much a running solve slows a step" if target == "auto"
+            else f"--target-reuse {target}")
+    return f"Pacing of the reservoir's producer (seed 0, at the end; {rule}): " + "; ".join(parts) + "."
 
 
 def gate_line(arms: list[dict], gate: bool = True) -> str:

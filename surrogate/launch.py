@@ -350,7 +350,17 @@ def run_report(s: dict, model: str, source: str, n_test: int, out) -> str:
         lines.append(f"{who}: {d['inserted']} trajectories solved, {d['evicted']} evicted, reuse mean "
                      f"{d['reuse_mean']:.2f} (max {d['reuse_max']:.2f}); waiting for solves {100 * d['wait_share']:.1f}% "
                      "of the time since the first batch (the reservoir's own clock: the loop's waiting share above "
-                     "also counts the normalization draw and handing batches over)")
+                     "also counts the normalization draw and handing batches over)" + _pacing(d))
     extra = ", reservoir.json, reservoir.png" if reservoir else ""
     lines.append(f"run: {out}/metrics.csv, metrics.json, model.pt, checkpoint.pt{extra}")
     return "\n".join(lines)
+
+
+def _pacing(d: dict) -> str:
+    """The summary's words on the reservoir's pacing (datasets/reservoir_pacer.py), "" for stats without it."""
+    r = d.get("target_reuse")
+    if r is None:
+        return ""
+    idle = d.get("producer_idle_share")
+    said = "; producer paced at reuse target " + (f"{r:.2f}" if r == r else "off (flat out)")
+    return said + (f", idle {100 * idle:.0f}% of its time" if idle is not None else "")

@@ -1,0 +1,117 @@
+"""The training reservoir's pacing: how far ahead of training the producer may solve (async mode).
+
+Every surplus solve on shared cores is a training step lost, so by default (``target_reuse="auto"``) the producer
+solves what training consumes at a reuse target R (each trajectory drawn about R uses before it makes way), with R
+chosen from rates ``Pacer`` keeps re-measuring while the run goes on (a rate measured once under load misleads):
+
+- ``s``: the solver's seconds per trajectory (a job's own wall time, measured where it runs, over its samples);
+- ``i``: the training thread's seconds per trajectory inserting solves into the store (a cost training pays);
+- ``t``: the training step's seconds (the loop's time outside the stream: forward, backward, optimizer);
+- ``k``: how much a running solve slows a training step (t while solving = t alone x (1 + k)): "cores free",
+  measured by its effect rather than counted (a core free by count may be another program's, or the GIL's);
+  fitted by least squares of each step's time on the share of it a solve was running, over about the last
+  1 / (1 - DECAY) steps; K_PRIOR before steps with and without solves have been seen;
+- ``b``: examples per batch, ``per``: examples per use of a trajectory (the view's).
+
+The rule: solving at reuse R keeps a solve running a share ``D = b s / (per R t)`` of the wall clock, which costs
+training ``D k / (1 + k)`` of its steps, and inserting costs ``b i / (per R t)`` more; R is the smallest reuse at
+which that cost is at most ``cost`` (PACE_COST, 5% of the steps training would make without solves)::
+
+    R = clip(b (s k / (1 + k) + i) / (per t cost), 1, max_reuse)
+
+and the producer holds its next solve job while (trajectories submitted) >= warmup + (uses drawn, each counted
+at the R in force when it was drawn) / R + solve_batch. A solver that costs training nothing (k = 0: a free core, or
+a GPU trainer) is paced at R = 1 (each trajectory drawn once); one that shares training's core is held back to
+reuse each trajectory more; a solver slower than that (the bottleneck) is never held: when nothing held is
+drawable (the loop would wait) the producer solves regardless. Pacing changes only *when* jobs are submitted,
+never which samples they solve (sample identity). ``target_reuse=R`` fixes R, ``None`` ("off") solves flat out.
+"""
+
+from __future__ import annotations
+
+import math
+
+PACE_COST = 0.05  # the share of training's steps that solving may cost (the rule above)
+K_PRIOR = 1.0  # k before it is measured: a solve halves a training step (two threads on one core)
+K_MAX = 8.0  # (a fitted k is clipped to [0, K_MAX]: one slow step must not stop the producer)
+DECAY = 0.98  # the regression's weight per step: about the last 50 steps count
+MIN_STEPS = 8.0  # weighted steps, and a spread of the solve share, before k is fitted
+MIN_SPREAD = 0.01  # (variance of the per-step solve share below this: no fit, the last k stays)
+
+
+class Pacer:
+    """The reuse target of an async reservoir's producer, from the rates it is fed (the module docstring's rule).
+
+    batch_size, per_trajectory: b and per; max_reuse: the bound (R's ceiling); target: "auto" (the rule), a
+    number (fixed R) or None (off: flat out, ``target()`` is None); cost: the share of training steps solving
+    may cost. Feed it ``solved`` (each finished job), ``inserted`` (each insertion into the store) and ``step``
+    (each training step); it reads no clock itself, so a test drives it with made-up times.
+    """
+
+    def __init__(self, batch_size: int, per_trajectory: int, max_reuse: float, target="auto", cost: float = PACE_COST):
+        self.b, self.per, self.max_reuse, self.mode, self.cost = batch_size, per_trajectory, max_reuse, target, cost
+        self.s = self.i = None  # seconds per trajectory: solving (the job's own wall time), inserting
+        self.k = K_PRIOR
+        self.sums = [0.0] * 5  # decayed sums of 1, f, f^2, t, f t (f: the share of a step a solve ran, t: its seconds)
+        self.steps = self.solved_n = 0
+        self.solve_s = 0.0  # seconds of solving in all (the jobs' own), for the producer's idle time
+
+    def solved(self, n: int, seconds: float) -> None:
+        """A job of ``n`` trajectories took ``seconds`` (where it ran)."""
+        if n > 0 and seconds >= 0:
+            self.solve_s += seconds
+            self.solved_n += n
+            self.s = _ewma(self.s, seconds / n, 0.2)
+
+    def inserted(self, n: int, seconds: float) -> None:
+        """Inserting ``n`` trajectories took the training thread ``seconds``."""
+        if n > 0 and seconds >= 0:
+            self.i = _ewma(self.i, seconds / n, 0.2)
+
+    def step(self, seconds: float, share: float) -> None:
+        """A training step took ``seconds`` with a solve running ``share`` (in [0, 1]) of it."""
+        if not seconds > 0 or not 0 <= share <= 1:
+            return
+        s0, sf, sff, st, sft = self.sums
+        if s0 >= MIN_STEPS:  # a step held up by something else (a checkpoint, a snapshot) does not pass for a solve's cost
+            seconds = min(seconds, 4 * st / s0)
+        self.steps += 1
+        self.sums = [DECAY * s0 + 1, DECAY * sf + share, DECAY * sff + share * share, DECAY * st + seconds,
+                     DECAY * sft + share * seconds]
+        s0, sf, sff, st, sft = self.sums
+        spread = sff / s0 - (sf / s0) ** 2
+        if s0 >= MIN_STEPS and spread >= MIN_SPREAD:
+            slope = (sft / s0 - (sf / s0) * (st / s0)) / spread
+            alone = st / s0 - slope * sf / s0  # t with no solve running
+            if alone > 0:
+                self.k = min(max(slope / alone, 0.0), K_MAX)
+
+    @property
+    def step_s(self) -> float | None:
+        """Training step seconds (the decayed mean; None before a step)."""
+        return self.sums[3] / self.sums[0] if self.sums[0] else None
+
+    def target(self) -> float | None:
+        """R now: the fixed one, None when off, else the rule's (max_reuse until a solve and a step were measured)."""
+        if self.mode is None:
+            return None
+        if self.mode != "auto":
+            return float(self.mode)
+        t = self.step_s
+        if self.s is None or t is None:
+            return self.max_reuse
+        cost = self.s * self.k / (1 + self.k) + (self.i or 0.0)
+        r = self.b * cost / (self.per * t * self.cost)
+        return min(max(r, 1.0), self.max_reuse) if math.isfinite(r) else self.max_reuse
+
+    def stats(self) -> dict:
+        """What pacing chose and measured (flat numbers for metrics.csv; nan where not measured yet)."""
+        nan = float("nan")
+        r = self.target()
+        return {"target_reuse": nan if r is None else r, "pace_slowdown": self.k,
+                "solve_s_per_traj": nan if self.s is None else self.s,
+                "step_s": nan if self.step_s is None else self.step_s}
+
+
+def _ewma(old, new: float, weight: float) -> float:
+    return new if old is None else (1 - weight) * old + weight * new
