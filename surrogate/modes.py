@@ -427,8 +427,8 @@ class SolverInTheLoop:
         return norm.denormalize(z + dz)
 
     def perturbation(self, step: int, z: torch.Tensor) -> torch.Tensor:
-        """eps for the normalized coarse start states z [B, C, *coarse] at optimizer step ``step``: N(0, noise^2)
-        per example, channel and point (zero on a mask channel), z's device and dtype."""
+        """eps (normalized units) for the coarse start states z [B, C, *coarse] at optimizer step ``step``:
+        N(0, noise^2) per example, channel and point (zero on a mask channel), z's device and dtype."""
         eps = random_walk(self.seed, step, (z.shape[0], 1, *z.shape[1:]), self.noise)[:, 0]
         eps = eps.to(device=z.device, dtype=z.dtype)
         if self.locations and "mask" in self.locations:
@@ -439,10 +439,11 @@ class SolverInTheLoop:
     def start(self, batch: dict, norm: Normalization, step: int) -> torch.Tensor:
         """The coarse start states of optimizer step ``step``, physical units [B, C, *coarse]: the newest input
         frame restricted to the coarse grid, perturbed when noise > 0."""
-        s = subsample(batch["x"][:, -1], self.factor, batch["x"].ndim - 3, self.walls, self.locations)
-        if self.noise > 0:
-            z = norm.normalize(s)
-            s = norm.denormalize(z + self.perturbation(step, z))
+        ndim = batch["x"].ndim - 3
+        s = subsample(batch["x"][:, -1], self.factor, ndim, self.walls, self.locations)
+        if self.noise > 0:  # s + std * eps: denormalize(normalize(s) + eps), a channel without noise left bit for bit
+            std = norm.std.to(device=s.device, dtype=s.dtype).reshape(-1, *([1] * ndim))
+            s = s + std * self.perturbation(step, s)
         return s
 
     def step_loss(self, model, batch, norm, step):

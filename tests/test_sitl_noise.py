@@ -111,6 +111,16 @@ def test_a_mask_channel_gets_no_noise():
     mode.locations = ("centre", "mask")  # a flow's geometry channel is not perturbed
     eps = mode.perturbation(1, torch.zeros(32, 2, 16))
     assert float(eps[:, 0].abs().max()) > 0 and torch.equal(eps[:, 1], torch.zeros_like(eps[:, 1]))
+    # and the start state's mask channel is the restricted mask bit for bit (no round trip through the
+    # normalization), the other channel perturbed
+    mode.factor, mode.walls = 2, ("periodic",)
+    g = torch.Generator().manual_seed(2)
+    x = torch.stack([MEAN + STD * torch.randn(8, 32, generator=g), (torch.rand(8, 32, generator=g) > 0.5).float()], 1)
+    two = datasets.Normalization(("u", "solid"), torch.tensor([MEAN, 0.37]), torch.tensor([STD, 0.48]), ("nu",),
+                                 torch.zeros(1), torch.ones(1), 1)
+    start = mode.start({"x": x[:, None]}, two, 4)
+    clean = subsample(x, 2, 1, None, mode.locations)
+    assert torch.equal(start[:, 1], clean[:, 1]) and not torch.allclose(start[:, 0], clean[:, 0])
 
 
 def test_settings_state_the_noise_and_rule_only_when_it_is_on():
