@@ -234,8 +234,10 @@ def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
                    help=f"{takes('coarse_n')}: grid of the coarse solver, a divisor of the fine n "
                         f"(default {DEFAULTS['coarse_n']})")
     g.add_argument("--noise", metavar="SIGMA",  # checked by the mode table (one line for a bad value)
-                   help=f"{takes('noise')}: std of the input noise on the newest input frame, a fraction of the "
-                        f"data's std (a number >= 0; default {DEFAULTS['noise']})")
+                   help=f"noise: std of the input noise on the newest input frame (default {DEFAULTS['noise']}); "
+                        "solver-in-the-loop: std of the noise on the coarse start state, the fine target clean "
+                        "(train: default 0; compare --modes: the arm 'pairs + noise'); a fraction of the data's std, "
+                        "a number >= 0")
 
 
 def add_train(sub) -> None:

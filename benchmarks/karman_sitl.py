@@ -1,5 +1,5 @@
 """Solver-in-the-loop on the vortex street (Um et al. 2020, the PBDL book's "reducing numerical errors"):
-karman2d with the Reynolds number varied per trajectory, three arms over several seeds, rolled out on held-out
+karman2d with the Reynolds number varied per trajectory, four arms over several seeds, rolled out on held-out
 Reynolds numbers inside the training range and beyond it.
 
     nice python -m benchmarks.karman_sitl [--seeds 3] [--steps 300] [--fine-n 64] [--coarse-n 32] [--unroll 3]
@@ -7,7 +7,7 @@ Reynolds numbers inside the training range and beyond it.
 
 Per seed, ``surrogate.interactive_compare`` (the same code as ``pdestream compare karman2d --modes
 solver-in-the-loop``) trains the pairs-trained correction (unroll 1: precomputed (coarse step, fine) pairs,
-no interaction) and the solver-in-the-loop correction (unrolled through the differentiable coarse solver) from
+no interaction), the same with the coarse start state perturbed (``--noise``, the fine target clean) and the solver-in-the-loop correction (unrolled through the differentiable coarse solver) from
 the same initial weights and stream, and rolls them out, with the coarse solver alone, from the first frame of
 held-out trajectories; then the saved models are rolled out on a second held-out set whose Reynolds numbers lie
 beyond the training range (``--shift``: the domain moved by that fraction of its width). Printed per test set
@@ -43,6 +43,8 @@ def main(argv=None) -> int:
     ap.add_argument("--fine-n", type=int, default=64)
     ap.add_argument("--coarse-n", type=int, default=32)
     ap.add_argument("--unroll", type=int, default=3)
+    ap.add_argument("--noise", type=float, default=0.01,
+                    help="the pairs + noise arm: std of the noise on the coarse start state, x the data's std")
     ap.add_argument("--test-samples", type=int, default=8)
     ap.add_argument("--shift", type=float, default=0.25, help="held-out Re beyond the range by this share of its width")
     ap.add_argument("--out", default="/tmp/karman_sitl")
@@ -78,9 +80,10 @@ def main(argv=None) -> int:
         out = Path(a.out) / f"seed{seed}"
         cfg = InteractiveConfig(modes=("solver-in-the-loop",), unroll=a.unroll, steps=a.steps,
                                 batch_size=a.batch_size, seed=seed, n_test=a.test_samples, coarse_n=a.coarse_n,
-                                device=a.device)
+                                noise=a.noise, device=a.device)
         interactive_compare(pde, out, cfg, log=lambda s: print(f"  seed {seed}: {s}", flush=True))
         runs = {"coarse solver": None, "pairs (unroll 1)": out / "sitl_unroll1",
+                "pairs + noise (unroll 1)": out / "sitl_unroll1_noise",
                 f"solver-in-the-loop (unroll {a.unroll})": out / f"sitl_unroll{a.unroll}"}
         for where, test_pde in (("inside", pde), ("beyond", shifted)):
             # the coarse solver of the test set's config (the solver refuses parameters outside its domains)

@@ -268,5 +268,7 @@ def _interactive(cmd: CompareCommand) -> str:
     if cmd.k_out != 1:
         raise ValueError(f"--k-out={cmd.k_out} not allowed with --modes: every mode predicts one frame per step")
     module.interactive_compare(pde, cmd.out, cfg)
+    corrector = ", corrector.png (corrector arms)" if "solver-in-the-loop" in modes else ""
     return (Path(cmd.out) / "compare.md").read_text() + \
-        f"table: {cmd.out}/compare.md, compare.csv, compare.json; figure: {cmd.out}/compare.png"
+        f"table: {cmd.out}/compare.md, compare.csv, compare.json, curves.csv (error against time per arm); " \
+        f"figures: {cmd.out}/compare.png{corrector}"

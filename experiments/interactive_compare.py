@@ -8,14 +8,20 @@ frames. Reported per mode: relative L2 per frame (mean over trajectories), the e
 p95, max over trajectories) and the training wall time.
 
 ``solver-in-the-loop``: the PDE on a coarse grid (``coarse_n``) against the same PDE on a fine grid (``fine_n``,
-default the PDE's own n), three arms rolled out over the whole trajectory from the fine IC subsampled and
+default the PDE's own n), four arms rolled out over the whole trajectory from the fine IC subsampled and
 compared with the fine solution subsampled: the coarse solver alone, the coarse solver with a correction trained
-on (coarse step, fine) pairs (unroll 1: no unrolling, the precomputed-pairs baseline), and with a correction
-trained unrolled ``unroll`` steps through the differentiable coarse solver.
+on (coarse step, fine) pairs (unroll 1: no unrolling, the precomputed-pairs baseline), the same with the coarse
+start state perturbed by N(0, noise^2) in normalized units and the fine target clean ("pairs + noise", the noise
+baseline on the corrector, Sanchez-Gonzalez et al. 2020), and with a correction trained unrolled ``unroll``
+steps through the differentiable coarse solver. Each corrector arm is also scored against the coarse solver
+alone (``vs_coarse``): improvement e_coarse / e_arm and share of the gap closed 1 - e_arm / e_coarse, for e the
+rollout mean (the mean over trajectories of each trajectory's relative L2 averaged over all frames), the
+rollout p95 (the 95th percentile over trajectories of the same) and the end mean.
 
-Outputs in out_dir: compare.md, compare.csv, compare.json, compare.png (errors against time), rollouts.png
-(solver-in-the-loop: one held-out trajectory, reference / coarse / corrected; vorticity for a flow) and one run
-directory per arm.
+Outputs in out_dir: compare.md, compare.csv, compare.json, curves.csv (error against time per arm: mean and p95
+over trajectories per frame), compare.png (errors against time), corrector.png (solver-in-the-loop: error
+against time per corrector arm, mean and p95, log y), rollouts.png (solver-in-the-loop: one held-out
+trajectory, reference / coarse / corrected; vorticity for a flow) and one run directory per arm.
 """
 
 from __future__ import annotations
@@ -45,8 +51,9 @@ from .rollout_figure import plot_rollouts
 @dataclass
 class InteractiveConfig:
     """What every arm shares. unroll: k of pushforward, oracle and solver-in-the-loop (sitl_unroll overrides the
-    last); coarse_n / fine_n: the solver-in-the-loop grids (fine_n None: the PDE's n); noise: the noise arm's
-    std as a fraction of the data's std (``surrogate.modes.Noise``)."""
+    last); coarse_n / fine_n: the solver-in-the-loop grids (fine_n None: the PDE's n); noise: the noise arms'
+    std as a fraction of the data's std (``surrogate.modes.Noise`` on the network's input frames; the corrector's
+    "pairs + noise" arm on its coarse start state, ``surrogate.modes.SolverInTheLoop``)."""
 
     modes: tuple = NETWORK_MODES
     unroll: int = DEFAULTS["unroll"]
@@ -86,7 +93,8 @@ def _settings(cfg: InteractiveConfig, name: str, **override) -> dict:
     """Mode ``name``'s settings in this comparison: the config's unroll (sitl_unroll for solver-in-the-loop) and
     coarse grid where the mode takes them (the mode table decides), ``override`` on top."""
     unroll = cfg.sitl_unroll if name == "solver-in-the-loop" and cfg.sitl_unroll else cfg.unroll
-    given = {"unroll": unroll, "coarse_n": cfg.coarse_n, "noise": cfg.noise, **override}
+    noise = 0.0 if name == "solver-in-the-loop" else cfg.noise  # (the corrector's noise arm overrides it)
+    given = {"unroll": unroll, "coarse_n": cfg.coarse_n, "noise": noise, **override}
     return mode_settings(name, **{k: v for k, v in given.items() if k in MODE_SPECS[name].settings})
 
 
@@ -120,16 +128,53 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
         errors = rollout_errors(None, _identity_norm(fine), test, datasets.NextStep(1, 1), coarse).relative()
         arms.append(_record("coarse solver", "none", errors, 0.0, None, cfg.coarse_n))
         log(f"coarse solver (n={cfg.coarse_n}): end error {arms[-1]['end_mean']:.4f} ({time.perf_counter() - t0:.1f} s)")
-        for label, unroll in (("pairs (unroll 1)", 1), (f"solver-in-the-loop (unroll {k})", k)):
-            settings = _settings(cfg, "solver-in-the-loop", unroll=unroll)
-            arms.append(_train_arm(label, fine, settings, test, cfg, out / f"sitl_unroll{unroll}", log))
+        for label, unroll, noise, run in (("pairs (unroll 1)", 1, 0.0, "sitl_unroll1"),
+                                          ("pairs + noise (unroll 1)", 1, cfg.noise, "sitl_unroll1_noise"),
+                                          (f"solver-in-the-loop (unroll {k})", k, 0.0, f"sitl_unroll{k}")):
+            settings = _settings(cfg, "solver-in-the-loop", unroll=unroll, noise=noise)
+            arms.append(_train_arm(label, fine, settings, test, cfg, out / run, log))
+        _score_against_coarse(arms)
         _plot_sitl_rollouts(out / "rollouts.png", fine, coarse, test[0], out, k, cfg)
     result = {"pde": pde.config(), "fine_pde": fine.config() if sitl else None, "config": asdict(cfg),
               "frame_dt": pde.frame_dt, "arms": arms}
     (out / "compare.json").write_text(json.dumps(result, indent=2))
     _write_tables(out, result, pde, cfg)
+    _write_curves(out / "curves.csv", result)
     plot(out / "compare.png", result)
+    if sitl:
+        plot_corrector(out / "corrector.png", result)
     return result
+
+
+CORRECTOR_MODES = ("none", "solver-in-the-loop")  # the coarse solver alone and its corrector arms
+SCORED = (("rollout_mean", "rollout mean"), ("rollout_p95", "rollout p95"), ("end_mean", "end mean"))
+
+
+def _score_against_coarse(arms: list[dict]) -> None:
+    """Each corrector arm's ``vs_coarse``: per figure e of SCORED, the improvement e_coarse / e_arm (> 1: better
+    than the coarse solver alone) and the share of the coarse solver's gap to the fine reference the correction
+    closes, 1 - e_arm / e_coarse (1: the fine solution, 0: no better than the coarse solver, < 0: worse)."""
+    base = next(a for a in arms if a["mode"] == "none")
+    for a in arms:
+        if a["mode"] in CORRECTOR_MODES:
+            a["vs_coarse"] = {key: {"improvement": _ratio(base[key], a[key]), "gap_closed": 1 - _ratio(a[key], base[key])}
+                              for key, _ in SCORED}
+
+
+def _ratio(num: float, den: float) -> float:
+    return float(num / den) if den > 0 else float("inf") if num > 0 else 1.0
+
+
+def _write_curves(path: Path, result: dict) -> None:
+    """curves.csv: error against time per arm, one row per (arm, frame): t (from the first frame), mean and p95
+    of the relative L2 over the test trajectories."""
+    dt = result["frame_dt"]
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["arm", "mode", "n", "frame", "t", "mean", "p95"])
+        for a in result["arms"]:
+            for i, (mean, p95) in enumerate(zip(a["curve"], a["curve_p95"])):
+                writer.writerow([a["arm"], a["mode"], a["n"], i + 1, f"{dt * (i + 1):.6g}", f"{mean:.6g}", f"{p95:.6g}"])
 
 
 def _plot_sitl_rollouts(path: Path, fine, coarse, test: dict, out: Path, k: int, cfg: InteractiveConfig) -> None:
@@ -185,14 +230,16 @@ def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: Interacti
 def _record(label: str, mode: str, errors: np.ndarray, wall: float, summary: dict | None, n: int) -> dict:
     """One arm's figures from its per-trajectory, per-frame errors [N, h]; n: the grid it predicts on."""
     end = error_stats(errors[:, -1])
+    per_trajectory = errors.mean(1)  # each trajectory's error averaged over the whole rollout
     return {"arm": label, "mode": mode, "n": n, "wall_s": wall, "steps": summary["steps"] if summary else 0,
             "final_loss": summary["final_loss"] if summary else None,
             "end_mean": end["mean"], "end_p95": end["p95"], "end_max": end["max"],
-            "rollout_mean": float(errors.mean()), "curve": errors.mean(0).tolist(),
+            "rollout_mean": float(errors.mean()), "rollout_p95": float(np.percentile(per_trajectory, 95)),
+            "curve": errors.mean(0).tolist(),
             "curve_p95": np.percentile(errors, 95, axis=0).tolist(), "frames": errors.shape[1]}
 
 
-COLUMNS = ("end_mean", "end_p95", "end_max", "rollout_mean", "wall_s", "steps", "final_loss")
+COLUMNS = ("end_mean", "end_p95", "end_max", "rollout_mean", "rollout_p95", "wall_s", "steps", "final_loss")
 
 
 def _write_tables(out: Path, result: dict, pde, cfg: InteractiveConfig) -> None:
@@ -204,29 +251,46 @@ def _write_tables(out: Path, result: dict, pde, cfg: InteractiveConfig) -> None:
     frames = result["arms"][0]["frames"]
     noise = (f", noise: input noise of std {cfg.noise:g} x the data's std on the newest frame, clean targets"
              if "noise" in cfg.modes else "")
+    if "solver-in-the-loop" in cfg.modes:
+        noise += (f", pairs + noise: the corrector's coarse start state perturbed by N(0, {cfg.noise:g}^2) in "
+                  "normalized units (x the data's std), the fine target clean")
     lines = [f"{pde.NAME} ({', '.join(f'{k} ~ {v}' for k, v in pde.param_domains.items())}), {cfg.model} "
              f"{cfg.model_cfg}, {cfg.steps} optimizer steps x batch {cfg.batch_size} per trained arm, lr {cfg.lr}, "
              f"unroll {cfg.unroll}{noise}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "
              f"(Latin hypercube over the parameters), rolled out {frames} frames from the first; end: the last "
-             "frame (mean, p95, max over trajectories); rollout mean: over all frames and trajectories; wall: "
-             "training time of the arm (solver calls included)", "",
-             "| arm | grid n | end mean | end p95 | end max | rollout mean | wall s | steps | final train loss |",
-             "|" + " --- |" * 9]
+             "frame (mean, p95, max over trajectories); rollout mean: over all frames and trajectories; rollout "
+             "p95: the 95th percentile over trajectories of each trajectory's error averaged over all frames; wall: "
+             "training time of the arm (solver calls included); error against time per arm: curves.csv", "",
+             "| arm | grid n | end mean | end p95 | end max | rollout mean | rollout p95 | wall s | steps | "
+             "final train loss |",
+             "|" + " --- |" * 10]
     for r in rows:
         loss = "-" if r["final_loss"] is None else f"{r['final_loss']:.3g}"
         lines.append(f"| {r['arm']} | {r['n']} | {r['end_mean']:.4f} | {r['end_p95']:.4f} | {r['end_max']:.4f} | "
-                     f"{r['rollout_mean']:.4f} | {r['wall_s']:.0f} | {r['steps']} | {loss} |")
+                     f"{r['rollout_mean']:.4f} | {r['rollout_p95']:.4f} | {r['wall_s']:.0f} | {r['steps']} | {loss} |")
     by = {a["mode"]: a for a in result["arms"] if a["mode"] in NETWORK_MODES}
     if "one-step" in by:
         for name in ("pushforward", "oracle", "noise"):
             if name in by:
                 lines.append(f"\n{name}: end error {by['one-step']['end_mean'] / by[name]['end_mean']:.2f}x lower "
                              "than one-step (>1: better)")
-    sitl = [a for a in result["arms"] if a["mode"] in ("none", "solver-in-the-loop")]
-    if len(sitl) == 3:
-        base, pairs, loop = sitl
-        lines.append(f"\nsolver-in-the-loop end error: {base['end_mean'] / loop['end_mean']:.2f}x lower than the "
-                     f"coarse solver alone, {pairs['end_mean'] / loop['end_mean']:.2f}x lower than the correction "
+    sitl = [a for a in result["arms"] if a["mode"] in CORRECTOR_MODES]
+    if len(sitl) == 4:
+        base, pairs, noisy, loop = sitl
+        lines += ["", "Against the coarse solver alone (n=" f"{base['n']}" "): improvement e_coarse / e_arm (> 1: "
+                  "better) and share of the coarse-to-fine gap closed 1 - e_arm / e_coarse (1: the fine solution, 0: "
+                  "no better than the coarse solver, < 0: worse), e per arm over the same test trajectories:", "",
+                  "| arm | " + " | ".join(f"{name}: improvement | {name}: gap closed" for _, name in SCORED) + " |",
+                  "|" + " --- |" * (1 + 2 * len(SCORED))]
+        for a in sitl[1:]:
+            v = a["vs_coarse"]
+            lines.append(f"| {a['arm']} | " + " | ".join(f"{v[key]['improvement']:.2f}x | {v[key]['gap_closed']:+.1%}"
+                                                          for key, _ in SCORED) + " |")
+        lines.append(f"\nsolver-in-the-loop rollout mean error: {base['rollout_mean'] / loop['rollout_mean']:.2f}x "
+                     f"lower than the coarse solver alone, {pairs['rollout_mean'] / loop['rollout_mean']:.2f}x lower "
+                     f"than the correction trained on pairs, {noisy['rollout_mean'] / loop['rollout_mean']:.2f}x "
+                     f"lower than pairs + noise; end error: {base['end_mean'] / loop['end_mean']:.2f}x lower than "
+                     f"the coarse solver alone, {pairs['end_mean'] / loop['end_mean']:.2f}x lower than the correction "
                      "trained on pairs")
     (out / "compare.md").write_text("\n".join(lines) + "\n")
 
@@ -247,7 +311,7 @@ def plot(path: Path, result: dict) -> None:
         for a in group:
             t = dt * (1 + np.arange(a["frames"]))
             k = f", k={a['unroll']}" if a["mode"] in ("pushforward", "oracle") else \
-                f", sigma={a['noise']:g}" if a["mode"] == "noise" else ""
+                f", sigma={a['noise']:g}" if a.get("noise") else ""
             ax.plot(t, a["curve"], label=f"{a['arm']}{k} (end {a['end_mean']:.3f})")
         ax.set(yscale="log", xlabel="time (rolled out from t=0)", ylabel="relative L2 error (mean over trajectories)")
         fine = result["fine_pde"]["n"] if result["fine_pde"] else None
@@ -255,6 +319,36 @@ def plot(path: Path, result: dict) -> None:
         ax.set_title(f"network modes, {steps} steps each" if group[0]["mode"] in NETWORK_MODES else
                      f"coarse solver n={group[0]['n']} vs fine n={fine} (subsampled)")
         ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_corrector(path: Path, result: dict) -> None:
+    """corrector.png: the coarse solver and its corrector arms, relative L2 error against time (log y): the mean
+    over the test trajectories (solid) and their p95 (dashed, the same colour), one line pair per arm."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    arms = [a for a in result["arms"] if a["mode"] in CORRECTOR_MODES]
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    dt = result["frame_dt"]
+    for i, a in enumerate(arms):
+        t = dt * (1 + np.arange(a["frames"]))
+        colour = f"C{i}"
+        sigma = f", sigma={a['noise']:g}" if a.get("noise") else ""
+        gap = f", gap closed {a['vs_coarse']['rollout_mean']['gap_closed']:+.0%}" if "vs_coarse" in a and \
+            a["mode"] != "none" else ""
+        ax.plot(t, a["curve"], color=colour, label=f"{a['arm']}{sigma} (rollout mean {a['rollout_mean']:.3g}{gap})")
+        ax.plot(t, a["curve_p95"], color=colour, ls="--", lw=0.9)
+    ax.plot([], [], color="grey", ls="--", lw=0.9, label="dashed: p95 over trajectories")
+    ax.set(yscale="log", xlabel="time (rolled out from t=0)", ylabel="relative L2 error (solid: mean over trajectories)")
+    fine = result["fine_pde"]["n"] if result["fine_pde"] else None
+    ax.set_title(f"corrector arms: coarse n={arms[0]['n']} vs fine n={fine} (subsampled), "
+                 f"{max(a['steps'] for a in arms)} steps each", fontsize=9)
+    ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

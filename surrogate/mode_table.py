@@ -26,6 +26,11 @@ class ModeSpec:
     settings: tuple[str, ...]
     network: bool
     help: str
+    defaults: tuple[tuple[str, object], ...] = ()  # (setting, default) where the mode's differs from DEFAULTS
+
+    def default(self, key: str):
+        """This mode's default for setting ``key``."""
+        return dict(self.defaults).get(key, DEFAULTS[key])
 
 
 MODE_SPECS = {spec.name: spec for spec in (
@@ -34,8 +39,10 @@ MODE_SPECS = {spec.name: spec for spec in (
              "unroll the network K-1 steps without gradient, train the K-th"),
     ModeSpec("oracle", ("unroll",), True,
              "train on states the network reaches in 0..K steps, labelled by the solver"),
-    ModeSpec("solver-in-the-loop", ("unroll", "coarse_n"), False,
-             "a correction network on a coarse differentiable solver, unrolled K steps, against the fine solve"),
+    ModeSpec("solver-in-the-loop", ("unroll", "coarse_n", "noise"), False,
+             "a correction network on a coarse differentiable solver, unrolled K steps, against the fine solve "
+             "(--noise SIGMA: the coarse start state perturbed, the fine target clean; default 0)",
+             defaults=(("noise", 0.0),)),
     ModeSpec("noise", ("noise",), True,
              "Gaussian noise on the input frames (random walk, the newest frame's std SIGMA x the data's std), "
              "target the clean next frames (Sanchez-Gonzalez et al. 2020)"),
@@ -45,6 +52,10 @@ NETWORK_MODES = tuple(name for name, spec in MODE_SPECS.items() if spec.network)
 # run.json's words for the noise mode's rule (``surrogate.modes.Noise``), beside its scale
 NOISE_RULE = ("x + eps, eps a Gaussian random walk over the k_in input frames whose newest frame has std noise x the "
               "data's std per channel (frame j of k_in: noise x sqrt(j / k_in)); target the clean next k_out frames")
+# run.json's words for the noise on the corrector's start state (``surrogate.modes.SolverInTheLoop``, noise > 0)
+SITL_NOISE_RULE = ("s0 + eps, s0 the coarse start state (the fine state restricted to the coarse grid), eps ~ N(0, "
+                   "noise^2) per channel and point in normalized units (noise x the data's std); the coarse solver and "
+                   "the correction step from s0 + eps, the fine targets clean")
 OPTION = {"unroll": "--unroll", "coarse_n": "--coarse-n", "noise": "--noise"}  # how the CLI spells each setting
 
 
@@ -68,7 +79,7 @@ def mode_settings(name: str, **given) -> dict:
             raise ValueError(f"{OPTION[key]}={value} goes with {takes(key)}, not {name}")
     out = {"name": name}
     for key in spec.settings:
-        value = DEFAULTS[key] if given.get(key) is None else given[key]
+        value = spec.default(key) if given.get(key) is None else given[key]
         out[key] = check_noise(value) if key == "noise" else check_count(OPTION[key], value)
     return out
 

@@ -18,7 +18,9 @@ per-mode branches:
   n=32, 20 steps: training loss 7e-6, held-out rollout error 1.0).
 - ``SolverInTheLoop(k, coarse_n)``: a correction network applied after each step of a coarse differentiable
   solver (``datasets.SolverStep`` on a coarse grid of the same PDE), unrolled k steps with gradients through
-  the solver; the target is the fine solve of the same sample, subsampled (Um et al. 2020).
+  the solver; the target is the fine solve of the same sample, subsampled (Um et al. 2020). With ``noise`` > 0
+  the coarse start state is perturbed (N(0, noise^2) in normalized units), the targets clean: at unroll 1 the
+  noise baseline on the corrector (non-interacting pairs with SGGP+20's perturbed inputs).
 - ``Noise(sigma)``: one-step training on perturbed inputs (Sanchez-Gonzalez et al. 2020, "Learning to simulate
   complex physics with graph networks"): Gaussian noise on the input frames, the target the clean next frames,
   so the network learns to undo an error in its input as well as to advance it (the error a rollout feeds it).
@@ -48,7 +50,7 @@ from pdestream import datasets
 from pdestream.datasets.normalize import Normalization
 
 from ..boundaries import kinds, periodic_words
-from .mode_table import DEFAULTS, MODE_NAMES, NOISE_RULE, mode_settings
+from .mode_table import DEFAULTS, MODE_NAMES, NOISE_RULE, SITL_NOISE_RULE, mode_settings
 from .predict import model_channels, net_step, pairs, predict, relative_errors, rollout, stack_frames
 
 LOSSES = ("mse", "relative")
@@ -357,10 +359,20 @@ class SolverInTheLoop:
     s <- S(s) + std * net(normalize(S(s)), params): the network outputs the correction in normalized units.
     The loss (``loss``) is over the k unrolled states against the fine trajectory subsampled, gradients through
     the solver (``datasets.SolverStep``). unroll=1 is training on precomputed (coarse step, fine) pairs.
+
+    ``noise`` = sigma > 0 (the noise baseline on the corrector, Sanchez-Gonzalez et al. 2020 applied to the
+    start state): the coarse start state s0 (the fine state restricted to the coarse grid) becomes
+    denormalize(normalize(s0) + eps), eps ~ N(0, sigma^2) independent per example, channel and point (so sigma is
+    a fraction of the data's std per channel; a mask channel is left as it is); the coarse solver and the
+    correction step from the perturbed state, the fine targets stay clean, so the correction learns to pull a
+    perturbed coarse state back toward the fine trajectory. eps is a pure function of (seed, optimizer step);
+    noise = 0 trains exactly as without it. The evaluation (rollout) is unperturbed.
     """
 
     unroll: int = DEFAULTS["unroll"]
     coarse_n: int = DEFAULTS["coarse_n"]
+    noise: float = 0.0
+    seed: int = 0
     step: nn.Module | None = None
     factor: int = 0
     walls: tuple[str, ...] | None = None  # the PDE's per-axis bc (None: periodic), for the fine -> coarse points
@@ -369,7 +381,10 @@ class SolverInTheLoop:
     name: ClassVar[str] = "solver-in-the-loop"
 
     def settings(self) -> dict:
-        return _with_loss({"name": self.name, "unroll": self.unroll, "coarse_n": self.coarse_n}, self.loss)
+        s = {"name": self.name, "unroll": self.unroll, "coarse_n": self.coarse_n}
+        if self.noise > 0:  # (left out at 0: run.json files written before the setting existed compare equal)
+            s.update(noise=self.noise, rule=SITL_NOISE_RULE)
+        return _with_loss(s, self.loss)
 
     def frames_ahead(self, view) -> int:
         return self.unroll
@@ -384,7 +399,9 @@ class SolverInTheLoop:
         return len(pde.FIELDS), len(pde.FIELDS)
 
     def bind(self, pde, seed: int = 0) -> "SolverInTheLoop":
-        """The coarse solver of the fine PDE ``pde``; ValueError (one line) when the sizes do not fit."""
+        """The coarse solver of the fine PDE ``pde``; seed: the run's seed (the start-state noise); ValueError (one
+        line) when the sizes do not fit."""
+        self.seed = seed
         n = pde.n
         if isinstance(self.coarse_n, bool) or not isinstance(self.coarse_n, int) or not (
                 0 < self.coarse_n < n and n % self.coarse_n == 0):
@@ -409,10 +426,30 @@ class SolverInTheLoop:
             dz = dz * keep.reshape(-1, *([1] * (dz.ndim - 2)))
         return norm.denormalize(z + dz)
 
+    def perturbation(self, step: int, z: torch.Tensor) -> torch.Tensor:
+        """eps (normalized units) for the coarse start states z [B, C, *coarse] at optimizer step ``step``:
+        N(0, noise^2) per example, channel and point (zero on a mask channel), z's device and dtype."""
+        eps = random_walk(self.seed, step, (z.shape[0], 1, *z.shape[1:]), self.noise)[:, 0]
+        eps = eps.to(device=z.device, dtype=z.dtype)
+        if self.locations and "mask" in self.locations:
+            keep = torch.tensor([w != "mask" for w in self.locations], dtype=z.dtype, device=z.device)
+            eps = eps * keep.reshape(-1, *([1] * (z.ndim - 2)))
+        return eps
+
+    def start(self, batch: dict, norm: Normalization, step: int) -> torch.Tensor:
+        """The coarse start states of optimizer step ``step``, physical units [B, C, *coarse]: the newest input
+        frame restricted to the coarse grid, perturbed when noise > 0."""
+        ndim = batch["x"].ndim - 3
+        s = subsample(batch["x"][:, -1], self.factor, ndim, self.walls, self.locations)
+        if self.noise > 0:  # s + std * eps: denormalize(normalize(s) + eps), a channel without noise left bit for bit
+            std = norm.std.to(device=s.device, dtype=s.dtype).reshape(-1, *([1] * ndim))
+            s = s + std * self.perturbation(step, s)
+        return s
+
     def step_loss(self, model, batch, norm, step):
         ndim = model.ndim
         params, p = batch["params"], norm.normalize_params(batch["params"])
-        s = subsample(batch["x"][:, -1], self.factor, ndim, self.walls, self.locations)  # [B, C, *coarse]
+        s = self.start(batch, norm, step)  # [B, C, *coarse]
         states = []
         for _ in range(self.unroll):
             s = self.correct(model, norm, self.step(s, params), p)

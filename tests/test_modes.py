@@ -265,7 +265,7 @@ def test_cli_compare_modes_quick(tmp_path, capsys):
     result = json.loads((out / "compare.json").read_text())
     arms = [a["arm"] for a in result["arms"]]
     assert arms == ["one-step", "pushforward", "oracle", "coarse solver", "pairs (unroll 1)",
-                    "solver-in-the-loop (unroll 2)"]
+                    "pairs + noise (unroll 1)", "solver-in-the-loop (unroll 2)"]
     for a in result["arms"]:
         assert len(a["curve"]) == 10 and all(v == v for v in a["curve"])  # 10 frames rolled out, no NaN
         assert a["steps"] == (0 if a["arm"] == "coarse solver" else 20)

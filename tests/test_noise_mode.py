@@ -186,7 +186,7 @@ def test_cli_refuses_a_bad_noise_scale_in_one_line_at_once(tmp_path, capsys, com
 def test_cli_noise_goes_with_the_noise_mode_only(tmp_path, capsys):
     rc = cli.main(["train", "burgers1d", "--mode", "pushforward", "--noise", "0.1", "--out", str(tmp_path / "r")])
     err = capsys.readouterr().err
-    assert rc == 2 and "--noise=0.1 goes with noise, not pushforward" in err and err.count("\n") == 1
+    assert rc == 2 and "--noise=0.1 goes with solver-in-the-loop or noise, not pushforward" in err and err.count("\n") == 1
     rc = cli.main(["compare", "burgers1d", "--noise", "0.1", "--out", str(tmp_path / "c")])
     err = capsys.readouterr().err
     assert rc == 2 and "--noise go with --modes" in err and err.count("\n") == 1
