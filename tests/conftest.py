@@ -47,6 +47,7 @@ def _mappings() -> int:
 SLOW_TESTS = os.path.join(os.path.dirname(__file__), "slow_tests.txt")
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's, which reads the groups set here (--dist loadgroup)
 def pytest_collection_modifyitems(config, items):
     # the measured long tests (slow_tests.txt) join the slow set, so the quick default stays a few minutes
     with open(SLOW_TESTS) as f:

@@ -16,6 +16,8 @@ from pdestream.generator.flow import Geometry, circle_solid, forces
 
 T = np.linspace(4.0, 8.0, 21).astype(np.float32)  # karman2d's default frame times
 D, U = 0.2, 1.0
+# one worker runs the whole file (--dist loadgroup), so its module fixture solves the default karman2d once
+pytestmark = pytest.mark.xdist_group("flow_forces")
 
 
 def _shed(lift, t=T):

@@ -9,6 +9,7 @@ import pytest
 
 from pdestream import cli, generator, meter
 from pdestream.generator import dispatch
+from pdestream.generator.flow.problem import FlowProblem
 from pdestream.surrogate.phases import phase
 
 SPECTRAL = dict(n=32, n_frames=6)
@@ -234,6 +235,23 @@ def test_the_measured_times_are_recorded_by_key_and_read_back(tmp_path, monkeypa
     path.unlink()
     timings.remember("generate karman2d abc cpu", {"startup_s": 1.0, "unit_s": 2.0})
     assert timings.history_path() is None and not path.exists()
+
+
+@pytest.mark.parametrize("name", [n for n, cls in generator.PDES.items() if issubclass(cls, FlowProblem)])
+def test_a_flow_at_its_defaults_has_an_estimate_on_a_machine_with_no_record(name, monkeypatch, tmp_path):
+    """A first flow run compiles for 30 s or more: its entry declares what a default run took on 2 CPU cores, so
+    the first line has a time left; another grid compiles and solves at another cost, so it gets none."""
+    from pdestream.datasets import _bridge, timings
+
+    monkeypatch.setenv(timings.HISTORY_ENV, str(tmp_path / "progress.json"))  # no record of any run
+    pde = generator.get_pde(name)
+    key = _bridge.progress_key("generate", pde)
+    first = timings.recall(key, _bridge.typical_times(pde))
+    assert first["basis"] == "typical of its defaults on 2 CPU cores" and first["startup_s"] > 0 < first["unit_s"]
+    other = pde.replace(n_frames=pde.n_frames + 1)
+    assert timings.recall(_bridge.progress_key("generate", other), _bridge.typical_times(other)) is None
+    m = meter.Meter(name, 4, "samples", last=first, starting="compiling the solver", enabled=False)
+    assert "typical of its defaults on 2 CPU cores" in m.text() and " left " in m.text()
 
 
 def test_generate_records_its_times_and_the_next_run_starts_from_them(capsys, tmp_path, monkeypatch):
