@@ -130,6 +130,8 @@ class Cavity2D(FlowProblem):
     """The lid-driven cavity: a closed square box whose top wall slides at the lid speed U. Re = U L / nu."""
 
     NAME: ClassVar[str] = "cavity2d"
+    # `pdestream generate cavity2d --n 4` on 2 shared CPU cores (load 3-4), no compilation cache (progress lines)
+    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 13.1, "unit_s": 1.12}
     EQUATION: ClassVar[str] = "u_t + (u.grad)u = -grad p + nu lap u, div u = 0; lid-driven cavity, nu = U L / Re"
     FIELDS: ClassVar[tuple] = ("u", "v", "p")
     FIELD_UNITS: ClassVar[dict] = FLOW_UNITS
@@ -164,6 +166,8 @@ class Channel2D(FlowProblem):
     with U the mean inflow speed and H the channel height. The bodies come from the sample's geometry key."""
 
     NAME: ClassVar[str] = "channel2d"
+    # `pdestream generate channel2d --n 4` on 2 shared CPU cores (load 3-4), no compilation cache (progress lines)
+    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 25.0, "unit_s": 25.8}
     EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u, div u = 0; channel with random obstacles, "
                                "nu = U H / Re")
     FIELDS: ClassVar[tuple] = ("u", "v", "p", "solid")
@@ -244,6 +248,8 @@ class Smoke2D(FlowProblem):
     acceleration buoyancy * smoke. Walls left, right and at the bottom, an open (outflow) top."""
 
     NAME: ClassVar[str] = "smoke2d"
+    # `pdestream generate smoke2d --n 4` on 2 shared CPU cores (load 3-4), no compilation cache (progress lines)
+    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 17.1, "unit_s": 1.62}
     EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u + b s e_y, div u = 0, s_t + u.grad s = "
                                "source; buoyant plume")
     FIELDS: ClassVar[tuple] = ("u", "v", "p", "smoke")
