@@ -14,7 +14,7 @@ import pytest
 from pdestream import generator
 from pdestream.generator.flow import Geometry, circle_solid, forces
 
-T = np.linspace(4.0, 8.0, 21).astype(np.float32)  # karman2d's default frame times
+T = np.linspace(4.0, 8.0, 21).astype(np.float32)  # karman2d's former default frames: ~4 per period, a hard case
 D, U = 0.2, 1.0
 
 
