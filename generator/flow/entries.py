@@ -48,7 +48,8 @@ class Karman2D(FlowProblem):
     So Re ~ uniform(90, 120), the window starts at t 12 (>= 2.5 s, ~3 periods, after that spin-up) and spans
     t 12-16 (4.5-6.5 shedding periods of 0.61-0.89 s) in 81 frames (0.05 s apart: >= 12 frames per period).
     The cylinder sits below the centre line (cy ~ uniform(0.42, 0.46), at least 1.3 cells off it): a centred
-    mask is mirror-symmetric and never sheds, one within a cell of the centre starts late; the channel is
+    mask is mirror-symmetric and sheds only once rounding has grown (lift 0.0003 at t 12, 0.014 at t 16, Re 100),
+    one within a cell of the centre starts late; the channel is
     mirror-symmetric, so a cylinder above the line is the mirror image of one below.
 
     Outputs beside the fields (``OUTPUTS``, computed from each stored frame in JAX by ``sample_outputs``):
