@@ -7,6 +7,7 @@ parameters: one off the centre line, one on it; cy's domain widened to hold the 
 window t 4-8 in 21 frames: by t 12-16 rounding has seeded the centred cylinder's shedding, lift 0.014 at t 16 at
 Re 100), so the whole module compiles the flow once."""
 
+import functools
 import math
 
 import jax.numpy as jnp
@@ -75,18 +76,28 @@ GIVEN = {"re": [100.0, 100.0], "radius": [0.1, 0.1], "cx": [0.5, 0.5], "cy": [0.
          "plug": [0.0, 0.0]}
 
 
-@pytest.fixture(scope="module")
-def karman():
+@functools.lru_cache(maxsize=None)  # once per process: a CI run set the module fixture up twice in one worker
+def _karman():
     pde = generator.get_pde("karman2d", cy="uniform(0.42, 0.58)", t_start=4.0, t_end=8.0, n_frames=21)
     return pde, generator.sample(pde, [0, 1], seed=0, params=GIVEN)
+
+
+@functools.lru_cache(maxsize=None)
+def _block():
+    from pdestream.datasets import cache
+
+    return cache.solve_block(_karman()[0], 0, 0, 1, 1, "raise")
+
+
+@pytest.fixture(scope="module")
+def karman():
+    return _karman()
 
 
 @pytest.fixture(scope="module")
 def block(karman):
     """Sample 0 of seed 0 solved as a cache block (``cache.solve_block``), for both formats."""
-    from pdestream.datasets import cache
-
-    return cache.solve_block(karman[0], 0, 0, 1, 1, "raise")
+    return _block()
 
 
 @pytest.mark.slow
