@@ -10,7 +10,6 @@ import torch
 
 from pdestream import cli, datasets, generator
 from pdestream.surrogate import build_model
-from pdestream.surrogate import train as T
 from pdestream.surrogate.modes import (
     Oracle,
     Pushforward,
@@ -21,6 +20,7 @@ from pdestream.surrogate.modes import (
     training_view,
 )
 from pdestream.surrogate.runs import resume_run, train_run
+from tests.interrupt import interrupted_at
 
 torch.set_num_threads(1)
 
@@ -233,18 +233,8 @@ def test_resume_continues_a_mode_run_exactly(tmp_path, monkeypatch):
     kw = dict(model_cfg=TINY, steps=6, batch_size=4, n_test=2, checkpoint_every=3,
               mode={"name": "oracle", "unroll": 2})
     whole = train_run(PDE, "stream", tmp_path / "whole", **kw)
-    real = T.forever
-
-    def dying(loader):
-        for n, batch in enumerate(real(loader), 1):
-            if n == 5:
-                raise KeyboardInterrupt
-            yield batch
-
-    monkeypatch.setattr(T, "forever", dying)
-    with pytest.raises(KeyboardInterrupt):
+    with interrupted_at(monkeypatch, 5), pytest.raises(KeyboardInterrupt):
         train_run(PDE, "stream", tmp_path / "cut", **kw)
-    monkeypatch.setattr(T, "forever", real)
     settings = json.loads((tmp_path / "cut" / "run.json").read_text())
     assert settings["mode"] == {"name": "oracle", "unroll": 2} and settings["view_args"]["k_out"] == 1
     resumed, step = resume_run(tmp_path / "cut")

@@ -14,10 +14,10 @@ import torch
 from torch import nn
 
 from pdestream import cli, datasets, generator
-from pdestream.surrogate import train as T
 from pdestream.surrogate.mode_table import SITL_NOISE_RULE, mode_settings
 from pdestream.surrogate.modes import SolverInTheLoop, make_mode, subsample
 from pdestream.surrogate.runs import resume_run, train_run
+from tests.interrupt import interrupted_at
 
 torch.set_num_threads(1)
 
@@ -138,18 +138,8 @@ def test_run_json_records_the_noise_and_resume_is_exact(tmp_path, monkeypatch):
     kw = dict(model_cfg=TINY, steps=6, batch_size=4, n_test=2, checkpoint_every=3, view=datasets.NextStep(1, 1),
               mode={"name": "solver-in-the-loop", "unroll": 1, "coarse_n": 16, "noise": 0.2})
     whole = train_run(FINE, "stream", tmp_path / "whole", **kw)
-    real = T.forever
-
-    def dying(loader):
-        for n, b in enumerate(real(loader), 1):
-            if n == 5:
-                raise KeyboardInterrupt
-            yield b
-
-    monkeypatch.setattr(T, "forever", dying)
-    with pytest.raises(KeyboardInterrupt):
+    with interrupted_at(monkeypatch, 5), pytest.raises(KeyboardInterrupt):
         train_run(FINE, "stream", tmp_path / "cut", **kw)
-    monkeypatch.setattr(T, "forever", real)
     settings = json.loads((tmp_path / "cut" / "run.json").read_text())
     assert settings["mode"] == {"name": "solver-in-the-loop", "unroll": 1, "coarse_n": 16, "noise": 0.2,
                                 "rule": SITL_NOISE_RULE}
