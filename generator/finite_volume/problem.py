@@ -23,7 +23,7 @@ import functools
 import math
 import threading
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping
 
 import jax
 import jax.numpy as jnp
@@ -35,8 +35,8 @@ from ..chunked import chunked_map, join, split
 from ..domains import Fixed, parse_domain
 from ..grids import GridBase
 from ..problem import MAX_STEPS, Param, ProblemBase, resolve_params
-from . import euler
-from .euler import CAUSES, LIMITERS, SIDE_KINDS, Health
+from . import euler, scheme, shallow_water
+from .scheme import LIMITERS, SIDE_KINDS, Health
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
 MAX_CFL = 0.8  # a sample whose own CFL number passes this fails (the step no longer resolves its fastest wave)
@@ -219,8 +219,176 @@ IC_KINDS: dict[str, type] = {c.kind: c for c in (Riemann, Sod, Lax, Toro123, Smo
 _LAST = threading.local()  # the causes of this thread's last run_keys (failure_causes)
 
 
+@dataclass(frozen=True, eq=False)  # hashed by identity: a static argument of the compiled programs
+class Scheme:
+    """One solver of the family as the problems use it: ``run(q, health, phys, dt, k, h, sides, limiter,
+    cfl_limit)`` (a module's guarded stepping loop), ``to_state(w, phys)`` stored fields -> conserved state,
+    ``to_output(q, phys)`` the reverse, ``causes`` {health code: words}; phys is the one physical parameter."""
+
+    run: Callable
+    to_state: Callable
+    to_output: Callable
+    causes: Mapping
+
+
+def _same(q, phys):
+    return q
+
+
+EULER_1D = Scheme(euler.run, euler.to_conserved, euler.to_primitive, euler.CAUSES)
+EULER_2D = Scheme(euler.run_2d, euler.to_conserved_2d, euler.to_primitive_2d, euler.CAUSES)
+SHALLOW_WATER = Scheme(shallow_water.run, _same, _same, shallow_water.CAUSES)
+
+
 @dataclass(frozen=True)
-class Euler1D(ProblemBase):
+class FiniteVolume(ProblemBase):
+    """What every entry of the family shares: the fixed step, the chunked batch-invariant rollout, the failure
+    causes, the interactive oracle and its VJP. A subclass declares SCHEME, PHYS (its physical parameter's name),
+    MAX_CFL and the settings n, length, ic, t_end, n_frames, bc, cfl, limiter; ``sides`` (the side kinds, 2 per
+    axis), ``speed_bound`` and ``grid`` come from it too."""
+
+    SCHEME: ClassVar[Scheme] = EULER_1D
+    PHYS: ClassVar[str] = "gamma"
+    MAX_CFL: ClassVar[float] = MAX_CFL
+    FAILURE_WORDS: ClassVar[str] = "a non-positive density or pressure, a NaN/Inf"
+
+    # --- settings ------------------------------------------------------------------------------------
+    @property
+    def h(self) -> float:
+        return self.length / self.n
+
+    def times(self) -> np.ndarray:
+        """Frame times, float32 [n_frames]."""
+        return np.linspace(0.0, self.t_end, self.n_frames).astype(np.float32)
+
+    @property
+    def frame_dt(self) -> float:
+        return self.t_end / (self.n_frames - 1)
+
+    @property
+    def steps_per_frame(self) -> int:
+        """Steps of one frame interval: dt NDIM s0 / h <= cfl (in 2D the CFL number sums both axes' speeds)."""
+        bound = self.frame_dt * self.NDIM * self.speed_bound() / (self.cfl * self.h)
+        return max(1, math.ceil(bound * (1 - 1e-9)))
+
+    @property
+    def step_dt(self) -> float:
+        return self.frame_dt / self.steps_per_frame
+
+    def _validate_common(self, n_min: int) -> None:
+        """The checks every entry makes (bc is the subclass's: its grammar differs by dimension)."""
+        if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < n_min:
+            raise ValueError(f"{self.NAME}: n={self.n!r} not allowed: cells must be an integer >= {n_min}")
+        self._check_length()
+        if not (self.t_end > 0 and math.isfinite(self.t_end)):
+            raise ValueError(f"{self.NAME}: t_end={self.t_end} not allowed: must be a finite number > 0")
+        if self.n_frames < 2:
+            raise ValueError(f"{self.NAME}: n_frames={self.n_frames} not allowed: need an integer >= 2 (t=0 and t_end)")
+        if not 0 < self.cfl <= self.MAX_CFL:
+            raise ValueError(f"{self.NAME}: cfl={self.cfl:g} not allowed: must be in (0, {self.MAX_CFL:g}]")
+        if self.limiter not in LIMITERS:
+            raise ValueError(f"{self.NAME}: limiter={self.limiter!r} not allowed; allowed: {', '.join(LIMITERS)}")
+
+    def _validate_size(self) -> None:
+        if getattr(self.ic, "field_count", None) != len(self.FIELDS):
+            raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed; allowed: {', '.join(self.IC_KINDS)}")
+        self._check_size()
+        self._check_ic_on_grid()
+        steps = (self.n_frames - 1) * self.steps_per_frame
+        if not steps <= MAX_STEPS:
+            raise ValueError(f"{self.NAME}: t_end={self.t_end:g} would take ~{steps:.3g} steps per trajectory; the "
+                             f"limit is {MAX_STEPS} (a shorter time window or a coarser grid)")
+
+    def _step_words(self) -> str:
+        return (f"t in [0, {self.t_end:g}], {self.n_frames} frames, step {self.step_dt:.4g} ({self.steps_per_frame}/"
+                f"frame, CFL {self.cfl:g} at the initial speed bound {self.speed_bound():.3g})")
+
+    def failure(self) -> tuple[str, str]:
+        return (f"trajectories failed ({self.FAILURE_WORDS}, or a CFL number above {self.MAX_CFL:g} with step "
+                f"{self.step_dt:.4g})", "a smaller cfl, a finer grid or a narrower ic domain avoids this")
+
+    def failure_causes(self) -> list[str]:
+        return list(getattr(_LAST, "causes", ()))
+
+    # --- solving ---------------------------------------------------------------------------------------
+    def consts(self, dtype=jnp.float32) -> tuple:
+        """The stepping program's traced settings: (dt, h, sides int32 [2 NDIM], limiter int32)."""
+        return (jnp.asarray(self.step_dt, dtype), jnp.asarray(self.h, dtype),
+                jnp.asarray([SIDE_KINDS.index(s) for s in self.sides], jnp.int32),
+                jnp.int32(LIMITERS.index(self.limiter)))
+
+    def _causes(self, health: Health) -> list[str]:
+        code, step, cfl = (np.asarray(a) for a in (health.code, health.step, health.cfl))
+        return ["" if c == scheme.OK else f"{self.SCHEME.causes[int(c)]} at t = {s * self.step_dt:.4g}"
+                + (f" (CFL {v:.3g})" if c == scheme.CFL_EXCEEDED else "") for c, s, v in zip(code, step, cfl)]
+
+    def _rollout(self, q, hl, phys, count):
+        """One chunk from its initial state: (u [K, T, C, *grid], health)."""
+        consts, sch = self.consts(), self.SCHEME
+        frames = [_frame(sch, q, phys)]
+        per_step = CHUNK * self.n**self.NDIM * STEP_WORK_PER_CELL + dispatch.step_overhead()
+        for _ in range(self.n_frames - 1):
+            for k in dispatch.pieces(self.steps_per_frame, per_step):
+                q, hl = _advance(sch, self.MAX_CFL, q, hl, phys, *consts, jnp.int32(k))
+                dispatch.sync([(q,)])
+                count[0] += k
+                dispatch.report(count[0], count[1])
+            frames.append(_frame(sch, q, phys))
+        return jnp.stack(frames, axis=1), hl
+
+    def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
+        """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, C, *grid], params {name: [B]}, ok
+        bool [B], None); why a sample failed in ``failure_causes()``."""
+        start = _start(self)
+        parts = split([jnp.asarray(keys), jnp.asarray(explicit), jnp.asarray(given)], CHUNK)
+        count = [0, len(parts) * (self.n_frames - 1) * self.steps_per_frame]
+        results = []
+        for part in parts:
+            p, q, hl = start(*part)
+            results.append((*self._rollout(q, hl, p[self.PHYS], count), p))
+        u, health, params = join(results, int(keys.shape[0]))
+        _LAST.causes = self._causes(health)
+        return u, params, health.code == scheme.OK, None
+
+    def evolve(self, u0: jax.Array, p: Mapping[str, jax.Array]):
+        """A caller's states u0 [B, C, *grid] (the stored fields), params {name: [B]} -> (u [B, T, C, *grid],
+        ok [B])."""
+        phys = jnp.broadcast_to(jnp.asarray(p[self.PHYS], jnp.float32), (u0.shape[0],))
+        parts = split([jnp.asarray(u0, jnp.float32), phys], CHUNK)
+        count = [0, len(parts) * (self.n_frames - 1) * self.steps_per_frame]
+        results = []
+        for w, g in parts:
+            q, hl = _conserved(self.SCHEME, w, g)
+            results.append(self._rollout(q, hl, g, count))
+        u, health = join(results, u0.shape[0])
+        _LAST.causes = self._causes(health)
+        return u, health.code == scheme.OK
+
+    def advance_frames(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int):
+        """Frames u [B, C, *grid] advanced ``frames`` frame intervals: (u_k, ok [B]) (generator.interactive): the
+        sampler's step sequence, so frame i advanced once is frame i + 1 to the rounding of the conversion
+        round trip (bit for bit where the stored fields are the conserved ones)."""
+        phys = jnp.asarray(params[self.PHYS], u.dtype)
+        consts = self.consts(u.dtype)
+        k = jnp.int32(frames * self.steps_per_frame)
+        return chunked_map(lambda w, g: _oracle(self.SCHEME, self.MAX_CFL, w, g, *consts, k), CHUNK, u, phys)
+
+    def advance_frames_vjp(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int, wrt_params: bool):
+        """``advance_frames`` with its VJP: (u_k, ok, vjp); vjp(g) -> (g_u, g_params or None). A vmapped scan of
+        the same steps, equal to ``advance_frames`` to rounding."""
+        phys = jnp.asarray(params[self.PHYS], u.dtype)
+        go = _oracle_vjp(self.SCHEME, self.MAX_CFL, frames * self.steps_per_frame, wrt_params)
+        out, ok, vjp = go(u, phys, *self.consts(u.dtype))
+
+        def back(g):
+            got = _apply(vjp, jnp.asarray(g, out.dtype))
+            return (got[0], {self.PHYS: got[1]}) if wrt_params else (got[0], None)
+
+        return out, ok, back
+
+
+@dataclass(frozen=True)
+class Euler1D(FiniteVolume):
     """1D compressible Euler of an ideal gas; dimensionless (length, time and density units of the IC)."""
 
     NAME: ClassVar[str] = "euler1d"
@@ -243,7 +411,6 @@ class Euler1D(ProblemBase):
     limiter: str = "minmod"  # MUSCL slope limiter: one of LIMITERS
     gamma: Any = Fixed(1.4)
 
-    # --- settings ------------------------------------------------------------------------------------
     def replace(self, overrides: Mapping[str, Any] | None = None, **kwargs) -> "Euler1D":
         """``ProblemBase.replace``; ``bc.x`` is ``bc`` (the one axis)."""
         changes = {("bc" if k == "bc.x" else k): v for k, v in {**(overrides or {}), **kwargs}.items()}
@@ -258,202 +425,84 @@ class Euler1D(ProblemBase):
     def grid(self) -> FVGrid:
         return FVGrid(1, self.n, self.length, self.sides)
 
-    @property
-    def h(self) -> float:
-        return self.length / self.n
-
-    def times(self) -> np.ndarray:
-        """Frame times, float32 [n_frames]."""
-        return np.linspace(0.0, self.t_end, self.n_frames).astype(np.float32)
-
     def speed_bound(self) -> float:
         """Largest |u| + c of the initial states the IC distribution allows, at the largest gamma."""
         return self.ic.speed(max(self.gamma.bounds))
 
-    @property
-    def frame_dt(self) -> float:
-        return self.t_end / (self.n_frames - 1)
-
-    @property
-    def steps_per_frame(self) -> int:
-        return max(1, math.ceil(self.frame_dt * self.speed_bound() / (self.cfl * self.h) * (1 - 1e-9)))
-
-    @property
-    def step_dt(self) -> float:
-        return self.frame_dt / self.steps_per_frame
-
     def validate(self) -> None:
-        if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < 16:
-            raise ValueError(f"{self.NAME}: n={self.n!r} not allowed: cells must be an integer >= 16")
-        self._check_length()
-        if not (self.t_end > 0 and math.isfinite(self.t_end)):
-            raise ValueError(f"{self.NAME}: t_end={self.t_end} not allowed: must be a finite number > 0")
-        if self.n_frames < 2:
-            raise ValueError(f"{self.NAME}: n_frames={self.n_frames} not allowed: need an integer >= 2 (t=0 and t_end)")
+        self._validate_common(16)
         sides = [w.strip().lower() for w in self.bc.split(",")]
         if len(sides) > 2 or any(w not in SIDE_KINDS for w in sides):
             raise ValueError(f"{self.NAME}: bc={self.bc!r} not allowed; allowed: {', '.join(SIDE_KINDS)}, one for "
                              "both ends or two as left,right (e.g. wall,outflow)")
         if len(sides) == 2 and is_periodic(sides[0]) != is_periodic(sides[1]):
             raise ValueError(f"{self.NAME}: bc={self.bc!r} not allowed: periodic ends come in pairs")
-        if not 0 < self.cfl <= MAX_CFL:
-            raise ValueError(f"{self.NAME}: cfl={self.cfl:g} not allowed: must be in (0, {MAX_CFL:g}]")
-        if self.limiter not in LIMITERS:
-            raise ValueError(f"{self.NAME}: limiter={self.limiter!r} not allowed; allowed: {', '.join(LIMITERS)}")
         if not min(self.gamma.bounds) > 1:
             raise ValueError(f"{self.NAME}: gamma={self.gamma} not allowed: the ratio of specific heats must be > 1")
-        if getattr(self.ic, "field_count", None) != 3:
-            raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed; allowed: {', '.join(IC_KINDS)}")
-        self._check_size()
-        self._check_ic_on_grid()
-        steps = (self.n_frames - 1) * self.frame_dt * self.speed_bound() / (self.cfl * self.h)
-        if not steps <= MAX_STEPS:
-            raise ValueError(f"{self.NAME}: t_end={self.t_end:g} would take ~{steps:.3g} steps per trajectory; the "
-                             f"limit is {MAX_STEPS} (a shorter time window or a coarser grid)")
+        self._validate_size()
 
     def describe_setup(self) -> str:
         return (f"  fields: {', '.join(self.FIELDS)} (primitive)   grid: {self.grid.describe()}\n"
-                f"  t in [0, {self.t_end:g}], {self.n_frames} frames, step {self.step_dt:.4g} ({self.steps_per_frame}/"
-                f"frame, CFL {self.cfl:g} at the initial speed bound {self.speed_bound():.3g}); finite volumes: "
-                f"MUSCL ({self.limiter}) on (rho, u, p), HLLC, SSP-RK3")
-
-    def failure(self) -> tuple[str, str]:
-        return (f"trajectories failed (a non-positive density or pressure, a NaN/Inf, or a CFL number above "
-                f"{MAX_CFL:g} with step {self.step_dt:.4g})",
-                "a smaller cfl, a finer grid or a narrower ic domain avoids this")
-
-    def failure_causes(self) -> list[str]:
-        return list(getattr(_LAST, "causes", ()))
-
-    # --- solving ---------------------------------------------------------------------------------------
-    def consts(self, dtype=jnp.float32) -> tuple:
-        """The stepping program's traced settings: (dt, h, sides int32 [2], limiter int32)."""
-        return (jnp.asarray(self.step_dt, dtype), jnp.asarray(self.h, dtype),
-                jnp.asarray([SIDE_KINDS.index(s) for s in self.sides], jnp.int32),
-                jnp.int32(LIMITERS.index(self.limiter)))
-
-    def _causes(self, health: Health) -> list[str]:
-        code, step, cfl = (np.asarray(a) for a in (health.code, health.step, health.cfl))
-        return ["" if c == euler.OK else
-                f"{CAUSES[int(c)]} at t = {s * self.step_dt:.4g}" + (f" (CFL {v:.3g})" if c == euler.CFL_EXCEEDED else "")
-                for c, s, v in zip(code, step, cfl)]
-
-    def _rollout(self, q, hl, gamma, count):
-        """One chunk from its initial state: (u [K, T, 3, n], health)."""
-        consts = self.consts()
-        frames = [_frame(q, gamma)]
-        per_step = CHUNK * self.n * STEP_WORK_PER_CELL + dispatch.step_overhead()
-        for _ in range(self.n_frames - 1):
-            for k in dispatch.pieces(self.steps_per_frame, per_step):
-                q, hl = _advance(q, hl, gamma, *consts, jnp.int32(k))
-                dispatch.sync([(q,)])
-                count[0] += k
-                dispatch.report(count[0], count[1])
-            frames.append(_frame(q, gamma))
-        return jnp.stack(frames, axis=1), hl
-
-    def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
-        """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, 3, n], params {name: [B]}, ok bool
-        [B], None); why a sample failed in ``failure_causes()``."""
-        start = _start(self)
-        parts = split([jnp.asarray(keys), jnp.asarray(explicit), jnp.asarray(given)], CHUNK)
-        count = [0, len(parts) * (self.n_frames - 1) * self.steps_per_frame]
-        results = []
-        for part in parts:
-            p, q, hl = start(*part)
-            results.append((*self._rollout(q, hl, p["gamma"], count), p))
-        u, health, params = join(results, int(keys.shape[0]))
-        _LAST.causes = self._causes(health)
-        return u, params, health.code == euler.OK, None
-
-    def evolve(self, u0: jax.Array, p: Mapping[str, jax.Array]):
-        """A caller's primitive states u0 [B, 3, n], params {name: [B]} -> (u [B, T, 3, n], ok [B])."""
-        gamma = jnp.broadcast_to(jnp.asarray(p["gamma"], jnp.float32), (u0.shape[0],))
-        parts = split([jnp.asarray(u0, jnp.float32), gamma], CHUNK)
-        count = [0, len(parts) * (self.n_frames - 1) * self.steps_per_frame]
-        results = []
-        for w, g in parts:
-            q, hl = _conserved(w, g)
-            results.append(self._rollout(q, hl, g, count))
-        u, health = join(results, u0.shape[0])
-        _LAST.causes = self._causes(health)
-        return u, health.code == euler.OK
-
-    def advance_frames(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int):
-        """Frames u [B, 3, n] advanced ``frames`` frame intervals: (u_k, ok [B]) (generator.interactive): the
-        sampler's step sequence, so frame i advanced once is frame i + 1 to the rounding of the primitive round trip."""
-        gamma = jnp.asarray(params["gamma"], u.dtype)
-        consts = self.consts(u.dtype)
-        k = jnp.int32(frames * self.steps_per_frame)
-        return chunked_map(lambda w, g: _oracle(w, g, *consts, k), CHUNK, u, gamma)
-
-    def advance_frames_vjp(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int, wrt_params: bool):
-        """``advance_frames`` with its VJP: (u_k, ok, vjp); vjp(g) -> (g_u, g_params or None). A vmapped scan of
-        the same steps, equal to ``advance_frames`` to rounding."""
-        gamma = jnp.asarray(params["gamma"], u.dtype)
-        out, ok, vjp = _oracle_vjp(frames * self.steps_per_frame, wrt_params)(u, gamma, *self.consts(u.dtype))
-
-        def back(g):
-            got = _apply(vjp, jnp.asarray(g, out.dtype))
-            return (got[0], {"gamma": got[1]}) if wrt_params else (got[0], None)
-
-        return out, ok, back
+                f"  {self._step_words()}; finite volumes: MUSCL ({self.limiter}) on (rho, u, p), HLLC, SSP-RK3")
 
 
 # --- compiled programs: each row the unbatched solver inside jax.lax.map over a fixed chunk (batch-invariant
 # bits); the settings (dt, h, sides, limiter, steps) are traced, so one program serves every entry of a grid size
-@jax.jit
-def _advance(q, hl, gamma, dt, h, sides, limiter, k):
-    """(q [K, 3, n], Health [K], gamma [K]) -> (q, health) k steps of dt later."""
-    return jax.lax.map(lambda t: euler.run(t[0], t[1], t[2], dt, k, h, sides, limiter, MAX_CFL), (q, hl, gamma))
+# and scheme (static: which equations)
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def _advance(sch, cfl_limit, q, hl, phys, dt, h, sides, limiter, k):
+    """(q [K, C, *grid], Health [K], phys [K]) -> (q, health) k steps of dt later."""
+    return jax.lax.map(lambda t: sch.run(t[0], t[1], t[2], dt, k, h, sides, limiter, cfl_limit), (q, hl, phys))
 
 
-@jax.jit
-def _frame(q, gamma):
-    """Conserved q [K, 3, n] -> primitive [K, 3, n]."""
-    return jax.lax.map(lambda t: euler.to_primitive(*t), (q, gamma))
+@functools.partial(jax.jit, static_argnums=0)
+def _frame(sch, q, phys):
+    """Conserved q [K, C, *grid] -> the stored fields [K, C, *grid]."""
+    return jax.lax.map(lambda t: sch.to_output(*t), (q, phys))
 
 
-@jax.jit
-def _conserved(w, gamma):
-    """A caller's primitive w [K, 3, n] -> (conserved q, Health [K])."""
-    return jax.lax.map(lambda t: (euler.to_conserved(*t), euler.healthy(t[0].dtype)), (w, gamma))
+@functools.partial(jax.jit, static_argnums=0)
+def _conserved(sch, w, phys):
+    """A caller's stored fields w [K, C, *grid] -> (conserved q, Health [K])."""
+    return jax.lax.map(lambda t: (sch.to_state(*t), scheme.healthy(t[0].dtype)), (w, phys))
 
 
 @functools.lru_cache(maxsize=16)
-def _start(problem: Euler1D):
-    """jit of (keys [K], explicit [K, P], given [K, P]) -> (params {gamma: [K]}, conserved q [K, 3, n], Health)."""
-    grid = problem.grid
+def _start(problem: FiniteVolume):
+    """jit of (keys [K], explicit [K, P], given [K, P]) -> (params {name: [K]}, conserved q [K, C, *grid],
+    Health)."""
+    grid, sch = problem.grid, problem.SCHEME
 
     def one(key, explicit, given):
         k_param, k_ic = jax.random.split(key)
         p = resolve_params(problem, k_param, explicit, given)
-        return p, euler.to_conserved(problem.ic.sample(k_ic, grid, 3), p["gamma"]), euler.healthy()
+        w = problem.ic.sample(k_ic, grid, len(problem.FIELDS))
+        return p, sch.to_state(w, p[problem.PHYS]), scheme.healthy()
 
     return jax.jit(lambda keys, ex, gv: jax.lax.map(lambda t: one(*t), (keys, ex, gv)))
 
 
-def _oracle_one(w, gamma, dt, h, sides, limiter, k):
-    """A primitive frame w [3, n] k steps later, and whether it stayed healthy."""
-    q, hl = euler.run(euler.to_conserved(w, gamma), euler.healthy(w.dtype), gamma, dt, k, h, sides, limiter, MAX_CFL)
-    return euler.to_primitive(q, gamma), hl.code == euler.OK
+def _oracle_one(sch, cfl_limit, w, phys, dt, h, sides, limiter, k):
+    """A stored frame w [C, *grid] k steps later, and whether it stayed healthy."""
+    q, hl = sch.run(sch.to_state(w, phys), scheme.healthy(w.dtype), phys, dt, k, h, sides, limiter, cfl_limit)
+    return sch.to_output(q, phys), hl.code == scheme.OK
 
 
-@jax.jit
-def _oracle(u, gamma, dt, h, sides, limiter, k):
-    return jax.lax.map(lambda t: _oracle_one(t[0], t[1], dt, h, sides, limiter, k), (u, gamma))
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def _oracle(sch, cfl_limit, u, phys, dt, h, sides, limiter, k):
+    return jax.lax.map(lambda t: _oracle_one(sch, cfl_limit, t[0], t[1], dt, h, sides, limiter, k), (u, phys))
 
 
 @functools.lru_cache(maxsize=32)
-def _oracle_vjp(k: int, wrt_params: bool):
-    """jit of (u [B, 3, n], gamma [B], dt, h, sides, limiter) -> (u_k, ok, vjp): k a Python int (a scan)."""
-    def go(u, gamma, dt, h, sides, limiter):
-        many = jax.vmap(lambda w, g: _oracle_one(w, g, dt, h, sides, limiter, k))
+def _oracle_vjp(sch, cfl_limit: float, k: int, wrt_params: bool):
+    """jit of (u [B, C, *grid], phys [B], dt, h, sides, limiter) -> (u_k, ok, vjp): k a Python int (a scan)."""
+    def go(u, phys, dt, h, sides, limiter):
+        many = jax.vmap(lambda w, g: _oracle_one(sch, cfl_limit, w, g, dt, h, sides, limiter, k))
 
         def fn(*args):  # the frames, with ok as an undifferentiated output
-            return many(*args) if wrt_params else many(args[0], gamma)
+            return many(*args) if wrt_params else many(args[0], phys)
 
-        out, vjp, ok = jax.vjp(fn, *((u, gamma) if wrt_params else (u,)), has_aux=True)
+        out, vjp, ok = jax.vjp(fn, *((u, phys) if wrt_params else (u,)), has_aux=True)
         return out, ok, vjp
 
     return jax.jit(go)
@@ -464,4 +513,4 @@ def _apply(vjp, g):
     return vjp(g)
 
 
-__all__ = ["Euler1D", "FVGrid", "IC_KINDS", "Lax", "MAX_CFL", "Riemann", "Smooth", "Sod", "Toro123"]
+__all__ = ["Euler1D", "FVGrid", "FiniteVolume", "IC_KINDS", "Lax", "MAX_CFL", "Riemann", "Smooth", "Sod", "Toro123"]
