@@ -1,10 +1,15 @@
-"""Finite-volume solvers for conservation laws with shocks (JAX; float32, float64 under x64; jit/vmap-able).
+"""Finite-volume solvers for conservation laws with shocks and fronts (JAX; float32, float64 under x64;
+jit/vmap-able).
 
-So far one entry: ``euler1d`` (``problem.Euler1D``), 1D compressible Euler by MUSCL (minmod or MC limiter on the
-primitive variables), HLLC fluxes and SSP-RK3 (``euler``). Checked against an exact Riemann solver (Sod, Lax,
-Toro's 123), conservation, positivity, a translated density wave and batch invariance: tests/test_finite_volume.py.
+Entries: ``euler1d`` (``problem.Euler1D``), 1D compressible Euler by MUSCL (minmod or MC limiter on the primitive
+variables), HLLC fluxes and SSP-RK3 (``euler``); ``shallow_water2d`` (``problem2d.ShallowWater2D``), flat-bed
+shallow water with wet/dry fronts by MUSCL, HLL and SSP-RK3 (``shallow_water``). The parts they share (ghost
+cells, limiter, faces, the 2D divergence, SSP-RK3, the guarded loop) are ``scheme``'s. Checked against exact
+solutions (Riemann problems, Ritter's dam break), conservation, positivity and batch invariance:
+tests/test_finite_volume.py, tests/test_finite_volume_2d.py.
 """
 
 from .problem import Euler1D, FVGrid
+from .problem2d import ShallowWater2D
 
-__all__ = ["Euler1D", "FVGrid"]
+__all__ = ["Euler1D", "FVGrid", "ShallowWater2D"]

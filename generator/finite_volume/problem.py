@@ -45,7 +45,8 @@ STEP_WORK_PER_CELL = 32  # one RK3 step's work per cell in the spectral family's
 
 @dataclass(frozen=True)
 class FVGrid(GridBase):
-    """n cells of side h = length / n on [0, length]; ``sides`` (left, right) each one of SIDE_KINDS."""
+    """n cells of side h = length / n per axis on [0, length]^ndim; ``sides`` (low, high) per axis in axis order
+    (x low, x high, y low, y high in 2D), each one of SIDE_KINDS."""
 
     POINTS: ClassVar[str] = "cell centres of a finite-volume grid (values from the cell averages)"
 
@@ -53,16 +54,21 @@ class FVGrid(GridBase):
 
     @property
     def bc(self) -> tuple[str, ...]:
-        """periodic; dirichlet where both ends are walls (u = 0 there); neumann where an end is open."""
-        lo, hi = self.sides
-        return ((PERIODIC if is_periodic(lo) else DIRICHLET if lo == hi == "wall" else NEUMANN).value,)
+        """Per axis: periodic; dirichlet where both ends are walls (normal velocity 0 there); neumann where an end
+        is open."""
+        pairs = [self.sides[2 * i:2 * i + 2] for i in range(self.ndim)]
+        return tuple((PERIODIC if is_periodic(lo) else DIRICHLET if lo == hi == "wall" else NEUMANN).value
+                     for lo, hi in pairs)
 
     def coords(self, axis: int = 0) -> np.ndarray:
-        """Cell-centre positions, float32 [n] (length units)."""
+        """Cell-centre positions, float32 [n] (length units), the same on every axis."""
         return ((np.arange(self.n) + 0.5) * (self.length / self.n)).astype(np.float32)
 
     def describe(self) -> str:
-        return f"{self.n} cells on [0, {self.length:g}] (left={self.sides[0]}, right={self.sides[1]})"
+        if self.ndim == 1:
+            return f"{self.n} cells on [0, {self.length:g}] (left={self.sides[0]}, right={self.sides[1]})"
+        return (f"{self.n}x{self.n} cells on [0, {self.length:g}]^2 (x: {self.sides[0]}, "
+                f"y: {self.sides[2]})")
 
 
 # --- initial conditions: primitive (rho, u, p) [3, n] at the cell centres -----------------------------------------

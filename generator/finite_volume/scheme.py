@@ -72,12 +72,15 @@ def divergence_2d(w: jax.Array, riemann: Callable, h, sides: jax.Array, limiter,
     states in the normal frame (channel 1: the normal velocity) and gives fluxes in its frame; ``perms`` =
     ((into x frame, x flux to conserved order), (the same for y)), tuples of channel indices; sides int [4]
     (x low, x high, y low, y high)."""
+    def pick(a, order):  # channels in a new order (a static permutation)
+        return jnp.stack([a[i] for i in order])
+
     (in_x, out_x), (in_y, out_y) = perms
-    wx = jnp.swapaxes(w[list(in_x)], 1, 2)  # [C, ny, nx]: x last
+    wx = jnp.swapaxes(pick(w, in_x), 1, 2)  # [C, ny, nx]: x last
     fx = riemann(*faces(wx, sides[0], sides[1], limiter, flip))  # [C, ny, nx + 1]
-    fy = riemann(*faces(w[list(in_y)], sides[2], sides[3], limiter, flip))  # [C, nx, ny + 1]
-    dx = jnp.swapaxes((fx[..., 1:] - fx[..., :-1]) / h, 1, 2)[list(out_x)]
-    dy = ((fy[..., 1:] - fy[..., :-1]) / h)[list(out_y)]
+    fy = riemann(*faces(pick(w, in_y), sides[2], sides[3], limiter, flip))  # [C, nx, ny + 1]
+    dx = pick(jnp.swapaxes((fx[..., 1:] - fx[..., :-1]) / h, 1, 2), out_x)
+    dy = pick((fy[..., 1:] - fy[..., :-1]) / h, out_y)
     return -(dx + dy)
 
 
