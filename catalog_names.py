@@ -48,6 +48,7 @@ NAMES: dict[str, str] = {
     "channel2d": "fluids",
     "smoke2d": "fluids",
     "euler1d": "fluids",
+    "euler2d": "fluids",
     "shallow_water2d": "fluids",
     "darcy2d": "steady",
     "poisson1d": "steady",

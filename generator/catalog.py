@@ -17,7 +17,7 @@ from pdestream.catalog_names import NAMES, unknown_pde  # the names without JAX 
 from . import user
 from .external.exponax import exponax_pde_class
 from .finite_volume.problem import Euler1D
-from .finite_volume.problem2d import ShallowWater2D
+from .finite_volume.problem2d import Euler2D, ShallowWater2D
 from .flow.entries import Cavity2D, Channel2D, Karman2D, Smoke2D
 from .spectral.advection import Advection
 from .spectral.advection_diffusion import AdvectionDiffusion
@@ -87,6 +87,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("channel2d", Channel2D, {}, "fluids"),
     Entry("smoke2d", Smoke2D, {}, "fluids"),
     Entry("euler1d", Euler1D, {}, "fluids"),
+    Entry("euler2d", Euler2D, {}, "fluids"),
     Entry("shallow_water2d", ShallowWater2D, {}, "fluids"),
     Entry("darcy2d", Darcy2D, {}, "steady"),
     Entry("poisson1d", Poisson, {"ndim": 1}, "steady"),

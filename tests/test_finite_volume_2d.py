@@ -9,6 +9,8 @@ import pytest
 
 from pdestream import generator as g
 
+pytestmark = pytest.mark.xdist_group("finite_volume_2d")  # one worker: each grid's programs compile once
+
 
 # --- shallow_water2d ----------------------------------------------------------------------------------------------
 def ritter(x, t, h0=1.0, x0=2.5, grav=1.0):
@@ -90,3 +92,97 @@ def test_unsupported_shallow_water_settings_are_refused_in_one_line():
         assert said in str(err.value) and "\n" not in str(err.value), str(err.value)
     pde = g.get_pde("shallow_water2d", **{"bc.y": "wall"})
     assert pde.bc == "x=outflow,y=wall" and pde.grid.bc == ("neumann", "dirichlet")
+
+
+# --- euler2d ------------------------------------------------------------------------------------------------------
+GAMMA = 1.4
+
+
+def isentropic_vortex(n, t, length=10.0, beta=5.0):
+    """The isentropic vortex of strength beta (Shu 1998) centred at (5, 5) at t = 0 in the mean flow (1, 1) on the
+    periodic box [0, length)^2: exact primitive (rho, u, v, p) [4, n, n] at the cell centres at time t."""
+    x = (np.arange(n) + 0.5) * length / n
+    xx, yy = np.meshgrid(x, x, indexing="ij")
+    dx = (xx - 5 - t + length / 2) % length - length / 2
+    dy = (yy - 5 - t + length / 2) % length - length / 2
+    r2 = dx**2 + dy**2
+    temp = 1 - (GAMMA - 1) * beta**2 / (8 * GAMMA * math.pi**2) * np.exp(1 - r2)
+    rho = temp ** (1 / (GAMMA - 1))
+    swirl = beta / (2 * math.pi) * np.exp((1 - r2) / 2)
+    return np.stack([rho, 1 - swirl * dy, 1 + swirl * dx, rho**GAMMA])
+
+
+@pytest.mark.slow  # ~40 s on 2 cores: three grids up to 128^2, three compilations
+def test_the_isentropic_vortex_converges_at_second_order():
+    errs = []
+    for n in (32, 64, 128):
+        # cfl 0.2 at the smooth IC's speed bound: the vortex's own |u| + c is ~2x it
+        pde = g.get_pde("euler2d", ic="smooth", bc="periodic", n=n, length=10.0, t_end=1.0, n_frames=2, cfl=0.2,
+                        limiter="mc")
+        u0 = isentropic_vortex(n, 0.0)[None].astype(np.float32)
+        u = np.asarray(g.solve(pde, u0, {"gamma": GAMMA}).u[0, -1], np.float64)
+        errs.append(float(np.abs(u[0] - isentropic_vortex(n, 1.0)[0]).sum() * pde.h**2))
+    orders = [math.log2(a / b) for a, b in zip(errs, errs[1:])]
+    print("L1(rho)", errs, "orders", orders)
+    # measured 0.156, 0.0328, 0.00690 (orders 2.25, 2.25); minmod: 0.303, 0.0907, 0.0251 (1.74, 1.85)
+    assert all(o >= 1.9 for o in orders), (errs, orders)
+
+
+@pytest.mark.parametrize("axis", ["x", "y"])
+def test_sod_along_either_axis_is_euler1ds_solution(axis):
+    # the same scheme, grid and step (the 2D step sums two axes' speeds: euler1d at half the cfl): the same bits
+    one = g.get_pde("euler1d", ic="sod", n=32, t_end=0.2, n_frames=3, cfl=0.2)
+    want = np.asarray(g.sample(one, [0]).u[0])  # [T, (rho, u, p), n]
+    two = g.get_pde("euler2d", ic="sod", n=32, t_end=0.2, n_frames=3, **{"ic.axis": axis},
+                    bc="x=outflow,y=periodic" if axis == "x" else "x=wall,y=outflow")
+    assert two.step_dt == one.step_dt
+    u = np.asarray(g.sample(two, [0]).u[0])  # [T, (rho, u, v, p), n, n]
+    if axis == "y":  # y as the first axis, v as the normal velocity
+        u = np.swapaxes(u, -1, -2)[:, [0, 2, 1, 3]]
+    assert np.array_equal(u[:, [0, 1, 3]], np.broadcast_to(want[..., None], (3, 3, 32, 32)))
+    assert (u[:, 2] == 0).all() and np.abs(want[-1] - want[0]).max() > 0.1
+
+
+def test_mass_momentum_and_energy_are_conserved_on_a_periodic_box():
+    pde = g.get_pde("euler2d", ic="smooth", bc="periodic", n=32, t_end=0.3, n_frames=4)
+    u = np.asarray(g.sample(pde, [1], seed=0).u[0], np.float64)
+    rho, vx, vy, p = u[:, 0], u[:, 1], u[:, 2], u[:, 3]
+    q = np.stack([rho, rho * vx, rho * vy, p / (GAMMA - 1) + 0.5 * rho * (vx**2 + vy**2)], 1)
+    sums = q.sum(axis=(-1, -2)) * pde.h**2  # [T, 4]
+    drift = np.abs(sums - sums[0]) / np.abs(sums[0]).max()
+    # float32 rounding: under one float32 ulp (2^-24 relative) per step taken, the primitive round trip included
+    bound = np.arange(4)[:, None] * pde.steps_per_frame * 2.0**-24
+    assert (drift <= bound).all() and np.abs(u[-1] - u[0]).max() > 1e-2, drift
+
+
+def test_two_strong_rarefactions_keep_density_and_pressure_positive():
+    # Toro's 123 problem along y (u = -2 | 2 at y = 0.5, p = 0.4): near-vacuum between the fans
+    pde = g.get_pde("euler2d", ic="sod", n=32, t_end=0.15, n_frames=4, cfl=0.2, bc="x=periodic,y=outflow")
+    u0 = np.zeros((1, 4, 32, 32), np.float32)
+    u0[:, 0], u0[:, 3] = 1.0, 0.4
+    u0[:, 2] = np.where(pde.grid.coords() < 0.5, -2.0, 2.0)[None, :]
+    traj = g.solve(pde, u0, {"gamma": GAMMA})
+    u = np.asarray(traj.u[0])
+    assert (u[:, 0] > 0).all() and (u[:, 3] > 0).all() and u[-1, 0].min() < 0.2  # the vacuum-like middle
+    assert (u[:, :, :, :] == u[:, :, :1, :]).all()  # uniform in x
+
+
+def test_an_euler2d_sample_alone_equals_it_in_a_batch_bit_for_bit():
+    pde = g.get_pde("euler2d", n=32, n_frames=3, t_end=0.05, gamma="uniform(1.3, 1.67)")
+    batch = np.asarray(g.sample(pde, range(5), seed=5).u)
+    for i in (0, 4):
+        assert np.array_equal(np.asarray(g.sample(pde, [i], seed=5).u[0]), batch[i])
+    assert np.array_equal(np.asarray(g.sample(pde, [3, 1], seed=5).u), batch[[3, 1]])
+    assert (batch[:, :, 0] > 0).all() and (batch[:, :, 3] > 0).all()
+
+
+def test_unsupported_euler2d_settings_are_refused_in_one_line():
+    for settings, said in [({"bc": "x=periodic,y=dirichlet"}, "per axis x=KIND,y=KIND"),
+                           ({"gamma": "uniform(0.9, 1.4)"}, "must be > 1"),
+                           ({"ic.p": "uniform(-1, 1)"}, "densities and pressures must be > 0"),
+                           ({"ic.y0": "uniform(0.2, 1.5)"}, "ic.y0=uniform(0.2, 1.5) not allowed: must lie in (0, 1)"),
+                           ({"ic": "sod", "ic.axis": "z"}, "ic.axis='z' not allowed; allowed: x, y"),
+                           ({"ic": "radial"}, "unknown ic kind 'radial'; allowed: riemann, config3, sod, smooth")]:
+        with pytest.raises(ValueError, match="^euler2d: ") as err:
+            g.get_pde("euler2d", **settings)
+        assert said in str(err.value) and "\n" not in str(err.value), str(err.value)

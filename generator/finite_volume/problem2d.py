@@ -438,6 +438,8 @@ class Euler2D(FiniteVolume2D):
     """2D compressible Euler of an ideal gas; dimensionless (length, time and density units of the IC)."""
 
     NAME: ClassVar[str] = "euler2d"
+    # `pdestream generate euler2d --n 4` on 2 CPU cores shared with other work, no compilation cache
+    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 13.5, "unit_s": 1.0}
     EQUATION: ClassVar[str] = ("rho_t + div(rho u) = 0, (rho u)_t + div(rho u u + p I) = 0, E_t + div((E + p) u) = "
                                "0, E = p / (gamma - 1) + rho |u|^2 / 2; stored: primitive rho, u, v, p")
     FIELDS: ClassVar[tuple] = ("rho", "u", "v", "p")
