@@ -44,6 +44,13 @@ def to_primitive(q: jax.Array) -> jax.Array:
     return jnp.stack([q[0], *velocities(q)])
 
 
+def celerity(h: jax.Array, g) -> jax.Array:
+    """c = sqrt(g h), 0 where h <= 0, with a finite derivative there (0, not sqrt's infinite one: a dry cell's
+    gradient stays finite)."""
+    wet = h > 0
+    return jnp.where(wet, jnp.sqrt(g * jnp.where(wet, h, 1.0)), 0.0)
+
+
 def hll(wl: jax.Array, wr: jax.Array, g) -> jax.Array:
     """HLL flux [3, m] between primitive face states wl, wr [3, m] = (h >= 0, u_n, u_t) under gravity g: mass,
     normal momentum hu_n^2 + g h^2 / 2, transverse momentum hu_n u_t. Wave speeds: Toro's two-rarefaction
@@ -51,7 +58,7 @@ def hll(wl: jax.Array, wr: jax.Array, g) -> jax.Array:
     side's are the wet side's front speeds u -/+ 2c."""
     hl, ul, tl = wl
     hr, ur, tr = wr
-    cl, cr = jnp.sqrt(g * jnp.maximum(hl, 0.0)), jnp.sqrt(g * jnp.maximum(hr, 0.0))
+    cl, cr = celerity(hl, g), celerity(hr, g)
     u_star = 0.5 * (ul + ur) + cl - cr
     c_star = 0.5 * (cl + cr) + 0.25 * (ul - ur)
     s_l = jnp.where(hl <= DRY, ur - 2 * cr, jnp.minimum(ul - cl, u_star - c_star))
@@ -75,7 +82,7 @@ def rate(q: jax.Array, g, h, sides: jax.Array, limiter) -> jax.Array:
 def cfl(q: jax.Array, g, dt, h) -> jax.Array:
     """The step's CFL number dt (max(|u| + c) + max(|v| + c)) / h, c = sqrt(g h) (a scalar)."""
     u, v = velocities(q)
-    c = jnp.sqrt(g * jnp.maximum(q[0], 0.0))
+    c = celerity(q[0], g)
     return (jnp.max(jnp.abs(u) + c) + jnp.max(jnp.abs(v) + c)) * dt / h
 
 
