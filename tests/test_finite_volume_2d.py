@@ -90,6 +90,17 @@ def test_the_dam_break_converges_to_the_exact_solution(h_r):
     assert all(o >= 0.75 for pair in orders for o in pair), (errs, orders)
 
 
+@pytest.mark.slow  # ~15 s on 2 cores: a 64^2 grid of its own
+def test_radial_dam_breaks_on_a_dry_bed_keep_every_sample_and_depth_non_negative():
+    # float32 rounding left front cells at -2.5e-9 and failed 6 of these 8 samples before rounded_dry
+    pde = g.get_pde("shallow_water2d", n=64, g="uniform(0.5, 2)", bc="wall", **{"ic.h_out": "0"})
+    traj = g.sample(pde, range(8), seed=1, on_blowup="skip")
+    u = np.asarray(traj.u, np.float64)
+    assert len(traj.indices) == 8 and (u[:, :, 0] >= 0).all()
+    mass = u[:, :, 0].sum(axis=(-1, -2))
+    assert (np.abs(mass / mass[:, :1] - 1) <= pde.steps_per_frame * (pde.n_frames - 1) * 2.0**-24).all()
+
+
 def test_mass_and_momentum_are_conserved_on_a_periodic_box():
     pde = g.get_pde("shallow_water2d", ic="smooth", bc="periodic", n=32, t_end=1.0, n_frames=4)
     u = np.asarray(g.sample(pde, [1], seed=0).u[0], np.float64)
