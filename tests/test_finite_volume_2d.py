@@ -178,7 +178,7 @@ def test_the_isentropic_vortex_converges_at_second_order():
 
 @pytest.mark.parametrize("axis", ["x", "y"])
 def test_sod_along_either_axis_is_euler1ds_solution(axis):
-    # the same scheme, grid and step (the 2D step sums two axes' speeds: euler1d at half the cfl): the same bits
+    # the same scheme, grid and step (the 2D step sums two axes' speeds: euler1d at half the cfl)
     one = g.get_pde("euler1d", ic="sod", n=32, t_end=0.2, n_frames=3, cfl=0.2)
     want = np.asarray(g.sample(one, [0]).u[0])  # [T, (rho, u, p), n]
     two = g.get_pde("euler2d", ic="sod", n=32, t_end=0.2, n_frames=3, **{"ic.axis": axis},
@@ -187,7 +187,9 @@ def test_sod_along_either_axis_is_euler1ds_solution(axis):
     u = np.asarray(g.sample(two, [0]).u[0])  # [T, (rho, u, v, p), n, n]
     if axis == "y":  # y as the first axis, v as the normal velocity
         u = np.swapaxes(u, -1, -2)[:, [0, 2, 1, 3]]
-    assert np.array_equal(u[:, [0, 1, 3]], np.broadcast_to(want[..., None], (3, 3, 32, 32)))
+    # equal bit for bit on the build machine; asserted to float32 rounding, as the two programs are compiled
+    # separately (XLA may fuse a 2D program's arithmetic otherwise on another instruction set)
+    assert np.abs(u[:, [0, 1, 3]] - want[..., None]).max() <= 1e-6
     assert (u[:, 2] == 0).all() and np.abs(want[-1] - want[0]).max() > 0.1
 
 
