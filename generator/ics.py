@@ -286,6 +286,8 @@ def check_value(name: str, value: Any, default: Any) -> Any:
     if isinstance(value, np.generic):
         value = value.item()  # numpy scalars become plain values: clean JSON configs and messages
     number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if number and isinstance(default, str) and math.isfinite(value):
+        value, number = str(value), False  # a domain text ("uniform(1, 2)") given from Python as a fixed number
     if isinstance(default, bool):
         ok = isinstance(value, bool)
     elif isinstance(default, int):

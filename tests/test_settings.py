@@ -70,6 +70,13 @@ def test_numpy_scalars_become_plain_values():
     assert pde == g.get_pde("burgers1d", n=64, t_end=0.5) and pde.config_hash() == g.get_pde("burgers1d", n=64, t_end=0.5).config_hash()
 
 
+def test_a_number_for_a_domain_text_setting_is_that_fixed_value():
+    # from Python, ic.rho_l=1 means what --set ic.rho_l=1 means (it was refused as "not a name")
+    assert g.get_pde("euler1d", **{"ic.rho_l": 1}) == g.get_pde("euler1d", **{"ic.rho_l": "1"})
+    with pytest.raises(ValueError, match="ic.rho_l"):
+        g.get_pde("euler1d", **{"ic.rho_l": math.nan})
+
+
 @pytest.mark.parametrize("key, value, words", [
     ("n", 64.0, ["n", "64.0", "an integer"]),
     ("forcing", ["none"], ["forcing", "['none']", "a name"]),
