@@ -2,7 +2,7 @@
 
 Each subcommand parses its arguments into its library config and makes one library call: generate
 (datasets.generate), inspect / export / import (datasets.inspect, datasets.export), train (surrogate.launch with a
-surrogate.config.TrainConfig), compare (experiments.command), list (generator.listing). Options take their
+surrogate.config.TrainConfig), compare (experiments.command), list (generator.listing), recipes (pdestream.recipes). Options take their
 defaults from those configs. Nothing heavy (JAX, torch) is imported before the arguments are parsed and checked.
 User errors print one line ``pdestream: error: ...`` and exit with status 2; no traceback (interrupts.run).
 """
@@ -61,6 +61,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("name", nargs="?", help="one entry: all its settings with their defaults, domains and units")
     p.add_argument("--json", action="store_true", help="with NAME: the settings as JSON")
     p.set_defaults(func=cmd_list)
+    p = sub.add_parser("recipes", help="the field's published datasets by name (FNO, PDEBench), with their source; "
+                                       "`recipes show NAME`: settings, splits and where our solver differs")
+    p.add_argument("args", nargs="*", metavar="show NAME", help="show NAME: one recipe's source and settings")
+    p.add_argument("--json", action="store_true", help="with show NAME: the recipe as JSON")
+    p.set_defaults(func=cmd_recipes)
     for add in (add_generate, add_inspect, add_export, add_import, add_train, add_compare):
         add(sub)
     return parser
@@ -90,8 +95,11 @@ def add_generate(sub) -> None:
                        description="Solve samples 0..N-1 of a PDE under a seed and write them block by block to "
                                    "a cache readable by xarray (see datasets/schema.py for the layout).")
     p.add_argument("pde", nargs="?", help="PDE name (see `pdestream list`); may come from --config instead")
-    p.add_argument("--n", type=int, required=True, help="number of samples (global indices 0..N-1)")
+    p.add_argument("--n", type=int, help="number of samples (global indices 0..N-1); with --split: the split's size "
+                                         "unless given (then its first N)")
     p.add_argument("--seed", type=int, default=GENERATE.seed, help="sample i is a pure function of (config, seed, i)")
+    p.add_argument("--split", choices=("train", "valid", "test"),
+                   help="a recipe's split (see `pdestream recipes show NAME`): its seed and size")
     p.add_argument("--out", required=True, metavar="PATH.h5|PATH.zarr", help="cache to write; format by suffix")
     _add_pde_config_args(p)
     mode = p.add_mutually_exclusive_group()
@@ -150,6 +158,20 @@ def cmd_list(args: argparse.Namespace) -> None:
     print(listing(args.name, args.json))
 
 
+def cmd_recipes(args: argparse.Namespace) -> None:
+    from pdestream import recipes
+
+    if not args.args:
+        print(recipes.listing())
+    elif args.args[0] == "show" and len(args.args) == 2:
+        print(recipes.show(args.args[1], args.json))
+    elif args.args[0] == "show":
+        raise ValueError(f"give one recipe: pdestream recipes show NAME; allowed: {', '.join(recipes.RECIPES)}")
+    else:
+        raise ValueError(f"unknown recipes command {' '.join(args.args)!r}; allowed: `pdestream recipes` (the list) "
+                         "or `pdestream recipes show NAME`")
+
+
 def cmd_generate(args: argparse.Namespace) -> None:
     name, settings = settings_from_args(args.pde, args)
     from pdestream.datasets.generate import generate
@@ -158,7 +180,7 @@ def cmd_generate(args: argparse.Namespace) -> None:
         pde=name, n=args.n, out=args.out, settings=settings, seed=args.seed, resume=args.resume,
         overwrite=args.overwrite, block=args.block, on_blowup=args.on_blowup, executor=args.executor,
         scheduler=args.scheduler, workers=args.workers, solver_workers=args.solver_workers,
-        solver_timeout=args.solver_timeout)))
+        solver_timeout=args.solver_timeout, split=args.split)))
 
 
 def cmd_inspect(args: argparse.Namespace) -> None:

@@ -101,7 +101,7 @@ def test_initial_conditions_follow_one_protocol():
         ic.check(grid)
         assert ic.bound(grid) > 0
     assert g.make_ic({"kind": "grf", "alpha": "3"}) == g.GaussianRandomField(alpha=3.0)
-    with pytest.raises(ValueError, match="unknown ic kind 'gauss'; allowed: fourier, grf, spots"):
+    with pytest.raises(ValueError, match="unknown ic kind 'gauss'; allowed: fourier, grf, spots, sines"):
         g.make_ic("gauss")
 
 
