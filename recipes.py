@@ -219,6 +219,23 @@ def show(name: str, as_json: bool = False) -> str:
     return "\n".join(lines)
 
 
+def cli_command(args) -> None:
+    """`pdestream recipes [show NAME]` (args.args: the words after `recipes`): prints the list or one recipe."""
+    print(command(args.args))
+
+
+def command(args: list[str], as_json: bool = False) -> str:
+    """`pdestream recipes [show NAME]`'s output: the list, or one recipe (one-line ValueError otherwise)."""
+    if not args:
+        return listing()
+    if args[0] == "show" and len(args) == 2:
+        return show(args[1], as_json)
+    if args[0] == "show":
+        raise ValueError(f"give one recipe: pdestream recipes show NAME; allowed: {', '.join(RECIPES)}")
+    raise ValueError(f"unknown recipes command {' '.join(args)!r}; allowed: `pdestream recipes` (the list) or "
+                     "`pdestream recipes show NAME`")
+
+
 def _text(value) -> str:
     """A setting as --set writes it (an ic dict as kind plus ic.FIELD keys)."""
     if isinstance(value, Mapping):

@@ -16,7 +16,7 @@ class GenerateConfig:
     values) under ``seed`` and write them to the cache ``out`` (.h5/.hdf5 or .zarr, format by suffix)."""
 
     pde: object = None
-    n: int | None = 0  # 0 / None: the split's size (with ``split``)
+    n: int | None = None  # samples; None: the split's size (with ``split``)
     out: str = ""
     settings: dict = field(default_factory=dict)
     seed: int = 0
@@ -36,7 +36,7 @@ def resolve_split(cfg: GenerateConfig) -> tuple[int, int]:
     """(seed, n) of ``cfg``: its own, or with ``split`` the recipe's split seed and size (n, if given, takes the
     split's first n samples: a prefix of the full split). One line if the split, seed or n do not go together."""
     if cfg.split is None:
-        if not cfg.n:
+        if cfg.n is None:
             raise ValueError("give --n N (the number of samples), or --split train|valid|test with a recipe")
         return cfg.seed, cfg.n
     from pdestream.recipes import split_of
@@ -44,7 +44,7 @@ def resolve_split(cfg: GenerateConfig) -> tuple[int, int]:
     split = split_of(cfg.pde, cfg.split)
     if cfg.seed not in (0, split.seed):
         raise ValueError(f"--split {cfg.split} fixes the seed ({split.seed}); drop --seed {cfg.seed}")
-    return split.seed, cfg.n or split.n
+    return split.seed, split.n if cfg.n is None else cfg.n
 
 
 def configure_solvers(workers: int | None, timeout: float | None) -> None:

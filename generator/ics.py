@@ -237,6 +237,7 @@ class RandomSines:
     normalise: bool = False
     kind = "sines"
     field_count = None  # any: one independent draw per PDE field
+    ndims = (1,)  # the dimensions it serves (other kinds: any)
 
     def check(self, grid: Grid) -> None:
         if grid.ndim != 1:

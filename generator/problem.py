@@ -255,8 +255,10 @@ class ProblemBase(abc.ABC):
 
     @classmethod
     def fitting_ic_kinds(cls) -> list[str]:
-        """The names in IC_KINDS whose distributions make as many fields as this problem has (what `ic=` may name)."""
-        return [k for k, c in cls.IC_KINDS.items() if getattr(c, "field_count", None) in (None, len(cls.FIELDS))]
+        """The names in IC_KINDS whose distributions make as many fields as this problem has, in its dimension
+        (``ndims``: the dimensions a kind serves, None: any), i.e. what `ic=` may name."""
+        return [k for k, c in cls.IC_KINDS.items() if getattr(c, "field_count", None) in (None, len(cls.FIELDS))
+                and cls.NDIM in (getattr(c, "ndims", None) or (cls.NDIM,))]
 
     def _check_ic_on_grid(self) -> None:
         """The IC's own rules on this problem's grid, the error naming the problem."""

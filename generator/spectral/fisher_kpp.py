@@ -50,7 +50,7 @@ class FisherKPP(PDE):
 
     def check_settings(self):
         if getattr(self.ic, "kind", None) == "sines" and not self.ic.normalise:
-            raise ValueError(f"{self.NAME}: ic=sines with ic.normalise=false not allowed: u0 goes below 0, where "
+            raise ValueError(f"{self.NAME}: ic.normalise=false not allowed with ic=sines: u0 goes below 0, where "
                              "u (1 - u) blows up in finite time; need ic.normalise=true (u0 in [0, 1])")
         offset, amplitude = getattr(self.ic, "offset", None), getattr(self.ic, "amplitude", None)
         if offset is not None and amplitude is not None and offset < amplitude:
