@@ -130,3 +130,10 @@ def test_diagonal_forcing_drives_the_exact_single_wavevector_solution():
     f = 0.1 * (np.sin(k_f * (x[:, None] + x[None, :])) + np.cos(k_f * (x[:, None] + x[None, :])))
     for j, t in enumerate(pde.times()):
         assert np.abs(w[j] - f * (1 - np.exp(-s * t)) / s).max() < 1e-5, j
+
+
+def test_the_stream_takes_a_recipe_name():
+    from pdestream.datasets import TrajectoryStream
+
+    stream = TrajectoryStream("fno_burgers1d", batch_size=2, n_samples=2)
+    assert stream.pde.recipe == "fno_burgers1d" and stream.pde.n == 1024 and str(stream.pde.nu) == "0.1"
