@@ -133,7 +133,7 @@ globals().update({cls.__name__: cls for cls in PDES.values() if cls.__module__ =
 def register(name: str, cls: type) -> type:
     """Make your problem class ``cls`` known as ``name`` (get_pde, the CLI, ``pdestream list``); a catalog entry's
     name is refused. Returns the class (generator.user.register does the checks)."""
-    return user.register(name, cls, taken=tuple(PDES))
+    return user.register(name, cls, taken=(*PDES, *RECIPES))
 
 
 def get_pde(name: str, overrides: Mapping | None = None, **kwargs) -> PDE:
