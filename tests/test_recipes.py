@@ -137,3 +137,14 @@ def test_the_stream_takes_a_recipe_name():
 
     stream = TrajectoryStream("fno_burgers1d", batch_size=2, n_samples=2)
     assert stream.pde.recipe == "fno_burgers1d" and stream.pde.n == 1024 and str(stream.pde.nu) == "0.1"
+
+
+def test_a_stratified_draw_of_a_choice_domain_keeps_its_end_options():
+    # compare --budget's test set (ParamProposal.from_unit) clipped choice(0.1, ..., 4.0) to just inside 4.0, and
+    # the solver refused c=4 "outside its domain": pdestream compare pdebench_advection1d failed
+    from pdestream.datasets import param_domains
+    from pdestream.datasets.proposal import ParamProposal
+
+    prop = ParamProposal(param_domains(g.get_pde("pdebench_advection1d")), mode="uniform")
+    drawn = prop.from_unit(np.linspace(0.0, 1.0, 9)[:, None])["c"]
+    assert sorted(set(drawn.tolist())) == [0.1, 0.4, 1.0, 4.0]
