@@ -134,8 +134,9 @@ RECIPES: dict[str, Recipe] = {r.name: r for r in (
         time="t = 0, 0.01, ..., 2: 201 frames", splits=_splits(9000, 500, 1000),
         differs="PDEBench's files are named by epsilon in {0.001, 0.01, 0.1, 1.0} and solve nu = epsilon / pi "
                 "(here nu, --set nu=0.03183 makes one file's set); its solver is a 2nd-order finite-volume scheme, "
-                "ours ETDRK4 pseudo-spectral: at nu = 3.2e-4 the shocks are ~1 cell wide on 1024 points and our "
-                "spectral solution rings (use --set n=4096 or the larger nu); " + PDEBENCH_IC_DIFF),
+                "ours ETDRK4 pseudo-spectral: at nu = 3.2e-4 a shock (width ~2 nu / jump ~ 6e-4) is under one cell "
+                "of 1024 points and the solution overshoots max|u0| by up to 0.4% (docs/results/recipes.md; "
+                "--set n=4096 resolves it); " + PDEBENCH_IC_DIFF),
     Recipe(
         name="pdebench_reaction_diffusion1d", entry="fisher_kpp1d", paper=PDEBENCH_PAPER,
         where="Appendix D.3 (diffusion-reaction), Table 5", url=PDEBENCH_URL,
