@@ -67,18 +67,24 @@ def entry_point_names() -> list[str]:
 
 def unknown_pde(name, mine: list[str]) -> str:
     """The one-line refusal of PDE ``name``: a near name if any, and what is allowed (``mine``: user PDE names)."""
-    near = [n for n in NAMES if isinstance(name, str) and name and n.startswith(name)]
-    near = near or (difflib.get_close_matches(name, list(NAMES), n=3) if isinstance(name, str) else [])
+    from pdestream.recipes import RECIPES
+
+    names = [*NAMES, *RECIPES]
+    near = [n for n in names if isinstance(name, str) and name and n.startswith(name)]
+    near = near or (difflib.get_close_matches(name, names, n=3) if isinstance(name, str) else [])
     hint = f"; did you mean {' or '.join(near)}" if near else ""
     more = ", ".join(mine)
     return (f"unknown PDE {name!r}{hint}; allowed: {', '.join(NAMES)}{', ' + more if more else ''} "
-            "or an import path package.module:Class, or an Exponax stepper exponax:Name")
+            f"or an import path package.module:Class, or an Exponax stepper exponax:Name, or a recipe: "
+            f"{', '.join(RECIPES)}")
 
 
 def check_name(name: str | None) -> None:
     """One-line ValueError if ``name`` cannot name a PDE (None passes: the caller says no PDE was named). Once
     generator is imported, PDEs registered by Python count too (it decides then)."""
-    if name is None or (isinstance(name, str) and (name in NAMES or ":" in name)):
+    from pdestream.recipes import RECIPES  # a recipe names its entry (no JAX either)
+
+    if name is None or (isinstance(name, str) and (name in NAMES or name in RECIPES or ":" in name)):
         return
     if "pdestream.generator" in sys.modules:  # registered PDEs live there: ask it
         sys.modules["pdestream.generator"].pde_class(name)

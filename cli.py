@@ -2,8 +2,8 @@
 
 Each subcommand parses its arguments into its library config and makes one library call: generate
 (datasets.generate), inspect / export / import (datasets.inspect, datasets.export), train (surrogate.launch with a
-surrogate.config.TrainConfig), compare (experiments.command), list (generator.listing). Options take their
-defaults from those configs. Nothing heavy (JAX, torch) is imported before the arguments are parsed and checked.
+TrainConfig), compare (experiments.command), list (generator.listing), recipes (pdestream.recipes: no JAX). Options
+take their defaults from those configs. Nothing heavy (JAX, torch) is imported before the arguments are checked.
 User errors print one line ``pdestream: error: ...`` and exit with status 2; no traceback (interrupts.run).
 """
 
@@ -18,6 +18,7 @@ from pdestream.datasets.generate import GenerateConfig
 from pdestream.datasets.reservoir_options import add_reservoir_args, reservoir_cfg
 from pdestream.experiments.command import CompareCommand
 from pdestream.interrupts import run
+from pdestream.recipes import cli_command as recipes_command
 from pdestream.settings import parse_sets, settings_from_args
 from pdestream.surrogate.config import RESUME_ALLOWED, TRAIN_STEPS, TrainConfig
 
@@ -45,7 +46,6 @@ class _Parser(argparse.ArgumentParser):
 def _version() -> str:
     """The installed package's version (importlib.metadata), or a note when running from an uninstalled tree."""
     from importlib.metadata import PackageNotFoundError, version
-
     try:
         return version("pdestream")
     except PackageNotFoundError:
@@ -56,11 +56,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="pdestream", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    p = sub.add_parser("list", help="every PDE with its equation, fields, parameters and domains; with a NAME, "
-                                    "every setting of that entry")
+    p = sub.add_parser("list", help="every PDE with its equation, fields, parameters and domains; NAME: its settings")
     p.add_argument("name", nargs="?", help="one entry: all its settings with their defaults, domains and units")
     p.add_argument("--json", action="store_true", help="with NAME: the settings as JSON")
     p.set_defaults(func=cmd_list)
+    p = sub.add_parser("recipes", help="published datasets (FNO, PDEBench) by name and source; show NAME: one")
+    p.add_argument("args", nargs="*", metavar="show NAME", help="show NAME: a recipe's settings, splits, source")
+    p.set_defaults(func=recipes_command)
     for add in (add_generate, add_inspect, add_export, add_import, add_train, add_compare):
         add(sub)
     return parser
@@ -87,11 +89,11 @@ def _add_solver_args(p: argparse.ArgumentParser) -> None:
 # --- generate / inspect / export / import (datasets) ------------------------------------------------
 def add_generate(sub) -> None:
     p = sub.add_parser("generate", help="solve N samples and write them to an HDF5 (.h5) or Zarr (.zarr) cache",
-                       description="Solve samples 0..N-1 of a PDE under a seed and write them block by block to "
-                                   "a cache readable by xarray (see datasets/schema.py for the layout).")
+                       description="Solve samples 0..N-1 under a seed, block by block, into a cache (see schema.py)")
     p.add_argument("pde", nargs="?", help="PDE name (see `pdestream list`); may come from --config instead")
-    p.add_argument("--n", type=int, required=True, help="number of samples (global indices 0..N-1)")
+    p.add_argument("--n", type=int, help="number of samples (indices 0..N-1); with --split: its first N (default all)")
     p.add_argument("--seed", type=int, default=GENERATE.seed, help="sample i is a pure function of (config, seed, i)")
+    p.add_argument("--split", choices=("train", "valid", "test"), help="a recipe's split (its seed and size)")
     p.add_argument("--out", required=True, metavar="PATH.h5|PATH.zarr", help="cache to write; format by suffix")
     _add_pde_config_args(p)
     mode = p.add_mutually_exclusive_group()
@@ -158,7 +160,7 @@ def cmd_generate(args: argparse.Namespace) -> None:
         pde=name, n=args.n, out=args.out, settings=settings, seed=args.seed, resume=args.resume,
         overwrite=args.overwrite, block=args.block, on_blowup=args.on_blowup, executor=args.executor,
         scheduler=args.scheduler, workers=args.workers, solver_workers=args.solver_workers,
-        solver_timeout=args.solver_timeout)))
+        solver_timeout=args.solver_timeout, split=args.split)))
 
 
 def cmd_inspect(args: argparse.Namespace) -> None:
@@ -174,8 +176,7 @@ def cmd_inspect(args: argparse.Namespace) -> None:
 def cmd_export(args: argparse.Namespace) -> None:
     from pdestream.datasets.export import export_cache
 
-    out = export_cache(args.cache, args.to, args.out, overwrite=args.overwrite)
-    print(f"exported {args.cache} to {out} ({args.to})")
+    print(f"exported {args.cache} to {export_cache(args.cache, args.to, args.out, args.overwrite)} ({args.to})")
 
 
 def cmd_import(args: argparse.Namespace) -> None:

@@ -6,7 +6,7 @@ so the parser can read them without JAX or torch.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 
@@ -16,7 +16,7 @@ class GenerateConfig:
     values) under ``seed`` and write them to the cache ``out`` (.h5/.hdf5 or .zarr, format by suffix)."""
 
     pde: object = None
-    n: int = 0
+    n: int | None = None  # samples; None: the split's size (with ``split``)
     out: str = ""
     settings: dict = field(default_factory=dict)
     seed: int = 0
@@ -29,6 +29,22 @@ class GenerateConfig:
     workers: int | None = None  # dask: worker processes of the embedded cluster (None: 2)
     solver_workers: int | None = None  # external solvers: worker processes per solving process
     solver_timeout: float | None = None  # external solvers: seconds per solve
+    split: str | None = None  # a recipe's train / valid / test: its seed, and its size unless n is given
+
+
+def resolve_split(cfg: GenerateConfig) -> tuple[int, int]:
+    """(seed, n) of ``cfg``: its own, or with ``split`` the recipe's split seed and size (n, if given, takes the
+    split's first n samples: a prefix of the full split). One line if the split, seed or n do not go together."""
+    if cfg.split is None:
+        if cfg.n is None:
+            raise ValueError("give --n N (the number of samples), or --split train|valid|test with a recipe")
+        return cfg.seed, cfg.n
+    from pdestream.recipes import split_of
+
+    split = split_of(cfg.pde, cfg.split)
+    if cfg.seed not in (0, split.seed):
+        raise ValueError(f"--split {cfg.split} fixes the seed ({split.seed}); drop --seed {cfg.seed}")
+    return split.seed, split.n if cfg.n is None else cfg.n
 
 
 def configure_solvers(workers: int | None, timeout: float | None) -> None:
@@ -46,8 +62,10 @@ def generate(cfg: GenerateConfig) -> str:
     KeyboardInterrupt saying what was left at ``cfg.out`` (the writer has cleaned up by then)."""
     from pdestream.settings import build_pde
 
+    seed, n = resolve_split(cfg)
     configure_solvers(cfg.solver_workers, cfg.solver_timeout)
     pde = build_pde(cfg.pde, cfg.settings)
+    cfg = replace(cfg, seed=seed, n=n)
     try:
         return _generate(pde, cfg)
     except KeyboardInterrupt:

@@ -89,6 +89,8 @@ def summary(path) -> str:
             f"  provenance: hash {a['pdestream_config_hash']}, pdestream {a['pdestream_version']}, "
             f"jax {a['jax_version']} (threefry_partitionable={a['jax_threefry_partitionable']})",
         ]
+        if a.get("pdestream_recipe"):
+            lines.insert(2, f"  recipe: {a['pdestream_recipe']}: {a.get('pdestream_recipe_source', '')}")
         damaged = set()
         for name in a["pdestream_params"].split():
             values = ds[name].values[rows]

@@ -161,6 +161,9 @@ class ParamProposal:
                 v = np.asarray(options)[np.minimum((u * len(options)).astype(int), len(options) - 1)]
             else:
                 v = low + u * (high - low)
+            if kind == "choice":  # the options as they are: the clip below moved the end ones off the set
+                out[name] = v.astype(np.float64)
+                continue
             # float32 rounding must not step outside the domain the solver checks against
             out[name] = np.clip(v, np.nextafter(np.float32(low), np.float32(high)),
                                 np.nextafter(np.float32(high), np.float32(low))).astype(np.float64)

@@ -149,10 +149,24 @@ def layout(pde, n_samples: int, seed: int, block: int, on_blowup: str, provenanc
         "pdestream_on_blowup": on_blowup,
         "pdestream_version": package_version(),
         **provenance,
+        **recipe_attrs(pde),
         "pdestream_schema": SCHEMA_VERSION,
         "pdestream_complete": 0,
     }
     return Layout(dims, coords, per_sample, fields, ("sample", *time, *space), attrs, outputs)
+
+
+def recipe_attrs(pde) -> dict:
+    """The recipe a problem was made from and its source ({} for a plain entry): pdestream_recipe and
+    pdestream_recipe_source (paper, where in it, URL; then the generator's files and lines)."""
+    name = getattr(pde, "recipe", "")
+    if not name:
+        return {}
+    from pdestream.recipes import RECIPES
+
+    recipe = RECIPES.get(name)
+    source = f"{recipe.source}; {recipe.code}" if recipe else "(a recipe this version does not declare)"
+    return {"pdestream_recipe": name, "pdestream_recipe_source": source}
 
 
 def boundaries(pde) -> tuple[str, ...]:

@@ -117,7 +117,7 @@ def compare_settings(name, settings: dict) -> dict:
     from pdestream import generator
 
     try:
-        base = generator.pde_class(name)() if isinstance(name, str) else name
+        base = generator.get_pde(name) if isinstance(name, str) else name  # a recipe: its settings
     except (ValueError, TypeError):
         return dict(settings)  # build_pde refuses the name in its own words
     fields = base.config_fields()

@@ -20,6 +20,10 @@ JAX only (never imports torch). Public API::
                                       (not used, with a warning, if another user owns or may write it)
 """
 
+import dataclasses
+
+from pdestream.recipes import RECIPES
+
 from . import user
 from .catalog import GROUP, GROUPS, PDES, get_pde, pde_class, register
 from .domains import Choice, Domain, Fixed, LogUniform, Uniform, parse_domain
@@ -120,7 +124,10 @@ def from_config(config: dict) -> PDE:
     if "origin" in config:  # a user's PDE: its class by origin, refused if its code changed since the config
         return rebuild(config)
     cfg = dict(config)
-    return get_pde(cfg.pop("pde", None), cfg)
+    name, recipe = cfg.pop("pde", None), cfg.pop("recipe", "")
+    if recipe and recipe not in RECIPES:  # a recipe renamed since: the stored settings are complete anyway
+        return dataclasses.replace(get_pde(name, cfg), recipe=recipe)
+    return get_pde(recipe or name, cfg)
 
 
 __all__ = [

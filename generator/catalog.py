@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 from pdestream.catalog_names import NAMES, unknown_pde  # the names without JAX (the CLI checks them)
+from pdestream.recipes import RECIPES
 
 from . import user
 from .external.exponax import exponax_pde_class
@@ -122,6 +123,9 @@ def entry_class(entry: Entry) -> type[PDE]:
 
 
 PDES: dict[str, type[PDE]] = {e.name: entry_class(e) for e in ENTRIES}
+_clash = sorted(set(RECIPES) & set(PDES)) or [r.name for r in RECIPES.values() if r.entry not in PDES]
+if _clash:
+    raise TypeError(f"recipes {_clash}: a recipe's name must not be an entry's, and its entry must be in ENTRIES")
 GROUP: dict[str, str] = {e.name: e.group for e in ENTRIES}
 if GROUP != NAMES or list(GROUP) != list(NAMES):  # the JAX-free copy the CLI checks names against
     raise TypeError("catalog_names.NAMES differs from the catalog's ENTRIES: make it {name: group} of ENTRIES, in order")
@@ -132,24 +136,31 @@ globals().update({cls.__name__: cls for cls in PDES.values() if cls.__module__ =
 def register(name: str, cls: type) -> type:
     """Make your problem class ``cls`` known as ``name`` (get_pde, the CLI, ``pdestream list``); a catalog entry's
     name is refused. Returns the class (generator.user.register does the checks)."""
-    return user.register(name, cls, taken=tuple(PDES))
+    return user.register(name, cls, taken=(*PDES, *RECIPES))
 
 
 def get_pde(name: str, overrides: Mapping | None = None, **kwargs) -> PDE:
     """The catalog PDE ``name`` with its defaults, changed by ``overrides`` / keyword arguments.
 
     Values may be strings (parsed: domains like "loguniform(1e-3, 1e-1)", numbers, ic kinds). ``name`` may also
-    be a user PDE (generator.user: registered, an entry point, or an import path "package.module:Class").
+    be a user PDE (generator.user: registered, an entry point, or an import path "package.module:Class") or a
+    recipe (pdestream.recipes: an entry with a published data set's settings, which ``overrides`` change further).
     """
-    cls = pde_class(name)
-    pde = cls()
+    if isinstance(name, str) and name in RECIPES:  # a recipe: its entry with the published settings, labelled
+        recipe = RECIPES[name]
+        pde = dataclasses.replace(PDES[recipe.entry]().replace(recipe.settings), recipe=name)
+    else:
+        pde = pde_class(name)()
     return pde.replace(overrides, **kwargs) if (overrides or kwargs) else pde
 
 
 def pde_class(name: str) -> type[PDE]:
-    """The class of catalog entry or user PDE ``name`` (one-line ValueError naming what is allowed)."""
+    """The class of catalog entry, recipe (its entry's class) or user PDE ``name`` (one-line ValueError naming what
+    is allowed)."""
     if isinstance(name, str) and name in PDES:
         return PDES[name]
+    if isinstance(name, str) and name in RECIPES:
+        return PDES[RECIPES[name].entry]
     if isinstance(name, str) and name.startswith("exponax:"):  # an Exponax stepper (the adapter imports exponax)
         return exponax_pde_class(name)
     found = user.lookup(name) if isinstance(name, str) and name else None

@@ -217,7 +217,75 @@ class GrayScottSpots:
         return 1.0  # 0 <= u, v <= 1 (check)
 
 
-IC_KINDS: Mapping[str, type] = {"fourier": FourierSeries, "grf": GaussianRandomField, "spots": GrayScottSpots}
+@dataclass(frozen=True)
+class RandomSines:
+    """A random superposition of sines on a periodic 1D domain, PDEBench's 1D measure (its ``init_multi``).
+
+    Draw ``n_modes`` integers uniformly from 1..max_mode; mode k (k = 1..max_mode, drawn c_k times) gives the
+    term A_k sin(2 pi k c_k x / L + phi_k) with A_k ~ U(0, 1), phi_k ~ U(0, 2 pi): as in PDEBench, a mode drawn
+    twice has twice the wavenumber and a mode not drawn adds the constant A_k sin(phi_k). Then u0 -> |u0| with
+    probability ``abs_prob``, a random sign, and with probability ``window_prob`` the window
+    0.5 (tanh((x - x_l) / w) - tanh((x - x_r) / w)), x_l ~ U(0.1, 0.45) L, x_r ~ U(0.55, 0.9) L,
+    w = window_width L. ``normalise``: rescaled to min 0, max 1 (PDEBench's reaction-diffusion IC).
+    """
+
+    max_mode: int = 4
+    n_modes: int = 2
+    abs_prob: float = 0.1
+    window_prob: float = 0.1
+    window_width: float = 0.01
+    normalise: bool = False
+    kind = "sines"
+    field_count = None  # any: one independent draw per PDE field
+    ndims = (1,)  # the dimensions it serves (other kinds: any)
+
+    def check(self, grid: Grid) -> None:
+        if grid.ndim != 1:
+            raise ValueError(f"ic kind 'sines' is one-dimensional; this grid is {grid.ndim}D (allowed: fourier, grf)")
+        if any(bc != "periodic" for bc in getattr(grid, "bc", ("periodic",))):
+            raise ValueError("ic kind 'sines' is periodic; this grid has walls (allowed there: fourier, grf)")
+        if not (self.max_mode >= 1 and self.n_modes >= 1 and self.max_mode * self.n_modes <= grid.n // 3):
+            raise ValueError(f"ic.max_mode={self.max_mode}, ic.n_modes={self.n_modes} not allowed on n={grid.n}: "
+                             f"need both >= 1 and max_mode * n_modes <= n//3 = {grid.n // 3} (the highest wavenumber)")
+        for name in ("abs_prob", "window_prob"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"ic.{name}={getattr(self, name)} not allowed: a probability in [0, 1]")
+        if not self.window_width > 0:
+            raise ValueError(f"ic.window_width={self.window_width} not allowed: must be > 0")
+
+    def _one(self, key: jax.Array, x: jax.Array, length: float) -> jax.Array:
+        k_pick, k_amp, k_phase, k_abs, k_sign, k_left, k_right, k_win = jax.random.split(key, 8)
+        picks = jax.random.randint(k_pick, (self.n_modes,), 0, self.max_mode)
+        amp = jax.random.uniform(k_amp, (self.max_mode,), jnp.float32)
+        phase = jax.random.uniform(k_phase, (self.max_mode,), jnp.float32, 0.0, 2 * jnp.pi)
+        u = jnp.zeros_like(x)
+        for k in range(self.max_mode):  # written out term by term: a reduce may reassociate per batch size
+            count = jnp.zeros((), jnp.float32)
+            for j in range(self.n_modes):
+                count = count + (picks[j] == k).astype(jnp.float32)
+            u = u + amp[k] * jnp.sin(2 * jnp.pi * (k + 1) * count * x / length + phase[k])
+        u = jnp.where(jax.random.uniform(k_abs) < self.abs_prob, jnp.abs(u), u)
+        u = jnp.where(jax.random.uniform(k_sign) < 0.5, u, -u)
+        x_l = length * jax.random.uniform(k_left, (), jnp.float32, 0.1, 0.45)
+        x_r = length * jax.random.uniform(k_right, (), jnp.float32, 0.55, 0.9)
+        w = self.window_width * length
+        window = 0.5 * (jnp.tanh((x - x_l) / w) - jnp.tanh((x - x_r) / w))
+        u = jnp.where(jax.random.uniform(k_win) < self.window_prob, u * window, u)
+        if self.normalise:
+            u = u - jnp.min(u)
+            u = u / jnp.maximum(jnp.max(u), jnp.finfo(jnp.float32).tiny)
+        return u
+
+    def sample(self, key: jax.Array, grid: Grid, n_fields: int = 1) -> jax.Array:
+        x = jnp.asarray(grid.coords(), jnp.float32)
+        return jnp.stack([self._one(jax.random.fold_in(key, f), x, grid.length) for f in range(n_fields)])
+
+    def bound(self, grid: Grid) -> float:
+        return 1.0 if self.normalise else float(self.max_mode)  # |u0| <= sum_k A_k <= max_mode
+
+
+IC_KINDS: Mapping[str, type] = {"fourier": FourierSeries, "grf": GaussianRandomField, "spots": GrayScottSpots,
+                                "sines": RandomSines}
 
 
 # --- parsing: kind names, dicts and setting values ---------------------------------------------------------

@@ -163,6 +163,8 @@ class ProblemBase(abc.ABC):
     n: int = 128  # grid points per dimension
     length: float = 1.0  # domain side
     ic: Any = None  # initial-condition (or input-field) distribution (see generator.ics)
+    # The recipe (pdestream.recipes) this problem was made from: a label in its config, not a setting ("": none)
+    recipe: str = dataclasses.field(default="", kw_only=True)
 
     # --- what a family provides ------------------------------------------------------------------
     @property
@@ -253,8 +255,10 @@ class ProblemBase(abc.ABC):
 
     @classmethod
     def fitting_ic_kinds(cls) -> list[str]:
-        """The names in IC_KINDS whose distributions make as many fields as this problem has (what `ic=` may name)."""
-        return [k for k, c in cls.IC_KINDS.items() if getattr(c, "field_count", None) in (None, len(cls.FIELDS))]
+        """The names in IC_KINDS whose distributions make as many fields as this problem has, in its dimension
+        (``ndims``: the dimensions a kind serves, None: any), i.e. what `ic=` may name."""
+        return [k for k, c in cls.IC_KINDS.items() if getattr(c, "field_count", None) in (None, len(cls.FIELDS))
+                and cls.NDIM in (getattr(c, "ndims", None) or (cls.NDIM,))]
 
     def _check_ic_on_grid(self) -> None:
         """The IC's own rules on this problem's grid, the error naming the problem."""
@@ -322,7 +326,7 @@ class ProblemBase(abc.ABC):
     @classmethod
     def config_fields(cls) -> list[str]:
         """The settings of this problem (its dataclass fields but the IC and the ones its dimension does not use)."""
-        return [f.name for f in dataclasses.fields(cls) if f.name != "ic" and f.name not in cls.UNUSED]
+        return [f.name for f in dataclasses.fields(cls) if f.name not in ("ic", "recipe") and f.name not in cls.UNUSED]
 
     def config(self) -> dict[str, Any]:
         """The full resolved configuration as plain JSON-able values (domains as strings)."""
@@ -331,6 +335,8 @@ class ProblemBase(abc.ABC):
             value = getattr(self, name)
             out[name] = str(value) if name in self.PARAMS else value
         out["ic"] = {"kind": self.ic.kind, **dataclasses.asdict(self.ic)}
+        if self.recipe:  # only when made from a recipe: the configs (and hashes) of plain entries are unchanged
+            out["recipe"] = self.recipe
         where = origin(type(self))  # a user's PDE: where its code came from is part of its identity
         if where is not None:
             out["origin"] = where

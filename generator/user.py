@@ -63,7 +63,7 @@ def register(name: str, cls: type, taken: tuple[str, ...] = ()) -> type:
     if not isinstance(name, str) or not name.isidentifier():
         raise ValueError(f"register: name {name!r} not allowed: a PDE name is an identifier such as 'mypde'")
     if name in taken:
-        raise ValueError(f"register: name {name!r} not allowed: it is a catalog entry; choose another name")
+        raise ValueError(f"register: name {name!r} not allowed: it is a catalog entry or a recipe; choose another name")
     REGISTERED[name] = _named(cls, name, f"register({name!r})")
     return cls
 

@@ -97,11 +97,11 @@ def test_initial_conditions_follow_one_protocol():
     for kind, cls in g.IC_KINDS.items():
         ic = cls()
         assert isinstance(ic, g.InitialCondition) and ic.kind == kind
-        grid = g.Grid(2, 16, 1.0)
+        grid = g.Grid(1, 32, 1.0) if kind == "sines" else g.Grid(2, 16, 1.0)  # sines: PDEBench's 1D measure
         ic.check(grid)
         assert ic.bound(grid) > 0
     assert g.make_ic({"kind": "grf", "alpha": "3"}) == g.GaussianRandomField(alpha=3.0)
-    with pytest.raises(ValueError, match="unknown ic kind 'gauss'; allowed: fourier, grf, spots"):
+    with pytest.raises(ValueError, match="unknown ic kind 'gauss'; allowed: fourier, grf, spots, sines"):
         g.make_ic("gauss")
 
 
@@ -110,7 +110,7 @@ def test_no_module_fills_a_registry_at_import_time():
     code = ("import pdestream.generator.ics as ics; before = dict(ics.IC_KINDS); import pdestream.generator; "
             "assert dict(ics.IC_KINDS) == before, (before, ics.IC_KINDS); print(sorted(before))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "['fourier', 'grf', 'spots']"
+    assert out.stdout.strip() == "['fourier', 'grf', 'sines', 'spots']"
 
 
 def test_list_groups_the_catalog_and_says_each_dimension(capsys):

@@ -176,6 +176,10 @@ class PDE(ProblemBase):
             fitting = self.fitting_ic_kinds()
             raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed: it makes {want} fields and {self.NAME} has "
                              f"{len(self.FIELDS)} ({', '.join(self.FIELDS)}); allowed: {', '.join(fitting)}")
+        dims = getattr(self.ic, "ndims", None)
+        if dims is not None and self.NDIM not in dims:
+            raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed: it serves {'/'.join(map(str, dims))}D "
+                             f"and {self.NAME} is {self.NDIM}D; allowed: {', '.join(self.fitting_ic_kinds())}")
         self._check_ic_on_grid()
         bound = self.ic.bound(self.grid)
         if not bound <= MAX_IC_BOUND:

@@ -4,7 +4,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
 from ..domains import LogUniform, Uniform
-from ..ics import FourierSeries
+from ..ics import FourierSeries, RandomSines
 from .base import PDE, Param
 from .terms import hermitian_damping, polynomial
 
@@ -33,7 +33,8 @@ class FisherKPP(PDE):
     DIMENSIONS: ClassVar[dict] = {1: {}, 2: {"n": 64}}
     # u0 must be >= 0: where u < 0 the reaction -r u^2 drives u to -infinity in finite time (the equation itself
     # blows up, not the scheme), so a signed GRF is not offered and a Fourier series must sit above zero.
-    IC_KINDS: ClassVar[Mapping[str, type]] = {"fourier": FourierSeries}
+    # u0 >= 0 only: a Fourier series above zero, or sines rescaled to [0, 1] (PDEBench's IC; check_settings)
+    IC_KINDS: ClassVar[Mapping[str, type]] = {"fourier": FourierSeries, "sines": RandomSines}
     PARAMS: ClassVar[dict] = {
         "D": Param("diffusivity", "length^2/time", positive=True),
         "r": Param("growth rate", "1/time", positive=True),
@@ -48,6 +49,9 @@ class FisherKPP(PDE):
     r: Any = Uniform(0.5, 2.0)
 
     def check_settings(self):
+        if getattr(self.ic, "kind", None) == "sines" and not self.ic.normalise:
+            raise ValueError(f"{self.NAME}: ic.normalise=false not allowed with ic=sines: u0 goes below 0, where "
+                             "u (1 - u) blows up in finite time; need ic.normalise=true (u0 in [0, 1])")
         offset, amplitude = getattr(self.ic, "offset", None), getattr(self.ic, "amplitude", None)
         if offset is not None and amplitude is not None and offset < amplitude:
             raise ValueError(f"{self.NAME}: ic.offset={offset:g} with ic.amplitude={amplitude:g} not allowed: u0 "

@@ -13,7 +13,7 @@ from .base import PDE, Param
 from .common import CFL
 from .fourier import cmul
 
-FORCINGS = ("none", "kolmogorov")
+FORCINGS = ("none", "kolmogorov", "diagonal")
 
 
 @dataclass(frozen=True)
@@ -23,7 +23,8 @@ class NS2D(PDE):
         w_t + u w_x + v w_y = nu Laplacian(w) - drag w + f
 
     forcing="kolmogorov": f = -A k_f cos(k_f y), the curl of the body force (A sin(k_f y), 0), with
-    k_f = 2 pi forcing_wavenumber / length. forcing="none": decaying turbulence (with drag = 0, the
+    k_f = 2 pi forcing_wavenumber / length. forcing="diagonal": the vorticity forcing
+    f = A (sin(k_f (x + y)) + cos(k_f (x + y))) (the FNO paper's, A = 0.1, k_f = 2 pi on the unit torus). forcing="none": decaying turbulence (with drag = 0, the
     Taylor-Green vortex w = 2 sin x sin y decays as exp(-2 nu t) on [0, 2 pi)^2).
     The advective CFL uses ``velocity_bound`` (max |velocity| assumed). Unset, it is derived: the larger
     of 4 standard deviations of the initial velocity and the laminar Kolmogorov amplitude
@@ -69,8 +70,11 @@ class NS2D(PDE):
         if self.forcing == "none":
             return np.zeros((1, *grid.kshape), np.complex64)
         k_f = 2 * np.pi * self.forcing_wavenumber / grid.length
-        y = grid.coords()[None, :]
-        f = -self.forcing_amplitude * k_f * np.cos(k_f * y) * np.ones((grid.n, 1))
+        x, y = grid.coords()[:, None], grid.coords()[None, :]
+        if self.forcing == "diagonal":
+            f = self.forcing_amplitude * (np.sin(k_f * (x + y)) + np.cos(k_f * (x + y)))
+        else:
+            f = -self.forcing_amplitude * k_f * np.cos(k_f * y) * np.ones((grid.n, 1))
         return np.fft.rfft2(f)[None].astype(np.complex64)
 
     def nonlinear(self, grid, p):
@@ -104,7 +108,10 @@ class NS2D(PDE):
         if self.forcing == "none":
             return ic_velocity
         k_f = 2 * np.pi * self.forcing_wavenumber / grid.length
-        laminar = self.forcing_amplitude / (min(self.nu.bounds) * k_f**2 + self.drag)
+        if self.forcing == "diagonal":  # steady vorticity amplitude sqrt2 A / (2 nu k_f^2 + drag), over |k| = sqrt2 k_f
+            laminar = self.forcing_amplitude / (k_f * (2 * min(self.nu.bounds) * k_f**2 + self.drag))
+        else:
+            laminar = self.forcing_amplitude / (min(self.nu.bounds) * k_f**2 + self.drag)
         return max(ic_velocity, laminar)
 
     def stable_dt(self):

@@ -1,0 +1,150 @@
+"""Recipes: published data sets by name (pdestream.recipes), resolved wherever a PDE name is, on tiny grids."""
+
+import dataclasses
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from pdestream import cli, recipes
+from pdestream import generator as g
+from pdestream.datasets import open_cache
+from pdestream.datasets.generate import GenerateConfig, generate
+from pdestream.generator.ics import RandomSines
+
+TINY = {"n": 32, "n_frames": 3}  # pdebench_advection1d at a size a test affords
+
+
+def run_cli(capsys, *argv):
+    code = cli.main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_the_list_names_every_recipe_with_its_source_and_the_sets_it_skips(capsys):
+    code, out, _ = run_cli(capsys, "recipes")
+    assert code == 0
+    for r in recipes.RECIPES.values():
+        line = next(line for line in out.splitlines() if line.startswith(r.name + " "))
+        assert r.entry in line and r.paper in line and r.where in line
+    assert "pdebench_darcy2d" in out and "not expressible" in out
+
+
+def test_show_prints_source_settings_splits_and_differences(capsys):
+    code, out, _ = run_cli(capsys, "recipes", "show", "fno_ns2d_nu1e-3")
+    assert code == 0
+    for words in ("source:", "arxiv.org/abs/2010.08895", "ns_2d.py:113", ":126 (forcing)", "--set forcing=diagonal", "--set nu=0.001",
+                  "--set ic.tau=7", "train seed 0 n 1000", "test seed 2 n 200", "Crank-Nicolson"):
+        assert words in out, words
+    shown = json.loads(recipes.show("pdebench_advection1d", as_json=True))
+    assert shown["settings"]["c"] == "choice(0.1, 0.4, 1.0, 4.0)" and shown["splits"]["valid"] == {"seed": 1, "n": 500}
+
+
+@pytest.mark.parametrize("argv, words", [
+    (("recipes", "show", "fno_burger"), ["'fno_burger'", "did you mean fno_burgers1d", "allowed: fno_burgers1d"]),
+    (("recipes", "show"), ["give one recipe", "pdebench_advection1d"]),
+    (("recipes", "fno_burgers1d"), ["unknown recipes command 'fno_burgers1d'", "show NAME"]),
+    (("generate", "fno_burgrs1d", "--n", "1", "--out", "x.h5"), ["unknown PDE 'fno_burgrs1d'", "fno_burgers1d"]),
+    (("generate", "burgers1d", "--split", "train", "--out", "x.h5"), ["--split train needs a recipe", "'burgers1d'"]),
+    (("generate", "fno_burgers1d", "--split", "test", "--seed", "5", "--out", "x.h5"), ["fixes the seed (2)"]),
+])
+def test_bad_recipe_input_is_one_line(capsys, tmp_path, monkeypatch, argv, words):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_cli(capsys, *argv)
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    for w in words:
+        assert w in err, (w, err)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", list(recipes.RECIPES))
+def test_every_recipe_is_valid_for_its_entry_and_round_trips(name):
+    r = recipes.RECIPES[name]
+    pde = g.get_pde(name)  # __post_init__ runs the entry's validate()
+    assert pde.NAME == r.entry and pde.recipe == name and pde.config()["recipe"] == name
+    assert pde == dataclasses.replace(g.get_pde(r.entry, r.settings), recipe=name)
+    assert all(getattr(pde, k) == v for k, v in r.settings.items() if isinstance(v, (int, float)))
+    assert g.from_config(pde.config()) == pde
+    assert set(r.splits) == set(recipes.SPLITS) and len({s.seed for s in r.splits.values()}) == 3
+    assert g.get_pde(r.entry).config().get("recipe") is None  # the plain entry's config is unchanged
+
+
+def test_set_overrides_a_recipe_and_a_cache_records_the_recipe_and_its_source(capsys, tmp_path):
+    pde = g.get_pde("fno_burgers1d", {"n": "64"})
+    assert pde.n == 64 and str(pde.nu) == "0.1" and pde.ic.alpha == 2.0 and pde.recipe == "fno_burgers1d"
+    out = tmp_path / "a.h5"
+    code, _, err = run_cli(capsys, "generate", "pdebench_advection1d", "--n", "2", "--out", str(out),
+                           "--set", "n=32", "--set", "n_frames=3", "--set", "c=0.4")
+    assert code == 0, err
+    with open_cache(out) as ds:
+        config = json.loads(ds.attrs["pdestream_config"])
+        assert ds.attrs["pdestream_recipe"] == "pdebench_advection1d" and config["recipe"] == "pdebench_advection1d"
+        assert "PDEBench" in ds.attrs["pdestream_recipe_source"] and "beta1e0.yaml" in ds.attrs["pdestream_recipe_source"]
+        assert config["n"] == 32 and config["c"] == "0.4" and config["ic"]["kind"] == "sines"
+        assert np.allclose(ds["c"].values, 0.4)
+    code, shown, _ = run_cli(capsys, "inspect", str(out))
+    assert code == 0 and "recipe: pdebench_advection1d: Takamoto et al. 2022" in shown
+
+
+def test_splits_are_reproducible_disjoint_and_prefixes(tmp_path):
+    def split(name, n, out):
+        generate(GenerateConfig(pde="pdebench_advection1d", settings=TINY, split=name, n=n, out=str(tmp_path / out)))
+        with open_cache(tmp_path / out) as ds:
+            return int(ds.attrs["pdestream_seed"]), ds["u"].values
+
+    seed_train, train = split("train", 3, "train.h5")
+    seed_test, test = split("test", 2, "test.h5")
+    _, again = split("train", 2, "again.h5")
+    assert (seed_train, seed_test) == (0, 2)
+    assert np.array_equal(again, train[:2])  # reproducible, and a smaller split is the full one's prefix
+    assert not any(np.allclose(a[0], b[0]) for a in train for b in test)  # no test IC is a train IC
+
+
+def test_sines_advected_equal_the_exact_translate_and_a_sample_is_batch_independent():
+    # the sines IC (PDEBench's measure) through advection1d against u0(x - c t) of the same draw, evaluated exactly
+    pde = g.get_pde("advection1d", n=64, t_end=0.5, n_frames=3, ic="sines")
+    ic, x = RandomSines(), np.asarray(pde.grid.coords())
+    keys = [jax.random.PRNGKey(i) for i in range(4)]
+    u0 = np.stack([np.asarray(ic._one(k, x, 1.0)) for k in keys])
+    c = np.array([0.1, 0.4, 1.0, -0.7], np.float32)
+    u = np.asarray(g.solve(pde, u0[:, None], {"c": c}).u)[:, -1, 0]
+    exact = np.stack([np.asarray(ic._one(k, ((x - ci * 0.5) % 1.0).astype(np.float32), 1.0)) for k, ci in zip(keys, c)])
+    assert np.abs(u - exact).max() < 1e-4 * np.abs(exact).max()
+    batch = np.asarray(g.sample(pde, range(4), seed=3).u)
+    assert np.array_equal(np.asarray(g.sample(pde, [2], seed=3).u)[0], batch[2])
+    rd = np.asarray(g.sample(g.get_pde("pdebench_reaction_diffusion1d", n=32, n_frames=2), range(3), seed=0).u)
+    # normalised: u0 spans [0, 1] (frame 0 is the IC through the solver's transforms: within float32 rounding)
+    assert np.allclose(rd[:, 0].min(axis=-1), 0.0, atol=1e-6) and np.allclose(rd[:, 0].max(axis=-1), 1.0, atol=1e-6)
+    with pytest.raises(ValueError, match="ic='sines' not allowed: it serves 1D and advection2d is 2D"):
+        g.get_pde("advection2d", ic="sines")
+
+
+def test_diagonal_forcing_drives_the_exact_single_wavevector_solution():
+    # w depends on x + y only, so u . grad w = 0: from w0 = 0, w(t) = f (1 - exp(-s t)) / s, s = 2 nu k_f^2 + drag
+    pde = g.get_pde("ns2d", n=32, length=1.0, nu="0.01", forcing="diagonal", forcing_amplitude=0.1,
+                    forcing_wavenumber=1, drag=0.05, t_end=2.0, n_frames=3)
+    w = np.asarray(g.solve(pde, np.zeros((1, 1, 32, 32), np.float32), {"nu": [0.01]}).u)[0, :, 0]
+    x = np.asarray(pde.grid.coords(), np.float64)
+    k_f, s = 2 * np.pi, 2 * 0.01 * (2 * np.pi) ** 2 + 0.05
+    f = 0.1 * (np.sin(k_f * (x[:, None] + x[None, :])) + np.cos(k_f * (x[:, None] + x[None, :])))
+    for j, t in enumerate(pde.times()):
+        assert np.abs(w[j] - f * (1 - np.exp(-s * t)) / s).max() < 1e-5, j
+
+
+def test_the_stream_takes_a_recipe_name():
+    from pdestream.datasets import TrajectoryStream
+
+    stream = TrajectoryStream("fno_burgers1d", batch_size=2, n_samples=2)
+    assert stream.pde.recipe == "fno_burgers1d" and stream.pde.n == 1024 and str(stream.pde.nu) == "0.1"
+
+
+def test_a_stratified_draw_of_a_choice_domain_keeps_its_end_options():
+    # compare --budget's test set (ParamProposal.from_unit) clipped choice(0.1, ..., 4.0) to just inside 4.0, and
+    # the solver refused c=4 "outside its domain": pdestream compare pdebench_advection1d failed
+    from pdestream.datasets import param_domains
+    from pdestream.datasets.proposal import ParamProposal
+
+    prop = ParamProposal(param_domains(g.get_pde("pdebench_advection1d")), mode="uniform")
+    drawn = prop.from_unit(np.linspace(0.0, 1.0, 9)[:, None])["c"]
+    assert sorted(set(drawn.tolist())) == [0.1, 0.4, 1.0, 4.0]
