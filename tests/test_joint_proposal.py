@@ -97,3 +97,24 @@ def test_a_bad_proposal_space_is_one_line(capsys, tmp_path):
     with pytest.raises(ValueError, match="has no latent coordinates"):
         ReservoirStream(generator.get_pde("euler1d"), batch_size=4, capacity=8, solve_batch=4, proposal="active",
                         proposal_kwargs={"space": "params+ic"})
+
+
+def test_a_training_run_with_a_joint_proposal_resumes_exactly(tmp_path, monkeypatch):
+    from interrupt import interrupted_at
+
+    from pdestream.surrogate.runs import resume_run, train_run
+
+    data = {"kind": "reservoir", "capacity": 8, "max_reuse": 2.0, "solve_batch": 4, "warmup": 4,
+            "mode": "deterministic", "proposal": "active", "proposal_kwargs": {**JOINT, "refit": 8}}
+    kw = dict(model_cfg={"width": 8, "modes": 4, "layers": 2}, steps=12, batch_size=4, n_test=2, checkpoint_every=6,
+              data_cfg=data)
+    train_run(PDE, "stream", tmp_path / "whole", **kw)
+    with interrupted_at(monkeypatch, 9), pytest.raises(KeyboardInterrupt):
+        train_run(PDE, "stream", tmp_path / "cut", **kw)
+    state = torch.load(tmp_path / "cut" / "checkpoint.pt", weights_only=True)["data"]["state"]
+    assert "latent" in state["reservoir"]["storage"] and state["proposal"]["dims"] == 1 + PDE.latent_size()
+    _, step = resume_run(tmp_path / "cut")
+    assert step == 6
+    a = torch.load(tmp_path / "whole" / "model.pt", weights_only=True)["model"]
+    b = torch.load(tmp_path / "cut" / "model.pt", weights_only=True)["model"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
