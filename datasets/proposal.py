@@ -60,8 +60,10 @@ spot centres), the unit box grows by those L coordinates, mapped onto the latent
 uniform unit point is a draw of the prior, as the key would make it), and every proposal above runs over
 (parameters, latent) jointly: ``propose`` adds the latents [n, L] under LATENT, ``record`` takes each sample's.
 Beyond a few dimensions the loss model's lattice of bumps would have 3^D centres: from LATTICE_MOST of them on it
-is constant + linear + per-axis quadratic terms instead (a latent coordinate's loss tends to grow with its size,
-at both ends of its unit axis), and the steered draws' jitter stays that of a 4-D candidate set.
+is constant + linear + per-axis quadratic terms instead, and the steered draws' jitter stays that of a 4-D candidate
+set. The "active" loss model reads a normal latent coordinate as the latent itself (0.5 + x / 6: +-3 standard
+deviations span [0, 1]), not as its unit coordinate (the CDF flattens the tails where a size-driven loss grows):
+per-axis squares are then squared amplitudes, and a loss driven by a mode's energy is in the model's span.
 
 Everything is numpy and seeded: the sequence of proposals is a pure function of (seed, the losses recorded
 and the order of calls), so a deterministic reservoir stays deterministic. ``state_dict`` captures it all.
@@ -246,7 +248,8 @@ class ParamProposal:
             self._pool = ThreadPoolExecutor(1, thread_name_prefix="proposal-fit")
         args = (self.points.copy(), self.losses.copy(), self.candidates, self.ensemble, self.kappa, self.power,
                 np.random.default_rng([self.seed, 7, self.fits]))
-        self._next = self._pool.submit(active_fit, *args)
+        more = {"coords": self.model_coords} if self.n_latent else {}  # (a parameters-only fit: as before)
+        self._next = self._pool.submit(active_fit, *args, **more)
         self.fits += 1
         self._fit_at = self.reports
 
@@ -268,7 +271,7 @@ class ParamProposal:
         if self.mode == "active":
             if self._fit is None or len(self._fit) < 3:  # no fit yet (or one restored from before the gate)
                 return None
-            return features(z, lattice(z.shape[1])) @ self._fit[2]
+            return features(self.model_coords(z), lattice(z.shape[1])) @ self._fit[2]
         if self.mode == "loss" and len(self.losses):
             positive = self.losses[self.losses > 0]
             y = np.log(np.maximum(self.losses, positive.min() if len(positive) else 1e-30))
@@ -276,6 +279,16 @@ class ParamProposal:
             total = k.sum(1)
             return np.where(total > 1e-12, (k @ y) / np.maximum(total, 1e-300), y.mean())
         return None
+
+    def model_coords(self, z: np.ndarray) -> np.ndarray:
+        """Unit points [N, D] -> the coordinates the "active" loss model reads [N, D]: a normal latent coordinate as
+        0.5 + x / 6 (x: the latent in standard deviations), every other one as it is."""
+        if not self.n_latent or self.latent_prior[0] != "normal":
+            return z
+        out = z.copy()
+        u = np.clip(z[:, len(self.random):], UNIT_EDGE, 1 - UNIT_EDGE)
+        out[:, len(self.random):] = 0.5 + ndtri(u) / 6.0
+        return out
 
     @property
     def skill(self) -> float:
@@ -482,13 +495,17 @@ def loss_model(points: np.ndarray, losses: np.ndarray, at: np.ndarray, ensemble:
 
 
 def active_fit(points: np.ndarray, losses: np.ndarray, candidates: int, ensemble: int, kappa: float,
-               power: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               power: float, rng: np.random.Generator, coords=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One refit of the "active" proposal: ``candidates`` uniform points of the unit box [C, D] and their
     probabilities [C], proportional to exp(power (mean + kappa spread)) of the loss model's predicted log-loss
     (``loss_model``): a resampling of uniform points, so the proposal's density follows that acquisition; and the
-    mean model's weights (the skill gate's predictor)."""
+    mean model's weights (the skill gate's predictor). coords: unit points -> the model's coordinates (None: the
+    unit points themselves; ``ParamProposal.model_coords``)."""
     cand = rng.random((candidates, points.shape[1]))
-    mean, spread, coef = loss_model(points, losses, cand, ensemble, rng, return_coef=True)
+    if coords is not None:
+        mean, spread, coef = loss_model(coords(points), losses, coords(cand), ensemble, rng, return_coef=True)
+    else:
+        mean, spread, coef = loss_model(points, losses, cand, ensemble, rng, return_coef=True)
     score = power * (mean + kappa * spread)
     w = np.exp(score - score.max())
     return cand, w / w.sum(), coef
