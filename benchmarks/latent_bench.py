@@ -31,14 +31,14 @@ from pdestream.surrogate.train import Stop, source_normalization, train
 HELD_OUT_SEED = 1_000_003  # the fresh solves' seed: never a training sample
 
 
-def train_arm(pde, space: str, steps: int, sim_budget: int, batch: int, seed: int, out: Path):
+def train_arm(pde, space: str, steps: int, sim_budget: int, batch: int, seed: int, out: Path, floor: float = 0.25):
     """The compare arm reservoir_active's data path over ``space``: (model, normalization, the final proposal)."""
     view = datasets.make_view("operator")
     reuse = max(1.0, 1.05 * steps * batch / sim_budget)
     stream = datasets.ReservoirStream(pde, seed=seed, view=view, batch_size=batch, capacity=sim_budget, max_reuse=reuse,
                                       solve_batch=16, sim_budget=sim_budget, mode="deterministic", target_reuse=reuse,
                                       warmup=sim_budget // 4, proposal="active",
-                                      proposal_kwargs={"floor": 0.25, "space": space})
+                                      proposal_kwargs={"floor": floor, "space": space})
     loader = DataLoader(stream, batch_size=None)
     norm = source_normalization(loader)
     torch.manual_seed(seed)
@@ -96,16 +96,17 @@ def main(argv=None) -> None:
     ap.add_argument("--draws", type=int, default=256)
     ap.add_argument("--spaces", default="params+ic,params")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--floor", type=float, default=0.25, help="the proposal's uniform share (1: never steered, a control)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     pde = generator.get_pde(args.pde).replace(dict(s.split("=", 1) for s in args.set))
     print(f"{pde.NAME} (n={pde.n}, ic {pde.ic}, latent L={pde.latent_size()}), {args.sim_budget} solves, "
-          f"{args.steps} steps, FNO {COMPARE_FNO}, {args.draws} fresh draws per set, seed {args.seed}")
+          f"{args.steps} steps, FNO {COMPARE_FNO}, {args.draws} fresh draws per set, seed {args.seed}, floor {args.floor}")
     for space in args.spaces.split(","):
         t0 = time.perf_counter()
         with TemporaryDirectory() as tmp:
             model, norm, view, prop, summary = train_arm(pde, space, args.steps, args.sim_budget, args.batch_size,
-                                                         args.seed, Path(tmp))
+                                                         args.seed, Path(tmp), args.floor)
         rng = np.random.default_rng([args.seed, 5])
         hard = fresh_errors(pde, model, norm, view, draws(prop, args.draws, True, rng))
         uniform = fresh_errors(pde, model, norm, view, draws(prop, args.draws, False, rng))

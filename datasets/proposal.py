@@ -75,7 +75,7 @@ import math
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
-from scipy.special import ndtr, ndtri
+import torch
 
 from ._bridge import LATENT  # propose()'s key for the IC latents [n, L] (no parameter can be named so)
 
@@ -423,6 +423,16 @@ class ParamProposal:
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
+
+
+def ndtr(x: np.ndarray) -> np.ndarray:
+    """The standard normal CDF, float64 (torch's: scipy is not a dependency)."""
+    return torch.special.ndtr(torch.from_numpy(np.asarray(x, np.float64))).numpy()
+
+
+def ndtri(u: np.ndarray) -> np.ndarray:
+    """The standard normal inverse CDF of u in (0, 1), float64."""
+    return torch.special.ndtri(torch.from_numpy(np.asarray(u, np.float64))).numpy()
 
 
 def pick_weights(losses: np.ndarray, crowding: np.ndarray, power: float) -> np.ndarray:
