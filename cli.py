@@ -360,7 +360,7 @@ def compare_command(args: argparse.Namespace) -> CompareCommand:
     """The CompareCommand of `compare`'s arguments."""
     name, settings = settings_from_args(args.pde, args)
     reservoir = {k: getattr(args, k) for k in ("capacity", "max_reuse", "reservoir_mode", "target_reuse",
-                                               "proposal_floor", "proposal_gate", "proposal_ensemble",
+                                               "proposal_floor", "proposal_gate", "proposal_space", "proposal_ensemble",
                                                "proposal_kappa", "priority_power", "priority_floor", "solve_batch")}
     return CompareCommand(
         pde=name, out=args.out, settings=settings, overwrite=args.overwrite, cache_samples=args.cache_samples,

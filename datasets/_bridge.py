@@ -200,7 +200,10 @@ def solve_job(config: dict, seed: int, indices, params: dict | None = None, on_b
     t0 = time.perf_counter()
     configure_jax()
     pde = _pde_of(json.dumps(config, sort_keys=True))
-    traj = generator.sample(pde, np.asarray(indices, np.int64), seed, on_blowup=on_blowup, params=params)
+    params = dict(params or {})
+    latent = params.pop(LATENT, None)
+    traj = generator.sample(pde, np.asarray(indices, np.int64), seed, on_blowup=on_blowup, params=params or None,
+                            latent=latent)
     if on_device and isinstance(traj.u, jax.Array):  # (an external solver's result is numpy already)
         import torch
 
@@ -209,14 +212,34 @@ def solve_job(config: dict, seed: int, indices, params: dict | None = None, on_b
     else:
         u = _joined(traj, np.concatenate, np.asarray)
     cols = [np.asarray(traj.params[n]) for n in pde.PARAMS]
-    return {"u": u, "params": np.stack(cols, 1) if cols else np.zeros((len(u), 0), np.float32),
-            "index": np.asarray(traj.indices, np.int64), "skipped": list(traj.skipped),
-            "seconds": time.perf_counter() - t0}
+    out = {"u": u, "params": np.stack(cols, 1) if cols else np.zeros((len(u), 0), np.float32),
+           "index": np.asarray(traj.indices, np.int64), "skipped": list(traj.skipped),
+           "seconds": time.perf_counter() - t0}
+    if latent is not None:  # the latents given, for the rows kept (on_blowup="skip" may leave some out)
+        first = {}  # index -> its row (a padded job repeats rows: the same index, the same latent)
+        for row, i in enumerate(np.asarray(indices, np.int64).tolist()):
+            first.setdefault(i, row)
+        out["latent"] = np.asarray(latent, np.float32)[[first[i] for i in out["index"].tolist()]]
+    return out
 
 
 @functools.lru_cache(maxsize=16)
 def _pde_of(config_json: str):
     return pde_from_config(json.loads(config_json))
+
+
+# params' key for a job's IC latents [B, L] (a joint proposal's; datasets.proposal.LATENT)
+LATENT = "ic:latent"
+
+
+def latent_size(pde) -> int:
+    """L: the steerable coordinates of the PDE's IC (generator.ics.LatentIC), 0: none."""
+    return int(pde.latent_size()) if hasattr(pde, "latent_size") else 0
+
+
+def latent_prior(pde) -> tuple:
+    """The IC latent's law ("normal" | "uniform", a [L], b [L]) (``LatentIC.latent_prior``)."""
+    return pde.latent_prior()
 
 
 def param_domains(pde) -> dict:

@@ -54,6 +54,17 @@ fresh solves and moves its weight between the steered and the uniform draw by it
   ``steer`` (w) are in the reservoir's ``stats()`` (metrics.csv: ``proposal_skill``, ``proposal_steer``) and in
   ``state_dict``.
 
+**The initial condition too** (``latent_prior``, the reservoir's ``proposal_space="params+ic"``): where the entry's IC
+has latent coordinates (``generator.ics.LatentIC``: Fourier amplitudes and phases, a GRF's leading white-noise modes,
+spot centres), the unit box grows by those L coordinates, mapped onto the latent by its prior's inverse CDF (a
+uniform unit point is a draw of the prior, as the key would make it), and every proposal above runs over
+(parameters, latent) jointly: ``propose`` adds the latents [n, L] under LATENT, ``record`` takes each sample's.
+Beyond a few dimensions the loss model's lattice of bumps would have 3^D centres: from LATTICE_MOST of them on it
+is constant + linear + per-axis quadratic terms instead, and the steered draws' jitter stays that of a 4-D candidate
+set. The "active" loss model reads a normal latent coordinate as the latent itself (0.5 + x / 6: +-3 standard
+deviations span [0, 1]), not as its unit coordinate (the CDF flattens the tails where a size-driven loss grows):
+per-axis squares are then squared amplitudes, and a loss driven by a mode's energy is in the model's span.
+
 Everything is numpy and seeded: the sequence of proposals is a pure function of (seed, the losses recorded
 and the order of calls), so a deterministic reservoir stays deterministic. ``state_dict`` captures it all.
 """
@@ -64,8 +75,13 @@ import math
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
+import torch
+
+from ._bridge import LATENT  # propose()'s key for the IC latents [n, L] (no parameter can be named so)
 
 MODES = ("uniform", "loss", "active")
+LATTICE_MOST = 1024  # most bump centres of the loss model; beyond them, per-axis quadratic terms
+UNIT_EDGE = 1e-7  # unit coordinates of a normal prior are kept this far inside (0, 1): its inverse CDF is finite
 
 
 class ParamProposal:
@@ -79,12 +95,14 @@ class ParamProposal:
     candidates: uniform points of the box the proposal resamples. The skill gate ("loss" and "active", the module
     docstring): gate (False: always steer 1 - floor), skill_window: fresh (prediction, loss) pairs kept,
     skill_min: pairs before any steering, skill_full: the skill at which the steered share is 1 - floor.
+    latent_prior: None, or the IC latent's law ("normal" | "uniform", a [L], b [L]) (``LatentIC.latent_prior``):
+    the proposals then draw (parameters, latent) jointly (the module docstring).
     """
 
     def __init__(self, domains: dict, mode: str = "loss", floor: float = 0.25, window: int = 2048,
                  bandwidth: float = 0.05, power: float = 1.0, seed: int = 0, ensemble: int = 5, kappa: float = 1.0,
                  refit: int = 256, candidates: int = 2048, gate: bool = True, skill_window: int = 256,
-                 skill_min: int = 32, skill_full: float = 0.5):
+                 skill_min: int = 32, skill_full: float = 0.5, latent_prior: tuple | None = None):
         if mode not in MODES:
             raise ValueError(f"proposal={mode!r} not allowed; allowed: {', '.join(MODES)}")
         if not (isinstance(floor, (int, float)) and 0 < floor <= 1):
@@ -116,8 +134,17 @@ class ParamProposal:
         self.names = list(domains)  # every PDE parameter, PARAMS order (the columns of batch["params"])
         self.domains = {k: tuple(v) for k, v in domains.items()}
         self.random = [k for k, (kind, *_rest) in self.domains.items() if kind != "fixed"]
+        self.latent_prior = None
+        if latent_prior is not None:
+            kind, a, b = latent_prior
+            if kind not in ("normal", "uniform") or np.shape(a) != np.shape(b) or np.ndim(a) != 1:
+                raise ValueError(f"proposal latent_prior kind={kind!r} not allowed; allowed: 'normal' or 'uniform' "
+                                 "with two [L] arrays")
+            self.latent_prior = (kind, np.asarray(a, np.float64), np.asarray(b, np.float64))
+        self.n_latent = 0 if self.latent_prior is None else len(self.latent_prior[1])
+        self.dims = len(self.random) + self.n_latent  # D: the unit box's dimensions (parameters, then latent)
         self.rng = np.random.default_rng(seed)
-        self.points = np.zeros((0, len(self.random)))  # recent training samples, unit box [W, D]
+        self.points = np.zeros((0, self.dims))  # recent training samples, unit box [W, D]
         self.losses = np.zeros(0)  # their losses [W]
         self.proposed = []  # every proposed unit point (for the plot), list of [D] lists
         self.reports = 0
@@ -132,9 +159,19 @@ class ParamProposal:
         self.skill_pred, self.skill_real = np.zeros(0), np.zeros(0)
 
     # --- unit box <-> parameter values -------------------------------------------------------------
-    def to_unit(self, values: np.ndarray) -> np.ndarray:
-        """[N, P] parameter values (all PDE parameters, PARAMS order) -> [N, D] unit coordinates of the random ones."""
+    def to_unit(self, values: np.ndarray, latent: np.ndarray | None = None) -> np.ndarray:
+        """[N, P] parameter values (all PDE parameters, PARAMS order) and, with a latent prior, [N, L] IC latents ->
+        [N, D] unit coordinates of the random ones (then the latent's)."""
         values = np.asarray(values, np.float64).reshape(len(values), len(self.names))
+        params = self._params_to_unit(values)
+        if not self.n_latent:
+            return params
+        kind, a, b = self.latent_prior
+        x = np.asarray(latent, np.float64).reshape(len(values), self.n_latent)
+        z = ndtr((x - a) / b) if kind == "normal" else (x - a) / (b - a)
+        return np.concatenate([params, np.clip(z, 0.0, 1.0)], 1)
+
+    def _params_to_unit(self, values: np.ndarray) -> np.ndarray:
         cols = []
         for name in self.random:
             kind, low, high, options = self.domains[name]
@@ -150,8 +187,14 @@ class ParamProposal:
         return np.stack(cols, 1) if cols else np.zeros((len(values), 0))
 
     def from_unit(self, z: np.ndarray) -> dict[str, np.ndarray]:
-        """[N, D] unit coordinates -> {name: float64 [N]} values inside each domain."""
+        """[N, D] unit coordinates -> {name: float64 [N]} values inside each domain (and LATENT: float64 [N, L],
+        the IC latents, with a latent prior)."""
         out = {}
+        if self.n_latent:
+            kind, a, b = self.latent_prior
+            u = z[:, len(self.random):]
+            out[LATENT] = (a + b * ndtri(np.clip(u, UNIT_EDGE, 1 - UNIT_EDGE)) if kind == "normal"
+                           else a + np.clip(u, 0.0, 1.0) * (b - a))
         for j, name in enumerate(self.random):
             kind, low, high, options = self.domains[name]
             u = np.clip(z[:, j], 0.0, 1.0)
@@ -170,22 +213,30 @@ class ParamProposal:
         return out
 
     # --- the loop's feedback and the proposals -----------------------------------------------------
-    def record(self, params: np.ndarray, losses: np.ndarray, fresh: np.ndarray | None = None) -> None:
+    def record(self, params: np.ndarray, losses: np.ndarray, fresh: np.ndarray | None = None,
+               latent: np.ndarray | None = None) -> None:
         """Per-sample training losses [B] of samples with parameters [B, P] (PARAMS order). A row whose loss or
         parameters are not finite (a diverged step, a NaN parameter) is dropped and counted in ``dropped``: one
         such row would otherwise turn the pick weights, and then the proposals sent to the solver, into NaN.
         fresh: bool [B], which rows are samples trained on for the first time (their losses measure the skill
-        gate, before they join the window); None: every row (a caller that reports each sample once)."""
+        gate, before they join the window); None: every row (a caller that reports each sample once). latent:
+        [B, L], the samples' IC latents (with a latent prior; None or a NaN row: unknown, the row is dropped)."""
         losses = np.asarray(losses, np.float64).reshape(-1)
         params = np.asarray(params, np.float64).reshape(len(losses), len(self.names))
+        if self.n_latent:
+            latent = (np.full((len(losses), self.n_latent), np.nan) if latent is None
+                      else np.asarray(latent, np.float64).reshape(len(losses), self.n_latent))
         ok = np.isfinite(losses) & np.isfinite(params).all(axis=1)
+        if self.n_latent:
+            ok &= np.isfinite(latent).all(axis=1)
         self.dropped += int((~ok).sum())
-        if not ok.any() or not self.random:
+        if not ok.any() or not self.dims:
             return
         fresh = np.ones(len(losses), bool) if fresh is None else np.asarray(fresh, bool).reshape(len(losses))
-        if self.mode != "uniform" and (ok & fresh).any():
-            self._score(self.to_unit(params[ok & fresh]), losses[ok & fresh])
-        self.points = np.concatenate([self.points, self.to_unit(params[ok])])[-self.window :]
+        unit = self.to_unit(params[ok], None if latent is None else latent[ok])
+        if self.mode != "uniform" and fresh[ok].any():
+            self._score(unit[fresh[ok]], losses[ok][fresh[ok]])
+        self.points = np.concatenate([self.points, unit])[-self.window :]
         self.losses = np.concatenate([self.losses, losses[ok]])[-self.window :]
         self.reports += int(ok.sum())
         if self.mode == "active" and self.reports - self._fit_at >= self.refit:
@@ -200,7 +251,8 @@ class ParamProposal:
             self._pool = ThreadPoolExecutor(1, thread_name_prefix="proposal-fit")
         args = (self.points.copy(), self.losses.copy(), self.candidates, self.ensemble, self.kappa, self.power,
                 np.random.default_rng([self.seed, 7, self.fits]))
-        self._next = self._pool.submit(active_fit, *args)
+        more = {"coords": self.model_coords} if self.n_latent else {}  # (a parameters-only fit: as before)
+        self._next = self._pool.submit(active_fit, *args, **more)
         self.fits += 1
         self._fit_at = self.reports
 
@@ -222,7 +274,7 @@ class ParamProposal:
         if self.mode == "active":
             if self._fit is None or len(self._fit) < 3:  # no fit yet (or one restored from before the gate)
                 return None
-            return features(z, lattice(z.shape[1])) @ self._fit[2]
+            return features(self.model_coords(z), lattice(z.shape[1])) @ self._fit[2]
         if self.mode == "loss" and len(self.losses):
             positive = self.losses[self.losses > 0]
             y = np.log(np.maximum(self.losses, positive.min() if len(positive) else 1e-30))
@@ -230,6 +282,16 @@ class ParamProposal:
             total = k.sum(1)
             return np.where(total > 1e-12, (k @ y) / np.maximum(total, 1e-300), y.mean())
         return None
+
+    def model_coords(self, z: np.ndarray) -> np.ndarray:
+        """Unit points [N, D] -> the coordinates the "active" loss model reads [N, D]: a normal latent coordinate as
+        0.5 + x / 6 (x: the latent in standard deviations), every other one as it is."""
+        if not self.n_latent or self.latent_prior[0] != "normal":
+            return z
+        out = z.copy()
+        u = np.clip(z[:, len(self.random):], UNIT_EDGE, 1 - UNIT_EDGE)
+        out[:, len(self.random):] = 0.5 + ndtri(u) / 6.0
+        return out
 
     @property
     def skill(self) -> float:
@@ -252,9 +314,9 @@ class ParamProposal:
 
     def propose(self, n: int) -> dict[str, np.ndarray] | None:
         """Explicit values {name: float64 [n]} for the next n solves; None in "uniform" mode (key draws)."""
-        if self.mode == "uniform" or not self.random:
+        if self.mode == "uniform" or not self.dims:
             return None
-        d = len(self.random)
+        d = self.dims
         z = self.rng.random((n, d))  # the uniform part
         steer = self.rng.random(n) >= 1.0 - self.steer  # ungated (steer = 1 - floor): the draws of before the gate
         if self.mode == "active":
@@ -262,7 +324,8 @@ class ParamProposal:
                 cand, prob = self._fit[:2]
                 pick = self.rng.choice(len(prob), size=int(steer.sum()), p=prob)
                 # about one candidate spacing: the density is continuous, yet as sharp as the candidates resolve
-                width = 0.5 * len(prob) ** (-1.0 / d)
+                # (beyond 4 dimensions, a 4-D set's spacing: a high-dimensional spacing would undo the steering)
+                width = 0.5 * len(prob) ** (-1.0 / min(d, 4))
                 moved = np.abs(cand[pick] + width * self.rng.standard_normal((len(pick), d)))
                 z[steer] = np.clip(1.0 - np.abs(1.0 - moved), 0.0, 1.0)
         elif steer.any() and len(self.losses):
@@ -311,7 +374,7 @@ class ParamProposal:
     def state_dict(self) -> dict:
         """Everything the next proposals depend on (plain values; loads with torch.load(weights_only=True))."""
         return {"mode": self.mode, "rng": _plain(self.rng.bit_generator.state), "points": self.points.tolist(),
-                "losses": self.losses.tolist(), "proposed": list(self.proposed), "reports": self.reports, "dropped": self.dropped,
+                "losses": self.losses.tolist(), "proposed": list(self.proposed), "dims": self.dims, "reports": self.reports, "dropped": self.dropped,
                 "weights": None if self._w is None else self._w.tolist(), "weights_at": self._w_at,
                 "fit": _fit_plain(self._fit), "next_fit": _fit_plain(None if self._next is None else self._next.result()),
                 "fits": self.fits, "fit_at": self._fit_at, "skill_pred": self.skill_pred.tolist(),
@@ -321,16 +384,19 @@ class ParamProposal:
         """Restore ``state_dict()`` output (the same domains and mode are required)."""
         if state.get("mode") != self.mode:
             raise ValueError(f"proposal state has mode {state.get('mode')!r}, this proposal {self.mode!r}")
+        if state.get("dims", len(self.random)) != self.dims:  # (states saved before the latent: parameters only)
+            raise ValueError(f"proposal state has {state.get('dims')} dimensions, this proposal {self.dims} (another "
+                             "proposal space: params or params+ic)")
         self.rng.bit_generator.state = state["rng"]
-        self.points = np.asarray(state["points"], np.float64).reshape(-1, len(self.random))
+        self.points = np.asarray(state["points"], np.float64).reshape(-1, self.dims)
         self.losses = np.asarray(state["losses"], np.float64)
         self.proposed = [list(p) for p in state["proposed"]]
         self.reports = int(state["reports"])
         self.dropped = int(state.get("dropped", 0))  # states saved before the count existed have none
         self._w = None if state.get("weights") is None else np.asarray(state["weights"], np.float64)
         self._w_at = int(state.get("weights_at", 0))
-        self._fit = _fit_array(state.get("fit"), len(self.random))
-        following = _fit_array(state.get("next_fit"), len(self.random))
+        self._fit = _fit_array(state.get("fit"), self.dims)
+        following = _fit_array(state.get("next_fit"), self.dims)
         self._next = None
         if following is not None:
             self._next = Future()
@@ -362,6 +428,16 @@ class ParamProposal:
             self._pool = None
 
 
+def ndtr(x: np.ndarray) -> np.ndarray:
+    """The standard normal CDF, float64 (torch's: scipy is not a dependency)."""
+    return torch.special.ndtr(torch.from_numpy(np.asarray(x, np.float64))).numpy()
+
+
+def ndtri(u: np.ndarray) -> np.ndarray:
+    """The standard normal inverse CDF of u in (0, 1), float64."""
+    return torch.special.ndtri(torch.from_numpy(np.asarray(u, np.float64))).numpy()
+
+
 def pick_weights(losses: np.ndarray, crowding: np.ndarray, power: float) -> np.ndarray:
     """Probabilities [W] proportional to max(loss, 0) ** power / crowding, computed in log space so that losses
     of 1e300 (or 1e-300) neither overflow nor vanish; uniform when no loss is positive. Inputs are finite
@@ -379,15 +455,20 @@ def pick_weights(losses: np.ndarray, crowding: np.ndarray, power: float) -> np.n
 
 def lattice(d: int, target: int = 64, most: int = 12) -> np.ndarray:
     """Centres of the loss model's bumps [M, D]: per axis m = clip(round(target ** (1 / D)), 3, most) evenly
-    spaced points of [0, 1] (D = 1: 12, D = 2: 8 x 8, D = 3: 4 x 4 x 4), all their combinations."""
+    spaced points of [0, 1] (D = 1: 12, D = 2: 8 x 8, D = 3: 4 x 4 x 4), all their combinations; none ([0, D]) when
+    they would be more than LATTICE_MOST (D >= 7: ``features`` then has per-axis quadratic terms)."""
     m = int(min(most, max(3, round(target ** (1.0 / d)))))
+    if m**d > LATTICE_MOST:
+        return np.zeros((0, d))
     axes = np.meshgrid(*[np.linspace(0, 1, m)] * d, indexing="ij")
     return np.stack([a.reshape(-1) for a in axes], 1)
 
 
 def features(z: np.ndarray, centres: np.ndarray) -> np.ndarray:
     """[N, D] unit points -> [N, 1 + D + M] features: constant, linear, and Gaussian bumps of width one lattice
-    spacing at ``centres`` [M, D]."""
+    spacing at ``centres`` [M, D]; with no centres (a high D), [N, 1 + 2 D]: constant, linear and per-axis squares."""
+    if not len(centres):
+        return np.concatenate([np.ones((len(z), 1)), z - 0.5, 4.0 * (z - 0.5) ** 2], 1)
     m = round(len(centres) ** (1.0 / z.shape[1]))
     width = 1.0 / max(m - 1, 1)
     d2 = ((z[:, None, :] - centres[None]) ** 2).sum(-1)
@@ -427,13 +508,17 @@ def loss_model(points: np.ndarray, losses: np.ndarray, at: np.ndarray, ensemble:
 
 
 def active_fit(points: np.ndarray, losses: np.ndarray, candidates: int, ensemble: int, kappa: float,
-               power: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               power: float, rng: np.random.Generator, coords=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One refit of the "active" proposal: ``candidates`` uniform points of the unit box [C, D] and their
     probabilities [C], proportional to exp(power (mean + kappa spread)) of the loss model's predicted log-loss
     (``loss_model``): a resampling of uniform points, so the proposal's density follows that acquisition; and the
-    mean model's weights (the skill gate's predictor)."""
+    mean model's weights (the skill gate's predictor). coords: unit points -> the model's coordinates (None: the
+    unit points themselves; ``ParamProposal.model_coords``)."""
     cand = rng.random((candidates, points.shape[1]))
-    mean, spread, coef = loss_model(points, losses, cand, ensemble, rng, return_coef=True)
+    if coords is not None:
+        mean, spread, coef = loss_model(coords(points), losses, coords(cand), ensemble, rng, return_coef=True)
+    else:
+        mean, spread, coef = loss_model(points, losses, cand, ensemble, rng, return_coef=True)
     score = power * (mean + kappa * spread)
     w = np.exp(score - score.max())
     return cand, w / w.sum(), coef

@@ -70,7 +70,7 @@ from torch.utils.data import IterableDataset, get_worker_info
 from . import _bridge
 from .progress import StreamPosition
 from .proposal import ParamProposal
-from .reservoir_config import DRAWS, EVICTIONS, MODES, ReservoirConfig, _check_int
+from .reservoir_config import DRAWS, EVICTIONS, MODES, PROPOSAL_SPACES, ReservoirConfig, _check_int
 from .reservoir_pacer import Pacer
 from .reservoir_producer import SolvePipeline
 from .reservoir_storage import check_room, free_bytes, physical_memory, storage_device
@@ -145,12 +145,30 @@ class ReservoirStream(IterableDataset):
                              f"{need / 2**30:.1f} GiB, more than half of this machine's {have / 2**30:.1f} GiB")
         self._where = torch.device("cpu") if self.device is None else self.device  # where the storage goes
         check_room(self._where, self.need, f"capacity={capacity} ({capacity} trajectories)")
+        kwargs = dict(cfg.proposal_kwargs or {})
+        self.proposal_space = kwargs.pop("space", "params")
         self.proposal = ParamProposal(_bridge.param_domains(self.pde), mode=cfg.proposal, seed=self.seed,
-                                      **(cfg.proposal_kwargs or {}))
+                                      latent_prior=self._latent_prior(cfg.proposal), **kwargs)
         self.t = torch.from_numpy(np.asarray(self.pde.times()))
         self._t_dev = self.t.to(self._where)
         self._last = None  # (the last batch's params tensor, its host copy): report_losses reads no device
         self._reset_state()
+
+    def _latent_prior(self, proposal: str):
+        """The IC latent's law for a joint proposal (proposal_space "params+ic"), None for "params"; one line for an
+        unknown space, for "params+ic" with a uniform proposal (nothing steers) or on an IC without a latent."""
+        space = self.proposal_space
+        if space not in PROPOSAL_SPACES:
+            raise ValueError(f"proposal space={space!r} not allowed; allowed: {', '.join(PROPOSAL_SPACES)}")
+        if space == "params":
+            return None
+        if proposal == "uniform":
+            raise ValueError("proposal space='params+ic' goes with proposal 'loss' or 'active' (a uniform proposal "
+                             "steers nothing)")
+        if not _bridge.latent_size(self.pde):
+            raise ValueError(f"proposal space='params+ic' not allowed on {self.pde.NAME}: its ic "
+                             f"({getattr(self.pde, 'ic', None)}) has no latent coordinates; allowed: 'params'")
+        return _bridge.latent_prior(self.pde)
 
     def _reset_state(self) -> None:
         factory = self.reservoir_config.storage
@@ -304,14 +322,16 @@ class ReservoirStream(IterableDataset):
                 # fresh: the trajectory's first draw (its loss, reported after the step, measures the proposal's
                 # skill before the proposal has seen it)
                 parts.append((self._gather(s, w), s, self.res.serial[s].copy(), self.res.params_host[s],
-                              self.res.uses[s] == 1))
+                              self.res.uses[s] == 1, self.res.latent_of(s)))
                 got += len(s)
             if not got:
                 return
             batch = parts[0][0] if len(parts) == 1 else {k: torch.cat([p[0][k] for p in parts]) for k in parts[0][0]}
             slots, serial = np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts])
+            # (the IC latents of a joint proposal's samples, read now: a later insert may evict these slots)
+            latent = None if parts[0][5] is None else np.concatenate([p[5] for p in parts])
             self._drawn = (batch["params"], slots, serial, np.concatenate([p[4] for p in parts]),
-                           self.res.index[slots].copy())
+                           self.res.index[slots].copy(), latent)
             if self._where.type != "cpu":  # the host's copy of the batch's parameters, for report_losses
                 self._last = (batch["params"], torch.from_numpy(np.concatenate([p[3] for p in parts])))
             self.progress.add(0, 1)
@@ -337,11 +357,11 @@ class ReservoirStream(IterableDataset):
         losses = per_example.detach().cpu().numpy()
         # which rows are first draws (the proposal's skill gate scores those): known for the batch last drawn (the
         # same tensor, or a copy moved to the model's device: the same sample indices); any other batch has none
-        fresh = np.zeros(len(losses), bool)
+        fresh, latent = np.zeros(len(losses), bool), None  # (latent: a joint proposal's; unknown rows are dropped)
         if self._drawn is not None and len(self._drawn[3]) == len(losses):
             if batch["params"] is self._drawn[0] or np.array_equal(batch["index"].detach().cpu().numpy(), self._drawn[4]):
-                fresh = self._drawn[3]
-        self.proposal.record(params.detach().cpu().numpy(), losses, fresh=fresh)
+                fresh, latent = self._drawn[3], self._drawn[5]
+        self.proposal.record(params.detach().cpu().numpy(), losses, fresh=fresh, latent=latent)
         if self.draw == "priority":
             self._prioritize(batch, losses)
 
@@ -436,8 +456,8 @@ class ReservoirStream(IterableDataset):
         self.close()
         self._reset_state()
         names = list(self.pde.PARAMS)
-        self.res.load_state_dict(state["reservoir"], lambda slots, index, params: self.pipeline.refill(
-            self.res.storage, slots, index, params, names))
+        self.res.load_state_dict(state["reservoir"], lambda slots, index, params, latent=None: self.pipeline.refill(
+            self.res, slots, index, params, names, latent))
         self.pipeline.load_state_dict(state["producer"])
         self.drawn_since_insert = state["schedule"]["drawn_since_insert"]
         self.progress.restore(0, [state["schedule"]["batches"]])

@@ -17,6 +17,9 @@ MODES = ("async", "deterministic")
 # classes so that the CLI's parser reads them without numpy; those modules check their registries against these
 DRAWS = ("uniform", "least_used", "priority")
 EVICTIONS = ("fifo", "random")
+# what a loss-driven or active proposal steers (proposal_kwargs["space"]): the parameters alone, or jointly with the
+# IC's latent coordinates (generator.ics.LatentIC)
+PROPOSAL_SPACES = ("params", "params+ic")
 
 
 def _check_int(name: str, value, low: int) -> int:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 
 from .reservoir_config import DEFAULTS as R
-from .reservoir_config import DRAWS, EVICTIONS, MODES
+from .reservoir_config import DRAWS, EVICTIONS, MODES, PROPOSAL_SPACES
 
 
 def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
@@ -32,6 +32,10 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
     g.add_argument("--proposal-gate", choices=("on", "off"), default="on",
                    help="loss-driven and active sampling: steer only as far as the loss model's measured skill on "
                         "fresh solves allows (no skill: uniform draws); off: always steer 1 - floor of the draws")
+    g.add_argument("--proposal-space", default="params", metavar="params|params+ic",
+                   help="loss-driven and active sampling: what the proposal steers, the PDE parameters alone or "
+                        "jointly with the initial condition's latent coordinates (Fourier amplitudes and phases, a "
+                        "GRF's leading white-noise modes, spot centres: generator.ics.LatentIC); default: params")
     g.add_argument("--proposal-ensemble", type=int, default=5, metavar="K",
                    help="active sampling: bootstrap loss models whose disagreement is the uncertainty signal (>= 2)")
     g.add_argument("--proposal-kappa", type=float, default=1.0,
@@ -66,6 +70,7 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
 
 
 RESERVOIR_OPTIONS = ("capacity", "max_reuse", "reservoir_mode", "target_reuse", "proposal_floor", "proposal_gate",
+                     "proposal_space",
                      "solve_batch", "warmup", "eviction", "draw", "producer", "workers", "scheduler", "proposal",
                      "proposal_ensemble", "proposal_kappa", "on_blowup", "priority_power", "priority_floor")
 
@@ -97,15 +102,20 @@ def check_priority_options(args: argparse.Namespace, used: bool, needs: str) -> 
 def check_proposal_options(args: argparse.Namespace, floor_used: bool, active_used: bool, needs: str) -> None:
     """--proposal-floor, --proposal-gate (loss-driven and active proposals) / --proposal-ensemble, --proposal-kappa (active only) given
     where nothing uses them: one line."""
-    _refuse_unused(args, {"proposal_floor": floor_used, "proposal_gate": floor_used, "proposal_ensemble": active_used,
+    _refuse_unused(args, {"proposal_floor": floor_used, "proposal_gate": floor_used, "proposal_space": floor_used,
+                          "proposal_ensemble": active_used,
                           "proposal_kappa": active_used}, needs, "; nothing here uses it: drop it")
 
 
 def active_kwargs(args: argparse.Namespace) -> dict:
-    """--proposal-ensemble / --proposal-kappa / --proposal-gate as ParamProposal settings (an ensemble < 2 is refused
-    there, in one line: one model has no disagreement)."""
+    """--proposal-ensemble / --proposal-kappa / --proposal-gate / --proposal-space as the proposal's settings (an
+    ensemble < 2 is refused there, in one line: one model has no disagreement; a space other than params or
+    params+ic here)."""
+    space = getattr(args, "proposal_space", "params")
+    if space not in PROPOSAL_SPACES:
+        raise ValueError(f"--proposal-space={space!r} not allowed; allowed: {', '.join(PROPOSAL_SPACES)}")
     return {"ensemble": args.proposal_ensemble, "kappa": args.proposal_kappa,
-            "gate": getattr(args, "proposal_gate", "on") == "on"}
+            "gate": getattr(args, "proposal_gate", "on") == "on", **({"space": space} if space != "params" else {})}
 
 
 # trajectories per solver job by where training runs: on an H100 the FNO Burgers set-up's solver gave 179 traj/s at

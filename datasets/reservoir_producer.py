@@ -130,7 +130,9 @@ class SolvePipeline:
                 u = u[pick] if isinstance(pick, slice) else u[torch.as_tensor(pick, device=u.device)]
             else:  # numpy from a worker process (writable: torch wants that)
                 u = torch.from_numpy(np.require(u[pick], requirements="W"))
-            res.insert(u, torch.from_numpy(np.asarray(result["params"][rows])), result["index"][rows])
+            latent = result.get("latent")
+            res.insert(u, torch.from_numpy(np.asarray(result["params"][rows])), result["index"][rows],
+                       None if latent is None else latent[rows])
         spent = time.perf_counter() - t0
         self.t_insert += spent
         if self.pacer is not None:
@@ -164,16 +166,20 @@ class SolvePipeline:
         self.fill()
         return n
 
-    def refill(self, storage, slots: np.ndarray, index: np.ndarray, params, names: list) -> None:
-        """Solve the samples ``index`` [n] (params [n][P], in ``names`` order) again, here and now, into ``slots``
-        [n] of ``storage``: bit-identical to what was held (sample identity)."""
+    def refill(self, res, slots: np.ndarray, index: np.ndarray, params, names: list, latent=None) -> None:
+        """Solve the samples ``index`` [n] (params [n][P], in ``names`` order; latent: their IC latents [n, L], NaN
+        rows the key's, or None) again, here and now, into ``slots`` [n] of the store ``res``: bit-identical to what
+        was held (sample identity)."""
         params = np.asarray(params, np.float32).reshape(len(slots), len(names))
         for lo in range(0, len(slots), self.solve_batch):
             sel = np.arange(lo, min(lo + self.solve_batch, len(slots)))
             pad = np.resize(sel, self.solve_batch)
-            out = _bridge.solve_job(self.config, self.seed, index[pad], {n: params[pad, j] for j, n in enumerate(names)},
-                                    on_device=True)
-            storage.put(slots[sel], out["u"][: len(sel)], torch.from_numpy(out["params"][: len(sel)]), index[sel])
+            given = {n: params[pad, j] for j, n in enumerate(names)}
+            if latent is not None:
+                given[_bridge.LATENT] = latent[pad]
+            out = _bridge.solve_job(self.config, self.seed, index[pad], given, on_device=True)
+            res.storage.put(slots[sel], out["u"][: len(sel)], torch.from_numpy(out["params"][: len(sel)]), index[sel])
+            res.set_latent(slots[sel], None if latent is None else latent[sel])
 
     def close(self) -> None:
         """Stop the producer (a thread's job in flight stops at its next bounded call, worker processes end at

@@ -38,6 +38,9 @@ class Reservoir:
             extra = dict(power=priority_power, floor=priority_floor) if draw == "priority" else {}
             draw = SAMPLERS[draw](capacity, cap_uses, n_windows, **extra)
         self.sampler = draw
+        # the IC latents a joint proposal gave the held samples, float32 [capacity, L] on the host (None: none given,
+        # every sample's IC from its key): what reports steer by and a saved state re-solves them from
+        self.latent_host: np.ndarray | None = None
 
     # the parts' bookkeeping, under the names the store has always had
     index = property(lambda self: self.storage.index)
@@ -74,16 +77,33 @@ class Reservoir:
         """Move the storage to ``device``; the bookkeeping stays on the host."""
         self.storage.to(device)
 
-    def insert(self, u: torch.Tensor, params: torch.Tensor, index: np.ndarray) -> int:
-        """Insert trajectories u [B, T, C, *space] (params [B, P], index [B]; any device); returns how many were
-        evicted. The caller checks ``room() >= B`` first."""
+    def insert(self, u: torch.Tensor, params: torch.Tensor, index: np.ndarray, latent: np.ndarray | None = None) -> int:
+        """Insert trajectories u [B, T, C, *space] (params [B, P], index [B]; any device; latent: their IC latents
+        [B, L] where a joint proposal gave them); returns how many were evicted. The caller checks ``room() >= B``
+        first."""
         b = len(index)
         held = self.writer.held()
         slots, out = self.writer.write(b, self.sampler.uses, self.rng)
         self.sampler.inserted(slots, out, held)
         self.writer.occupy(slots)
         self.storage.put(slots, u[:b], params[:b], index[:b])
+        self.set_latent(slots, latent)
         return len(out)
+
+    def set_latent(self, slots: np.ndarray, latent: np.ndarray | None) -> None:
+        """Record the IC latents [m, L] of the samples in ``slots`` [m] (None: none given; a NaN row: the key's)."""
+        if latent is None:
+            if self.latent_host is not None:
+                self.latent_host[slots] = np.nan
+            return
+        latent = np.asarray(latent, np.float32).reshape(len(slots), -1)
+        if self.latent_host is None:
+            self.latent_host = np.full((self.capacity, latent.shape[1]), np.nan, np.float32)
+        self.latent_host[slots] = latent
+
+    def latent_of(self, slots: np.ndarray) -> np.ndarray | None:
+        """The IC latents [m, L] of ``slots`` (a copy), or None when no sample was given one."""
+        return None if self.latent_host is None else self.latent_host[slots].copy()
 
     def draw(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Up to k examples, each trajectory at most once: (slots [m], window starts [m]), m <= k; m = 0 when
@@ -107,7 +127,10 @@ class Reservoir:
     def state_dict(self) -> dict:
         """{"slots": the held slots, "storage", "writer", "sampler": each part's state for them, "rng"}."""
         live = self.live()
-        return {"slots": live.tolist(), "storage": self.storage.state_dict(live), "writer": self.writer.state_dict(live),
+        storage = self.storage.state_dict(live)
+        if self.latent_host is not None:  # (None where none was given: a state as before the latent)
+            storage["latent"] = self.latent_host[live].tolist()
+        return {"slots": live.tolist(), "storage": storage, "writer": self.writer.state_dict(live),
                 "sampler": self.sampler.state_dict(live), "rng": _plain(self.rng.bit_generator.state)}
 
     def check_state(self, state: dict, max_index: int) -> None:
@@ -120,6 +143,10 @@ class Reservoir:
             if len(ints("storage.index", state["storage"]["index"], 0, max_index)) != n:
                 raise ValueError(f"reservoir state: storage.index has {len(state['storage']['index'])} entries for "
                                  f"{n} slots")
+            latent = state["storage"].get("latent")
+            if latent is not None and (not isinstance(latent, list) or len(latent) != n):
+                raise ValueError(f"reservoir state: storage.latent has {len(latent) if isinstance(latent, list) else latent!r}"
+                                 f" entries for {n} slots")
             self.writer.check_state(state["writer"], n, ints)
             self.sampler.check_state(state["sampler"], n, ints)
         except (KeyError, TypeError) as err:
@@ -127,10 +154,13 @@ class Reservoir:
 
     def load_state_dict(self, state: dict, refill) -> None:
         """Resume from ``state_dict()`` (checked with ``check_state``). The held trajectories are not in a state:
-        ``refill(slots [n], index [n], params [n, P])`` solves them again and puts them in the storage."""
+        ``refill(slots [n], index [n], params [n, P], latent [n, L] or None)`` solves them again and puts them in
+        the storage (and their latents here)."""
         slots = np.asarray(state["slots"], np.int64)
         if len(slots):
-            refill(slots, np.asarray(state["storage"]["index"], np.int64), state["storage"]["params"])
+            latent = state["storage"].get("latent")
+            refill(slots, np.asarray(state["storage"]["index"], np.int64), state["storage"]["params"],
+                   None if latent is None else np.asarray(latent, np.float32).reshape(len(slots), -1))
         self.writer.load_state_dict(slots, state["writer"])
         self.sampler.load_state_dict(slots, state["sampler"])
         self.rng.bit_generator.state = state["rng"]

@@ -6,6 +6,10 @@ number of PDE fields it makes, or None for any), ``sample(key, grid, n_fields)``
 ``bound(grid)`` (max|u0|, for stability rules). The smooth ones are band-limited to the solver's 2/3-rule
 modes, so the field the solver starts from is the field it was given (frame 0 of a trajectory is the IC).
 
+A distribution that also follows ``LatentIC`` exposes the coordinates a proposal may steer (``latent_size``,
+``latent_from_key``, ``ic_from_latent``, ``latent_prior``): ``ic_from_latent(latent_from_key(key), key)`` is
+``sample(key)`` bit for bit, so a sample given the latent its key draws is the sample drawn.
+
 IC_KINDS is declared here, complete: no module adds to it at import time. ``make_ic`` turns a kind name or
 a dict {"kind": ..., field: value} into a distribution; ``coerce`` / ``check_value`` turn a setting's
 value (possibly text from ``--set``) into the kind of its default.
@@ -45,6 +49,33 @@ class InitialCondition(Protocol):
         """A bound on max|u0| (used by stability rules and the float32 limit)."""
 
 
+# The most coordinates a latent exposes (per distribution, all fields together): a proposal over the latent and the
+# parameters is a loss model on that many dimensions (OGAS's largest space is 308).
+MAX_LATENT = 256
+
+
+@runtime_checkable
+class LatentIC(Protocol):
+    """An IC distribution whose draw has steerable coordinates: the latent float32 [L] (L = ``latent_size``, at most
+    MAX_LATENT) is part of what the key draws; the rest of the draw (modes beyond the latent, noise) still comes
+    from the key. So a sample is a pure function of (key, latent), and of the key alone when the latent is the
+    key's own (``latent_from_key``)."""
+
+    def latent_size(self, grid: Grid, n_fields: int) -> int:
+        """L: the number of latent coordinates on ``grid`` (0: none)."""
+
+    def latent_from_key(self, key: jax.Array, grid: Grid, n_fields: int) -> jax.Array:
+        """The latent the key draws today, float32 [L]."""
+
+    def ic_from_latent(self, latent: jax.Array, key: jax.Array, grid: Grid, n_fields: int) -> jax.Array:
+        """The IC float32 [n_fields, *grid.shape] with its latent coordinates set to ``latent`` [L] and the rest of
+        the draw from ``key``; equal bit for bit to ``sample(key)`` when ``latent == latent_from_key(key)``."""
+
+    def latent_prior(self, grid: Grid, n_fields: int) -> tuple[str, np.ndarray, np.ndarray]:
+        """The law ``latent_from_key`` draws each coordinate from: ("normal", mean [L], std [L]) or
+        ("uniform", low [L], high [L]), float64 (what a proposal maps its unit box onto)."""
+
+
 def _white_noise_hat(key: jax.Array, grid: Grid, n_fields: int) -> jax.Array:
     """rfft of unit white noise: complex [C, *kshape] with exact Hermitian symmetry and E|.|^2 = n^ndim."""
     return grid.rfft(jax.random.normal(key, (n_fields, *grid.shape), jnp.float32))
@@ -61,8 +92,53 @@ def _full_mode_norm(grid: Grid) -> np.ndarray:
     return np.sqrt(sum(x**2 for x in np.meshgrid(*([m] * grid.ndim), indexing="ij")))
 
 
+def _pow2_scale(grid: Grid) -> float:
+    """The power of two nearest the std of a real or imaginary part of an rfft coefficient of unit white noise,
+    sqrt(n^ndim / 2): a latent in these units is about standard normal, and scaling by a power of two is exact."""
+    return float(2.0 ** round(math.log2(math.sqrt(grid.n**grid.ndim / 2))))
+
+
+class SpectralLatent:
+    """The latent of an IC made from the rfft of unit white noise (``_white_noise_hat``): the real and imaginary
+    parts of its leading modes (those the distribution weights, the zero mode left out, in order of |m| then layout
+    position), per field, divided by ``_pow2_scale``; layout [n_fields, modes, 2] flattened, at most MAX_LATENT.
+    Modes beyond it come from the key. In 2D and 3D the rfft's last-axis-0 plane holds both m and its mirror
+    (complex conjugates in a key's draw); a proposal setting them apart gets the real part of their sum."""
+
+    def _weights(self, grid: Grid) -> np.ndarray:
+        """Which rfft modes the distribution uses (nonzero), float64 kshape."""
+        raise NotImplementedError
+
+    def _modes(self, grid: Grid, n_fields: int) -> np.ndarray:
+        """Flat rfft-layout indices of the latent's modes, int [modes]."""
+        m = _mode_norm(grid).ravel()
+        used = np.flatnonzero((self._weights(grid).ravel() != 0) & (m > 0))
+        order = used[np.argsort(m[used], kind="stable")]
+        return order[: MAX_LATENT // (2 * n_fields)]
+
+    def latent_size(self, grid: Grid, n_fields: int) -> int:
+        return 2 * n_fields * len(self._modes(grid, n_fields))
+
+    def latent_from_key(self, key: jax.Array, grid: Grid, n_fields: int) -> jax.Array:
+        hat = _white_noise_hat(key, grid, n_fields).reshape(n_fields, -1)[:, self._modes(grid, n_fields)]
+        return (jnp.stack([hat.real, hat.imag], axis=-1) / _pow2_scale(grid)).reshape(-1)
+
+    def _hat(self, latent: jax.Array, key: jax.Array, grid: Grid, n_fields: int) -> jax.Array:
+        """The key's white-noise rfft with the latent's modes set from ``latent``: complex [C, *kshape]."""
+        modes = self._modes(grid, n_fields)
+        z = jnp.asarray(latent, jnp.float32).reshape(n_fields, len(modes), 2) * _pow2_scale(grid)
+        hat = _white_noise_hat(key, grid, n_fields).reshape(n_fields, -1)
+        hat = hat.at[:, modes].set(jax.lax.complex(z[..., 0], z[..., 1]))
+        return hat.reshape(n_fields, *grid.kshape)
+
+    def latent_prior(self, grid: Grid, n_fields: int) -> tuple[str, np.ndarray, np.ndarray]:
+        size = self.latent_size(grid, n_fields)
+        std = math.sqrt(grid.n**grid.ndim / 2) / _pow2_scale(grid)
+        return "normal", np.zeros(size), np.full(size, std)
+
+
 @dataclass(frozen=True)
-class FourierSeries:
+class FourierSeries(SpectralLatent):
     """Random truncated Fourier series, rescaled so that max|u0| = amplitude, plus a constant offset.
 
     Modes 1 <= |m|_inf <= max_mode get Gaussian coefficients scaled by |m|^-decay (m: integer wavenumber).
@@ -84,11 +160,19 @@ class FourierSeries:
         if not self.amplitude > 0:
             raise ValueError(f"ic.amplitude={self.amplitude} not allowed: must be > 0")
 
-    def sample(self, key: jax.Array, grid: Grid, n_fields: int = 1) -> jax.Array:
+    def _weights(self, grid: Grid) -> np.ndarray:
         m_inf = grid.max_abs_mode()
         keep = (m_inf >= 1) & (m_inf <= self.max_mode)
-        weight = np.where(keep, np.maximum(_mode_norm(grid), 1.0) ** (-self.decay), 0.0)
-        u = grid.irfft(_white_noise_hat(key, grid, n_fields) * jnp.asarray(weight, jnp.float32))
+        return np.where(keep, np.maximum(_mode_norm(grid), 1.0) ** (-self.decay), 0.0)
+
+    def sample(self, key: jax.Array, grid: Grid, n_fields: int = 1) -> jax.Array:
+        return self._from_hat(_white_noise_hat(key, grid, n_fields), grid)
+
+    def ic_from_latent(self, latent: jax.Array, key: jax.Array, grid: Grid, n_fields: int = 1) -> jax.Array:
+        return self._from_hat(self._hat(latent, key, grid, n_fields), grid)
+
+    def _from_hat(self, hat: jax.Array, grid: Grid) -> jax.Array:
+        u = grid.irfft(hat * jnp.asarray(self._weights(grid), jnp.float32))
         peak = jnp.max(jnp.abs(u), axis=tuple(range(1, u.ndim)), keepdims=True)
         return self.amplitude * u / peak + self.offset
 
@@ -99,7 +183,7 @@ class FourierSeries:
 
 
 @dataclass(frozen=True)
-class GaussianRandomField:
+class GaussianRandomField(SpectralLatent):
     """Gaussian random field N(mean, sigma^2 (-Laplacian + tau^2 I)^(-alpha)) on the periodic domain.
 
     The covariance operator has eigenvalues lambda_k = sigma^2 (|k|^2 + tau^2)^(-alpha) for angular
@@ -143,12 +227,18 @@ class GaussianRandomField:
         """Standard deviation of u0(x) at any point: sqrt(sum_k lambda_k / length^ndim)."""
         return float(np.sqrt(self.eigenvalues(grid, full=True).sum() / grid.length**grid.ndim))
 
-    def sample(self, key: jax.Array, grid: Grid, n_fields: int = 1) -> jax.Array:
+    def _weights(self, grid: Grid) -> np.ndarray:
         # U_k = xi_hat_k sqrt(lambda_k N / L^d) gives coefficients c_k = U_k / N with E|c_k|^2 = lambda_k / L^d.
-        n_total = grid.n**grid.ndim
-        scale = np.sqrt(self.eigenvalues(grid) * n_total / grid.length**grid.ndim)
-        u = grid.irfft(_white_noise_hat(key, grid, n_fields) * jnp.asarray(scale, jnp.float32))
-        return u + self.mean
+        return np.sqrt(self.eigenvalues(grid) * grid.n**grid.ndim / grid.length**grid.ndim)
+
+    def sample(self, key: jax.Array, grid: Grid, n_fields: int = 1) -> jax.Array:
+        return self._from_hat(_white_noise_hat(key, grid, n_fields), grid)
+
+    def ic_from_latent(self, latent: jax.Array, key: jax.Array, grid: Grid, n_fields: int = 1) -> jax.Array:
+        return self._from_hat(self._hat(latent, key, grid, n_fields), grid)
+
+    def _from_hat(self, hat: jax.Array, grid: Grid) -> jax.Array:
+        return grid.irfft(hat * jnp.asarray(self._weights(grid), jnp.float32)) + self.mean
 
     def bound(self, grid: Grid) -> float:
         """A practical bound on max|u0|: |mean| + 4 pointwise standard deviations."""
@@ -194,9 +284,30 @@ class GrayScottSpots:
         peak = jnp.max(g2.reshape(2, -1), axis=1).reshape((2,) + (1,) * grid.ndim)
         return g2 / jnp.maximum(peak, jnp.finfo(jnp.float32).tiny)
 
+    # The latent: the spot centres [n_spots, ndim] (flattened), uniform over the box; the noise comes from the key.
+    def latent_size(self, grid: Grid, n_fields: int = 2) -> int:
+        return self.n_spots * grid.ndim if self.n_spots * grid.ndim <= MAX_LATENT else 0
+
+    def latent_from_key(self, key: jax.Array, grid: Grid, n_fields: int = 2) -> jax.Array:
+        return self._centres(key, grid).reshape(-1)
+
+    def latent_prior(self, grid: Grid, n_fields: int = 2) -> tuple[str, np.ndarray, np.ndarray]:
+        size = self.latent_size(grid)
+        return "uniform", np.zeros(size), np.full(size, float(grid.length))
+
+    def _centres(self, key: jax.Array, grid: Grid) -> jax.Array:
+        k_centre, _ = jax.random.split(key)
+        return jax.random.uniform(k_centre, (self.n_spots, grid.ndim), jnp.float32, 0.0, grid.length)
+
     def sample(self, key: jax.Array, grid: Grid, n_fields: int = 2) -> jax.Array:
-        k_centre, k_noise = jax.random.split(key)
-        centres = jax.random.uniform(k_centre, (self.n_spots, grid.ndim), jnp.float32, 0.0, grid.length)
+        return self._from_centres(self._centres(key, grid), key, grid)
+
+    def ic_from_latent(self, latent: jax.Array, key: jax.Array, grid: Grid, n_fields: int = 2) -> jax.Array:
+        return self._from_centres(jnp.asarray(latent, jnp.float32).reshape(self.n_spots, grid.ndim), key, grid)
+
+    def _from_centres(self, centres: jax.Array, key: jax.Array, grid: Grid) -> jax.Array:
+        """The spots at ``centres`` float32 [n_spots, ndim] plus the key's noise: float32 [2, *grid.shape]."""
+        _, k_noise = jax.random.split(key)
         x = jnp.asarray(grid.coords())
         mesh = jnp.meshgrid(*([x] * grid.ndim), indexing="ij")
         # Sums are written out term by term: XLA may reassociate a reduce differently per batch size,

@@ -102,7 +102,10 @@ class Problem(Protocol):
     def replace(self, overrides: Mapping[str, Any] | None = None, **kwargs) -> "Problem": ...
 
     def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray): ...
-    # keys [B], explicit float32 [B, P], given bool [B, P] -> (u, params {name: [B]}, ok bool [B], inputs or None)
+    # keys [B], explicit float32 [B, P], given bool [B, P] -> (u, params {name: [B]}, ok bool [B], inputs or None);
+    # a problem whose latent_size() > 0 also takes latent=(float32 [B, L] IC latents, bool [B] where given)
+
+    def latent_size(self) -> int: ...  # L: its IC's steerable coordinates (generator.ics.LatentIC), 0: none
 
     def failure(self) -> tuple[str, str]: ...  # (what a failed sample did, how to avoid it), for BlowUpError
 
@@ -195,6 +198,11 @@ class ProblemBase(abc.ABC):
         """The OUTPUTS of samples u [B, ...] with parameters params {name: [B]}: {name: [B, *dims]} in OUTPUTS
         order, a pure function of each sample (its bits do not depend on its batch). None declared: {}."""
         return {}
+
+    def latent_size(self) -> int:
+        """L: the steerable coordinates of this problem's IC (``generator.ics.LatentIC``); 0: none (a family that
+        does not take an explicit latent in ``run_keys``)."""
+        return 0
 
     def check_settings(self) -> None:  # noqa: B027 (an optional hook: most problems have nothing more to check)
         """Subclass hook: refuse values of the problem's own settings (types and finiteness are already checked)."""

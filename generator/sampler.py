@@ -22,7 +22,7 @@ from .dispatch import Cancelled, cancel_on
 from .problem import Problem, draw_params
 
 PDE = Problem  # the name the signatures below have always used
-__all__ = ["BlowUpError", "Cancelled", "MAX_INDEX", "Trajectory", "cancel_on", "draw_params", "explicit_params",
+__all__ = ["BlowUpError", "Cancelled", "MAX_INDEX", "Trajectory", "cancel_on", "draw_params", "explicit_latent", "explicit_params",
            "sample", "sample_keys", "solve"]
 
 OnBlowup = Literal["raise", "redraw", "skip"]
@@ -123,6 +123,31 @@ def explicit_params(pde: PDE, params: Mapping[str, Sequence[float] | float] | No
     return explicit, given
 
 
+def explicit_latent(pde: PDE, latent, batch: int):
+    """Caller's IC latents -> (float32 [B, L], given bool [B]), or None when ``latent`` is None.
+
+    ``latent``: [L] (every sample) or [B, L]; a row of all NaN is "the key's own" (not given). A problem whose IC
+    has no latent (``latent_size() == 0``), a wrong shape or a partly non-finite row is refused in one line.
+    """
+    if latent is None:
+        return None
+    size = pde.latent_size() if hasattr(pde, "latent_size") else 0
+    if size == 0:
+        raise ValueError(f"{pde.NAME}: its ic ({getattr(pde, 'ic', None)}) has no latent coordinates; a latent cannot "
+                         "be given (leave latent out)")
+    z = np.asarray(latent, np.float64)
+    if z.ndim == 1:
+        z = np.broadcast_to(z, (batch, z.shape[0]))
+    if z.ndim != 2 or z.shape != (batch, size):
+        raise ValueError(f"{pde.NAME}: latent has shape {np.shape(latent)}; expected [{size}] or [{batch}, {size}]")
+    missing = np.isnan(z).all(axis=1)
+    bad = ~missing & ~np.isfinite(z).all(axis=1)
+    if bad.any():
+        raise ValueError(f"{pde.NAME}: latent row {int(np.flatnonzero(bad)[0])} is not finite; allowed: finite "
+                         "numbers, or a row of all NaN (the key's own latent)")
+    return np.where(missing[:, None], 0.0, z).astype(np.float32), ~missing
+
+
 def sample(
     pde: PDE | str,
     indices: Sequence[int] | np.ndarray | int,
@@ -130,12 +155,16 @@ def sample(
     on_blowup: OnBlowup = "raise",
     max_redraws: int = 3,
     params: Mapping[str, Sequence[float] | float] | None = None,
+    latent=None,
 ) -> Trajectory:
     """Solve samples ``indices`` of ``pde`` under ``seed``: a Trajectory with u [B, T, C, *space].
 
     params: optional explicit values {name: scalar or [B]} for some or all parameters (each inside its
     domain); the initial condition still comes from the key of (seed, index), so sample identity is
     (config, seed, index, params), and a sample given its drawn values is bit-identical to the drawn one.
+    latent: optional IC latent coordinates [L] or [B, L] (``pde.latent_size()``; a row of NaN: the key's own):
+    the IC's steerable coordinates (generator.ics.LatentIC), the rest of the IC still from the key; identity is
+    then (config, seed, index, params, latent), and a sample given its key's latent is bit-identical to it.
     on_blowup="raise": a NaN/Inf trajectory raises BlowUpError naming the indices and parameters.
     on_blowup="redraw": such a sample is redrawn with attempt keys 1..max_redraws (deterministic per
     index; explicit parameters are kept, only the drawn ones and the IC change); ``Trajectory.redraws``
@@ -152,8 +181,10 @@ def sample(
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")  # True is an int to Python, not a seed
     idx = _check_indices(indices)
     explicit, given = explicit_params(pde, params, len(idx))
+    lat = explicit_latent(pde, latent, len(idx))
+    extra = {} if lat is None else {"latent": lat}  # only a latent-taking family is handed one
     # each kind of PDE solves its samples its own way (time-dependent: ETDRK4 rollouts; steady: PCG)
-    u, params, finite, inputs = pde.run_keys(sample_keys(int(seed), idx), explicit, given)
+    u, params, finite, inputs = pde.run_keys(sample_keys(int(seed), idx), explicit, given, **extra)
     causes = _causes(pde, len(idx))
     redraws = np.zeros(len(idx), np.int64)
     attempt = 0
@@ -162,7 +193,9 @@ def sample(
         attempt += 1
         # rerun the full batch shape (failed keys padded by repetition) so no new compile is needed
         retry = np.resize(bad, len(idx))
-        u2, p2, f2, in2 = pde.run_keys(sample_keys(int(seed), idx[retry], attempt), explicit[retry], given[retry])
+        again = {} if lat is None else {"latent": (lat[0][retry], lat[1][retry])}  # a given latent is kept
+        u2, p2, f2, in2 = pde.run_keys(sample_keys(int(seed), idx[retry], attempt), explicit[retry], given[retry],
+                                       **again)
         causes[bad] = _causes(pde, len(idx))[: bad.size]
         sel = jnp.asarray(bad)
         u = u.at[sel].set(u2[: bad.size])

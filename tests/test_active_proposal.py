@@ -252,9 +252,9 @@ def test_the_reservoir_scores_only_first_draws():
     seen, marks = set(), []
     record = s.proposal.record
 
-    def spy(params, losses, fresh=None):
+    def spy(params, losses, fresh=None, latent=None):
         marks.append(fresh.copy())
-        record(params, losses, fresh=fresh)
+        record(params, losses, fresh=fresh, latent=latent)
 
     s.proposal.record = spy
     for batch in torch.utils.data.DataLoader(s, batch_size=None):

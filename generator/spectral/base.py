@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..ics import LatentIC
 from ..problem import MAX_IC_BOUND, MAX_STEPS, Param, ProblemBase
 from . import rollout
 from .fourier import Grid
@@ -59,9 +60,34 @@ class PDE(ProblemBase):
         a few linear systems such as the wave equation)."""
         return None
 
-    def sample_ic(self, key: jax.Array, p: Mapping[str, jax.Array] | None = None) -> jax.Array:
-        """One initial condition, float32 [C, *space] (p: the sample's parameters, for ICs that depend on them)."""
-        return self.ic.sample(key, self.grid, len(self.FIELDS))
+    def sample_ic(self, key: jax.Array, p: Mapping[str, jax.Array] | None = None, latent: jax.Array | None = None
+                  ) -> jax.Array:
+        """One initial condition, float32 [C, *space] (p: the sample's parameters, for ICs that depend on them;
+        latent: float32 [L], the IC's latent coordinates (``latent_size``), None: the key's own)."""
+        return self._draw_ic(key, self.grid, latent)
+
+    def _draw_ic(self, key: jax.Array, grid, latent: jax.Array | None) -> jax.Array:
+        """The IC distribution's draw on ``grid`` from ``key``, its latent set to ``latent`` where given."""
+        if latent is None:
+            return self.ic.sample(key, grid, len(self.FIELDS))
+        return self.ic.ic_from_latent(latent, key, grid, len(self.FIELDS))
+
+    @property
+    def ic_grid(self) -> Grid:
+        """The grid the IC is drawn on (the periodic box of a walled entry)."""
+        return self.grid
+
+    def latent_size(self) -> int:
+        """L: the steerable coordinates of this entry's IC (``generator.ics.LatentIC``), 0 if it has none."""
+        return self.ic.latent_size(self.ic_grid, len(self.FIELDS)) if isinstance(self.ic, LatentIC) else 0
+
+    def latent_from_key(self, key: jax.Array) -> jax.Array:
+        """The IC latent float32 [L] that an IC key draws."""
+        return self.ic.latent_from_key(key, self.ic_grid, len(self.FIELDS))
+
+    def latent_prior(self) -> tuple[str, np.ndarray, np.ndarray]:
+        """The law of each latent coordinate (``LatentIC.latent_prior``)."""
+        return self.ic.latent_prior(self.ic_grid, len(self.FIELDS))
 
     # --- walls (generator.pdes.walls): what a class that takes `bc` beyond periodic declares ---------------
     BOUNDARIES: ClassVar[tuple[str, ...]] = ("periodic",)  # the bc values this class supports
@@ -116,10 +142,11 @@ class PDE(ProblemBase):
         """Frame times, float32 [n_frames]."""
         return np.linspace(0.0, self.t_end, self.n_frames).astype(np.float32)
 
-    def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
-        """Solve one sample per key [B] (explicit float32 [B, P] parameter values where given bool [B, P]):
-        (u [B, T, C, *space], params {name: [B]}, ok bool [B] (finite), inputs None). ETDRK4 rollouts."""
-        return (*rollout.run_keys(self, keys, explicit, given), None)
+    def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray, latent=None):
+        """Solve one sample per key [B] (explicit float32 [B, P] parameter values where given bool [B, P]; latent:
+        None, or (float32 [B, L] IC latents, bool [B] where given)): (u [B, T, C, *space], params {name: [B]},
+        ok bool [B] (finite), inputs None). ETDRK4 rollouts."""
+        return (*rollout.run_keys(self, keys, explicit, given, latent), None)
 
     def evolve(self, u0: jax.Array, p: Mapping[str, jax.Array]):
         """A caller's initial conditions u0 [B, C, *space], params {name: [B]} -> (u [B, T, C, *space], finite [B])."""

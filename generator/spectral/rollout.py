@@ -65,6 +65,15 @@ def _draw(pde: PDE, key: jax.Array, explicit: jax.Array, given: jax.Array):
     return p, pde.sample_ic(k_ic, p), None if shared_coefficients(pde) else _coefficients(pde, p)
 
 
+def _draw_latent(pde: PDE, key: jax.Array, explicit: jax.Array, given: jax.Array, latent: jax.Array, has: jax.Array):
+    """``_draw`` with the IC's latent coordinates the caller's ``latent`` [L] where ``has`` (bool), the key's own
+    elsewhere (drawn either way, so a sample given its key's latent is the drawn sample bit for bit)."""
+    k_param, k_ic = jax.random.split(key)
+    p = resolve_params(pde, k_param, explicit, given)
+    z = jnp.where(has, latent, pde.latent_from_key(k_ic))
+    return p, pde.sample_ic(k_ic, p, z), None if shared_coefficients(pde) else _coefficients(pde, p)
+
+
 # Per-sample set-up (parameters, initial condition, ETDRK4 coefficients) runs as its own compiled program over
 # fixed-size chunks of keys, one key per loop iteration (generator.chunked says why). The time stepping is a
 # separate vmapped program: FFTs and real arithmetic only (see spectral.cmul), batch-invariant.
@@ -77,6 +86,12 @@ def compiled_setup(pde: PDE):
     coefficients [K, ...] or None where ``shared_coefficients``), K = SETUP_CHUNK. Drawn and explicit parameters
     go through this one program, so a sample given its drawn values explicitly is bit-identical to the drawn sample."""
     return jax.jit(lambda keys, explicit, given: jax.lax.map(lambda a: _draw(pde, *a), (keys, explicit, given)))
+
+
+@functools.lru_cache(maxsize=64)
+def compiled_latent_setup(pde: PDE):
+    """``compiled_setup`` with the IC latent: (keys, explicit, given, latent [K, L], has [K]) -> the same outputs."""
+    return jax.jit(lambda *args: jax.lax.map(lambda a: _draw_latent(pde, *a), args))
 
 
 def _evolve_checked(pde: PDE, u0, p, coeffs):
@@ -249,11 +264,15 @@ def advance_bounded(pde: PDE, u: jax.Array, p: Mapping[str, jax.Array], coeffs, 
     return leave(v, p)
 
 
-def run_keys(pde: PDE, keys: jax.Array, explicit, given):
-    """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, C, *space], params {name: [B]}, finite [B]):
-    the set-up in fixed chunks, then the rollout in bounded calls over chunks of ``evolve_chunk`` samples."""
+def run_keys(pde: PDE, keys: jax.Array, explicit, given, latent=None):
+    """keys [B], explicit float32 [B, P], given bool [B, P], latent None or (float32 [B, L], given bool [B]) ->
+    (u [B, T, C, *space], params {name: [B]}, finite [B]): the set-up in fixed chunks, then the rollout in bounded
+    calls over chunks of ``evolve_chunk`` samples."""
     batch = keys.shape[0]
-    params, u0, coeffs = chunked_map(compiled_setup(pde), SETUP_CHUNK, keys, explicit, given)
+    if latent is None:
+        params, u0, coeffs = chunked_map(compiled_setup(pde), SETUP_CHUNK, keys, explicit, given)
+    else:
+        params, u0, coeffs = chunked_map(compiled_latent_setup(pde), SETUP_CHUNK, keys, explicit, given, *latent)
     shared = coeffs is None
     size = evolve_chunk(pde)
     parts = [(u0, params)] if batch <= size else [

@@ -138,10 +138,15 @@ class Walls(WallGrid):
     def __reduce__(self):
         return rebuild, (self.PERIODIC, self.BCS, {f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
 
-    def sample_ic(self, key: jax.Array, p=None) -> jax.Array:
-        """One initial condition float32 [C, *space] satisfying the walls (the folded draw), plus the lifting."""
-        u = fold(self.ic.sample(key, self.box, len(self.FIELDS)), self.BCS, self.n)
+    def sample_ic(self, key: jax.Array, p=None, latent=None) -> jax.Array:
+        """One initial condition float32 [C, *space] satisfying the walls (the folded draw, its latent set to
+        ``latent`` [L] where given), plus the lifting."""
+        u = fold(self._draw_ic(key, self.box, latent), self.BCS, self.n)
         return u if p is None or "bc_lo" not in self.PARAMS else u + self.lift(p)[None]
+
+    @property
+    def ic_grid(self):
+        return self.box  # the IC is drawn on the periodic box, then folded
 
     # --- the lifting of Dirichlet values ----------------------------------------------------------------
     def _lift_axis(self) -> int:
