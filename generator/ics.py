@@ -364,11 +364,34 @@ class RandomSines:
         if not self.window_width > 0:
             raise ValueError(f"ic.window_width={self.window_width} not allowed: must be > 0")
 
-    def _one(self, key: jax.Array, x: jax.Array, length: float) -> jax.Array:
-        k_pick, k_amp, k_phase, k_abs, k_sign, k_left, k_right, k_win = jax.random.split(key, 8)
-        picks = jax.random.randint(k_pick, (self.n_modes,), 0, self.max_mode)
+    # The latent: each field's amplitudes A_k and phases phi_k, [n_fields, max_mode, 2] flattened, uniform on
+    # [0, 1] x [0, 2 pi]; which modes are picked, |u|, the sign and the window still come from the key.
+    def latent_size(self, grid: Grid, n_fields: int = 1) -> int:
+        return 2 * self.max_mode * n_fields if 2 * self.max_mode * n_fields <= MAX_LATENT else 0
+
+    def _amp_phase(self, key: jax.Array) -> jax.Array:
+        """One field's (A_k, phi_k) as the key draws them: float32 [max_mode, 2]."""
+        _, k_amp, k_phase, *_ = jax.random.split(key, 8)
         amp = jax.random.uniform(k_amp, (self.max_mode,), jnp.float32)
         phase = jax.random.uniform(k_phase, (self.max_mode,), jnp.float32, 0.0, 2 * jnp.pi)
+        return jnp.stack([amp, phase], axis=-1)
+
+    def latent_from_key(self, key: jax.Array, grid: Grid, n_fields: int = 1) -> jax.Array:
+        return jnp.stack([self._amp_phase(jax.random.fold_in(key, f)) for f in range(n_fields)]).reshape(-1)
+
+    def latent_prior(self, grid: Grid, n_fields: int = 1) -> tuple[str, np.ndarray, np.ndarray]:
+        high = np.tile([1.0, 2 * np.pi], self.max_mode * n_fields)
+        return "uniform", np.zeros(high.size), high
+
+    def ic_from_latent(self, latent: jax.Array, key: jax.Array, grid: Grid, n_fields: int = 1) -> jax.Array:
+        x = jnp.asarray(grid.coords(), jnp.float32)
+        latent = jnp.asarray(latent, jnp.float32).reshape(n_fields, self.max_mode, 2)
+        return jnp.stack([self._one(jax.random.fold_in(key, f), x, grid.length, latent[f]) for f in range(n_fields)])
+
+    def _one(self, key: jax.Array, x: jax.Array, length: float, amp_phase: jax.Array | None = None) -> jax.Array:
+        k_pick, _, _, k_abs, k_sign, k_left, k_right, k_win = jax.random.split(key, 8)
+        picks = jax.random.randint(k_pick, (self.n_modes,), 0, self.max_mode)
+        amp, phase = (self._amp_phase(key) if amp_phase is None else amp_phase).T
         u = jnp.zeros_like(x)
         for k in range(self.max_mode):  # written out term by term: a reduce may reassociate per batch size
             count = jnp.zeros((), jnp.float32)
