@@ -24,7 +24,16 @@ import numpy as np
 from pdestream import generator
 
 PATH = Path(__file__).parent / "data" / "reference_samples.json"
-SMALL = {"darcy2d": {"n": 9}}  # the steady entry: nodes per side; every other entry: the settings below
+# Small versions of every flow entry (16 cells across, a short window, bodies large enough for the grid), shared
+# with tests/test_flows.py: an entry's tests run in one xdist worker (--dist loadgroup), which then compiles one
+# program for both files (a flow's compile is 10-25 s, its reference solve at the default grid was 30-50 s).
+FLOW_SMALL = {
+    "karman2d": dict(n=16, radius="uniform(0.15, 0.2)", re="uniform(20, 40)", t_start=0.3, t_end=0.6, n_frames=3),
+    "cavity2d": dict(n=16, re="uniform(100, 400)", t_end=0.4, n_frames=3),
+    "channel2d": dict(n=16, size_min=0.13, size_max=0.2, re="uniform(100, 200)", t_start=0.2, t_end=0.4, n_frames=3),
+    "smoke2d": dict(n=16, radius="uniform(0.13, 0.15)", source_y=0.3, t_end=0.4, n_frames=3),
+}
+SMALL = {"darcy2d": {"n": 9}, **FLOW_SMALL}  # darcy2d: nodes per side; every other entry: the settings below
 
 
 def small(name: str) -> dict:

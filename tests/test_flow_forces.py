@@ -2,10 +2,11 @@
 karman2d outputs (drag, lift, sdf, strouhal, sheds, developed, lift_amplitude, lift_drift) in the sample, the cache
 (read by plain xarray), the stream and ``pdestream inspect``.
 
-The flow tests share one small solve (module fixture: karman2d at its default grid, two samples with given
+The physics tests share one solve (module fixture: karman2d at its default grid, two samples with given
 parameters: one off the centre line, one on it; cy's domain widened to hold the centred one, and the former default
 window t 4-8 in 21 frames: by t 12-16 rounding has seeded the centred cylinder's shedding, lift 0.014 at t 16 at
-Re 100), so the whole module compiles the flow once."""
+Re 100), so the whole module compiles that flow once; the plumbing tests (shapes, alone == batched, cache, stream) share
+the small karman2d of the flow tests (tests/reference_samples.FLOW_SMALL): no developed street needed there."""
 
 import functools
 import math
@@ -16,6 +17,7 @@ import pytest
 
 from pdestream import generator
 from pdestream.generator.flow import Geometry, circle_solid, forces
+from tests.reference_samples import FLOW_SMALL
 
 T = np.linspace(4.0, 8.0, 21).astype(np.float32)  # karman2d's former default frames: ~4 per period, a hard case
 D, U = 0.2, 1.0
@@ -83,10 +85,17 @@ def _karman():
 
 
 @functools.lru_cache(maxsize=None)
+def _small():
+    """The plumbing (shapes, identity, cache, stream) needs no developed street: the flow tests' small karman2d."""
+    pde = generator.get_pde("karman2d", **FLOW_SMALL["karman2d"])
+    return pde, generator.sample(pde, [0, 1], seed=0)
+
+
+@functools.lru_cache(maxsize=None)
 def _block():
     from pdestream.datasets import cache
 
-    return cache.solve_block(_karman()[0], 0, 0, 1, 1, "raise")
+    return cache.solve_block(_small()[0], 0, 0, 1, 1, "raise")
 
 
 @pytest.fixture(scope="module")
@@ -95,14 +104,18 @@ def karman():
 
 
 @pytest.fixture(scope="module")
-def block(karman):
-    """Sample 0 of seed 0 solved as a cache block (``cache.solve_block``), for both formats."""
+def small_karman():
+    return _small()
+
+
+@pytest.fixture(scope="module")
+def block(small_karman):
+    """Sample 0 of seed 0 of the small karman2d solved as a cache block (``cache.solve_block``), for both formats."""
     return _block()
 
 
-@pytest.mark.slow
-def test_karman_outputs_have_their_declared_shapes_and_no_nan(karman):
-    pde, traj = karman
+def test_karman_outputs_have_their_declared_shapes_and_no_nan(small_karman):
+    pde, traj = small_karman
     nx, ny = pde.grid.shape
     shapes = {"": (), "time": (pde.n_frames,), "space": (nx, ny)}
     assert list(traj.outputs) == list(pde.OUTPUTS)
@@ -148,10 +161,9 @@ def test_outputs_follow_from_the_stored_frames_and_the_library_force(karman):
     assert np.array_equal(sdf < 0, np.asarray(frame[pde.FIELDS.index("solid")]) > 0.5)
 
 
-@pytest.mark.slow
-def test_a_sample_alone_has_the_outputs_it_has_in_the_batch(karman):
-    pde, traj = karman
-    alone = generator.sample(pde, [1], seed=0, params={k: v[1] for k, v in GIVEN.items()})
+def test_a_sample_alone_has_the_outputs_it_has_in_the_batch(small_karman):
+    pde, traj = small_karman
+    alone = generator.sample(pde, [1], seed=0)
     for name in pde.OUTPUTS:
         assert np.array_equal(np.asarray(alone.outputs[name][0]), np.asarray(traj.outputs[name][1])), name
     from pdestream.generator.flow.problem import _outputs_program
@@ -159,14 +171,13 @@ def test_a_sample_alone_has_the_outputs_it_has_in_the_batch(karman):
     assert _outputs_program(pde)._cache_size() == 1  # other parameters and batch sizes: the same program
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("suffix", [".h5", ".zarr"])
-def test_outputs_are_cache_variables_read_by_plain_xarray_and_inspect_lines(karman, block, tmp_path, suffix):
+def test_outputs_are_cache_variables_read_by_plain_xarray_and_inspect_lines(small_karman, block, tmp_path, suffix):
     import xarray as xr
 
     from pdestream.datasets import cache, inspect
 
-    pde, _ = karman
+    pde, _ = small_karman
     path = tmp_path / f"k{suffix}"
     cache.write_solved(pde, path, 0, [(0, 1, *block)], 1)
     ds = xr.open_dataset(path, engine="h5netcdf") if suffix == ".h5" else xr.open_zarr(path)
@@ -184,11 +195,10 @@ def test_outputs_are_cache_variables_read_by_plain_xarray_and_inspect_lines(karm
     assert "DAMAGED" not in text
 
 
-@pytest.mark.slow
-def test_outputs_are_stream_keys(karman):
+def test_outputs_are_stream_keys(small_karman):
     from pdestream.datasets import TrajectoryStream
 
-    pde, _ = karman
+    pde, _ = small_karman
     stream = TrajectoryStream(pde, seed=0, view="whole", batch_size=1, n_samples=1, solve_batch=1, prefetch=False)
     batch = next(iter(stream))
     nx, ny = pde.grid.shape

@@ -16,16 +16,11 @@ from pdestream.generator.flow import divergence, initial_state, run
 from pdestream.generator.flow.grid import velocity_masks
 from pdestream.generator.flow.problem import _programs
 from pdestream.generator.flow.step import inflow_profile, solid_mask
+from tests.reference_samples import FLOW_SMALL
 
 torch.set_num_threads(1)
 
-# Small versions of every flow entry (16 cells across, a short window): bodies made large enough for the grid.
-SMALL = {
-    "karman2d": dict(n=16, radius="uniform(0.15, 0.2)", re="uniform(20, 40)", t_start=0.3, t_end=0.6, n_frames=3),
-    "cavity2d": dict(n=16, re="uniform(100, 400)", t_end=0.4, n_frames=3),
-    "channel2d": dict(n=16, size_min=0.13, size_max=0.2, re="uniform(100, 200)", t_start=0.2, t_end=0.4, n_frames=3),
-    "smoke2d": dict(n=16, radius="uniform(0.13, 0.15)", source_y=0.3, t_end=0.4, n_frames=3),
-}
+SMALL = FLOW_SMALL  # one small configuration per flow entry, shared with the reference samples
 FLOWS = list(SMALL)
 
 
