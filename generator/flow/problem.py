@@ -40,7 +40,7 @@ from ..chunked import join, split
 from ..grids import GridBase
 from ..problem import MAX_STEPS, ProblemBase, resolve_params
 from . import interactive
-from .grid import SIDE_KINDS, Geometry, Params
+from .grid import BODIES, DEFAULT_BODY, SIDE_KINDS, Geometry, Params
 from .step import ADVECTION, State, initial_state, operator, run_counted, solid_mask
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
@@ -163,6 +163,12 @@ class FlowProblem(ProblemBase):
     def grid(self) -> FlowGrid:
         return FlowGrid(2, self.n, self.length, self.aspect, self.SIDES)
 
+    def geometry(self) -> Geometry:
+        """The solver's static geometry: the grid's, with the entry's ``body`` setting where it has a circle body
+        (karman2d; the others: grid.DEFAULT_BODY, which acts on Params.circle only)."""
+        g = self.grid.geometry()
+        return Geometry(g.nx, g.ny, g.lx, g.ly, g.left, g.right, g.bottom, g.top, getattr(self, "body", DEFAULT_BODY))
+
     @property
     def h(self) -> float:
         return self.length / self.n
@@ -213,6 +219,8 @@ class FlowProblem(ProblemBase):
             raise ValueError(f"{self.NAME}: tol={self.tol:g} not allowed: the relative residual must be in (0, 1)")
         if not self.max_iter >= 1:
             raise ValueError(f"{self.NAME}: max_iter={self.max_iter} not allowed: must be an integer >= 1")
+        if getattr(self, "body", DEFAULT_BODY) not in BODIES:
+            raise ValueError(f"{self.NAME}: body={self.body!r} not allowed: allowed are {', '.join(BODIES)}")
         if self.advection not in ADVECTION:
             raise ValueError(f"{self.NAME}: advection={self.advection!r} not allowed: allowed are "
                              f"{', '.join(sorted(ADVECTION))}")
@@ -235,6 +243,7 @@ class FlowProblem(ProblemBase):
                 f"  t in [{self.t_start:g}, {self.t_end:g}] {start}, {self.n_frames} frames, "
                 f"step {self.step_dt:.4g} s ({self.steps_per_frame}/frame, CFL {self.cfl:g} at "
                 f"{self.speed_bound():g} m/s); MAC grid, {self.advection.replace('_', '-')} advection, multigrid-CG projection"
+                + (f", {self.body} circle" if hasattr(self, "body") else "")
                 + (f"\n  {self.describe_geometry()}" if self.describe_geometry() else ""))
 
     def failure(self) -> tuple[str, str]:
@@ -289,7 +298,7 @@ class FlowProblem(ProblemBase):
     def state_of(self, frame: jax.Array, fp: Params) -> State:
         """The solver state of one frame [C, nx, ny] (the inverse of ``frame_fields``): the right-most u and top v
         faces rebuilt as walls (0), periodic copies, or from the last cells' discrete continuity (an open side)."""
-        geom = self.grid.geometry()
+        geom = self.geometry()
         field = {name: frame[i].T for i, name in enumerate(self.FIELDS)}  # [ny, nx]
         u, v = field["u"], field["v"]
         left, right, bottom, top = self.SIDES
@@ -381,7 +390,7 @@ def _programs(problem: FlowProblem):
     """(start, advance, frame): compiled per-chunk programs, each sample the same unbatched program inside
     jax.lax.map. start: (keys [K], explicit [K, P], given [K, P]) -> (params {name: [K]}, Params [K], State [K],
     pressure Operator [K]); advance: (State, Params, Operator, dt, k) -> State k steps later; frame: (State, Params) -> [K, C, nx, ny]."""
-    geom = problem.grid.geometry()
+    geom = problem.geometry()
 
     def start_one(key, explicit, given):
         k_param, k_geom = jax.random.split(key)
