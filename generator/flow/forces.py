@@ -48,11 +48,29 @@ def body_force(geom, solid, state, nu):
 
 
 SURFACE_POINTS = 256  # quadrature points on the circle (trapezoid rule: spectrally accurate on a periodic integrand)
-# Cells from the circle to the first sample point on the normal (the second at twice): nearer points let the
-# extrapolation's curvature error shrink, nearer than ~1 cell their stencils are mostly ghost faces. Schaefer-Turek
-# 2D-1 at 172x32 / 344x64, Cd with d1 = 0.75 / 1.0 / 1.5 / 2.0 cells: 5.70 / 5.50 / 5.24 / 5.07 and
-# 5.70 / 5.59 / 5.42 / 5.32 (published 5.57-5.59; benchmarks/flow_bodies.py has the table at d1 = 1).
+# Cells from the circle to the first sample point on the normal (the second at twice): nearer points shrink the
+# extrapolation's curvature error; the force converges for any fixed choice (benchmarks/flow_bodies.py).
 FORCE_DISTANCE = 1.0
+
+
+def _corrected_sampler(geom, a, ox: float, oy: float):
+    """Function (x, y) [m] -> a there, bilinear less its own leading error: - fx (1 - fx) / 2 times the second
+    difference along x (likewise y), each interpolated bilinearly; exact for quadratics, so a derivative taken
+    from samples a cell apart keeps second order (plain bilinear's O(h^2) over h made the wall shear first
+    order)."""
+    from .step import _sampler  # noqa: PLC0415 (step imports nothing of here; kept local all the same)
+
+    dxx = jnp.pad(a[:, 2:] - 2 * a[:, 1:-1] + a[:, :-2], ((0, 0), (1, 1)), mode="edge")
+    dyy = jnp.pad(a[2:] - 2 * a[1:-1] + a[:-2], ((1, 1), (0, 0)), mode="edge")
+    plain, sxx, syy = (_sampler(geom, f, ox, oy) for f in (a, dxx, dyy))
+    h = geom.h
+
+    def sample(x, y):
+        fx = x / h - ox - jnp.floor(x / h - ox)
+        fy = y / h - oy - jnp.floor(y / h - oy)
+        return plain(x, y) - 0.5 * fx * (1 - fx) * sxx(x, y) - 0.5 * fy * (1 - fy) * syy(x, y)
+
+    return sample
 
 
 def circle_surface(geom, state, nu, cx, cy, r, theta):
@@ -61,12 +79,10 @@ def circle_surface(geom, state, nu, cx, cy, r, theta):
     outward normal). Both from the fluid along the normal at d1 = FORCE_DISTANCE h and d2 = 2 d1 (bilinear
     samples of the cut-cell pressure and the ghost-filled velocities): p linearly extrapolated to the wall, 2 p(d1) - p(d2), and
     du_t/dn by the quadratic through u_t = 0 on the wall, (4 u_t(d1) - u_t(d2)) / (2 d1): both second order."""
-    from .step import _sampler  # noqa: PLC0415 (step imports nothing of here; kept local all the same)
-
     d1 = FORCE_DISTANCE * geom.h
     nx_, ny_ = jnp.cos(theta), jnp.sin(theta)
-    sp, su, sv = (_sampler(geom, state.p, 0.5, 0.5), _sampler(geom, state.u, 0.0, 0.5),
-                  _sampler(geom, state.v, 0.5, 0.0))
+    sp, su, sv = (_corrected_sampler(geom, state.p, 0.5, 0.5), _corrected_sampler(geom, state.u, 0.0, 0.5),
+                  _corrected_sampler(geom, state.v, 0.5, 0.0))
 
     def at(d):
         x, y = cx + (r + d) * nx_, cy + (r + d) * ny_

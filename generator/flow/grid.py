@@ -34,6 +34,7 @@ DEFAULT_BODY = "sharp"
 # operator a row ~1e-6 of the others' size (CG's conditioning), for a flux below the solve's tolerance.
 MIN_APERTURE = 0.01
 IMAGE_DISTANCE = 1.5  # cells from the circle to a ghost's image point: its bilinear stencil is then all fluid
+GHOST_ORDER = 2
 GHOST_BAND = 2.0  # cells inside the circle that get ghost values (stencils reach 1 cell; deeper faces are 0)
 
 
@@ -191,15 +192,18 @@ def circle_cut_faces(geom: Geometry, cx, cy, r, dtype=jnp.float32):
 
 class Ghosts(NamedTuple):
     """Ghost faces of one velocity component inside a circle: ghost [m, n] bool (faces inside the circle by less
-    than GHOST_BAND cells: they get weight * the velocity at the image point), deep [m, n] bool (faces further
-    inside: 0), weight [m, n] (-depth / image distance: linear through 0 on the circle), the image points
-    x, y [m, n] (m) on the outward normal IMAGE_DISTANCE cells outside the circle."""
+    than GHOST_BAND cells: they get w1 u(x1, y1) + w2 u(x2, y2)), deep [m, n] bool (faces further inside: 0),
+    the weights w1, w2 [m, n] of the quadratic through 0 on the circle and the two image points (x1, y1),
+    (x2, y2) [m, n] (m) on the outward normal, IMAGE_DISTANCE and twice that many cells outside the circle."""
 
     ghost: jnp.ndarray
     deep: jnp.ndarray
-    weight: jnp.ndarray
-    x: jnp.ndarray
-    y: jnp.ndarray
+    w1: jnp.ndarray
+    w2: jnp.ndarray
+    x1: jnp.ndarray
+    y1: jnp.ndarray
+    x2: jnp.ndarray
+    y2: jnp.ndarray
 
 
 def circle_ghosts(geom: Geometry, cx, cy, r, ox: float, oy: float, shape, dtype=jnp.float32) -> Ghosts:
@@ -213,10 +217,15 @@ def circle_ghosts(geom: Geometry, cx, cy, r, ox: float, oy: float, shape, dtype=
     depth = r - dist  # > 0 inside
     inside = (depth > 0) & (r > 0)
     ghost = inside & (depth < GHOST_BAND * h)
-    image = r + IMAGE_DISTANCE * h
+    d1 = IMAGE_DISTANCE * h
     nx_, ny_ = dx / jnp.maximum(dist, 1e-12 * h), dy / jnp.maximum(dist, 1e-12 * h)
-    weight = jnp.where(ghost, -depth / (IMAGE_DISTANCE * h), 0.0).astype(dtype)
-    return Ghosts(ghost, inside & ~ghost, weight, cx + image * nx_, cy + image * ny_)
+    # Lagrange weights at -depth of the quadratic through (0, 0), (d1, u1), (2 d1, u2)
+    w1 = jnp.where(ghost, -depth * (depth + 2 * d1) / (d1 * d1), 0.0).astype(dtype)
+    w2 = jnp.where(ghost, depth * (depth + d1) / (2 * d1 * d1), 0.0).astype(dtype)
+    if GHOST_ORDER == 1:
+        w1, w2 = jnp.where(ghost, -depth / d1, 0.0).astype(dtype), jnp.zeros_like(w2)
+    return Ghosts(ghost, inside & ~ghost, w1, w2, cx + (r + d1) * nx_, cy + (r + d1) * ny_,
+                  cx + (r + 2 * d1) * nx_, cy + (r + 2 * d1) * ny_)
 
 
 class Faces(NamedTuple):

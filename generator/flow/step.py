@@ -102,10 +102,11 @@ def fill_ghosts(geom: Geometry, params: Params, u, v):
     gu = circle_ghosts(geom, cx, cy, r, 0.0, 0.5, u.shape, u.dtype)
     gv = circle_ghosts(geom, cx, cy, r, 0.5, 0.0, v.shape, v.dtype)
     # the image stencils hold fluid faces only (IMAGE_DISTANCE), so one pass is exact: no ghost reads a ghost
-    ui = _sampler(geom, u, 0.0, 0.5)(gu.x, gu.y)
-    vi = _sampler(geom, v, 0.5, 0.0)(gv.x, gv.y)
-    u = jnp.where(gu.ghost, gu.weight * ui, jnp.where(gu.deep, 0.0, u))
-    v = jnp.where(gv.ghost, gv.weight * vi, jnp.where(gv.deep, 0.0, v))
+    su, sv = _sampler(geom, u, 0.0, 0.5), _sampler(geom, v, 0.5, 0.0)
+    ug = gu.w1 * su(gu.x1, gu.y1) + gu.w2 * su(gu.x2, gu.y2)
+    vg = gv.w1 * sv(gv.x1, gv.y1) + gv.w2 * sv(gv.x2, gv.y2)
+    u = jnp.where(gu.ghost, ug, jnp.where(gu.deep, 0.0, u))
+    v = jnp.where(gv.ghost, vg, jnp.where(gv.deep, 0.0, v))
     return u, v
 
 
