@@ -40,7 +40,7 @@ from ..chunked import join, split
 from ..grids import GridBase
 from ..problem import MAX_STEPS, ProblemBase, resolve_params
 from . import interactive
-from .grid import BODIES, DEFAULT_BODY, SIDE_KINDS, Geometry, Params
+from .grid import BODIES, SIDE_KINDS, Geometry, Params
 from .step import ADVECTION, State, initial_state, operator, run_counted, solid_mask
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
@@ -165,9 +165,10 @@ class FlowProblem(ProblemBase):
 
     def geometry(self) -> Geometry:
         """The solver's static geometry: the grid's, with the entry's ``body`` setting where it has a circle body
-        (karman2d; the others: grid.DEFAULT_BODY, which acts on Params.circle only)."""
+        (karman2d). An entry without one runs 'staircase': the sharp treatment acts on Params.circle only, and its
+        ghost and cut-face work would be spent on nothing (the bits are the staircase's either way)."""
         g = self.grid.geometry()
-        return Geometry(g.nx, g.ny, g.lx, g.ly, g.left, g.right, g.bottom, g.top, getattr(self, "body", DEFAULT_BODY))
+        return Geometry(g.nx, g.ny, g.lx, g.ly, g.left, g.right, g.bottom, g.top, getattr(self, "body", "staircase"))
 
     @property
     def h(self) -> float:
@@ -219,7 +220,7 @@ class FlowProblem(ProblemBase):
             raise ValueError(f"{self.NAME}: tol={self.tol:g} not allowed: the relative residual must be in (0, 1)")
         if not self.max_iter >= 1:
             raise ValueError(f"{self.NAME}: max_iter={self.max_iter} not allowed: must be an integer >= 1")
-        if getattr(self, "body", DEFAULT_BODY) not in BODIES:
+        if getattr(self, "body", BODIES[0]) not in BODIES:
             raise ValueError(f"{self.NAME}: body={self.body!r} not allowed: allowed are {', '.join(BODIES)}")
         if self.advection not in ADVECTION:
             raise ValueError(f"{self.NAME}: advection={self.advection!r} not allowed: allowed are "
