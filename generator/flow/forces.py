@@ -4,6 +4,8 @@
   of fluid-solid cell faces: the pressure of each fluid cell next to the body on that face (h wide) plus the wall
   shear nu du_t/dn over the half cell between the fluid cell's centre velocity and the no-slip face. First order in
   h (the staircase); Schaefer-Turek 2D-1/2D-2 figures in benchmarks/flow_validation.py.
+- ``circle_force`` (with ``circle_surface``): the force on an exact circle, a surface integral of the wall pressure
+  and wall shear sampled along its normals: second order, the force of the sharp body (grid.BODIES).
 - ``force_coefficients``: C = 2 F / (U^2 D) (F per unit depth and density, U the reference speed, D the
   reference length), the Schaefer & Turek (1996) normalisation with U their mean inflow speed and D the diameter.
 - ``circle_distance``: the exact signed distance of cell centres to a circle (negative inside).
