@@ -81,6 +81,12 @@ def circle_surface(geom, state, nu, cx, cy, r, theta):
     outward normal). Both from the fluid along the normal at d1 = FORCE_DISTANCE h and d2 = 2 d1 (bilinear
     samples of the cut-cell pressure and the ghost-filled velocities): p linearly extrapolated to the wall, 2 p(d1) - p(d2), and
     du_t/dn by the quadratic through u_t = 0 on the wall, (4 u_t(d1) - u_t(d2)) / (2 d1): both second order."""
+    from .grid import Params  # noqa: PLC0415
+    from .step import fill_ghosts  # noqa: PLC0415
+
+    # the samples' stencils reach the ghost faces: rebuilt from the fluid (a stored frame holds 0 there)
+    u, v = fill_ghosts(geom, Params(circle=(cx, cy, r)), state.u, state.v)
+    state = state._replace(u=u, v=v)
     d1 = FORCE_DISTANCE * geom.h
     nx_, ny_ = jnp.cos(theta), jnp.sin(theta)
     sp, su, sv = (_corrected_sampler(geom, state.p, 0.5, 0.5), _corrected_sampler(geom, state.u, 0.0, 0.5),

@@ -40,7 +40,7 @@ from ..chunked import join, split
 from ..grids import GridBase
 from ..problem import MAX_STEPS, ProblemBase, resolve_params
 from . import interactive
-from .grid import BODIES, SIDE_KINDS, Geometry, Params
+from .grid import BODIES, SIDE_KINDS, Geometry, Params, circle_apertures
 from .step import ADVECTION, State, initial_state, operator, run_counted, solid_mask
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
@@ -255,6 +255,10 @@ class FlowProblem(ProblemBase):
     # --- a sample ------------------------------------------------------------------------------------
     def frame_fields(self, geom: Geometry, state: State, fp: Params) -> jax.Array:
         """One frame [C, nx, ny] over FIELDS at cell centres from a solver state (arrays [y, x])."""
+        if geom.body == "sharp":  # faces a sharp circle covers whole hold ghost values: stored as no flow (the
+            # solver rebuilds them from the fluid before every use, so a frame still continues exactly)
+            ax, ay = circle_apertures(geom, *fp.circle, state.u.dtype)
+            state = state._replace(u=jnp.where(ax > 0, state.u, 0.0), v=jnp.where(ay > 0, state.v, 0.0))
         made = {
             "u": lambda: state.u[:, :-1],
             "v": lambda: state.v[:-1],
