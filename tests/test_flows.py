@@ -15,7 +15,7 @@ from pdestream.datasets.reservoir import ReservoirStream
 from pdestream.generator.flow import divergence, initial_state, run
 from pdestream.generator.flow.grid import velocity_masks
 from pdestream.generator.flow.problem import _programs
-from pdestream.generator.flow.step import inflow_profile, solid_mask
+from pdestream.generator.flow.step import body_faces, inflow_profile, solid_mask
 from tests.reference_samples import FLOW_SMALL
 
 torch.set_num_threads(1)
@@ -47,8 +47,13 @@ def test_samples_have_their_shape_params_in_domain_and_evolve(name):
     if "solid" in pde.FIELDS:  # the mask is a field: constant in time, 1 in a body, and no flow there
         solid = u[:, :, pde.FIELDS.index("solid")]
         assert np.array_equal(solid[:, 0], solid[:, -1]) and 0 < solid.mean() < 0.3
+        # a staircase body's cells carry no flow; a sharp circle's cell whose centre is inside may have a cut face
+        # (open to the fluid): no flow through the faces of cells it covers whole (all 4 corners inside)
+        body = solid == 1
+        if getattr(pde, "body", "staircase") == "sharp":
+            body = body & np.roll(body, 1, -2) & np.roll(body, 1, -1) & np.roll(body, -1, -2) & np.roll(body, -1, -1)
         for f in ("u", "v"):
-            assert np.abs(u[:, :, pde.FIELDS.index(f)][solid == 1]).max() == 0.0
+            assert np.abs(u[:, :, pde.FIELDS.index(f)][body]).max() == 0.0
     if "smoke" in pde.FIELDS:
         smoke = u[:, :, pde.FIELDS.index("smoke")]
         assert smoke[:, 0].max() == 0 and smoke[:, -1].sum() > smoke[:, 1].sum() > 0 and smoke.min() >= -1e-3
@@ -95,7 +100,7 @@ def test_the_solver_holds_boundary_values_and_closes_walls_and_bodies(name):
     p, fp, *_ = _programs(pde)[0](*[jnp.asarray(a) for a in generator.chunked.split(
         [keys, np.zeros((1, len(pde.PARAMS)), np.float32), np.zeros((1, len(pde.PARAMS)), bool)], 4)[0]])
     fp = jax.tree_util.tree_map(lambda a: a[0], fp)
-    geom = pde.grid.geometry()
+    geom = pde.geometry()
     s = jax.jit(run, static_argnums=(0, 4))(geom, initial_state(geom, fp), fp, pde.step_dt, 30)
     u, v = np.asarray(s.u), np.asarray(s.v)
     assert np.isfinite(u).all() and np.abs(u).max() > 0.1
@@ -104,10 +109,11 @@ def test_the_solver_holds_boundary_values_and_closes_walls_and_bodies(name):
     else:
         assert np.all(u[:, 0] == 0) and np.all(u[:, -1] == 0)
     assert np.all(v[0] == 0) and np.all(v[-1] == 0)  # walls at the bottom and top: no flow through
-    mu, mv = (np.asarray(m) for m in velocity_masks(geom, solid_mask(geom, fp)))
-    assert np.all(u[mu == 0] == 0) and np.all(v[mv == 0] == 0)
-    fluid = 1 - np.asarray(solid_mask(geom, fp))
-    div = np.abs(np.asarray(divergence(geom, s.u, s.v)) * fluid).max()
+    if geom.body == "staircase":  # a sharp circle's covered faces hold ghost values (tests/test_flow_bodies.py)
+        mu, mv = (np.asarray(m) for m in velocity_masks(geom, solid_mask(geom, fp)))
+        assert np.all(u[mu == 0] == 0) and np.all(v[mv == 0] == 0)
+    fluid = 1 - np.asarray(body_faces(geom, fp).solid)
+    div = np.abs(np.asarray(divergence(geom, s.u, s.v, fp)) * fluid).max()
     assert div < 0.05 * np.abs(u).max() / geom.h, div
 
 

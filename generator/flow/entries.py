@@ -19,7 +19,7 @@ import jax.numpy as jnp
 from ..domains import Fixed
 from ..problem import Output, Param
 from . import forces
-from .grid import Params
+from .grid import DEFAULT_BODY, Params
 from .problem import FlowProblem
 
 MIN_CELLS_ACROSS = 4.0  # an obstacle narrower than this many cells is a staircase of a few cells, not a body
@@ -51,13 +51,15 @@ class Karman2D(FlowProblem):
     mask is mirror-symmetric and sheds only once rounding has grown (lift 0.0003 at t 12, 0.014 at t 16, Re 100),
     one within a cell of the centre starts late; the channel is
     mirror-symmetric, so a cylinder above the line is the mirror image of one below.
-    Checked: 47 of the first 48 default samples (seed 0) developed; sample 9 (Re 114, radius 0.082, cy 0.455,
+    Checked (with the staircase body, before the sharp one became the default): 47 of the first 48 default samples
+    (seed 0) developed; sample 9 (Re 114, radius 0.082, cy 0.455,
     plug 0.27) drifts 2.2% in t 12-16 and settles from t ~13.5 (docs/guides/flows.md).
 
     Outputs beside the fields (``OUTPUTS``, computed from each stored frame in JAX by ``sample_outputs``):
     ``drag`` and ``lift`` [T], C_d, C_l = 2 (Fx, Fy) / (U^2 D) with F the force per unit depth and density on the
-    masked cylinder, a surface integral of pressure and wall shear over its staircase faces
-    (``generator.flow.forces.body_force``, first order in h), U the mean inflow speed (``speed``: Schaefer and
+    cylinder, a surface integral of pressure and wall shear: on the exact circle where ``body`` is 'sharp'
+    (``generator.flow.forces.circle_force``, second order in h), over the mask's staircase faces where it is
+    'staircase' (``forces.body_force``, first order), U the mean inflow speed (``speed``: Schaefer and
     Turek's U_mean) and D = 2 radius; ``sdf`` [nx, ny], the exact signed distance of each cell centre to the
     circle (m, negative inside: solid == sdf < 0); ``strouhal``, ``sheds``, ``developed``, ``lift_amplitude``,
     ``lift_drift``: ``forces.shedding`` of the lift over the stored window (St = f D / U from the lift's mean
@@ -92,10 +94,13 @@ class Karman2D(FlowProblem):
     cy: Any = "uniform(0.42, 0.46)"
     speed: Any = Fixed(1.0)
     plug: Any = "uniform(0, 0.3)"
+    body: str = DEFAULT_BODY  # one of grid.BODIES: 'sharp' (the exact circle: cut faces, ghost velocities) or
+    # 'staircase' (the cells whose centre lies inside); benchmarks/flow_bodies.py compares them
 
     OUTPUTS: ClassVar[dict] = {
         "drag": Output("drag coefficient C_d = 2 Fx / (U^2 D) on the cylinder (U mean inflow, D diameter; pressure "
-                       "and wall shear over the mask's faces)", "1", "time"),
+                       "and wall shear integrated over the body's surface: the exact circle, or the mask's faces "
+                       "where body = staircase)", "1", "time"),
         "lift": Output("lift coefficient C_l = 2 Fy / (U^2 D) on the cylinder", "1", "time"),
         "sdf": Output("signed distance of the cell centre to the cylinder's surface (negative inside)", "m", "space"),
         "strouhal": Output("Strouhal number f D / U of the lift over the stored window (0 where sheds = 0)", "1"),
@@ -109,13 +114,17 @@ class Karman2D(FlowProblem):
     }
 
     def sample_outputs(self, frames: jax.Array, p: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
-        geom = self.grid.geometry()
+        geom = self.geometry()
         fp = self.flow_params(p, None)
         diameter, speed = 2 * p["radius"], p["speed"]
         solid = frames[0, self.FIELDS.index("solid")].T > 0.5
 
         def coefficients(frame):
-            fx, fy = forces.body_force(geom, solid, self.state_of(frame, fp), fp.nu)
+            state = self.state_of(frame, fp)
+            if self.body == "sharp":
+                fx, fy = forces.circle_force(geom, state, fp.nu, p["cx"], p["cy"], p["radius"])
+            else:
+                fx, fy = forces.body_force(geom, solid, state, fp.nu)
             return jnp.stack(forces.force_coefficients(fx, fy, speed, diameter))
 
         cd, cl = jax.lax.map(coefficients, frames).T
@@ -126,6 +135,10 @@ class Karman2D(FlowProblem):
     def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array | None) -> Params:
         nu = p["speed"] * 2 * p["radius"] / p["re"]
         return Params(nu=nu, inflow=1.5 * p["speed"], plug=p["plug"], circle=(p["cx"], p["cy"], p["radius"]))
+
+    def oracle_params(self, p: Mapping[str, jax.Array], frame: jax.Array) -> Params:
+        # the cylinder is a parameter: the frame's mask adds nothing to a staircase and would staircase a sharp one
+        return self.flow_params(p, None)
 
     def speed_bound(self) -> float:
         return 1.5 * _bounds(self, "speed")[1]

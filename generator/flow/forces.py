@@ -4,6 +4,8 @@
   of fluid-solid cell faces: the pressure of each fluid cell next to the body on that face (h wide) plus the wall
   shear nu du_t/dn over the half cell between the fluid cell's centre velocity and the no-slip face. First order in
   h (the staircase); Schaefer-Turek 2D-1/2D-2 figures in benchmarks/flow_validation.py.
+- ``circle_force`` (with ``circle_surface``): the force on an exact circle, a surface integral of the wall pressure
+  and wall shear sampled along its normals: second order, the force of the sharp body (grid.BODIES).
 - ``force_coefficients``: C = 2 F / (U^2 D) (F per unit depth and density, U the reference speed, D the
   reference length), the Schaefer & Turek (1996) normalisation with U their mean inflow speed and D the diameter.
 - ``circle_distance``: the exact signed distance of cell centres to a circle (negative inside).
@@ -45,6 +47,74 @@ def body_force(geom, solid, state, nu):
     fx = fx + 2 * nu * (jnp.sum(below * uc[:-1]) + jnp.sum(above * uc[1:]))
     fy = fy + 2 * nu * (jnp.sum(left * vc[:, :-1]) + jnp.sum(right * vc[:, 1:]))
     return fx, fy
+
+
+SURFACE_POINTS = 256  # quadrature points on the circle (trapezoid rule: spectrally accurate on a periodic integrand)
+# Cells from the circle to the first sample point on the normal (the second at twice): nearer points shrink the
+# extrapolation's curvature error; the force converges for any fixed choice (benchmarks/flow_bodies.py).
+FORCE_DISTANCE = 1.0
+
+
+def _corrected_sampler(geom, a, ox: float, oy: float):
+    """Function (x, y) [m] -> a there, bilinear less its own leading error: - fx (1 - fx) / 2 times the second
+    difference along x (likewise y), each interpolated bilinearly; exact for quadratics, so a derivative taken
+    from samples a cell apart keeps second order (plain bilinear's O(h^2) over h made the wall shear first
+    order)."""
+    from .step import _sampler  # noqa: PLC0415 (step imports nothing of here; kept local all the same)
+
+    dxx = jnp.pad(a[:, 2:] - 2 * a[:, 1:-1] + a[:, :-2], ((0, 0), (1, 1)), mode="edge")
+    dyy = jnp.pad(a[2:] - 2 * a[1:-1] + a[:-2], ((1, 1), (0, 0)), mode="edge")
+    plain, sxx, syy = (_sampler(geom, f, ox, oy) for f in (a, dxx, dyy))
+    h = geom.h
+
+    def sample(x, y):
+        fx = x / h - ox - jnp.floor(x / h - ox)
+        fy = y / h - oy - jnp.floor(y / h - oy)
+        return plain(x, y) - 0.5 * fx * (1 - fx) * sxx(x, y) - 0.5 * fy * (1 - fy) * syy(x, y)
+
+    return sample
+
+
+def circle_surface(geom, state, nu, cx, cy, r, theta):
+    """Pressure and wall shear on the exact circle (cx, cy, r) [m] at angles theta [N] (rad, from +x):
+    (p [N] (m^2/s^2), shear [N] = nu du_t/dn (m^2/s^2), t = (-sin, cos) the counter-clockwise tangent, n the
+    outward normal). Both from the fluid along the normal at d1 = FORCE_DISTANCE h and d2 = 2 d1 (bilinear
+    samples of the cut-cell pressure and the ghost-filled velocities): p linearly extrapolated to the wall, 2 p(d1) - p(d2), and
+    du_t/dn by the quadratic through u_t = 0 on the wall, (4 u_t(d1) - u_t(d2)) / (2 d1): both second order."""
+    from .grid import Params  # noqa: PLC0415
+    from .step import fill_ghosts  # noqa: PLC0415
+
+    # the samples' stencils reach the ghost faces: rebuilt from the fluid (a stored frame holds 0 there)
+    u, v = fill_ghosts(geom, Params(circle=(cx, cy, r)), state.u, state.v)
+    state = state._replace(u=u, v=v)
+    d1 = FORCE_DISTANCE * geom.h
+    nx_, ny_ = jnp.cos(theta), jnp.sin(theta)
+    sp, su, sv = (_corrected_sampler(geom, state.p, 0.5, 0.5), _corrected_sampler(geom, state.u, 0.0, 0.5),
+                  _corrected_sampler(geom, state.v, 0.5, 0.0))
+
+    def at(d):
+        x, y = cx + (r + d) * nx_, cy + (r + d) * ny_
+        return sp(x, y), -ny_ * su(x, y) + nx_ * sv(x, y)
+
+    p1, t1 = at(d1)
+    p2, t2 = at(2 * d1)
+    return 2 * p1 - p2, nu * (4 * t1 - t2) / (2 * d1)
+
+
+def circle_force(geom, state, nu, cx, cy, r, points: int = SURFACE_POINTS):
+    """Force on the exact circle (cx, cy, r) [m] per unit depth and density (Fx, Fy) [m^3/s^2]: the surface
+    integral of -p n + nu du_t/dn t (``circle_surface``; at a no-slip wall the viscous traction is tangential) by
+    the trapezoid rule over ``points`` equally spaced angles. Second order in h (the sharp body of grid.BODIES).
+
+    state: anything with u [ny, nx+1], v [ny+1, nx], p [ny, nx] of the solver's layout; nu (m^2/s)."""
+    dtype = state.p.dtype
+    theta = jnp.arange(points, dtype=dtype) * (2 * math.pi / points)
+    p, tau = circle_surface(geom, state, nu, cx, cy, r, theta)
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    ds = r * (2 * math.pi / points)
+    from .pressure import _tree_sum  # noqa: PLC0415 (a fixed order of additions: the same bits on every CPU)
+
+    return ds * _tree_sum(-p * c - tau * s), ds * _tree_sum(-p * s + tau * c)
 
 
 def force_coefficients(fx, fy, speed, length):
@@ -114,5 +184,6 @@ def shedding(lift, t, length, speed, min_amplitude=MIN_LIFT_AMPLITUDE, max_drift
     return st, sheds, developed, jnp.where(sheds, amp, zero), jnp.where(sheds, drift, zero)
 
 
-__all__ = ["DRIFT_PERIODS", "MAX_DRIFT", "MIN_LIFT_AMPLITUDE", "body_force", "circle_distance",
+__all__ = ["DRIFT_PERIODS", "FORCE_DISTANCE", "MAX_DRIFT", "MIN_LIFT_AMPLITUDE", "SURFACE_POINTS", "body_force", "circle_distance",
+           "circle_force", "circle_surface",
            "force_coefficients", "shedding"]

@@ -5,6 +5,15 @@ p [ny, nx] at centres, u [ny, nx+1] on vertical faces, v [ny+1, nx] on horizonta
 Sides (left, right, bottom, top) are each one of SIDE_KINDS: 'wall' (no-slip, top may move at params.lid),
 'inflow' (normal velocity params.inflow * parabolic profile; left side only), 'outflow' (zero-gradient
 velocity, pressure 0: the only Dirichlet pressure side) or 'periodic' (left/right or bottom/top pairs).
+
+Bodies (``Geometry.body``, one of BODIES; DEFAULT_BODY declared once here): 'staircase' makes every cell whose
+centre lies inside a body solid (first order in h for forces). 'sharp' treats the circle of Params.circle below
+the cell (its signed distance is exact from (cx, cy, r)): the pressure operator takes each face's open fraction of
+the exact circle (``circle_apertures``: a cut-face finite volume, so the projection sees the true geometry), and
+the velocity faces inside the circle next to the fluid are ghost values, linearly extrapolated along the normal
+through u = 0 on the circle from an image point 1.5 h outside it (``circle_ghosts``; a ghost-cell immersed
+boundary), so viscosity and advection see no-slip on the true circle. Other bodies (Params.obstacles,
+Params.mask) stay staircases in both.
 """
 
 from __future__ import annotations
@@ -19,6 +28,14 @@ from ...boundaries import Boundary, is_periodic
 # A side's conditions on velocity and pressure; not boundaries.Boundary (a per-axis condition on a field, which
 # FlowGrid.bc derives from a pair of sides): only 'periodic' is shared, and is asked of that module (is_periodic).
 SIDE_KINDS = ("wall", "inflow", "outflow", Boundary.PERIODIC.value)
+BODIES = ("staircase", "sharp")  # how Params.circle meets the grid (module docstring)
+DEFAULT_BODY = "sharp"
+# A face open by less than this fraction counts as closed: a cut cell's sliver would otherwise give the pressure
+# operator a row ~1e-6 of the others' size (CG's conditioning), for a flux below the solve's tolerance.
+MIN_APERTURE = 0.01
+IMAGE_DISTANCE = 1.5  # cells from the circle to a ghost's image point: its bilinear stencil is then all fluid
+GHOST_ORDER = 2
+GHOST_BAND = 2.0  # cells inside the circle that get ghost values (stencils reach 1 cell; deeper faces are 0)
 
 
 @dataclass(frozen=True)
@@ -33,8 +50,11 @@ class Geometry:
     right: str = "wall"
     bottom: str = "wall"
     top: str = "wall"
+    body: str = DEFAULT_BODY
 
     def __post_init__(self):
+        if self.body not in BODIES:
+            raise ValueError(f"body={self.body!r}: allowed are {BODIES}")
         for name in ("left", "right", "bottom", "top"):
             if getattr(self, name) not in SIDE_KINDS:
                 raise ValueError(f"{name}={getattr(self, name)!r}: allowed side kinds are {SIDE_KINDS}")
@@ -131,6 +151,83 @@ def obstacles_solid(geom: Geometry, rows, dtype=jnp.float32):
     return solid
 
 
+def _safe_sqrt(a):
+    """sqrt(max(a, 0)) with a finite derivative at and below 0 (the geometry is differentiated in float64)."""
+    return jnp.sqrt(jnp.maximum(a, 1e-30))
+
+
+def circle_apertures(geom: Geometry, cx, cy, r, dtype=jnp.float32):
+    """Open fractions of the faces against the exact circle (cx, cy, r) [m]: ax [ny, nx+1] of the vertical faces
+    (x = i h, y in [j h, (j+1) h]), ay [ny+1, nx] of the horizontal ones; 1 where the circle misses the face
+    (r <= 0: no circle), 0 where it covers it; below MIN_APERTURE counted as 0."""
+    return circle_cut_faces(geom, cx, cy, r, dtype)[:2]
+
+
+def circle_cut_faces(geom: Geometry, cx, cy, r, dtype=jnp.float32):
+    """``circle_apertures`` (ax, ay) and the centroids of the faces' open parts along them (m): my [ny, nx+1]
+    (the y of each vertical face's open part), mx [ny+1, nx] (the x of each horizontal one's); the face's
+    centre where it is whole or closed."""
+    h = geom.h
+
+    def fraction(pos, lo, c_pos, c_lo):
+        # the chord of the circle on the line through pos: [c_lo - s, c_lo + s] along the face
+        s = _safe_sqrt(r * r - (pos - c_pos) ** 2) * (r > 0)
+        b0, b1 = jnp.maximum(lo, c_lo - s), jnp.minimum(lo + h, c_lo + s)
+        blocked = jnp.clip(b1 - b0, 0.0, h)
+        a = 1.0 - blocked / h
+        a = jnp.where(a < MIN_APERTURE, 0.0, a)
+        # centroid of the open part: the face's first moment less the blocked interval's
+        centroid = (h * (lo + 0.5 * h) - blocked * 0.5 * (b0 + b1)) / jnp.maximum(h - blocked, 1e-6 * h)
+        centroid = jnp.where((a > 0) & (a < 1), centroid, lo + 0.5 * h)
+        return a.astype(dtype), centroid.astype(dtype)
+
+    xf = jnp.arange(geom.nx + 1, dtype=dtype) * h
+    yc = jnp.arange(geom.ny, dtype=dtype) * h
+    ax, my = fraction(xf[None, :], yc[:, None], cx, cy)
+    xc = jnp.arange(geom.nx, dtype=dtype) * h
+    yf = jnp.arange(geom.ny + 1, dtype=dtype) * h
+    ay, mx = fraction(yf[:, None], xc[None, :], cy, cx)
+    return ax, ay, my, mx
+
+
+class Ghosts(NamedTuple):
+    """Ghost faces of one velocity component inside a circle: ghost [m, n] bool (faces inside the circle by less
+    than GHOST_BAND cells: they get w1 u(x1, y1) + w2 u(x2, y2)), deep [m, n] bool (faces further inside: 0),
+    the weights w1, w2 [m, n] of the quadratic through 0 on the circle and the two image points (x1, y1),
+    (x2, y2) [m, n] (m) on the outward normal, IMAGE_DISTANCE and twice that many cells outside the circle."""
+
+    ghost: jnp.ndarray
+    deep: jnp.ndarray
+    w1: jnp.ndarray
+    w2: jnp.ndarray
+    x1: jnp.ndarray
+    y1: jnp.ndarray
+    x2: jnp.ndarray
+    y2: jnp.ndarray
+
+
+def circle_ghosts(geom: Geometry, cx, cy, r, ox: float, oy: float, shape, dtype=jnp.float32) -> Ghosts:
+    """Ghosts of the faces of a velocity component whose index (i, j) sits at ((i+ox) h, (j+oy) h), array
+    ``shape`` [m, n], for the circle (cx, cy, r) [m] (r <= 0: none)."""
+    h = geom.h
+    m, n = shape
+    x, y = jnp.meshgrid((jnp.arange(n, dtype=dtype) + ox) * h, (jnp.arange(m, dtype=dtype) + oy) * h)
+    dx, dy = x - cx, y - cy
+    dist = _safe_sqrt(dx * dx + dy * dy)
+    depth = r - dist  # > 0 inside
+    inside = (depth > 0) & (r > 0)
+    ghost = inside & (depth < GHOST_BAND * h)
+    d1 = IMAGE_DISTANCE * h
+    nx_, ny_ = dx / jnp.maximum(dist, 1e-12 * h), dy / jnp.maximum(dist, 1e-12 * h)
+    # Lagrange weights at -depth of the quadratic through (0, 0), (d1, u1), (2 d1, u2)
+    w1 = jnp.where(ghost, -depth * (depth + 2 * d1) / (d1 * d1), 0.0).astype(dtype)
+    w2 = jnp.where(ghost, depth * (depth + d1) / (2 * d1 * d1), 0.0).astype(dtype)
+    if GHOST_ORDER == 1:
+        w1, w2 = jnp.where(ghost, -depth / d1, 0.0).astype(dtype), jnp.zeros_like(w2)
+    return Ghosts(ghost, inside & ~ghost, w1, w2, cx + (r + d1) * nx_, cy + (r + d1) * ny_,
+                  cx + (r + 2 * d1) * nx_, cy + (r + 2 * d1) * ny_)
+
+
 class Faces(NamedTuple):
     """Pressure-operator face coefficients: cx [ny, nx+1], cy [ny+1, nx] (1 open, 0 closed; a boundary face
     with 1 is a Dirichlet p = 0 side), solid [ny, nx] (1 in solid cells, an identity row there)."""
@@ -140,8 +237,14 @@ class Faces(NamedTuple):
     solid: jnp.ndarray
 
 
-def faces(geom: Geometry, solid) -> Faces:
-    """Face coefficients from a boolean solid mask [ny, nx]."""
+def faces(geom: Geometry, solid, apertures=None) -> Faces:
+    """Face coefficients from a boolean solid mask [ny, nx]; apertures: open fractions (ax [ny, nx+1],
+    ay [ny+1, nx]) of a sharp body (``circle_apertures``) that scale them (a cell all of whose faces it closes is
+    solid), or None."""
+    if apertures is not None:
+        ax, ay = apertures
+        covered = (ax[:, :-1] == 0) & (ax[:, 1:] == 0) & (ay[:-1] == 0) & (ay[1:] == 0)
+        solid = solid | covered
     f = 1.0 - solid.astype(jnp.float32)
     inner_x = f[:, :-1] * f[:, 1:]
     inner_y = f[:-1] * f[1:]
@@ -159,6 +262,8 @@ def faces(geom: Geometry, solid) -> Faces:
         ty = f[-1:] * float(geom.top == "outflow")
     cx = jnp.concatenate([lx, inner_x, rx], axis=1)
     cy = jnp.concatenate([by, inner_y, ty], axis=0)
+    if apertures is not None:
+        cx, cy = cx * ax, cy * ay
     return Faces(cx, cy, 1.0 - f)
 
 

@@ -30,7 +30,7 @@ CHUNK = 4
 
 def _one(problem, frames: int):
     """(frame [C, nx, ny], params [P]) -> the frame ``frames`` frame intervals later (dtype of the frame)."""
-    geom = problem.grid.geometry()
+    geom = problem.geometry()
     steps = frames * problem.steps_per_frame
 
     def one(u, p_row):

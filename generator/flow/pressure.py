@@ -103,8 +103,12 @@ def prepare(fc: Faces, periodic_x: bool, periodic_y: bool) -> Operator:
     # (a stream thread sampling flows while the training thread runs solver-in-the-loop's differentiable step)
     # parked both pool threads and hung for good (gdb: both tf_XLAEigen threads in
     # EigenvalueDecompositionSymmetric, on 2 cores).
+    # float32 across the callback: its host thread does not see a caller's jax.enable_x64, so a float64 answer came
+    # back float32 and was refused (a sharp body's apertures are float64 under x64); a preconditioner needs no more
+    dtype = a.dtype
+    a = a.astype(jnp.float32)
     shape = jax.ShapeDtypeStruct(a.shape, a.dtype)
-    return Operator(levels, jax.pure_callback(_pseudo_inverse, shape, a, vmap_method="sequential"))
+    return Operator(levels, jax.pure_callback(_pseudo_inverse, shape, a, vmap_method="sequential").astype(dtype))
 
 
 def _components(a) -> tuple[np.ndarray, int]:

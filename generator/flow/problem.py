@@ -40,7 +40,7 @@ from ..chunked import join, split
 from ..grids import GridBase
 from ..problem import MAX_STEPS, ProblemBase, resolve_params
 from . import interactive
-from .grid import SIDE_KINDS, Geometry, Params
+from .grid import BODIES, SIDE_KINDS, Geometry, Params, circle_apertures
 from .step import ADVECTION, State, initial_state, operator, run_counted, solid_mask
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
@@ -163,6 +163,13 @@ class FlowProblem(ProblemBase):
     def grid(self) -> FlowGrid:
         return FlowGrid(2, self.n, self.length, self.aspect, self.SIDES)
 
+    def geometry(self) -> Geometry:
+        """The solver's static geometry: the grid's, with the entry's ``body`` setting where it has a circle body
+        (karman2d). An entry without one runs 'staircase': the sharp treatment acts on Params.circle only, and its
+        ghost and cut-face work would be spent on nothing (the bits are the staircase's either way)."""
+        g = self.grid.geometry()
+        return Geometry(g.nx, g.ny, g.lx, g.ly, g.left, g.right, g.bottom, g.top, getattr(self, "body", "staircase"))
+
     @property
     def h(self) -> float:
         return self.length / self.n
@@ -213,6 +220,8 @@ class FlowProblem(ProblemBase):
             raise ValueError(f"{self.NAME}: tol={self.tol:g} not allowed: the relative residual must be in (0, 1)")
         if not self.max_iter >= 1:
             raise ValueError(f"{self.NAME}: max_iter={self.max_iter} not allowed: must be an integer >= 1")
+        if getattr(self, "body", BODIES[0]) not in BODIES:
+            raise ValueError(f"{self.NAME}: body={self.body!r} not allowed: allowed are {', '.join(BODIES)}")
         if self.advection not in ADVECTION:
             raise ValueError(f"{self.NAME}: advection={self.advection!r} not allowed: allowed are "
                              f"{', '.join(sorted(ADVECTION))}")
@@ -235,6 +244,7 @@ class FlowProblem(ProblemBase):
                 f"  t in [{self.t_start:g}, {self.t_end:g}] {start}, {self.n_frames} frames, "
                 f"step {self.step_dt:.4g} s ({self.steps_per_frame}/frame, CFL {self.cfl:g} at "
                 f"{self.speed_bound():g} m/s); MAC grid, {self.advection.replace('_', '-')} advection, multigrid-CG projection"
+                + (f", {self.body} circle" if hasattr(self, "body") else "")
                 + (f"\n  {self.describe_geometry()}" if self.describe_geometry() else ""))
 
     def failure(self) -> tuple[str, str]:
@@ -245,6 +255,10 @@ class FlowProblem(ProblemBase):
     # --- a sample ------------------------------------------------------------------------------------
     def frame_fields(self, geom: Geometry, state: State, fp: Params) -> jax.Array:
         """One frame [C, nx, ny] over FIELDS at cell centres from a solver state (arrays [y, x])."""
+        if geom.body == "sharp":  # faces a sharp circle covers whole hold ghost values: stored as no flow (the
+            # solver rebuilds them from the fluid before every use, so a frame still continues exactly)
+            ax, ay = circle_apertures(geom, *fp.circle, state.u.dtype)
+            state = state._replace(u=jnp.where(ax > 0, state.u, 0.0), v=jnp.where(ay > 0, state.v, 0.0))
         made = {
             "u": lambda: state.u[:, :-1],
             "v": lambda: state.v[:-1],
@@ -289,7 +303,7 @@ class FlowProblem(ProblemBase):
     def state_of(self, frame: jax.Array, fp: Params) -> State:
         """The solver state of one frame [C, nx, ny] (the inverse of ``frame_fields``): the right-most u and top v
         faces rebuilt as walls (0), periodic copies, or from the last cells' discrete continuity (an open side)."""
-        geom = self.grid.geometry()
+        geom = self.geometry()
         field = {name: frame[i].T for i, name in enumerate(self.FIELDS)}  # [ny, nx]
         u, v = field["u"], field["v"]
         left, right, bottom, top = self.SIDES
@@ -381,7 +395,7 @@ def _programs(problem: FlowProblem):
     """(start, advance, frame): compiled per-chunk programs, each sample the same unbatched program inside
     jax.lax.map. start: (keys [K], explicit [K, P], given [K, P]) -> (params {name: [K]}, Params [K], State [K],
     pressure Operator [K]); advance: (State, Params, Operator, dt, k) -> State k steps later; frame: (State, Params) -> [K, C, nx, ny]."""
-    geom = problem.grid.geometry()
+    geom = problem.geometry()
 
     def start_one(key, explicit, given):
         k_param, k_geom = jax.random.split(key)

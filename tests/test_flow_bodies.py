@@ -1,0 +1,109 @@
+"""The sharp circle body (issue 28 part 1, generator.flow.grid's 'sharp' BODIES): cut-face apertures against the
+exact circle, ghost velocities through no-slip on it, the surface-integral force on it, the setting's refusal.
+The Schaefer-Turek 2D-1 check of the whole scheme is in tests/test_flow_forces.py (slow); the grid study in
+benchmarks/flow_bodies.py. Each test here is a few small arrays (no rollout)."""
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pdestream import generator
+from pdestream.generator.flow import Geometry, Params, forces, grid
+from pdestream.generator.flow.step import State, apply_bc, body_faces
+
+CX, CY, R = 0.537, 0.4619, 0.2034
+
+
+def _open_exact(x0, y0, x1, y1, samples=20001):
+    """Open fraction of the segment (x0, y0)-(x1, y1) outside the circle, by dense sampling (float64)."""
+    s = np.linspace(0, 1, samples)
+    x, y = x0 + s * (x1 - x0), y0 + s * (y1 - y0)
+    return np.mean(np.hypot(x - CX, y - CY) >= R)
+
+
+def test_apertures_are_the_open_fractions_of_the_faces_against_the_exact_circle():
+    geom = Geometry(32, 16, 2.0, 1.0, left="inflow", right="outflow")
+    h = geom.h
+    ax, ay = (np.asarray(a) for a in grid.circle_apertures(geom, CX, CY, R))
+    cut = 0
+    for j in range(geom.ny):
+        for i in range(geom.nx + 1):
+            want = _open_exact(i * h, j * h, i * h, (j + 1) * h)
+            want = 0.0 if want < grid.MIN_APERTURE else want
+            assert ax[j, i] == pytest.approx(want, abs=2e-4), (j, i)
+            cut += 0 < want < 1
+    for j in range(geom.ny + 1):
+        for i in range(geom.nx):
+            want = _open_exact(i * h, j * h, (i + 1) * h, j * h)
+            want = 0.0 if want < grid.MIN_APERTURE else want
+            assert ay[j, i] == pytest.approx(want, abs=2e-4), (j, i)
+    assert cut >= 8  # the circle cuts faces (not only whole or closed ones)
+    fc = body_faces(geom, Params(circle=(CX, CY, R)))  # the pressure operator's coefficients are the apertures
+    assert np.allclose(np.asarray(fc.cx)[:, 1:-1], ax[:, 1:-1]) and np.allclose(np.asarray(fc.cy)[1:-1], ay[1:-1])
+    # a cell is solid (an identity row) exactly where the circle covers it whole: all 4 corners inside
+    x, y = np.meshgrid(np.arange(geom.nx + 1) * h, np.arange(geom.ny + 1) * h)
+    inside = np.hypot(x - CX, y - CY) < R
+    covered = inside[:-1, :-1] & inside[1:, :-1] & inside[:-1, 1:] & inside[1:, 1:]
+    assert np.array_equal(np.asarray(fc.solid) > 0.5, covered)
+
+
+def _polar_field(geom, f):
+    """u [ny, nx+1], v [ny+1, nx] on the MAC faces of the velocity f(rho - R, theta) -> (u, v) (float64)."""
+    h = geom.h
+    xu, yu = np.meshgrid(np.arange(geom.nx + 1) * h, (np.arange(geom.ny) + 0.5) * h)
+    xv, yv = np.meshgrid((np.arange(geom.nx) + 0.5) * h, np.arange(geom.ny + 1) * h)
+    u = f(np.hypot(xu - CX, yu - CY) - R, np.arctan2(yu - CY, xu - CX))[0]
+    v = f(np.hypot(xv - CX, yv - CY) - R, np.arctan2(yv - CY, xv - CX))[1]
+    return u, v
+
+
+def _swirl(d, th, a=1.0, b=3.0):
+    """A tangential velocity a d + b d^2 (d: distance outside the circle): no-slip on it, quadratic across it."""
+    ut = a * d + b * d * d
+    return -ut * np.sin(th), ut * np.cos(th)
+
+
+def _ghost_error(n):
+    """Largest error of the ghost faces of u for _swirl on a 2n x n grid, and the staircase's there (it zeroes them)."""
+    geom = Geometry(2 * n, n, 2.0, 1.0, body="sharp")
+    u, v = _polar_field(geom, _swirl)
+    ghost = np.asarray(grid.circle_ghosts(geom, CX, CY, R, 0.0, 0.5, u.shape).ghost)
+    filled, _ = apply_bc(geom, Params(circle=(CX, CY, R)), jnp.asarray(np.where(ghost, 99.0, u), jnp.float32),
+                         jnp.asarray(v, jnp.float32))
+    return np.abs(np.asarray(filled) - u)[ghost].max(), np.abs(u)[ghost].max(), ghost.sum()
+
+
+def test_ghost_velocities_continue_a_no_slip_profile_through_the_circle():
+    """The ghost faces of a flow quadratic in the distance to the circle (zero on it) take that flow's values
+    inside, to the bilinear interpolation's O(h^2) (the staircase's masked faces take 0: an O(h) error)."""
+    (e1, s1, k1), (e2, s2, k2) = _ghost_error(64), _ghost_error(128)  # R 13 and 26 cells (at 6.5: order 1.1)
+    assert k1 > 10 and k2 > 2 * k1 - 10
+    assert e1 < 0.1 * s1 and e2 < 0.1 * s2
+    assert math.log2(e1 / e2) > 1.8  # second order (measured 2.1; the staircase's error s halves: first)
+
+
+def test_surface_force_of_a_uniform_pressure_gradient_is_the_displaced_fluid_and_of_a_shear_its_integral():
+    geom = Geometry(64, 32, 2.0, 1.0, body="sharp")
+    h, grad_p, nu, a = geom.h, 0.7, 0.01, 2.0
+    x, y = np.meshgrid((np.arange(geom.nx) + 0.5) * h, (np.arange(geom.ny) + 0.5) * h)
+    zero_u, zero_v = np.zeros((geom.ny, geom.nx + 1)), np.zeros((geom.ny + 1, geom.nx))
+    s = State(jnp.asarray(zero_u), jnp.asarray(zero_v), jnp.asarray(grad_p * x), None, None, None, None)
+    fx, fy = forces.circle_force(geom, s, nu, CX, CY, R)
+    assert float(fx) == pytest.approx(-grad_p * math.pi * R * R, rel=1e-5) and abs(float(fy)) < 1e-6
+    # u_t = a d cos(theta): wall shear nu a cos(theta) along the tangent, F = (0, pi R nu a)
+    u, v = _polar_field(geom, lambda d, th: _swirl(d * np.cos(th), th, a, 0.0))
+    s = State(jnp.asarray(u), jnp.asarray(v), jnp.zeros((geom.ny, geom.nx)), None, None, None, None)
+    fx, fy = forces.circle_force(geom, s, nu, CX, CY, R)
+    # corrected interpolation: 1.8e-4 here, second order (plain bilinear: 1.4e-2, first order)
+    assert float(fy) == pytest.approx(math.pi * R * nu * a, rel=1e-3) and abs(float(fx)) < 1e-3 * float(fy)
+
+
+def test_a_bad_body_setting_is_refused_in_one_line():
+    with pytest.raises(ValueError, match=r"body='cut'.*allowed are staircase, sharp"):
+        generator.get_pde("karman2d", body="cut")
+    with pytest.raises(ValueError, match=r"body='cut'"):
+        Geometry(8, 8, 1.0, 1.0, body="cut")
+    assert generator.get_pde("karman2d").body == grid.DEFAULT_BODY == "sharp"
+    assert "sharp circle" in generator.get_pde("karman2d").describe()
