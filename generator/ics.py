@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..boundaries import is_periodic
 from .spectral.fourier import Grid
 
 # The spot loop is unrolled into the compiled set-up program (written out for bit-identity), so its size
@@ -353,7 +354,7 @@ class RandomSines:
     def check(self, grid: Grid) -> None:
         if grid.ndim != 1:
             raise ValueError(f"ic kind 'sines' is one-dimensional; this grid is {grid.ndim}D (allowed: fourier, grf)")
-        if any(bc != "periodic" for bc in getattr(grid, "bc", ("periodic",))):
+        if not all(is_periodic(bc) for bc in getattr(grid, "bc", ("periodic",))):
             raise ValueError("ic kind 'sines' is periodic; this grid has walls (allowed there: fourier, grf)")
         if not (self.max_mode >= 1 and self.n_modes >= 1 and self.max_mode * self.n_modes <= grid.n // 3):
             raise ValueError(f"ic.max_mode={self.max_mode}, ic.n_modes={self.n_modes} not allowed on n={grid.n}: "
