@@ -108,3 +108,13 @@ def test_bench_json_into_a_missing_directory_is_refused_before_the_benchmark(tmp
     code = bench.main(["--only", "generator", "--quick", "--json", str(tmp_path / "no" / "b.json")])
     err = capsys.readouterr().err.strip()
     assert code != 0 and len(err.splitlines()) == 1 and "does not exist" in err and "Traceback" not in err
+
+
+@pytest.mark.xdist_group("house")
+def test_xdist_keeps_the_groups_it_was_given(request):
+    """Under `--dist loadgroup` (CI), an entry's tests share one worker, which compiles its programs once: xdist
+    marks a grouped test by suffixing its id with "@GROUP". pytest 9.2 with pytest-xdist 3.8 silently drops the
+    suffix (pytest-xdist #1386; pyproject pins pytest < 9.2), and CI then compiles every entry in both workers."""
+    if not getattr(request.config.option, "loadgroup", False):
+        pytest.skip("runs under pytest -n N --dist loadgroup (the default addopts with -n)")
+    assert request.node.nodeid.endswith("@house"), request.node.nodeid
