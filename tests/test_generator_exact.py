@@ -46,6 +46,31 @@ def test_kdv_soliton_travels_unchanged():
         assert rel_err(traj.u[0, j, 0], kdv_soliton(x, t, c, alpha, beta, 10.0, length)) < 2e-3
 
 
+def test_a_burn_in_starts_the_frames_at_t_start_on_the_exact_soliton():
+    """t_start: the IC is at t = 0, the burn-in (its own ETDRK4 step) is not recorded, frames at [t_start, t_end]."""
+    length, c, alpha, beta = 40.0, 1.5, 6.0, 1.0
+    pde = g.get_pde("kdv1d", n=128, length=length, t_start=2.5, t_end=6.0, n_frames=3, alpha=alpha, beta=beta)
+    assert np.allclose(pde.times(), [2.5, 4.25, 6.0]) and pde.burn_in_steps > 0 and pde.burn_in_dt != pde.step_dt
+    x = pde.grid.coords().astype(np.float64)
+    traj = g.solve(pde, kdv_soliton(x, 0.0, c, alpha, beta, 10.0, length), {"alpha": alpha, "beta": beta})
+    assert traj.u.shape[1] == 3
+    for j, t in enumerate(pde.times()):
+        assert rel_err(traj.u[0, j, 0], kdv_soliton(x, t, c, alpha, beta, 10.0, length)) < 2e-3
+
+
+def test_a_burn_in_keeps_sample_identity_and_old_configs():
+    pde = g.get_pde("ks1d", n=64, length=32.0, t_start=4.0, t_end=6.0, n_frames=3)
+    batch = g.sample(pde, range(3), seed=1)
+    alone = g.sample(pde, [1], seed=1)
+    assert np.array_equal(np.asarray(alone.u[0]), np.asarray(batch.u[1]))  # alone == in a batch, bit for bit
+    plain = g.get_pde("ks1d", n=64, length=32.0, t_end=6.0, n_frames=3)
+    assert pde.config()["t_start"] == 4.0 and g.from_config(pde.config()) == pde
+    assert "t_start" not in plain.config()  # the configs (and hashes) of caches written before are unchanged
+    with pytest.raises(ValueError, match=r"^ks1d: t_start=6\.0 not allowed: need 0 <= t_start < t_end") as err:
+        g.get_pde("ks1d", t_start=6.0, t_end=6.0)
+    assert "\n" not in str(err.value)
+
+
 def cole_hopf(x, t, nu, a=0.5, k=2 * np.pi):
     """Burgers solution u = -2 nu phi_x / phi with phi = 1 + a exp(-nu k^2 t) cos(k x) solving the heat equation."""
     e = a * np.exp(-nu * k**2 * t)

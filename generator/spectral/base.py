@@ -37,9 +37,10 @@ class PDE(ProblemBase):
 
     n: int = 128  # grid points per dimension
     length: float = 1.0  # domain [0, length)^ndim
-    t_end: float = 1.0  # final time; frames are saved at linspace(0, t_end, n_frames)
-    n_frames: int = 51  # saved frames including t = 0
+    t_end: float = 1.0  # final time; frames are saved at linspace(t_start, t_end, n_frames)
+    n_frames: int = 51  # saved frames including the first, at t = t_start
     dt: float | None = None  # internal step; None: the largest stable step that divides a frame interval
+    t_start: float = 0.0  # a burn-in from the IC at t = 0, not recorded (chaotic entries: frames on the attractor)
 
     # --- what subclasses provide -------------------------------------------------------------------
     @abc.abstractmethod
@@ -139,8 +140,16 @@ class PDE(ProblemBase):
         return Grid(self.NDIM, self.n, self.length)
 
     def times(self) -> np.ndarray:
-        """Frame times, float32 [n_frames]."""
-        return np.linspace(0.0, self.t_end, self.n_frames).astype(np.float32)
+        """Frame times, float32 [n_frames]: linspace(t_start, t_end, n_frames)."""
+        return np.linspace(self.t_start, self.t_end, self.n_frames).astype(np.float32)
+
+    def config(self) -> dict:
+        """``ProblemBase.config``; ``t_start`` only when there is a burn-in, so the configs and hashes of every
+        cache and run written before the setting existed (or without one) are unchanged."""
+        out = super().config()
+        if not self.t_start:
+            out.pop("t_start", None)
+        return out
 
     def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray, latent=None):
         """Solve one sample per key [B] (explicit float32 [B, P] parameter values where given bool [B, P]; latent:
@@ -160,7 +169,20 @@ class PDE(ProblemBase):
     # --- the time window ---------------------------------------------------------------------------
     @property
     def frame_dt(self) -> float:
-        return self.t_end / (self.n_frames - 1)
+        return (self.t_end - self.t_start) / (self.n_frames - 1)
+
+    @property
+    def burn_in_steps(self) -> int:
+        """ETDRK4 steps of the burn-in (0 without one): the fewest whose step is <= dt (or stable_dt)."""
+        if not self.t_start:
+            return 0
+        target = self.dt if self.dt is not None else self.stable_dt()
+        return max(1, math.ceil(self.t_start / target * (1 - 1e-9)))
+
+    @property
+    def burn_in_dt(self) -> float:
+        """The burn-in's own step, t_start / burn_in_steps (time units; 0 without a burn-in)."""
+        return self.t_start / self.burn_in_steps if self.t_start else 0.0
 
     @property
     def steps_per_frame(self) -> int:
@@ -179,6 +201,9 @@ class PDE(ProblemBase):
         self._check_length()
         if not (self.t_end > 0 and math.isfinite(self.t_end)):
             raise ValueError(f"{self.NAME}: t_end={self.t_end} not allowed: must be a finite number > 0")
+        if isinstance(self.t_start, bool) or not (0 <= self.t_start < self.t_end):
+            raise ValueError(f"{self.NAME}: t_start={self.t_start!r} not allowed: need 0 <= t_start < t_end "
+                             f"(t_end={self.t_end:g}; t_start is a burn-in from the IC, not recorded)")
         if isinstance(self.n_frames, bool) or not isinstance(self.n_frames, int) or self.n_frames < 2:
             raise ValueError(f"{self.NAME}: n_frames={self.n_frames!r} not allowed: need an integer >= 2 (t=0 and t_end)")
         self._check_size()  # before anything allocates arrays of the grid's size
@@ -216,7 +241,7 @@ class PDE(ProblemBase):
     def _check_steps(self) -> None:
         """The internal steps of one trajectory within MAX_STEPS (before steps_per_frame is ever computed)."""
         target = self.dt if self.dt is not None else self.stable_dt()
-        steps = (self.n_frames - 1) * (self.frame_dt / target) if target > 0 else math.inf
+        steps = self.t_end / target if target > 0 else math.inf  # the burn-in's and the frames' steps
         if not steps <= MAX_STEPS:
             raise ValueError(f"{self.NAME}: t_end={self.t_end:g}, n_frames={self.n_frames} with step {target:.3g} "
                              f"would take ~{steps:.3g} internal steps per trajectory; the limit is {MAX_STEPS} "
@@ -224,7 +249,9 @@ class PDE(ProblemBase):
 
     def describe_setup(self) -> str:
         return (f"  fields: {', '.join(self.FIELDS)}   grid: {self.grid.describe()}"
-                f"   t in [0, {self.t_end:g}], {self.n_frames} frames, step {self.step_dt:.4g} ({self.steps_per_frame}/frame)")
+                f"   t in [{self.t_start:g}, {self.t_end:g}], {self.n_frames} frames, step {self.step_dt:.4g} "
+                f"({self.steps_per_frame}/frame)" + (f"; after a burn-in of {self.burn_in_steps} steps from the IC at t = 0"
+                                                     if self.t_start else ""))
 
 
 @dataclass(frozen=True)

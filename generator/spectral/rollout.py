@@ -26,8 +26,8 @@ PDE = Problem  # a spectral PDE (generator.pdes.base.PDE: linear, nonlinear, sta
 # family imports this module, so the annotations name the protocol rather than import the family back
 
 
-def _coefficients(pde: PDE, p: Mapping[str, jax.Array]):
-    return etdrk4_coefficients(pde.linear(pde.grid, p), pde.step_dt)
+def _coefficients(pde: PDE, p: Mapping[str, jax.Array], dt: float | None = None):
+    return etdrk4_coefficients(pde.linear(pde.grid, p), pde.step_dt if dt is None else dt)
 
 
 def _stepping(pde: PDE, p: Mapping[str, jax.Array]):
@@ -274,6 +274,8 @@ def run_keys(pde: PDE, keys: jax.Array, explicit, given, latent=None):
     else:
         params, u0, coeffs = chunked_map(compiled_latent_setup(pde), SETUP_CHUNK, keys, explicit, given, *latent)
     shared = coeffs is None
+    if pde.burn_in_steps:  # the IC at t = 0 advanced to the first frame's time, t_start
+        u0 = burn_in(pde, u0, params)
     size = evolve_chunk(pde)
     parts = [(u0, params)] if batch <= size else [
         jax.tree_util.tree_map(lambda x: x[i : i + size], (u0, params)) for i in range(0, batch, size)]
@@ -297,5 +299,21 @@ def compiled_coefficients(pde: PDE):
 def evolve_from(pde: PDE, u0: jax.Array, p: Mapping[str, jax.Array]):
     """A caller's initial conditions u0 [B, C, *space] with params {name: [B]} -> (u [B, T, C, *space],
     finite [B]): the rollout in bounded calls, from coefficients of their own program."""
+    if pde.burn_in_steps:
+        u0 = burn_in(pde, u0, p)
     [(u, finite)] = evolve_bounded(pde, [(u0, p, compiled_coefficients(pde)(p))])
     return u, finite
+
+
+@functools.lru_cache(maxsize=64)
+def compiled_burn_in_coefficients(pde: PDE):
+    """``compiled_coefficients`` at the burn-in's step ``pde.burn_in_dt`` (one sample per loop step)."""
+    return jax.jit(lambda params: jax.lax.map(functools.partial(_coefficients, pde, dt=pde.burn_in_dt), params))
+
+
+def burn_in(pde: PDE, u0: jax.Array, p: Mapping[str, jax.Array]) -> jax.Array:
+    """The states u0 [B, C, *space] at t = 0 advanced ``pde.t_start`` (``burn_in_steps`` ETDRK4 steps of
+    ``burn_in_dt``, in bounded calls, per-sample coefficients: batch-invariant bits) -> float32 [B, C, *space],
+    the rollout's initial condition (a sample that blew up is NaN here and fails its rollout's finite check)."""
+    u, _ = advance_bounded(pde, u0, p, compiled_burn_in_coefficients(pde)(p), pde.burn_in_steps)
+    return u
