@@ -149,6 +149,25 @@ RECIPES: dict[str, Recipe] = {r.name: r for r in (
         time="t = 0, 0.01, ..., 1: 101 frames", splits=_splits(9000, 500, 1000),
         differs="PDEBench ships one file per (nu, rho) (--set D=1 --set r=1 makes one); its solver splits the "
                 "logistic reaction (exact) from a finite-volume diffusion step; ours ETDRK4; " + PDEBENCH_IC_DIFF),
+    Recipe(
+        name="pdebench_swe2d", entry="shallow_water2d", paper=PDEBENCH_PAPER,
+        where="Appendix D (2D shallow-water equations: radial dam break), Table 5", url=PDEBENCH_URL,
+        code="github.com/pdebench/PDEBench@2f71cb8, pdebench/data_gen/configs/radial_dam_break.yaml (T_end 1, "
+             "n_time_steps 100, 128 x 128 on [-2.5, 2.5]^2, gravity 1, inner height 2), gen_radial_dam_break.py "
+             "(dam_radius ~ uniform(0.3, 0.7) per seed), src/sim_radial_dam_break.py (h_out 1, centre (0, 0), "
+             "PyClaw's Roe solver with entropy fix, MC limiter, extrapolation boundaries)",
+        settings={"n": 128, "length": 5.0, "t_end": 1.0, "n_frames": 101, "bc": "outflow", "limiter": "mc",
+                  "g": "1.0", "ic": {"kind": "radial", "h_in": "2", "h_out": "1", "radius": "uniform(0.3, 0.7)",
+                                     "cx": "2.5", "cy": "2.5"}},
+        ic="depth 2 inside a circle of radius ~ uniform(0.3, 0.7) at the domain's centre, 1 outside, at rest",
+        grid="128 x 128 cells on [0, 5]^2 (PDEBench's [-2.5, 2.5]^2 shifted by 2.5), extrapolation (outflow) sides",
+        time="t = 0, 0.01, ..., 1: 101 frames", splits=_splits(800, 100, 100),
+        differs="PDEBench ships 1000 seeds (its scripts hold out the last 10%: here 800 / 100 / 100) and stores h "
+                "alone (we store h, hu, hv: select h); its solver is PyClaw's dimensionally split Roe solver with an "
+                "entropy fix and the MC limiter at CFL ~0.9, ours MUSCL (MC) with HLL fluxes, unsplit SSP-RK3 at "
+                "CFL 0.3, float32; PyClaw needs a Fortran compiler, which this machine lacks, so the two were not run "
+                "side by side (ours is checked against Ritter's and Stoker's exact dam breaks: "
+                "docs/results/finite_volume.md)"),
 )}
 
 # Published sets no catalog entry can express today: listed with the reason, never approximated.
@@ -157,6 +176,12 @@ NOT_EXPRESSIBLE: dict[str, str] = {
                          "coefficient is 1 / 0.1 thresholded from 5 random Gaussian bumps at the batch mean, the "
                          "boundary is Neumann and the steady state is reached by pseudo-time stepping to t = 2; "
                          "darcy2d has a GRF threshold, Dirichlet walls and a direct solve"),
+    "pdearena_smoke2d": ("github.com/pdearena/pdearena@b633984, pdedatagen/navier_stokes.py and "
+                         "configs/navierstokes2dsmoke.yaml: a closed 32 x 32 box at 128^2 (zero velocity on every "
+                         "side), smoke drawn as |PhiFlow Noise(scale 11, smoothness 6)| with no source, buoyancy "
+                         "0.5, nu 0.01, semi-Lagrangian advection, frames every 1.5 from t = 18 to 102 after 8 "
+                         "skipped steps; smoke2d has a smoke source near the floor, an open top and MacCormack "
+                         "advection, and no random smoke field"),
     "fno_ns2d_nu1e-4, fno_ns2d_nu1e-5": ("the paper solves on 256^2 and subsamples to 64^2; no entry subsamples "
                                          "a finer solve yet, and a 64^2 solve at nu <= 1e-4 is not checked for "
                                          "resolution (nu = 1e-3 is: docs/results/recipes.md)"),

@@ -148,3 +148,14 @@ def test_a_stratified_draw_of_a_choice_domain_keeps_its_end_options():
     prop = ParamProposal(param_domains(g.get_pde("pdebench_advection1d")), mode="uniform")
     drawn = prop.from_unit(np.linspace(0.0, 1.0, 9)[:, None])["c"]
     assert sorted(set(drawn.tolist())) == [0.1, 0.4, 1.0, 4.0]
+
+
+def test_pdebench_dam_break_is_centred_and_keeps_its_mirror_symmetries():
+    # PDEBench's dam sits at the centre of its box: the depth stays symmetric under x <-> y and both mirrors
+    pde = g.get_pde("pdebench_swe2d", n=32, t_end=0.3, n_frames=2)
+    h = np.asarray(g.sample(pde, range(2), seed=0).u)[:, :, 0]  # [B, T, y, x] or [B, T, x, y]: symmetric either way
+    assert h[:, 0].max() == 2.0 and h[:, 0].min() == 1.0
+    for field in (h[:, 0], h[:, -1]):
+        for mirrored in (field.transpose(0, 2, 1), field[:, ::-1, :], field[:, :, ::-1]):
+            assert np.abs(mirrored - field).max() < 1e-4
+    assert np.abs(h[:, -1] - h[:, 0]).max() > 0.1  # and it moved
