@@ -215,6 +215,42 @@ def test_the_oracle_continues_a_sampled_frame_to_the_next_one(name):
     assert torch.equal(one[0], oracle(t["u"][:, 0], t["params"])[1])  # alone == in a batch
 
 
+def test_a_solver_step_keeps_the_frame_s_mask_and_karman_flows_ignore_it():
+    # a coarse solver's frame restricted from a finer one carries a mask that is not the coarse grid's own staircase
+    # (a coarse cell is solid when any fine cell is): the step hands it back as given, so no frame's geometry
+    # differs from the truth's (a third of the coarse karman2d solver's squared error did), and karman2d's flow
+    # (its cylinder from the parameters) is the same bits whatever the mask channel says
+    pde = small("karman2d")
+    t = datasets.sample_tensors(pde, range(2), seed=3)
+    k = pde.FIELDS.index("solid")
+    u = t["u"][:, 0].clone()
+    grown = torch.nn.functional.max_pool2d(u[:, k:k + 1], 3, 1, 1)[:, 0]  # the mask dilated by one cell
+    assert float((grown - u[:, k]).sum()) >= 8
+    oracle = datasets.SolverOracle(pde)
+    plain = oracle(u, t["params"])
+    u[:, k] = grown
+    got = oracle(u, t["params"])
+    assert torch.equal(got[:, k], grown)
+    assert torch.equal(got[:, :k], plain[:, :k]) and torch.equal(got[:, k + 1:], plain[:, k + 1:])
+
+
+@pytest.mark.parametrize("body", ["sharp", "staircase"])
+def test_the_solver_in_the_loop_coarse_solver_has_the_fine_entry_s_body(body):
+    # the coarse solver of the interactive modes is the fine config at coarse n: a sharp cylinder stays sharp there
+    # (its pressure operator's faces open by fractions of the exact circle), a staircase one stays a staircase
+    from pdestream.surrogate.modes import make_mode
+
+    fine = generator.get_pde("karman2d", n=32, radius="uniform(0.13, 0.16)", re="uniform(40, 80)", body=body)
+    mode = make_mode({"name": "solver-in-the-loop", "unroll": 1, "coarse_n": 16}).bind(fine)
+    coarse = mode.step.pde
+    assert (coarse.n, coarse.body, coarse.geometry().body) == (16, body, body)
+    p = {"re": 60.0, "radius": 0.15, "cx": 0.5, "cy": 0.44, "speed": 1.0, "plug": 0.0}
+    fp = coarse.oracle_params({k: jnp.float32(v) for k, v in p.items()}, None)
+    f = body_faces(coarse.geometry(), fp)
+    cut = int(jnp.sum((f.cx > 0) & (f.cx < 1)) + jnp.sum((f.cy > 0) & (f.cy < 1)))
+    assert (cut >= 8) if body == "sharp" else (cut == 0)
+
+
 def test_solver_step_gradients_match_float64_finite_differences_through_a_projection():
     pde = generator.get_pde("karman2d", n=16, aspect=2, radius="uniform(0.15, 0.18)", cx="uniform(0.6, 0.7)",
                             cy="uniform(0.45, 0.55)", re="uniform(5, 10)", speed="uniform(0.5, 1)",

@@ -6,13 +6,18 @@ and the solid mask or smoke), parameters are {name: [B]}. The frame is turned ba
 (``FlowProblem.state_of``: the faces not stored rebuilt from walls or continuity), its obstacles taken from its
 own ``solid`` field (a channel2d body is random geometry, not a parameter), advanced ``frames * steps_per_frame``
 steps of ``step_dt`` and recorded again; so advancing frame i of a sampled trajectory gives frame i+1 to the
-pressure solve's tolerance (the right-most faces are rebuilt, not stored).
+pressure solve's tolerance (the right-most faces are rebuilt, not stored). The advanced frame's ``solid`` channel is
+the given frame's, bit for bit: the geometry is the caller's, not the solver's to predict. (A coarse solver's frame
+restricted from a finer one, ``surrogate.modes.subsample``, marks a coarse cell solid when any of its fine cells is;
+recomputed on the coarse grid it would differ from the truth in a few cells per frame that no correction may touch:
+docs/results/flows.md.)
 
 Batch invariance: each sample runs the same unbatched program inside ``jax.lax.map`` over chunks of CHUNK rows
 (``generator.chunked``). Derivatives: reverse mode through the semi-Lagrangian interpolation weights, the
 explicit viscosity and the projection (the pressure solve is a ``custom_linear_solve``: its cotangent is another
-solve with the same symmetric operator), w.r.t. the frame and every parameter (viscosity, inflow and so on; not
-w.r.t. the mask, which is a set of cells).
+solve with the same symmetric operator), w.r.t. the frame and every parameter (viscosity, inflow and so on; karman2d's
+radius and centre too where its body is sharp: the open fractions and ghost weights are smooth in them). A mask is
+a set of cells and is not differentiated: the solid channel passes through (its derivative the identity).
 """
 
 from __future__ import annotations
@@ -38,7 +43,11 @@ def _one(problem, frames: int):
         fp = problem.oracle_params(p, u)
         s = run(geom, problem.state_of(u, fp), fp, jnp.asarray(problem.step_dt, u.dtype), steps,
                 tol=problem.tol, max_iter=problem.max_iter, advection=problem.advection)
-        return problem.frame_fields(geom, s, fp)
+        out = problem.frame_fields(geom, s, fp)
+        if "solid" in problem.FIELDS:
+            k = problem.FIELDS.index("solid")
+            out = out.at[k].set(u[k])
+        return out
 
     return one
 
