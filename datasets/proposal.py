@@ -78,8 +78,11 @@ import numpy as np
 import torch
 
 from ._bridge import LATENT  # propose()'s key for the IC latents [n, L] (no parameter can be named so)
+from .reservoir_config import PROPOSALS
 
-MODES = ("uniform", "loss", "active")
+MODES = ("uniform", "loss", "active", "generative")
+if MODES != PROPOSALS:
+    raise ImportError(f"reservoir_config.PROPOSALS {PROPOSALS} and the proposal's modes {MODES} disagree")
 LATTICE_MOST = 1024  # most bump centres of the loss model; beyond them, per-axis quadratic terms
 UNIT_EDGE = 1e-7  # unit coordinates of a normal prior are kept this far inside (0, 1): its inverse CDF is finite
 
@@ -102,7 +105,7 @@ class ParamProposal:
     def __init__(self, domains: dict, mode: str = "loss", floor: float = 0.25, window: int = 2048,
                  bandwidth: float = 0.05, power: float = 1.0, seed: int = 0, ensemble: int = 5, kappa: float = 1.0,
                  refit: int = 256, candidates: int = 2048, gate: bool = True, skill_window: int = 256,
-                 skill_min: int = 32, skill_full: float = 0.5, latent_prior: tuple | None = None):
+                 skill_min: int = 32, skill_full: float = 0.5, latent_prior: tuple | None = None, top: float = 0.25):
         if mode not in MODES:
             raise ValueError(f"proposal={mode!r} not allowed; allowed: {', '.join(MODES)}")
         if not (isinstance(floor, (int, float)) and 0 < floor <= 1):
@@ -118,6 +121,9 @@ class ParamProposal:
                              "signal is the disagreement of its members)")
         if not (isinstance(kappa, (int, float)) and 0 <= kappa <= 100):
             raise ValueError(f"proposal kappa={kappa!r} not allowed; must be in [0, 100] (weight of the ensemble spread)")
+        if not (isinstance(top, (int, float)) and 0 < top < 1):
+            raise ValueError(f"proposal top={top!r} not allowed; must be in (0, 1) (the share of fresh solves that "
+                             "counts as high difficulty)")
         if not isinstance(gate, bool):
             raise ValueError(f"proposal gate={gate!r} not allowed; must be True or False")
         if not (isinstance(skill_full, (int, float)) and 0 < skill_full <= 1):
@@ -130,7 +136,7 @@ class ParamProposal:
         self.mode, self.floor, self.window, self.bandwidth, self.power = mode, float(floor), window, float(bandwidth), float(power)
         self.ensemble, self.kappa, self.refit, self.candidates = ensemble, float(kappa), refit, candidates
         self.gate, self.skill_window, self.skill_min, self.skill_full = gate, skill_window, skill_min, float(skill_full)
-        self.seed = seed
+        self.seed, self.top = seed, float(top)
         self.names = list(domains)  # every PDE parameter, PARAMS order (the columns of batch["params"])
         self.domains = {k: tuple(v) for k, v in domains.items()}
         self.random = [k for k, (kind, *_rest) in self.domains.items() if kind != "fixed"]
@@ -157,6 +163,11 @@ class ParamProposal:
         self._pool = None
         # the skill gate: out-of-sample (predicted, realized) log-losses of fresh solves, the last skill_window
         self.skill_pred, self.skill_real = np.zeros(0), np.zeros(0)
+        # "generative": the fresh solves it learns from (unit points [G, D], losses [G], the report count when each came
+        # in [G], log prior / proposal density at each [G]) and its model (mean [D], log std [D] in normal scores)
+        self.g_points, self.g_losses = np.zeros((0, self.dims)), np.zeros(0)
+        self.g_at, self.g_logiw = np.zeros(0), np.zeros(0)
+        self._gen = None
 
     # --- unit box <-> parameter values -------------------------------------------------------------
     def to_unit(self, values: np.ndarray, latent: np.ndarray | None = None) -> np.ndarray:
@@ -236,11 +247,34 @@ class ParamProposal:
         unit = self.to_unit(params[ok], None if latent is None else latent[ok])
         if self.mode != "uniform" and fresh[ok].any():
             self._score(unit[fresh[ok]], losses[ok][fresh[ok]])
+        if self.mode == "generative" and fresh[ok].any():
+            # first-draw losses only: the loss of a solve the model has not trained on is the difficulty the
+            # proposal is asked to find (a replayed sample's loss falls as the model learns it)
+            new = unit[fresh[ok]]
+            self.g_points = np.concatenate([self.g_points, new])[-self.window :]
+            self.g_losses = np.concatenate([self.g_losses, losses[ok][fresh[ok]]])[-self.window :]
+            self.g_at = np.concatenate([self.g_at, np.full(len(new), float(self.reports))])[-self.window :]
+            self.g_logiw = np.concatenate([self.g_logiw, self._log_iw(new)])[-self.window :]
         self.points = np.concatenate([self.points, unit])[-self.window :]
         self.losses = np.concatenate([self.losses, losses[ok]])[-self.window :]
         self.reports += int(ok.sum())
         if self.mode == "active" and self.reports - self._fit_at >= self.refit:
             self._start_fit()
+        elif self.mode == "generative" and self.reports - self._fit_at >= self.refit:
+            # milliseconds (moments of at most ``window`` points): in the loop, no thread
+            self._gen = generative_fit(normal_scores(self.g_points), self.g_losses, self.g_at, self.g_logiw, self.top)
+            self.fits += 1
+            self._fit_at = self.reports
+
+    def _log_iw(self, z: np.ndarray) -> np.ndarray:
+        """log(prior density / proposal density) at unit points z [N, D] under the proposal in use now: the
+        importance weights that let the generative fit target the prior's own high-difficulty region, not where
+        earlier proposals went. The proposal is (1 - steer) prior + steer model, so the weight is at most
+        1 / (1 - steer) <= 1 / floor (defensive importance sampling: the floor bounds the weights)."""
+        if self._gen is None or self.steer == 0.0:
+            return np.zeros(len(z))
+        llr = log_ratio(normal_scores(z), *self._gen)
+        return -np.logaddexp(math.log1p(-self.steer), math.log(self.steer) + llr)
 
     def _start_fit(self) -> None:
         """Refit point: the fit started at the previous refit goes into use (waiting for it only if it has not
@@ -270,11 +304,15 @@ class ParamProposal:
 
     def predict(self, z: np.ndarray) -> np.ndarray | None:
         """The loss model's predicted log-loss at unit points z [N, D], or None without one: "active", the mean
-        of the ensemble fit in use; "loss", the kernel average (width ``bandwidth``) of the recorded log-losses."""
+        of the ensemble fit in use; "loss", the kernel average (width ``bandwidth``) of the recorded log-losses;
+        "generative", a score that rises with it, the model's log density ratio to the prior (Bayes: the log odds of
+        high difficulty, up to a constant; the gate's correlation asks no more)."""
         if self.mode == "active":
             if self._fit is None or len(self._fit) < 3:  # no fit yet (or one restored from before the gate)
                 return None
             return features(self.model_coords(z), lattice(z.shape[1])) @ self._fit[2]
+        if self.mode == "generative":
+            return None if self._gen is None else log_ratio(normal_scores(z), *self._gen)
         if self.mode == "loss" and len(self.losses):
             positive = self.losses[self.losses > 0]
             y = np.log(np.maximum(self.losses, positive.min() if len(positive) else 1e-30))
@@ -316,30 +354,46 @@ class ParamProposal:
         """Explicit values {name: float64 [n]} for the next n solves; None in "uniform" mode (key draws)."""
         if self.mode == "uniform" or not self.dims:
             return None
-        d = self.dims
-        z = self.rng.random((n, d))  # the uniform part
+        z = self.rng.random((n, self.dims))  # the uniform part
         steer = self.rng.random(n) >= 1.0 - self.steer  # ungated (steer = 1 - floor): the draws of before the gate
+        if steer.any():
+            moved = self.steered(int(steer.sum()), self.rng)
+            if moved is not None:
+                z[steer] = moved
+        self.proposed.extend(z.tolist())
+        return self.from_unit(z)
+
+    def steered(self, n: int, rng: np.random.Generator) -> np.ndarray | None:
+        """n draws of the steered part alone (no uniform floor, no gate), unit points [n, D] inside the box, drawn
+        with ``rng``; None while there is nothing to steer by (no fit, no loss yet)."""
+        d = self.dims
         if self.mode == "active":
-            if steer.any() and self._fit is not None:
-                cand, prob = self._fit[:2]
-                pick = self.rng.choice(len(prob), size=int(steer.sum()), p=prob)
-                # about one candidate spacing: the density is continuous, yet as sharp as the candidates resolve
-                # (beyond 4 dimensions, a 4-D set's spacing: a high-dimensional spacing would undo the steering)
-                width = 0.5 * len(prob) ** (-1.0 / min(d, 4))
-                moved = np.abs(cand[pick] + width * self.rng.standard_normal((len(pick), d)))
-                z[steer] = np.clip(1.0 - np.abs(1.0 - moved), 0.0, 1.0)
-        elif steer.any() and len(self.losses):
+            if self._fit is None:
+                return None
+            cand, prob = self._fit[:2]
+            pick = rng.choice(len(prob), size=n, p=prob)
+            # about one candidate spacing: the density is continuous, yet as sharp as the candidates resolve
+            # (beyond 4 dimensions, a 4-D set's spacing: a high-dimensional spacing would undo the steering)
+            width = 0.5 * len(prob) ** (-1.0 / min(d, 4))
+            moved = np.abs(cand[pick] + width * rng.standard_normal((len(pick), d)))
+            return np.clip(1.0 - np.abs(1.0 - moved), 0.0, 1.0)
+        if self.mode == "generative":
+            if self._gen is None:
+                return None
+            mean, log_sd = self._gen
+            # normal scores -> unit coordinates: ndtr maps every real onto (0, 1), the prior's support by construction
+            return np.clip(ndtr(mean + np.exp(log_sd) * rng.standard_normal((n, d))), UNIT_EDGE, 1 - UNIT_EDGE)
+        if self.mode == "loss" and len(self.losses):
             # The recorded points were drawn from earlier proposals, so they crowd where the loss was high; weighting
             # them by loss alone would compound that (loss x crowding) and pile every solve into one corner. Divide
             # by the points' own kernel density so that the steered draws follow the loss, not the crowding.
             w = self._weights()
-            pick = self.rng.choice(len(w), size=int(steer.sum()), p=w)
-            moved = self.points[pick] + self.bandwidth * self.rng.standard_normal((len(pick), d))
+            pick = rng.choice(len(w), size=n, p=w)
+            moved = self.points[pick] + self.bandwidth * rng.standard_normal((len(pick), d))
             moved = np.abs(moved)  # reflect at 0 ...
             moved = 1.0 - np.abs(1.0 - moved)  # ... and at 1
-            z[steer] = np.clip(moved, 0.0, 1.0)
-        self.proposed.extend(z.tolist())
-        return self.from_unit(z)
+            return np.clip(moved, 0.0, 1.0)
+        return None
 
     def _weights(self) -> np.ndarray:
         """Pick probabilities of the recorded points [W]; recomputed once ``window // 2`` new losses have come
@@ -378,7 +432,10 @@ class ParamProposal:
                 "weights": None if self._w is None else self._w.tolist(), "weights_at": self._w_at,
                 "fit": _fit_plain(self._fit), "next_fit": _fit_plain(None if self._next is None else self._next.result()),
                 "fits": self.fits, "fit_at": self._fit_at, "skill_pred": self.skill_pred.tolist(),
-                "skill_real": self.skill_real.tolist()}
+                "skill_real": self.skill_real.tolist(), "top": self.top,
+                "generative": {"points": self.g_points.tolist(), "losses": self.g_losses.tolist(),
+                               "at": self.g_at.tolist(), "log_iw": self.g_logiw.tolist(),
+                               "model": None if self._gen is None else [x.tolist() for x in self._gen]}}
 
     def load_state_dict(self, state: dict) -> None:
         """Restore ``state_dict()`` output (the same domains and mode are required)."""
@@ -405,6 +462,13 @@ class ParamProposal:
         # states saved before the gate have no pairs: the gate starts closed and opens on measured skill
         self.skill_pred = np.asarray(state.get("skill_pred", []), np.float64)
         self.skill_real = np.asarray(state.get("skill_real", []), np.float64)
+        gen = state.get("generative") or {}  # (states saved before the generative mode: none)
+        self.g_points = np.asarray(gen.get("points", []), np.float64).reshape(-1, self.dims)
+        self.g_losses = np.asarray(gen.get("losses", []), np.float64)
+        self.g_at = np.asarray(gen.get("at", []), np.float64)
+        self.g_logiw = np.asarray(gen.get("log_iw", []), np.float64)
+        model = gen.get("model")
+        self._gen = None if model is None else tuple(np.asarray(x, np.float64) for x in model)
 
     def __getstate__(self):
         # copy.deepcopy / pickle: the background fit is resolved into its result, the thread pool is not copied
@@ -522,6 +586,52 @@ def active_fit(points: np.ndarray, losses: np.ndarray, candidates: int, ensemble
     score = power * (mean + kappa * spread)
     w = np.exp(score - score.max())
     return cand, w / w.sum(), coef
+
+
+def normal_scores(z: np.ndarray) -> np.ndarray:
+    """Unit points [N, D] -> their normal scores ndtri(z) [N, D]: the prior (uniform on the box) becomes N(0, I), and a
+    normal latent coordinate becomes the latent in standard deviations."""
+    return ndtri(np.clip(z, UNIT_EDGE, 1 - UNIT_EDGE))
+
+
+def log_ratio(w: np.ndarray, mean: np.ndarray, log_sd: np.ndarray) -> np.ndarray:
+    """log N(w; mean, diag(exp(2 log_sd))) - log N(w; 0, I) at normal scores w [N, D] -> [N]."""
+    sd = np.exp(log_sd)
+    return (-0.5 * ((w - mean) / sd) ** 2 - log_sd + 0.5 * w**2).sum(1)
+
+
+def generative_fit(w: np.ndarray, losses: np.ndarray, at: np.ndarray, log_iw: np.ndarray, top: float,
+                   least: int = 8) -> tuple[np.ndarray, np.ndarray] | None:
+    """The generative proposal's model of the high-difficulty solves, or None with fewer than ``least`` of them.
+
+    w: normal scores of fresh solves [G, D]; losses [G] (first-draw losses); at [G]: when each came in (reports);
+    log_iw [G]: log prior / proposal density at each. Difficulty is the log-loss less its linear trend in ``at`` (the
+    loss level falls as the model trains: an old solve is not harder for having been scored by a worse model). The
+    high-difficulty set is the top ``top`` share of the solves by difficulty, counted in importance weight (so of the
+    prior, not of where earlier proposals went); its weighted per-coordinate mean and log variance, soft-thresholded
+    toward the prior's (0 and 0) by the universal threshold max(2, sqrt(2 ln 2D)) null standard errors (1 / sqrt(n)
+    and sqrt(2 / (n - 1)), n the set's effective size), are the model: (mean [D], log std [D]). Where the set's
+    moments do not differ from the prior's beyond noise, the model is the prior there."""
+    positive = losses[losses > 0]
+    if len(positive) < least:
+        return None
+    y = np.log(np.maximum(losses, positive.min()))
+    t = at - at.mean()
+    slope = float(t @ (y - y.mean()) / (t @ t)) if t @ t > 0 else 0.0
+    hard = y - slope * t
+    iw = np.exp(log_iw - log_iw.max())
+    order = np.argsort(-hard, kind="stable")
+    keep = order[np.cumsum(iw[order]) - iw[order] < top * iw.sum()]  # the top share by weight
+    if len(keep) < least:
+        return None
+    v = iw[keep] / iw[keep].sum()
+    n = 1.0 / float(v @ v)  # effective size
+    mean = v @ w[keep]
+    log_var = np.log(np.maximum(v @ (w[keep] - mean) ** 2 * n / max(n - 1.0, 1.0), 1e-12))
+    cut = max(2.0, math.sqrt(2.0 * math.log(2.0 * w.shape[1])))
+    mean = np.sign(mean) * np.maximum(np.abs(mean) - cut / math.sqrt(n), 0.0)
+    log_var = np.sign(log_var) * np.maximum(np.abs(log_var) - cut * math.sqrt(2.0 / max(n - 1.0, 1.0)), 0.0)
+    return mean, 0.5 * np.clip(log_var, -2 * math.log(5.0), 2 * math.log(3.0))  # std in [1/5, 3] of the prior's
 
 
 def correlation(a: np.ndarray, b: np.ndarray) -> float:

@@ -163,7 +163,7 @@ class ReservoirStream(IterableDataset):
         if space == "params":
             return None
         if proposal == "uniform":
-            raise ValueError("proposal space='params+ic' goes with proposal 'loss' or 'active' (a uniform proposal "
+            raise ValueError("proposal space='params+ic' goes with proposal 'loss', 'active' or 'generative' (a uniform proposal "
                              "steers nothing)")
         if not _bridge.latent_size(self.pde):
             raise ValueError(f"proposal space='params+ic' not allowed on {self.pde.NAME}: its ic "

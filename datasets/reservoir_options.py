@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 
 from .reservoir_config import DEFAULTS as R
-from .reservoir_config import DRAWS, EVICTIONS, MODES, PROPOSAL_SPACES
+from .reservoir_config import DRAWS, EVICTIONS, MODES, PROPOSAL_SPACES, PROPOSALS
 
 
 def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
@@ -61,9 +61,10 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                    help="who solves: a background thread, spawned processes, or a Dask cluster")
     g.add_argument("--workers", type=int, default=R.workers, help="solver processes (--producer process, or an embedded Dask cluster)")
     g.add_argument("--scheduler", metavar="ADDRESS", help="--producer dask: a running scheduler, e.g. tcp://host:8786")
-    g.add_argument("--proposal", choices=("uniform", "loss", "active"), default=R.proposal,
+    g.add_argument("--proposal", choices=PROPOSALS, default=R.proposal,
                    help="parameters of the next solves: the domain's own draws, steered toward high training loss, "
-                        "or active (a loss model + its ensemble's disagreement over the parameter box)")
+                        "active (a loss model + its ensemble's disagreement over the parameter box) or generative "
+                        "(a Gaussian model of the high-difficulty fresh solves, drawn from)")
     g.add_argument("--on-blowup", choices=("raise", "redraw", "skip"), default=R.on_blowup,
                    help="a failed solve (NaN/Inf; an external solver's error, timeout, crash, wrong shape) stops "
                         "the run (raise), is redrawn (redraw) or left out with one warning line (skip)")
