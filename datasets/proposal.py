@@ -23,15 +23,39 @@ In ``"active"`` mode the loss signal is kept and an uncertainty signal added, bo
   its density follows the acquisition and can hold a sharp mode at one end of a parameter; with probability
   ``floor`` a uniform draw instead (no region starves).
 
-The fit runs in a background thread, off the training loop: it starts in ``record`` on a snapshot of the
+In ``"generative"`` mode (OGAS's idea, a conditional generative model of the inputs given difficulty, at its
+smallest) the proposal learns p(x | high difficulty) from the fresh solves and draws from it:
+
+- **coordinates**: every unit coordinate as its normal score ndtri(z) (``normal_scores``): the prior becomes N(0, I)
+  and a normal IC latent coordinate is the latent in standard deviations; a draw maps back by ndtr, which sends every
+  real number into (0, 1), so no draw leaves the prior's support;
+- **data**: the first-draw losses only (``fresh``: a solve the model has not trained on, the difficulty asked for; a
+  replayed sample's loss falls as the model learns it), the last ``window`` of them; difficulty = log-loss less its
+  linear trend over the run (an old solve is not harder for having been scored by a worse model);
+- **model** (``generative_fit``, every ``refit`` reported losses, milliseconds, in the loop): the top ``top`` share
+  (25%) of the solves by difficulty, each weighted by prior / proposal density at it (recorded when it came in), so
+  the model is of the *prior's* high-difficulty region, not of where earlier proposals went (the floor bounds the
+  weights by 1 / floor); a diagonal Gaussian of that set, its per-coordinate mean and log variance soft-thresholded
+  toward the prior's by the universal threshold (sqrt(2 ln 2D) null standard errors): a coordinate departs from the
+  prior only where the set's moments do beyond noise, so in 171 dimensions with 64 hard solves the noise coordinates
+  stay the prior. Why a diagonal Gaussian, not a flow or a mixture: 256 solves give a few dozen hard ones, which
+  fix D means and variances but not a D x D covariance or a flow's weights, and a variance per coordinate is what
+  an energy-driven difficulty (a mode's amplitude, either sign) needs; no library, a few dozen lines of numpy;
+- **its predictor** for the skill gate: the log density ratio of the model to the prior at a point (by Bayes, the
+  log odds that the point is of high difficulty, up to a constant).
+
+Breed-style importance sampling (Melissa's Breed: resample past inputs by their loss, perturb them, keep a uniform
+share) is the ``"loss"`` mode above.
+
+The "active" fit runs in a background thread, off the training loop: it starts in ``record`` on a snapshot of the
 window and is used from the next refit on (one refit interval later, ``refit`` losses), by which time it is
 done, so the loop does not wait for it. Which fit a proposal uses is therefore fixed by the count of losses
 reported, not by timing: the proposals stay a pure function of (seed, losses, call order).
 
 **The skill gate (never do harm).** A steered draw only helps if the loss model can tell where the loss will be
 high; on a problem whose error lives in the initial condition, not in the parameters, it cannot, and steering
-then only thins the draws elsewhere. So in "loss" and "active" mode the proposal measures its own skill on
-fresh solves and moves its weight between the steered and the uniform draw by it:
+then only thins the draws elsewhere. So in every steered mode the proposal measures its own skill on
+fresh solves and moves its weight between the steered and the uniform draw by it (in "generative" mode too):
 
 - **skill pairs**: when ``record`` gets the loss of a sample trained on for the first time (``fresh``; the
   reservoir marks a trajectory's first draw), the proposal's loss model predicts the log-loss at its parameters
@@ -92,14 +116,15 @@ class ParamProposal:
 
     domains: {name: (kind, low, high, options)} for every PDE parameter in PARAMS order (``_bridge.param_domains``);
     "fixed" ones are left to the solver. mode: "uniform" (propose() returns None: the solver draws from the
-    key as usual), "loss" or "active" (the module docstring). floor: share of uniform draws in "loss" and
+    key as usual), "loss", "active" or "generative" (the module docstring). floor: share of uniform draws in "loss" and
     "active" mode, in (0, 1]. window: recent losses kept. "active" only: ensemble (>= 2) bootstrap loss models,
     kappa (>= 0) the weight of their spread against their mean (log-loss units), refit: losses between fits,
     candidates: uniform points of the box the proposal resamples. The skill gate ("loss" and "active", the module
     docstring): gate (False: always steer 1 - floor), skill_window: fresh (prediction, loss) pairs kept,
     skill_min: pairs before any steering, skill_full: the skill at which the steered share is 1 - floor.
     latent_prior: None, or the IC latent's law ("normal" | "uniform", a [L], b [L]) (``LatentIC.latent_prior``):
-    the proposals then draw (parameters, latent) jointly (the module docstring).
+    the proposals then draw (parameters, latent) jointly (the module docstring). "generative" only: top, the share of
+    the fresh solves (by importance weight) its model is of; refit, the losses between fits.
     """
 
     def __init__(self, domains: dict, mode: str = "loss", floor: float = 0.25, window: int = 2048,
@@ -408,7 +433,9 @@ class ParamProposal:
         against an evenly spaced subset of at most 128 of them (O(128 W D): a few ms)."""
         ref = self.points[:: max(1, len(self.points) // 128)]
         diff = self.points[:, None, :] - ref[None, :, :]  # [W, R, D]
-        return np.exp(-0.5 * (diff**2).sum(-1) / self.bandwidth**2).mean(1)
+        # every point counts itself (1 / R, as if it were in the subset): in many dimensions (an IC latent) a point
+        # outside the subset has no neighbour within the kernel's reach, and a density of 0 made its weight NaN
+        return np.maximum(np.exp(-0.5 * (diff**2).sum(-1) / self.bandwidth**2).mean(1), 1.0 / len(ref))
 
     def density(self, bins: int = 20) -> dict:
         """For plots and reports, along the first random parameter: bin edges (unit box), proposal counts

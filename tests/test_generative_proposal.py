@@ -75,3 +75,15 @@ def test_the_fit_targets_the_prior_not_where_earlier_draws_went():
     mean, _ = generative_fit(w, np.exp(w[:, 0]), np.zeros(800), log_iw, 0.25)
     plain, _ = generative_fit(w, np.exp(w[:, 0]), np.zeros(800), np.zeros(800), 0.25)
     assert 1.0 < mean[0] < 1.6 < plain[0], (mean, plain)
+
+
+def test_the_loss_proposal_over_a_long_latent_draws_no_nan():
+    # Breed-style resampling over 171 coordinates: no recorded point has a neighbour within the kernel's reach, and
+    # the crowding of one outside the reference subset was 0 (its pick weight NaN: a crash in the reservoir's loop)
+    prior = generator.get_pde("burgers1d").latent_prior()
+    p = ParamProposal({"nu": ("loguniform", 0.01, 0.1, ())}, mode="loss", seed=0, latent_prior=prior, gate=False)
+    for _ in range(8):
+        d = p.propose(64)
+        p.record(np.c_[d["nu"]], np.exp(d[LATENT][:, 0] / prior[2][0]), latent=d[LATENT])
+    hard = p.from_unit(p.steered(2000, np.random.default_rng(0)))
+    assert np.isfinite(hard[LATENT]).all() and np.mean(hard[LATENT][:, 0]) > 0.3 * prior[2][0]
