@@ -30,8 +30,9 @@ smallest) the proposal learns p(x | high difficulty) from the fresh solves and d
   and a normal IC latent coordinate is the latent in standard deviations; a draw maps back by ndtr, which sends every
   real number into (0, 1), so no draw leaves the prior's support;
 - **data**: the first-draw losses only (``fresh``: a solve the model has not trained on, the difficulty asked for; a
-  replayed sample's loss falls as the model learns it), the last ``window`` of them; difficulty = log-loss less its
-  linear trend over the run (an old solve is not harder for having been scored by a worse model);
+  replayed sample's loss falls as the model learns it), the last ``window`` of them; difficulty = log-loss less the
+  running median of the 33 solves nearest in time (an early solve is not harder for having been scored by a worse
+  model);
 - **model** (``generative_fit``, every ``refit`` reported losses, milliseconds, in the loop): the top ``top`` share
   (25%) of the solves by difficulty, each weighted by prior / proposal density at it (recorded when it came in), so
   the model is of the *prior's* high-difficulty region, not of where earlier proposals went (the floor bounds the
@@ -627,13 +628,31 @@ def log_ratio(w: np.ndarray, mean: np.ndarray, log_sd: np.ndarray) -> np.ndarray
     return (-0.5 * ((w - mean) / sd) ** 2 - log_sd + 0.5 * w**2).sum(1)
 
 
+def running_median(y: np.ndarray, at: np.ndarray, span: int) -> np.ndarray:
+    """The median of y [G] over the ``span`` values nearest in ``at`` [G] order (centred, shorter at the ends): the
+    level a value is compared with when the level drifts (a first-draw loss falls as the model trains, fast at first:
+    no line fits it)."""
+    order = np.argsort(at, kind="stable")
+    ys = y[order]
+    half, n = span // 2, len(ys)
+    ends = [i for i in range(n) if i < half or i + half >= n]
+    level = np.empty(n)
+    level[ends] = [np.median(ys[max(0, i - half): i + half + 1]) for i in ends]
+    if n > 2 * half:
+        level[half: n - half] = np.median(np.lib.stride_tricks.sliding_window_view(ys, 2 * half + 1), axis=1)
+    out = np.empty_like(y)
+    out[order] = level
+    return out
+
+
 def generative_fit(w: np.ndarray, losses: np.ndarray, at: np.ndarray, log_iw: np.ndarray, top: float,
-                   least: int = 8) -> tuple[np.ndarray, np.ndarray] | None:
+                   least: int = 8, span: int = 33) -> tuple[np.ndarray, np.ndarray] | None:
     """The generative proposal's model of the high-difficulty solves, or None with fewer than ``least`` of them.
 
     w: normal scores of fresh solves [G, D]; losses [G] (first-draw losses); at [G]: when each came in (reports);
-    log_iw [G]: log prior / proposal density at each. Difficulty is the log-loss less its linear trend in ``at`` (the
-    loss level falls as the model trains: an old solve is not harder for having been scored by a worse model). The
+    log_iw [G]: log prior / proposal density at each. Difficulty is the log-loss less the running median of the
+    ``span`` solves nearest in time (the loss level falls as the model trains: an early solve is not harder for having
+    been scored by a worse model). The
     high-difficulty set is the top ``top`` share of the solves by difficulty, counted in importance weight (so of the
     prior, not of where earlier proposals went); its weighted per-coordinate mean and log variance, soft-thresholded
     toward the prior's (0 and 0) by the universal threshold max(2, sqrt(2 ln 2D)) null standard errors (1 / sqrt(n)
@@ -643,9 +662,7 @@ def generative_fit(w: np.ndarray, losses: np.ndarray, at: np.ndarray, log_iw: np
     if len(positive) < least:
         return None
     y = np.log(np.maximum(losses, positive.min()))
-    t = at - at.mean()
-    slope = float(t @ (y - y.mean()) / (t @ t)) if t @ t > 0 else 0.0
-    hard = y - slope * t
+    hard = y - running_median(y, at, span)
     iw = np.exp(log_iw - log_iw.max())
     order = np.argsort(-hard, kind="stable")
     keep = order[np.cumsum(iw[order]) - iw[order] < top * iw.sum()]  # the top share by weight

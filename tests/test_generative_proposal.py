@@ -72,8 +72,9 @@ def test_the_fit_targets_the_prior_not_where_earlier_draws_went():
     rng = np.random.default_rng(0)
     w = np.r_[rng.standard_normal((400, 1)), 2 + 0.1 * rng.standard_normal((400, 1))]
     log_iw = np.r_[np.zeros(400), np.full(400, np.log(0.1))]
-    mean, _ = generative_fit(w, np.exp(w[:, 0]), np.zeros(800), log_iw, 0.25)
-    plain, _ = generative_fit(w, np.exp(w[:, 0]), np.zeros(800), np.zeros(800), 0.25)
+    at = rng.permutation(800).astype(float)  # the two kinds of solves interleaved in time
+    mean, _ = generative_fit(w, np.exp(w[:, 0]), at, log_iw, 0.25)
+    plain, _ = generative_fit(w, np.exp(w[:, 0]), at, np.zeros(800), 0.25)
     assert 1.0 < mean[0] < 1.6 < plain[0], (mean, plain)
 
 
