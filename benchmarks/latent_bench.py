@@ -125,7 +125,11 @@ def main(argv=None) -> None:
             uniform[space] = solve_set(pde, draws(prop, args.draws, False, np.random.default_rng([args.seed, 6, len(uniform)])))
         own = errors(model, norm, view, uniform[space])
         lo, hi = ratio_interval(hard, own, np.random.default_rng([args.seed, 7]))
-        print(f"{proposal} over {space}: {summary['steps']} steps; skill {prop.skill:.3f}, steered share "
+        moved = ""
+        if getattr(prop, "_gen", None) is not None:  # the generative model: which coordinates left the prior
+            mean, log_sd = prop._gen
+            moved = f" (its model moved {int(((mean != 0) | (log_sd != 0)).sum())} of {prop.dims} coordinates)"
+        print(f"{proposal} over {space}: {summary['steps']} steps; skill {prop.skill:.3f}{moved}, steered share "
               f"{prop.steer:.2f}; fresh high-difficulty draws {describe(hard)}; uniform draws {describe(own)}; "
               f"ratio of means {hard.mean() / own.mean():.2f} [{lo:.2f}, {hi:.2f}] (95% bootstrap); "
               f"{time.perf_counter() - t0:.0f} s to train and score", flush=True)
