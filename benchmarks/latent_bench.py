@@ -126,9 +126,9 @@ def main(argv=None) -> None:
         own = errors(model, norm, view, uniform[space])
         lo, hi = ratio_interval(hard, own, np.random.default_rng([args.seed, 7]))
         moved = ""
-        if getattr(prop, "_gen", None) is not None:  # the generative model: which coordinates left the prior
-            mean, log_sd = prop._gen
-            moved = f" (its model moved {int(((mean != 0) | (log_sd != 0)).sum())} of {prop.dims} coordinates)"
+        if getattr(prop, "_gen", None) is not None:  # the generative model: its hard solves' effective count
+            v = np.exp(prop._gen[1])
+            moved = f" (its model: {len(v)} hard solves, effective {1 / (v @ v):.0f})"
         print(f"{proposal} over {space}: {summary['steps']} steps; skill {prop.skill:.3f}{moved}, steered share "
               f"{prop.steer:.2f}; fresh high-difficulty draws {describe(hard)}; uniform draws {describe(own)}; "
               f"ratio of means {hard.mean() / own.mean():.2f} [{lo:.2f}, {hi:.2f}] (95% bootstrap); "

@@ -125,13 +125,15 @@ class ParamProposal:
     skill_min: pairs before any steering, skill_full: the skill at which the steered share is 1 - floor.
     latent_prior: None, or the IC latent's law ("normal" | "uniform", a [L], b [L]) (``LatentIC.latent_prior``):
     the proposals then draw (parameters, latent) jointly (the module docstring). "generative" only: top, the share of
-    the fresh solves (by importance weight) its model is of; refit, the losses between fits.
+    the fresh solves (by importance weight) its model is of; step, its move in prior standard deviations; refit, the
+    losses between fits.
     """
 
     def __init__(self, domains: dict, mode: str = "loss", floor: float = 0.25, window: int = 2048,
                  bandwidth: float = 0.05, power: float = 1.0, seed: int = 0, ensemble: int = 5, kappa: float = 1.0,
                  refit: int = 256, candidates: int = 2048, gate: bool = True, skill_window: int = 256,
-                 skill_min: int = 32, skill_full: float = 0.5, latent_prior: tuple | None = None, top: float = 0.25):
+                 skill_min: int = 32, skill_full: float = 0.5, latent_prior: tuple | None = None, top: float = 0.25,
+                 step: float = 0.25):
         if mode not in MODES:
             raise ValueError(f"proposal={mode!r} not allowed; allowed: {', '.join(MODES)}")
         if not (isinstance(floor, (int, float)) and 0 < floor <= 1):
@@ -150,6 +152,9 @@ class ParamProposal:
         if not (isinstance(top, (int, float)) and 0 < top < 1):
             raise ValueError(f"proposal top={top!r} not allowed; must be in (0, 1) (the share of fresh solves that "
                              "counts as high difficulty)")
+        if not (isinstance(step, (int, float)) and 0 < step <= 1):
+            raise ValueError(f"proposal step={step!r} not allowed; must be in (0, 1] (the generative proposal's move, "
+                             "in prior standard deviations)")
         if not isinstance(gate, bool):
             raise ValueError(f"proposal gate={gate!r} not allowed; must be True or False")
         if not (isinstance(skill_full, (int, float)) and 0 < skill_full <= 1):
@@ -162,7 +167,7 @@ class ParamProposal:
         self.mode, self.floor, self.window, self.bandwidth, self.power = mode, float(floor), window, float(bandwidth), float(power)
         self.ensemble, self.kappa, self.refit, self.candidates = ensemble, float(kappa), refit, candidates
         self.gate, self.skill_window, self.skill_min, self.skill_full = gate, skill_window, skill_min, float(skill_full)
-        self.seed, self.top = seed, float(top)
+        self.seed, self.top, self.step = seed, float(top), float(step)
         self.names = list(domains)  # every PDE parameter, PARAMS order (the columns of batch["params"])
         self.domains = {k: tuple(v) for k, v in domains.items()}
         self.random = [k for k, (kind, *_rest) in self.domains.items() if kind != "fixed"]
@@ -190,7 +195,8 @@ class ParamProposal:
         # the skill gate: out-of-sample (predicted, realized) log-losses of fresh solves, the last skill_window
         self.skill_pred, self.skill_real = np.zeros(0), np.zeros(0)
         # "generative": the fresh solves it learns from (unit points [G, D], losses [G], the report count when each came
-        # in [G], log prior / proposal density at each [G]) and its model (mean [D], log std [D] in normal scores)
+        # in [G], log prior / proposal density at each [G]) and its model (the hard solves' normal scores [K, D] and
+        # their log weights [K])
         self.g_points, self.g_losses = np.zeros((0, self.dims)), np.zeros(0)
         self.g_at, self.g_logiw = np.zeros(0), np.zeros(0)
         self._gen = None
@@ -287,7 +293,7 @@ class ParamProposal:
         if self.mode == "active" and self.reports - self._fit_at >= self.refit:
             self._start_fit()
         elif self.mode == "generative" and self.reports - self._fit_at >= self.refit:
-            # milliseconds (moments of at most ``window`` points): in the loop, no thread
+            # milliseconds (a sort and a running median of at most ``window`` losses): in the loop, no thread
             self._gen = generative_fit(normal_scores(self.g_points), self.g_losses, self.g_at, self.g_logiw, self.top)
             self.fits += 1
             self._fit_at = self.reports
@@ -299,7 +305,7 @@ class ParamProposal:
         1 / (1 - steer) <= 1 / floor (defensive importance sampling: the floor bounds the weights)."""
         if self._gen is None or self.steer == 0.0:
             return np.zeros(len(z))
-        llr = log_ratio(normal_scores(z), *self._gen)
+        llr = log_ratio(normal_scores(z), *self._gen[:2], self.step)
         return -np.logaddexp(math.log1p(-self.steer), math.log(self.steer) + llr)
 
     def _start_fit(self) -> None:
@@ -338,7 +344,11 @@ class ParamProposal:
                 return None
             return features(self.model_coords(z), lattice(z.shape[1])) @ self._fit[2]
         if self.mode == "generative":
-            return None if self._gen is None else log_ratio(normal_scores(z), *self._gen)
+            if self._gen is None:
+                return None
+            # the hard set's smooth summary (a diagonal Gaussian), not the kernel mixture drawn from: the mixture is
+            # local, ~0 at any uniform draw, and would keep the gate shut for want of a prediction
+            return gauss_ratio(normal_scores(z), *self._gen[2:])
         if self.mode == "loss" and len(self.losses):
             positive = self.losses[self.losses > 0]
             y = np.log(np.maximum(self.losses, positive.min() if len(positive) else 1e-30))
@@ -406,9 +416,12 @@ class ParamProposal:
         if self.mode == "generative":
             if self._gen is None:
                 return None
-            mean, log_sd = self._gen
+            centres, log_v = self._gen[:2]
+            pick = rng.choice(len(log_v), size=n, p=np.exp(log_v))
+            # a prior-preserving move (pCN): a draw of N(0, I) moved so stays one, whatever the step
+            w = math.sqrt(1.0 - self.step**2) * centres[pick] + self.step * rng.standard_normal((n, d))
             # normal scores -> unit coordinates: ndtr maps every real onto (0, 1), the prior's support by construction
-            return np.clip(ndtr(mean + np.exp(log_sd) * rng.standard_normal((n, d))), UNIT_EDGE, 1 - UNIT_EDGE)
+            return np.clip(ndtr(w), UNIT_EDGE, 1 - UNIT_EDGE)
         if self.mode == "loss" and len(self.losses):
             # The recorded points were drawn from earlier proposals, so they crowd where the loss was high; weighting
             # them by loss alone would compound that (loss x crowding) and pile every solve into one corner. Divide
@@ -622,10 +635,19 @@ def normal_scores(z: np.ndarray) -> np.ndarray:
     return ndtri(np.clip(z, UNIT_EDGE, 1 - UNIT_EDGE))
 
 
-def log_ratio(w: np.ndarray, mean: np.ndarray, log_sd: np.ndarray) -> np.ndarray:
+def gauss_ratio(w: np.ndarray, mean: np.ndarray, log_sd: np.ndarray) -> np.ndarray:
     """log N(w; mean, diag(exp(2 log_sd))) - log N(w; 0, I) at normal scores w [N, D] -> [N]."""
-    sd = np.exp(log_sd)
-    return (-0.5 * ((w - mean) / sd) ** 2 - log_sd + 0.5 * w**2).sum(1)
+    return (-0.5 * ((w - mean) / np.exp(log_sd)) ** 2 - log_sd + 0.5 * w**2).sum(1)
+
+
+def log_ratio(w: np.ndarray, centres: np.ndarray, log_v: np.ndarray, step: float) -> np.ndarray:
+    """log of the generative model's density over the prior's, at normal scores w [N, D] -> [N]: the model is the
+    mixture sum_k v_k N(sqrt(1 - step^2) c_k, step^2 I) over its centres c [K, D] (log weights log_v [K])."""
+    rho, d = math.sqrt(1.0 - step**2), w.shape[1]
+    d2 = (w**2).sum(1)[:, None] - 2 * rho * w @ centres.T + rho**2 * (centres**2).sum(1)[None]  # [N, K]
+    logk = log_v[None] - 0.5 * np.maximum(d2, 0.0) / step**2 - d * math.log(step)
+    peak = logk.max(1)
+    return peak + np.log(np.exp(logk - peak[:, None]).sum(1)) + 0.5 * (w**2).sum(1)
 
 
 def running_median(y: np.ndarray, at: np.ndarray, span: int) -> np.ndarray:
@@ -654,10 +676,11 @@ def generative_fit(w: np.ndarray, losses: np.ndarray, at: np.ndarray, log_iw: np
     ``span`` solves nearest in time (the loss level falls as the model trains: an early solve is not harder for having
     been scored by a worse model). The
     high-difficulty set is the top ``top`` share of the solves by difficulty, counted in importance weight (so of the
-    prior, not of where earlier proposals went); its weighted per-coordinate mean and log variance, soft-thresholded
-    toward the prior's (0 and 0) by the universal threshold max(2, sqrt(2 ln 2D)) null standard errors (1 / sqrt(n)
-    and sqrt(2 / (n - 1)), n the set's effective size), are the model: (mean [D], log std [D]). Where the set's
-    moments do not differ from the prior's beyond noise, the model is the prior there."""
+    prior, not of where earlier proposals went). The model: that set and its normalized weights (centres [K, D], log
+    weights [K]), drawn from as a kernel mixture (``ParamProposal.steered``); and its summary for the skill gate, the
+    weighted per-coordinate mean [D] and log std [D], soft-thresholded toward the prior's (0, 0) by the universal
+    threshold max(2, sqrt(2 ln 2D)) null standard errors (1 / sqrt(n), sqrt(2 / (n - 1)); n the set's effective
+    size), so that only coordinates whose moments differ from the prior's beyond noise count (``gauss_ratio``)."""
     positive = losses[losses > 0]
     if len(positive) < least:
         return None
@@ -675,7 +698,7 @@ def generative_fit(w: np.ndarray, losses: np.ndarray, at: np.ndarray, log_iw: np
     cut = max(2.0, math.sqrt(2.0 * math.log(2.0 * w.shape[1])))
     mean = np.sign(mean) * np.maximum(np.abs(mean) - cut / math.sqrt(n), 0.0)
     log_var = np.sign(log_var) * np.maximum(np.abs(log_var) - cut * math.sqrt(2.0 / max(n - 1.0, 1.0)), 0.0)
-    return mean, 0.5 * np.clip(log_var, -2 * math.log(5.0), 2 * math.log(3.0))  # std in [1/5, 3] of the prior's
+    return w[keep].copy(), np.log(v), mean, 0.5 * np.clip(log_var, -2 * math.log(5.0), 2 * math.log(3.0))
 
 
 def correlation(a: np.ndarray, b: np.ndarray) -> float:

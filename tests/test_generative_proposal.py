@@ -1,11 +1,11 @@
-"""The generative proposal (``ParamProposal(mode="generative")``): a Gaussian model of the high-difficulty fresh solves
+"""The generative proposal (``ParamProposal(mode="generative")``): a kernel model of the high-difficulty fresh solves
 in the prior's normal scores. Its draws stay inside the prior's support, go where the loss is high when the loss has
 structure, stay uniform when it has none (the skill gate), and a stream steered by it resumes exactly."""
 
 import numpy as np
 
 from pdestream import generator
-from pdestream.datasets.proposal import LATENT, ParamProposal, generative_fit
+from pdestream.datasets.proposal import LATENT, ParamProposal, generative_fit, normal_scores
 
 PDE = generator.get_pde("burgers1d", n=32, n_frames=4)
 DOMAINS = {"nu": ("loguniform", 0.01, 0.1, ()), "c": ("choice", 0.0, 0.0, (1.0, 2.0, 4.0)), "k": ("fixed", 1.0, 1.0, ())}
@@ -60,9 +60,18 @@ def test_with_no_structure_in_the_loss_the_draws_are_uniform():
     # gate shut: every draw is the uniform part (the same numbers a plain uniform draw of the box gives)
     expect = twin.random((2000, p.dims))
     assert np.allclose(z[:, 0], expect[:, 0]) and np.allclose(z[:, 2:], expect[:, 2:], atol=1e-6)
-    # and the model itself stays the prior where the losses say nothing: no coordinate moved beyond its threshold
-    mean, log_sd = p._gen
-    assert np.count_nonzero(mean) + np.count_nonzero(log_sd) <= 2
+
+
+def test_the_model_of_a_random_hard_set_draws_the_prior():
+    # the move is prior-preserving (pCN): centres drawn from the prior give draws of the prior (a plain Gaussian
+    # jitter of step 0.25 would widen every coordinate by 3%)
+    rng = np.random.default_rng(0)
+    w = rng.standard_normal((2000, 50))
+    p = ParamProposal({"x": ("uniform", 0.0, 1.0, ())}, mode="generative", seed=0,
+                      latent_prior=("normal", np.zeros(49), np.ones(49)))
+    p._gen = generative_fit(w, np.exp(rng.standard_normal(2000)), np.arange(2000.0), np.zeros(2000), 0.25)
+    drawn = normal_scores(p.steered(20000, rng))
+    assert abs(drawn.std() - 1) < 0.015 and abs(drawn.mean()) < 0.02, (drawn.std(), drawn.mean())
 
 
 def test_the_fit_targets_the_prior_not_where_earlier_draws_went():
@@ -73,9 +82,9 @@ def test_the_fit_targets_the_prior_not_where_earlier_draws_went():
     w = np.r_[rng.standard_normal((400, 1)), 2 + 0.1 * rng.standard_normal((400, 1))]
     log_iw = np.r_[np.zeros(400), np.full(400, np.log(0.1))]
     at = rng.permutation(800).astype(float)  # the two kinds of solves interleaved in time
-    mean, _ = generative_fit(w, np.exp(w[:, 0]), at, log_iw, 0.25)
-    plain, _ = generative_fit(w, np.exp(w[:, 0]), at, np.zeros(800), 0.25)
-    assert 1.0 < mean[0] < 1.6 < plain[0], (mean, plain)
+    mean, plain = (np.exp(v) @ c[:, 0] for c, v, *_ in (generative_fit(w, np.exp(w[:, 0]), at, iw, 0.25)
+                                                   for iw in (log_iw, np.zeros(800))))
+    assert 1.0 < mean < 1.6 < plain, (mean, plain)
 
 
 def test_the_loss_proposal_over_a_long_latent_draws_no_nan():
