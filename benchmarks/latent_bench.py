@@ -24,7 +24,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from pdestream import datasets, generator
-from pdestream.datasets.proposal import LATENT
+from pdestream.datasets.proposal import LATENT, correlation
 from pdestream.surrogate.evaluate import rollout_errors
 from pdestream.surrogate.fno import COMPARE_FNO
 from pdestream.surrogate.models import build_model
@@ -122,21 +122,26 @@ def main(argv=None) -> None:
                                                          args.seed, Path(tmp), args.floor, proposal)
         hard = errors(model, norm, view, solve_set(pde, draws(prop, args.draws, True, np.random.default_rng([args.seed, 5]))))
         if space not in uniform:  # the space's uniform set, solved once and scored by every model
-            uniform[space] = solve_set(pde, draws(prop, args.draws, False, np.random.default_rng([args.seed, 6, len(uniform)])))
-        own = errors(model, norm, view, uniform[space])
+            values = draws(prop, args.draws, False, np.random.default_rng([args.seed, 6, len(uniform)]))
+            unit = prop.to_unit(np.stack([values.get(k, np.ones(args.draws)) for k in pde.PARAMS], 1), values.get(LATENT))
+            uniform[space] = (solve_set(pde, values), unit)
+        own = errors(model, norm, view, uniform[space][0])
+        # the skill gate's predictor, offline: its correlation with the log error of the uniform draws' fresh solves
+        pred = prop.predict(uniform[space][1])
+        offline = "none" if pred is None else f"{correlation(pred, np.log(own)):.3f}"
         lo, hi = ratio_interval(hard, own, np.random.default_rng([args.seed, 7]))
         moved = ""
         if getattr(prop, "_gen", None) is not None:  # the generative model: its hard solves' effective count
             v = np.exp(prop._gen[1])
             moved = f" (its model: {len(v)} hard solves, effective {1 / (v @ v):.0f})"
         print(f"{proposal} over {space}: {summary['steps']} steps; skill {prop.skill:.3f}{moved}, steered share "
-              f"{prop.steer:.2f}; fresh high-difficulty draws {describe(hard)}; uniform draws {describe(own)}; "
+              f"{prop.steer:.2f}, predictor's correlation on the uniform draws {offline}; fresh high-difficulty draws {describe(hard)}; uniform draws {describe(own)}; "
               f"ratio of means {hard.mean() / own.mean():.2f} [{lo:.2f}, {hi:.2f}] (95% bootstrap); "
               f"{time.perf_counter() - t0:.0f} s to train and score", flush=True)
         models.append((f"{proposal} over {space}", model, norm, view))
     if len(uniform) > 1:  # every model on every space's uniform set: a model gap or a test-set gap?
         for name, model, norm, view in models:
-            print(f"{name} on " + "; ".join(f"the uniform draws of {s}: {describe(errors(model, norm, view, u))}"
+            print(f"{name} on " + "; ".join(f"the uniform draws of {s}: {describe(errors(model, norm, view, u[0]))}"
                                             for s, u in uniform.items()))
 
 if __name__ == "__main__":
