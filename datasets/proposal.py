@@ -63,7 +63,10 @@ fresh solves and moves its weight between the steered and the uniform draw by it
   *before* the loss joins the window (out of sample: the model never saw that solve) -- "active": the mean of the
   ensemble fit in use, "loss": a kernel (Nadaraya-Watson, width ``bandwidth``) average of the recent log-losses.
   The last ``skill_window`` (prediction, realized log-loss) pairs are kept.
-- **skill** = the correlation (Pearson) of those predicted and realized log-losses minus its null standard error,
+- **skill** = the correlation (Pearson) of those predicted and realized log-losses, each less its running median over
+  the ``LEVEL_SPAN`` (33) pairs nearest in arrival (the loss level falls as the model trains: a predictor that only
+  follows the level, such as the "loss" mode's kernel average far from every recorded point, would otherwise
+  correlate through it alone, with no idea where the loss is high), minus its null standard error,
   r - 2 / sqrt(n - 1) (a lower confidence bound: with no structure r scatters around 0 by about 1 / sqrt(n - 1),
   whatever the losses' distribution, and the bound keeps that scatter from opening the gate), floored at 0; no
   skill (0) until ``skill_min`` pairs exist. A correlation, not R^2: the loss level falls as the model trains and

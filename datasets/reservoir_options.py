@@ -28,12 +28,12 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                         "the run goes, from measured rates so that solving costs training at most 5%% of its steps "
                         "(datasets/reservoir_pacer.py); off: solve flat out (default: auto)")
     g.add_argument("--proposal-floor", type=float, default=0.25,
-                   help="loss-driven sampling: share of uniform parameter draws (no region starves)")
+                   help="steered sampling (loss, active, generative): share of uniform draws (no region starves)")
     g.add_argument("--proposal-gate", choices=("on", "off"), default="on",
-                   help="loss-driven and active sampling: steer only as far as the loss model's measured skill on "
+                   help="steered sampling (loss, active, generative): steer only as far as the loss model's measured skill on "
                         "fresh solves allows (no skill: uniform draws); off: always steer 1 - floor of the draws")
     g.add_argument("--proposal-space", default="params", metavar="params|params+ic",
-                   help="loss-driven and active sampling: what the proposal steers, the PDE parameters alone or "
+                   help="steered sampling (loss, active, generative): what the proposal steers, the PDE parameters alone or "
                         "jointly with the initial condition's latent coordinates (Fourier amplitudes and phases, a "
                         "GRF's leading white-noise modes, spot centres: generator.ics.LatentIC); default: params")
     g.add_argument("--proposal-ensemble", type=int, default=5, metavar="K",
@@ -148,7 +148,8 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
         raise ValueError(f"--reservoir goes with --source stream (got --source {args.source})")
     check_priority_options(args, args.draw == "priority", "--draw priority")
     check_proposal_options(args, args.proposal != "uniform", args.proposal == "active",
-                           "--proposal loss / active (--proposal-floor, --proposal-gate) or --proposal active (the others)")
+                           "--proposal loss / active / generative (--proposal-floor, --proposal-gate, --proposal-space) or "
+                           "--proposal active (the others)")
     cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,
            "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
            "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,
