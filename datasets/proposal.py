@@ -701,6 +701,8 @@ def generative_fit(w: np.ndarray, losses: np.ndarray, at: np.ndarray, log_iw: np
     iw = np.exp(log_iw - log_iw.max())
     order = np.argsort(-hard, kind="stable")
     keep = order[np.cumsum(iw[order]) - iw[order] < top * iw.sum()]  # the top share by weight
+    # a steered draw near a centre in many dimensions has weight ~e^-300: no centre (it would cost time, not move a draw)
+    keep = keep[iw[keep] > 1e-12 * iw[keep].max()]
     if len(keep) < least:
         return None
     v = iw[keep] / iw[keep].sum()
