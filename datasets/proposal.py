@@ -23,22 +23,50 @@ In ``"active"`` mode the loss signal is kept and an uncertainty signal added, bo
   its density follows the acquisition and can hold a sharp mode at one end of a parameter; with probability
   ``floor`` a uniform draw instead (no region starves).
 
-The fit runs in a background thread, off the training loop: it starts in ``record`` on a snapshot of the
+In ``"generative"`` mode (OGAS's idea, a conditional generative model of the inputs given difficulty, at its
+smallest) the proposal learns p(x | high difficulty) from the fresh solves and draws from it:
+
+- **coordinates**: every unit coordinate as its normal score ndtri(z) (``normal_scores``): the prior becomes N(0, I)
+  and a normal IC latent coordinate is the latent in standard deviations; a draw maps back by ndtr, which sends every
+  real number into (0, 1), so no draw leaves the prior's support;
+- **data**: the first-draw losses only (``fresh``: a solve the model has not trained on, the difficulty asked for; a
+  replayed sample's loss falls as the model learns it), the last ``window`` of them; difficulty = log-loss less the
+  running median of the 33 solves nearest in time (an early solve is not harder for having been scored by a worse
+  model);
+- **model** (``generative_fit``, every ``refit`` reported losses, milliseconds, in the loop): the top ``top`` share
+  (25%) of the solves by difficulty, each weighted by prior / proposal density at it (recorded when it came in), so
+  the model is of the *prior's* high-difficulty region, not of where earlier proposals went (the floor bounds the
+  weights by 1 / floor); a diagonal Gaussian of that set, its per-coordinate mean and log variance soft-thresholded
+  toward the prior's by the universal threshold (sqrt(2 ln 2D) null standard errors): a coordinate departs from the
+  prior only where the set's moments do beyond noise, so in 171 dimensions with 64 hard solves the noise coordinates
+  stay the prior. Why a diagonal Gaussian, not a flow or a mixture: 256 solves give a few dozen hard ones, which
+  fix D means and variances but not a D x D covariance or a flow's weights, and a variance per coordinate is what
+  an energy-driven difficulty (a mode's amplitude, either sign) needs; no library, a few dozen lines of numpy;
+- **its predictor** for the skill gate: the log density ratio of the model to the prior at a point (by Bayes, the
+  log odds that the point is of high difficulty, up to a constant).
+
+Breed-style importance sampling (Melissa's Breed: resample past inputs by their loss, perturb them, keep a uniform
+share) is the ``"loss"`` mode above.
+
+The "active" fit runs in a background thread, off the training loop: it starts in ``record`` on a snapshot of the
 window and is used from the next refit on (one refit interval later, ``refit`` losses), by which time it is
 done, so the loop does not wait for it. Which fit a proposal uses is therefore fixed by the count of losses
 reported, not by timing: the proposals stay a pure function of (seed, losses, call order).
 
 **The skill gate (never do harm).** A steered draw only helps if the loss model can tell where the loss will be
 high; on a problem whose error lives in the initial condition, not in the parameters, it cannot, and steering
-then only thins the draws elsewhere. So in "loss" and "active" mode the proposal measures its own skill on
-fresh solves and moves its weight between the steered and the uniform draw by it:
+then only thins the draws elsewhere. So in every steered mode the proposal measures its own skill on
+fresh solves and moves its weight between the steered and the uniform draw by it (in "generative" mode too):
 
 - **skill pairs**: when ``record`` gets the loss of a sample trained on for the first time (``fresh``; the
   reservoir marks a trajectory's first draw), the proposal's loss model predicts the log-loss at its parameters
   *before* the loss joins the window (out of sample: the model never saw that solve) -- "active": the mean of the
   ensemble fit in use, "loss": a kernel (Nadaraya-Watson, width ``bandwidth``) average of the recent log-losses.
   The last ``skill_window`` (prediction, realized log-loss) pairs are kept.
-- **skill** = the correlation (Pearson) of those predicted and realized log-losses minus its null standard error,
+- **skill** = the correlation (Pearson) of those predicted and realized log-losses, each less its running median over
+  the ``LEVEL_SPAN`` (33) pairs nearest in arrival (the loss level falls as the model trains: a predictor that only
+  follows the level, such as the "loss" mode's kernel average far from every recorded point, would otherwise
+  correlate through it alone, with no idea where the loss is high), minus its null standard error,
   r - 2 / sqrt(n - 1) (a lower confidence bound: with no structure r scatters around 0 by about 1 / sqrt(n - 1),
   whatever the losses' distribution, and the bound keeps that scatter from opening the gate), floored at 0; no
   skill (0) until ``skill_min`` pairs exist. A correlation, not R^2: the loss level falls as the model trains and
@@ -78,9 +106,13 @@ import numpy as np
 import torch
 
 from ._bridge import LATENT  # propose()'s key for the IC latents [n, L] (no parameter can be named so)
+from .reservoir_config import PROPOSALS
 
-MODES = ("uniform", "loss", "active")
+MODES = ("uniform", "loss", "active", "generative")
+if MODES != PROPOSALS:
+    raise ImportError(f"reservoir_config.PROPOSALS {PROPOSALS} and the proposal's modes {MODES} disagree")
 LATTICE_MOST = 1024  # most bump centres of the loss model; beyond them, per-axis quadratic terms
+LEVEL_SPAN = 33  # fresh solves whose median is the loss level at a time (the skill gate, the generative proposal)
 UNIT_EDGE = 1e-7  # unit coordinates of a normal prior are kept this far inside (0, 1): its inverse CDF is finite
 
 
@@ -89,20 +121,23 @@ class ParamProposal:
 
     domains: {name: (kind, low, high, options)} for every PDE parameter in PARAMS order (``_bridge.param_domains``);
     "fixed" ones are left to the solver. mode: "uniform" (propose() returns None: the solver draws from the
-    key as usual), "loss" or "active" (the module docstring). floor: share of uniform draws in "loss" and
+    key as usual), "loss", "active" or "generative" (the module docstring). floor: share of uniform draws in "loss" and
     "active" mode, in (0, 1]. window: recent losses kept. "active" only: ensemble (>= 2) bootstrap loss models,
     kappa (>= 0) the weight of their spread against their mean (log-loss units), refit: losses between fits,
     candidates: uniform points of the box the proposal resamples. The skill gate ("loss" and "active", the module
     docstring): gate (False: always steer 1 - floor), skill_window: fresh (prediction, loss) pairs kept,
     skill_min: pairs before any steering, skill_full: the skill at which the steered share is 1 - floor.
     latent_prior: None, or the IC latent's law ("normal" | "uniform", a [L], b [L]) (``LatentIC.latent_prior``):
-    the proposals then draw (parameters, latent) jointly (the module docstring).
+    the proposals then draw (parameters, latent) jointly (the module docstring). "generative" only: top, the share of
+    the fresh solves (by importance weight) its model is of; step, its move in prior standard deviations; refit, the
+    losses between fits.
     """
 
     def __init__(self, domains: dict, mode: str = "loss", floor: float = 0.25, window: int = 2048,
                  bandwidth: float = 0.05, power: float = 1.0, seed: int = 0, ensemble: int = 5, kappa: float = 1.0,
                  refit: int = 256, candidates: int = 2048, gate: bool = True, skill_window: int = 256,
-                 skill_min: int = 32, skill_full: float = 0.5, latent_prior: tuple | None = None):
+                 skill_min: int = 32, skill_full: float = 0.5, latent_prior: tuple | None = None, top: float = 0.25,
+                 step: float = 0.25):
         if mode not in MODES:
             raise ValueError(f"proposal={mode!r} not allowed; allowed: {', '.join(MODES)}")
         if not (isinstance(floor, (int, float)) and 0 < floor <= 1):
@@ -118,6 +153,12 @@ class ParamProposal:
                              "signal is the disagreement of its members)")
         if not (isinstance(kappa, (int, float)) and 0 <= kappa <= 100):
             raise ValueError(f"proposal kappa={kappa!r} not allowed; must be in [0, 100] (weight of the ensemble spread)")
+        if not (isinstance(top, (int, float)) and 0 < top < 1):
+            raise ValueError(f"proposal top={top!r} not allowed; must be in (0, 1) (the share of fresh solves that "
+                             "counts as high difficulty)")
+        if not (isinstance(step, (int, float)) and 0 < step <= 1):
+            raise ValueError(f"proposal step={step!r} not allowed; must be in (0, 1] (the generative proposal's move, "
+                             "in prior standard deviations)")
         if not isinstance(gate, bool):
             raise ValueError(f"proposal gate={gate!r} not allowed; must be True or False")
         if not (isinstance(skill_full, (int, float)) and 0 < skill_full <= 1):
@@ -130,7 +171,7 @@ class ParamProposal:
         self.mode, self.floor, self.window, self.bandwidth, self.power = mode, float(floor), window, float(bandwidth), float(power)
         self.ensemble, self.kappa, self.refit, self.candidates = ensemble, float(kappa), refit, candidates
         self.gate, self.skill_window, self.skill_min, self.skill_full = gate, skill_window, skill_min, float(skill_full)
-        self.seed = seed
+        self.seed, self.top, self.step = seed, float(top), float(step)
         self.names = list(domains)  # every PDE parameter, PARAMS order (the columns of batch["params"])
         self.domains = {k: tuple(v) for k, v in domains.items()}
         self.random = [k for k, (kind, *_rest) in self.domains.items() if kind != "fixed"]
@@ -157,6 +198,12 @@ class ParamProposal:
         self._pool = None
         # the skill gate: out-of-sample (predicted, realized) log-losses of fresh solves, the last skill_window
         self.skill_pred, self.skill_real = np.zeros(0), np.zeros(0)
+        # "generative": the fresh solves it learns from (unit points [G, D], losses [G], the report count when each came
+        # in [G], log prior / proposal density at each [G]) and its model (the hard solves' normal scores [K, D] and
+        # their log weights [K])
+        self.g_points, self.g_losses = np.zeros((0, self.dims)), np.zeros(0)
+        self.g_at, self.g_logiw = np.zeros(0), np.zeros(0)
+        self._gen = None
 
     # --- unit box <-> parameter values -------------------------------------------------------------
     def to_unit(self, values: np.ndarray, latent: np.ndarray | None = None) -> np.ndarray:
@@ -236,11 +283,34 @@ class ParamProposal:
         unit = self.to_unit(params[ok], None if latent is None else latent[ok])
         if self.mode != "uniform" and fresh[ok].any():
             self._score(unit[fresh[ok]], losses[ok][fresh[ok]])
+        if self.mode == "generative" and fresh[ok].any():
+            # first-draw losses only: the loss of a solve the model has not trained on is the difficulty the
+            # proposal is asked to find (a replayed sample's loss falls as the model learns it)
+            new = unit[fresh[ok]]
+            self.g_points = np.concatenate([self.g_points, new])[-self.window :]
+            self.g_losses = np.concatenate([self.g_losses, losses[ok][fresh[ok]]])[-self.window :]
+            self.g_at = np.concatenate([self.g_at, np.full(len(new), float(self.reports))])[-self.window :]
+            self.g_logiw = np.concatenate([self.g_logiw, self._log_iw(new)])[-self.window :]
         self.points = np.concatenate([self.points, unit])[-self.window :]
         self.losses = np.concatenate([self.losses, losses[ok]])[-self.window :]
         self.reports += int(ok.sum())
         if self.mode == "active" and self.reports - self._fit_at >= self.refit:
             self._start_fit()
+        elif self.mode == "generative" and self.reports - self._fit_at >= self.refit:
+            # milliseconds (a sort and a running median of at most ``window`` losses): in the loop, no thread
+            self._gen = generative_fit(normal_scores(self.g_points), self.g_losses, self.g_at, self.g_logiw, self.top)
+            self.fits += 1
+            self._fit_at = self.reports
+
+    def _log_iw(self, z: np.ndarray) -> np.ndarray:
+        """log(prior density / proposal density) at unit points z [N, D] under the proposal in use now: the
+        importance weights that let the generative fit target the prior's own high-difficulty region, not where
+        earlier proposals went. The proposal is (1 - steer) prior + steer model, so the weight is at most
+        1 / (1 - steer) <= 1 / floor (defensive importance sampling: the floor bounds the weights)."""
+        if self._gen is None or self.steer == 0.0:
+            return np.zeros(len(z))
+        llr = log_ratio(normal_scores(z), *self._gen[:2], self.step)
+        return -np.logaddexp(math.log1p(-self.steer), math.log(self.steer) + llr)
 
     def _start_fit(self) -> None:
         """Refit point: the fit started at the previous refit goes into use (waiting for it only if it has not
@@ -270,11 +340,19 @@ class ParamProposal:
 
     def predict(self, z: np.ndarray) -> np.ndarray | None:
         """The loss model's predicted log-loss at unit points z [N, D], or None without one: "active", the mean
-        of the ensemble fit in use; "loss", the kernel average (width ``bandwidth``) of the recorded log-losses."""
+        of the ensemble fit in use; "loss", the kernel average (width ``bandwidth``) of the recorded log-losses;
+        "generative", a score that rises with it, the model's log density ratio to the prior (Bayes: the log odds of
+        high difficulty, up to a constant; the gate's correlation asks no more)."""
         if self.mode == "active":
             if self._fit is None or len(self._fit) < 3:  # no fit yet (or one restored from before the gate)
                 return None
             return features(self.model_coords(z), lattice(z.shape[1])) @ self._fit[2]
+        if self.mode == "generative":
+            if self._gen is None:
+                return None
+            # the hard set's smooth summary (a diagonal Gaussian), not the kernel mixture drawn from: the mixture is
+            # local, ~0 at any uniform draw, and would keep the gate shut for want of a prediction
+            return gauss_ratio(normal_scores(z), *self._gen[2:])
         if self.mode == "loss" and len(self.losses):
             positive = self.losses[self.losses > 0]
             y = np.log(np.maximum(self.losses, positive.min() if len(positive) else 1e-30))
@@ -295,12 +373,19 @@ class ParamProposal:
 
     @property
     def skill(self) -> float:
-        """The correlation of the fresh (predicted, realized) log-losses minus 2 / sqrt(n - 1), floored at 0; 0 below
-        ``skill_min`` pairs."""
+        """The correlation of the fresh (predicted, realized) log-losses, each less its running median over the
+        ``LEVEL_SPAN`` pairs nearest in arrival, minus 2 / sqrt(n - 1), floored at 0; 0 below ``skill_min`` pairs."""
         n = len(self.skill_pred)
         if n < self.skill_min:
             return 0.0
-        return max(0.0, correlation(self.skill_pred, self.skill_real) - 2.0 / math.sqrt(n - 1))
+        # Where the pairs came in: the loss level falls as the model trains, and a predictor that follows the level
+        # (a kernel average of recent losses far from any point, a refitted intercept) correlates with the realized
+        # losses through it alone, with no idea where in the box the loss is high (kdv1d: "skill" 0.64, the steered
+        # draws 0.69x as hard as uniform ones). Only the departures from the level at the time count.
+        at = np.arange(n, dtype=np.float64)
+        pred = self.skill_pred - running_median(self.skill_pred, at, LEVEL_SPAN)
+        real = self.skill_real - running_median(self.skill_real, at, LEVEL_SPAN)
+        return max(0.0, correlation(pred, real) - 2.0 / math.sqrt(n - 1))
 
     @property
     def steer(self) -> float:
@@ -316,30 +401,49 @@ class ParamProposal:
         """Explicit values {name: float64 [n]} for the next n solves; None in "uniform" mode (key draws)."""
         if self.mode == "uniform" or not self.dims:
             return None
-        d = self.dims
-        z = self.rng.random((n, d))  # the uniform part
+        z = self.rng.random((n, self.dims))  # the uniform part
         steer = self.rng.random(n) >= 1.0 - self.steer  # ungated (steer = 1 - floor): the draws of before the gate
+        if steer.any():
+            moved = self.steered(int(steer.sum()), self.rng)
+            if moved is not None:
+                z[steer] = moved
+        self.proposed.extend(z.tolist())
+        return self.from_unit(z)
+
+    def steered(self, n: int, rng: np.random.Generator) -> np.ndarray | None:
+        """n draws of the steered part alone (no uniform floor, no gate), unit points [n, D] inside the box, drawn
+        with ``rng``; None while there is nothing to steer by (no fit, no loss yet)."""
+        d = self.dims
         if self.mode == "active":
-            if steer.any() and self._fit is not None:
-                cand, prob = self._fit[:2]
-                pick = self.rng.choice(len(prob), size=int(steer.sum()), p=prob)
-                # about one candidate spacing: the density is continuous, yet as sharp as the candidates resolve
-                # (beyond 4 dimensions, a 4-D set's spacing: a high-dimensional spacing would undo the steering)
-                width = 0.5 * len(prob) ** (-1.0 / min(d, 4))
-                moved = np.abs(cand[pick] + width * self.rng.standard_normal((len(pick), d)))
-                z[steer] = np.clip(1.0 - np.abs(1.0 - moved), 0.0, 1.0)
-        elif steer.any() and len(self.losses):
+            if self._fit is None:
+                return None
+            cand, prob = self._fit[:2]
+            pick = rng.choice(len(prob), size=n, p=prob)
+            # about one candidate spacing: the density is continuous, yet as sharp as the candidates resolve
+            # (beyond 4 dimensions, a 4-D set's spacing: a high-dimensional spacing would undo the steering)
+            width = 0.5 * len(prob) ** (-1.0 / min(d, 4))
+            moved = np.abs(cand[pick] + width * rng.standard_normal((len(pick), d)))
+            return np.clip(1.0 - np.abs(1.0 - moved), 0.0, 1.0)
+        if self.mode == "generative":
+            if self._gen is None:
+                return None
+            centres, log_v = self._gen[:2]
+            pick = rng.choice(len(log_v), size=n, p=np.exp(log_v))
+            # a prior-preserving move (pCN): a draw of N(0, I) moved so stays one, whatever the step
+            w = math.sqrt(1.0 - self.step**2) * centres[pick] + self.step * rng.standard_normal((n, d))
+            # normal scores -> unit coordinates: ndtr maps every real onto (0, 1), the prior's support by construction
+            return np.clip(ndtr(w), UNIT_EDGE, 1 - UNIT_EDGE)
+        if self.mode == "loss" and len(self.losses):
             # The recorded points were drawn from earlier proposals, so they crowd where the loss was high; weighting
             # them by loss alone would compound that (loss x crowding) and pile every solve into one corner. Divide
             # by the points' own kernel density so that the steered draws follow the loss, not the crowding.
             w = self._weights()
-            pick = self.rng.choice(len(w), size=int(steer.sum()), p=w)
-            moved = self.points[pick] + self.bandwidth * self.rng.standard_normal((len(pick), d))
+            pick = rng.choice(len(w), size=n, p=w)
+            moved = self.points[pick] + self.bandwidth * rng.standard_normal((len(pick), d))
             moved = np.abs(moved)  # reflect at 0 ...
             moved = 1.0 - np.abs(1.0 - moved)  # ... and at 1
-            z[steer] = np.clip(moved, 0.0, 1.0)
-        self.proposed.extend(z.tolist())
-        return self.from_unit(z)
+            return np.clip(moved, 0.0, 1.0)
+        return None
 
     def _weights(self) -> np.ndarray:
         """Pick probabilities of the recorded points [W]; recomputed once ``window // 2`` new losses have come
@@ -354,7 +458,10 @@ class ParamProposal:
         against an evenly spaced subset of at most 128 of them (O(128 W D): a few ms)."""
         ref = self.points[:: max(1, len(self.points) // 128)]
         diff = self.points[:, None, :] - ref[None, :, :]  # [W, R, D]
-        return np.exp(-0.5 * (diff**2).sum(-1) / self.bandwidth**2).mean(1)
+        # floored at the smallest positive float: in many dimensions (an IC latent) a point outside the subset has no
+        # neighbour within the kernel's reach, and a density of 0 made its weight NaN (in a few dimensions no density
+        # comes near the floor: their weights are as before)
+        return np.maximum(np.exp(-0.5 * (diff**2).sum(-1) / self.bandwidth**2).mean(1), np.finfo(np.float64).tiny)
 
     def density(self, bins: int = 20) -> dict:
         """For plots and reports, along the first random parameter: bin edges (unit box), proposal counts
@@ -378,7 +485,10 @@ class ParamProposal:
                 "weights": None if self._w is None else self._w.tolist(), "weights_at": self._w_at,
                 "fit": _fit_plain(self._fit), "next_fit": _fit_plain(None if self._next is None else self._next.result()),
                 "fits": self.fits, "fit_at": self._fit_at, "skill_pred": self.skill_pred.tolist(),
-                "skill_real": self.skill_real.tolist()}
+                "skill_real": self.skill_real.tolist(), "top": self.top,
+                "generative": {"points": self.g_points.tolist(), "losses": self.g_losses.tolist(),
+                               "at": self.g_at.tolist(), "log_iw": self.g_logiw.tolist(),
+                               "model": None if self._gen is None else [x.tolist() for x in self._gen]}}
 
     def load_state_dict(self, state: dict) -> None:
         """Restore ``state_dict()`` output (the same domains and mode are required)."""
@@ -405,6 +515,13 @@ class ParamProposal:
         # states saved before the gate have no pairs: the gate starts closed and opens on measured skill
         self.skill_pred = np.asarray(state.get("skill_pred", []), np.float64)
         self.skill_real = np.asarray(state.get("skill_real", []), np.float64)
+        gen = state.get("generative") or {}  # (states saved before the generative mode: none)
+        self.g_points = np.asarray(gen.get("points", []), np.float64).reshape(-1, self.dims)
+        self.g_losses = np.asarray(gen.get("losses", []), np.float64)
+        self.g_at = np.asarray(gen.get("at", []), np.float64)
+        self.g_logiw = np.asarray(gen.get("log_iw", []), np.float64)
+        model = gen.get("model")
+        self._gen = None if model is None else tuple(np.asarray(x, np.float64) for x in model)
 
     def __getstate__(self):
         # copy.deepcopy / pickle: the background fit is resolved into its result, the thread pool is not copied
@@ -522,6 +639,80 @@ def active_fit(points: np.ndarray, losses: np.ndarray, candidates: int, ensemble
     score = power * (mean + kappa * spread)
     w = np.exp(score - score.max())
     return cand, w / w.sum(), coef
+
+
+def normal_scores(z: np.ndarray) -> np.ndarray:
+    """Unit points [N, D] -> their normal scores ndtri(z) [N, D]: the prior (uniform on the box) becomes N(0, I), and a
+    normal latent coordinate becomes the latent in standard deviations."""
+    return ndtri(np.clip(z, UNIT_EDGE, 1 - UNIT_EDGE))
+
+
+def gauss_ratio(w: np.ndarray, mean: np.ndarray, log_sd: np.ndarray) -> np.ndarray:
+    """log N(w; mean, diag(exp(2 log_sd))) - log N(w; 0, I) at normal scores w [N, D] -> [N]."""
+    return (-0.5 * ((w - mean) / np.exp(log_sd)) ** 2 - log_sd + 0.5 * w**2).sum(1)
+
+
+def log_ratio(w: np.ndarray, centres: np.ndarray, log_v: np.ndarray, step: float) -> np.ndarray:
+    """log of the generative model's density over the prior's, at normal scores w [N, D] -> [N]: the model is the
+    mixture sum_k v_k N(sqrt(1 - step^2) c_k, step^2 I) over its centres c [K, D] (log weights log_v [K])."""
+    rho, d = math.sqrt(1.0 - step**2), w.shape[1]
+    d2 = (w**2).sum(1)[:, None] - 2 * rho * w @ centres.T + rho**2 * (centres**2).sum(1)[None]  # [N, K]
+    logk = log_v[None] - 0.5 * np.maximum(d2, 0.0) / step**2 - d * math.log(step)
+    peak = logk.max(1)
+    return peak + np.log(np.exp(logk - peak[:, None]).sum(1)) + 0.5 * (w**2).sum(1)
+
+
+def running_median(y: np.ndarray, at: np.ndarray, span: int) -> np.ndarray:
+    """The median of y [G] over the ``span`` values nearest in ``at`` [G] order (centred, shorter at the ends): the
+    level a value is compared with when the level drifts (a first-draw loss falls as the model trains, fast at first:
+    no line fits it)."""
+    order = np.argsort(at, kind="stable")
+    ys = y[order]
+    half, n = span // 2, len(ys)
+    ends = [i for i in range(n) if i < half or i + half >= n]
+    level = np.empty(n)
+    level[ends] = [np.median(ys[max(0, i - half): i + half + 1]) for i in ends]
+    if n > 2 * half:
+        level[half: n - half] = np.median(np.lib.stride_tricks.sliding_window_view(ys, 2 * half + 1), axis=1)
+    out = np.empty_like(y)
+    out[order] = level
+    return out
+
+
+def generative_fit(w: np.ndarray, losses: np.ndarray, at: np.ndarray, log_iw: np.ndarray, top: float,
+                   least: int = 8, span: int = LEVEL_SPAN) -> tuple[np.ndarray, np.ndarray] | None:
+    """The generative proposal's model of the high-difficulty solves, or None with fewer than ``least`` of them.
+
+    w: normal scores of fresh solves [G, D]; losses [G] (first-draw losses); at [G]: when each came in (reports);
+    log_iw [G]: log prior / proposal density at each. Difficulty is the log-loss less the running median of the
+    ``span`` solves nearest in time (the loss level falls as the model trains: an early solve is not harder for having
+    been scored by a worse model). The
+    high-difficulty set is the top ``top`` share of the solves by difficulty, counted in importance weight (so of the
+    prior, not of where earlier proposals went). The model: that set and its normalized weights (centres [K, D], log
+    weights [K]), drawn from as a kernel mixture (``ParamProposal.steered``); and its summary for the skill gate, the
+    weighted per-coordinate mean [D] and log std [D], soft-thresholded toward the prior's (0, 0) by the universal
+    threshold max(2, sqrt(2 ln 2D)) null standard errors (1 / sqrt(n), sqrt(2 / (n - 1)); n the set's effective
+    size), so that only coordinates whose moments differ from the prior's beyond noise count (``gauss_ratio``)."""
+    positive = losses[losses > 0]
+    if len(positive) < least:
+        return None
+    y = np.log(np.maximum(losses, positive.min()))
+    hard = y - running_median(y, at, span)
+    iw = np.exp(log_iw - log_iw.max())
+    order = np.argsort(-hard, kind="stable")
+    keep = order[np.cumsum(iw[order]) - iw[order] < top * iw.sum()]  # the top share by weight
+    # a steered draw near a centre in many dimensions has weight ~e^-300: no centre (it would cost time, not move a draw)
+    keep = keep[iw[keep] > 1e-12 * iw[keep].max()]
+    if len(keep) < least:
+        return None
+    v = iw[keep] / iw[keep].sum()
+    n = 1.0 / float(v @ v)  # effective size
+    mean = v @ w[keep]
+    log_var = np.log(np.maximum(v @ (w[keep] - mean) ** 2 * n / max(n - 1.0, 1.0), 1e-12))
+    cut = max(2.0, math.sqrt(2.0 * math.log(2.0 * w.shape[1])))
+    mean = np.sign(mean) * np.maximum(np.abs(mean) - cut / math.sqrt(n), 0.0)
+    log_var = np.sign(log_var) * np.maximum(np.abs(log_var) - cut * math.sqrt(2.0 / max(n - 1.0, 1.0)), 0.0)
+    return w[keep].copy(), np.log(v), mean, 0.5 * np.clip(log_var, -2 * math.log(5.0), 2 * math.log(3.0))
 
 
 def correlation(a: np.ndarray, b: np.ndarray) -> float:

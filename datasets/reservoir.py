@@ -37,7 +37,8 @@ examples (through the usual views) from what it holds, so a solve is reused inst
   ``datasets.proposal.ParamProposal`` fed by the per-sample losses the training loop reports
   (``report_losses``); ``proposal="active"`` adds an uncertainty signal (the disagreement of a small bootstrap
   ensemble of loss models over the parameter box, fitted in a background thread) and a proposal that can hold a
-  sharp mode, over a uniform floor; ``"uniform"`` leaves the parameters to the solver's own draws.
+  sharp mode, over a uniform floor; ``proposal="generative"`` draws near the hardest fresh solves instead;
+  ``"uniform"`` leaves the parameters to the solver's own draws.
 
 - **device**: the trajectories live on the training device (``device=``; None: the model's, through the
   training loop's ``place`` hook), a thread producer's solves are copied in from JAX's buffer there (DLPack) and
@@ -163,7 +164,7 @@ class ReservoirStream(IterableDataset):
         if space == "params":
             return None
         if proposal == "uniform":
-            raise ValueError("proposal space='params+ic' goes with proposal 'loss' or 'active' (a uniform proposal "
+            raise ValueError("proposal space='params+ic' goes with proposal 'loss', 'active' or 'generative' (a uniform proposal "
                              "steers nothing)")
         if not _bridge.latent_size(self.pde):
             raise ValueError(f"proposal space='params+ic' not allowed on {self.pde.NAME}: its ic "
@@ -350,7 +351,7 @@ class ReservoirStream(IterableDataset):
     # --- the training loop's hooks ------------------------------------------------------------------
     def report_losses(self, batch: dict, per_example: torch.Tensor) -> None:
         """Per-example training losses [B] of ``batch`` (the loop calls this after each step): they steer
-        ``proposal="loss"`` and ``"active"`` and feed the loss-over-domain plot in any mode."""
+        ``proposal="loss"``, ``"active"`` and ``"generative"`` and feed the loss-over-domain plot in any mode."""
         params = batch["params"]
         if self._last is not None and params is self._last[0]:
             params = self._last[1]  # the same values, from the host: no wait for the device

@@ -17,7 +17,9 @@ MODES = ("async", "deterministic")
 # classes so that the CLI's parser reads them without numpy; those modules check their registries against these
 DRAWS = ("uniform", "least_used", "priority")
 EVICTIONS = ("fifo", "random")
-# what a loss-driven or active proposal steers (proposal_kwargs["space"]): the parameters alone, or jointly with the
+# the proposals (datasets.proposal.MODES, checked against these there): the key's own draws, then the steered ones
+PROPOSALS = ("uniform", "loss", "active", "generative")
+# what a steered proposal steers (proposal_kwargs["space"]): the parameters alone, or jointly with the
 # IC's latent coordinates (generator.ics.LatentIC)
 PROPOSAL_SPACES = ("params", "params+ic")
 
@@ -51,7 +53,7 @@ class ReservoirConfig:
     "auto" (the default: a reuse target chosen from rates re-measured as the run goes, so that solving costs
     training at most 5% of its steps), a number in [1, max_reuse] (fixed; also the deterministic schedule's
     reuse per solve, else max_reuse's), or None / "off" (flat out); sim_budget: trajectories solved in all (None: endless); proposal:
-    "uniform" | "loss" | "active" (+ proposal_kwargs for ParamProposal); on_blowup: "raise" | "redraw" |
+    one of PROPOSALS, "uniform" | "loss" | "active" | "generative" (+ proposal_kwargs for ParamProposal); on_blowup: "raise" | "redraw" |
     "skip"; device: where trajectories are kept ("cpu", "cuda", "cuda:N"; None: the training device); storage:
     a factory (capacity, device) -> ``reservoir_storage.Storage`` (None: ``TensorStorage``).
     """

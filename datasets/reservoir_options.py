@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 
 from .reservoir_config import DEFAULTS as R
-from .reservoir_config import DRAWS, EVICTIONS, MODES, PROPOSAL_SPACES
+from .reservoir_config import DRAWS, EVICTIONS, MODES, PROPOSAL_SPACES, PROPOSALS
 
 
 def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
@@ -28,12 +28,12 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                         "the run goes, from measured rates so that solving costs training at most 5%% of its steps "
                         "(datasets/reservoir_pacer.py); off: solve flat out (default: auto)")
     g.add_argument("--proposal-floor", type=float, default=0.25,
-                   help="loss-driven sampling: share of uniform parameter draws (no region starves)")
+                   help="steered sampling (loss, active, generative): share of uniform draws (no region starves)")
     g.add_argument("--proposal-gate", choices=("on", "off"), default="on",
-                   help="loss-driven and active sampling: steer only as far as the loss model's measured skill on "
+                   help="steered sampling (loss, active, generative): steer only as far as the loss model's measured skill on "
                         "fresh solves allows (no skill: uniform draws); off: always steer 1 - floor of the draws")
     g.add_argument("--proposal-space", default="params", metavar="params|params+ic",
-                   help="loss-driven and active sampling: what the proposal steers, the PDE parameters alone or "
+                   help="steered sampling (loss, active, generative): what the proposal steers, the PDE parameters alone or "
                         "jointly with the initial condition's latent coordinates (Fourier amplitudes and phases, a "
                         "GRF's leading white-noise modes, spot centres: generator.ics.LatentIC); default: params")
     g.add_argument("--proposal-ensemble", type=int, default=5, metavar="K",
@@ -61,9 +61,10 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                    help="who solves: a background thread, spawned processes, or a Dask cluster")
     g.add_argument("--workers", type=int, default=R.workers, help="solver processes (--producer process, or an embedded Dask cluster)")
     g.add_argument("--scheduler", metavar="ADDRESS", help="--producer dask: a running scheduler, e.g. tcp://host:8786")
-    g.add_argument("--proposal", choices=("uniform", "loss", "active"), default=R.proposal,
+    g.add_argument("--proposal", choices=PROPOSALS, default=R.proposal,
                    help="parameters of the next solves: the domain's own draws, steered toward high training loss, "
-                        "or active (a loss model + its ensemble's disagreement over the parameter box)")
+                        "active (a loss model + its ensemble's disagreement over the parameter box) or generative "
+                        "(a Gaussian model of the high-difficulty fresh solves, drawn from)")
     g.add_argument("--on-blowup", choices=("raise", "redraw", "skip"), default=R.on_blowup,
                    help="a failed solve (NaN/Inf; an external solver's error, timeout, crash, wrong shape) stops "
                         "the run (raise), is redrawn (redraw) or left out with one warning line (skip)")
@@ -147,7 +148,8 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
         raise ValueError(f"--reservoir goes with --source stream (got --source {args.source})")
     check_priority_options(args, args.draw == "priority", "--draw priority")
     check_proposal_options(args, args.proposal != "uniform", args.proposal == "active",
-                           "--proposal loss / active (--proposal-floor, --proposal-gate) or --proposal active (the others)")
+                           "--proposal loss / active / generative (--proposal-floor, --proposal-gate, --proposal-space) or "
+                           "--proposal active (the others)")
     cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,
            "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
            "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,

@@ -40,17 +40,26 @@ def same(a, b):
     return len(a) == len(b) and all(torch.equal(x[k], y[k]) for x, y in zip(a, b) for k in x)
 
 
-def test_a_joint_proposal_solves_what_it_proposes_and_resumes_exactly():
-    full = run(stream(), 14)
-    first = stream()
+# the generative proposal learns from fresh solves only (a few here): its high-difficulty set is the top 3/4
+STEERING = {"active": {"proposal": "active"},
+            "generative": {"proposal": "generative", "proposal_kwargs": {**JOINT, "top": 0.75, "refit": 8}}}
+
+
+@pytest.mark.parametrize("proposal", list(STEERING))
+def test_a_joint_proposal_solves_what_it_proposes_and_resumes_exactly(proposal):
+    kw = STEERING[proposal]
+    full = run(stream(**kw), 14)
+    first = stream(**kw)
     head = run(first, 14, head=6)
     state = first.state_dict()
     first.close()
+    if proposal == "generative":  # it steered by a model before the cut (what resumes is not the uniform start)
+        assert state["proposal"]["generative"]["model"] is not None
     latent = state["reservoir"]["storage"]["latent"]
     assert np.asarray(latent).shape == (8, PDE.latent_size()) and np.isfinite(latent).all()
     assert any(job["params"] and LATENT in job["params"] for job in state["producer"]["jobs"])
     torch.save(state, "/dev/null")  # plain values
-    resumed = stream()
+    resumed = stream(**kw)
     resumed.load_state_dict(state)
     assert same(head + run(resumed, 8), full)
     # what is held is the generator's sample of (seed, index, params, latent), bit for bit, and the latents are the

@@ -390,9 +390,9 @@ def test_reservoir_options_without_reservoir_and_zero_workers_are_refused(tmp_pa
     assert "--priority-floor goes with --draw priority (prioritized replay)" in capsys.readouterr().err
     # proposal settings where no proposal uses them were silently ignored
     assert cli.main(_tiny_train(out, "--reservoir", "--proposal-floor", "0.5")) == 2
-    assert "--proposal-floor goes with --proposal loss / active" in capsys.readouterr().err
+    assert "--proposal-floor goes with --proposal loss / active / generative" in capsys.readouterr().err
     assert cli.main(_tiny_train(out, "--reservoir", "--proposal-gate", "off")) == 2
-    assert "--proposal-gate goes with --proposal loss / active (--proposal-floor, --proposal-gate)" in capsys.readouterr().err
+    assert "--proposal-gate goes with --proposal loss / active / generative (--proposal-floor, --proposal-gate" in capsys.readouterr().err
     assert cli.main(_tiny_train(out, "--reservoir", "--proposal", "loss", "--proposal-ensemble", "3")) == 2
     assert "--proposal-ensemble goes with" in capsys.readouterr().err
     assert cli.main(["compare", "burgers1d", "--quick", "--arms", "fifo,reservoir", "--proposal-kappa", "2",
