@@ -1,13 +1,15 @@
 """Bodies below the cell (issue 28 part 1): Schaefer & Turek (1996) 2D-1 with the staircase and the sharp circle.
 
     nice python -m benchmarks.flow_bodies [--ny 16,32,64] [--bodies staircase,sharp] [--t 6] [--out FILE]
+        [--cfl 0.4] [--tol 1e-5] [--force-distances 0.75,1.5,2]
 
 2D-1: channel 2.2 x 0.41 (lx = nx h, nx even: <= 0.2% longer), cylinder (0.2, 0.2) r 0.05, parabolic inflow
 peak 0.3 (U_mean 0.2), nu 1e-3 (Re 20, steady), maccormack, dt = 0.4 h / 0.3, run to t 6 from rest (steady: Cd
 moves < 1e-4 after t 5 at 172x32). Published (Schaefer & Turek 1996, Table 4): Cd 5.57-5.59, Cl 0.0104-0.0110,
 Delta p = p(0.15, 0.2) - p(0.25, 0.2) 0.1172-0.1176. Per case: the library's force (staircase: forces.body_force
 over the mask's faces; sharp: forces.circle_force, the surface integral on the exact circle), a momentum balance
-over squares around the cylinder (the steady control-volume force, a cross-check that does not sample the wall),
+over a square 5 radii wide around the cylinder (the steady control-volume force, a cross-check that does not
+sample the wall),
 Delta p (the wall pressure extrapolated along the normal, forces.circle_surface, for both bodies) and the
 observed order between successive grids (log2 of the ratio of the errors against the published interval's middle).
 Resumable: each finished case is appended to --out (JSON lines) and skipped on the next run; each case is one
@@ -61,18 +63,19 @@ def momentum_balance(u, v, p, h, box):
     return -fx, -fy
 
 
-def case(ny: int, body: str, t_end: float) -> dict:
+def case(ny: int, body: str, t_end: float, cfl: float = 0.4, tol: float = 1e-5,
+         force_distances: tuple = ()) -> dict:
     h = 0.41 / ny
     nx = 2 * round(2.2 / h / 2)
     geom = Geometry(nx, ny, nx * h, 0.41, left="inflow", right="outflow", body=body)
     params = Params(nu=NU, inflow=PEAK, circle=(CX, CY, R))
-    dt = 0.4 * h / PEAK
+    dt = cfl * h / PEAK
     n = int(round(t_end / dt))
 
     @jax.jit
     def go(s):
         op = operator(geom, params)
-        s = jax.lax.fori_loop(0, n, lambda _, s: step(geom, s, params, dt, op=op, advection="maccormack"), s)
+        s = jax.lax.fori_loop(0, n, lambda _, s: step(geom, s, params, dt, tol, op=op, advection="maccormack"), s)
         if body == "sharp":
             f = forces.circle_force(geom, s, NU, CX, CY, R)
         else:
@@ -85,10 +88,20 @@ def case(ny: int, body: str, t_end: float) -> dict:
     coef = np.asarray(coef)
     wall = time.perf_counter() - t0
     c = int(round(CX / h))
-    half = int(round(1.5 * R / h))  # a square 3 radii wide: 1 radius of fluid around the cylinder
+    # a square 5 radii wide (2 radii of fluid around the cylinder): 3 radii wide moved Cd by 0.02 at 172x32 (its
+    # edges in the wall layer), 6 radii wide by < 1e-4 from this
+    half = int(round(2.5 * R / h))
     fx, fy = momentum_balance(s.u, s.v, s.p, h, (c - half, c + half, c - half, c + half))
     scale = 2 / (U_MEAN ** 2 * D)
-    return {"ny": ny, "nx": nx, "body": body, "cells_per_d": D / h, "steps": n, "cd": float(coef[0]),
+    extra = {}
+    for d in force_distances if body == "sharp" else ():  # the sharp force with its wall samples d cells out (forces.FORCE_DISTANCE) instead
+        default, forces.FORCE_DISTANCE = forces.FORCE_DISTANCE, d
+        try:
+            extra[f"cd_cl_at_{d:g}"] = [float(c) for c in forces.force_coefficients(
+                *forces.circle_force(geom, s, NU, CX, CY, R), U_MEAN, D)]
+        finally:
+            forces.FORCE_DISTANCE = default
+    return extra | {"ny": ny, "nx": nx, "body": body, "cells_per_d": D / h, "steps": n, "cd": float(coef[0]),
             "cl": float(coef[1]), "dp": float(dp), "cd_cv": fx * scale, "cl_cv": fy * scale,
             "finite": bool(jnp.isfinite(s.u).all()), "capped": int(s.capped), "wall_s": wall}
 
@@ -119,6 +132,10 @@ def main(argv=None):
     ap.add_argument("--ny", type=lambda a: [int(n) for n in a.split(",")], default=[16, 32, 64])
     ap.add_argument("--bodies", default="staircase,sharp")
     ap.add_argument("--t", type=float, default=6.0)
+    ap.add_argument("--cfl", type=float, default=0.4, help="dt = CFL h / 0.3 (the inflow peak)")
+    ap.add_argument("--tol", type=float, default=1e-5, help="the pressure solve's relative tolerance")
+    ap.add_argument("--force-distances", type=lambda a: [float(d) for d in a.split(",")], default=[],
+                    help="also the sharp force with its wall samples these many cells out (forces.FORCE_DISTANCE)")
     ap.add_argument("--out", type=Path, default=Path("flow_bodies.jsonl"))
     args = ap.parse_args(argv)
     done = [json.loads(line) for line in args.out.read_text().splitlines()] if args.out.exists() else []
@@ -126,7 +143,7 @@ def main(argv=None):
         for body in args.bodies.split(","):
             if any(r["ny"] == ny and r["body"] == body for r in done):
                 continue
-            r = case(ny, body, args.t)
+            r = case(ny, body, args.t, args.cfl, args.tol, tuple(args.force_distances))
             print(json.dumps(r), flush=True)
             with args.out.open("a") as f:
                 f.write(json.dumps(r) + "\n")

@@ -225,7 +225,8 @@ def test_schaefer_turek_2d1_forces_of_the_sharp_cylinder_at_the_coarse_grid():
     benchmarks/flow_bodies.py's study that lands near the published values), maccormack, to t 6 (steady), the
     default sharp body and its surface-integral force (forces.circle_force). Published Cd 5.57-5.59, Cl
     0.0104-0.0110, Delta p 0.1172-0.1176. Tolerances: Cd within 1.5% of the interval, Delta p within 1.5%, Cl within
-    0.1 of it; the staircase body fails all three here (Cd 5.441, 2.3% under; Delta p 0.1113, 5% under; Cl -0.370)."""
+    0.05 of it; the staircase body fails all three here (Cd 5.441, 2.3% under; Delta p 0.1113, 5% under; Cl -0.370),
+    the face-centre cut fluxes before the centroid ones the lift (0.078)."""
     import jax
 
     from pdestream.generator.flow import Params, initial_state, step
@@ -247,6 +248,6 @@ def test_schaefer_turek_2d1_forces_of_the_sharp_cylinder_at_the_coarse_grid():
         return cd, cl, pw[0] - pw[1]
 
     cd, cl, dp = (float(c) for c in go(initial_state(geom, params)))
-    assert 5.57 * 0.985 < cd < 5.59 * 1.015, cd  # measured 5.649 (+1.1%)
-    assert 0.1172 * 0.985 < dp < 0.1176 * 1.015, dp  # measured 0.1167 (-0.4%)
-    assert abs(cl - 0.0107) < 0.1, cl  # measured 0.079: the sign and size of physics, not the staircase's -0.37
+    assert 5.57 * 0.985 < cd < 5.59 * 1.015, cd  # measured 5.643 (+0.9%)
+    assert 0.1172 * 0.985 < dp < 0.1176 * 1.015, dp  # measured 0.1169 (-0.3%)
+    assert abs(cl - 0.0107) < 0.05, cl  # measured 0.040: the sign and size of physics, not the staircase's -0.37

@@ -9,9 +9,10 @@ velocity, pressure 0: the only Dirichlet pressure side) or 'periodic' (left/righ
 Bodies (``Geometry.body``, one of BODIES; DEFAULT_BODY declared once here): 'staircase' makes every cell whose
 centre lies inside a body solid (first order in h for forces). 'sharp' treats the circle of Params.circle below
 the cell (its signed distance is exact from (cx, cy, r)): the pressure operator takes each face's open fraction of
-the exact circle (``circle_apertures``: a cut-face finite volume, so the projection sees the true geometry), and
-the velocity faces inside the circle next to the fluid are ghost values, linearly extrapolated along the normal
-through u = 0 on the circle from an image point 1.5 h outside it (``circle_ghosts``; a ghost-cell immersed
+the exact circle (``circle_apertures``: a cut-face finite volume, so the projection sees the true geometry; a cut
+face's flux is its open fraction times the velocity at its open part's centroid, step._fluxes), and
+the velocity faces inside the circle next to the fluid are ghost values, extrapolated along the normal by the
+quadratic through u = 0 on the circle and image points 1.5 h and 3 h outside it (``circle_ghosts``; a ghost-cell immersed
 boundary), so viscosity and advection see no-slip on the true circle. Other bodies (Params.obstacles,
 Params.mask) stay staircases in both.
 """
