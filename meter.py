@@ -66,6 +66,13 @@ def duration(seconds: float) -> str:
     return f"{s // 3600} h {s % 3600 // 60} min"
 
 
+def singular(unit: str) -> str:
+    """The unit of one: "trajectories" -> "trajectory", "samples" -> "sample", "steps" -> "step"."""
+    if unit.endswith("ies"):
+        return unit[:-3] + "y"
+    return unit[:-1] if unit.endswith("s") and len(unit) > 1 else unit
+
+
 def _count(x: float) -> str:
     return str(int(x)) if float(x).is_integer() else f"{x:.2f}"
 
@@ -98,7 +105,7 @@ class Meter:
         if enabled and terminal:
             from tqdm import tqdm
 
-            self.bar = tqdm(total=self.total, initial=self.initial, desc=label, unit=unit.rstrip("s") or unit,
+            self.bar = tqdm(total=self.total, initial=self.initial, desc=label, unit=singular(unit),
                             bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.2f}/{total:.0f} "
                                        "[{elapsed}<{remaining}, {rate_fmt}{postfix}]", smoothing=0.1)
         self._shown = self.initial
@@ -169,7 +176,7 @@ class Meter:
             what = self.starting if self._mark is None else "no rate yet"
             return f"{head}, {what}, time left unknown {so_far}"
         rate, left, recorded = est
-        one = self.unit[:-1] if self.unit.endswith("s") else self.unit
+        one = singular(self.unit)
         pace = f"{rate:.3g} {self.unit}/s" if rate >= 1 else f"{1 / rate:.3g} s/{one}"
         if not recorded:
             return f"{head}, {pace}, ~{duration(left)} left {so_far}"

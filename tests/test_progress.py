@@ -317,3 +317,11 @@ def test_a_terminal_bar_shows_the_last_runs_time_left_until_it_has_a_rate(capsys
     m.set(1.0)  # its own rate: tqdm's remaining, no postfix
     assert "last time" not in m.bar.postfix
     m.close()
+
+
+def test_the_unit_of_one_is_its_singular():
+    # "21.5 s/trajectorie" was printed while building a test set of trajectories
+    from pdestream.meter import singular
+
+    assert [singular(u) for u in ("trajectories", "samples", "steps", "s", "bytes")] == [
+        "trajectory", "sample", "step", "s", "byte"]
