@@ -181,7 +181,7 @@ def test_other_producers_give_the_same_deterministic_batches(kind):
     (dict(draw="priority", priority_floor=0), "priority_floor=0 not allowed; must be in (0, 1] (the uniform share of draws)"),
     (dict(eviction="lifo"), "eviction='lifo' not allowed; allowed: fifo, random"),
     (dict(mode="sync"), "mode='sync' not allowed; allowed: async, deterministic"),
-    (dict(proposal="bayes"), "proposal='bayes' not allowed; allowed: uniform, loss, active"),
+    (dict(proposal="bayes"), "proposal='bayes' not allowed; allowed: uniform, loss, active, generative"),
     (dict(proposal="active", proposal_kwargs={"ensemble": 1}),
      "proposal ensemble=1 not allowed; must be an integer >= 2 (the uncertainty signal is the disagreement of its members)"),
 ])
