@@ -290,10 +290,10 @@ def run_keys(pde: PDE, keys: jax.Array, explicit, given, latent=None):
 
 
 @functools.lru_cache(maxsize=64)
-def compiled_coefficients(pde: PDE):
-    """jit of params {name: [B]} -> ETDRK4 coefficients [B, ...], one sample per loop step (``solve``);
-    params are traced: new values never recompile."""
-    return jax.jit(lambda params: jax.lax.map(functools.partial(_coefficients, pde), params))
+def compiled_coefficients(pde: PDE, dt: float | None = None):
+    """jit of params {name: [B]} -> ETDRK4 coefficients [B, ...] for a step dt (None: ``pde.step_dt``), one sample
+    per loop step (``solve``); params are traced: new values never recompile."""
+    return jax.jit(lambda params: jax.lax.map(functools.partial(_coefficients, pde, dt=dt), params))
 
 
 def evolve_from(pde: PDE, u0: jax.Array, p: Mapping[str, jax.Array]):
@@ -305,15 +305,10 @@ def evolve_from(pde: PDE, u0: jax.Array, p: Mapping[str, jax.Array]):
     return u, finite
 
 
-@functools.lru_cache(maxsize=64)
-def compiled_burn_in_coefficients(pde: PDE):
-    """``compiled_coefficients`` at the burn-in's step ``pde.burn_in_dt`` (one sample per loop step)."""
-    return jax.jit(lambda params: jax.lax.map(functools.partial(_coefficients, pde, dt=pde.burn_in_dt), params))
-
 
 def burn_in(pde: PDE, u0: jax.Array, p: Mapping[str, jax.Array]) -> jax.Array:
     """The states u0 [B, C, *space] at t = 0 advanced ``pde.t_start`` (``burn_in_steps`` ETDRK4 steps of
     ``burn_in_dt``, in bounded calls, per-sample coefficients: batch-invariant bits) -> float32 [B, C, *space],
     the rollout's initial condition (a sample that blew up is NaN here and fails its rollout's finite check)."""
-    u, _ = advance_bounded(pde, u0, p, compiled_burn_in_coefficients(pde)(p), pde.burn_in_steps)
+    u, _ = advance_bounded(pde, u0, p, compiled_coefficients(pde, pde.burn_in_dt)(p), pde.burn_in_steps)
     return u
