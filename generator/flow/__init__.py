@@ -9,7 +9,7 @@ finite flag, Couette flow to 2e-6 and the grid's discrete Poiseuille profile to 
 Divergence after every projection within the CG tolerance plus float32 rounding (the solve checks its true residual
 before stopping and drops a warm-start guess worse than zero; tests/test_flow_validation.py). Pressure iterations
 9/10/13 at 64x32/128x64/256x128 on a cylinder channel (float64 cold; float32 warm 7/7/10; weighted coarse
-correction, benchmarks/flow_validation.py). Cavity Re 100 against Ghia 1982 and the Schaefer-Turek
+correction, benchmarks/flow_validation.py). Cavity Re 100, 400 and 1000 against Ghia 1982 and the Schaefer-Turek
 2D-2 cylinder: benchmarks/flow_validation.py. Manufactured steady flow in a closed box (four no-slip walls,
 stream function sin^2(pi x) sin^2(pi y), Params.force, nu 0.01, dt = 0.5 h / pi): maccormack's RMS velocity error
 5.3e-2/6.8e-3/5.3e-4/8.4e-5 at 16/32/64/128 (orders 2.96/3.68/2.65; max 2.83/3.43/3.11; pressure 2.44/2.54/2.47),

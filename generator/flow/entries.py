@@ -171,16 +171,14 @@ class Cavity2D(FlowProblem):
     """The lid-driven cavity: a closed square box whose top wall slides at the lid speed U. Re = U L / nu.
 
     Defaults resolve their range (issue 28): run to steady state, 64^2 cells at Re 400, the top of the default
-    range, stay within 0.02 of Ghia, Ghia & Shin's (1982) centreline tables (max |du| 0.014, |dv| 0.012, lid
-    speed 1); 32^2 at Re 400 and 64^2 at Re 1000 do not (0.046 and 0.034), and Ghia has no table between Re 400
-    and 1000 to check a higher cap against (``python -m benchmarks.flow_validation --parts steady``,
-    docs/results/flows.md). A range whose largest Re exceeds ``CAVITY_CELL_RE`` n still runs (up to the family's
-    cell Reynolds limit) with an ``UnderResolved`` warning naming the n it needs (the linear rule through the
-    measured 64^2 at Re 400; Re 1000: n >= 160, unmeasured).
-    The window t in [0, 4] is the spin-up from rest, said plainly: the primary vortex forming under the lid
-    (at t 4, 64^2 is 3.0% RMS off a 128^2 run of the same spin-up, 32^2 10.3%). It is not the
-    steady state: at Re 400 the largest change rate |du/dt| falls below 1e-2 at t 15 and 1e-3 at t 25; a window
-    on the steady state (``t_start`` ~ 30 for Re <= 400, ~50 for Re 1000) costs 8-13x a default sample."""
+    range, stay within 0.02 of Ghia, Ghia & Shin's (1982) centreline tables (max |du|, |dv|, lid speed 1); 32^2 at
+    Re 400 and 64^2 at Re 1000 do not, and Ghia has no table between Re 400 and 1000 to check a higher cap against
+    (``python -m benchmarks.flow_validation --parts steady``; figures in docs/results/flows.md). A range whose
+    largest Re exceeds ``CAVITY_CELL_RE`` n still runs (up to the family's cell Reynolds limit) with one
+    ``UnderResolved`` warning naming the n it needs (the linear rule through the measured 64^2 at Re 400).
+    The window t in [0, 4] is the spin-up from rest, said plainly: the primary vortex forming under the lid, not
+    the steady state, which comes near t 25-35 at Re 400 (``--parts transient`` checks the spin-up against a finer
+    grid); ``t_start`` ~ 30 burns in to it, at ~8x the cost of a default sample."""
 
     NAME: ClassVar[str] = "cavity2d"
     # `pdestream generate cavity2d --n 4` on 2 shared CPU cores (load 6-7), no compilation cache (progress lines;
