@@ -195,6 +195,8 @@ def cavity_steady(n=None, re=1000.0, t_max=120.0, rate_tol=1e-4, check_every=1.0
     print("  change rate first below " + ", ".join(f"{lvl:g} at t {'-' if t_ is None else f'{t_:.0f}'}"
                                                    for lvl, t_ in first.items()))
     yc, uc, vc = centrelines(s, n)
+    if re == int(re) and int(re) in GHIA_TABLE_U:  # the table at this Re always, first
+        refs = (int(re), *[r for r in refs if r != int(re)])
     for r in refs:
         du, dv, ku, kv = ghia_deviation(s, n, r)
         mark = "  <- this Re" if r == re else ""

@@ -160,9 +160,9 @@ class UnderResolved(UserWarning):
     accuracy (the message names the grid it needs)."""
 
 
-# cavity2d: the largest cell Reynolds number Re h / L at which the steady centrelines were within 0.02 of Ghia et
-# al. (1982): 64^2 at Re 400 (0.0143 / 0.0124; 32^2 at Re 400, cell Re 12.5: 0.046; 64^2 at Re 1000, 15.6: 0.034;
-# docs/results/flows.md)
+# cavity2d: the cell Reynolds number Re h / L up to which the steady centrelines were within 0.02 of Ghia et al.
+# (1982) where a table exists: 64^2 at Re 400 and 16^2 at Re 100 (both 6.25) were, 32^2 at Re 400 (12.5) and 64^2
+# at Re 1000 (15.6) were not (docs/results/flows.md)
 CAVITY_CELL_RE = 400 / 64
 
 
