@@ -11,6 +11,7 @@ import dataclasses
 import inspect
 from typing import Protocol
 
+import torch
 from torch import nn
 
 from ..boundaries import all_periodic
@@ -94,3 +95,17 @@ def model_spec(model: Surrogate) -> dict:
     walls = {} if bc is None else {"bc": list(bc)}  # a periodic model's spec is what it always was
     return {"name": model.name, "ndim": model.ndim, "in_channels": model.in_channels,
             "out_channels": model.out_channels, "n_params": model.n_params, **walls, **dataclasses.asdict(model.config)}
+
+
+def zero_output(model: nn.Module) -> None:
+    """Set a built-in model's output layer (the FNO's last projection, the U-Net's head: a pointwise linear map)
+    to weight 0 and bias 0, so that model(x, p) is exactly 0 for every input; the layers before it keep their
+    initialisation, and the first optimizer step moves the output layer off zero. ValueError (one line) for a
+    model whose output layer is not known (your own model: zero it in its constructor)."""
+    head = model.project[-1] if isinstance(model, FNO) else model.head if isinstance(model, UNet) else None
+    if head is None:
+        raise ValueError(f"--corrector-start zero not allowed with the model {type(model).__name__}: its output layer is "
+                         f"not known; allowed with {', '.join(MODELS)} (or use --corrector-start random)")
+    with torch.no_grad():
+        head.linear.weight.zero_()
+        head.linear.bias.zero_()
