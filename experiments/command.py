@@ -169,7 +169,7 @@ def _compare(cmd: CompareCommand, log) -> str:
         return _interactive(cmd)
     if (cmd.unroll is not None or cmd.coarse_n is not None or cmd.fine_n is not None or cmd.noise is not None
             or cmd.corrector_start is not None):
-        raise ValueError("--unroll, --coarse-n, --fine-n, --noise and --corrector-start go with --modes (compare "
+        raise ValueError("--unroll, --coarse-n, --fine-n, --corrector-start and --noise go with --modes (compare "
                          "training modes)")
     if budget:
         return _budget(cmd, log)

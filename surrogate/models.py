@@ -23,7 +23,8 @@ from .user_model import UserModel
 class Surrogate(Protocol):
     """What a model class declares: ``forward(x [B, in_channels, *space], params [B, n_params]) -> [B,
     out_channels, *space]``, built as ``cls(ndim, in_channels, out_channels, n_params, cls.Config(...), bc=...)``
-    (bc: per-axis boundary conditions, None when every axis is periodic; kept as ``model.bc``)."""
+    (bc: per-axis boundary conditions, None when every axis is periodic; kept as ``model.bc``). Optional:
+    ``output_layer()``, the last nn.Linear, which ``zero_output`` sets to zero (``--corrector-start zero``)."""
 
     name: str
     Config: type
@@ -98,14 +99,14 @@ def model_spec(model: Surrogate) -> dict:
 
 
 def zero_output(model: nn.Module) -> None:
-    """Set a built-in model's output layer (the FNO's last projection, the U-Net's head: a pointwise linear map)
-    to weight 0 and bias 0, so that model(x, p) is exactly 0 for every input; the layers before it keep their
-    initialisation, and the first optimizer step moves the output layer off zero. ValueError (one line) for a
-    model whose output layer is not known (your own model: zero it in its constructor)."""
-    head = model.project[-1] if isinstance(model, FNO) else model.head if isinstance(model, UNet) else None
-    if head is None:
-        raise ValueError(f"--corrector-start zero not allowed with the model {type(model).__name__}: its output layer is "
-                         f"not known; allowed with {', '.join(MODELS)} (or use --corrector-start random)")
+    """Set a model's output layer (``model.output_layer()``: the FNO's last projection, the U-Net's head, each a
+    pointwise linear map) to weight 0 and bias 0, so that model(x, p) is exactly 0 for every input; the layers
+    before it keep their initialisation, and the first optimizer step moves the output layer off zero. ValueError
+    (one line) for a model without ``output_layer`` (your own model: zero its output in its constructor)."""
+    if not hasattr(model, "output_layer"):
+        raise ValueError(f"--corrector-start zero not allowed with the model {type(model).__name__}: it has no "
+                         f"output_layer(); allowed with {', '.join(MODELS)} (or use --corrector-start random)")
+    layer = model.output_layer()
     with torch.no_grad():
-        head.linear.weight.zero_()
-        head.linear.bias.zero_()
+        layer.weight.zero_()
+        layer.bias.zero_()

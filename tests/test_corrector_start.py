@@ -69,7 +69,7 @@ def test_settings_record_a_zero_start_only_and_a_bad_value_is_one_line():
         def forward(self, z, p):
             return z
 
-    with pytest.raises(ValueError, match="--corrector-start zero not allowed with the model Own"):
+    with pytest.raises(ValueError, match="--corrector-start zero not allowed with the model Own: it has no output_layer"):
         corrector("zero").init_model(Own())
 
 
@@ -108,7 +108,7 @@ def test_cli_refuses_a_bad_start_in_one_line(tmp_path, capsys, argv):
     assert "--corrector-start='ones' not allowed; allowed: random, zero" in err
     rc = cli.main(["compare", "burgers1d", "--corrector-start", "zero", "--out", str(out)])
     err = capsys.readouterr().err
-    assert rc == 2 and "--corrector-start go with --modes" in err and err.count("\n") == 1
+    assert rc == 2 and "--corrector-start and --noise go with --modes" in err and err.count("\n") == 1
     assert not out.exists()
 
 
