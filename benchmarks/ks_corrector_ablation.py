@@ -1,7 +1,8 @@
 """Tables, figure and gradient check of the ks1d corrector ablation (issue 29; docs/results/interactive.md,
 "Ablation from the attractor").
 
-``python -m benchmarks.ks_corrector_ablation [--runs runs/abl] [--figure PNG] [--horizon 9] [--gradients]``
+``python -m benchmarks.ks_corrector_ablation [--runs runs/abl] [--figure PNG] [--horizon 9] [--gradients]
+[--amplitude]``
 
 Reads the compare.json of each `pdestream compare ks1d --modes solver-in-the-loop ... --out RUNS/<name>` run of
 the ablation (zero_u4, zero_u8, zero_u16, random_u16, zero_u4_1500; those present) and prints, per arm, the mean
@@ -11,7 +12,10 @@ pairs and pairs + noise (e_other / e_sitl). ``--figure``: error against time of 
 unroll lengths at 500 steps; right: 500 against 1500 steps). ``--gradients``: the gradient of the
 solver-in-the-loop loss at unroll 1, 4 and 16 on 16 batches of 32 held-out windows (seed 7), at the zero start and
 at RUNS/zero_u4's trained pairs correction: mean per-batch norm and coherence ||mean g||^2 / mean ||g||^2 (1: the
-batches agree; 1/16: independent zero-mean batches). Figures, not pass/fail.
+batches agree; 1/16: independent zero-mean batches). ``--amplitude``: per corrector arm of RUNS/zero_u4 and
+RUNS/zero_u4_1500, the rolled-out field's L2 norm over the truth's (mean over the 32 test trajectories) at a few
+frames: a correction that damps the field would show a ratio below 1 where the errors saturate. Figures, not
+pass/fail.
 """
 
 from __future__ import annotations
@@ -132,12 +136,39 @@ def gradients(runs: Path, batches: int = 16) -> None:
                   f"{max(losses):.3g}); grad norm mean {float(G.norm(dim=1).mean()):.3g}; coherence {coherence:.3f}")
 
 
+def amplitude(runs: Path) -> None:
+    import torch
+
+    from pdestream.experiments.budget import stratified_test_set
+    from pdestream.settings import build_pde
+    from pdestream.surrogate.checkpoint import load_checkpoint
+    from pdestream.surrogate.modes import make_mode
+
+    torch.set_num_threads(1)
+    fine = build_pde("ks1d", {"n": "512", "t_start": "50", "t_end": "80", "n_frames": "31"})
+    test = stratified_test_set(fine, 32, 0)  # the compare runs' test set (seed 0)
+    u, params = torch.cat([d["u"] for d in test]), torch.cat([d["params"] for d in test])
+    mode = make_mode({"name": "solver-in-the-loop", "unroll": 1, "coarse_n": 128}).bind(fine, 0)
+    frames = (1, 9, 15, 20, 25, 30)
+    print("arm: rolled-out norm / true norm at t - t_start = " + ", ".join(map(str, frames)))
+    for run in ("zero_u4", "zero_u4_1500"):
+        for label, arm in (("coarse solver", None), ("pairs", "sitl_unroll1"), ("pairs + noise", "sitl_unroll1_noise"),
+                           ("solver-in-the-loop", "sitl_unroll4")):
+            if arm is None and run != "zero_u4":
+                continue
+            model, norm = (None, None) if arm is None else load_checkpoint(runs / run / arm / "model.pt")[:2]
+            pred, truth = mode.rollout(model, norm, u, params)  # [N, T-1, 1, 128] each
+            ratio = (pred.flatten(2).norm(dim=2) / truth.flatten(2).norm(dim=2)).mean(0)  # [T-1]
+            print(f"{run if arm else '':12s} {label:18s} " + " ".join(f"{float(ratio[t - 1]):.3f}" for t in frames))
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.ks_corrector_ablation", description=__doc__.split("\n")[0])
     p.add_argument("--runs", default="runs/abl", help="the folder of the ablation's compare runs")
     p.add_argument("--figure", metavar="PNG", help="draw the error against time of the corrector arms here")
     p.add_argument("--horizon", type=int, default=9, help="frames in the horizon mean (time units at frame dt 1)")
     p.add_argument("--gradients", action="store_true", help="measure the gradient coherence against the unroll")
+    p.add_argument("--amplitude", action="store_true", help="the rolled-out field's norm over the truth's per arm")
     args = p.parse_args(argv)
     runs = Path(args.runs)
     if not any((runs / name / "compare.json").is_file() for name in RUNS):
@@ -149,6 +180,8 @@ def main(argv=None) -> int:
         figure(runs, args.figure, args.horizon)
     if args.gradients:
         gradients(runs)
+    if args.amplitude:
+        amplitude(runs)
     return 0
 
 
