@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 from .checks import check_count
 
-DEFAULTS = {"unroll": 4, "coarse_n": 64, "noise": 0.01, "corrector_start": "random"}  # a setting's default for
-# every mode that takes it
-# How a correction network starts: "random" (the model's own initialisation) or "zero" (its output layer's weights and
+# a setting's default for every mode that takes it
+DEFAULTS = {"unroll": 4, "coarse_n": 64, "noise": 0.01, "corrector_start": "random"}
+# how a correction network starts: "random" (the model's own initialisation) or "zero" (its output layer's weights and
 # bias set to zero, so the corrected solver starts as the coarse solver alone: Mosaic's correctors start this way)
 CORRECTOR_STARTS = ("random", "zero")
 
@@ -61,7 +61,8 @@ NOISE_RULE = ("x + eps, eps a Gaussian random walk over the k_in input frames wh
 SITL_NOISE_RULE = ("s0 + eps, s0 the coarse start state (the fine state restricted to the coarse grid), eps ~ N(0, "
                    "noise^2) per channel and point in normalized units (noise x the data's std); the coarse solver and "
                    "the correction step from s0 + eps, the fine targets clean")
-OPTION = {"unroll": "--unroll", "coarse_n": "--coarse-n", "noise": "--noise", "corrector_start": "--corrector-start"}  # how the CLI spells each setting
+# how the CLI spells each setting
+OPTION = {"unroll": "--unroll", "coarse_n": "--coarse-n", "noise": "--noise", "corrector_start": "--corrector-start"}
 
 
 def takes(setting: str) -> str:
