@@ -5,8 +5,8 @@
 [--amplitude]``
 
 Reads the compare.json of each `pdestream compare ks1d --modes solver-in-the-loop ... --out RUNS/<name>` run of
-the ablation (zero_u4, zero_u8, zero_u16, random_u16, zero_u4_1500; those present) and prints, per arm, the mean
-relative L2 at t - t_start = 1, 2, 4, 6, 8, 9, its mean over frames 1..horizon (about 2 Lyapunov times at ks1d's
+the ablation (zero_u4, zero_u8, zero_u16, random_u16, zero_u4_1000, zero_u4_1500; those present) and prints, per
+arm, the mean relative L2 at t - t_start = 1, 2, 4, 6, 8, 9, its mean over frames 1..horizon (about 2 Lyapunov times at ks1d's
 e-fold time of ~4.5), the whole window's rollout mean and p95 and the end mean; then solver-in-the-loop against
 pairs and pairs + noise (e_other / e_sitl). ``--figure``: error against time of the corrector arms (left: the
 unroll lengths at 500 steps; right: 500 against 1500 steps). ``--gradients``: the gradient of the
@@ -25,7 +25,7 @@ import json
 import sys
 from pathlib import Path
 
-RUNS = ("zero_u4", "zero_u8", "zero_u16", "random_u16", "zero_u4_1500")
+RUNS = ("zero_u4", "zero_u8", "zero_u16", "random_u16", "zero_u4_1000", "zero_u4_1500")
 FRAMES = (1, 2, 4, 6, 8, 9)
 PAIRS, NOISE = "pairs (unroll 1)", "pairs + noise (unroll 1)"
 
