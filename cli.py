@@ -214,7 +214,7 @@ def _add_model_args(p: argparse.ArgumentParser, d, lr_note: str = "") -> None:
 
 
 def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
-    from pdestream.surrogate.mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, takes
+    from pdestream.surrogate.mode_table import CORRECTOR_STARTS, DEFAULTS, MODE_NAMES, MODE_SPECS, takes
 
     g = p.add_argument_group("interactive training modes (see surrogate/modes.py)")
     if isinstance(d, TrainConfig):
@@ -239,6 +239,11 @@ def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
                         "solver-in-the-loop: std of the noise on the coarse start state, the fine target clean "
                         "(train: default 0; compare --modes: the arm 'pairs + noise'); a fraction of the data's std, "
                         "a number >= 0")
+    g.add_argument("--corrector-start", metavar="|".join(CORRECTOR_STARTS),  # checked by the mode table (one line)
+                   help=f"{takes('corrector_start')}: how the correction network starts (default "
+                        f"{DEFAULTS['corrector_start']}): random, the model's own initialisation; zero, its output layer "
+                        "set to zero, so the corrected solver starts as the coarse solver (compare --modes: every "
+                        "corrector arm)")
 
 
 def add_train(sub) -> None:
@@ -343,6 +348,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
         model_cfg=parse_sets(args.model_set), view=args.view, k_in=args.k_in, k_out=args.k_out, steps=args.steps,
         batch_size=args.batch_size, lr=args.lr, schedule=args.schedule, threads=args.threads, device=args.device,
         mode=args.mode, loss=args.loss, unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise,
+        corrector_start=args.corrector_start,
         solver_workers=args.solver_workers, solver_timeout=args.solver_timeout)
     cfg.check()  # its own values first (a cache with --ddp is named as such, not as a cache with --reservoir)
     cfg.reservoir = reservoir_cfg(args)
@@ -371,7 +377,8 @@ def compare_command(args: argparse.Namespace) -> CompareCommand:
         model=args.model, model_cfg=parse_sets(args.model_set), view=args.view, k_in=args.k_in, k_out=args.k_out,
         steps=args.steps, batch_size=args.batch_size, lr=args.lr, threads=args.threads, device=args.device,
         modes=None if args.modes is None else tuple(args.modes.split(",")), fine_n=args.fine_n, loss=args.loss,
-        unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise, reservoir=reservoir)
+        unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise, corrector_start=args.corrector_start,
+        reservoir=reservoir)
 
 
 def cmd_compare(args: argparse.Namespace) -> None:

@@ -58,6 +58,7 @@ class CompareCommand:
     unroll: int | None = None
     coarse_n: int | None = None
     noise: float | str | None = None
+    corrector_start: str | None = None
     reservoir: dict = field(default_factory=dict)
 
 
@@ -166,8 +167,10 @@ def _compare(cmd: CompareCommand, log) -> str:
         check_priority_cap(cmd, False)
     if cmd.modes is not None:
         return _interactive(cmd)
-    if cmd.unroll is not None or cmd.coarse_n is not None or cmd.fine_n is not None or cmd.noise is not None:
-        raise ValueError("--unroll, --coarse-n, --fine-n and --noise go with --modes (compare training modes)")
+    if (cmd.unroll is not None or cmd.coarse_n is not None or cmd.fine_n is not None or cmd.noise is not None
+            or cmd.corrector_start is not None):
+        raise ValueError("--unroll, --coarse-n, --fine-n, --corrector-start and --noise go with --modes (compare "
+                         "training modes)")
     if budget:
         return _budget(cmd, log)
     from pdestream.experiments import compare as module
@@ -244,12 +247,14 @@ def _interactive(cmd: CompareCommand) -> str:
     from pdestream.experiments import interactive_compare as module
     from pdestream.settings import build_pde
     from pdestream.surrogate.launch import set_threads
-    from pdestream.surrogate.mode_table import check_noise
+    from pdestream.surrogate.mode_table import check_corrector_start, check_noise
 
     if cmd.budget is not None or cmd.sim_budget is not None:
         raise ValueError("--modes compares at equal --steps; --budget and --sim-budget go with the data-route comparison")
     if cmd.noise is not None:
         check_noise(cmd.noise)  # before the PDE (and JAX) is built
+    if cmd.corrector_start is not None:
+        check_corrector_start(cmd.corrector_start)
     modes = tuple(m.strip() for m in cmd.modes if m.strip())
     settings = {"n": "32", "n_frames": "11", **cmd.settings} if cmd.quick else dict(cmd.settings)  # tiny: tests
     pde = build_pde(cmd.pde, settings)
@@ -259,7 +264,7 @@ def _interactive(cmd: CompareCommand) -> str:
     model_cfg = {**model_cfg, **cmd.model_cfg}
     quick = cmd.quick and cmd.steps == 1000  # quick without steps: a few steps
     given = {"unroll": cmd.unroll, "coarse_n": 16 if cmd.quick and cmd.coarse_n is None else cmd.coarse_n,
-             "noise": cmd.noise}
+             "noise": cmd.noise, "corrector_start": cmd.corrector_start}
     cfg = module.InteractiveConfig(
         modes=modes, **{k: v for k, v in given.items() if v is not None},  # else the mode table's
         steps=20 if quick else cmd.steps, batch_size=8 if quick else cmd.batch_size, lr=cmd.lr, model=cmd.model,

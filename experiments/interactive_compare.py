@@ -39,7 +39,15 @@ from pdestream.surrogate.checkpoint import load_checkpoint
 from pdestream.surrogate.checks import check_count, check_number
 from pdestream.surrogate.data import check_device
 from pdestream.surrogate.evaluate import error_stats, rollout_errors
-from pdestream.surrogate.mode_table import DEFAULTS, MODE_NAMES, MODE_SPECS, NETWORK_MODES, check_noise, mode_settings
+from pdestream.surrogate.mode_table import (
+    DEFAULTS,
+    MODE_NAMES,
+    MODE_SPECS,
+    NETWORK_MODES,
+    check_corrector_start,
+    check_noise,
+    mode_settings,
+)
 from pdestream.surrogate.modes import make_mode
 from pdestream.surrogate.phases import phase
 from pdestream.surrogate.runs import train_run
@@ -53,7 +61,8 @@ class InteractiveConfig:
     """What every arm shares. unroll: k of pushforward, oracle and solver-in-the-loop (sitl_unroll overrides the
     last); coarse_n / fine_n: the solver-in-the-loop grids (fine_n None: the PDE's n); noise: the noise arms'
     std as a fraction of the data's std (``surrogate.modes.Noise`` on the network's input frames; the corrector's
-    "pairs + noise" arm on its coarse start state, ``surrogate.modes.SolverInTheLoop``)."""
+    "pairs + noise" arm on its coarse start state, ``surrogate.modes.SolverInTheLoop``); corrector_start: how every
+    corrector arm's network starts ("random" or "zero", ``SolverInTheLoop.init_model``)."""
 
     modes: tuple = NETWORK_MODES
     unroll: int = DEFAULTS["unroll"]
@@ -69,6 +78,7 @@ class InteractiveConfig:
     coarse_n: int = DEFAULTS["coarse_n"]
     fine_n: int | None = None
     noise: float = DEFAULTS["noise"]
+    corrector_start: str = DEFAULTS["corrector_start"]
     device: str = "cpu"
 
     def check(self, pde) -> None:
@@ -79,6 +89,7 @@ class InteractiveConfig:
         for name in self.modes:
             _settings(self, name)
         self.noise = check_noise(self.noise)  # a bad --noise is refused even without the noise arm
+        check_corrector_start(self.corrector_start)  # (and a bad --corrector-start without the corrector arms)
         for name, value in (("--steps", self.steps), ("--batch-size", self.batch_size), ("--test-samples", self.n_test),
                             ("--k-in", self.k_in)):
             check_count(name, value)
@@ -94,7 +105,8 @@ def _settings(cfg: InteractiveConfig, name: str, **override) -> dict:
     coarse grid where the mode takes them (the mode table decides), ``override`` on top."""
     unroll = cfg.sitl_unroll if name == "solver-in-the-loop" and cfg.sitl_unroll else cfg.unroll
     noise = 0.0 if name == "solver-in-the-loop" else cfg.noise  # (the corrector's noise arm overrides it)
-    given = {"unroll": unroll, "coarse_n": cfg.coarse_n, "noise": noise, **override}
+    given = {"unroll": unroll, "coarse_n": cfg.coarse_n, "noise": noise, "corrector_start": cfg.corrector_start,
+             **override}
     return mode_settings(name, **{k: v for k, v in given.items() if k in MODE_SPECS[name].settings})
 
 
@@ -254,6 +266,8 @@ def _write_tables(out: Path, result: dict, pde, cfg: InteractiveConfig) -> None:
     if "solver-in-the-loop" in cfg.modes:
         noise += (f", pairs + noise: the corrector's coarse start state perturbed by N(0, {cfg.noise:g}^2) in "
                   "normalized units (x the data's std), the fine target clean")
+        noise += f", corrector start: {cfg.corrector_start}" + (" (every corrector's output layer zero at step 0)"
+                                                                 if cfg.corrector_start == "zero" else "")
     lines = [f"{pde.NAME} ({', '.join(f'{k} ~ {v}' for k, v in pde.param_domains.items())}), {cfg.model} "
              f"{cfg.model_cfg}, {cfg.steps} optimizer steps x batch {cfg.batch_size} per trained arm, lr {cfg.lr}, "
              f"unroll {cfg.unroll}{noise}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "

@@ -23,7 +23,8 @@ class TrainConfig:
     model_cfg: the model's settings (e.g. {"width": 64}); view: "next_step" or "operator" (None: next_step, operator
     on a steady PDE); steps: optimizer steps (None: TRAIN_STEPS, or a resumed run's own); threads: torch CPU
     threads (None: all cores but one, shared by the ranks); ddp: ranks started here (None: 1, or torchrun's).
-    mode / loss / unroll / coarse_n / noise: the interactive training mode (surrogate/mode_table.py; None: its default).
+    mode / loss / unroll / coarse_n / noise / corrector_start: the interactive training mode (surrogate/mode_table.py;
+    None: its default).
     reservoir: the training reservoir's settings (train_run's data_cfg, kind "reservoir"; None: no reservoir).
     solver_workers / solver_timeout: external solvers' worker processes and seconds per solve.
     """
@@ -54,6 +55,7 @@ class TrainConfig:
     unroll: int | None = None
     coarse_n: int | None = None
     noise: float | str | None = None
+    corrector_start: str | None = None
     reservoir: dict | None = None
     solver_workers: int | None = None
     solver_timeout: float | None = None
@@ -83,7 +85,8 @@ class TrainConfig:
             raise ValueError(f"--reservoir goes with --source stream (got --source {self.source})")
         from pdestream.surrogate.mode_table import mode_settings  # (no torch)
 
-        mode_settings(self.mode, unroll=self.unroll, coarse_n=self.coarse_n, noise=self.noise)
+        mode_settings(self.mode, unroll=self.unroll, coarse_n=self.coarse_n, noise=self.noise,
+                      corrector_start=self.corrector_start)
 
     def given_with_resume(self) -> list[str]:
         """The fields set besides those RESUME_ALLOWED (a resumed run takes its settings from its run.json)."""

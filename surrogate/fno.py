@@ -154,6 +154,10 @@ class FNO(nn.Module):
         self.skip = nn.ModuleList(pointwise(ndim, width, width) for _ in range(config.layers))
         self.project = nn.Sequential(pointwise(ndim, width, 4 * width), nn.GELU(), pointwise(ndim, 4 * width, out_channels))
 
+    def output_layer(self) -> nn.Linear:
+        """The last linear map, width*4 -> out_channels per point (``surrogate.models.zero_output``)."""
+        return self.project[-1].linear
+
     def forward(self, x: torch.Tensor, params: torch.Tensor | None = None) -> torch.Tensor:
         check_input(x, self.ndim, self.in_channels, "fno")
         x = condition(x, params, self.n_params)  # [B, C_in + P, *space]

@@ -110,7 +110,8 @@ def mode_settings(cfg: TrainConfig) -> dict:
     take (surrogate.mode_table.mode_settings); k_out is checked with the view (surrogate.modes)."""
     from pdestream.surrogate import mode_table
 
-    settings = mode_table.mode_settings(cfg.mode, unroll=cfg.unroll, coarse_n=cfg.coarse_n, noise=cfg.noise)
+    settings = mode_table.mode_settings(cfg.mode, unroll=cfg.unroll, coarse_n=cfg.coarse_n, noise=cfg.noise,
+                                        corrector_start=cfg.corrector_start)
     return settings if cfg.loss == "mse" else {**settings, "loss": cfg.loss}
 
 

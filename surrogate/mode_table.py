@@ -13,7 +13,11 @@ from dataclasses import dataclass
 
 from .checks import check_count
 
-DEFAULTS = {"unroll": 4, "coarse_n": 64, "noise": 0.01}  # a setting's default for every mode that takes it
+# a setting's default for every mode that takes it
+DEFAULTS = {"unroll": 4, "coarse_n": 64, "noise": 0.01, "corrector_start": "random"}
+# how a correction network starts: "random" (the model's own initialisation) or "zero" (its output layer's weights and
+# bias set to zero, so the corrected solver starts as the coarse solver alone: Mosaic's correctors start this way)
+CORRECTOR_STARTS = ("random", "zero")
 
 
 @dataclass(frozen=True)
@@ -39,9 +43,10 @@ MODE_SPECS = {spec.name: spec for spec in (
              "unroll the network K-1 steps without gradient, train the K-th"),
     ModeSpec("oracle", ("unroll",), True,
              "train on states the network reaches in 0..K steps, labelled by the solver"),
-    ModeSpec("solver-in-the-loop", ("unroll", "coarse_n", "noise"), False,
+    ModeSpec("solver-in-the-loop", ("unroll", "coarse_n", "noise", "corrector_start"), False,
              "a correction network on a coarse differentiable solver, unrolled K steps, against the fine solve "
-             "(--noise SIGMA: the coarse start state perturbed, the fine target clean; default 0)",
+             "(--noise SIGMA: the coarse start state perturbed, the fine target clean; default 0; "
+             "--corrector-start zero: the correction's output layer starts at zero)",
              defaults=(("noise", 0.0),)),
     ModeSpec("noise", ("noise",), True,
              "Gaussian noise on the input frames (random walk, the newest frame's std SIGMA x the data's std), "
@@ -56,7 +61,8 @@ NOISE_RULE = ("x + eps, eps a Gaussian random walk over the k_in input frames wh
 SITL_NOISE_RULE = ("s0 + eps, s0 the coarse start state (the fine state restricted to the coarse grid), eps ~ N(0, "
                    "noise^2) per channel and point in normalized units (noise x the data's std); the coarse solver and "
                    "the correction step from s0 + eps, the fine targets clean")
-OPTION = {"unroll": "--unroll", "coarse_n": "--coarse-n", "noise": "--noise"}  # how the CLI spells each setting
+# how the CLI spells each setting
+OPTION = {"unroll": "--unroll", "coarse_n": "--coarse-n", "noise": "--noise", "corrector_start": "--corrector-start"}
 
 
 def takes(setting: str) -> str:
@@ -80,8 +86,16 @@ def mode_settings(name: str, **given) -> dict:
     out = {"name": name}
     for key in spec.settings:
         value = spec.default(key) if given.get(key) is None else given[key]
-        out[key] = check_noise(value) if key == "noise" else check_count(OPTION[key], value)
+        out[key] = CHECKS.get(key, lambda v: check_count(OPTION[key], v))(value)
     return out
+
+
+def check_corrector_start(value) -> str:
+    """The corrector's start, one of CORRECTOR_STARTS, else one line naming the value and what is allowed."""
+    if value not in CORRECTOR_STARTS:
+        raise ValueError(f"--corrector-start={value!r} not allowed; allowed: {', '.join(CORRECTOR_STARTS)} (random: the "
+                         "model's own initialisation; zero: its output layer set to zero, the coarse solver at step 0)")
+    return value
 
 
 def check_noise(value) -> float:
@@ -99,3 +113,6 @@ def check_noise(value) -> float:
         raise ValueError(f"--noise={value!r} not allowed; must be a finite number >= 0: the std of the input noise "
                          f"as a fraction of the data's std (e.g. {DEFAULTS['noise']}; 0: no noise)")
     return float(number)
+
+
+CHECKS = {"noise": check_noise, "corrector_start": check_corrector_start}  # the settings that are not counts

@@ -11,6 +11,7 @@ import dataclasses
 import inspect
 from typing import Protocol
 
+import torch
 from torch import nn
 
 from ..boundaries import all_periodic
@@ -22,7 +23,8 @@ from .user_model import UserModel
 class Surrogate(Protocol):
     """What a model class declares: ``forward(x [B, in_channels, *space], params [B, n_params]) -> [B,
     out_channels, *space]``, built as ``cls(ndim, in_channels, out_channels, n_params, cls.Config(...), bc=...)``
-    (bc: per-axis boundary conditions, None when every axis is periodic; kept as ``model.bc``)."""
+    (bc: per-axis boundary conditions, None when every axis is periodic; kept as ``model.bc``). Optional:
+    ``output_layer()``, the last nn.Linear, which ``zero_output`` sets to zero (``--corrector-start zero``)."""
 
     name: str
     Config: type
@@ -94,3 +96,17 @@ def model_spec(model: Surrogate) -> dict:
     walls = {} if bc is None else {"bc": list(bc)}  # a periodic model's spec is what it always was
     return {"name": model.name, "ndim": model.ndim, "in_channels": model.in_channels,
             "out_channels": model.out_channels, "n_params": model.n_params, **walls, **dataclasses.asdict(model.config)}
+
+
+def zero_output(model: nn.Module) -> None:
+    """Set a model's output layer (``model.output_layer()``: the FNO's last projection, the U-Net's head, each a
+    pointwise linear map) to weight 0 and bias 0, so that model(x, p) is exactly 0 for every input; the layers
+    before it keep their initialisation, and the first optimizer step moves the output layer off zero. ValueError
+    (one line) for a model without ``output_layer`` (your own model: zero its output in its constructor)."""
+    if not hasattr(model, "output_layer"):
+        raise ValueError(f"--corrector-start zero not allowed with the model {type(model).__name__}: it has no "
+                         f"output_layer(); allowed with {', '.join(MODELS)} (or use --corrector-start random)")
+    layer = model.output_layer()
+    with torch.no_grad():
+        layer.weight.zero_()
+        layer.bias.zero_()

@@ -51,6 +51,7 @@ from pdestream.datasets.normalize import Normalization
 
 from ..boundaries import kinds, periodic_words
 from .mode_table import DEFAULTS, MODE_NAMES, NOISE_RULE, SITL_NOISE_RULE, mode_settings
+from .models import zero_output
 from .predict import model_channels, net_step, pairs, predict, relative_errors, rollout, stack_frames
 
 LOSSES = ("mse", "relative")
@@ -367,11 +368,16 @@ class SolverInTheLoop:
     correction step from the perturbed state, the fine targets stay clean, so the correction learns to pull a
     perturbed coarse state back toward the fine trajectory. eps is a pure function of (seed, optimizer step);
     noise = 0 trains exactly as without it. The evaluation (rollout) is unperturbed.
+
+    ``corrector_start`` "zero" (``init_model``): the network's output layer starts at zero, so before the first
+    optimizer step the correction is exactly 0 and the corrected solver is the coarse solver; "random": the
+    model's own initialisation (its correction starts as noise of the size of its random output).
     """
 
     unroll: int = DEFAULTS["unroll"]
     coarse_n: int = DEFAULTS["coarse_n"]
     noise: float = 0.0
+    corrector_start: str = DEFAULTS["corrector_start"]
     seed: int = 0
     step: nn.Module | None = None
     factor: int = 0
@@ -384,7 +390,15 @@ class SolverInTheLoop:
         s = {"name": self.name, "unroll": self.unroll, "coarse_n": self.coarse_n}
         if self.noise > 0:  # (left out at 0: run.json files written before the setting existed compare equal)
             s.update(noise=self.noise, rule=SITL_NOISE_RULE)
+        if self.corrector_start != DEFAULTS["corrector_start"]:  # (the same: older run.json files compare equal)
+            s["corrector_start"] = self.corrector_start
         return _with_loss(s, self.loss)
+
+    def init_model(self, model: nn.Module) -> None:
+        """Set up a freshly built correction network for ``corrector_start`` (before its first step; a resumed run
+        then loads its checkpoint over it)."""
+        if self.corrector_start == "zero":
+            zero_output(model)
 
     def frames_ahead(self, view) -> int:
         return self.unroll
@@ -566,9 +580,11 @@ MODES = {cls.name: cls for cls in (OneStep, Pushforward, Oracle, SolverInTheLoop
 assert tuple(MODES) == MODE_NAMES
 
 
-def check_mode_settings(name: str, unroll: int | None = None, coarse_n: int | None = None, noise=None) -> None:
-    """ValueError (one line) naming a bad mode name, unroll, coarse grid or noise (``mode_table.mode_settings``)."""
-    mode_settings(name, unroll=unroll, coarse_n=coarse_n, noise=noise)
+def check_mode_settings(name: str, unroll: int | None = None, coarse_n: int | None = None, noise=None,
+                        corrector_start: str | None = None) -> None:
+    """ValueError (one line) naming a bad mode name, unroll, coarse grid, noise or corrector start
+    (``mode_table.mode_settings``)."""
+    mode_settings(name, unroll=unroll, coarse_n=coarse_n, noise=noise, corrector_start=corrector_start)
 
 
 def make_mode(settings: dict | None) -> Mode:

@@ -211,6 +211,8 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     torch.manual_seed(s["seed"])  # same initial weights for every source with the same seed
     net = build_model(s["model"], data_pde.NDIM, c_in, c_out, len(data_pde.PARAMS), bc=data_pde.grid.bc,
                       **s["model_cfg"])  # the walls of the data (a cache's own, or the stream's PDE)
+    if hasattr(mode, "init_model"):  # solver-in-the-loop: the correction's start (--corrector-start)
+        mode.init_model(net)
     net.to(device)
     coarse = getattr(mode, "coarse_n", None)  # solver-in-the-loop: the model works on the coarse grid
     space = (coarse,) * data_pde.NDIM if coarse else tuple(data_pde.grid.shape)

@@ -95,6 +95,10 @@ class UNet(nn.Module):
                                 for i in reversed(range(config.depth)))
         self.head = pointwise(ndim, widths[0], out_channels)
 
+    def output_layer(self) -> nn.Linear:
+        """The head's linear map, channels -> out_channels per point (``surrogate.models.zero_output``)."""
+        return self.head.linear
+
     def forward(self, x: torch.Tensor, params: torch.Tensor | None = None) -> torch.Tensor:
         check_input(x, self.ndim, self.in_channels, "unet")
         factor = 2**self.config.depth
