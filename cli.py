@@ -244,6 +244,10 @@ def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
                         f"{DEFAULTS['corrector_start']}): random, the model's own initialisation; zero, its output layer "
                         "set to zero, so the corrected solver starts as the coarse solver (compare --modes: every "
                         "corrector arm)")
+    if not isinstance(d, TrainConfig):
+        g.add_argument("--unroll-schedule", metavar="K1:S1,K2:S2,...",  # checked by the mode table (one line)
+                       help="solver-in-the-loop arm: an unroll curriculum (Um et al. 2020), unroll Ki for the share Si "
+                            "of --steps, in order (shares summing to 1), e.g. 1:0.3,4:0.3,16:0.4; recorded in run.json")
 
 
 def add_train(sub) -> None:
@@ -286,7 +290,7 @@ def add_compare(sub) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output: compare.md/csv/json/png, cache, runs")
     p.add_argument("--cache-samples", type=int, default=d.cache_samples, metavar="M", help="size of the fixed cached set")
     p.add_argument("--seeds", type=int, default=d.seeds, help="model and data seeds per arm: mean, spread and, with a "
-                   "budget, a verdict per metric (default: 3; a budget with --quick: 1)")
+                   "budget or --modes, a verdict per metric (default: 3; a budget with --quick and --modes: 1)")
     p.add_argument("--test-samples", type=int, default=d.test_samples, help="held-out trajectories per test set")
     p.add_argument("--shift", type=float, default=d.shift,
                    help="shifted test set: parameter domains moved this fraction of their width beyond the "
@@ -294,7 +298,8 @@ def add_compare(sub) -> None:
     p.add_argument("--shift-set", action="append", metavar="PARAM=DOMAIN", default=[],
                    help="explicit shifted domain, e.g. --shift-set nu='loguniform(0.1,0.2)'")
     p.add_argument("--format", default=d.format, choices=["h5", "zarr"], help="cache format")
-    p.add_argument("--overwrite", action="store_true", help="replace an earlier compare output in DIR")
+    p.add_argument("--overwrite", action="store_true", help="replace an earlier compare output in DIR (--modes: "
+                   "without it a rerun goes on, reading back each finished (arm, seed); with it every arm retrains)")
     b = p.add_argument_group("budget-matched comparison (precomputed / fifo / reservoir / reservoir_loss / "
                              "reservoir_active / reservoir_priority)")
     b.add_argument("--budget", type=float, metavar="SECONDS",
@@ -378,7 +383,7 @@ def compare_command(args: argparse.Namespace) -> CompareCommand:
         steps=args.steps, batch_size=args.batch_size, lr=args.lr, threads=args.threads, device=args.device,
         modes=None if args.modes is None else tuple(args.modes.split(",")), fine_n=args.fine_n, loss=args.loss,
         unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise, corrector_start=args.corrector_start,
-        reservoir=reservoir)
+        unroll_schedule=args.unroll_schedule, reservoir=reservoir)
 
 
 def cmd_compare(args: argparse.Namespace) -> None:

@@ -23,7 +23,7 @@ RUN_FILES = ("model.pt", "metrics.json", "arm.json", "run.json", "checkpoint.pt"
 class CompareCommand:
     """Everything ``pdestream compare`` takes. settings: the PDE's --config/--set values; model_cfg: the user's
     model settings over the comparison's own; reservoir: the reservoir options given (datasets.reservoir_options'
-    names; the rest take their defaults); seeds None: 3 (1 for a quick budget run)."""
+    names; the rest take their defaults); seeds None: 3 (1 for a quick budget run and for --modes)."""
 
     pde: object = "burgers1d"
     out: str = ""
@@ -59,6 +59,7 @@ class CompareCommand:
     coarse_n: int | None = None
     noise: float | str | None = None
     corrector_start: str | None = None
+    unroll_schedule: str | None = None
     reservoir: dict = field(default_factory=dict)
 
 
@@ -66,7 +67,8 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
     """Run the comparison of ``cmd`` into ``cmd.out``; returns compare.md's text and the files' line. A Ctrl-C is
     raised again as a KeyboardInterrupt saying what was kept (finished runs stay; else what it created goes)."""
     log = log or (lambda line: print(line, flush=True))  # (said before a long run: flushed)
-    check_compare_out(cmd.out, cmd.overwrite)
+    if cmd.modes is None:  # (--modes resumes in the same out: a finished (arm, seed) of the same settings is kept)
+        check_compare_out(cmd.out, cmd.overwrite)
     check_writable_dir(cmd.out)
     if isinstance(cmd.pde, str):
         from pdestream.catalog_names import check_name
@@ -76,7 +78,7 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
     try:
         return _compare(cmd, log)
     except KeyboardInterrupt:
-        raise KeyboardInterrupt(compare_left(cmd.out, before)) from None
+        raise KeyboardInterrupt(compare_left(cmd.out, before, resumes=cmd.modes is not None)) from None
 
 
 def check_compare_out(out: str, overwrite: bool) -> None:
@@ -94,9 +96,10 @@ def check_compare_out(out: str, overwrite: bool) -> None:
                               f"{', ...' if len(found) > 4 else ''}); pass --overwrite or choose another --out")
 
 
-def compare_left(out: str, before) -> str:
+def compare_left(out: str, before, resumes: bool = False) -> str:
     """What an interrupted `compare` leaves, in words. Finished runs (and tables) are kept; without them nothing
-    of value was written (a rerun rewrites the cache too), so what the command created in out is removed."""
+    of value was written (a rerun rewrites the cache too), so what the command created in out is removed.
+    resumes: the comparison goes on from its finished runs when rerun (``--modes``)."""
     d = Path(out)
     if not d.is_dir():
         return "nothing was written"
@@ -105,8 +108,9 @@ def compare_left(out: str, before) -> str:
                                                                  or (p / "arm.json").is_file()))
     if tables or runs:
         kept = ", ".join(tables + [f"{r}/" for r in runs][:4]) + (", ..." if len(runs) > 4 else "")
-        return (f"{out} keeps {len(runs)} finished run{'' if len(runs) == 1 else 's'} ({kept}); "
-                "pass --overwrite to run the comparison again")
+        again = ("rerun the same command to go on from them" if resumes else
+                 "pass --overwrite to run the comparison again")
+        return f"{out} keeps {len(runs)} finished run{'' if len(runs) == 1 else 's'} ({kept}); {again}"
     remove_created(d, before)
     return "nothing was kept (no run had finished)"
 
@@ -168,9 +172,9 @@ def _compare(cmd: CompareCommand, log) -> str:
     if cmd.modes is not None:
         return _interactive(cmd)
     if (cmd.unroll is not None or cmd.coarse_n is not None or cmd.fine_n is not None or cmd.noise is not None
-            or cmd.corrector_start is not None):
-        raise ValueError("--unroll, --coarse-n, --fine-n, --corrector-start and --noise go with --modes (compare "
-                         "training modes)")
+            or cmd.corrector_start is not None or cmd.unroll_schedule is not None):
+        raise ValueError("--unroll, --unroll-schedule, --coarse-n, --fine-n, --corrector-start and --noise go with "
+                         "--modes (compare training modes)")
     if budget:
         return _budget(cmd, log)
     from pdestream.experiments import compare as module
@@ -268,7 +272,8 @@ def _interactive(cmd: CompareCommand) -> str:
     cfg = module.InteractiveConfig(
         modes=modes, **{k: v for k, v in given.items() if v is not None},  # else the mode table's
         steps=20 if quick else cmd.steps, batch_size=8 if quick else cmd.batch_size, lr=cmd.lr, model=cmd.model,
-        model_cfg=model_cfg, k_in=cmd.k_in, seed=0, n_test=4 if cmd.quick and cmd.test_samples == 128 else
+        model_cfg=model_cfg, k_in=cmd.k_in, seed=0, seeds=1 if cmd.seeds is None else cmd.seeds,
+        unroll_schedule=cmd.unroll_schedule, resume=not cmd.overwrite, n_test=4 if cmd.quick and cmd.test_samples == 128 else
         cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device)
     if cmd.k_out != 1:
         raise ValueError(f"--k-out={cmd.k_out} not allowed with --modes: every mode predicts one frame per step")

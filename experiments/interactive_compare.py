@@ -18,6 +18,14 @@ alone (``vs_coarse``): improvement e_coarse / e_arm and share of the gap closed 
 rollout mean (the mean over trajectories of each trajectory's relative L2 averaged over all frames), the
 rollout p95 (the 95th percentile over trajectories of the same) and the end mean.
 
+Seeds (``seeds``): every trained arm is trained with model and data seeds seed .. seed + seeds - 1 on the same
+test trajectories (those of ``seed``); each figure is reported as the mean over seeds with its std, and
+compare.md says per metric whether solver-in-the-loop's margin over each corrector arm exceeds the seed spread
+(the two arms' stds added, as ``budget_report.verdicts``). Resumable arm by arm: an (arm, seed) whose run
+directory holds a finished run (metrics.json) with the same settings is read back, not retrained, so the same
+command rerun on the same out goes on where a killed one stopped (an unfinished run starts over); a finished run
+with other settings is refused (one line) unless ``resume`` is False (``--overwrite``: every arm is retrained).
+
 Outputs in out_dir: compare.md, compare.csv, compare.json, curves.csv (error against time per arm: mean and p95
 over trajectories per frame), compare.png (errors against time), corrector.png (solver-in-the-loop: error
 against time per corrector arm, mean and p95, log y), rollouts.png (solver-in-the-loop: one held-out
@@ -47,6 +55,7 @@ from pdestream.surrogate.mode_table import (
     check_corrector_start,
     check_noise,
     mode_settings,
+    parse_unroll_schedule,
 )
 from pdestream.surrogate.modes import make_mode
 from pdestream.surrogate.phases import phase
@@ -62,7 +71,10 @@ class InteractiveConfig:
     last); coarse_n / fine_n: the solver-in-the-loop grids (fine_n None: the PDE's n); noise: the noise arms'
     std as a fraction of the data's std (``surrogate.modes.Noise`` on the network's input frames; the corrector's
     "pairs + noise" arm on its coarse start state, ``surrogate.modes.SolverInTheLoop``); corrector_start: how every
-    corrector arm's network starts ("random" or "zero", ``SolverInTheLoop.init_model``)."""
+    corrector arm's network starts ("random" or "zero", ``SolverInTheLoop.init_model``); unroll_schedule: the
+    solver-in-the-loop arm's unroll curriculum, "K1:S1,K2:S2,..." (unroll Ki for the share Si of the steps,
+    ``mode_table.parse_unroll_schedule``; its longest unroll replaces sitl_unroll); seed: the first model and data
+    seed and the test set's; seeds: how many (seed, seed + 1, ...); resume: read back finished (arm, seed) runs."""
 
     modes: tuple = NETWORK_MODES
     unroll: int = DEFAULTS["unroll"]
@@ -79,7 +91,14 @@ class InteractiveConfig:
     fine_n: int | None = None
     noise: float = DEFAULTS["noise"]
     corrector_start: str = DEFAULTS["corrector_start"]
+    unroll_schedule: str | None = None
+    seeds: int = 1
+    resume: bool = True
     device: str = "cpu"
+
+    def schedule(self) -> list | None:
+        """The solver-in-the-loop arm's unroll curriculum in optimizer steps ([[k, steps], ...]) or None."""
+        return None if self.unroll_schedule is None else parse_unroll_schedule(self.unroll_schedule, self.steps)
 
     def check(self, pde) -> None:
         """ValueError (one line) naming the bad setting, before any work."""
@@ -91,11 +110,17 @@ class InteractiveConfig:
         self.noise = check_noise(self.noise)  # a bad --noise is refused even without the noise arm
         check_corrector_start(self.corrector_start)  # (and a bad --corrector-start without the corrector arms)
         for name, value in (("--steps", self.steps), ("--batch-size", self.batch_size), ("--test-samples", self.n_test),
-                            ("--k-in", self.k_in)):
+                            ("--k-in", self.k_in), ("--seeds", self.seeds)):
             check_count(name, value)
+        if self.unroll_schedule is not None:
+            if "solver-in-the-loop" not in self.modes:
+                raise ValueError(f"--unroll-schedule {self.unroll_schedule} goes with the solver-in-the-loop arm "
+                                 "(--modes ...,solver-in-the-loop)")
+            self.schedule()  # one line for a bad value, before any work
         check_number("--lr", self.lr, 0)
-        if pde.n_frames < self.k_in + max(self.unroll, 1) + 1:
-            raise ValueError(f"--unroll {self.unroll} needs trajectories of at least {self.k_in + self.unroll + 1} "
+        longest = max([self.unroll, *(k for k, _ in self.schedule() or ())])
+        if pde.n_frames < self.k_in + longest + 1:
+            raise ValueError(f"--unroll {longest} needs trajectories of at least {self.k_in + self.unroll + 1} "
                              f"frames; {pde.NAME} has n_frames={pde.n_frames}")
         check_device(self.device)
 
@@ -104,9 +129,14 @@ def _settings(cfg: InteractiveConfig, name: str, **override) -> dict:
     """Mode ``name``'s settings in this comparison: the config's unroll (sitl_unroll for solver-in-the-loop) and
     coarse grid where the mode takes them (the mode table decides), ``override`` on top."""
     unroll = cfg.sitl_unroll if name == "solver-in-the-loop" and cfg.sitl_unroll else cfg.unroll
+    schedule = cfg.schedule() if name == "solver-in-the-loop" else None
+    if schedule:
+        unroll = max(k for k, _ in schedule)
     noise = 0.0 if name == "solver-in-the-loop" else cfg.noise  # (the corrector's noise arm overrides it)
     given = {"unroll": unroll, "coarse_n": cfg.coarse_n, "noise": noise, "corrector_start": cfg.corrector_start,
-             **override}
+             "unroll_schedule": schedule, **override}
+    if given.get("unroll") == 1:  # the pairs arms: no curriculum
+        given["unroll_schedule"] = None
     return mode_settings(name, **{k: v for k, v in given.items() if k in MODE_SPECS[name].settings})
 
 
@@ -120,33 +150,36 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
     if sitl:
         make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)  # sizes fit?
     out.mkdir(parents=True, exist_ok=True)
+    k = _settings(cfg, "solver-in-the-loop")["unroll"] if sitl else None
+    plan = [(name, pde, _settings(cfg, name), out / name) for name in net_modes]
+    if sitl:
+        plan += [(label, fine, _settings(cfg, "solver-in-the-loop", unroll=unroll, noise=noise), out / run)
+                 for label, unroll, noise, run in _corrector_arms(cfg, k)]
+    for _label, arm_pde, settings, run_dir in plan:  # a finished run of other settings: refused before any work
+        for seed in _seeds(cfg):
+            _finished(_run_dir(run_dir, cfg, seed), arm_pde, settings, cfg, seed)
     arms = []
     if net_modes:
         t0 = time.perf_counter()
         with phase(f"building the test set ({cfg.n_test} trajectories)", total=cfg.n_test, solves=-(-cfg.n_test // 32)):
             test = stratified_test_set(pde, cfg.n_test, cfg.seed)
         log(f"test set: {cfg.n_test} trajectories of {pde.n_frames} frames in {time.perf_counter() - t0:.1f} s")
-        for name in net_modes:
-            settings = _settings(cfg, name)
-            arms.append(_train_arm(name, pde, settings, test, cfg, out / name, log))
+        for name, arm_pde, settings, run_dir in plan[:len(net_modes)]:
+            arms.append(_train_seeds(name, arm_pde, settings, test, cfg, run_dir, log))
     if sitl and not (net_modes and fine is pde):  # (the network modes' test set is the fine one: not solved twice)
         with phase(f"building the fine test set ({cfg.n_test} trajectories, n={fine.n})", total=cfg.n_test,
                    solves=-(-cfg.n_test // 32)):  # stratified_test_set's chunks of 32
             test = stratified_test_set(fine, cfg.n_test, cfg.seed)
     if sitl:
-        k = _settings(cfg, "solver-in-the-loop")["unroll"]
         coarse = make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)
         t0 = time.perf_counter()
         errors = rollout_errors(None, _identity_norm(fine), test, datasets.NextStep(1, 1), coarse).relative()
         arms.append(_record("coarse solver", "none", errors, 0.0, None, cfg.coarse_n))
         log(f"coarse solver (n={cfg.coarse_n}): end error {arms[-1]['end_mean']:.4f} ({time.perf_counter() - t0:.1f} s)")
-        for label, unroll, noise, run in (("pairs (unroll 1)", 1, 0.0, "sitl_unroll1"),
-                                          ("pairs + noise (unroll 1)", 1, cfg.noise, "sitl_unroll1_noise"),
-                                          (f"solver-in-the-loop (unroll {k})", k, 0.0, f"sitl_unroll{k}")):
-            settings = _settings(cfg, "solver-in-the-loop", unroll=unroll, noise=noise)
-            arms.append(_train_arm(label, fine, settings, test, cfg, out / run, log))
+        for label, arm_pde, settings, run_dir in plan[len(net_modes):]:
+            arms.append(_train_seeds(label, arm_pde, settings, test, cfg, run_dir, log))
         _score_against_coarse(arms)
-        _plot_sitl_rollouts(out / "rollouts.png", fine, coarse, test[0], out, k, cfg)
+        _plot_sitl_rollouts(out / "rollouts.png", fine, coarse, test[0], [p[3] for p in plan[len(net_modes):]], cfg)
     result = {"pde": pde.config(), "fine_pde": fine.config() if sitl else None, "config": asdict(cfg),
               "frame_dt": pde.frame_dt, "arms": arms}
     (out / "compare.json").write_text(json.dumps(result, indent=2))
@@ -156,6 +189,87 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
     if sitl:
         plot_corrector(out / "corrector.png", result)
     return result
+
+
+def _corrector_arms(cfg: InteractiveConfig, k: int) -> list[tuple]:
+    """(label, unroll, noise, run directory name) of the three trained corrector arms."""
+    schedule = cfg.schedule()
+    name = "->".join(str(u) for u, _ in schedule) if schedule else str(k)
+    return [("pairs (unroll 1)", 1, 0.0, "sitl_unroll1"),
+            ("pairs + noise (unroll 1)", 1, cfg.noise, "sitl_unroll1_noise"),
+            (f"solver-in-the-loop (unroll {name})", k, 0.0,
+             f"sitl_unroll{'-'.join(str(u) for u, _ in schedule)}" if schedule else f"sitl_unroll{k}")]
+
+
+def _seeds(cfg: InteractiveConfig) -> range:
+    return range(cfg.seed, cfg.seed + cfg.seeds)
+
+
+def _run_dir(run_dir: Path, cfg: InteractiveConfig, seed: int) -> Path:
+    """One seed's run directory: the arm's own with one seed (as before seeds), ARM_seedS with several."""
+    return run_dir if cfg.seeds == 1 else run_dir.with_name(f"{run_dir.name}_seed{seed}")
+
+
+RESUME_KEYS = ("model", "model_cfg", "steps", "batch_size", "lr", "seed", "mode", "pde")
+
+
+def _finished(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int) -> dict | None:
+    """The summary (metrics.json) of a finished run in ``run_dir`` trained with the settings this arm and seed
+    would train with, None when there is none (or cfg.resume is False); ValueError (one line) for a finished run
+    with other settings."""
+    if not (cfg.resume and (run_dir / "metrics.json").is_file() and (run_dir / "model.pt").is_file()):
+        return None
+    want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": cfg.steps,
+                                  "batch_size": cfg.batch_size, "lr": cfg.lr, "seed": seed,
+                                  "mode": make_mode(settings).settings(), "pde": pde.config()}))
+    have = json.loads((run_dir / "run.json").read_text()) if (run_dir / "run.json").is_file() else {}
+    differ = [key for key in RESUME_KEYS if have.get(key) != want[key]]
+    if differ:
+        raise ValueError(f"{run_dir} holds a finished run with other settings ({', '.join(differ)}); rerun with its "
+                         "own settings to go on, or pass --overwrite (retrains every arm) or another --out")
+    return json.loads((run_dir / "metrics.json").read_text())
+
+
+def _train_seeds(label: str, pde, settings: dict, test, cfg: InteractiveConfig, run_dir: Path, log) -> dict:
+    """Train (or read back) one arm for every seed; its record with each figure's mean and std over seeds."""
+    runs = []
+    for seed in _seeds(cfg):
+        rec = _train_arm(label, pde, settings, test, cfg, _run_dir(run_dir, cfg, seed), log, seed)
+        runs.append(rec)
+    return combine_seeds(runs)
+
+
+SEED_FIGURES = ("end_mean", "end_p95", "end_max", "rollout_mean", "rollout_p95", "wall_s", "final_loss")
+
+
+def combine_seeds(runs: list[dict]) -> dict:
+    """One arm's record over its seeds: each figure of SEED_FIGURES the mean over seeds with its std in
+    FIGURE_std (0 for one seed), the curves (mean and p95 over trajectories per frame) averaged over seeds, and
+    every seed's figures under "per_seed"."""
+    out = dict(runs[0])
+    out["seeds"] = [r["seed"] for r in runs]
+    out["per_seed"] = [{"seed": r["seed"], **{c: r[c] for c in SEED_FIGURES}} for r in runs]
+    for c in SEED_FIGURES:
+        values = np.array([np.nan if r[c] is None else r[c] for r in runs], np.float64)
+        out[c] = None if runs[0][c] is None else float(values.mean())
+        out[c + "_std"] = float(values.std(ddof=1)) if len(runs) > 1 and runs[0][c] is not None else 0.0
+    for c in ("curve", "curve_p95"):
+        out[c] = np.mean([r[c] for r in runs], axis=0).tolist()
+    return out
+
+
+def verdict(win: dict, other: dict, key: str, name: str) -> str:
+    """One line: arm ``win`` against arm ``other`` on figure ``key`` (means over seeds): the ratio, the margin and
+    whether it exceeds the seed spread (the two arms' stds added; one seed: no spread to judge by)."""
+    a, b = win[key], other[key]
+    margin, spread = b - a, win.get(key + "_std", 0.0) + other.get(key + "_std", 0.0)
+    head = (f"{name}: {win['arm']} {a:.4f} vs {other['arm']} {b:.4f} (x{b / max(a, 1e-300):.2f} lower, margin "
+            f"{margin:+.4f})")
+    if len(win.get("seeds", [0])) < 2 or len(other.get("seeds", [0])) < 2:
+        return f"{head}: one seed, no spread to judge by (--seeds 3 for a verdict)"
+    if abs(margin) > spread:
+        return f"{head}: {win['arm'] if margin > 0 else other['arm']} better, outside the seed spread {spread:.4f}"
+    return f"{head}: within the seed spread {spread:.4f}, no clear winner"
 
 
 CORRECTOR_MODES = ("none", "solver-in-the-loop")  # the coarse solver alone and its corrector arms
@@ -189,15 +303,17 @@ def _write_curves(path: Path, result: dict) -> None:
                 writer.writerow([a["arm"], a["mode"], a["n"], i + 1, f"{dt * (i + 1):.6g}", f"{mean:.6g}", f"{p95:.6g}"])
 
 
-def _plot_sitl_rollouts(path: Path, fine, coarse, test: dict, out: Path, k: int, cfg: InteractiveConfig) -> None:
+def _plot_sitl_rollouts(path: Path, fine, coarse, test: dict, runs: list[Path], cfg: InteractiveConfig) -> None:
     """rollouts.png: the first held-out trajectory as the reference (fine, restricted to the coarse grid), the
-    coarse solver alone, the pairs-trained and the solver-in-the-loop corrections, over time."""
+    coarse solver alone, the pairs-trained and the solver-in-the-loop corrections (the first seed's), over time.
+    runs: the corrector arms' run directories (``_corrector_arms``' order)."""
     device = check_device(cfg.device)
     u, params = test["u"][:1].to(device), test["params"][:1].to(device)
     rows = {}
-    for label, run in (("coarse solver", None), ("pairs (unroll 1)", "sitl_unroll1"),
-                       (f"solver-in-the-loop (unroll {k})", f"sitl_unroll{k}")):
-        model, norm = (None, _identity_norm(fine)) if run is None else load_checkpoint(out / run / "model.pt")[:2]
+    arms = _corrector_arms(cfg, 0)
+    for label, run in (("coarse solver", None), (arms[0][0], runs[0]), (arms[2][0], runs[2])):
+        run = None if run is None else _run_dir(run, cfg, cfg.seed)
+        model, norm = (None, _identity_norm(fine)) if run is None else load_checkpoint(run / "model.pt")[:2]
         if model is not None:
             model.to(device)
         pred, truth = (x.cpu() for x in coarse.rollout(model, norm, u, params))
@@ -218,23 +334,32 @@ def _identity_norm(pde) -> datasets.Normalization:
                                   torch.zeros(p), torch.ones(p), pde.NDIM)
 
 
-def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: InteractiveConfig, run_dir: Path, log) -> dict:
-    """Train one arm through ``train_run`` (stream, same seed and initial weights) and roll it out on ``test``."""
-    summary = train_run(pde, "stream", run_dir, model=cfg.model, model_cfg=cfg.model_cfg,
-                        view=datasets.NextStep(cfg.k_in, 1), steps=cfg.steps, batch_size=cfg.batch_size, lr=cfg.lr,
-                        seed=cfg.seed, data_seed=cfg.seed, tests={}, label=label, checkpoint_every=0,
-                        device=cfg.device, mode=settings)
+def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: InteractiveConfig, run_dir: Path, log,
+               seed: int) -> dict:
+    """Train one arm through ``train_run`` (stream, model and data seed ``seed``: every arm of a seed starts from
+    the same initial weights) and roll it out on ``test``; a finished run of the same settings is read back."""
+    summary = _finished(run_dir, pde, settings, cfg, seed)
+    if summary is not None:
+        log(f"{label} seed {seed}: finished in {run_dir}, read back (not retrained)")
+    else:
+        summary = train_run(pde, "stream", run_dir, model=cfg.model, model_cfg=cfg.model_cfg,
+                            view=datasets.NextStep(cfg.k_in, 1), steps=cfg.steps, batch_size=cfg.batch_size,
+                            lr=cfg.lr, seed=seed, data_seed=seed, tests={}, label=label, checkpoint_every=0,
+                            device=cfg.device, mode=settings)
     model, norm, _ = load_checkpoint(run_dir / "model.pt")
     model.to(check_device(cfg.device))
-    mode = make_mode(settings).bind(pde, cfg.seed)
+    mode = make_mode(settings).bind(pde, seed)
     with phase(f"{label}: rolling out {cfg.n_test} test trajectories"):
         errors = rollout_errors(model, norm, test, datasets.NextStep(cfg.k_in, 1), mode).relative()  # [N, T - k_in]
     rec = _record(label, settings["name"], errors, summary["wall"], summary, settings.get("coarse_n", pde.n))
     rec["unroll"] = settings.get("unroll", 1)
     if "noise" in settings:
         rec["noise"] = settings["noise"]
+    if settings.get("unroll_schedule"):
+        rec["unroll_schedule"] = settings["unroll_schedule"]
     rec["mode_stats"] = summary.get("mode_stats", {})
-    log(f"{label:32s} end error mean {rec['end_mean']:.4f} p95 {rec['end_p95']:.4f} max {rec['end_max']:.4f}; "
+    rec["seed"] = seed
+    log(f"{label:32s} seed {seed}: end error mean {rec['end_mean']:.4f} p95 {rec['end_p95']:.4f} max {rec['end_max']:.4f}; "
         f"rollout mean {rec['rollout_mean']:.4f}; train loss {summary['final_loss']:.3g}; {summary['wall']:.0f} s")
     return rec
 
@@ -243,7 +368,7 @@ def _record(label: str, mode: str, errors: np.ndarray, wall: float, summary: dic
     """One arm's figures from its per-trajectory, per-frame errors [N, h]; n: the grid it predicts on."""
     end = error_stats(errors[:, -1])
     per_trajectory = errors.mean(1)  # each trajectory's error averaged over the whole rollout
-    return {"arm": label, "mode": mode, "n": n, "wall_s": wall, "steps": summary["steps"] if summary else 0,
+    return {"arm": label, "mode": mode, "n": n, "seed": None, "seeds": [], "wall_s": wall, "steps": summary["steps"] if summary else 0,
             "final_loss": summary["final_loss"] if summary else None,
             "end_mean": end["mean"], "end_p95": end["p95"], "end_max": end["max"],
             "rollout_mean": float(errors.mean()), "rollout_p95": float(np.percentile(per_trajectory, 95)),
@@ -255,7 +380,8 @@ COLUMNS = ("end_mean", "end_p95", "end_max", "rollout_mean", "rollout_p95", "wal
 
 
 def _write_tables(out: Path, result: dict, pde, cfg: InteractiveConfig) -> None:
-    rows = [{"arm": a["arm"], "mode": a["mode"], "n": a["n"], **{c: a[c] for c in COLUMNS}} for a in result["arms"]]
+    rows = [{"arm": a["arm"], "mode": a["mode"], "n": a["n"], "seeds": len(a["seeds"]), **{c: a[c] for c in COLUMNS},
+             **{f"{c}_std": a.get(f"{c}_std", 0.0) for c in SEED_FIGURES}} for a in result["arms"]]
     with open(out / "compare.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
@@ -268,9 +394,15 @@ def _write_tables(out: Path, result: dict, pde, cfg: InteractiveConfig) -> None:
                   "normalized units (x the data's std), the fine target clean")
         noise += f", corrector start: {cfg.corrector_start}" + (" (every corrector's output layer zero at step 0)"
                                                                  if cfg.corrector_start == "zero" else "")
+    seeds = list(_seeds(cfg))
+    if cfg.unroll_schedule and "solver-in-the-loop" in cfg.modes:
+        noise += (f", solver-in-the-loop unroll curriculum {cfg.unroll_schedule} (unroll:share of the steps; in steps "
+                  f"{cfg.schedule()})")
+    spread = (f"; {len(seeds)} model and data seeds {seeds} per trained arm, each figure the mean ± std over seeds "
+              "(the coarse solver: no seed)" if len(seeds) > 1 else f"; one model and data seed ({cfg.seed})")
     lines = [f"{pde.NAME} ({', '.join(f'{k} ~ {v}' for k, v in pde.param_domains.items())}), {cfg.model} "
              f"{cfg.model_cfg}, {cfg.steps} optimizer steps x batch {cfg.batch_size} per trained arm, lr {cfg.lr}, "
-             f"unroll {cfg.unroll}{noise}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "
+             f"unroll {cfg.unroll}{noise}{spread}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "
              f"(Latin hypercube over the parameters), rolled out {frames} frames from the first; end: the last "
              "frame (mean, p95, max over trajectories); rollout mean: over all frames and trajectories; rollout "
              "p95: the 95th percentile over trajectories of each trajectory's error averaged over all frames; wall: "
@@ -279,15 +411,20 @@ def _write_tables(out: Path, result: dict, pde, cfg: InteractiveConfig) -> None:
              "final train loss |",
              "|" + " --- |" * 10]
     for r in rows:
-        loss = "-" if r["final_loss"] is None else f"{r['final_loss']:.3g}"
-        lines.append(f"| {r['arm']} | {r['n']} | {r['end_mean']:.4f} | {r['end_p95']:.4f} | {r['end_max']:.4f} | "
-                     f"{r['rollout_mean']:.4f} | {r['rollout_p95']:.4f} | {r['wall_s']:.0f} | {r['steps']} | {loss} |")
+        several = r["seeds"] > 1
+
+        def cell(c, fmt=".4f"):  # the mean, ± the std over seeds where there are several
+            return f"{r[c]:{fmt}}" + (f" ± {r[c + '_std']:{fmt}}" if several else "")
+
+        loss = "-" if r["final_loss"] is None else cell("final_loss", ".3g")
+        lines.append(f"| {r['arm']} | {r['n']} | {cell('end_mean')} | {cell('end_p95')} | {cell('end_max')} | "
+                     f"{cell('rollout_mean')} | {cell('rollout_p95')} | {r['wall_s']:.0f} | {r['steps']} | {loss} |")
     by = {a["mode"]: a for a in result["arms"] if a["mode"] in NETWORK_MODES}
     if "one-step" in by:
         for name in ("pushforward", "oracle", "noise"):
             if name in by:
                 lines.append(f"\n{name}: end error {by['one-step']['end_mean'] / by[name]['end_mean']:.2f}x lower "
-                             "than one-step (>1: better)")
+                             "than one-step (>1: better); " + verdict(by[name], by["one-step"], "end_mean", "end mean"))
     sitl = [a for a in result["arms"] if a["mode"] in CORRECTOR_MODES]
     if len(sitl) == 4:
         base, pairs, noisy, loop = sitl
@@ -306,6 +443,10 @@ def _write_tables(out: Path, result: dict, pde, cfg: InteractiveConfig) -> None:
                      f"lower than pairs + noise; end error: {base['end_mean'] / loop['end_mean']:.2f}x lower than "
                      f"the coarse solver alone, {pairs['end_mean'] / loop['end_mean']:.2f}x lower than the correction "
                      "trained on pairs")
+        lines += ["", "Solver-in-the-loop against each non-interacting corrector arm per metric (x: the other arm's "
+                  "error / solver-in-the-loop's, > 1: solver-in-the-loop better; outside the seed spread when the "
+                  "margin exceeds the two arms' stds over seeds added):", ""]
+        lines += [f"- {verdict(loop, other, key, name)}" for other in (pairs, noisy) for key, name in SCORED]
     (out / "compare.md").write_text("\n".join(lines) + "\n")
 
 

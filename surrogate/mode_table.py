@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from .checks import check_count
 
 # a setting's default for every mode that takes it
-DEFAULTS = {"unroll": 4, "coarse_n": 64, "noise": 0.01, "corrector_start": "random"}
+DEFAULTS = {"unroll": 4, "coarse_n": 64, "noise": 0.01, "corrector_start": "random", "unroll_schedule": None}
 # how a correction network starts: "random" (the model's own initialisation) or "zero" (its output layer's weights and
 # bias set to zero, so the corrected solver starts as the coarse solver alone: Mosaic's correctors start this way)
 CORRECTOR_STARTS = ("random", "zero")
@@ -43,7 +43,7 @@ MODE_SPECS = {spec.name: spec for spec in (
              "unroll the network K-1 steps without gradient, train the K-th"),
     ModeSpec("oracle", ("unroll",), True,
              "train on states the network reaches in 0..K steps, labelled by the solver"),
-    ModeSpec("solver-in-the-loop", ("unroll", "coarse_n", "noise", "corrector_start"), False,
+    ModeSpec("solver-in-the-loop", ("unroll", "coarse_n", "noise", "corrector_start", "unroll_schedule"), False,
              "a correction network on a coarse differentiable solver, unrolled K steps, against the fine solve "
              "(--noise SIGMA: the coarse start state perturbed, the fine target clean; default 0; "
              "--corrector-start zero: the correction's output layer starts at zero)",
@@ -62,7 +62,8 @@ SITL_NOISE_RULE = ("s0 + eps, s0 the coarse start state (the fine state restrict
                    "noise^2) per channel and point in normalized units (noise x the data's std); the coarse solver and "
                    "the correction step from s0 + eps, the fine targets clean")
 # how the CLI spells each setting
-OPTION = {"unroll": "--unroll", "coarse_n": "--coarse-n", "noise": "--noise", "corrector_start": "--corrector-start"}
+OPTION = {"unroll": "--unroll", "coarse_n": "--coarse-n", "noise": "--noise", "corrector_start": "--corrector-start",
+          "unroll_schedule": "--unroll-schedule"}
 
 
 def takes(setting: str) -> str:
@@ -87,6 +88,53 @@ def mode_settings(name: str, **given) -> dict:
     for key in spec.settings:
         value = spec.default(key) if given.get(key) is None else given[key]
         out[key] = CHECKS.get(key, lambda v: check_count(OPTION[key], v))(value)
+    if out.get("unroll_schedule") and max(k for k, _ in out["unroll_schedule"]) != out["unroll"]:
+        raise ValueError(f"--unroll-schedule's longest unroll {max(k for k, _ in out['unroll_schedule'])} must equal "
+                         f"the mode's unroll {out['unroll']} (the frames each training window holds)")
+    return out
+
+
+def check_unroll_schedule(value) -> list | None:
+    """A solver-in-the-loop unroll curriculum in optimizer steps: None (a fixed unroll) or [[unroll, steps], ...],
+    each a positive integer, phases in order (after the last, its unroll goes on); else one line."""
+    if value is None:
+        return None
+    try:
+        phases = [[int(k), int(n)] for k, n in value]
+        ok = bool(phases) and all(k == k0 and n == n0 and not isinstance(k0, bool) and k > 0 and n > 0
+                                  for (k, n), (k0, n0) in zip(phases, value))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"unroll_schedule={value!r} not allowed; a list of [unroll, optimizer steps] pairs of "
+                         "positive integers, e.g. [[1, 300], [4, 300], [16, 400]]")
+    return phases
+
+
+def parse_unroll_schedule(text: str, steps: int) -> list[list[int]]:
+    """``--unroll-schedule`` "K1:S1,K2:S2,...": unroll Ki for the share Si of ``steps`` optimizer steps, in order
+    (shares > 0 summing to 1; each phase gets round(cumulative share x steps) - the previous boundary, at least one
+    step) -> [[K1, N1], ...] in steps (``check_unroll_schedule``); else one line naming the value."""
+    rule = (f"--unroll-schedule {text!r} not allowed; allowed: UNROLL:SHARE pairs, comma-separated, each unroll a "
+            "positive integer and each share of the optimizer steps > 0, the shares summing to 1, e.g. "
+            "1:0.3,4:0.3,16:0.4")
+    try:
+        pairs = [part.split(":") for part in str(text).split(",")]
+        phases = [(int(k), float(share)) for k, share in pairs]
+    except ValueError:
+        raise ValueError(rule) from None
+    if not phases or any(k < 1 or not 0 < share <= 1 for k, share in phases) or abs(
+            sum(share for _, share in phases) - 1) > 1e-6:
+        raise ValueError(rule)
+    out, done, total = [], 0, 0.0
+    for k, share in phases:
+        total += share
+        end = round(min(total, 1.0) * steps)
+        if end - done < 1:
+            raise ValueError(f"--unroll-schedule {text!r}: the phase of unroll {k} gets no optimizer step of "
+                             f"--steps {steps}; raise its share or --steps")
+        out.append([k, end - done])
+        done = end
     return out
 
 
@@ -115,4 +163,4 @@ def check_noise(value) -> float:
     return float(number)
 
 
-CHECKS = {"noise": check_noise, "corrector_start": check_corrector_start}  # the settings that are not counts
+CHECKS = {"noise": check_noise, "corrector_start": check_corrector_start, "unroll_schedule": check_unroll_schedule}  # the settings that are not counts

@@ -372,12 +372,17 @@ class SolverInTheLoop:
     ``corrector_start`` "zero" (``init_model``): the network's output layer starts at zero, so before the first
     optimizer step the correction is exactly 0 and the corrected solver is the coarse solver; "random": the
     model's own initialisation (its correction starts as noise of the size of its random output).
+
+    ``unroll_schedule`` [[k1, n1], [k2, n2], ...] (an unroll curriculum, Um et al. 2020): unroll k1 for the first
+    n1 optimizer steps, then k2 for n2, ...; the last k after the schedule; ``unroll`` is the longest k (the
+    window's frames). A pure function of the optimizer step, so a resumed run unrolls as the uninterrupted one.
     """
 
     unroll: int = DEFAULTS["unroll"]
     coarse_n: int = DEFAULTS["coarse_n"]
     noise: float = 0.0
     corrector_start: str = DEFAULTS["corrector_start"]
+    unroll_schedule: list | None = None
     seed: int = 0
     step: nn.Module | None = None
     factor: int = 0
@@ -392,7 +397,19 @@ class SolverInTheLoop:
             s.update(noise=self.noise, rule=SITL_NOISE_RULE)
         if self.corrector_start != DEFAULTS["corrector_start"]:  # (the same: older run.json files compare equal)
             s["corrector_start"] = self.corrector_start
+        if self.unroll_schedule:  # (absent: a fixed unroll, as run.json files before the setting)
+            s["unroll_schedule"] = [list(p) for p in self.unroll_schedule]
         return _with_loss(s, self.loss)
+
+    def unroll_at(self, step: int) -> int:
+        """The unroll length of optimizer step ``step`` (1-based, as the training loop counts): ``unroll``, or the
+        schedule's phase holding it."""
+        end = 0
+        for k, n in self.unroll_schedule or ():
+            end += n
+            if step <= end:
+                return k
+        return self.unroll_schedule[-1][0] if self.unroll_schedule else self.unroll
 
     def init_model(self, model: nn.Module) -> None:
         """Set up a freshly built correction network for ``corrector_start`` (before its first step; a resumed run
@@ -464,12 +481,12 @@ class SolverInTheLoop:
         ndim = model.ndim
         params, p = batch["params"], norm.normalize_params(batch["params"])
         s = self.start(batch, norm, step)  # [B, C, *coarse]
-        states = []
-        for _ in range(self.unroll):
+        states, k = [], self.unroll_at(step)
+        for _ in range(k):
             s = self.correct(model, norm, self.step(s, params), p)
             states.append(s)
         pred = norm.normalize(torch.stack(states, dim=1))  # [B, k, C, *coarse]
-        target = norm.normalize(subsample(batch["y"][:, : self.unroll], self.factor, ndim, self.walls, self.locations))
+        target = norm.normalize(subsample(batch["y"][:, :k], self.factor, ndim, self.walls, self.locations))
         return objective(self.loss, pred, target), relative_errors(pred, target)
 
     @torch.no_grad()

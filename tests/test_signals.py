@@ -386,8 +386,8 @@ def test_interrupted_compare_keeps_finished_runs_and_what_it_did_not_create(tmp_
     _interrupting(monkeypatch, "pdestream.experiments.interactive_compare", "interactive_compare", 1,
                   ["one-step/run.json", "one-step/metrics.json", "pushforward/run.json"])
     assert cli.main([*argv, str(out)]) == 130
-    assert capsys.readouterr().err == (f"pdestream: interrupted; {out} keeps 1 finished run (one-step/); pass "
-                                       "--overwrite to run the comparison again\n")
+    assert capsys.readouterr().err == (f"pdestream: interrupted; {out} keeps 1 finished run (one-step/); rerun "
+                                       "the same command to go on from them\n")  # (--modes resumes)
     assert sorted(p.name for p in out.iterdir()) == ["one-step", "pushforward"]
     mine = tmp_path / "mine"  # a directory the user made: it stays, with what was in it
     mine.mkdir()

@@ -1,0 +1,108 @@
+"""`compare --modes ...solver-in-the-loop` over several seeds, resumable per (arm, seed), and the solver-in-the-loop
+arm's unroll curriculum (``--unroll-schedule``; issue 29). Before, --seeds was silently ignored (seed 0 only).
+
+Tiny models and runs (burgers1d n=32 -> coarse 16, 11 frames, FNO width 8, 2-3 steps).
+"""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from pdestream import cli, datasets, generator
+from pdestream.surrogate.mode_table import parse_unroll_schedule
+from pdestream.surrogate.modes import make_mode
+
+torch.set_num_threads(1)
+
+SMALL = ["compare", "burgers1d", "--modes", "solver-in-the-loop", "--set", "n=32", "--set", "n_frames=11",
+         "--coarse-n", "16", "--batch-size", "4", "--model-set", "width=8", "--model-set", "modes=4",
+         "--model-set", "layers=2", "--test-samples", "2", "--threads", "1"]
+
+
+def test_corrector_arms_train_every_seed_report_mean_and_std_and_resume(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "cmp"
+    argv = [*SMALL, "--steps", "2", "--seeds", "2", "--out", str(out)]
+    assert cli.main(argv) == 0
+    runs = {"sitl_unroll1", "sitl_unroll1_noise", "sitl_unroll4"}
+    for run in runs:  # one run per (arm, seed), each with its own seed
+        for seed in (0, 1):
+            assert json.loads((out / f"{run}_seed{seed}" / "run.json").read_text())["seed"] == seed
+    result = json.loads((out / "compare.json").read_text())
+    trained = [a for a in result["arms"] if a["mode"] == "solver-in-the-loop"]
+    assert len(trained) == 3
+    for a in trained:
+        assert a["seeds"] == [0, 1]
+        values = [s["rollout_mean"] for s in a["per_seed"]]
+        assert values[0] != values[1]  # other weights and data per seed
+        assert a["rollout_mean"] == pytest.approx(np.mean(values))
+        assert a["rollout_mean_std"] == pytest.approx(np.std(values, ddof=1))
+    md = (out / "compare.md").read_text()
+    assert "2 model and data seeds [0, 1]" in md and " ± " in md
+    verdicts = [line for line in md.splitlines() if line.startswith("- ")]
+    assert len(verdicts) == 6 and all("the seed spread" in line for line in verdicts)  # 3 metrics x 2 arms
+    capsys.readouterr()
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("a finished (arm, seed) was trained again")
+
+    # the same command again: every finished (arm, seed) read back, the same figures
+    monkeypatch.setattr("pdestream.experiments.interactive_compare.train_run", no_training)
+    assert cli.main(argv) == 0
+    assert capsys.readouterr().out.count("read back (not retrained)") == 6
+    again = json.loads((out / "compare.json").read_text())
+    assert [a["rollout_mean"] for a in again["arms"]] == [a["rollout_mean"] for a in result["arms"]]
+    # other settings on the same out: one line, before any work
+    assert cli.main([*SMALL, "--steps", "3", "--seeds", "2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pdestream: error: ") and "holds a finished run with other settings (steps)" in err
+    assert "\n" not in err
+
+
+def test_unroll_at_follows_the_schedule_and_the_loss_unrolls_that_many_steps():
+    fine = generator.get_pde("burgers1d", n=32, n_frames=11)
+    mode = make_mode({"name": "solver-in-the-loop", "unroll": 3, "coarse_n": 16,
+                      "unroll_schedule": [[1, 2], [3, 1]]}).bind(fine)
+    assert [mode.unroll_at(s) for s in range(1, 6)] == [1, 1, 3, 3, 3]  # the last unroll after the schedule
+    assert mode.settings()["unroll_schedule"] == [[1, 2], [3, 1]]  # run.json
+    x = torch.linspace(0, 2 * np.pi, 33)[:-1]
+    u = torch.sin(x)[None, None, None].repeat(2, 4, 1, 1)  # [B, T, C, n]
+    batch = {"x": u[:, :1], "y": u[:, 1:], "params": torch.full((2, 1), 0.05)}
+    norm = datasets.Normalization(("u",), torch.zeros(1), torch.ones(1), ("nu",), torch.zeros(1), torch.ones(1), 1)
+    calls = []
+    solver = mode.step
+    mode.step = lambda s, p: calls.append(1) or solver(s, p)
+    net = lambda z, p: torch.zeros_like(z)  # noqa: E731
+    net.ndim = 1
+    for step, k in ((1, 1), (2, 1), (3, 3)):
+        calls.clear()
+        loss, per_example = mode.step_loss(net, batch, norm, step)
+        assert len(calls) == k and bool(torch.isfinite(loss))
+
+
+def test_unroll_schedule_in_steps_and_bad_values_are_one_line(tmp_path, capsys):
+    assert parse_unroll_schedule("1:0.3,4:0.3,16:0.4", 1500) == [[1, 450], [4, 450], [16, 600]]
+    for bad in ("1:0.5,4:0.6", "0:1", "4", "a:1", "1:0.5:2"):
+        assert cli.main([*SMALL, "--steps", "3", "--unroll-schedule", bad, "--out", str(tmp_path / "x")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err == (f"pdestream: error: --unroll-schedule {bad!r} not allowed; allowed: UNROLL:SHARE pairs, "
+                       "comma-separated, each unroll a positive integer and each share of the optimizer steps > 0, "
+                       "the shares summing to 1, e.g. 1:0.3,4:0.3,16:0.4")
+    assert cli.main([*SMALL, "--steps", "3", "--unroll-schedule", "4:0.1,1:0.9", "--out", str(tmp_path / "x")]) == 2
+    assert "the phase of unroll 4 gets no optimizer step of --steps 3" in capsys.readouterr().err
+    # not silently dropped where no arm takes it
+    argv = ["compare", "burgers1d", "--modes", "one-step", "--quick", "--unroll-schedule", "1:1", "--out"]
+    assert cli.main([*argv, str(tmp_path / "y")]) == 2
+    assert "goes with the solver-in-the-loop arm" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_the_schedule_trains_the_solver_in_the_loop_arm_and_is_recorded(tmp_path):
+    out = tmp_path / "cmp"
+    assert cli.main([*SMALL, "--steps", "3", "--unroll-schedule", "1:0.34,4:0.66", "--out", str(out)]) == 0
+    mode = json.loads((out / "sitl_unroll1-4" / "run.json").read_text())["mode"]
+    assert mode["unroll"] == 4 and mode["unroll_schedule"] == [[1, 1], [4, 2]]
+    assert "unroll_schedule" not in json.loads((out / "sitl_unroll1" / "run.json").read_text())["mode"]
+    md = (out / "compare.md").read_text()
+    assert "solver-in-the-loop (unroll 1->4)" in md and "unroll curriculum 1:0.34,4:0.66" in md
