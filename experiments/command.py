@@ -67,7 +67,7 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
     """Run the comparison of ``cmd`` into ``cmd.out``; returns compare.md's text and the files' line. A Ctrl-C is
     raised again as a KeyboardInterrupt saying what was kept (finished runs stay; else what it created goes)."""
     log = log or (lambda line: print(line, flush=True))  # (said before a long run: flushed)
-    if cmd.modes is None:  # (--modes resumes in the same out: a finished (arm, seed) of the same settings is kept)
+    if cmd.modes is None or not _modes_out(cmd.out):  # --modes resumes in its own out: (arm, seed) runs are kept
         check_compare_out(cmd.out, cmd.overwrite)
     check_writable_dir(cmd.out)
     if isinstance(cmd.pde, str):
@@ -94,6 +94,20 @@ def check_compare_out(out: str, overwrite: bool) -> None:
     if found:
         raise FileExistsError(f"{out} already holds compare output ({', '.join(found[:4])}"
                               f"{', ...' if len(found) > 4 else ''}); pass --overwrite or choose another --out")
+
+
+def _modes_out(out: str) -> bool:
+    """Whether ``out`` holds nothing but what a `compare --modes` writes (its compare.json, if any, is one): the
+    place to go on from, where another comparison's output is refused as before."""
+    table = Path(out) / "compare.json"
+    if not table.is_file():
+        return not any((Path(out) / n).exists() for n in COMPARE_OUTPUTS)
+    try:
+        import json
+
+        return "modes" in json.loads(table.read_text()).get("config", {})
+    except (ValueError, AttributeError):
+        return False
 
 
 def compare_left(out: str, before, resumes: bool = False) -> str:

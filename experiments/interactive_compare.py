@@ -259,11 +259,12 @@ def combine_seeds(runs: list[dict]) -> dict:
 
 
 def verdict(win: dict, other: dict, key: str, name: str) -> str:
-    """One line: arm ``win`` against arm ``other`` on figure ``key`` (means over seeds): the ratio, the margin and
-    whether it exceeds the seed spread (the two arms' stds added; one seed: no spread to judge by)."""
+    """One line: arm ``win`` against arm ``other`` on figure ``key`` (means over seeds): the ratio other / win (> 1:
+    ``win`` lower), the margin other - win and whether it exceeds the seed spread (the two arms' stds added; one
+    seed: no spread to judge by)."""
     a, b = win[key], other[key]
     margin, spread = b - a, win.get(key + "_std", 0.0) + other.get(key + "_std", 0.0)
-    head = (f"{name}: {win['arm']} {a:.4f} vs {other['arm']} {b:.4f} (x{b / max(a, 1e-300):.2f} lower, margin "
+    head = (f"{name}: {win['arm']} {a:.4f} vs {other['arm']} {b:.4f} (x{b / max(a, 1e-300):.2f}, margin "
             f"{margin:+.4f})")
     if len(win.get("seeds", [0])) < 2 or len(other.get("seeds", [0])) < 2:
         return f"{head}: one seed, no spread to judge by (--seeds 3 for a verdict)"
