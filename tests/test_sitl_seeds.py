@@ -106,3 +106,11 @@ def test_the_schedule_trains_the_solver_in_the_loop_arm_and_is_recorded(tmp_path
     assert "unroll_schedule" not in json.loads((out / "sitl_unroll1" / "run.json").read_text())["mode"]
     md = (out / "compare.md").read_text()
     assert "solver-in-the-loop (unroll 1->4)" in md and "unroll curriculum 1:0.34,4:0.66" in md
+
+
+def test_modes_go_on_only_in_an_out_of_their_own(tmp_path, capsys):
+    out = tmp_path / "budget"  # another comparison's output: refused as before, not mixed into
+    out.mkdir()
+    (out / "compare.json").write_text(json.dumps({"config": {"arms": ["fifo"]}}))
+    assert cli.main([*SMALL, "--steps", "2", "--out", str(out)]) == 2
+    assert "already holds compare output (compare.json); pass --overwrite" in capsys.readouterr().err
