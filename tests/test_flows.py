@@ -308,3 +308,12 @@ def test_a_pressure_solve_stopped_by_max_iter_fails_the_sample_in_one_line():
         generator.sample(generator.get_pde("cavity2d", max_iter=1, **small), [0, 1])
     assert "\n" not in str(err.value)
     assert generator.sample(generator.get_pde("cavity2d", **small), [0, 1]).u.shape[0] == 2  # the default converges
+
+
+def test_the_description_states_the_cfl_number_the_step_has_and_what_set_it():
+    # it said "CFL 0.5 at 1 m/s" for every entry, also where the viscous limit set a smaller step (cavity2d at 64^2)
+    cavity, karman = generator.get_pde("cavity2d"), generator.get_pde("karman2d")
+    assert "(37/frame, CFL 0.35 at 1 m/s, set by the viscous limit)" in cavity.describe()
+    assert "CFL 0.48 at 1.5 m/s, set by cfl=0.5)" in karman.describe()
+    cfl = karman.speed_bound() * karman.step_dt / karman.h
+    assert cfl <= karman.cfl and f"CFL {cfl:.2g}" in karman.describe()

@@ -242,10 +242,17 @@ class FlowProblem(ProblemBase):
         start = "after a warm-up from rest" if self.t_start > 0 else "from rest"
         return (f"  fields: {', '.join(self.FIELDS)}   grid: {self.grid.describe()}\n"
                 f"  t in [{self.t_start:g}, {self.t_end:g}] {start}, {self.n_frames} frames, "
-                f"step {self.step_dt:.4g} s ({self.steps_per_frame}/frame, CFL {self.cfl:g} at "
-                f"{self.speed_bound():g} m/s); MAC grid, {self.advection.replace('_', '-')} advection, multigrid-CG projection"
+                f"step {self.step_dt:.4g} s ({self.steps_per_frame}/frame, {self.describe_step_limit()}); MAC grid, {self.advection.replace('_', '-')} advection, multigrid-CG projection"
                 + (f", {self.body} circle" if hasattr(self, "body") else "")
                 + (f"\n  {self.describe_geometry()}" if self.describe_geometry() else ""))
+
+    def describe_step_limit(self) -> str:
+        """What sets the step: the CFL number u_max dt / h the step has at the domains' fastest flow, and whether
+        the ``cfl`` setting or the viscous limit h^2 / (4 nu_max) bound it (the frame spacing rounds it down)."""
+        cfl = self.speed_bound() * self.step_dt / self.h
+        viscous = 0.9 * self.h**2 / (4 * self.viscosity_range()[1]) < self.cfl * self.h / self.speed_bound()
+        bound = "the viscous limit" if viscous else f"cfl={self.cfl:g}"
+        return f"CFL {cfl:.2g} at {self.speed_bound():g} m/s, set by {bound}"
 
     def failure(self) -> tuple[str, str]:
         return (f"flows blew up (NaN/Inf, or a speed above {BLOW_UP_FACTOR:g}x the largest boundary speed) with "
