@@ -194,3 +194,15 @@ def test_cfdbench_cavity_bc_threshold_is_the_flow_familys_own():
             cavity(side)
     assert "78125 L" in recipes.not_expressible("cfdbench_cavity_bc") and "L > 0.51 mm" in recipes.not_expressible(
         "cfdbench_cavity_bc")
+
+
+def test_cfdbench_cylinder_reynolds_limit_is_karman2ds_own():
+    # the refusal's "64 cells across the height resolve Re <= 284": CFDBench's channel 0.12 m high, d = 0.02 m, 1 m/s
+    def cylinder(re):
+        return g.get_pde("karman2d", n=64, aspect=2, length=0.12, radius="0.01", cx="0.06", cy="0.059", speed="1",
+                         plug="1", re=str(re), t_start=0.0, t_end=0.01, n_frames=2)
+
+    assert cylinder(284).n == 64
+    with pytest.raises(ValueError, match=r"cell Reynolds number .* = 42.2; the limit is 40"):
+        cylinder(300)
+    assert "Re <= 284" in recipes.not_expressible("cfdbench_cylinder_prop")
