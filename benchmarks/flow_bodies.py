@@ -165,18 +165,19 @@ def _err(x, lo_hi):
 
 def table(rows: list[dict]) -> str:
     lines = ["| body | grid | D/h | Cd | Cl | Delta p | Cd (momentum balance) | Cl (momentum balance) | order Cd | "
-             "order Cl | order Delta p |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "order Cl | order Delta p | order Cd (m. b.) | order Cl (m. b.) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for body in ("staircase", "sharp"):
         prev = None
         for r in sorted((r for r in rows if r["body"] == body), key=lambda r: r["ny"]):
-            orders = ["", "", ""]
+            orders = ["", "", "", "", ""]
             if prev is not None and prev["ny"] * 2 == r["ny"]:
                 orders = [f"{math.log2(_err(prev[k], ref) / max(_err(r[k], ref), 1e-12)):.2f}"
-                          for k, ref in (("cd", CD), ("cl", CL), ("dp", DP))]
+                          for k, ref in (("cd", CD), ("cl", CL), ("dp", DP), ("cd_cv", CD), ("cl_cv", CL))]
             lines.append(f"| {body} | {r['nx']}x{r['ny']} | {r['cells_per_d']:.1f} | {r['cd']:.4f} | {r['cl']:.4f} | "
                          f"{r['dp']:.4f} | {r['cd_cv']:.4f} | {r['cl_cv']:.4f} | {' | '.join(orders)} |")
             prev = r
-    lines.append(f"| published | | | {CD[0]}-{CD[1]} | {CL[0]}-{CL[1]} | {DP[0]}-{DP[1]} | | | | | |")
+    lines.append(f"| published | | | {CD[0]}-{CD[1]} | {CL[0]}-{CL[1]} | {DP[0]}-{DP[1]} | | | | | | | |")
     return "\n".join(lines)
 
 
