@@ -116,7 +116,8 @@ def circle_surface(geom, state, nu, cx, cy, r, theta):
     """Pressure and wall shear on the exact circle (cx, cy, r) [m] at angles theta [N] (rad, from +x):
     (p [N] (m^2/s^2), shear [N] = nu du_t/dn (m^2/s^2), t = (-sin, cos) the counter-clockwise tangent, n the
     outward normal). Both from the fluid along the normal at d1 = FORCE_DISTANCE h and d2 = 2 d1 (bilinear
-    samples of the cut-cell pressure and the ghost-filled velocities): p linearly extrapolated to the wall, 2 p(d1) - p(d2), and
+    samples of the pressure, its covered cells refilled from the fluid by ``_extend_from_fluid``, and the
+    ghost-filled velocities): p linearly extrapolated to the wall, 2 p(d1) - p(d2), and
     du_t/dn by the quadratic through u_t = 0 on the wall, (4 u_t(d1) - u_t(d2)) / (2 d1): both second order."""
     from .grid import Params  # noqa: PLC0415
     from .step import fill_ghosts  # noqa: PLC0415
