@@ -67,8 +67,11 @@ def entry_point_names() -> list[str]:
 
 def unknown_pde(name, mine: list[str]) -> str:
     """The one-line refusal of PDE ``name``: a near name if any, and what is allowed (``mine``: user PDE names)."""
-    from pdestream.recipes import RECIPES
+    from pdestream.recipes import RECIPES, refuse_not_expressible
 
+    refused = refuse_not_expressible(name)
+    if refused:
+        return refused
     names = [*NAMES, *RECIPES]
     near = [n for n in names if isinstance(name, str) and name and n.startswith(name)]
     near = near or (difflib.get_close_matches(name, names, n=3) if isinstance(name, str) else [])

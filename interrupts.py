@@ -11,6 +11,7 @@ import os
 import signal
 import sys
 import threading
+import warnings
 from pathlib import Path
 
 # The errors a user can fix (bad names, values, paths): one line and exit status 2, no traceback.
@@ -37,6 +38,20 @@ def redeliver_interrupt(unraisable) -> None:
     sys.__unraisablehook__(unraisable)
 
 
+def one_line_warnings(shown):
+    """A warnings.showwarning for a command: pdestream's own warnings (a category declared in the package, e.g.
+    an under-resolved setting) as one line ``pdestream: warning: ...`` on stderr, without the source path and
+    line Python adds; every other warning through ``shown`` (the hook it replaces)."""
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        if category.__module__.split(".")[0] == "pdestream":
+            print(f"pdestream: warning: {message}", file=sys.stderr if file is None else file)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    return show
+
+
 def leave(code: int) -> None:
     """The command's exit after an interrupt's clean-up (caches, producers and clusters closed by then): at
     once, since a solver thread may still be inside a call or a compile, which interpreter shutdown would wait
@@ -60,6 +75,8 @@ def run(call, standalone: bool) -> int:
     if in_main:
         sys.unraisablehook = redeliver_interrupt
     interrupted = False
+    shown = warnings.showwarning
+    warnings.showwarning = one_line_warnings(shown)
     try:
         call()
     except USER_ERRORS as err:
@@ -77,6 +94,7 @@ def run(call, standalone: bool) -> int:
     finally:
         # the command keeps ignoring SIGINT after an interrupt until it has exited (a Ctrl-C during interpreter
         # shutdown would kill it or abort it); an in-process caller gets its handler back
+        warnings.showwarning = shown
         if in_main and not (interrupted and standalone):
             signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
             sys.unraisablehook = hook

@@ -20,6 +20,15 @@ SPLITS = ("train", "valid", "test")
 # Where the published settings were read (commits of the public repositories).
 PDEBENCH = "github.com/pdebench/PDEBench@9754b4c, pdebench/data_gen/data_gen_NLE/"
 FNO = "github.com/neuraloperator/neuraloperator@11971af, data_generation/"
+CFDBENCH = "github.com/luo-yining/CFDBench@6c30c62, "
+# CFDBench's cell Reynolds numbers on our 64^2 grid: the subsets' largest speed U over their smallest kinematic
+# viscosity mu / rho, with h = L / 64 for a box of side L (m) the public code does not state
+_SUMMARY = ("a third-party summary of the paper (a CFDBench dataset card in the code index, not the paper, "
+            "which could not be opened here)")
+_CAVITY_WHY = ("CFDBench (Luo et al. 2023, arXiv 2310.05963) solved it in Fluent and interpolated to 64 x 64; "
+               "its cases are a fixed list, not a distribution, split by random.seed(0) shuffling 80 / 10 / 10 "
+               "(src/dataset/cavity.py:376-381), frames every 0.1 s (sample_cavity.txt:15, cavity.py:65) until "
+               "the mean change of |u| between frames drops below 0.001 (cavity.py:250,320). ")
 
 
 @dataclass(frozen=True)
@@ -185,11 +194,65 @@ NOT_EXPRESSIBLE: dict[str, str] = {
     "fno_ns2d_nu1e-4, fno_ns2d_nu1e-5": ("the paper solves on 256^2 and subsamples to 64^2; no entry subsamples "
                                          "a finer solve yet, and a 64^2 solve at nu <= 1e-4 is not checked for "
                                          "resolution (nu = 1e-3 is: docs/results/recipes.md)"),
+    "cfdbench_cavity_bc": (
+        _CAVITY_WHY + CFDBENCH + "generation-code/fluent-scheme/create_scheme.py:58-67: lid speed 1, 2, ..., 50 m/s "
+        "(50 cases) at density 1, viscosity 1e-5 Pa s (nu = 1e-5 m^2/s). On 64^2 the cell Reynolds number "
+        "U h / nu = 50 (L / 64) / 1e-5 = 78125 L exceeds the flow family's limit 40 for any side L > 0.51 mm "
+        "(cavity2d refuses it); " + _SUMMARY + " gives the paper's side L = 0.01 m: Re = U L / nu = 1,000-50,000, "
+        "cell Reynolds number up to 781"),
+    "cfdbench_cavity_prop": (
+        _CAVITY_WHY + CFDBENCH + "create_scheme.py:58-78: lid 10 m/s, density {0.1, 0.5, 1, ..., 10} x viscosity "
+        "{1e-5, 5e-5, 1e-4, 5e-4, 1e-3, 5e-3, 1e-2} (84 cases, nu = mu / rho from 1e-6 to 0.1 m^2/s). Its "
+        "smallest nu puts the cell Reynolds number at 10 (L / 64) / 1e-6 = 156250 L, over 40 for any L > 0.26 mm; "
+        "and density and viscosity enter our solver only through nu (Re), so cases of equal mu / rho coincide "
+        "(at the summary's L = 0.01 m: Re 1 to 100,000, 28 of the 84 cases over the limit)"),
+    "cfdbench_cavity_geo": (
+        _CAVITY_WHY + CFDBENCH + "src/dataset/cavity.py:253-256 (25 cases) and case_params_keys (height, width): "
+        "the cavity's height and width vary independently (a rectangle); cavity2d's box is aspect * n x n square "
+        "cells with an integer aspect; " + _SUMMARY + " gives height and width each in {0.01, 0.02, ..., 0.05} m "
+        "(all 25 pairs) at lid 10 m/s, nu = 1e-5: Re 10,000-50,000, beyond 64^2 even for the five squares"),
+    "cfdbench_tube_bc, cfdbench_tube_prop, cfdbench_tube_geo": (
+        CFDBENCH + "generation-code/fluent-scheme/sample_laminar.txt:1-12 (the tube's Fluent journal): a mixture "
+        "(two-phase: air and water) model, the tube initialised full of air (line 8), the water volume fraction "
+        "exported beside the velocity (line 12); create_scheme.py:31-55 (inlet 0.1-5 m/s, 50 cases; density "
+        "10-1000 x viscosity 0.01-1, 100 cases) and src/dataset/tube.py:201-208 (diameter 0.05-0.15 m, length 0.5-1 m, "
+        "inlet 0.05-0.15 m/s, density 900-1100, viscosity 0.005-0.015 Pa s) state different values. channel2d "
+        "is one phase with a parabolic inflow and at least one obstacle: it cannot fill an air-filled tube with "
+        "water (tube.py was laminar.py before 70d6c80; " + _SUMMARY + " confirms a VOF water-air model)"),
+    "cfdbench_cylinder_bc, cfdbench_cylinder_prop, cfdbench_cylinder_geo": (
+        CFDBENCH + "create_scheme.py:90-107 reads the cases' velocity, density and viscosity from karman_set.txt, "
+        "not in the repository (defaults 1 m/s, density 10, viscosity 1e-3 Pa s: nu = 1e-4); Fluent steps 0.001 s "
+        "(sample_karman.txt:14), uniform velocity inlet; " + _SUMMARY + " gives the paper's Table 5: a channel "
+        "0.12 m high and 0.22 m long (x1 = y1 = y2 = 0.06 m, x2 = 0.16 m from the cylinder's centre), d = 0.02 m, "
+        "bc: inlet 0.1, 0.2, ..., 5 m/s (Re = 20-1000), prop: density x viscosity pairs with Re = rho U d / mu in "
+        "[20, 1000] (115 cases; its listed values give 105), geo: d, x1, y1, y2, x2 varied (20 cases), SST "
+        "k-omega where Fluent needed it. karman2d cannot make them: its length is an integer multiple of the "
+        "height (0.22 / 0.12 is not); 64 cells across the height resolve Re <= 284 (karman2d refuses 300 at cell "
+        "Reynolds number 42.2; Re 1000 needs n = 256); bc couples Re = 200 U to the inlet speed, which karman2d "
+        "draws independently; the case list is not reproducible from the summary; geo changes the box's ratio"),
 }
 
 
+def not_expressible(name) -> str | None:
+    """The reason a published set ``name`` is not expressible (NOT_EXPRESSIBLE; a key may list several names
+    separated by ', '), or None."""
+    if not isinstance(name, str):
+        return None
+    return next((why for key, why in NOT_EXPRESSIBLE.items() if name in key.split(", ")), None)
+
+
+def refuse_not_expressible(name) -> str | None:
+    """The one-line refusal of a published set that no entry can express yet, or None if ``name`` is not one."""
+    why = not_expressible(name)
+    return None if why is None else f"recipe {name!r} is not expressible yet (skipped, not approximated): {why}"
+
+
 def unknown_recipe(name) -> str:
-    """The one-line refusal of recipe ``name``: a near name if any, and the allowed names."""
+    """The one-line refusal of recipe ``name``: why, if it is a published set not expressible yet; else a near
+    name if any, and the allowed names."""
+    refused = refuse_not_expressible(name)
+    if refused:
+        return refused
     near = difflib.get_close_matches(name, list(RECIPES), n=2) if isinstance(name, str) else []
     hint = f"; did you mean {' or '.join(near)}" if near else ""
     return f"unknown recipe {name!r}{hint}; allowed: {', '.join(RECIPES)}"

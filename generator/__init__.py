@@ -44,9 +44,10 @@ from .user import unregister
 # 4: the flows' coarse pseudo-inverse by elementwise Gauss-Jordan, not LAPACK's eigh, and their pressure solve's
 # sums in a fixed order: every flow's bits; 5: karman2d's cylinder a sharp body, cut faces and ghost velocities on
 # the exact circle, and its forces on it; 6: a cut face's flux the velocity at its open part's centroid, projected
-# consistently: karman2d's bits).
+# consistently: karman2d's bits; 7: the sharp body's wall pressure read from the fluid only: karman2d's drag and
+# lift outputs).
 # Caches record it and --resume compares it, so a cache is never finished with samples of other bits.
-NUMERICS = 6
+NUMERICS = 7
 
 _REFUSED_CACHE_DIRS: set[str] = set()
 CACHE_MAX_BYTES = 2 * 1024**3  # the compilation cache's bound (least recently used programs go first)

@@ -100,8 +100,8 @@ WALLED = {"burgers1d[dirichlet]": ("burgers1d", {"bc": "dirichlet", "bc_lo": "un
 
 def record(key: str) -> dict:
     """Configuration, hash, description and samples of entry ``key`` (a catalog name or a WALLED key): its defaults
-    and a small configuration, samples 0..2 of seed 0 at the small one (the fingerprint of u, parameters and
-    inputs; the digest of redraws), and whether sample 1 alone has the bits of sample 1 in that batch."""
+    and a small configuration, samples 0..2 of seed 0 at the small one (the fingerprint of u, parameters, inputs
+    and outputs; the digest of redraws), and whether sample 1 alone has the bits of sample 1 in that batch."""
     name, walls = WALLED.get(key, (key, {}))
     default = generator.get_pde(name, walls)
     pde = generator.get_pde(name, {**small(name), **walls})
@@ -110,6 +110,9 @@ def record(key: str) -> dict:
     prints.update({f"param {k}": np.asarray(traj.params[k], np.float64).tolist() for k in sorted(traj.params)})
     if traj.inputs is not None:
         prints.update({f"inputs {k}": v for k, v in fingerprint(traj.inputs).items()})
+    for name, out in (traj.outputs or {}).items():  # karman2d's drag, lift, sdf, strouhal, ...: values a user reads
+        values = np.asarray(out, np.float64).reshape(len(traj.indices), 1, -1)
+        prints.update({f"output {name} {k}": v for k, v in fingerprint(values).items()})
     alone = generator.sample(pde, [1], seed=0, on_blowup="redraw")
     return {"config": default.config(), "hash": default.config_hash(), "describe": default.describe(),
             "small_config": pde.config(), "small_hash": pde.config_hash(), "small_describe": pde.describe(),

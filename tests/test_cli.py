@@ -251,3 +251,29 @@ def test_dask_with_zero_workers_is_refused_not_run_with_two(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "workers=0 not allowed" in err, err
     assert not out.exists()
+
+
+def test_a_warning_of_pdestream_is_one_line_and_others_keep_python_s_form(capsys):
+    # inside a command (interrupts.run), cavity2d's UnderResolved warning printed Python's "path/problem.py:226:
+    # UnderResolved: ..." and the source line "self.validate()"
+    import warnings
+
+    from pdestream import generator
+    from pdestream.interrupts import run
+
+    def build():
+        generator.get_pde("cavity2d", n=32)
+        warnings.warn("not ours", DeprecationWarning, stacklevel=1)
+
+    seen = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.showwarning = shown = lambda message, category, *rest: seen.append(category.__name__)
+        assert run(build, standalone=False) == 0
+        assert warnings.showwarning is shown  # given back
+    assert seen == ["DeprecationWarning"]  # another package's warning goes to the hook it replaced
+    err = capsys.readouterr().err
+    ours = [line for line in err.splitlines() if "under-resolved" in line]
+    assert len(ours) == 1 and ours[0].startswith("pdestream: warning: cavity2d: re=uniform(100.0, 400.0) on n=32 is "
+                                                 "under-resolved"), err
+    assert "problem.py" not in err and "validate()" not in err

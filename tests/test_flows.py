@@ -3,6 +3,8 @@ parameters in their domains, the obstacle mask as a field, boundary values held 
 in batches / with explicit parameters, no recompilation for new parameters, stream == cache (Zarr and HDF5, the
 walls recorded), the reservoir, the CLI, and the one-line refusals of geometry and resolution."""
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -308,3 +310,28 @@ def test_a_pressure_solve_stopped_by_max_iter_fails_the_sample_in_one_line():
         generator.sample(generator.get_pde("cavity2d", max_iter=1, **small), [0, 1])
     assert "\n" not in str(err.value)
     assert generator.sample(generator.get_pde("cavity2d", **small), [0, 1]).u.shape[0] == 2  # the default converges
+
+
+def test_the_description_states_the_cfl_number_the_step_has_and_what_set_it():
+    # it said "CFL 0.5 at 1 m/s" for every entry, also where the viscous limit set a smaller step (cavity2d at 64^2)
+    cavity, karman = generator.get_pde("cavity2d"), generator.get_pde("karman2d")
+    assert "(37/frame, CFL 0.35 at 1 m/s, set by the viscous limit)" in cavity.describe()
+    assert "CFL 0.48 at 1.5 m/s, set by cfl=0.5)" in karman.describe()
+    cfl = karman.speed_bound() * karman.step_dt / karman.h
+    assert cfl <= karman.cfl and f"CFL {cfl:.2g}" in karman.describe()
+
+
+def test_a_grid_whose_multigrid_stops_too_large_is_refused_in_one_line_with_the_nearest_n():
+    # 686 = 2 x 343: the halving stopped at 343 cells a side and the dense coarse solve took more than 9 GB
+    from pdestream.generator.flow.pressure import MAX_COARSE_CELLS, check_coarsest, coarsest_shape
+
+    with pytest.raises(ValueError, match=r"^cavity2d: n=686 not allowed: .* stops at 343x343 = 117649 cells, more "
+                                         r"than the 4096 .*nearby n that halve further: 672 or 688$"):
+        generator.get_pde("cavity2d", n=686)
+    assert coarsest_shape((672, 672)) == (21, 21) and coarsest_shape((128, 64)) == (16, 8)
+    with pytest.raises(ValueError, match="stops at 65x65 = 4225 cells"):
+        check_coarsest((130, 130))
+    check_coarsest((126, 126))  # 63 x 63 = 3969 <= MAX_COARSE_CELLS: a dense solve it allows
+    assert math.prod(coarsest_shape((126, 126))) <= MAX_COARSE_CELLS
+    for name in ("karman2d", "cavity2d", "channel2d", "smoke2d"):  # every default passes
+        generator.get_pde(name)

@@ -159,3 +159,50 @@ def test_pdebench_dam_break_is_centred_and_keeps_its_mirror_symmetries():
         for mirrored in (field.transpose(0, 2, 1), field[:, ::-1, :], field[:, :, ::-1]):
             assert np.abs(mirrored - field).max() < 1e-4
     assert np.abs(h[:, -1] - h[:, 0]).max() > 0.1  # and it moved
+
+
+CFDBENCH_SETS = [f"cfdbench_{family}_{subset}" for family in ("cavity", "tube", "cylinder")
+                 for subset in ("bc", "geo", "prop")]
+
+
+@pytest.mark.parametrize("name", CFDBENCH_SETS)
+def test_cfdbench_sets_are_refused_with_their_reason_not_approximated(capsys, tmp_path, monkeypatch, name):
+    # none of CFDBench's nine cavity / tube / cylinder subsets is a recipe: each is listed with why, and naming it
+    # anywhere a PDE name goes says why in one line (not "unknown"), nothing written
+    monkeypatch.chdir(tmp_path)
+    assert name not in recipes.RECIPES and recipes.not_expressible(name)
+    _, listing, _ = run_cli(capsys, "recipes")
+    assert name in listing
+    for argv in (("recipes", "show", name), ("generate", name, "--n", "1", "--out", "x.h5")):
+        code, out, err = run_cli(capsys, *argv)
+        assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
+        assert f"recipe {name!r} is not expressible yet" in err and "luo-yining/CFDBench@6c30c62" in err
+        assert "unknown" not in err
+    assert list(tmp_path.iterdir()) == []
+    assert recipes.not_expressible("cfdbench_cavity") is None  # a family alone is no set
+
+
+def test_cfdbench_cavity_bc_threshold_is_the_flow_familys_own():
+    # the refusal's numbers: lid 50 m/s, nu = 1e-5, 64 cells; cavity2d itself accepts a side of 0.5 mm and
+    # refuses 0.52 mm for the cell Reynolds number (the reason's "L > 0.51 mm"), and 1 cm at 781
+    def cavity(side):
+        return g.get_pde("cavity2d", n=64, length=side, lid="50", re=str(50 * side / 1e-5), t_end=1e-3, n_frames=2)
+
+    assert cavity(0.0005).length == 0.0005
+    for side, cell_re in ((0.00052, "40.6"), (0.01, "781")):
+        with pytest.raises(ValueError, match=f"cell Reynolds number .* = {cell_re}; the limit is 40"):
+            cavity(side)
+    assert "78125 L" in recipes.not_expressible("cfdbench_cavity_bc") and "L > 0.51 mm" in recipes.not_expressible(
+        "cfdbench_cavity_bc")
+
+
+def test_cfdbench_cylinder_reynolds_limit_is_karman2ds_own():
+    # the refusal's "64 cells across the height resolve Re <= 284": CFDBench's channel 0.12 m high, d = 0.02 m, 1 m/s
+    def cylinder(re):
+        return g.get_pde("karman2d", n=64, aspect=2, length=0.12, radius="0.01", cx="0.06", cy="0.059", speed="1",
+                         plug="1", re=str(re), t_start=0.0, t_end=0.01, n_frames=2)
+
+    assert cylinder(284).n == 64
+    with pytest.raises(ValueError, match=r"cell Reynolds number .* = 42.2; the limit is 40"):
+        cylinder(300)
+    assert "Re <= 284" in recipes.not_expressible("cfdbench_cylinder_prop")

@@ -55,6 +55,43 @@ SURFACE_POINTS = 256  # quadrature points on the circle (trapezoid rule: spectra
 FORCE_DISTANCE = 1.0
 
 
+# Layers of covered cells the wall samples' stencils reach: bilinear at d1 = FORCE_DISTANCE h from the wall takes
+# cells up to sqrt(2) h nearer, and the correction's second differences one cell further.
+FILL_LAYERS = 3
+
+
+def _extend_from_fluid(a, solid, layers: int = FILL_LAYERS):
+    """a [ny, nx] with its covered cells (solid [ny, nx] bool) overwritten, ``layers`` rings deep, by values
+    extrapolated from the fluid: each cell of the next ring takes the mean over the grid directions of the
+    linear extrapolation 2 a1 - a2 from its two known neighbours that way (where only a1 is known, a1). The
+    solver's own covered-cell values never reach a wall sample this way (they are not the fluid's: the sharp
+    body's stagnation pressure read from them moved with the cut cells' alignment)."""
+    known = ~solid
+    a = jnp.where(known, a, 0)
+
+    def shifted(x, dj, di, fill):  # x at (j + dj, i + di), fill off the grid
+        x = jnp.pad(x, 2, constant_values=fill)
+        ny, nx = a.shape
+        return x[2 + dj:2 + dj + ny, 2 + di:2 + di + nx]
+
+    for _ in range(layers):
+        num = jnp.zeros_like(a)
+        cnt = jnp.zeros_like(a)
+        for dj, di in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+            k1, k2 = shifted(known, dj, di, False), shifted(known, 2 * dj, 2 * di, False)
+            a1, a2 = shifted(a, dj, di, 0), shifted(a, 2 * dj, 2 * di, 0)
+            lin = k1 & k2
+            one = k1 & ~k2
+            # linear where two known cells line up, the neighbour alone where one does; weighted so that any
+            # linear direction outranks the constant ones
+            num = num + jnp.where(lin, 2 * a1 - a2, 0) * 1e3 + jnp.where(one, a1, 0)
+            cnt = cnt + lin * 1e3 + one
+        new = ~known & (cnt > 0)
+        a = jnp.where(new, num / jnp.where(cnt > 0, cnt, 1), a)
+        known = known | new
+    return a
+
+
 def _corrected_sampler(geom, a, ox: float, oy: float):
     """Function (x, y) [m] -> a there, bilinear less its own leading error: - fx (1 - fx) / 2 times the second
     difference along x (likewise y), each interpolated bilinearly; exact for quadratics, so a derivative taken
@@ -79,7 +116,8 @@ def circle_surface(geom, state, nu, cx, cy, r, theta):
     """Pressure and wall shear on the exact circle (cx, cy, r) [m] at angles theta [N] (rad, from +x):
     (p [N] (m^2/s^2), shear [N] = nu du_t/dn (m^2/s^2), t = (-sin, cos) the counter-clockwise tangent, n the
     outward normal). Both from the fluid along the normal at d1 = FORCE_DISTANCE h and d2 = 2 d1 (bilinear
-    samples of the cut-cell pressure and the ghost-filled velocities): p linearly extrapolated to the wall, 2 p(d1) - p(d2), and
+    samples of the pressure, its covered cells refilled from the fluid by ``_extend_from_fluid``, and the
+    ghost-filled velocities): p linearly extrapolated to the wall, 2 p(d1) - p(d2), and
     du_t/dn by the quadratic through u_t = 0 on the wall, (4 u_t(d1) - u_t(d2)) / (2 d1): both second order."""
     from .grid import Params  # noqa: PLC0415
     from .step import fill_ghosts  # noqa: PLC0415
@@ -89,7 +127,11 @@ def circle_surface(geom, state, nu, cx, cy, r, theta):
     state = state._replace(u=u, v=v)
     d1 = FORCE_DISTANCE * geom.h
     nx_, ny_ = jnp.cos(theta), jnp.sin(theta)
-    sp, su, sv = (_corrected_sampler(geom, state.p, 0.5, 0.5), _corrected_sampler(geom, state.u, 0.0, 0.5),
+    from .grid import circle_solid  # noqa: PLC0415
+
+    # the pressure of the covered cells is the solver's, not the fluid's: rebuilt from the fluid before sampling
+    p = _extend_from_fluid(state.p, circle_solid(geom, cx, cy, r, state.p.dtype))
+    sp, su, sv = (_corrected_sampler(geom, p, 0.5, 0.5), _corrected_sampler(geom, state.u, 0.0, 0.5),
                   _corrected_sampler(geom, state.v, 0.5, 0.0))
 
     def at(d):
@@ -184,6 +226,6 @@ def shedding(lift, t, length, speed, min_amplitude=MIN_LIFT_AMPLITUDE, max_drift
     return st, sheds, developed, jnp.where(sheds, amp, zero), jnp.where(sheds, drift, zero)
 
 
-__all__ = ["DRIFT_PERIODS", "FORCE_DISTANCE", "MAX_DRIFT", "MIN_LIFT_AMPLITUDE", "SURFACE_POINTS", "body_force", "circle_distance",
+__all__ = ["DRIFT_PERIODS", "FILL_LAYERS", "FORCE_DISTANCE", "MAX_DRIFT", "MIN_LIFT_AMPLITUDE", "SURFACE_POINTS", "body_force", "circle_distance",
            "circle_force", "circle_surface",
            "force_coefficients", "shedding"]

@@ -14,6 +14,7 @@ XLA's reductions, whose order follows the vector width XLA prefers on the host C
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
@@ -71,13 +72,38 @@ OMEGA = 0.9
 COARSE_CELLS = 128  # the coarsest level holds at most this many cells: solved exactly by a dense pseudo-inverse
 
 
+# the largest coarsest level whose dense pseudo-inverse is built (m^2 floats, an O(m^3) eigendecomposition on the
+# host): a grid side with few factors of 2 stops the halving early (686 = 2 x 343 left 343 x 64 = 21,952 cells, which
+# took more than 9 GB before it was refused)
+MAX_COARSE_CELLS = 4096
+
+
+def coarsest_shape(shape: tuple[int, ...], coarse_cells: int = COARSE_CELLS) -> tuple[int, ...]:
+    """The shape of the multigrid's coarsest level for a grid of ``shape`` cells (``hierarchy``'s rule: halve while
+    every side is even and the level has more than ``coarse_cells`` cells)."""
+    while all(n % 2 == 0 for n in shape) and math.prod(shape) > coarse_cells:
+        shape = tuple(n // 2 for n in shape)
+    return shape
+
+
 def hierarchy(fc: Faces, coarse_cells: int = COARSE_CELLS) -> list:
     """Coefficient levels, finest first, halving while both dims stay even and the level has more than
-    ``coarse_cells`` cells."""
+    ``coarse_cells`` cells (``coarsest_shape``)."""
     levels = [fc]
     while all(n % 2 == 0 for n in levels[-1].solid.shape) and levels[-1].solid.size > coarse_cells:
         levels.append(coarsen(levels[-1]))
     return levels
+
+
+def check_coarsest(shape: tuple[int, ...]) -> None:
+    """ValueError (one line) when the coarsest level of a grid of ``shape`` cells [ny, nx] or [nx, ny] exceeds
+    MAX_COARSE_CELLS, naming the grid sides' factors of 2 as the cause."""
+    coarse = coarsest_shape(shape)
+    if math.prod(coarse) > MAX_COARSE_CELLS:
+        raise ValueError(f"a {'x'.join(map(str, shape))} grid is not allowed: the pressure multigrid halves it while "
+                         f"every side is even and stops at {'x'.join(map(str, coarse))} = {math.prod(coarse)} cells, "
+                         f"more than the {MAX_COARSE_CELLS} its dense coarse solve allows (sides with more factors of "
+                         "2 halve further)")
 
 
 class Operator(NamedTuple):
@@ -91,6 +117,7 @@ class Operator(NamedTuple):
 def prepare(fc: Faces, periodic_x: bool, periodic_y: bool) -> Operator:
     """The multigrid hierarchy of ``fc`` and the pseudo-inverse of its coarsest operator (its null space: the
     constant mode of a box without an open side, and of cells cut off by obstacles; see _pseudo_inverse)."""
+    check_coarsest(fc.solid.shape)
     levels = hierarchy(fc)
     coarse = levels[-1]
     shape = coarse.solid.shape

@@ -41,6 +41,7 @@ from ..grids import GridBase
 from ..problem import MAX_STEPS, ProblemBase, resolve_params
 from . import interactive
 from .grid import BODIES, SIDE_KINDS, Geometry, Params, circle_apertures
+from .pressure import MAX_COARSE_CELLS, coarsest_shape
 from .step import ADVECTION, State, initial_state, operator, run_counted, solid_mask
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
@@ -209,6 +210,7 @@ class FlowProblem(ProblemBase):
             raise ValueError(f"{self.NAME}: aspect={self.aspect} not allowed: the box is aspect * n x n cells with "
                              "aspect an integer in 1..16")
         self._check_length()
+        self._check_multigrid()
         if not 0 <= self.t_start < self.t_end:
             raise ValueError(f"{self.NAME}: t_start={self.t_start:g}, t_end={self.t_end:g} not allowed: need "
                              "0 <= t_start < t_end")
@@ -238,14 +240,37 @@ class FlowProblem(ProblemBase):
             raise ValueError(f"{self.NAME}: t_end={self.t_end:g} with step {self.stable_dt():.3g} would take ~{steps:.3g}"
                              f" steps per trajectory; the limit is {MAX_STEPS} (a shorter time window or a coarser grid)")
 
+    def _check_multigrid(self) -> None:
+        """One line when n leaves the pressure multigrid a coarsest level too large for its dense solve
+        (generator.flow.pressure.MAX_COARSE_CELLS), naming the nearest n on either side that it accepts."""
+        def coarse_cells(n):
+            return math.prod(coarsest_shape((self.aspect * n, n)))
+
+        if coarse_cells(self.n) <= MAX_COARSE_CELLS:
+            return
+        below = next((n for n in range(self.n - 2, self.MIN_CELLS - 1, -2) if coarse_cells(n) <= MAX_COARSE_CELLS), None)
+        above = next(n for n in range(self.n + 2, 4 * self.n, 2) if coarse_cells(n) <= MAX_COARSE_CELLS)
+        coarse = "x".join(map(str, coarsest_shape((self.aspect * self.n, self.n))))
+        raise ValueError(f"{self.NAME}: n={self.n} not allowed: the pressure multigrid halves the grid while both sides "
+                         f"are even and stops at {coarse} = {coarse_cells(self.n)} cells, more than the "
+                         f"{MAX_COARSE_CELLS} its dense coarse solve allows; nearby n that halve further: "
+                         + " or ".join(str(n) for n in (below, above) if n is not None))
+
     def describe_setup(self) -> str:
         start = "after a warm-up from rest" if self.t_start > 0 else "from rest"
         return (f"  fields: {', '.join(self.FIELDS)}   grid: {self.grid.describe()}\n"
                 f"  t in [{self.t_start:g}, {self.t_end:g}] {start}, {self.n_frames} frames, "
-                f"step {self.step_dt:.4g} s ({self.steps_per_frame}/frame, CFL {self.cfl:g} at "
-                f"{self.speed_bound():g} m/s); MAC grid, {self.advection.replace('_', '-')} advection, multigrid-CG projection"
+                f"step {self.step_dt:.4g} s ({self.steps_per_frame}/frame, {self.describe_step_limit()}); MAC grid, {self.advection.replace('_', '-')} advection, multigrid-CG projection"
                 + (f", {self.body} circle" if hasattr(self, "body") else "")
                 + (f"\n  {self.describe_geometry()}" if self.describe_geometry() else ""))
+
+    def describe_step_limit(self) -> str:
+        """What sets the step: the CFL number u_max dt / h the step has at the domains' fastest flow, and whether
+        the ``cfl`` setting or the viscous limit h^2 / (4 nu_max) bound it (the frame spacing rounds it down)."""
+        cfl = self.speed_bound() * self.step_dt / self.h
+        viscous = 0.9 * self.h**2 / (4 * self.viscosity_range()[1]) < self.cfl * self.h / self.speed_bound()
+        bound = "the viscous limit" if viscous else f"cfl={self.cfl:g}"
+        return f"CFL {cfl:.2g} at {self.speed_bound():g} m/s, set by {bound}"
 
     def failure(self) -> tuple[str, str]:
         return (f"flows blew up (NaN/Inf, or a speed above {BLOW_UP_FACTOR:g}x the largest boundary speed) with "
