@@ -155,6 +155,7 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
     if sitl:
         plan += [(label, fine, _settings(cfg, "solver-in-the-loop", unroll=unroll, noise=noise), out / run)
                  for label, unroll, noise, run in _corrector_arms(cfg, k)]
+    _check_same_comparison(out, pde, cfg)
     for _label, arm_pde, settings, run_dir in plan:  # a finished run of other settings: refused before any work
         for seed in _seeds(cfg):
             _finished(_run_dir(run_dir, cfg, seed), arm_pde, settings, cfg, seed)
@@ -189,6 +190,22 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
     if sitl:
         plot_corrector(out / "corrector.png", result)
     return result
+
+
+def _check_same_comparison(out: Path, pde, cfg: InteractiveConfig) -> None:
+    """ValueError (one line) when ``out`` holds a finished comparison (compare.json) of another PDE or other arms:
+    going on there would replace its tables with those of a different comparison. More seeds are allowed (the
+    finished ones are read back); --overwrite retrains in place."""
+    done = out / "compare.json"
+    if not (cfg.resume and done.is_file()):
+        return
+    have = json.loads(done.read_text())
+    differ = [what for what, a, b in (("--modes", list(have.get("config", {}).get("modes", [])), list(cfg.modes)),
+                                      ("the PDE", have.get("pde"), json.loads(json.dumps(pde.config()))))
+              if a != b]
+    if differ:
+        raise ValueError(f"{out} holds a comparison with other {' and '.join(differ)}; rerun with its own settings to "
+                         "go on, or pass --overwrite (retrains every arm) or another --out")
 
 
 def _corrector_arms(cfg: InteractiveConfig, k: int) -> list[tuple]:

@@ -262,6 +262,7 @@ def test_cli_compare_modes_quick(tmp_path, capsys):
     assert "| oracle | 32 |" in text and "| coarse solver | 16 |" in text
     # a second run into the same directory is refused; mode options without --modes are refused
     assert cli.main(["compare", "--modes", "one-step", "--quick", "--out", str(out)]) == 2
+    assert "holds a comparison with other --modes; rerun with its own settings" in capsys.readouterr().err
     assert cli.main(["compare", "--unroll", "3", "--out", str(tmp_path / "other")]) == 2
     assert not (tmp_path / "other").exists()
     assert cli.main(["compare", "--modes", "one-step,dagger", "--quick", "--out", str(tmp_path / "other")]) == 2
