@@ -214,7 +214,7 @@ def _add_model_args(p: argparse.ArgumentParser, d, lr_note: str = "") -> None:
 
 
 def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
-    from pdestream.surrogate.mode_table import CORRECTOR_STARTS, DEFAULTS, MODE_NAMES, MODE_SPECS, takes
+    from pdestream.surrogate.mode_table import CORRECTOR_STARTS, MODE_NAMES, MODE_SPECS, option_help
 
     g = p.add_argument_group("interactive training modes (see surrogate/modes.py)")
     if isinstance(d, TrainConfig):
@@ -229,25 +229,13 @@ def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
                    help="training loss: mse (in normalized units) or relative (the mean per-example relative L2, the "
                         "FNO paper's: a trajectory with a small target weighs as much as any)"
                         + ("" if isinstance(d, TrainConfig) else "; with --budget / --sim-budget"))
-    g.add_argument("--unroll", type=int, default=d.unroll, metavar="K",
-                   help=f"steps unrolled by {takes('unroll')} (default {DEFAULTS['unroll']})")
-    g.add_argument("--coarse-n", type=int, metavar="N",
-                   help=f"{takes('coarse_n')}: grid of the coarse solver, a divisor of the fine n "
-                        f"(default {DEFAULTS['coarse_n']})")
-    g.add_argument("--noise", metavar="SIGMA",  # checked by the mode table (one line for a bad value)
-                   help=f"noise: std of the input noise on the newest input frame (default {DEFAULTS['noise']}); "
-                        "solver-in-the-loop: std of the noise on the coarse start state, the fine target clean "
-                        "(train: default 0; compare --modes: the arm 'pairs + noise'); a fraction of the data's std, "
-                        "a number >= 0")
-    g.add_argument("--corrector-start", metavar="|".join(CORRECTOR_STARTS),  # checked by the mode table (one line)
-                   help=f"{takes('corrector_start')}: how the correction network starts (default "
-                        f"{DEFAULTS['corrector_start']}): random, the model's own initialisation; zero, its output layer "
-                        "set to zero, so the corrected solver starts as the coarse solver (compare --modes: every "
-                        "corrector arm)")
+    hint = option_help()  # the values are checked by the mode table (one line for a bad one)
+    g.add_argument("--unroll", type=int, default=d.unroll, metavar="K", help=hint["unroll"])
+    g.add_argument("--coarse-n", type=int, metavar="N", help=hint["coarse_n"])
+    g.add_argument("--noise", metavar="SIGMA", help=hint["noise"])
+    g.add_argument("--corrector-start", metavar="|".join(CORRECTOR_STARTS), help=hint["corrector_start"])
     if not isinstance(d, TrainConfig):
-        g.add_argument("--unroll-schedule", metavar="K1:S1,K2:S2,...",  # checked by the mode table (one line)
-                       help="solver-in-the-loop arm: an unroll curriculum (Um et al. 2020), unroll Ki for the share Si "
-                            "of --steps, in order (shares summing to 1), e.g. 1:0.3,4:0.3,16:0.4; recorded in run.json")
+        g.add_argument("--unroll-schedule", metavar="K1:S1,K2:S2,...", help=hint["unroll_schedule"])
 
 
 def add_train(sub) -> None:

@@ -164,3 +164,22 @@ def check_noise(value) -> float:
 
 
 CHECKS = {"noise": check_noise, "corrector_start": check_corrector_start, "unroll_schedule": check_unroll_schedule}  # the settings that are not counts
+
+
+def option_help() -> dict:
+    """The CLI's help text of each mode setting, by setting (cli.py's --unroll, --coarse-n, --noise, ...): kept beside
+    the settings they describe, so the parser stays a list of options."""
+    return {
+        "unroll": f"steps unrolled by {takes('unroll')} (default {DEFAULTS['unroll']})",
+        "coarse_n": f"{takes('coarse_n')}: grid of the coarse solver, a divisor of the fine n (default "
+                    f"{DEFAULTS['coarse_n']})",
+        "noise": f"noise: std of the input noise on the newest input frame (default {DEFAULTS['noise']}); "
+                 "solver-in-the-loop: std of the noise on the coarse start state, the fine target clean (train: "
+                 "default 0; compare --modes: the arm 'pairs + noise'); a fraction of the data's std, a number >= 0",
+        "corrector_start": f"{takes('corrector_start')}: how the correction network starts (default "
+                           f"{DEFAULTS['corrector_start']}): random, the model's own initialisation; zero, its output "
+                           "layer set to zero, so the corrected solver starts as the coarse solver (compare --modes: "
+                           "every corrector arm)",
+        "unroll_schedule": "solver-in-the-loop arm: an unroll curriculum (Um et al. 2020), unroll Ki for the share Si "
+                           "of --steps, in order (shares summing to 1), e.g. 1:0.3,4:0.3,16:0.4; recorded in run.json",
+    }
