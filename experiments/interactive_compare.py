@@ -120,7 +120,7 @@ class InteractiveConfig:
         check_number("--lr", self.lr, 0)
         longest = max([self.unroll, *(k for k, _ in self.schedule() or ())])
         if pde.n_frames < self.k_in + longest + 1:
-            raise ValueError(f"--unroll {longest} needs trajectories of at least {self.k_in + self.unroll + 1} "
+            raise ValueError(f"--unroll {longest} needs trajectories of at least {self.k_in + longest + 1} "
                              f"frames; {pde.NAME} has n_frames={pde.n_frames}")
         check_device(self.device)
 
