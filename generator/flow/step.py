@@ -407,10 +407,26 @@ def predict(geom: Geometry, state: State, params: Params, dt, advection: str = "
     return un, vn, smoke
 
 
+def check_dt(geom: Geometry, params: Params, dt) -> None:
+    """Refuse, in one line, a dt (s) above the explicit viscous limit h^2 / (4 nu) where dt and nu are known
+    outside a trace: past it the step blows up to finite but meaningless values (1e17-1e31 were seen), which no
+    NaN check catches. Under jit the entries' ``stable_dt`` keeps dt inside the limit."""
+    if isinstance(dt, jax.core.Tracer) or isinstance(params.nu, jax.core.Tracer):
+        return
+    nu = float(jnp.max(jnp.asarray(params.nu)))
+    dt_max = geom.h * geom.h / (4 * max(nu, 1e-12))
+    if float(jnp.max(jnp.asarray(dt))) > dt_max * (1 + 1e-6):
+        raise ValueError(f"dt={float(jnp.max(jnp.asarray(dt))):.4g} s is above the explicit viscous limit "
+                         f"h^2 / (4 nu) = {dt_max:.4g} s (h={geom.h:.4g} m, nu={nu:.4g} m^2/s): allowed is "
+                         f"dt <= {dt_max:.4g} (stable_dt gives it)")
+
+
 def step(geom: Geometry, state: State, params: Params, dt, tol=1e-5, max_iter=200,
          op: pressure.Operator | None = None, advection: str = "semi_lagrangian") -> State:
     """Advance one step of dt (s): advection (a key of ADVECTION), explicit viscosity, buoyancy, projection
-    (op: ``operator(geom, params)``, computed here when None)."""
+    (op: ``operator(geom, params)``, computed here when None). A dt above the viscous limit is refused where
+    dt and nu are concrete (``check_dt``)."""
+    check_dt(geom, params, dt)
     un, vn, smoke = predict(geom, state, params, dt, advection)
     half = advection != "semi_lagrangian"  # the projection adds half the pressure force (see predict)
     un, vn, p, it = project(geom, params, un, vn, dt, tol, max_iter, op, 0.5 * state.p if half else state.p)
@@ -424,6 +440,7 @@ def run(geom: Geometry, state: State, params: Params, dt, n_steps: int, tol=1e-5
         advection: str = "semi_lagrangian") -> State:
     """n_steps steps of dt in a lax.scan (jit this with geom and n_steps static); tol, max_iter: step's. The
     pressure operator is prepared once, before the loop (the obstacles do not move)."""
+    check_dt(geom, params, dt)
     op = operator(geom, params)
     return jax.lax.scan(lambda s, _: (step(geom, s, params, dt, tol, max_iter, op, advection), None), state, None,
                         length=n_steps)[0]
@@ -436,6 +453,7 @@ def run_counted(geom: Geometry, state: State, params: Params, dt, n_steps, op: p
     of one each, 30-60 s apiece on 2 cores at n=16), and it holds no host callback (the operator's
     pseudo-inverse is one), so JAX's persistent compilation cache can keep it for the next run.
     Not reverse-differentiable (a loop of traced length): differentiate ``run``."""
+    check_dt(geom, params, dt)
     return jax.lax.fori_loop(0, n_steps, lambda _, s: step(geom, s, params, dt, tol, max_iter, op, advection), state)
 
 
