@@ -120,11 +120,16 @@ def compare_left(out: str, before, resumes: bool = False) -> str:
     tables = [n for n in ("compare.md", "compare.json") if (d / n).is_file()]
     runs = sorted(p.name for p in d.iterdir() if p.is_dir() and ((p / "metrics.json").is_file()
                                                                  or (p / "arm.json").is_file()))
-    if tables or runs:
+    # --modes: an arm cut short goes on from its checkpoint when the command is rerun, so it is kept too
+    cut = sorted(p.name for p in d.iterdir() if resumes and p.is_dir() and (p / "checkpoint.pt").is_file()
+                 and p.name not in runs)
+    if tables or runs or cut:
         kept = ", ".join(tables + [f"{r}/" for r in runs][:4]) + (", ..." if len(runs) > 4 else "")
         again = ("rerun the same command to go on from them" if resumes else
                  "pass --overwrite to run the comparison again")
-        return f"{out} keeps {len(runs)} finished run{'' if len(runs) == 1 else 's'} ({kept}); {again}"
+        part = f" and {len(cut)} interrupted one{'' if len(cut) == 1 else 's'} at a checkpoint ({cut[0]}/)" if cut else ""
+        return (f"{out} keeps {len(runs)} finished run{'' if len(runs) == 1 else 's'}"
+                f"{f' ({kept})' if kept else ''}{part}; {again}")
     remove_created(d, before)
     return "nothing was kept (no run had finished)"
 

@@ -120,7 +120,8 @@ def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict 
     return _run(pde, settings, Path(out_dir), tests=tests, explicit=explicit)
 
 
-def resume_run(run_dir, run: tuple[dict, dict] | None = None, steps: int | None = None) -> tuple[dict, int]:
+def resume_run(run_dir, run: tuple[dict, dict] | None = None, steps: int | None = None,
+               tests: dict[str, list[dict]] | None = None) -> tuple[dict, int]:
     """Continue the run in ``run_dir`` from its checkpoint.pt to its total steps: (summary, step resumed at).
 
     Everything is rebuilt from run.json; the finished run equals the uninterrupted one (bit for bit on the
@@ -128,8 +129,9 @@ def resume_run(run_dir, run: tuple[dict, dict] | None = None, steps: int | None 
     run.json records it (and "extended": each earlier total with the step it was extended at), the schedule is
     re-planned for the new total (``checkpoint.replan_schedule``: equal to a run of that length from the start
     with the "constant" schedule), and model.pt / metrics.json are replaced when the longer run finishes.
-    run: ``read_run(run_dir, steps)``'s result when the caller has it already. ValueError when the directory is
-    not a run or the run is already complete.
+    run: ``read_run(run_dir, steps)``'s result when the caller has it already. tests: the named held-out sets the
+    run was started with (None: the default set, rebuilt from run.json). ValueError when the directory is not a
+    run or the run is already complete.
     """
     run_dir = Path(run_dir)
     settings, ckpt = read_run(run_dir, steps) if run is None else run
@@ -145,7 +147,7 @@ def resume_run(run_dir, run: tuple[dict, dict] | None = None, steps: int | None 
         settings = {**settings, "steps": steps, "extended": extended}
         if writes:
             atomic_write(run_dir / RUN_FILE, json.dumps(settings, indent=2).encode())
-    return _run(pde_from_config(settings["pde"]), settings, run_dir, resume=ckpt), int(ckpt["step"])
+    return _run(pde_from_config(settings["pde"]), settings, run_dir, tests=tests, resume=ckpt), int(ckpt["step"])
 
 
 def check_ranks(run_dir, settings: dict, ranks: int) -> None:

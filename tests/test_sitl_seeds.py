@@ -114,3 +114,29 @@ def test_modes_go_on_only_in_an_out_of_their_own(tmp_path, capsys):
     (out / "compare.json").write_text(json.dumps({"config": {"arms": ["fifo"]}}))
     assert cli.main([*SMALL, "--steps", "2", "--out", str(out)]) == 2
     assert "already holds compare output (compare.json); pass --overwrite" in capsys.readouterr().err
+
+
+def test_an_interrupted_arm_goes_on_from_its_checkpoint_to_the_uninterrupted_result(tmp_path, capsys, monkeypatch):
+    """An arm killed part-way resumes from its last checkpoint (not from step 0) on the same command, and ends
+    with the weights and figures of the run that was never interrupted (issue 29: compare checkpointed an arm only
+    at its end, and a 1 h 40 min arm killed near its end started over)."""
+    from interrupt import interrupted_at
+
+    argv = [*SMALL, "--modes", "solver-in-the-loop", "--steps", "4", "--seeds", "1"]
+    assert cli.main([*argv, "--out", str(tmp_path / "whole")]) == 0
+    cut = tmp_path / "cut"
+    capsys.readouterr()
+    with interrupted_at(monkeypatch, 3):
+        assert cli.main([*argv, "--out", str(cut)]) == 130
+    first = sorted(p.name for p in cut.iterdir() if (p / "checkpoint.pt").is_file())
+    assert len(first) == 1 and not (cut / first[0] / "metrics.json").exists()  # killed inside its first arm
+    assert capsys.readouterr().err == (f"pdestream: interrupted; {cut} keeps 0 finished runs and 1 interrupted one at "
+                                       f"a checkpoint ({first[0]}/); rerun the same command to go on from them\n")
+    assert cli.main([*argv, "--out", str(cut)]) == 0
+    assert f"interrupted in {cut / first[0]}, went on from its checkpoint at step 2 of 4" in capsys.readouterr().out
+    whole = json.loads((tmp_path / "whole" / "compare.json").read_text())["arms"]
+    again = json.loads((cut / "compare.json").read_text())["arms"]
+    assert [a["rollout_mean"] for a in again] == [a["rollout_mean"] for a in whole]
+    a = torch.load(tmp_path / "whole" / first[0] / "model.pt", weights_only=True)["model"]
+    b = torch.load(cut / first[0] / "model.pt", weights_only=True)["model"]
+    assert all(torch.equal(a[k], b[k]) for k in a)

@@ -17,6 +17,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from . import pressure
 from .grid import (
@@ -413,10 +414,11 @@ def check_dt(geom: Geometry, params: Params, dt) -> None:
     NaN check catches. Under jit the entries' ``stable_dt`` keeps dt inside the limit."""
     if isinstance(dt, jax.core.Tracer) or isinstance(params.nu, jax.core.Tracer):
         return
-    nu = float(jnp.max(jnp.asarray(params.nu)))
+    # numpy, not jnp: inside a trace jnp would turn these constants into tracers
+    nu, dt = float(np.max(np.asarray(params.nu))), float(np.max(np.asarray(dt)))
     dt_max = geom.h * geom.h / (4 * max(nu, 1e-12))
-    if float(jnp.max(jnp.asarray(dt))) > dt_max * (1 + 1e-6):
-        raise ValueError(f"dt={float(jnp.max(jnp.asarray(dt))):.4g} s is above the explicit viscous limit "
+    if dt > dt_max * (1 + 1e-6):
+        raise ValueError(f"dt={dt:.4g} s is above the explicit viscous limit "
                          f"h^2 / (4 nu) = {dt_max:.4g} s (h={geom.h:.4g} m, nu={nu:.4g} m^2/s): allowed is "
                          f"dt <= {dt_max:.4g} (stable_dt gives it)")
 
