@@ -3,8 +3,10 @@
 Cells: nx x ny on [0, lx] x [0, ly], square cells h = lx / nx = ly / ny. Arrays are [y, x]:
 p [ny, nx] at centres, u [ny, nx+1] on vertical faces, v [ny+1, nx] on horizontal faces.
 Sides (left, right, bottom, top) are each one of SIDE_KINDS: 'wall' (no-slip, top may move at params.lid),
-'inflow' (normal velocity params.inflow * parabolic profile; left side only), 'outflow' (zero-gradient
-velocity, pressure 0: the only Dirichlet pressure side) or 'periodic' (left/right or bottom/top pairs).
+'slip' (a free-slip wall: no flow through it, no shear stress on it: the tangential velocity's normal derivative
+is zero), 'inflow' (normal velocity params.inflow * parabolic profile, times 1 + A sin(2 pi f t) where
+params.pulse = (A, f) pulses it; left side only), 'outflow' (zero-gradient velocity, pressure 0: the only
+Dirichlet pressure side) or 'periodic' (left/right or bottom/top pairs).
 
 Bodies (``Geometry.body``, one of BODIES; DEFAULT_BODY declared once here): 'staircase' makes every cell whose
 centre lies inside a body solid (first order in h for forces). 'sharp' treats the circle of Params.circle below
@@ -28,7 +30,7 @@ from ...boundaries import Boundary, is_periodic
 
 # A side's conditions on velocity and pressure; not boundaries.Boundary (a per-axis condition on a field, which
 # FlowGrid.bc derives from a pair of sides): only 'periodic' is shared, and is asked of that module (is_periodic).
-SIDE_KINDS = ("wall", "inflow", "outflow", Boundary.PERIODIC.value)
+SIDE_KINDS = ("wall", "slip", "inflow", "outflow", Boundary.PERIODIC.value)
 BODIES = ("staircase", "sharp")  # how Params.circle meets the grid (module docstring)
 DEFAULT_BODY = "sharp"
 # A face open by less than this fraction counts as closed: a cut cell's sliver would otherwise give the pressure
@@ -93,7 +95,8 @@ class Params(NamedTuple):
     (sx, sy, r [m], rate [smoke/s]) (rate 0: none); mask: a given solid mask [ny, nx] (bool; None: none), e.g. a
     frame's ``solid`` field when the solver continues from a frame; force: a body force per unit mass [m/s^2]
     on the faces, a pair (fx [ny, nx+1] on u faces, fy [ny+1, nx] on v faces), steady (None: none; e.g. a
-    manufactured solution's forcing)."""
+    manufactured solution's forcing); pulse: a pulsed inflow (A, f): the inflow profile times 1 + A sin(2 pi f t)
+    (f in Hz; None: steady, the same program as before pulses existed)."""
 
     nu: float = 0.01
     lid: float = 0.0
@@ -105,6 +108,7 @@ class Params(NamedTuple):
     source: tuple = (0.0, 0.0, 0.0, 0.0)
     mask: Any = None
     force: Any = None
+    pulse: Any = None
 
 
 # Obstacle primitives of Params.obstacles rows (kind, cx, cy, a, b): code -> what a and b are.

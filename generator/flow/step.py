@@ -147,11 +147,18 @@ def fill_ghosts(geom: Geometry, params: Params, u, v):
     return u, v
 
 
-def inflow_profile(geom: Geometry, params: Params, dtype=jnp.float32):
+def inflow_profile(geom: Geometry, params: Params, dtype=jnp.float32, t=None):
     """Left-side inflow u [ny]: parabolic with peak params.inflow at mid-height (zero at walls), blended with
-    a plug of the same flux by params.plug (0: parabola; 1: uniform 2/3 * inflow)."""
+    a plug of the same flux by params.plug (0: parabola; 1: uniform 2/3 * inflow); at time t (s) times
+    1 + A sin(2 pi f t) where params.pulse = (A, f) pulses it."""
     y = (jnp.arange(geom.ny, dtype=dtype) + 0.5) / geom.ny
-    return params.inflow * ((1 - params.plug) * 4 * y * (1 - y) + params.plug * (2.0 / 3.0))
+    profile = params.inflow * ((1 - params.plug) * 4 * y * (1 - y) + params.plug * (2.0 / 3.0))
+    if params.pulse is None:
+        return profile
+    if t is None:
+        raise ValueError("a pulsed inflow (params.pulse) needs the time t of the velocities it bounds")
+    amplitude, frequency = params.pulse
+    return profile * (1 + amplitude * jnp.sin(2 * jnp.pi * frequency * t)).astype(dtype)
 
 
 def initial_state(geom: Geometry, params: Params, dtype=jnp.float32) -> State:
@@ -159,16 +166,17 @@ def initial_state(geom: Geometry, params: Params, dtype=jnp.float32) -> State:
     z = jnp.zeros
     s = State(z((geom.ny, geom.nx + 1), dtype), z((geom.ny + 1, geom.nx), dtype), z((geom.ny, geom.nx), dtype),
               z((geom.ny, geom.nx), dtype), jnp.zeros((), dtype), jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32))
-    u, v = apply_bc(geom, params, s.u, s.v)
+    u, v = apply_bc(geom, params, s.u, s.v, 0.0)
     return s._replace(u=u, v=v)
 
 
-def apply_bc(geom: Geometry, params: Params, u, v):
-    """Normal velocities on boundary faces and zero on obstacle faces."""
+def apply_bc(geom: Geometry, params: Params, u, v, t=None):
+    """Normal velocities on boundary faces and zero on obstacle faces; t (s): the velocities' time (a pulsed
+    inflow's phase; unused otherwise)."""
     if geom.periodic_x:
         u = u.at[:, -1].set(u[:, 0])
     else:
-        u = u.at[:, 0].set(inflow_profile(geom, params, u.dtype) if geom.left == "inflow" else
+        u = u.at[:, 0].set(inflow_profile(geom, params, u.dtype, t) if geom.left == "inflow" else
                            (u[:, 1] if geom.left == "outflow" else 0.0))
         u = u.at[:, -1].set(u[:, -2] if geom.right == "outflow" else 0.0)
     if geom.periodic_y:
@@ -269,8 +277,9 @@ def _laplacian(a, lo_x, hi_x, lo_y, hi_y):
 
 
 def _tangential_ghost(kind: str, edge, wall_speed=0.0):
-    """Ghost of a tangential velocity across a side: no-slip wall/inflow 2 U - u, outflow u."""
-    if kind == "outflow":
+    """Ghost of a tangential velocity across a side: no-slip wall/inflow 2 U - u, outflow and free-slip wall u
+    (zero normal derivative: no shear stress)."""
+    if kind in ("outflow", "slip"):
         return edge
     return 2 * wall_speed - edge
 
@@ -372,7 +381,7 @@ def _second_order_velocity(geom: Geometry, params: Params, state: State, lu, lv,
     fu, fv = lu - gx, lv - gy
     uh = advect(geom, u, v, u, 0.0, 0.5, 0.5 * dt) + 0.5 * dt * fu
     vh = advect(geom, u, v, v, 0.5, 0.0, 0.5 * dt) + 0.5 * dt * fv
-    uh, vh = apply_bc(geom, params, uh, vh)
+    uh, vh = apply_bc(geom, params, uh, vh, state.t + 0.5 * dt)
     un = adv(geom, uh, vh, u + 0.5 * dt * fu, 0.0, 0.5, dt) + 0.5 * dt * lu
     vn = adv(geom, uh, vh, v + 0.5 * dt * fv, 0.5, 0.0, dt) + 0.5 * dt * lv
     return uh, vh, un, vn
@@ -395,7 +404,7 @@ def predict(geom: Geometry, state: State, params: Params, dt, advection: str = "
         # stable_dt's limit: the Re-100 cavity at 64^2 blew up within 200 steps at 0.9 of it
         ua, va = u, v
         un, vn = adv(geom, u, v, u, 0.0, 0.5, dt), adv(geom, u, v, v, 0.5, 0.0, dt)
-        lu, lv = viscous(geom, params, *apply_bc(geom, params, un, vn))
+        lu, lv = viscous(geom, params, *apply_bc(geom, params, un, vn, state.t + dt))
         un, vn = un + dt * lu, vn + dt * lv
         if params.force is not None:
             un, vn = un + dt * params.force[0], vn + dt * params.force[1]
@@ -404,7 +413,7 @@ def predict(geom: Geometry, state: State, params: Params, dt, advection: str = "
     smoke = adv(geom, ua, va, state.smoke, 0.5, 0.5, dt) + dt * source_rate(geom, params, state.smoke.dtype)
     sm = jnp.concatenate([smoke[:1], 0.5 * (smoke[1:] + smoke[:-1]), smoke[-1:]], 0)
     vn = vn + dt * params.buoyancy * sm
-    un, vn = apply_bc(geom, params, un, vn)
+    un, vn = apply_bc(geom, params, un, vn, state.t + dt)
     return un, vn, smoke
 
 
