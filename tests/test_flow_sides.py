@@ -1,6 +1,6 @@
 """The flow solver's side kinds beyond no-slip walls (issue 28, boundaries users ask for), each against a case
-with a known answer: free-slip walls ('slip') and a pulsed inflow (Params.pulse). Small grids: each program
-compiles in seconds."""
+with a known answer: free-slip walls ('slip'), a pulsed inflow (Params.pulse) and a convective outflow
+('convective', against the same flow in a channel twice as long). Small grids."""
 
 import jax
 import numpy as np
@@ -60,3 +60,43 @@ def test_a_pulsed_inflow_needs_the_time_and_a_steady_one_is_the_program_it_was()
     np.testing.assert_array_equal(inflow_profile(geom, steady), inflow_profile(geom, steady, t=3.0))
     u, _ = apply_bc(geom, steady._replace(pulse=(0.5, 0.25)), *initial_state(geom, steady)[:2], 1.0)
     np.testing.assert_allclose(np.asarray(u[:, 0]), 1.5 * np.asarray(inflow_profile(geom, steady)), rtol=1e-6)
+
+
+def _vortex_leaving(nx: int, right: str, lx: float, n: int = 16, t_end: float = 1.6):
+    """u [ny, nx+1] at t_end of a Gaussian vortex (amplitude 1 m/s) carried by a uniform 1 m/s stream from x 0.6
+    out through the right side of a channel periodic in y (h = 1/n), and the final state."""
+    geom = Geometry(nx, n, lx, 1.0, left="inflow", right=right, bottom="periodic", top="periodic")
+    params = Params(nu=2e-3, inflow=1.5, plug=1.0)  # plug: 2/3 of 1.5
+    h, r = geom.h, 0.15
+    x, y = np.meshgrid(np.arange(nx + 1) * h, np.arange(n + 1) * h)
+    psi = y + r * np.exp(-((x - 0.6) ** 2 + (y - 0.5) ** 2) / r ** 2)  # at the corners: discretely div-free
+    s = initial_state(geom, params)._replace(u=jax.numpy.asarray(np.diff(psi, axis=0) / h, np.float32),
+                                             v=jax.numpy.asarray(-np.diff(psi, axis=1) / h, np.float32))
+    dt = 0.25 * h
+    s = jax.jit(run, static_argnums=(0, 4), static_argnames="advection")(geom, s, params, dt, int(round(t_end / dt)),
+                                                                        advection="maccormack")
+    return geom, s
+
+
+@pytest.mark.slow  # three channel programs: ~40 CPU s
+def test_a_convective_outflow_lets_a_vortex_leave_with_less_reflection_than_a_fixed_pressure():
+    """The same vortex through a channel of length 2 and of length 4 (its outlet far away: the reference); on
+    x < 1.5 the short channel's convective outflow stays closer to the long one than the zero-gradient outflow
+    with p = 0 does, loses no mass and stays divergence-free."""
+    from pdestream.generator.flow.step import divergence
+
+    _, long = _vortex_leaving(64, "outflow", 4.0)
+    reference = np.asarray(long.u)[:, :24]
+    off = {}
+    for right in ("convective", "outflow"):
+        geom, s = _vortex_leaving(32, right, 2.0)
+        off[right] = float(np.abs(np.asarray(s.u)[:, :24] - reference).max())
+        if right == "convective":
+            assert float(s.u[:, -1].sum()) == pytest.approx(float(s.u[:, 0].sum()), rel=1e-6)  # what enters leaves
+            assert float(np.abs(np.asarray(divergence(geom, s.u, s.v))).max()) < 1e-5
+    assert off["convective"] < 1.5e-3 and off["convective"] < 0.7 * off["outflow"], off  # measured 1.0e-3, 1.9e-3
+
+
+def test_a_convective_side_is_right_or_top():
+    with pytest.raises(ValueError, match="a convective outflow is a right or top side"):
+        Geometry(8, 8, 1.0, 1.0, left="convective")

@@ -6,7 +6,10 @@ Sides (left, right, bottom, top) are each one of SIDE_KINDS: 'wall' (no-slip, to
 'slip' (a free-slip wall: no flow through it, no shear stress on it: the tangential velocity's normal derivative
 is zero), 'inflow' (normal velocity params.inflow * parabolic profile, times 1 + A sin(2 pi f t) where
 params.pulse = (A, f) pulses it; left side only), 'outflow' (zero-gradient velocity, pressure 0: the only
-Dirichlet pressure side) or 'periodic' (left/right or bottom/top pairs).
+Dirichlet pressure side), 'convective' (a convective outflow, right or top: its normal velocity is carried out by
+the flow, du/dt + U du/dn = 0 through the step's own advection, then shifted evenly so what leaves is what
+enters; pressure zero-gradient there, so vortices leave without the reflection a fixed pressure makes) or
+'periodic' (left/right or bottom/top pairs).
 
 Bodies (``Geometry.body``, one of BODIES; DEFAULT_BODY declared once here): 'staircase' makes every cell whose
 centre lies inside a body solid (first order in h for forces). 'sharp' treats the circle of Params.circle below
@@ -30,7 +33,8 @@ from ...boundaries import Boundary, is_periodic
 
 # A side's conditions on velocity and pressure; not boundaries.Boundary (a per-axis condition on a field, which
 # FlowGrid.bc derives from a pair of sides): only 'periodic' is shared, and is asked of that module (is_periodic).
-SIDE_KINDS = ("wall", "slip", "inflow", "outflow", Boundary.PERIODIC.value)
+SIDE_KINDS = ("wall", "slip", "inflow", "outflow", "convective", Boundary.PERIODIC.value)
+OPEN_SIDES = ("outflow", "convective")  # where the fluid leaves: a frame's unstored faces follow from continuity
 BODIES = ("staircase", "sharp")  # how Params.circle meets the grid (module docstring)
 DEFAULT_BODY = "sharp"
 # A face open by less than this fraction counts as closed: a cut cell's sliver would otherwise give the pressure
@@ -61,6 +65,9 @@ class Geometry:
         for name in ("left", "right", "bottom", "top"):
             if getattr(self, name) not in SIDE_KINDS:
                 raise ValueError(f"{name}={getattr(self, name)!r}: allowed side kinds are {SIDE_KINDS}")
+        if "convective" in (self.left, self.bottom):
+            raise ValueError(f"left={self.left!r}, bottom={self.bottom!r}: a convective outflow is a right or top "
+                             "side (the flow leaves through it)")
         if is_periodic(self.left) != is_periodic(self.right):
             raise ValueError(f"left={self.left!r}, right={self.right!r}: periodic sides come in pairs")
         if is_periodic(self.bottom) != is_periodic(self.top):

@@ -21,6 +21,7 @@ import numpy as np
 
 from . import pressure
 from .grid import (
+    OPEN_SIDES,
     Geometry,
     Params,
     circle_apertures,
@@ -178,14 +179,34 @@ def apply_bc(geom: Geometry, params: Params, u, v, t=None):
     else:
         u = u.at[:, 0].set(inflow_profile(geom, params, u.dtype, t) if geom.left == "inflow" else
                            (u[:, 1] if geom.left == "outflow" else 0.0))
-        u = u.at[:, -1].set(u[:, -2] if geom.right == "outflow" else 0.0)
+        if geom.right != "convective":  # (a convective side keeps the value the step carried out to it)
+            u = u.at[:, -1].set(u[:, -2] if geom.right == "outflow" else 0.0)
     if geom.periodic_y:
         v = v.at[-1].set(v[0])
     else:
         v = v.at[0].set(v[1] if geom.bottom == "outflow" else 0.0)
-        v = v.at[-1].set(v[-2] if geom.top == "outflow" else 0.0)
+        if geom.top != "convective":
+            v = v.at[-1].set(v[-2] if geom.top == "outflow" else 0.0)
     mu, mv = velocity_masks(geom, _staircase_solid(geom, params))
-    return fill_ghosts(geom, params, u * mu, v * mv)
+    u, v = fill_ghosts(geom, params, u * mu, v * mv)
+    return _balance_convective(geom, u, v, mu, mv)
+
+
+def _balance_convective(geom: Geometry, u, v, mu, mv):
+    """u, v with the open faces of convective sides shifted evenly so the boundary's net flux is zero: the
+    pressure is zero-gradient there, and a Neumann pressure solve needs a box that loses nothing."""
+    right, top = geom.right == "convective", geom.top == "convective"
+    if not (right or top):
+        return u, v
+    net = 0.0  # inflow minus outflow through the sides, per unit h (periodic pairs cancel)
+    if not geom.periodic_x:
+        net = net + jnp.sum(u[:, 0]) - jnp.sum(u[:, -1])
+    if not geom.periodic_y:
+        net = net + jnp.sum(v[0]) - jnp.sum(v[-1])
+    open_right = mu[:, -1] if right else jnp.zeros_like(mu[:, -1])
+    open_top = mv[-1] if top else jnp.zeros_like(mv[-1])
+    shift = net / jnp.maximum(jnp.sum(open_right) + jnp.sum(open_top), 1.0)
+    return u.at[:, -1].add(shift * open_right), v.at[-1].add(shift * open_top)
 
 
 def source_rate(geom: Geometry, params: Params, dtype=jnp.float32):
@@ -277,9 +298,9 @@ def _laplacian(a, lo_x, hi_x, lo_y, hi_y):
 
 
 def _tangential_ghost(kind: str, edge, wall_speed=0.0):
-    """Ghost of a tangential velocity across a side: no-slip wall/inflow 2 U - u, outflow and free-slip wall u
+    """Ghost of a tangential velocity across a side: no-slip wall/inflow 2 U - u, open sides and free-slip wall u
     (zero normal derivative: no shear stress)."""
-    if kind in ("outflow", "slip"):
+    if kind in (*OPEN_SIDES, "slip"):
         return edge
     return 2 * wall_speed - edge
 
