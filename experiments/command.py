@@ -272,8 +272,9 @@ def _interactive(cmd: CompareCommand) -> str:
     from pdestream.surrogate.launch import set_threads
     from pdestream.surrogate.mode_table import check_corrector_start, check_noise
 
-    if cmd.budget is not None or cmd.sim_budget is not None:
-        raise ValueError("--modes compares at equal --steps; --budget and --sim-budget go with the data-route comparison")
+    if cmd.sim_budget is not None:
+        raise ValueError("--modes compares at equal --steps or, with --budget SECONDS, at equal wall clock; "
+                         "--sim-budget goes with the data-route comparison")
     if cmd.noise is not None:
         check_noise(cmd.noise)  # before the PDE (and JAX) is built
     if cmd.corrector_start is not None:
@@ -293,7 +294,7 @@ def _interactive(cmd: CompareCommand) -> str:
         steps=20 if quick else cmd.steps, batch_size=8 if quick else cmd.batch_size, lr=cmd.lr, model=cmd.model,
         model_cfg=model_cfg, k_in=cmd.k_in, seed=0, seeds=1 if cmd.seeds is None else cmd.seeds,
         unroll_schedule=cmd.unroll_schedule, resume=not cmd.overwrite, n_test=4 if cmd.quick and cmd.test_samples == 128 else
-        cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device)
+        cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device, budget_s=cmd.budget)
     if cmd.k_out != 1:
         raise ValueError(f"--k-out={cmd.k_out} not allowed with --modes: every mode predicts one frame per step")
     module.interactive_compare(pde, cmd.out, cfg)
