@@ -201,7 +201,10 @@ def pdestream_trajectory(case: VortexCase, batch: int = 0):
     from pdestream.generator.flow.step import solid_mask
 
     geom = Geometry(case.nx, case.ny, case.lx, case.ly, left="inflow", right="outflow")
-    params = Params(nu=case.nu, inflow=1.5 * case.u_in, plug=1.0, circle=(*case.centre, case.radius))
+    # float32 geometry: PhiFlow in the same process turns on jax_enable_x64, under which a Python float circle
+    # would make the sharp body's apertures (and so the state) float64
+    circle = tuple(jnp.float32(c) for c in (*case.centre, case.radius))
+    params = Params(nu=case.nu, inflow=1.5 * case.u_in, plug=1.0, circle=circle)
     every = case.steps // case.frames
     h = geom.h
     px, py = int(case.probe[0] / h), int(case.probe[1] / h)
