@@ -1,7 +1,8 @@
 """Issue 30's decisive measurement: active sampling against uniform, with the settings fixed on burgers1d and kdv1d,
 run unchanged on ks2d, ns2d, grayscott2d and two catalog entries nobody tuned on; resumable unit by unit.
 
-``python -m benchmarks.active_suite --out DIR [--problems fisher_kpp1d,ns2d] [--seeds 3] [--max-minutes M]``
+``python -m benchmarks.active_suite --out DIR [--problems fisher_kpp1d,ns2d] [--seeds 3] [--max-minutes M]
+[--summary-only]``: rerun the same command to go on from the finished units.
 
 **The two untuned entries (rule written before any run, 2026-11-27).** In catalog order (``catalog_names.NAMES``),
 the first two entries that are time-dependent; in the nonlinear or reaction-diffusion group (the families of the
@@ -69,6 +70,7 @@ SETTINGS = {"sim_budget": 256, "steps": 1500, "sim_warmup_share": 0.25, "batch_s
 GRID_2D = {"ks2d": 64}  # the rule above: coarsest of 32, 64 without blow-ups (ks2d blew up at 32)
 TEST_SMALL = {"ks2d": 256}  # the rule above: 1024 test solves would cost over 5 minutes
 METRICS = ("mean", "p95", "p99", "cvar95", "max")
+UNTRAINED = 0.5  # a uniform arm's mean relative L2 at or above this: the FNO did not learn the operator
 
 
 class Deadline(BaseException):
@@ -227,6 +229,14 @@ def summary(out: Path, problems, seeds: int) -> str:
                            if abs(margin) > spread else "within the spread")
                 cells.append(f"x{u[m][0] / max(ac[m][0], 1e-300):.2f} ({verdict})")
             lines.append(f"| {name} | **uniform / active** | | | | " + " | ".join(cells) + " |")
+            if u["mean"][0] >= UNTRAINED:
+                notes.append(f"- {name}: **not trained** (uniform mean {u['mean'][0]:.3f} >= {UNTRAINED}): the FNO does "
+                             "not learn u(0) -> u(t_end) at this budget, so its ratios compare two untrained models.")
+            gate = [r["stats"] for r in runs["reservoir_active"] if "proposal_skill" in (r.get("stats") or {})]
+            if gate:
+                notes.append(f"- {name}: the active arm's skill gate at the end (mean over its seeds): skill "
+                             f"{np.mean([g['proposal_skill'] for g in gate]):.2f}, steered share "
+                             f"{np.mean([g['proposal_steer'] for g in gate]):.2f} (of 0.75 at most: floor 0.25).")
             share = explained(out, name, runs["reservoir"])
             if share is not None:
                 notes.append(f"- {name}: the parameters explain {100 * share:.0f}% of the variance of the uniform "
@@ -242,6 +252,7 @@ def main(argv: list[str] | None = None, tiny: dict | None = None) -> None:
     p.add_argument("--problems", default=",".join(PROBLEMS), help=f"comma-separated (default {','.join(PROBLEMS)})")
     p.add_argument("--seeds", type=int, default=3, help="seeds per arm (default 3)")
     p.add_argument("--max-minutes", type=float, default=60.0, help="stop cleanly before this wall time (default 60)")
+    p.add_argument("--summary-only", action="store_true", help="write and print DIR/summary.md, run nothing")
     a = p.parse_args(argv)
     from pdestream.catalog_names import NAMES
 
@@ -254,6 +265,11 @@ def main(argv: list[str] | None = None, tiny: dict | None = None) -> None:
         sys.exit(f"--seeds {a.seeds} / --max-minutes {a.max_minutes}: need seeds >= 1 and a positive number of minutes")
     out = a.out
     out.mkdir(parents=True, exist_ok=True)
+    if a.summary_only:
+        text = summary(out, problems, a.seeds)
+        (out / "summary.md").write_text(text)
+        print(text, flush=True)
+        return
     start, limit = time.monotonic(), 60 * a.max_minutes
     todo = [(p_, s, arm) for p_, s, arm in units(problems, a.seeds) if not (unit_dir(out, p_, arm, s) / "arm.json").is_file()]
     print(f"active suite: {len(todo)} of {len(problems) * a.seeds * len(ARMS)} units to run, stop before "

@@ -42,6 +42,9 @@ def test_resume_skips_finished_units_and_discards_stale(tmp_path, capsys):
     assert "stop: burgers1d reservoir seed 2 would take ~1440.0 min" in log
     assert not (tmp_path / "burgers1d" / "reservoir_seed2").exists()
     assert "Units missing (2)" in (tmp_path / "summary.md").read_text()
+    suite.main(["--out", str(tmp_path), "--problems", "burgers1d", "--seeds", "3", "--summary-only"])
+    log = capsys.readouterr().out
+    assert "units to run" not in log and "Units missing (2)" in log and "**not trained**" in log  # tiny: mean ~1
 
 
 def test_unit_stopped_under_way_leaves_nothing(tmp_path, monkeypatch, capsys):
