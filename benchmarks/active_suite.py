@@ -334,7 +334,7 @@ def _loop(out: Path, todo: list, problems: list, a, start: float, limit: float, 
 
 
 def _estimate(out: Path, name: str) -> float | None:
-    """Mean seconds of a finished unit of ``name`` (its unit.json: test set, training and evaluation), or None."""
+    """Mean seconds of a finished unit of ``name`` (its unit.json: training and evaluation, test set excluded), or None."""
     d = out / name
     unit_s = [json.loads(f.read_text())["unit_s"] for f in d.glob("*/unit.json")] if d.is_dir() else []
     return float(np.mean(unit_s)) if unit_s else None
