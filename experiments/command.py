@@ -218,6 +218,18 @@ def _compare(cmd: CompareCommand, log) -> str:
 
 def _budget(cmd: CompareCommand, log) -> str:
     """budget / sim_budget [/ quick]: every arm at the same cost (experiments.budget)."""
+    from pdestream.experiments import budget as module
+
+    pde, cfg = budget_setup(cmd, log)
+    module.budget_compare(pde, cmd.out, cfg, shift_overrides=dict(cmd.shift_set))
+    return (Path(cmd.out) / "compare.md").read_text() + \
+        f"table: {cmd.out}/compare.md, compare.csv, compare.json; figure: {cmd.out}/compare.png"
+
+
+def budget_setup(cmd: CompareCommand, log=print):
+    """(pde, BudgetConfig) of a budget / sim_budget [/ quick] ``cmd``, every option checked (one line each) and
+    torch's threads set, as ``compare`` runs it: what a harness running single (arm, seed) units through
+    ``experiments.budget.run_arm`` builds (benchmarks/active_suite.py)."""
     from pdestream.datasets.reservoir_options import (
         active_kwargs,
         check_priority_options,
@@ -260,9 +272,7 @@ def _budget(cmd: CompareCommand, log) -> str:
         n_test=32 if cmd.quick and cmd.test_samples == 128 else cmd.test_samples, shift=cmd.shift,
         seeds=(1 if cmd.quick else 3) if cmd.seeds is None else cmd.seeds, device=cmd.device,
         mode=None if cmd.loss == "mse" else {"name": "one-step", "loss": cmd.loss})
-    module.budget_compare(pde, cmd.out, cfg, shift_overrides=dict(cmd.shift_set))
-    return (Path(cmd.out) / "compare.md").read_text() + \
-        f"table: {cmd.out}/compare.md, compare.csv, compare.json; figure: {cmd.out}/compare.png"
+    return pde, cfg
 
 
 def _interactive(cmd: CompareCommand) -> str:

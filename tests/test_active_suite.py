@@ -1,0 +1,66 @@
+"""benchmarks/active_suite.py's bookkeeping, not its results: units run once, finished ones are skipped, a unit
+stopped under way leaves nothing, a unit whose estimate passes --max-minutes is not started, bad input is one line."""
+
+import json
+
+import pytest
+
+from benchmarks import active_suite as suite
+
+TINY = {"settings": {"n": "32"}, "sim_budget": 8, "steps": 4, "batch_size": 4, "n_test": 8,
+        "model_cfg": {"width": 4, "modes": 4, "layers": 1}}
+
+
+def _run(out, seeds, minutes=60.0):
+    suite.main(["--out", str(out), "--problems", "burgers1d", "--seeds", str(seeds), "--max-minutes", str(minutes)],
+               tiny=TINY)
+
+
+def test_resume_skips_finished_units_and_discards_stale(tmp_path, capsys):
+    _run(tmp_path, 1)
+    first = {a: (tmp_path / "burgers1d" / f"{a}_seed0" / "arm.json").read_text() for a in suite.ARMS}
+    stale = tmp_path / "burgers1d" / ".tmp-reservoir_seed1"  # what a killed unit leaves
+    stale.mkdir()
+    (stale / "arm.json").write_text("{}")
+    capsys.readouterr()
+    _run(tmp_path, 2)
+    log = capsys.readouterr().out
+    assert "2 of 4 units to run" in log and "seed 0" not in log.split("units to run")[1].split("#")[0]
+    for a in suite.ARMS:  # seed 0 untouched, seed 1 recorded
+        assert (tmp_path / "burgers1d" / f"{a}_seed0" / "arm.json").read_text() == first[a]
+        assert json.loads((tmp_path / "burgers1d" / f"{a}_seed1" / "arm.json").read_text())["seed"] == 1
+    assert not stale.exists()
+    text = (tmp_path / "summary.md").read_text()
+    assert "Units missing (0)" in text and "| 0,1 |" in text and "uniform / active" in text
+
+    # a finished problem whose units took "a day" each: the next seed's unit is not started
+    for f in (tmp_path / "burgers1d").glob("*/unit.json"):
+        f.write_text(json.dumps({"unit_s": 86400.0}))
+    capsys.readouterr()
+    _run(tmp_path, 3, minutes=30)
+    log = capsys.readouterr().out
+    assert "stop: burgers1d reservoir seed 2 would take ~1440.0 min" in log
+    assert not (tmp_path / "burgers1d" / "reservoir_seed2").exists()
+    assert "Units missing (2)" in (tmp_path / "summary.md").read_text()
+    suite.main(["--out", str(tmp_path), "--problems", "burgers1d", "--seeds", "3", "--summary-only"])
+    log = capsys.readouterr().out
+    assert "units to run" not in log and "Units missing (2)" in log and "**not trained**" in log  # tiny: mean ~1
+
+
+def test_unit_stopped_under_way_leaves_nothing(tmp_path, monkeypatch, capsys):
+    import pdestream.experiments.budget as budget
+
+    def stopped(arm, pde, view, cfg, out, tests, log=print, seed=0):
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "arm.json").write_text("{}")  # half-written, then the deadline
+        raise suite.Deadline()
+
+    monkeypatch.setattr(budget, "run_arm", stopped)
+    _run(tmp_path, 1)
+    assert "burgers1d reservoir seed 0 discarded" in capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / "burgers1d").iterdir()) == ["test.pt", "test_params.json"]
+
+
+def test_bad_problem_is_one_line(tmp_path):
+    with pytest.raises(SystemExit, match="--problems 'nope': unknown nope"):
+        suite.main(["--out", str(tmp_path), "--problems", "nope"])
