@@ -36,7 +36,7 @@ FLOW_SMALL = {
 # plume3d: the smallest grid whose heater is 4 cells across and 2 cells off the walls (not in FLOW_SMALL: the 2D
 # flows' tests run on those)
 SMALL = {"darcy2d": {"n": 9}, **FLOW_SMALL,  # darcy2d: nodes per side; every other entry: the settings below
-         "plume3d": dict(n=12, radius=0.17, source_z=0.35, nu="uniform(0.004, 0.01)", t_end=1.0, n_frames=3)}
+         "plume3d": dict(n=12, radius=0.17, source_z=0.35, nu="loguniform(0.004, 0.01)", t_end=1.0, n_frames=3)}
 
 
 def small(name: str) -> dict:

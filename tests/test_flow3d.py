@@ -3,7 +3,8 @@
 Exact solutions: the Arnold-Beltrami-Childress flow on the periodic [0, 2 pi]^3 (curl u = u, so (u.grad)u =
 grad |u|^2 / 2 is balanced by the pressure and u decays as exp(-nu t): the nonlinear term, the pressure and the
 viscosity all act), and shear modes between two no-slip walls (u = sin(pi y) e^{-nu pi^2 t}, w = sin(2 pi y)
-e^{-4 nu pi^2 t}: the wall ghosts' order). Grid studies are marked slow; the quick tests run one small grid each.
+e^{-4 nu pi^2 t}: the wall ghosts' order), in benchmarks/flow3d_validation.py. Grid studies are marked slow; the
+quick tests run one small grid each.
 """
 
 import math
@@ -13,50 +14,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pdestream import generator
+from benchmarks.flow3d_validation import error as _error
+from pdestream import cli, datasets, generator
 from pdestream.generator.flow import mac3d
 from tests.reference_samples import SMALL
 
-
-def _abc(box, t, nu, dtype):
-    """The ABC flow (A = B = C = 1, k = 1) on each component's faces at time t."""
-    out = []
-    for k in range(3):
-        x, y, z = mac3d.points(box, box.face_shape(k), box.offsets(k), dtype)
-        f = (jnp.sin(z) + jnp.cos(y), jnp.sin(x) + jnp.cos(z), jnp.sin(y) + jnp.cos(x))[k]
-        out.append(f * math.exp(-nu * t))
-    return tuple(out)
-
-
-def _shear(box, t, nu, dtype):
-    """Two decaying shear modes between no-slip walls at y = 0 and 1 (x and z periodic)."""
-    out = []
-    for k in range(3):
-        _, y, _ = mac3d.points(box, box.face_shape(k), box.offsets(k), dtype)
-        f = (jnp.sin(math.pi * y) * math.exp(-nu * math.pi**2 * t), 0 * y,
-             jnp.sin(2 * math.pi * y) * math.exp(-4 * nu * math.pi**2 * t))[k]
-        out.append(f)
-    return tuple(out)
-
-
-def _error(case: str, n: int):
-    """(RMS velocity error at t = 1, max |divergence|) of the solver against an exact solution on n cells (float64)."""
-    with jax.enable_x64(True):
-        if case == "abc":
-            nu, exact = 0.1, _abc
-            box = mac3d.Box((n,) * 3, 2 * math.pi / n, (True,) * 3)
-            dt = 0.5 * box.h / 2  # CFL 0.5 at |u| <= 2
-        else:
-            nu, exact = 0.05, _shear
-            box = mac3d.Box((4, n, 4), 1.0 / n, (True, False, True))
-            dt = min(0.5 * box.h, 0.9 * box.h**2 / (6 * nu))
-        steps = math.ceil(1.0 / dt)
-        s = mac3d.initial_state(box, jnp.float64)
-        s = s._replace(vel=mac3d.apply_bc(box, exact(box, 0.0, nu, jnp.float64)))
-        s = jax.jit(mac3d.run, static_argnums=(0, 4))(box, s, mac3d.Params3(nu=nu), 1.0 / steps, steps)
-        want = exact(box, 1.0, nu, jnp.float64)
-        rms = math.sqrt(sum(float(jnp.mean((a - b) ** 2)) for a, b in zip(s.vel, want)) / 3)
-        return rms, float(jnp.max(jnp.abs(mac3d.divergence(box, s.vel))))
+pytestmark = pytest.mark.xdist_group("plume3d")  # one worker: the small plume's programs compile once
 
 
 def test_the_abc_flow_decays_as_the_exact_solution_and_stays_divergence_free():
@@ -102,3 +65,34 @@ def test_plume3d_rises_keeps_its_scalar_in_bounds_and_samples_alone_equal_batche
     assert np.all(w.max((1, 2, 3)) > 0.1) and np.all(w.max((1, 2, 3)) > -w.min((1, 2, 3)))  # upward jet
     alone = generator.sample(pde, [2], seed=3)
     np.testing.assert_array_equal(np.asarray(alone.u[0]), u[2])
+
+
+def test_plume3d_stream_equals_its_cache_which_records_the_closed_box(tmp_path):
+    import torch
+    import xarray as xr
+
+    pde = generator.get_pde("plume3d", **SMALL["plume3d"])
+    path = tmp_path / "p.zarr"
+    datasets.write_cache(pde, path, n_samples=3, seed=2, block=4)
+    plain = xr.open_zarr(path)
+    assert dict(plain.sizes) == {"sample": 3, "time": 3, "z": 12, "y": 12, "x": 12}
+    assert plain.attrs["bc"] == "dirichlet dirichlet dirichlet" and plain.attrs["bc_type"] == "wall wall wall"
+    assert set(plain.data_vars) >= {"u", "v", "w", "p", "smoke"}
+    stream = datasets.TrajectoryStream(pde, seed=2, view="whole", batch_size=3, n_samples=3, shuffle=False,
+                                       resample=False, solve_batch=4)
+    batch = next(iter(torch.utils.data.DataLoader(stream, batch_size=None)))
+    cached = datasets.CachedTrajectories(path, view="whole")
+    assert cached.pde.config() == pde.config()
+    for k, i in enumerate(batch["index"].tolist()):
+        assert torch.equal(cached[i]["u"], batch["u"][k])
+
+
+@pytest.mark.slow
+def test_compare_trains_on_plume3d(capsys, tmp_path):
+    # the small plume (n=12) through compare's cache and stream arms: the 3D FNO trains on a 3D flow
+    sets = [a for k, v in SMALL["plume3d"].items() for a in ("--set", f"{k}={v}")]
+    code = cli.main(["compare", "plume3d", "--steps", "2", "--seeds", "1", "--test-samples", "4", *sets,
+                     "--shift-set", "sx=uniform(0.34, 0.35)", "--shift-set", "sy=uniform(0.34, 0.35)",
+                     "--out", str(tmp_path / "c")])
+    out = capsys.readouterr().out
+    assert code == 0 and "| cache |" in out and "| stream |" in out

@@ -42,6 +42,7 @@ class Plume3D(FlowProblem):
     FIELD_LOCATIONS: ClassVar[Mapping[str, str]] = {**FlowProblem.FIELD_LOCATIONS, "w": "face_z"}
     SIDES: ClassVar[tuple] = ("wall",) * 6
     PROJECTION: ClassVar[str] = "direct (DCT) projection"
+    UNUSED: ClassVar[frozenset] = frozenset({"tol", "max_iter"})  # the 2D pressure solve's: this one is direct
     PARAMS: ClassVar[dict] = {
         "nu": Param("kinematic viscosity", "m^2/s", positive=True),
         "buoyancy": Param("buoyancy b per unit scalar (along +z)", "m/s^2", positive=True),
@@ -56,9 +57,9 @@ class Plume3D(FlowProblem):
     n_frames: int = 16
     source_z: float = 0.2  # heater centre height (m)
     radius: float = 0.1  # heater radius (m)
-    nu: Any = "uniform(0.002, 0.01)"
+    nu: Any = "loguniform(0.002, 0.01)"
     buoyancy: Any = "uniform(0.5, 1.5)"
-    rate: Any = "uniform(2, 10)"
+    rate: Any = "loguniform(2, 10)"
     sx: Any = "uniform(0.35, 0.65)"
     sy: Any = "uniform(0.35, 0.65)"
 
@@ -81,6 +82,9 @@ class Plume3D(FlowProblem):
         """Nothing to check: the projection is a direct transform solve, no multigrid levels."""
 
     def check_flow(self) -> None:
+        if self.advection != "maccormack":
+            raise ValueError(f"{self.NAME}: advection={self.advection!r} not allowed: the 3D solver advects by "
+                             "maccormack only")
         h, gap, lx = self.h, CLEARANCE_CELLS * self.h, self.aspect * self.length
         if 2 * self.radius / h < MIN_CELLS_ACROSS:
             raise ValueError(f"{self.NAME}: radius={self.radius:g} not allowed: a heater {2 * self.radius / h:.2g} "
