@@ -34,7 +34,8 @@ class Plume3D(FlowProblem):
 
     NAME: ClassVar[str] = "plume3d"
     NDIM: ClassVar[int] = 3
-    TYPICAL_TIMES: ClassVar[dict] = None
+    # `pdestream generate plume3d --n 4` on 2 shared CPU cores (load 6-7), no compilation cache (progress lines)
+    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 22.0, "unit_s": 23.9}
     EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u + b s e_z, div u = 0, s_t + u.grad s = "
                                "rate (1 - s) in the heater; 3D buoyant plume in a closed box")
     FIELDS: ClassVar[tuple] = ("u", "v", "w", "p", "smoke")
