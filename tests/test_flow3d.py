@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from benchmarks.flow3d_validation import error as _error
-from pdestream import cli, datasets, generator
+from pdestream import cli, generator
 from pdestream.generator.flow import mac3d
 from tests.reference_samples import SMALL
+from tests.test_flows import stream_equals_cache
 
 pytestmark = pytest.mark.xdist_group("plume3d")  # one worker: the small plume's programs compile once
 
@@ -68,23 +69,10 @@ def test_plume3d_rises_keeps_its_scalar_in_bounds_and_samples_alone_equal_batche
 
 
 def test_plume3d_stream_equals_its_cache_which_records_the_closed_box(tmp_path):
-    import torch
-    import xarray as xr
-
-    pde = generator.get_pde("plume3d", **SMALL["plume3d"])
-    path = tmp_path / "p.zarr"
-    datasets.write_cache(pde, path, n_samples=3, seed=2, block=4)
-    plain = xr.open_zarr(path)
+    plain, _ = stream_equals_cache(generator.get_pde("plume3d", **SMALL["plume3d"]), tmp_path / "p.zarr", 3)
     assert dict(plain.sizes) == {"sample": 3, "time": 3, "z": 12, "y": 12, "x": 12}
     assert plain.attrs["bc"] == "dirichlet dirichlet dirichlet" and plain.attrs["bc_type"] == "wall wall wall"
     assert set(plain.data_vars) >= {"u", "v", "w", "p", "smoke"}
-    stream = datasets.TrajectoryStream(pde, seed=2, view="whole", batch_size=3, n_samples=3, shuffle=False,
-                                       resample=False, solve_batch=4)
-    batch = next(iter(torch.utils.data.DataLoader(stream, batch_size=None)))
-    cached = datasets.CachedTrajectories(path, view="whole")
-    assert cached.pde.config() == pde.config()
-    for k, i in enumerate(batch["index"].tolist()):
-        assert torch.equal(cached[i]["u"], batch["u"][k])
 
 
 @pytest.mark.slow
