@@ -84,3 +84,21 @@ def test_compare_trains_on_plume3d(capsys, tmp_path):
                      "--out", str(tmp_path / "c")])
     out = capsys.readouterr().out
     assert code == 0 and "| cache |" in out and "| stream |" in out
+
+
+@pytest.mark.slow
+def test_plume3d_frames_continue_through_the_oracle_and_its_vjp():
+    # a frame is the solver's whole state: advancing frame 0 one frame gives frame 1 (another compiled program:
+    # to rounding), and the differentiable step's VJP reaches the frame and every parameter
+    from pdestream.generator.spectral import interactive
+
+    pde = generator.get_pde("plume3d", **SMALL["plume3d"])
+    traj = generator.sample(pde, [0, 1], seed=5)
+    u = np.asarray(traj.u)
+    got, finite = interactive.advance(pde, u[:, 0], traj.params, 1)
+    scale = np.abs(u[:, 1]).max()
+    assert finite.all() and np.abs(np.asarray(got) - u[:, 1]).max() < 1e-4 * scale
+    out, _, vjp = interactive.advance_vjp(pde, u[:, 0], traj.params, 1)
+    g_u, g_p = vjp(np.ones_like(np.asarray(out)))
+    assert np.isfinite(np.asarray(g_u)).all() and np.abs(np.asarray(g_u)).max() > 0
+    assert all(np.isfinite(np.asarray(v)).all() for v in g_p.values()) and np.abs(np.asarray(g_p["buoyancy"])).max() > 0

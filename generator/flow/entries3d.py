@@ -124,11 +124,8 @@ class Plume3D(FlowProblem):
     def oracle_params(self, p: Mapping[str, jax.Array], frame: jax.Array) -> mac3d.Params3:
         return self.flow_params(p, None)
 
-    def advance_frames(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int):
-        raise NotImplementedError(f"{self.NAME}: the solver-in-the-loop modes do not take 3D flows yet")
-
-    def advance_frames_vjp(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int, wrt_params: bool):
-        raise NotImplementedError(f"{self.NAME}: the solver-in-the-loop modes do not take 3D flows yet")
+    def rollout(self, box: mac3d.Box, state: mac3d.State, fp: mac3d.Params3, dt, n_steps: int) -> mac3d.State:
+        return mac3d.run(box, state, fp, dt, n_steps)
 
     def programs(self):
         return _programs(self)

@@ -42,7 +42,7 @@ from ..problem import MAX_STEPS, ProblemBase, resolve_params
 from . import interactive
 from .grid import BODIES, SIDE_KINDS, Geometry, Params, circle_apertures
 from .pressure import MAX_COARSE_CELLS, coarsest_shape
-from .step import ADVECTION, State, initial_state, operator, run_counted, solid_mask
+from .step import ADVECTION, State, initial_state, operator, run, run_counted, solid_mask
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
 # Work of one flow step per cell, in the spectral family's point-steps (generator.dispatch): a projection's
@@ -350,6 +350,11 @@ class FlowProblem(ProblemBase):
         zero = jnp.zeros((geom.ny, geom.nx), frame.dtype)
         return State(u, v, field.get("p", zero), field.get("smoke", zero), jnp.zeros((), frame.dtype),
                      jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32))
+
+    def rollout(self, geom, state, fp, dt, n_steps: int):
+        """``n_steps`` (static) steps of dt from a solver state: the oracle's and SolverStep's rollout
+        (generator.flow.interactive; reverse-differentiable). A family member on another solver supplies its own."""
+        return run(geom, state, fp, dt, n_steps, tol=self.tol, max_iter=self.max_iter, advection=self.advection)
 
     def programs(self):
         """(start, advance, frame): the compiled per-chunk programs run_keys calls (``_programs``: the 2D solver's;
