@@ -9,7 +9,6 @@ quick tests run one small grid each.
 
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -24,6 +23,7 @@ pytestmark = pytest.mark.xdist_group("plume3d")  # one worker: the small plume's
 
 
 def test_the_abc_flow_decays_as_the_exact_solution_and_stays_divergence_free():
+    # (the closed box's projection: test_plume3d_rises...)
     rms, div = _error("abc", 8)
     assert rms < 0.02 and div < 1e-12  # 8^3: 1.7e-2 of a speed ~1.4 (second order: tests below, slow)
 
@@ -34,20 +34,6 @@ def test_second_order_in_space_over_three_grids(case, grids):
     errors = [_error(case, n) for n in grids]
     orders = [math.log2(a[0] / b[0]) for a, b in zip(errors, errors[1:])]
     assert min(orders) > 1.8 and max(d for _, d in errors) < 1e-11, (errors, orders)
-
-
-def test_the_closed_box_projection_is_exact_and_idempotent():
-    box = mac3d.Box((6, 4, 8), 0.25, (False, False, False))
-    keys = jax.random.split(jax.random.PRNGKey(0), 3)
-    with jax.enable_x64(True):
-        vel = mac3d.apply_bc(box, tuple(jax.random.normal(k, box.face_shape(i), jnp.float64)
-                                        for i, k in enumerate(keys)))
-        out, p = jax.jit(mac3d.project, static_argnums=0)(box, vel, 0.1)
-        assert float(jnp.max(jnp.abs(mac3d.divergence(box, vel)))) > 1  # there was something to remove
-        assert float(jnp.max(jnp.abs(mac3d.divergence(box, out)))) < 1e-12
-        again, _ = jax.jit(mac3d.project, static_argnums=0)(box, out, 0.1)
-        assert max(float(jnp.max(jnp.abs(a - b))) for a, b in zip(again, out)) < 1e-12
-        assert all(float(jnp.abs(v.take(jnp.array([0, -1]), axis=k)).max()) == 0 for k, v in enumerate(out))  # walls
 
 
 def test_plume3d_rises_keeps_its_scalar_in_bounds_and_samples_alone_equal_batches():
@@ -64,6 +50,9 @@ def test_plume3d_rises_keeps_its_scalar_in_bounds_and_samples_alone_equal_batche
     assert np.all(height > pde.source_z + 0.02) and np.all(top > pde.source_z + pde.radius), (height, top)
     w = u[:, -1, pde.FIELDS.index("w")]
     assert np.all(w.max((1, 2, 3)) > 0.1) and np.all(w.max((1, 2, 3)) > -w.min((1, 2, 3)))  # upward jet
+    # the closed box's projection (DCT on all three axes) leaves float32 rounding: |div| h < 1e-5 of the speed
+    vel = pde.state_of(jnp.asarray(u[0, -1]), None).vel
+    assert float(jnp.abs(mac3d.divergence(pde.geometry(), vel)).max()) * pde.h < 1e-5 * np.abs(u[0, -1, :3]).max()
     alone = generator.sample(pde, [2], seed=3)
     np.testing.assert_array_equal(np.asarray(alone.u[0]), u[2])
 
