@@ -16,7 +16,7 @@ solution: its nonlinear term is a gradient) and a decaying wall shear mode (test
 API::
 
     box = Box((32, 32, 32), 2 * math.pi / 32, periodic=(True, True, True))
-    s = State.rest(box)._replace(vel=...)          # or initial_state(box)
+    s = initial_state(box)._replace(vel=apply_bc(box, (u, v, w)))   # u [nx+1, ny, nz], v, w likewise
     s = jax.jit(run, static_argnums=(0, 4))(box, s, Params3(nu=0.01), dt, 100)
 """
 
