@@ -291,7 +291,7 @@ def add_compare(sub) -> None:
     b = p.add_argument_group("budget-matched comparison (precomputed / fifo / reservoir / reservoir_loss / "
                              "reservoir_active / reservoir_priority)")
     b.add_argument("--budget", type=float, metavar="SECONDS",
-                   help="every arm gets this wall-clock time (solving, caching and training all count)")
+                   help="every arm gets this wall-clock time (solving, caching and training all count; --modes: each trained arm)")
     b.add_argument("--sim-budget", type=int, metavar="N",
                    help="every arm gets N solved trajectories and --steps optimizer steps")
     b.add_argument("--arms", default=",".join(d.arms), help="comma-separated subset of the arms (default: all "

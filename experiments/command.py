@@ -120,11 +120,16 @@ def compare_left(out: str, before, resumes: bool = False) -> str:
     tables = [n for n in ("compare.md", "compare.json") if (d / n).is_file()]
     runs = sorted(p.name for p in d.iterdir() if p.is_dir() and ((p / "metrics.json").is_file()
                                                                  or (p / "arm.json").is_file()))
-    if tables or runs:
+    # --modes: an arm cut short goes on from its checkpoint when the command is rerun, so it is kept too
+    cut = sorted(p.name for p in d.iterdir() if resumes and p.is_dir() and (p / "checkpoint.pt").is_file()
+                 and p.name not in runs)
+    if tables or runs or cut:
         kept = ", ".join(tables + [f"{r}/" for r in runs][:4]) + (", ..." if len(runs) > 4 else "")
         again = ("rerun the same command to go on from them" if resumes else
                  "pass --overwrite to run the comparison again")
-        return f"{out} keeps {len(runs)} finished run{'' if len(runs) == 1 else 's'} ({kept}); {again}"
+        part = f" and {len(cut)} interrupted one{'' if len(cut) == 1 else 's'} at a checkpoint ({cut[0]}/)" if cut else ""
+        return (f"{out} keeps {len(runs)} finished run{'' if len(runs) == 1 else 's'}"
+                f"{f' ({kept})' if kept else ''}{part}; {again}")
     remove_created(d, before)
     return "nothing was kept (no run had finished)"
 
@@ -267,8 +272,9 @@ def _interactive(cmd: CompareCommand) -> str:
     from pdestream.surrogate.launch import set_threads
     from pdestream.surrogate.mode_table import check_corrector_start, check_noise
 
-    if cmd.budget is not None or cmd.sim_budget is not None:
-        raise ValueError("--modes compares at equal --steps; --budget and --sim-budget go with the data-route comparison")
+    if cmd.sim_budget is not None:
+        raise ValueError("--modes compares at equal --steps or, with --budget SECONDS, at equal wall clock; "
+                         "--sim-budget goes with the data-route comparison")
     if cmd.noise is not None:
         check_noise(cmd.noise)  # before the PDE (and JAX) is built
     if cmd.corrector_start is not None:
@@ -288,7 +294,7 @@ def _interactive(cmd: CompareCommand) -> str:
         steps=20 if quick else cmd.steps, batch_size=8 if quick else cmd.batch_size, lr=cmd.lr, model=cmd.model,
         model_cfg=model_cfg, k_in=cmd.k_in, seed=0, seeds=1 if cmd.seeds is None else cmd.seeds,
         unroll_schedule=cmd.unroll_schedule, resume=not cmd.overwrite, n_test=4 if cmd.quick and cmd.test_samples == 128 else
-        cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device)
+        cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device, budget_s=cmd.budget)
     if cmd.k_out != 1:
         raise ValueError(f"--k-out={cmd.k_out} not allowed with --modes: every mode predicts one frame per step")
     module.interactive_compare(pde, cmd.out, cfg)

@@ -23,8 +23,10 @@ test trajectories (those of ``seed``); each figure is reported as the mean over 
 compare.md says per metric whether solver-in-the-loop's margin over each corrector arm exceeds the seed spread
 (the two arms' stds added, as ``budget_report.verdicts``). Resumable arm by arm: an (arm, seed) whose run
 directory holds a finished run (metrics.json) with the same settings is read back, not retrained, so the same
-command rerun on the same out goes on where a killed one stopped (an unfinished run starts over); a finished run
-with other settings is refused (one line) unless ``resume`` is False (``--overwrite``: every arm is retrained).
+command rerun on the same out goes on where a killed one stopped: an unfinished run of the same settings goes on
+from its last checkpoint (every 5% of the steps; bit for bit the run it would have been, on the CPU), one of
+other settings starts over; a finished run with other settings is refused (one line) unless ``resume`` is False
+(``--overwrite``: every arm is retrained).
 
 Outputs in out_dir: compare.md, compare.csv, compare.json, curves.csv (error against time per arm: mean and p95
 over trajectories per frame), compare.png (errors against time), corrector.png (solver-in-the-loop: error
@@ -59,7 +61,7 @@ from pdestream.surrogate.mode_table import (
 )
 from pdestream.surrogate.modes import make_mode
 from pdestream.surrogate.phases import phase
-from pdestream.surrogate.runs import train_run
+from pdestream.surrogate.runs import resume_run, train_run
 
 from .budget import stratified_test_set
 from .rollout_figure import plot_rollouts
@@ -74,7 +76,9 @@ class InteractiveConfig:
     corrector arm's network starts ("random" or "zero", ``SolverInTheLoop.init_model``); unroll_schedule: the
     solver-in-the-loop arm's unroll curriculum, "K1:S1,K2:S2,..." (unroll Ki for the share Si of the steps,
     ``mode_table.parse_unroll_schedule``; its longest unroll replaces sitl_unroll); seed: the first model and data
-    seed and the test set's; seeds: how many (seed, seed + 1, ...); resume: read back finished (arm, seed) runs."""
+    seed and the test set's; seeds: how many (seed, seed + 1, ...); resume: read back finished (arm, seed) runs;
+    budget_s: equal wall clock instead of equal steps: every trained arm trains this many seconds (solver calls
+    included; the steps it reaches are in the table), None: ``steps`` each."""
 
     modes: tuple = NETWORK_MODES
     unroll: int = DEFAULTS["unroll"]
@@ -95,6 +99,7 @@ class InteractiveConfig:
     seeds: int = 1
     resume: bool = True
     device: str = "cpu"
+    budget_s: float | None = None
 
     def schedule(self) -> list | None:
         """The solver-in-the-loop arm's unroll curriculum in optimizer steps ([[k, steps], ...]) or None."""
@@ -112,6 +117,11 @@ class InteractiveConfig:
         for name, value in (("--steps", self.steps), ("--batch-size", self.batch_size), ("--test-samples", self.n_test),
                             ("--k-in", self.k_in), ("--seeds", self.seeds)):
             check_count(name, value)
+        if self.budget_s is not None:
+            check_number("--budget", self.budget_s, 0, unit="seconds")
+            if self.unroll_schedule is not None:
+                raise ValueError(f"--unroll-schedule {self.unroll_schedule} is in shares of --steps; with --budget "
+                                 f"{self.budget_s:g} the steps an arm reaches are not known before it trains")
         if self.unroll_schedule is not None:
             if "solver-in-the-loop" not in self.modes:
                 raise ValueError(f"--unroll-schedule {self.unroll_schedule} goes with the solver-in-the-loop arm "
@@ -227,7 +237,28 @@ def _run_dir(run_dir: Path, cfg: InteractiveConfig, seed: int) -> Path:
     return run_dir if cfg.seeds == 1 else run_dir.with_name(f"{run_dir.name}_seed{seed}")
 
 
-RESUME_KEYS = ("model", "model_cfg", "steps", "batch_size", "lr", "seed", "mode", "pde")
+CHECKPOINTS = 20  # per arm: an interrupted arm loses at most 5% of its steps
+RESUME_KEYS = ("model", "model_cfg", "steps", "seconds", "batch_size", "lr", "seed", "mode", "pde")
+
+
+def _differ(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int) -> list[str]:
+    """The RESUME_KEYS in which the run.json in ``run_dir`` differs from what this arm and seed train with."""
+    want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": cfg.steps,
+                                  "seconds": cfg.budget_s,
+                                  "batch_size": cfg.batch_size, "lr": cfg.lr, "seed": seed,
+                                  "mode": make_mode(settings).settings(), "pde": pde.config()}))
+    try:
+        have = json.loads((run_dir / "run.json").read_text())
+    except (OSError, ValueError):
+        have = {}
+    return [key for key in RESUME_KEYS if not isinstance(have, dict) or have.get(key) != want[key]]
+
+
+def _unfinished(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int) -> bool:
+    """True when ``run_dir`` holds an interrupted run (run.json and checkpoint.pt, no metrics.json) of the settings
+    this arm and seed train with: it goes on from its checkpoint instead of starting over."""
+    return (cfg.resume and (run_dir / "checkpoint.pt").is_file() and not (run_dir / "metrics.json").is_file()
+            and not _differ(run_dir, pde, settings, cfg, seed))
 
 
 def _finished(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int) -> dict | None:
@@ -236,11 +267,7 @@ def _finished(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: 
     with other settings."""
     if not (cfg.resume and (run_dir / "metrics.json").is_file() and (run_dir / "model.pt").is_file()):
         return None
-    want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": cfg.steps,
-                                  "batch_size": cfg.batch_size, "lr": cfg.lr, "seed": seed,
-                                  "mode": make_mode(settings).settings(), "pde": pde.config()}))
-    have = json.loads((run_dir / "run.json").read_text()) if (run_dir / "run.json").is_file() else {}
-    differ = [key for key in RESUME_KEYS if have.get(key) != want[key]]
+    differ = _differ(run_dir, pde, settings, cfg, seed)
     if differ:
         raise ValueError(f"{run_dir} holds a finished run with other settings ({', '.join(differ)}); rerun with its "
                          "own settings to go on, or pass --overwrite (retrains every arm) or another --out")
@@ -359,11 +386,15 @@ def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: Interacti
     summary = _finished(run_dir, pde, settings, cfg, seed)
     if summary is not None:
         log(f"{label} seed {seed}: finished in {run_dir}, read back (not retrained)")
+    elif _unfinished(run_dir, pde, settings, cfg, seed):
+        summary, at = resume_run(run_dir, tests={})
+        log(f"{label} seed {seed}: interrupted in {run_dir}, went on from its checkpoint at step {at} of {cfg.steps}")
     else:
         summary = train_run(pde, "stream", run_dir, model=cfg.model, model_cfg=cfg.model_cfg,
                             view=datasets.NextStep(cfg.k_in, 1), steps=cfg.steps, batch_size=cfg.batch_size,
-                            lr=cfg.lr, seed=seed, data_seed=seed, tests={}, label=label, checkpoint_every=0,
-                            device=cfg.device, mode=settings)
+                            lr=cfg.lr, seed=seed, data_seed=seed, tests={}, label=label,
+                            checkpoint_every=max(1, cfg.steps // CHECKPOINTS), device=cfg.device, mode=settings,
+                            seconds=cfg.budget_s)
     model, norm, _ = load_checkpoint(run_dir / "model.pt")
     model.to(check_device(cfg.device))
     mode = make_mode(settings).bind(pde, seed)
@@ -413,13 +444,15 @@ def _write_tables(out: Path, result: dict, pde, cfg: InteractiveConfig) -> None:
         noise += f", corrector start: {cfg.corrector_start}" + (" (every corrector's output layer zero at step 0)"
                                                                  if cfg.corrector_start == "zero" else "")
     seeds = list(_seeds(cfg))
+    per_arm = (f"{cfg.steps} optimizer steps" if cfg.budget_s is None else
+               f"equal wall clock: {cfg.budget_s:g} s of training (the steps each arm reached: steps column)")
     if cfg.unroll_schedule and "solver-in-the-loop" in cfg.modes:
         noise += (f", solver-in-the-loop unroll curriculum {cfg.unroll_schedule} (unroll:share of the steps; in steps "
                   f"{cfg.schedule()})")
     spread = (f"; {len(seeds)} model and data seeds {seeds} per trained arm, each figure the mean ± std over seeds "
               "(the coarse solver: no seed)" if len(seeds) > 1 else f"; one model and data seed ({cfg.seed})")
     lines = [f"{pde.NAME} ({', '.join(f'{k} ~ {v}' for k, v in pde.param_domains.items())}), {cfg.model} "
-             f"{cfg.model_cfg}, {cfg.steps} optimizer steps x batch {cfg.batch_size} per trained arm, lr {cfg.lr}, "
+             f"{cfg.model_cfg}, {per_arm} x batch {cfg.batch_size} per trained arm, lr {cfg.lr}, "
              f"unroll {cfg.unroll}{noise}{spread}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "
              f"(Latin hypercube over the parameters), rolled out {frames} frames from the first; end: the last "
              "frame (mean, p95, max over trajectories); rollout mean: over all frames and trajectories; rollout "

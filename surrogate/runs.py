@@ -25,7 +25,7 @@ from .evaluate import test_errors
 from .models import build_model
 from .modes import check_fits, make_mode, training_view
 from .phases import phase
-from .train import check_train_settings, train
+from .train import Stop, check_train_settings, train
 from .user_model import check_output
 
 RUN_FILE = "run.json"
@@ -92,7 +92,8 @@ def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict 
               steps: int = 1000, batch_size: int = 32, lr: float = 1e-3, schedule: str = "cosine", seed: int = 0,
               data_seed: int | None = None, tests: dict[str, list[dict]] | None = None, n_test: int = 32,
               explicit: dict | None = None, label: str = "train", checkpoint_every: int = 100,
-              data_cfg: dict | None = None, device: str = "cpu", mode: dict | None = None) -> dict:
+              data_cfg: dict | None = None, device: str = "cpu", mode: dict | None = None,
+              seconds: float | None = None) -> dict:
     """Train ``model`` on ``source`` ("stream" or a cache path) for ``steps`` optimizer steps; evaluate.
 
     seed: model initialization and cache shuffling; data_seed: the stream's sample seed (default: seed).
@@ -102,7 +103,8 @@ def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict 
     device: where the model trains ("cpu", "cuda", "cuda:1"); a stream's JAX solver runs on the GPU when JAX
     sees one, and hands its batches to torch there without a host copy.
     mode: the training mode's settings ({"name", "unroll", "coarse_n"}, see ``surrogate.modes``; None:
-    one-step); a mode that unrolls trains on the view with k_out = the frames it needs.
+    one-step); a mode that unrolls trains on the view with k_out = the frames it needs. seconds: train this many
+    seconds of wall clock instead of ``steps`` steps (the cosine schedule over the time; run.json records it).
     Writes run.json, checkpoint.pt, metrics.csv, model.pt and metrics.json (with the test errors) to out_dir;
     returns the summary. Under several torch.distributed ranks (``surrogate.ddp``) every rank calls this; rank 0
     writes the files, run.json records "world_size", and the run resumes only with that many ranks.
@@ -117,10 +119,13 @@ def train_run(pde, source: str, out_dir, *, model: str = "fno", model_cfg: dict 
                 "mode": mode}
     if ddp.world()[1] > 1:  # (absent: one process)
         settings["world_size"] = ddp.world()[1]
+    if seconds is not None:  # (absent: a run of steps, as every run before)
+        settings["seconds"] = seconds
     return _run(pde, settings, Path(out_dir), tests=tests, explicit=explicit)
 
 
-def resume_run(run_dir, run: tuple[dict, dict] | None = None, steps: int | None = None) -> tuple[dict, int]:
+def resume_run(run_dir, run: tuple[dict, dict] | None = None, steps: int | None = None,
+               tests: dict[str, list[dict]] | None = None) -> tuple[dict, int]:
     """Continue the run in ``run_dir`` from its checkpoint.pt to its total steps: (summary, step resumed at).
 
     Everything is rebuilt from run.json; the finished run equals the uninterrupted one (bit for bit on the
@@ -128,8 +133,9 @@ def resume_run(run_dir, run: tuple[dict, dict] | None = None, steps: int | None 
     run.json records it (and "extended": each earlier total with the step it was extended at), the schedule is
     re-planned for the new total (``checkpoint.replan_schedule``: equal to a run of that length from the start
     with the "constant" schedule), and model.pt / metrics.json are replaced when the longer run finishes.
-    run: ``read_run(run_dir, steps)``'s result when the caller has it already. ValueError when the directory is
-    not a run or the run is already complete.
+    run: ``read_run(run_dir, steps)``'s result when the caller has it already. tests: the named held-out sets the
+    run was started with (None: the default set, rebuilt from run.json). ValueError when the directory is not a
+    run or the run is already complete.
     """
     run_dir = Path(run_dir)
     settings, ckpt = read_run(run_dir, steps) if run is None else run
@@ -145,7 +151,7 @@ def resume_run(run_dir, run: tuple[dict, dict] | None = None, steps: int | None 
         settings = {**settings, "steps": steps, "extended": extended}
         if writes:
             atomic_write(run_dir / RUN_FILE, json.dumps(settings, indent=2).encode())
-    return _run(pde_from_config(settings["pde"]), settings, run_dir, resume=ckpt), int(ckpt["step"])
+    return _run(pde_from_config(settings["pde"]), settings, run_dir, tests=tests, resume=ckpt), int(ckpt["step"])
 
 
 def check_ranks(run_dir, settings: dict, ranks: int) -> None:
@@ -251,7 +257,8 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
 
     dataset = loader.dataset
     try:
-        summary = train(net, loader, s["steps"], out, lr=s["lr"], schedule=s["schedule"], meta=meta,
+        stop = s["steps"] if s.get("seconds") is None else Stop(seconds=s["seconds"])
+        summary = train(net, loader, stop, out, lr=s["lr"], schedule=s["schedule"], meta=meta,
                         label=s["label"], checkpoint_every=s["checkpoint_every"], resume=resume, finish=finish,
                         mode=mode, on_normalization=record)
         if hasattr(dataset, "report") and writes:  # a reservoir: its reuse and where it simulated (rank 0's)

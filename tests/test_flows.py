@@ -341,3 +341,19 @@ def test_a_grid_whose_multigrid_stops_too_large_is_refused_in_one_line_with_the_
     assert math.prod(coarsest_shape((126, 126))) <= MAX_COARSE_CELLS
     for name in ("karman2d", "cavity2d", "channel2d", "smoke2d"):  # every default passes
         generator.get_pde(name)
+
+
+def test_a_step_above_the_viscous_limit_is_refused_in_one_line():
+    """Past h^2 / (4 nu) the explicit step blows up to finite, meaningless values: refused before compiling."""
+    from pdestream.generator.flow import Geometry, Params, initial_state
+    from pdestream.generator.flow.step import run, stable_dt, step
+
+    geom = Geometry(8, 8, 1.0, 1.0)
+    params = Params(nu=0.1)
+    limit = float(stable_dt(geom, params, 1e-9))  # the viscous limit: h^2 / (4 nu) = 0.0390625 s
+    assert limit == pytest.approx(0.125**2 / 0.4)
+    state = initial_state(geom, params)
+    for call in (lambda: step(geom, state, params, 1.01 * limit), lambda: run(geom, state, params, 2 * limit, 3)):
+        with pytest.raises(ValueError, match=r"^dt=0\.0\d+ s is above the explicit viscous limit") as err:
+            call()
+        assert "\n" not in str(err.value) and "allowed is dt <= 0.03906" in str(err.value)

@@ -114,3 +114,51 @@ def test_modes_go_on_only_in_an_out_of_their_own(tmp_path, capsys):
     (out / "compare.json").write_text(json.dumps({"config": {"arms": ["fifo"]}}))
     assert cli.main([*SMALL, "--steps", "2", "--out", str(out)]) == 2
     assert "already holds compare output (compare.json); pass --overwrite" in capsys.readouterr().err
+
+
+def test_an_interrupted_arm_goes_on_from_its_checkpoint_to_the_uninterrupted_result(tmp_path, capsys, monkeypatch):
+    """An arm killed part-way resumes from its last checkpoint (not from step 0) on the same command, and ends
+    with the weights and figures of the run that was never interrupted (issue 29: compare checkpointed an arm only
+    at its end, and a 1 h 40 min arm killed near its end started over)."""
+    from interrupt import interrupted_at
+
+    argv = [*SMALL, "--modes", "solver-in-the-loop", "--steps", "4", "--seeds", "1"]
+    assert cli.main([*argv, "--out", str(tmp_path / "whole")]) == 0
+    cut = tmp_path / "cut"
+    capsys.readouterr()
+    with interrupted_at(monkeypatch, 3):
+        assert cli.main([*argv, "--out", str(cut)]) == 130
+    first = sorted(p.name for p in cut.iterdir() if (p / "checkpoint.pt").is_file())
+    assert len(first) == 1 and not (cut / first[0] / "metrics.json").exists()  # killed inside its first arm
+    assert capsys.readouterr().err == (f"pdestream: interrupted; {cut} keeps 0 finished runs and 1 interrupted one at "
+                                       f"a checkpoint ({first[0]}/); rerun the same command to go on from them\n")
+    assert cli.main([*argv, "--out", str(cut)]) == 0
+    assert f"interrupted in {cut / first[0]}, went on from its checkpoint at step 2 of 4" in capsys.readouterr().out
+    whole = json.loads((tmp_path / "whole" / "compare.json").read_text())["arms"]
+    again = json.loads((cut / "compare.json").read_text())["arms"]
+    assert [a["rollout_mean"] for a in again] == [a["rollout_mean"] for a in whole]
+    a = torch.load(tmp_path / "whole" / first[0] / "model.pt", weights_only=True)["model"]
+    b = torch.load(cut / first[0] / "model.pt", weights_only=True)["model"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_modes_at_equal_wall_clock_train_each_arm_for_the_budget_and_say_so(tmp_path, capsys):
+    """`compare --modes ... --budget S`: every trained arm trains S seconds (a 4-step unroll costs 4 solves per
+    update, so it reaches fewer steps than the pairs arm), run.json records the seconds, compare.md says so."""
+    out = tmp_path / "cmp"
+    argv = [*SMALL, "--modes", "solver-in-the-loop", "--budget", "3", "--out", str(out)]
+    assert cli.main(argv) == 0
+    result = json.loads((out / "compare.json").read_text())
+    trained = [a for a in result["arms"] if a["mode"] == "solver-in-the-loop"]
+    assert len(trained) == 3 and all(a["steps"] >= 1 for a in trained)
+    for arm in ("sitl_unroll1", "sitl_unroll4"):
+        run = json.loads((out / arm / "run.json").read_text())
+        metrics = json.loads((out / arm / "metrics.json").read_text())
+        assert run["seconds"] == 3 and metrics["stop"] == "seconds" and metrics["wall"] >= 3
+    assert "equal wall clock: 3 s of training" in (out / "compare.md").read_text()
+    # a curriculum is in shares of the steps, which a budget does not fix: one line, before any work
+    capsys.readouterr()
+    assert cli.main([*argv[:-2], "--unroll-schedule", "1:0.5,4:0.5", "--out", str(tmp_path / "other")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "is in shares of --steps; with --budget 3 the steps an arm reaches are not known" in err and "\n" not in err
+    assert not (tmp_path / "other").exists()

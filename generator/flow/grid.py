@@ -3,8 +3,13 @@
 Cells: nx x ny on [0, lx] x [0, ly], square cells h = lx / nx = ly / ny. Arrays are [y, x]:
 p [ny, nx] at centres, u [ny, nx+1] on vertical faces, v [ny+1, nx] on horizontal faces.
 Sides (left, right, bottom, top) are each one of SIDE_KINDS: 'wall' (no-slip, top may move at params.lid),
-'inflow' (normal velocity params.inflow * parabolic profile; left side only), 'outflow' (zero-gradient
-velocity, pressure 0: the only Dirichlet pressure side) or 'periodic' (left/right or bottom/top pairs).
+'slip' (a free-slip wall: no flow through it, no shear stress on it: the tangential velocity's normal derivative
+is zero), 'inflow' (normal velocity params.inflow * parabolic profile, times 1 + A sin(2 pi f t) where
+params.pulse = (A, f) pulses it; left side only), 'outflow' (zero-gradient velocity, pressure 0: the only
+Dirichlet pressure side), 'convective' (a convective outflow, right or top: its normal velocity is carried out by
+the flow, du/dt + U du/dn = 0 through the step's own advection, then shifted evenly so what leaves is what
+enters; pressure zero-gradient there, so vortices leave without the reflection a fixed pressure makes) or
+'periodic' (left/right or bottom/top pairs).
 
 Bodies (``Geometry.body``, one of BODIES; DEFAULT_BODY declared once here): 'staircase' makes every cell whose
 centre lies inside a body solid (first order in h for forces). 'sharp' treats the circle of Params.circle below
@@ -28,7 +33,8 @@ from ...boundaries import Boundary, is_periodic
 
 # A side's conditions on velocity and pressure; not boundaries.Boundary (a per-axis condition on a field, which
 # FlowGrid.bc derives from a pair of sides): only 'periodic' is shared, and is asked of that module (is_periodic).
-SIDE_KINDS = ("wall", "inflow", "outflow", Boundary.PERIODIC.value)
+SIDE_KINDS = ("wall", "slip", "inflow", "outflow", "convective", Boundary.PERIODIC.value)
+OPEN_SIDES = ("outflow", "convective")  # where the fluid leaves: a frame's unstored faces follow from continuity
 BODIES = ("staircase", "sharp")  # how Params.circle meets the grid (module docstring)
 DEFAULT_BODY = "sharp"
 # A face open by less than this fraction counts as closed: a cut cell's sliver would otherwise give the pressure
@@ -59,6 +65,9 @@ class Geometry:
         for name in ("left", "right", "bottom", "top"):
             if getattr(self, name) not in SIDE_KINDS:
                 raise ValueError(f"{name}={getattr(self, name)!r}: allowed side kinds are {SIDE_KINDS}")
+        if "convective" in (self.left, self.bottom):
+            raise ValueError(f"left={self.left!r}, bottom={self.bottom!r}: a convective outflow is a right or top "
+                             "side (the flow leaves through it)")
         if is_periodic(self.left) != is_periodic(self.right):
             raise ValueError(f"left={self.left!r}, right={self.right!r}: periodic sides come in pairs")
         if is_periodic(self.bottom) != is_periodic(self.top):
@@ -93,7 +102,8 @@ class Params(NamedTuple):
     (sx, sy, r [m], rate [smoke/s]) (rate 0: none); mask: a given solid mask [ny, nx] (bool; None: none), e.g. a
     frame's ``solid`` field when the solver continues from a frame; force: a body force per unit mass [m/s^2]
     on the faces, a pair (fx [ny, nx+1] on u faces, fy [ny+1, nx] on v faces), steady (None: none; e.g. a
-    manufactured solution's forcing)."""
+    manufactured solution's forcing); pulse: a pulsed inflow (A, f): the inflow profile times 1 + A sin(2 pi f t)
+    (f in Hz; None: steady, the same program as before pulses existed)."""
 
     nu: float = 0.01
     lid: float = 0.0
@@ -105,6 +115,7 @@ class Params(NamedTuple):
     source: tuple = (0.0, 0.0, 0.0, 0.0)
     mask: Any = None
     force: Any = None
+    pulse: Any = None
 
 
 # Obstacle primitives of Params.obstacles rows (kind, cx, cy, a, b): code -> what a and b are.

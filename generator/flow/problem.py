@@ -40,7 +40,7 @@ from ..chunked import join, split
 from ..grids import GridBase
 from ..problem import MAX_STEPS, ProblemBase, resolve_params
 from . import interactive
-from .grid import BODIES, SIDE_KINDS, Geometry, Params, circle_apertures
+from .grid import BODIES, OPEN_SIDES, SIDE_KINDS, Geometry, Params, circle_apertures
 from .pressure import MAX_COARSE_CELLS, coarsest_shape
 from .step import ADVECTION, State, initial_state, operator, run, run_counted, solid_mask
 
@@ -333,18 +333,18 @@ class FlowProblem(ProblemBase):
         field = {name: frame[i].T for i, name in enumerate(self.FIELDS)}  # [ny, nx]
         u, v = field["u"], field["v"]
         left, right, bottom, top = self.SIDES
-        if right == top == "outflow":
+        if right in OPEN_SIDES and top in OPEN_SIDES:
             raise ValueError(f"{self.NAME}: a box open on the right and the top has no unique corner state")
         v_top = v[:1] if is_periodic(top) else jnp.zeros_like(v[:1])  # an outflow top: set below
         if is_periodic(right):
             u_right = u[:, :1]
-        elif right == "outflow":  # continuity of the last column: u_R = u_L - (v_top - v_bottom)
+        elif right in OPEN_SIDES:  # continuity of the last column: u_R = u_L - (v_top - v_bottom)
             v_up = jnp.concatenate([v[1:, -1:], v_top[:, -1:]], 0)
             u_right = u[:, -1:] - (v_up - v[:, -1:])
         else:
             u_right = jnp.zeros_like(u[:, :1])
         u = jnp.concatenate([u, u_right], 1)
-        if top == "outflow":  # continuity of the top row: v_T = v_B - (u_right - u_left)
+        if top in OPEN_SIDES:  # continuity of the top row: v_T = v_B - (u_right - u_left)
             v_top = v[-1:] - (u[-1:, 1:] - u[-1:, :-1])
         v = jnp.concatenate([v, v_top], 0)
         zero = jnp.zeros((geom.ny, geom.nx), frame.dtype)

@@ -17,9 +17,11 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from . import pressure
 from .grid import (
+    OPEN_SIDES,
     Geometry,
     Params,
     circle_apertures,
@@ -146,11 +148,18 @@ def fill_ghosts(geom: Geometry, params: Params, u, v):
     return u, v
 
 
-def inflow_profile(geom: Geometry, params: Params, dtype=jnp.float32):
+def inflow_profile(geom: Geometry, params: Params, dtype=jnp.float32, t=None):
     """Left-side inflow u [ny]: parabolic with peak params.inflow at mid-height (zero at walls), blended with
-    a plug of the same flux by params.plug (0: parabola; 1: uniform 2/3 * inflow)."""
+    a plug of the same flux by params.plug (0: parabola; 1: uniform 2/3 * inflow); at time t (s) times
+    1 + A sin(2 pi f t) where params.pulse = (A, f) pulses it."""
     y = (jnp.arange(geom.ny, dtype=dtype) + 0.5) / geom.ny
-    return params.inflow * ((1 - params.plug) * 4 * y * (1 - y) + params.plug * (2.0 / 3.0))
+    profile = params.inflow * ((1 - params.plug) * 4 * y * (1 - y) + params.plug * (2.0 / 3.0))
+    if params.pulse is None:
+        return profile
+    if t is None:
+        raise ValueError("a pulsed inflow (params.pulse) needs the time t of the velocities it bounds")
+    amplitude, frequency = params.pulse
+    return profile * (1 + amplitude * jnp.sin(2 * jnp.pi * frequency * t)).astype(dtype)
 
 
 def initial_state(geom: Geometry, params: Params, dtype=jnp.float32) -> State:
@@ -158,25 +167,46 @@ def initial_state(geom: Geometry, params: Params, dtype=jnp.float32) -> State:
     z = jnp.zeros
     s = State(z((geom.ny, geom.nx + 1), dtype), z((geom.ny + 1, geom.nx), dtype), z((geom.ny, geom.nx), dtype),
               z((geom.ny, geom.nx), dtype), jnp.zeros((), dtype), jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32))
-    u, v = apply_bc(geom, params, s.u, s.v)
+    u, v = apply_bc(geom, params, s.u, s.v, 0.0)
     return s._replace(u=u, v=v)
 
 
-def apply_bc(geom: Geometry, params: Params, u, v):
-    """Normal velocities on boundary faces and zero on obstacle faces."""
+def apply_bc(geom: Geometry, params: Params, u, v, t=None):
+    """Normal velocities on boundary faces and zero on obstacle faces; t (s): the velocities' time (a pulsed
+    inflow's phase; unused otherwise)."""
     if geom.periodic_x:
         u = u.at[:, -1].set(u[:, 0])
     else:
-        u = u.at[:, 0].set(inflow_profile(geom, params, u.dtype) if geom.left == "inflow" else
+        u = u.at[:, 0].set(inflow_profile(geom, params, u.dtype, t) if geom.left == "inflow" else
                            (u[:, 1] if geom.left == "outflow" else 0.0))
-        u = u.at[:, -1].set(u[:, -2] if geom.right == "outflow" else 0.0)
+        if geom.right != "convective":  # (a convective side keeps the value the step carried out to it)
+            u = u.at[:, -1].set(u[:, -2] if geom.right == "outflow" else 0.0)
     if geom.periodic_y:
         v = v.at[-1].set(v[0])
     else:
         v = v.at[0].set(v[1] if geom.bottom == "outflow" else 0.0)
-        v = v.at[-1].set(v[-2] if geom.top == "outflow" else 0.0)
+        if geom.top != "convective":
+            v = v.at[-1].set(v[-2] if geom.top == "outflow" else 0.0)
     mu, mv = velocity_masks(geom, _staircase_solid(geom, params))
-    return fill_ghosts(geom, params, u * mu, v * mv)
+    u, v = fill_ghosts(geom, params, u * mu, v * mv)
+    return _balance_convective(geom, u, v, mu, mv)
+
+
+def _balance_convective(geom: Geometry, u, v, mu, mv):
+    """u, v with the open faces of convective sides shifted evenly so the boundary's net flux is zero: the
+    pressure is zero-gradient there, and a Neumann pressure solve needs a box that loses nothing."""
+    right, top = geom.right == "convective", geom.top == "convective"
+    if not (right or top):
+        return u, v
+    net = 0.0  # inflow minus outflow through the sides, per unit h (periodic pairs cancel)
+    if not geom.periodic_x:
+        net = net + jnp.sum(u[:, 0]) - jnp.sum(u[:, -1])
+    if not geom.periodic_y:
+        net = net + jnp.sum(v[0]) - jnp.sum(v[-1])
+    open_right = mu[:, -1] if right else jnp.zeros_like(mu[:, -1])
+    open_top = mv[-1] if top else jnp.zeros_like(mv[-1])
+    shift = net / jnp.maximum(jnp.sum(open_right) + jnp.sum(open_top), 1.0)
+    return u.at[:, -1].add(shift * open_right), v.at[-1].add(shift * open_top)
 
 
 def source_rate(geom: Geometry, params: Params, dtype=jnp.float32):
@@ -268,8 +298,9 @@ def _laplacian(a, lo_x, hi_x, lo_y, hi_y):
 
 
 def _tangential_ghost(kind: str, edge, wall_speed=0.0):
-    """Ghost of a tangential velocity across a side: no-slip wall/inflow 2 U - u, outflow u."""
-    if kind == "outflow":
+    """Ghost of a tangential velocity across a side: no-slip wall/inflow 2 U - u, open sides and free-slip wall u
+    (zero normal derivative: no shear stress)."""
+    if kind in (*OPEN_SIDES, "slip"):
         return edge
     return 2 * wall_speed - edge
 
@@ -371,7 +402,7 @@ def _second_order_velocity(geom: Geometry, params: Params, state: State, lu, lv,
     fu, fv = lu - gx, lv - gy
     uh = advect(geom, u, v, u, 0.0, 0.5, 0.5 * dt) + 0.5 * dt * fu
     vh = advect(geom, u, v, v, 0.5, 0.0, 0.5 * dt) + 0.5 * dt * fv
-    uh, vh = apply_bc(geom, params, uh, vh)
+    uh, vh = apply_bc(geom, params, uh, vh, state.t + 0.5 * dt)
     un = adv(geom, uh, vh, u + 0.5 * dt * fu, 0.0, 0.5, dt) + 0.5 * dt * lu
     vn = adv(geom, uh, vh, v + 0.5 * dt * fv, 0.5, 0.0, dt) + 0.5 * dt * lv
     return uh, vh, un, vn
@@ -394,7 +425,7 @@ def predict(geom: Geometry, state: State, params: Params, dt, advection: str = "
         # stable_dt's limit: the Re-100 cavity at 64^2 blew up within 200 steps at 0.9 of it
         ua, va = u, v
         un, vn = adv(geom, u, v, u, 0.0, 0.5, dt), adv(geom, u, v, v, 0.5, 0.0, dt)
-        lu, lv = viscous(geom, params, *apply_bc(geom, params, un, vn))
+        lu, lv = viscous(geom, params, *apply_bc(geom, params, un, vn, state.t + dt))
         un, vn = un + dt * lu, vn + dt * lv
         if params.force is not None:
             un, vn = un + dt * params.force[0], vn + dt * params.force[1]
@@ -403,14 +434,31 @@ def predict(geom: Geometry, state: State, params: Params, dt, advection: str = "
     smoke = adv(geom, ua, va, state.smoke, 0.5, 0.5, dt) + dt * source_rate(geom, params, state.smoke.dtype)
     sm = jnp.concatenate([smoke[:1], 0.5 * (smoke[1:] + smoke[:-1]), smoke[-1:]], 0)
     vn = vn + dt * params.buoyancy * sm
-    un, vn = apply_bc(geom, params, un, vn)
+    un, vn = apply_bc(geom, params, un, vn, state.t + dt)
     return un, vn, smoke
+
+
+def check_dt(geom: Geometry, params: Params, dt) -> None:
+    """Refuse, in one line, a dt (s) above the explicit viscous limit h^2 / (4 nu) where dt and nu are known
+    outside a trace: past it the step blows up to finite but meaningless values (1e17-1e31 were seen), which no
+    NaN check catches. Under jit the entries' ``stable_dt`` keeps dt inside the limit."""
+    if isinstance(dt, jax.core.Tracer) or isinstance(params.nu, jax.core.Tracer):
+        return
+    # numpy, not jnp: inside a trace jnp would turn these constants into tracers
+    nu, dt = float(np.max(np.asarray(params.nu))), float(np.max(np.asarray(dt)))
+    dt_max = geom.h * geom.h / (4 * max(nu, 1e-12))
+    if dt > dt_max * (1 + 1e-6):
+        raise ValueError(f"dt={dt:.4g} s is above the explicit viscous limit "
+                         f"h^2 / (4 nu) = {dt_max:.4g} s (h={geom.h:.4g} m, nu={nu:.4g} m^2/s): allowed is "
+                         f"dt <= {dt_max:.4g} (stable_dt gives it)")
 
 
 def step(geom: Geometry, state: State, params: Params, dt, tol=1e-5, max_iter=200,
          op: pressure.Operator | None = None, advection: str = "semi_lagrangian") -> State:
     """Advance one step of dt (s): advection (a key of ADVECTION), explicit viscosity, buoyancy, projection
-    (op: ``operator(geom, params)``, computed here when None)."""
+    (op: ``operator(geom, params)``, computed here when None). A dt above the viscous limit is refused where
+    dt and nu are concrete (``check_dt``)."""
+    check_dt(geom, params, dt)
     un, vn, smoke = predict(geom, state, params, dt, advection)
     half = advection != "semi_lagrangian"  # the projection adds half the pressure force (see predict)
     un, vn, p, it = project(geom, params, un, vn, dt, tol, max_iter, op, 0.5 * state.p if half else state.p)
@@ -424,6 +472,7 @@ def run(geom: Geometry, state: State, params: Params, dt, n_steps: int, tol=1e-5
         advection: str = "semi_lagrangian") -> State:
     """n_steps steps of dt in a lax.scan (jit this with geom and n_steps static); tol, max_iter: step's. The
     pressure operator is prepared once, before the loop (the obstacles do not move)."""
+    check_dt(geom, params, dt)
     op = operator(geom, params)
     return jax.lax.scan(lambda s, _: (step(geom, s, params, dt, tol, max_iter, op, advection), None), state, None,
                         length=n_steps)[0]
@@ -436,6 +485,7 @@ def run_counted(geom: Geometry, state: State, params: Params, dt, n_steps, op: p
     of one each, 30-60 s apiece on 2 cores at n=16), and it holds no host callback (the operator's
     pseudo-inverse is one), so JAX's persistent compilation cache can keep it for the next run.
     Not reverse-differentiable (a loop of traced length): differentiate ``run``."""
+    check_dt(geom, params, dt)
     return jax.lax.fori_loop(0, n_steps, lambda _, s: step(geom, s, params, dt, tol, max_iter, op, advection), state)
 
 
