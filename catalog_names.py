@@ -47,6 +47,7 @@ NAMES: dict[str, str] = {
     "cavity2d": "fluids",
     "channel2d": "fluids",
     "smoke2d": "fluids",
+    "plume3d": "fluids",
     "euler1d": "fluids",
     "euler2d": "fluids",
     "shallow_water2d": "fluids",

@@ -20,6 +20,7 @@ from .external.exponax import exponax_pde_class
 from .finite_volume.problem import Euler1D
 from .finite_volume.problem2d import Euler2D, ShallowWater2D
 from .flow.entries import Cavity2D, Channel2D, Karman2D, Smoke2D
+from .flow.entries3d import Plume3D
 from .spectral.advection import Advection
 from .spectral.advection_diffusion import AdvectionDiffusion
 from .spectral.allen_cahn import AllenCahn
@@ -87,6 +88,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("cavity2d", Cavity2D, {}, "fluids"),
     Entry("channel2d", Channel2D, {}, "fluids"),
     Entry("smoke2d", Smoke2D, {}, "fluids"),
+    Entry("plume3d", Plume3D, {}, "fluids"),
     Entry("euler1d", Euler1D, {}, "fluids"),
     Entry("euler2d", Euler2D, {}, "fluids"),
     Entry("shallow_water2d", ShallowWater2D, {}, "fluids"),

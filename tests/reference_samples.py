@@ -33,7 +33,10 @@ FLOW_SMALL = {
     "channel2d": dict(n=16, size_min=0.13, size_max=0.2, re="uniform(100, 200)", t_start=0.2, t_end=0.4, n_frames=3),
     "smoke2d": dict(n=16, radius="uniform(0.13, 0.15)", source_y=0.3, t_end=0.4, n_frames=3),
 }
-SMALL = {"darcy2d": {"n": 9}, **FLOW_SMALL}  # darcy2d: nodes per side; every other entry: the settings below
+# plume3d: the smallest grid whose heater is 4 cells across and 2 cells off the walls (not in FLOW_SMALL: the 2D
+# flows' tests run on those)
+SMALL = {"darcy2d": {"n": 9}, **FLOW_SMALL,  # darcy2d: nodes per side; every other entry: the settings below
+         "plume3d": dict(n=12, radius=0.17, source_z=0.35, nu="loguniform(0.004, 0.01)", t_end=1.0, n_frames=3)}
 
 
 def small(name: str) -> dict:

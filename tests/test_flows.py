@@ -161,24 +161,30 @@ def test_a_cavity_range_its_grid_does_not_resolve_runs_with_one_warning_line():
     assert pde.n == 64 and msg.startswith("cavity2d: ") and "\n" not in msg and "n >= 160" in msg, msg
 
 
-@pytest.mark.parametrize("fmt", ["zarr", "h5"])
-def test_stream_and_cache_give_the_same_bits_and_the_cache_records_the_box(tmp_path, fmt):
-    pde = small("karman2d")
-    path = tmp_path / f"k.{fmt}"
-    datasets.write_cache(pde, path, n_samples=5, seed=2, block=4)
-    plain = xr.open_zarr(path) if fmt == "zarr" else xr.open_dataset(path, engine="h5netcdf")
-    assert dict(plain.sizes) == {"sample": 5, "time": 3, "y": 16, "x": 32}
-    assert plain.attrs["bc"] == "neumann dirichlet" and plain.attrs["bc_type"] == "open wall"
-    assert plain.attrs["sides"] == "left=inflow right=outflow bottom=wall top=wall"
-    np.testing.assert_allclose(plain["x"].values, (np.arange(32) + 0.5) / 16, rtol=1e-6)
-    assert set(plain.data_vars) >= {"u", "v", "p", "solid"}
-    stream = datasets.TrajectoryStream(pde, seed=2, view="whole", batch_size=5, n_samples=5, shuffle=False,
-                                       resample=False, solve_batch=4)
+def stream_equals_cache(pde, path, n_samples: int):
+    """Write a cache of n_samples (seed 2) to path, check a stream of the same samples has its bits and config;
+    returns (the cache opened with plain xarray, the stream's batch)."""
+    datasets.write_cache(pde, path, n_samples=n_samples, seed=2, block=4)
+    plain = xr.open_zarr(path) if path.suffix == ".zarr" else xr.open_dataset(path, engine="h5netcdf")
+    stream = datasets.TrajectoryStream(pde, seed=2, view="whole", batch_size=n_samples, n_samples=n_samples,
+                                       shuffle=False, resample=False, solve_batch=4)
     batch = next(iter(torch.utils.data.DataLoader(stream, batch_size=None)))
     cached = datasets.CachedTrajectories(path, view="whole")
     assert cached.pde.config() == pde.config()
     for k, i in enumerate(batch["index"].tolist()):
         assert torch.equal(cached[i]["u"], batch["u"][k])
+    return plain, batch
+
+
+@pytest.mark.parametrize("fmt", ["zarr", "h5"])
+def test_stream_and_cache_give_the_same_bits_and_the_cache_records_the_box(tmp_path, fmt):
+    pde = small("karman2d")
+    plain, batch = stream_equals_cache(pde, tmp_path / f"k.{fmt}", 5)
+    assert dict(plain.sizes) == {"sample": 5, "time": 3, "y": 16, "x": 32}
+    assert plain.attrs["bc"] == "neumann dirichlet" and plain.attrs["bc_type"] == "open wall"
+    assert plain.attrs["sides"] == "left=inflow right=outflow bottom=wall top=wall"
+    np.testing.assert_allclose(plain["x"].values, (np.arange(32) + 0.5) / 16, rtol=1e-6)
+    assert set(plain.data_vars) >= {"u", "v", "p", "solid"}
     # the stored layout is [y, x]: the solid mask read with plain xarray is the body where the generator put it
     solid = plain["solid"].isel(sample=0, time=0).values
     assert np.array_equal(solid.T, batch["u"][0, 0, pde.FIELDS.index("solid")].numpy())

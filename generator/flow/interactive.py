@@ -28,21 +28,19 @@ import jax
 import jax.numpy as jnp
 
 from ..chunked import chunked_map
-from .step import run
 
 CHUNK = 4
 
 
 def _one(problem, frames: int):
-    """(frame [C, nx, ny], params [P]) -> the frame ``frames`` frame intervals later (dtype of the frame)."""
+    """(frame [C, *space], params [P]) -> the frame ``frames`` frame intervals later (dtype of the frame)."""
     geom = problem.geometry()
     steps = frames * problem.steps_per_frame
 
     def one(u, p_row):
         p = {name: p_row[j] for j, name in enumerate(problem.PARAMS)}
         fp = problem.oracle_params(p, u)
-        s = run(geom, problem.state_of(u, fp), fp, jnp.asarray(problem.step_dt, u.dtype), steps,
-                tol=problem.tol, max_iter=problem.max_iter, advection=problem.advection)
+        s = problem.rollout(geom, problem.state_of(u, fp), fp, jnp.asarray(problem.step_dt, u.dtype), steps)
         out = problem.frame_fields(geom, s, fp)
         if "solid" in problem.FIELDS:
             k = problem.FIELDS.index("solid")
@@ -87,14 +85,14 @@ def _rows(problem, params, batch: int, dtype):
 
 
 def advance(problem, u, params, frames: int = 1):
-    """Frames u [B, C, nx, ny], params {name: [B]} -> (u_k [B, C, nx, ny], finite bool [B]); an element's bits
+    """Frames u [B, C, *space], params {name: [B]} -> (u_k [B, C, *space], finite bool [B]); an element's bits
     are the same alone or in any batch."""
     out = chunked_map(_program(problem, frames), CHUNK, u, _rows(problem, params, u.shape[0], u.dtype))
     return out, _finite(out)
 
 
 def advance_vjp(problem, u, params, frames: int = 1, wrt_params: bool = True):
-    """``advance`` and its VJP: (u_k, finite, vjp); vjp(g [B, C, nx, ny]) -> (g_u, g_params {name: [B]} or None).
+    """``advance`` and its VJP: (u_k, finite, vjp); vjp(g [B, C, *space]) -> (g_u, g_params {name: [B]} or None).
     A different (vmapped) program from ``advance``: equal to it to float32 rounding, not bit for bit."""
     out, finite, vjp = _program_vjp(problem, frames, wrt_params)(u, _rows(problem, params, u.shape[0], u.dtype))
 

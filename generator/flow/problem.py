@@ -42,7 +42,7 @@ from ..problem import MAX_STEPS, ProblemBase, resolve_params
 from . import interactive
 from .grid import BODIES, OPEN_SIDES, SIDE_KINDS, Geometry, Params, circle_apertures
 from .pressure import MAX_COARSE_CELLS, coarsest_shape
-from .step import ADVECTION, State, initial_state, operator, run_counted, solid_mask
+from .step import ADVECTION, State, initial_state, operator, run, run_counted, solid_mask
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
 # Work of one flow step per cell, in the spectral family's point-steps (generator.dispatch): a projection's
@@ -53,8 +53,9 @@ BLOW_UP_FACTOR = 100.0  # a speed above this many times the largest inflow/lid s
 
 @dataclass(frozen=True)
 class FlowGrid(GridBase):
-    """``aspect * n`` x ``n`` square cells of side h = length / n on [0, aspect * length] x [0, length]; sides
-    (left, right, bottom, top) each one of SIDE_KINDS. ``shape`` is (nx, ny), the generator's axis order."""
+    """``aspect * n`` x ``n`` (x ``n`` in 3D) square cells of side h = length / n on [0, aspect * length] x
+    [0, length] (x [0, length]); sides (left, right, bottom, top, and in 3D down, up: the z ends) each one of
+    SIDE_KINDS. ``shape`` is (nx, ny[, nz]), the generator's axis order."""
 
     POINTS: ClassVar[str] = "cell centres of a MAC grid (velocities averaged from the faces)"
 
@@ -63,14 +64,13 @@ class FlowGrid(GridBase):
 
     @property
     def shape(self) -> tuple[int, ...]:
-        return (self.aspect * self.n, self.n)
+        return (self.aspect * self.n,) + (self.n,) * (self.ndim - 1)
 
     @property
     def bc(self) -> tuple[str, ...]:
-        """Per axis (x, y): periodic; dirichlet where both sides are walls; neumann where a side is open."""
-        left, right, bottom, top = self.sides
+        """Per axis (x, y[, z]): periodic; dirichlet where both sides are walls; neumann where a side is open."""
         return tuple((PERIODIC if is_periodic(lo) else DIRICHLET if lo == hi == "wall" else NEUMANN).value
-                     for lo, hi in ((left, right), (bottom, top)))
+                     for lo, hi in zip(self.sides[0::2], self.sides[1::2]))
 
     def coords(self, axis: int = 0) -> np.ndarray:
         """Cell-centre positions along ``axis`` (0: x, 1: y), float32 (length units)."""
@@ -83,9 +83,9 @@ class FlowGrid(GridBase):
         return Geometry(nx, ny, self.aspect * self.length, self.length, *self.sides)
 
     def describe(self) -> str:
-        nx, ny = self.shape
-        named = ", ".join(f"{s}={k}" for s, k in zip(("left", "right", "bottom", "top"), self.sides))
-        return f"{nx}x{ny} cells on [0, {self.aspect * self.length:g}] x [0, {self.length:g}] ({named})"
+        named = ", ".join(f"{s}={k}" for s, k in zip(("left", "right", "bottom", "top", "down", "up"), self.sides))
+        box = " x ".join(f"[0, {self.aspect * self.length if i == 0 else self.length:g}]" for i in range(self.ndim))
+        return f"{'x'.join(map(str, self.shape))} cells on {box} ({named})"
 
 
 @dataclass(frozen=True)
@@ -124,6 +124,7 @@ class FlowProblem(ProblemBase):
     # cell Reynolds number u_max h / nu above which the grid does not resolve the flow (its boundary layers are
     # thinner than a cell); the advection stays stable there but the data would be numerical noise
     MAX_CELL_REYNOLDS: ClassVar[float] = 40.0
+    PROJECTION: ClassVar[str] = "multigrid-CG projection"  # describe()'s words for the pressure solve
 
     n: int = 32  # cells across the box (y)
     aspect: int = 1  # nx = aspect * n
@@ -162,7 +163,7 @@ class FlowProblem(ProblemBase):
     # --- the grid and the time window --------------------------------------------------------------
     @property
     def grid(self) -> FlowGrid:
-        return FlowGrid(2, self.n, self.length, self.aspect, self.SIDES)
+        return FlowGrid(self.NDIM, self.n, self.length, self.aspect, self.SIDES)
 
     def geometry(self) -> Geometry:
         """The solver's static geometry: the grid's, with the entry's ``body`` setting where it has a circle body
@@ -180,9 +181,9 @@ class FlowProblem(ProblemBase):
         return np.linspace(self.t_start, self.t_end, self.n_frames).astype(np.float32)
 
     def stable_dt(self) -> float:
-        """Largest step (s): ``cfl`` h / u_max and the explicit viscous limit h^2 / (4 nu_max), at the domains'
+        """Largest step (s): ``cfl`` h / u_max and the explicit viscous limit h^2 / (2 d nu_max), at the domains'
         extremes (both advection schemes are stable beyond CFL 1 but loses accuracy as h^2 / dt grows)."""
-        return min(self.cfl * self.h / self.speed_bound(), 0.9 * self.h**2 / (4 * self.viscosity_range()[1]))
+        return min(self.cfl * self.h / self.speed_bound(), 0.9 * self.h**2 / (2 * self.NDIM * self.viscosity_range()[1]))
 
     @property
     def frame_dt(self) -> float:
@@ -260,7 +261,7 @@ class FlowProblem(ProblemBase):
         start = "after a warm-up from rest" if self.t_start > 0 else "from rest"
         return (f"  fields: {', '.join(self.FIELDS)}   grid: {self.grid.describe()}\n"
                 f"  t in [{self.t_start:g}, {self.t_end:g}] {start}, {self.n_frames} frames, "
-                f"step {self.step_dt:.4g} s ({self.steps_per_frame}/frame, {self.describe_step_limit()}); MAC grid, {self.advection.replace('_', '-')} advection, multigrid-CG projection"
+                f"step {self.step_dt:.4g} s ({self.steps_per_frame}/frame, {self.describe_step_limit()}); MAC grid, {self.advection.replace('_', '-')} advection, {self.PROJECTION}"
                 + (f", {self.body} circle" if hasattr(self, "body") else "")
                 + (f"\n  {self.describe_geometry()}" if self.describe_geometry() else ""))
 
@@ -268,7 +269,7 @@ class FlowProblem(ProblemBase):
         """What sets the step: the CFL number u_max dt / h the step has at the domains' fastest flow, and whether
         the ``cfl`` setting or the viscous limit h^2 / (4 nu_max) bound it (the frame spacing rounds it down)."""
         cfl = self.speed_bound() * self.step_dt / self.h
-        viscous = 0.9 * self.h**2 / (4 * self.viscosity_range()[1]) < self.cfl * self.h / self.speed_bound()
+        viscous = 0.9 * self.h**2 / (2 * self.NDIM * self.viscosity_range()[1]) < self.cfl * self.h / self.speed_bound()
         bound = "the viscous limit" if viscous else f"cfl={self.cfl:g}"
         return f"CFL {cfl:.2g} at {self.speed_bound():g} m/s, set by {bound}"
 
@@ -350,11 +351,21 @@ class FlowProblem(ProblemBase):
         return State(u, v, field.get("p", zero), field.get("smoke", zero), jnp.zeros((), frame.dtype),
                      jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32))
 
+    def rollout(self, geom, state, fp, dt, n_steps: int):
+        """``n_steps`` (static) steps of dt from a solver state: the oracle's and SolverStep's rollout
+        (generator.flow.interactive; reverse-differentiable). A family member on another solver supplies its own."""
+        return run(geom, state, fp, dt, n_steps, tol=self.tol, max_iter=self.max_iter, advection=self.advection)
+
+    def programs(self):
+        """(start, advance, frame): the compiled per-chunk programs run_keys calls (``_programs``: the 2D solver's;
+        a family member on another solver supplies its own with the same signatures)."""
+        return _programs(self)
+
     def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
         """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, C, nx, ny], params {name: [B]},
         ok bool [B] (finite, below the blow-up speed, every pressure solve within max_iter), None): the
         sampler's interface."""
-        start, advance, frame = _programs(self)
+        start, advance, frame = self.programs()
         speed_cap = BLOW_UP_FACTOR * self.speed_bound()
         cells = math.prod(self.grid.shape)
         per_step = CHUNK * cells * STEP_WORK_PER_CELL + dispatch.step_overhead()
@@ -372,7 +383,7 @@ class FlowProblem(ProblemBase):
                     state = _advance(advance, state, fp, op, self.step_dt, self.steps_per_frame, per_step, count)
             u = jnp.stack(frames, axis=1)
             ok = jnp.all(jnp.isfinite(u), axis=tuple(range(1, u.ndim))) & jnp.all(
-                jnp.abs(u[:, :, :2]) <= speed_cap, axis=tuple(range(1, u.ndim))) & (state.capped == 0)
+                jnp.abs(u[:, :, :self.NDIM]) <= speed_cap, axis=tuple(range(1, u.ndim))) & (state.capped == 0)
             results.append((u, p, ok))
         u, params, ok = join(results, int(keys.shape[0]))
         return u, params, ok, None
@@ -396,7 +407,7 @@ def _advance(advance, state, fp, op, dt: float, n_steps: int, per_step: int, cou
         return state
     for k in dispatch.pieces(n_steps, per_step):
         state = advance(state, fp, op, jnp.float32(dt), jnp.int32(k))
-        dispatch.sync([(state.u,)])
+        dispatch.sync([(state.p,)])
         if count is not None:
             count.add(k)
     return state
