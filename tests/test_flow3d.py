@@ -29,8 +29,9 @@ def test_the_abc_flow_decays_as_the_exact_solution_and_stays_divergence_free():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case, grids", [("abc", (16, 32, 64)), ("shear", (8, 16, 32))])
-def test_second_order_in_space_over_three_grids(case, grids):
+# (abc: 16 -> 32 only, 1.86; the 64^3 grid alone took 168 s: benchmarks/flow3d_validation.py has the three grids)
+@pytest.mark.parametrize("case, grids", [("abc", (16, 32)), ("shear", (8, 16, 32))])
+def test_second_order_in_space(case, grids):
     errors = [_error(case, n) for n in grids]
     orders = [math.log2(a[0] / b[0]) for a, b in zip(errors, errors[1:])]
     assert min(orders) > 1.8 and max(d for _, d in errors) < 1e-11, (errors, orders)
@@ -68,7 +69,8 @@ def test_plume3d_stream_equals_its_cache_which_records_the_closed_box(tmp_path):
 def test_compare_trains_on_plume3d(capsys, tmp_path):
     # the small plume (n=12) through compare's cache and stream arms: the 3D FNO trains on a 3D flow
     sets = [a for k, v in SMALL["plume3d"].items() for a in ("--set", f"{k}={v}")]
-    code = cli.main(["compare", "plume3d", "--steps", "2", "--seeds", "1", "--test-samples", "4", *sets,
+    code = cli.main(["compare", "plume3d", "--steps", "2", "--seeds", "1", "--test-samples", "4",
+                     "--cache-samples", "4", *sets,
                      "--shift-set", "sx=uniform(0.34, 0.35)", "--shift-set", "sy=uniform(0.34, 0.35)",
                      "--out", str(tmp_path / "c")])
     out = capsys.readouterr().out
