@@ -211,9 +211,8 @@ def _total(x):
 
 
 def _jacobi(fc: Faces, x, r, inv_d, px, py, sweeps: int):
-    for _ in range(sweeps):
-        x = x + inv_d * (r - apply(fc, x, px, py))
-    return x
+    # a loop, not unrolled: each unrolled sweep was compiled on its own (XLA compile time grows with the program)
+    return jax.lax.fori_loop(0, sweeps, lambda _, x: x + inv_d * (r - apply(fc, x, px, py)), x)
 
 
 def vcycle(op: Operator, r, px, py, sweeps=SWEEPS, omega=OMEGA, level: int = 0):
@@ -227,9 +226,12 @@ def vcycle(op: Operator, r, px, py, sweeps=SWEEPS, omega=OMEGA, level: int = 0):
     inv_d = omega / jnp.maximum(diagonal(fc, px, py), 1e-30)
     x = _jacobi(fc, inv_d * r, r, inv_d, px, py, sweeps - 1)
     res = r - apply(fc, x, px, py)
-    rc = res[0::2, 0::2] + res[1::2, 0::2] + res[0::2, 1::2] + res[1::2, 1::2]
+    # the weight on the restricted residual (the coarse V-cycle is linear): XLA's CPU backend lets LLVM contract a
+    # product into the sum that uses it (one fused multiply-add), and whether it did for the weighted correction
+    # x + w P xc followed the vector width, so the bits differed between CPUs
+    rc = COARSE_WEIGHT * (res[0::2, 0::2] + res[1::2, 0::2] + res[0::2, 1::2] + res[1::2, 1::2])
     xc = vcycle(op, rc, px, py, sweeps, omega, level + 1)
-    x = x + COARSE_WEIGHT * jnp.repeat(jnp.repeat(xc, 2, 0), 2, 1)
+    x = x + jnp.repeat(jnp.repeat(xc, 2, 0), 2, 1)
     return _jacobi(fc, x, r, inv_d, px, py, sweeps)
 
 
@@ -271,9 +273,16 @@ def solve(fc: Faces, b, periodic_x: bool, periodic_y: bool, singular: bool, tol:
             return (s[0] < max_iter) & ~s[5] & (s[6] <= MAX_CHECKS)
 
         def body(s):
-            k, x, r, d, rz, _, checks = s
+            # the preconditioner opens the iteration (its only call, so the program holds one V-cycle): the
+            # direction d = z + beta d of the residual r left by the last iteration, beta = 0 on the first and
+            # after a restart (z + 0 d is z's bits)
+            k, x, r, d, rz, _, checks, restart = s
+            z = prec(r)
+            rz_new = _total(r * z)
+            beta = jnp.where(restart, 0.0, rz_new / rz).astype(rz.dtype)
+            d = z + beta * d
             ad = matvec(d)
-            alpha = rz / _total(d * ad)
+            alpha = rz_new / _total(d * ad)
             x = x + alpha * d
             r = r - alpha * ad
             # In float32 the recursive residual drifts below the true one (measured 3x at 32x16): when it claims
@@ -283,14 +292,11 @@ def solve(fc: Faces, b, periodic_x: bool, periodic_y: bool, singular: bool, tol:
             claims = _total(r * r) <= stop2
             r = jax.lax.cond(claims, lambda: proj(rhs - matvec(x)), lambda: r)
             done = claims & (_total(r * r) <= stop2)
-            z = prec(r)
-            rz_new = _total(r * z)
-            beta = jnp.where(claims, 0.0, rz_new / rz).astype(rz.dtype)
-            return k + 1, x, r, z + beta * d, rz_new, done, checks + claims.astype(jnp.int32)
+            return k + 1, x, r, d, rz_new, done, checks + claims.astype(jnp.int32), claims
 
-        z0 = prec(rhs)
         zero = jnp.zeros((), jnp.int32)
-        s0 = (zero, jnp.zeros_like(rhs), rhs, z0, _total(rhs * z0), bn2 <= 0, zero)
+        s0 = (zero, jnp.zeros_like(rhs), rhs, jnp.zeros_like(rhs), jnp.ones((), rhs.dtype), bn2 <= 0, zero,
+              jnp.ones((), bool))
         k, x, *_ = jax.lax.while_loop(cond, body, s0)
         return proj(x), k
 
