@@ -113,7 +113,7 @@ def test_set(pde, cfg, path: Path) -> list[dict]:
     from pdestream.experiments.budget import stratified_test_set
 
     if path.is_file():
-        return torch.load(path, weights_only=False)  # written by this harness
+        return torch.load(path, weights_only=True)  # tensors only: nothing in --out is unpickled as code
     tests = stratified_test_set(pde, cfg.n_test, 0)
     tmp = path.with_suffix(".tmp")
     torch.save(tests, tmp)
