@@ -64,3 +64,16 @@ def test_unit_stopped_under_way_leaves_nothing(tmp_path, monkeypatch, capsys):
 def test_bad_problem_is_one_line(tmp_path):
     with pytest.raises(SystemExit, match="--problems 'nope': unknown nope"):
         suite.main(["--out", str(tmp_path), "--problems", "nope"])
+
+
+def test_the_horizon_rule_keeps_a_diffusive_entry_and_cuts_a_chaotic_one():
+    """benchmarks.predictability: a perturbation of diffusion1d's initial state decays (amplification < 1 at every
+    time, so its t_end stays); the rule cuts a growth curve at the last time within one decade."""
+    from benchmarks import predictability as pr
+
+    g = pr.growth("diffusion1d", n=2, settings={"n": "32"})
+    assert len(g["t"]) == pr.HALVINGS + 1 and g["t"][-1] == pytest.approx(g["t_end"])
+    assert max(g["amplification"]) < 1.0 and pr.horizon(g) == pytest.approx(g["t_end"])
+    chaotic = {"t": [1.0, 2.0, 4.0], "amplification": [2.0, 9.0, 300.0]}
+    assert pr.horizon(chaotic) == 2.0
+    assert pr.horizon({"t": [1.0, 2.0], "amplification": [50.0, 900.0]}) == 1.0  # none within: the shortest
