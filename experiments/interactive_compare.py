@@ -36,19 +36,16 @@ trajectory, reference / coarse / corrected; vorticity for a flow) and one run di
 
 from __future__ import annotations
 
-import csv
 import json
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from pdestream import datasets
 from pdestream.surrogate.checkpoint import load_checkpoint
 from pdestream.surrogate.checks import check_count, check_number
 from pdestream.surrogate.data import check_device
-from pdestream.surrogate.evaluate import error_stats, rollout_errors
+from pdestream.surrogate.evaluate import rollout_errors
 from pdestream.surrogate.mode_table import (
     DEFAULTS,
     MODE_NAMES,
@@ -64,6 +61,15 @@ from pdestream.surrogate.phases import phase
 from pdestream.surrogate.runs import resume_run, train_run
 
 from .budget import stratified_test_set
+from .interactive_report import (
+    combine_seeds,
+    plot,
+    plot_corrector,
+    record,
+    score_against_coarse,
+    write_curves,
+    write_tables,
+)
 from .rollout_figure import plot_rollouts
 
 
@@ -185,17 +191,17 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
         coarse = make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)
         t0 = time.perf_counter()
         errors = rollout_errors(None, _identity_norm(fine), test, datasets.NextStep(1, 1), coarse).relative()
-        arms.append(_record("coarse solver", "none", errors, 0.0, None, cfg.coarse_n))
+        arms.append(record("coarse solver", "none", errors, 0.0, None, cfg.coarse_n))
         log(f"coarse solver (n={cfg.coarse_n}): end error {arms[-1]['end_mean']:.4f} ({time.perf_counter() - t0:.1f} s)")
         for label, arm_pde, settings, run_dir in plan[len(net_modes):]:
             arms.append(_train_seeds(label, arm_pde, settings, test, cfg, run_dir, log))
-        _score_against_coarse(arms)
+        score_against_coarse(arms)
         _plot_sitl_rollouts(out / "rollouts.png", fine, coarse, test[0], [p[3] for p in plan[len(net_modes):]], cfg)
     result = {"pde": pde.config(), "fine_pde": fine.config() if sitl else None, "config": asdict(cfg),
               "frame_dt": pde.frame_dt, "arms": arms}
     (out / "compare.json").write_text(json.dumps(result, indent=2))
-    _write_tables(out, result, pde, cfg)
-    _write_curves(out / "curves.csv", result)
+    write_tables(out, result, pde, cfg)
+    write_curves(out / "curves.csv", result)
     plot(out / "compare.png", result)
     if sitl:
         plot_corrector(out / "corrector.png", result)
@@ -283,71 +289,6 @@ def _train_seeds(label: str, pde, settings: dict, test, cfg: InteractiveConfig, 
     return combine_seeds(runs)
 
 
-SEED_FIGURES = ("end_mean", "end_p95", "end_max", "rollout_mean", "rollout_p95", "wall_s", "final_loss")
-
-
-def combine_seeds(runs: list[dict]) -> dict:
-    """One arm's record over its seeds: each figure of SEED_FIGURES the mean over seeds with its std in
-    FIGURE_std (0 for one seed), the curves (mean and p95 over trajectories per frame) averaged over seeds, and
-    every seed's figures under "per_seed"."""
-    out = dict(runs[0])
-    out["seeds"] = [r["seed"] for r in runs]
-    out["per_seed"] = [{"seed": r["seed"], **{c: r[c] for c in SEED_FIGURES}} for r in runs]
-    for c in SEED_FIGURES:
-        values = np.array([np.nan if r[c] is None else r[c] for r in runs], np.float64)
-        out[c] = None if runs[0][c] is None else float(values.mean())
-        out[c + "_std"] = float(values.std(ddof=1)) if len(runs) > 1 and runs[0][c] is not None else 0.0
-    for c in ("curve", "curve_p95"):
-        out[c] = np.mean([r[c] for r in runs], axis=0).tolist()
-    return out
-
-
-def verdict(win: dict, other: dict, key: str, name: str) -> str:
-    """One line: arm ``win`` against arm ``other`` on figure ``key`` (means over seeds): the ratio other / win (> 1:
-    ``win`` lower), the margin other - win and whether it exceeds the seed spread (the two arms' stds added; one
-    seed: no spread to judge by)."""
-    a, b = win[key], other[key]
-    margin, spread = b - a, win.get(key + "_std", 0.0) + other.get(key + "_std", 0.0)
-    head = (f"{name}: {win['arm']} {a:.4f} vs {other['arm']} {b:.4f} (x{b / max(a, 1e-300):.2f}, margin "
-            f"{margin:+.4f})")
-    if len(win.get("seeds", [0])) < 2 or len(other.get("seeds", [0])) < 2:
-        return f"{head}: one seed, no spread to judge by (--seeds 3 for a verdict)"
-    if abs(margin) > spread:
-        return f"{head}: {win['arm'] if margin > 0 else other['arm']} better, outside the seed spread {spread:.4f}"
-    return f"{head}: within the seed spread {spread:.4f}, no clear winner"
-
-
-CORRECTOR_MODES = ("none", "solver-in-the-loop")  # the coarse solver alone and its corrector arms
-SCORED = (("rollout_mean", "rollout mean"), ("rollout_p95", "rollout p95"), ("end_mean", "end mean"))
-
-
-def _score_against_coarse(arms: list[dict]) -> None:
-    """Each corrector arm's ``vs_coarse``: per figure e of SCORED, the improvement e_coarse / e_arm (> 1: better
-    than the coarse solver alone) and the share of the coarse solver's gap to the fine reference the correction
-    closes, 1 - e_arm / e_coarse (1: the fine solution, 0: no better than the coarse solver, < 0: worse)."""
-    base = next(a for a in arms if a["mode"] == "none")
-    for a in arms:
-        if a["mode"] in CORRECTOR_MODES:
-            a["vs_coarse"] = {key: {"improvement": _ratio(base[key], a[key]), "gap_closed": 1 - _ratio(a[key], base[key])}
-                              for key, _ in SCORED}
-
-
-def _ratio(num: float, den: float) -> float:
-    return float(num / den) if den > 0 else float("inf") if num > 0 else 1.0
-
-
-def _write_curves(path: Path, result: dict) -> None:
-    """curves.csv: error against time per arm, one row per (arm, frame): t (from the first frame), mean and p95
-    of the relative L2 over the test trajectories."""
-    dt = result["frame_dt"]
-    with open(path, "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(["arm", "mode", "n", "frame", "t", "mean", "p95"])
-        for a in result["arms"]:
-            for i, (mean, p95) in enumerate(zip(a["curve"], a["curve_p95"])):
-                writer.writerow([a["arm"], a["mode"], a["n"], i + 1, f"{dt * (i + 1):.6g}", f"{mean:.6g}", f"{p95:.6g}"])
-
-
 def _plot_sitl_rollouts(path: Path, fine, coarse, test: dict, runs: list[Path], cfg: InteractiveConfig) -> None:
     """rollouts.png: the first held-out trajectory as the reference (fine, restricted to the coarse grid), the
     coarse solver alone, the pairs-trained and the solver-in-the-loop corrections (the first seed's), over time.
@@ -400,7 +341,7 @@ def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: Interacti
     mode = make_mode(settings).bind(pde, seed)
     with phase(f"{label}: rolling out {cfg.n_test} test trajectories"):
         errors = rollout_errors(model, norm, test, datasets.NextStep(cfg.k_in, 1), mode).relative()  # [N, T - k_in]
-    rec = _record(label, settings["name"], errors, summary["wall"], summary, settings.get("coarse_n", pde.n))
+    rec = record(label, settings["name"], errors, summary["wall"], summary, settings.get("coarse_n", pde.n))
     rec["unroll"] = settings.get("unroll", 1)
     if "noise" in settings:
         rec["noise"] = settings["noise"]
@@ -412,149 +353,3 @@ def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: Interacti
         f"rollout mean {rec['rollout_mean']:.4f}; train loss {summary['final_loss']:.3g}; {summary['wall']:.0f} s")
     return rec
 
-
-def _record(label: str, mode: str, errors: np.ndarray, wall: float, summary: dict | None, n: int) -> dict:
-    """One arm's figures from its per-trajectory, per-frame errors [N, h]; n: the grid it predicts on."""
-    end = error_stats(errors[:, -1])
-    per_trajectory = errors.mean(1)  # each trajectory's error averaged over the whole rollout
-    return {"arm": label, "mode": mode, "n": n, "seed": None, "seeds": [], "wall_s": wall, "steps": summary["steps"] if summary else 0,
-            "final_loss": summary["final_loss"] if summary else None,
-            "end_mean": end["mean"], "end_p95": end["p95"], "end_max": end["max"],
-            "rollout_mean": float(errors.mean()), "rollout_p95": float(np.percentile(per_trajectory, 95)),
-            "curve": errors.mean(0).tolist(),
-            "curve_p95": np.percentile(errors, 95, axis=0).tolist(), "frames": errors.shape[1]}
-
-
-COLUMNS = ("end_mean", "end_p95", "end_max", "rollout_mean", "rollout_p95", "wall_s", "steps", "final_loss")
-
-
-def _write_tables(out: Path, result: dict, pde, cfg: InteractiveConfig) -> None:
-    rows = [{"arm": a["arm"], "mode": a["mode"], "n": a["n"], "seeds": len(a["seeds"]), **{c: a[c] for c in COLUMNS},
-             **{f"{c}_std": a.get(f"{c}_std", 0.0) for c in SEED_FIGURES}} for a in result["arms"]]
-    with open(out / "compare.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    frames = result["arms"][0]["frames"]
-    noise = (f", noise: input noise of std {cfg.noise:g} x the data's std on the newest frame, clean targets"
-             if "noise" in cfg.modes else "")
-    if "solver-in-the-loop" in cfg.modes:
-        noise += (f", pairs + noise: the corrector's coarse start state perturbed by N(0, {cfg.noise:g}^2) in "
-                  "normalized units (x the data's std), the fine target clean")
-        noise += f", corrector start: {cfg.corrector_start}" + (" (every corrector's output layer zero at step 0)"
-                                                                 if cfg.corrector_start == "zero" else "")
-    seeds = list(_seeds(cfg))
-    per_arm = (f"{cfg.steps} optimizer steps" if cfg.budget_s is None else
-               f"equal wall clock: {cfg.budget_s:g} s of training (the steps each arm reached: steps column)")
-    if cfg.unroll_schedule and "solver-in-the-loop" in cfg.modes:
-        noise += (f", solver-in-the-loop unroll curriculum {cfg.unroll_schedule} (unroll:share of the steps; in steps "
-                  f"{cfg.schedule()})")
-    spread = (f"; {len(seeds)} model and data seeds {seeds} per trained arm, each figure the mean ± std over seeds "
-              "(the coarse solver: no seed)" if len(seeds) > 1 else f"; one model and data seed ({cfg.seed})")
-    lines = [f"{pde.NAME} ({', '.join(f'{k} ~ {v}' for k, v in pde.param_domains.items())}), {cfg.model} "
-             f"{cfg.model_cfg}, {per_arm} x batch {cfg.batch_size} per trained arm, lr {cfg.lr}, "
-             f"unroll {cfg.unroll}{noise}{spread}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "
-             f"(Latin hypercube over the parameters), rolled out {frames} frames from the first; end: the last "
-             "frame (mean, p95, max over trajectories); rollout mean: over all frames and trajectories; rollout "
-             "p95: the 95th percentile over trajectories of each trajectory's error averaged over all frames; wall: "
-             "training time of the arm (solver calls included); error against time per arm: curves.csv", "",
-             "| arm | grid n | end mean | end p95 | end max | rollout mean | rollout p95 | wall s | steps | "
-             "final train loss |",
-             "|" + " --- |" * 10]
-    for r in rows:
-        several = r["seeds"] > 1
-
-        def cell(c, fmt=".4f"):  # the mean, ± the std over seeds where there are several
-            return f"{r[c]:{fmt}}" + (f" ± {r[c + '_std']:{fmt}}" if several else "")
-
-        loss = "-" if r["final_loss"] is None else cell("final_loss", ".3g")
-        lines.append(f"| {r['arm']} | {r['n']} | {cell('end_mean')} | {cell('end_p95')} | {cell('end_max')} | "
-                     f"{cell('rollout_mean')} | {cell('rollout_p95')} | {r['wall_s']:.0f} | {r['steps']} | {loss} |")
-    by = {a["mode"]: a for a in result["arms"] if a["mode"] in NETWORK_MODES}
-    if "one-step" in by:
-        for name in ("pushforward", "oracle", "noise"):
-            if name in by:
-                lines.append(f"\n{name}: end error {by['one-step']['end_mean'] / by[name]['end_mean']:.2f}x lower "
-                             "than one-step (>1: better); " + verdict(by[name], by["one-step"], "end_mean", "end mean"))
-    sitl = [a for a in result["arms"] if a["mode"] in CORRECTOR_MODES]
-    if len(sitl) == 4:
-        base, pairs, noisy, loop = sitl
-        lines += ["", "Against the coarse solver alone (n=" f"{base['n']}" "): improvement e_coarse / e_arm (> 1: "
-                  "better) and share of the coarse-to-fine gap closed 1 - e_arm / e_coarse (1: the fine solution, 0: "
-                  "no better than the coarse solver, < 0: worse), e per arm over the same test trajectories:", "",
-                  "| arm | " + " | ".join(f"{name}: improvement | {name}: gap closed" for _, name in SCORED) + " |",
-                  "|" + " --- |" * (1 + 2 * len(SCORED))]
-        for a in sitl[1:]:
-            v = a["vs_coarse"]
-            lines.append(f"| {a['arm']} | " + " | ".join(f"{v[key]['improvement']:.2f}x | {v[key]['gap_closed']:+.1%}"
-                                                          for key, _ in SCORED) + " |")
-        lines.append(f"\nsolver-in-the-loop rollout mean error: {base['rollout_mean'] / loop['rollout_mean']:.2f}x "
-                     f"lower than the coarse solver alone, {pairs['rollout_mean'] / loop['rollout_mean']:.2f}x lower "
-                     f"than the correction trained on pairs, {noisy['rollout_mean'] / loop['rollout_mean']:.2f}x "
-                     f"lower than pairs + noise; end error: {base['end_mean'] / loop['end_mean']:.2f}x lower than "
-                     f"the coarse solver alone, {pairs['end_mean'] / loop['end_mean']:.2f}x lower than the correction "
-                     "trained on pairs")
-        lines += ["", "Solver-in-the-loop against each non-interacting corrector arm per metric (x: the other arm's "
-                  "error / solver-in-the-loop's, > 1: solver-in-the-loop better; outside the seed spread when the "
-                  "margin exceeds the two arms' stds over seeds added):", ""]
-        lines += [f"- {verdict(loop, other, key, name)}" for other in (pairs, noisy) for key, name in SCORED]
-    (out / "compare.md").write_text("\n".join(lines) + "\n")
-
-
-def plot(path: Path, result: dict) -> None:
-    """Rollout error (mean over trajectories) against time, one panel per group (network modes, solver-in-the-loop)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    groups = [[a for a in result["arms"] if a["mode"] in NETWORK_MODES],
-              [a for a in result["arms"] if a["mode"] not in NETWORK_MODES]]
-    groups = [g for g in groups if g]
-    fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 4), squeeze=False)
-    dt = result["frame_dt"]
-    for ax, group in zip(axes[0], groups):
-        for a in group:
-            t = dt * (1 + np.arange(a["frames"]))
-            k = f", k={a['unroll']}" if a["mode"] in ("pushforward", "oracle") else \
-                f", sigma={a['noise']:g}" if a.get("noise") else ""
-            ax.plot(t, a["curve"], label=f"{a['arm']}{k} (end {a['end_mean']:.3f})")
-        ax.set(yscale="log", xlabel="time (rolled out from t=0)", ylabel="relative L2 error (mean over trajectories)")
-        fine = result["fine_pde"]["n"] if result["fine_pde"] else None
-        steps = max(a["steps"] for a in group)
-        ax.set_title(f"network modes, {steps} steps each" if group[0]["mode"] in NETWORK_MODES else
-                     f"coarse solver n={group[0]['n']} vs fine n={fine} (subsampled)")
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def plot_corrector(path: Path, result: dict) -> None:
-    """corrector.png: the coarse solver and its corrector arms, relative L2 error against time (log y): the mean
-    over the test trajectories (solid) and their p95 (dashed, the same colour), one line pair per arm."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    arms = [a for a in result["arms"] if a["mode"] in CORRECTOR_MODES]
-    fig, ax = plt.subplots(figsize=(6.5, 4.2))
-    dt = result["frame_dt"]
-    for i, a in enumerate(arms):
-        t = dt * (1 + np.arange(a["frames"]))
-        colour = f"C{i}"
-        sigma = f", sigma={a['noise']:g}" if a.get("noise") else ""
-        gap = f", gap closed {a['vs_coarse']['rollout_mean']['gap_closed']:+.0%}" if "vs_coarse" in a and \
-            a["mode"] != "none" else ""
-        ax.plot(t, a["curve"], color=colour, label=f"{a['arm']}{sigma} (rollout mean {a['rollout_mean']:.3g}{gap})")
-        ax.plot(t, a["curve_p95"], color=colour, ls="--", lw=0.9)
-    ax.plot([], [], color="grey", ls="--", lw=0.9, label="dashed: p95 over trajectories")
-    ax.set(yscale="log", xlabel="time (rolled out from t=0)", ylabel="relative L2 error (solid: mean over trajectories)")
-    fine = result["fine_pde"]["n"] if result["fine_pde"] else None
-    ax.set_title(f"corrector arms: coarse n={arms[0]['n']} vs fine n={fine} (subsampled), "
-                 f"{max(a['steps'] for a in arms)} steps each", fontsize=9)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
