@@ -24,7 +24,8 @@ import torch
 from torch.utils.data import DataLoader
 
 from pdestream import datasets, generator
-from pdestream.datasets.proposal import LATENT, correlation
+from pdestream.datasets.proposal import LATENT
+from pdestream.datasets.proposal_fit import correlation
 from pdestream.surrogate.evaluate import rollout_errors
 from pdestream.surrogate.fno import COMPARE_FNO
 from pdestream.surrogate.models import build_model

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .proposal import _plain
+from .proposal_fit import _plain
 from .reservoir_sampler import SAMPLERS, Sampler
 from .reservoir_storage import Storage, TensorStorage
 from .reservoir_writer import WRITERS, Writer

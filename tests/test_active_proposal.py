@@ -10,7 +10,8 @@ import torch
 from test_reservoir import same, stream, take
 
 from pdestream.datasets import proposal as proposal_module
-from pdestream.datasets.proposal import ParamProposal, loss_model, running_median
+from pdestream.datasets.proposal import ParamProposal
+from pdestream.datasets.proposal_fit import loss_model, running_median
 
 DOMAINS = {"nu": ("loguniform", 0.01, 0.1, ()), "c": ("fixed", 1.0, 1.0, ()), "a": ("uniform", -1.0, 1.0, ())}
 

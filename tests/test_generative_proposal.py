@@ -5,7 +5,8 @@ structure, stay uniform when it has none (the skill gate), and a stream steered 
 import numpy as np
 
 from pdestream import generator
-from pdestream.datasets.proposal import LATENT, ParamProposal, generative_fit, normal_scores
+from pdestream.datasets.proposal import LATENT, ParamProposal
+from pdestream.datasets.proposal_fit import generative_fit, normal_scores
 
 PDE = generator.get_pde("burgers1d", n=32, n_frames=4)
 DOMAINS = {"nu": ("loguniform", 0.01, 0.1, ()), "c": ("choice", 0.0, 0.0, (1.0, 2.0, 4.0)), "k": ("fixed", 1.0, 1.0, ())}
