@@ -17,7 +17,6 @@ from pdestream.datasets.reservoir import ReservoirStream
 from pdestream.generator.flow import divergence, initial_state, run
 from pdestream.generator.flow.entries import UnderResolved
 from pdestream.generator.flow.grid import velocity_masks
-from pdestream.generator.flow.problem import _programs
 from pdestream.generator.flow.step import body_faces, inflow_profile, solid_mask
 from tests.reference_samples import FLOW_SMALL
 
@@ -84,10 +83,25 @@ def test_samples_are_bit_identical_alone_in_batches_and_with_explicit_params(nam
     assert not np.array_equal(np.asarray(generator.sample(pde, [3], seed=2).u[0]), np.asarray(alone.u[0]))
 
 
+def test_the_vectorised_chunk_keeps_a_sample_s_bits_and_agrees_with_the_row_by_row_one(monkeypatch):
+    # a GPU advances a chunk's rows as one vectorised program, a CPU row by row (flow.problem.vectorise_chunks):
+    # both keep a sample's bits whatever its batch, and differ from each other only by float32 rounding
+    from pdestream.generator.flow import problem as flow_problem
+
+    pde = small("cavity2d")
+    rows = generator.sample(pde, [0, 1, 2, 3, 4], seed=1)
+    monkeypatch.setattr(flow_problem, "vectorise_chunks", lambda: True)
+    batch = generator.sample(pde, [0, 1, 2, 3, 4], seed=1)
+    alone = generator.sample(pde, [3], seed=1)
+    np.testing.assert_array_equal(np.asarray(batch.u[3]), np.asarray(alone.u[0]))
+    scale = np.abs(np.asarray(rows.u)).max()
+    np.testing.assert_allclose(np.asarray(batch.u), np.asarray(rows.u), rtol=0, atol=1e-4 * scale)
+
+
 def test_new_parameters_and_seeds_never_recompile():
     pde = small("cavity2d")
     generator.sample(pde, [0, 1], seed=0)
-    start, advance, frame = _programs(pde)
+    start, advance, frame = pde.programs()
     sizes = (start._cache_size(), frame._cache_size(), advance._cache_size())
     generator.sample(pde, [7, 8, 9], seed=5)
     generator.sample(pde, [0], seed=0, params={"re": 333.0})
@@ -100,7 +114,7 @@ def test_the_solver_holds_boundary_values_and_closes_walls_and_bodies(name):
     # body faces carry nothing across, and the projection leaves the velocity nearly divergence-free
     pde = small(name)
     keys = generator.sample_keys(0, np.array([1]))
-    p, fp, *_ = _programs(pde)[0](*[jnp.asarray(a) for a in generator.chunked.split(
+    p, fp, *_ = pde.programs()[0](*[jnp.asarray(a) for a in generator.chunked.split(
         [keys, np.zeros((1, len(pde.PARAMS)), np.float32), np.zeros((1, len(pde.PARAMS)), bool)], 4)[0]])
     fp = jax.tree_util.tree_map(lambda a: a[0], fp)
     geom = pde.geometry()

@@ -359,7 +359,7 @@ class FlowProblem(ProblemBase):
     def programs(self):
         """(start, advance, frame): the compiled per-chunk programs run_keys calls (``_programs``: the 2D solver's;
         a family member on another solver supplies its own with the same signatures)."""
-        return _programs(self)
+        return _programs(self, vectorise_chunks())
 
     def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
         """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, C, nx, ny], params {name: [B]},
@@ -426,8 +426,17 @@ def _outputs_program(problem: FlowProblem):
     return jax.jit(lambda u, *cols: jax.lax.map(one, (u, *cols)))
 
 
+def vectorise_chunks() -> bool:
+    """Whether a chunk's rows advance as one vectorised program (``jax.vmap``: a GPU's batch) or one after another
+    (``jax.lax.map``: on a CPU, where a vectorised chunk runs every row's pressure iterations until its slowest
+    row converges and loses the scalar code's cache locality; docs/guides/flows.md has the measurement). Either
+    way every chunk is one fixed program, so a row's bits do not depend on its batch; they differ between the two
+    (as between devices)."""
+    return jax.default_backend() != "cpu"
+
+
 @functools.lru_cache(maxsize=16)
-def _programs(problem: FlowProblem):
+def _programs(problem: FlowProblem, vectorise: bool = True):
     """(start, advance, frame): compiled per-chunk programs, each sample the same unbatched program inside
     jax.lax.map. start: (keys [K], explicit [K, P], given [K, P]) -> (params {name: [K]}, Params [K], State [K],
     pressure Operator [K]); advance: (State, Params, Operator, dt, k) -> State k steps later; frame: (State, Params) -> [K, C, nx, ny]."""
@@ -445,11 +454,15 @@ def _programs(problem: FlowProblem):
         return run_counted(geom, state, fp, dt, k, op, tol=problem.tol, max_iter=problem.max_iter,
                            advection=problem.advection)
 
-    # vectorised over the fixed chunk (a GPU's batch; on a CPU as fast as a loop): every chunk has CHUNK rows
-    # (padded), and a row's bits do not depend on its place or its chunk-mates (tests/test_flows.py); the step
-    # count k is traced and shared by the rows, so one program serves every count
-    advance = jax.jit(lambda states, fps, ops, dt, k: jax.vmap(advance_one, (0, 0, 0, None, None))(
-        states, fps, ops, dt, k))
+    # over the fixed chunk, vectorised or row by row (``vectorise_chunks``): every chunk has CHUNK rows (padded),
+    # and a row's bits do not depend on its place or its chunk-mates (tests/test_flows.py); the step count k is
+    # traced and shared by the rows, so one program serves every count
+    if vectorise:
+        advance = jax.jit(lambda states, fps, ops, dt, k: jax.vmap(advance_one, (0, 0, 0, None, None))(
+            states, fps, ops, dt, k))
+    else:
+        advance = jax.jit(lambda states, fps, ops, dt, k: jax.lax.map(
+            lambda t: advance_one(*t, dt, k), (states, fps, ops)))
 
     frame = jax.jit(lambda states, fps: jax.lax.map(lambda t: problem.frame_fields(geom, *t), (states, fps)))
     return start, advance, frame
