@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pdestream.generator.flow import Geometry, Params, initial_state, run, run_batch, step
+from pdestream.generator.flow import Geometry, Params, forces, initial_state, run, run_batch, step
 from pdestream.generator.flow.forces import body_force, circle_force  # the library's forces (karman2d's drag, lift)
 
 
@@ -273,12 +273,53 @@ def cavity_transient(ns=(32, 64), n_ref=128, re=400.0, t_end=4.0):
               f"return-flow min u on x = 0.5 {u[:, n // 2].min():.4f} vs {uf[:, n_ref // 2].min():.4f}", flush=True)
 
 
-def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack"):
+def box_momentum(geom, u, v, p, nu, cx, cy, r, half):
+    """Control-volume terms on the square of half-width ``half`` cells about (cx, cy) [m] (jnp): (Mx, My), the
+    fluid's momentum inside per unit depth and density (u faces on the box's edges weighted 1/2, faces whose
+    centre lies inside the circle r left out: they hold ghost values), and (Sx, Sy), minus the outward flux of
+    momentum, pressure and viscous stress through its edges (the MAC values averaged onto the edges). The force on
+    the body inside: F = S - dM/dt (Newton's law for the box); at a steady state F = S (flow_bodies.py)."""
+    h = geom.h
+    i0, i1 = int(round(cx / h)) - half, int(round(cx / h)) + half
+    j0, j1 = int(round(cy / h)) - half, int(round(cy / h)) + half
+    uc, vc = 0.5 * (u[:, 1:] + u[:, :-1]), 0.5 * (v[1:] + v[:-1])
+    fx = fy = 0.0
+    js = slice(j0, j1)
+    for i, sign in ((i0, -1), (i1, 1)):  # vertical edges x = i h
+        un, vv, pp = u[js, i], 0.5 * (vc[js, i - 1] + vc[js, i]), 0.5 * (p[js, i - 1] + p[js, i])
+        dudx = (u[js, i + 1] - u[js, i - 1]) / (2 * h)
+        dvdx = (vc[js, i] - vc[js, i - 1]) / h
+        dudy = (u[j0 + 1:j1 + 1, i] - u[j0 - 1:j1 - 1, i]) / (2 * h)
+        fx += sign * h * jnp.sum(un * un + pp - 2 * nu * dudx)
+        fy += sign * h * jnp.sum(un * vv - nu * (dvdx + dudy))
+    is_ = slice(i0, i1)
+    for j, sign in ((j0, -1), (j1, 1)):  # horizontal edges y = j h
+        vn, uu, pp = v[j, is_], 0.5 * (uc[j - 1, is_] + uc[j, is_]), 0.5 * (p[j - 1, is_] + p[j, is_])
+        dvdy = (v[j + 1, is_] - v[j - 1, is_]) / (2 * h)
+        dudy = (uc[j, is_] - uc[j - 1, is_]) / h
+        dvdx = (v[j, i0 + 1:i1 + 1] - v[j, i0 - 1:i1 - 1]) / (2 * h)
+        fx += sign * h * jnp.sum(vn * uu - nu * (dudy + dvdx))
+        fy += sign * h * jnp.sum(vn * vn + pp - 2 * nu * dvdy)
+    # momentum inside: u faces i0..i1 (edges halved) on rows j0..j1-1, v faces j0..j1 (edges halved) on columns
+    xu, yu = jnp.arange(i0, i1 + 1) * h, (jnp.arange(j0, j1) + 0.5) * h
+    xv, yv = (jnp.arange(i0, i1) + 0.5) * h, jnp.arange(j0, j1 + 1) * h
+    wu = jnp.ones(i1 - i0 + 1).at[0].set(0.5).at[-1].set(0.5)
+    wv = jnp.ones(j1 - j0 + 1).at[0].set(0.5).at[-1].set(0.5)
+    outu = (xu[None, :] - cx) ** 2 + (yu[:, None] - cy) ** 2 > r * r
+    outv = (xv[None, :] - cx) ** 2 + (yv[:, None] - cy) ** 2 > r * r
+    mx = h * h * jnp.sum(jnp.where(outu, u[j0:j1, i0:i1 + 1], 0) * wu[None, :])
+    my = h * h * jnp.sum(jnp.where(outv, v[j0:j1 + 1, i0:i1], 0) * wv[:, None])
+    return jnp.stack([mx, my]), jnp.stack([-fx, -fy])
+
+
+def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack", cfl=0.4, tol=1e-5, diagnostics=False):
     """Schaefer & Turek (1996) benchmark 2D-2: channel 2.2 x 0.41 (here lx = nx h with nx even, <= 0.2% longer
     so cells stay square and the grid coarsens), cylinder centre (0.2, 0.2), r 0.05, parabolic inflow peak 1.5
-    (mean 1), nu 1e-3, Re 100. Cd = 2 Fx / (U^2 D), Cl = 2 Fy / (U^2 D) with U = 1, D = 0.1; St = f D / U from
-    the lift's upward zero crossings over the last ``window`` s. Published: Cd max 3.22-3.24, Cl max 0.99-1.01,
-    St 0.295-0.305."""
+    (mean 1), nu 1e-3, Re 100, dt = cfl h / 1.5. Cd = 2 Fx / (U^2 D), Cl = 2 Fy / (U^2 D) with U = 1, D = 0.1;
+    St = f D / U from the lift's upward mean crossings over the last ``window`` s. Published: Cd max 3.22-3.24,
+    Cl max 0.99-1.01, St 0.295-0.305. ``diagnostics``: also the surface force with the pressure of two successive
+    steps averaged (t^{n+1}, the velocity's time level, instead of the stored t^{n+1/2}) and the unsteady
+    control-volume force on a square 5 radii wide (``box_momentum``: S - dM/dt, a check that samples no wall)."""
     h = 0.41 / ny
     nx = 2 * round(2.2 / h / 2)
     geom = Geometry(nx, ny, nx * h, 0.41, left="inflow", right="outflow")
@@ -286,36 +327,83 @@ def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack"):
     from pdestream.generator.flow.step import operator, solid_mask  # noqa: PLC0415
 
     solid = solid_mask(geom, params)
-    dt = 0.4 * h / 1.5
+    dt = cfl * h / 1.5
     steps = int(round(t_end / dt))
+    half = int(round(2.5 * 0.05 / h))
+
+    def force(s):
+        if geom.body == "sharp":  # the default: the force on the exact circle (its surface integral)
+            return jnp.stack(circle_force(geom, s, params.nu, 0.2, 0.2, 0.05))
+        return jnp.stack(body_force(geom, solid, s, params.nu))
 
     def go(s):
         op = operator(geom, params)
 
         def one(s, _):
-            s = step(geom, s, params, dt, op=op, advection=advection)
-            if geom.body == "sharp":  # the default: the force on the exact circle (its surface integral)
-                return s, jnp.stack(circle_force(geom, s, params.nu, 0.2, 0.2, 0.05))
-            return s, jnp.stack(body_force(geom, solid, s, params.nu))
+            p_prev = s.p
+            s = step(geom, s, params, dt, tol, op=op, advection=advection)
+            out = {"f": force(s)}
+            if diagnostics:
+                out["f_avg"] = force(s._replace(p=0.5 * (p_prev + s.p)))  # p at t^n (its half steps averaged)
+                out["m"], out["s"] = box_momentum(geom, s.u, s.v, s.p, params.nu, 0.2, 0.2, 0.05, half)
+                out["f_p"] = jnp.stack(circle_force(geom, s, 0.0, 0.2, 0.2, 0.05))  # the pressure's part alone
+                for d in (0.5, 2.0):  # the wall samples d cells out (forces.FORCE_DISTANCE, 1 by default)
+                    default, forces.FORCE_DISTANCE = forces.FORCE_DISTANCE, d
+                    try:
+                        out[f"f_d{d:g}"] = force(s)
+                    finally:
+                        forces.FORCE_DISTANCE = default
+            return s, out
 
         return jax.lax.scan(one, s, None, length=steps)
 
     t0 = time.perf_counter()
-    s, forces = jax.jit(go)(initial_state(geom, params))
-    forces = np.asarray(forces) * 2 / (1.0 ** 2 * 0.1)
+    s, rec = jax.jit(go)(initial_state(geom, params))
+    scale = 2 / (1.0 ** 2 * 0.1)
+    fs = np.asarray(rec["f"]) * scale
     wall = time.perf_counter() - t0
     t = (np.arange(steps) + 1) * dt
     last = t > t_end - window
-    cd, cl = forces[last, 0], forces[last, 1]
-    up = np.flatnonzero((cl[:-1] < np.mean(cl)) & (cl[1:] >= np.mean(cl)))
-    st = (len(up) - 1) / ((up[-1] - up[0]) * dt) * 0.1 if len(up) > 2 else float("nan")
+
+    def summary(f, tt):
+        keep = tt > t_end - window
+        cd, cl = f[keep, 0], f[keep, 1]
+        up = np.flatnonzero((cl[:-1] < np.mean(cl)) & (cl[1:] >= np.mean(cl)))
+        st = (len(up) - 1) / ((up[-1] - up[0]) * dt) * 0.1 if len(up) > 2 else float("nan")
+        return cd, cl, st
+
+    cd, cl, st = summary(fs, t)
     area = float(jnp.sum(solid)) * h * h / (np.pi * 0.05 ** 2)
     print(f"Schaefer-Turek 2D-2, {nx}x{ny} (h {h:.5f}, D = {0.1 / h:.1f} cells, masked area {area:.3f} of the "
-          f"circle), {advection}, {steps} steps of {dt:.5f} to t {t_end} ({wall:.0f} s incl. compile), "
-          f"finite {bool(jnp.isfinite(s.u).all())}")
-    print(f"  Cd max {cd.max():.3f} (3.22-3.24), Cl max {cl.max():.3f} (0.99-1.01), St {st:.4f} (0.295-0.305); "
-          f"Cd mean {cd.mean():.3f}, Cl min {cl.min():.3f}, over t > {t_end - window:g}")
-    return cd, cl, st
+          f"circle), {advection}, {steps} steps of {dt:.5f} (CFL {cfl:g}), tol {tol:g}, to t {t_end} ({wall:.0f} s "
+          f"incl. compile), finite {bool(jnp.isfinite(s.u).all())}, capped {int(s.capped)}")
+    print(f"  Cd max {cd.max():.4f} (3.22-3.24), Cl max {cl.max():.4f} (0.99-1.01), St {st:.4f} (0.295-0.305); "
+          f"Cd mean {cd.mean():.4f}, Cd min {cd.min():.4f}, Cl min {cl.min():.4f}, over t > {t_end - window:g}")
+    out = {"ny": ny, "nx": nx, "cfl": cfl, "tol": tol, "advection": advection, "cd_max": float(cd.max()),
+           "cl_max": float(cl.max()), "st": float(st), "cd_mean": float(cd.mean()), "cl_min": float(cl.min()),
+           "wall_s": wall}
+    if diagnostics:
+        fa = np.asarray(rec["f_avg"]) * scale
+        # the pressure average of steps n, n+1 sits at t^n (the stored p is at t^{n+1/2}), with the velocity of t^n
+        fa = np.concatenate([fa[1:], fa[-1:]])  # entry n: p^{n-1/2}, p^{n+1/2} averaged, u of step n
+        m, sflux = np.asarray(rec["m"], np.float64), np.asarray(rec["s"], np.float64)
+        # Newton's law for the box over each step: F^{n+1/2} = (S^n + S^{n+1}) / 2 - (M^{n+1} - M^n) / dt
+        fcv = (0.5 * (sflux[1:] + sflux[:-1]) - (m[1:] - m[:-1]) / dt) * scale
+        fst = sflux[1:] * scale  # without the d/dt term (the steady balance)
+        tc = 0.5 * (t[1:] + t[:-1])
+        fp = np.asarray(rec["f_p"]) * scale
+        print(f"  surface force split: pressure Cd mean {fp[last, 0].mean():.4f}, viscous Cd mean "
+              f"{(fs[last, 0] - fp[last, 0]).mean():.4f}")
+        for name, f, tt in (("surface, p averaged to t^n", fa[:-1], t[:-1]), ("control volume S - dM/dt", fcv, tc),
+                            ("control volume S alone", fst, t[1:]),
+                            ("surface, wall samples 0.5 h out", np.asarray(rec["f_d0.5"]) * scale, t),
+                            ("surface, wall samples 2 h out", np.asarray(rec["f_d2"]) * scale, t)):
+            a, b, c = summary(f, tt)
+            print(f"  {name}: Cd max {a.max():.4f}, Cl max {b.max():.4f}, St {c:.4f}, Cd mean {a.mean():.4f}, "
+                  f"Cl min {b.min():.4f}")
+            out[name] = (float(a.max()), float(b.max()), float(c), float(a.mean()), float(b.min()))
+    print(flush=True)
+    return out
 
 
 def speed(nx=128, ny=64, batches=(1, 8), n_steps=100, reps=3, advection=None):
@@ -395,6 +483,14 @@ def main(argv=None):
     ap.add_argument("--parts", default="iterations,cavity,cylinder")
     ap.add_argument("--cylinder-ny", type=lambda a: [int(n) for n in a.split(",")], default=[64])
     ap.add_argument("--cylinder-t", type=float, default=10.0)
+    ap.add_argument("--cylinder-advection", default="maccormack", help="comma-separated advection schemes")
+    ap.add_argument("--cylinder-cfl", type=lambda a: [float(c) for c in a.split(",")], default=[0.4],
+                    help="dt = CFL h / 1.5 (the inflow peak)")
+    ap.add_argument("--cylinder-tol", type=lambda a: [float(c) for c in a.split(",")], default=[1e-5],
+                    help="the pressure solve's relative tolerance")
+    ap.add_argument("--cylinder-diagnostics", action="store_true",
+                    help="also the force with the pressure at the velocity's time level and the unsteady "
+                         "control-volume force")
     ap.add_argument("--cavity-n", type=lambda a: [int(n) for n in a.split(",")], default=[32, 64])
     ap.add_argument("--steady-n", type=lambda a: [int(n) for n in a.split(",")], default=[None],
                     help="grids of --parts steady (default: cavity2d's default grid)")
@@ -425,7 +521,11 @@ def main(argv=None):
         cavity_transient(re=args.steady_re[0] if args.steady_re else 400.0)
     if "cylinder" in parts:
         for ny in args.cylinder_ny:
-            cylinder(ny, args.cylinder_t)
+            for adv in args.cylinder_advection.split(","):
+                for cfl in args.cylinder_cfl:
+                    for tol in args.cylinder_tol:
+                        cylinder(ny, args.cylinder_t, advection=adv, cfl=cfl, tol=tol,
+                                 diagnostics=args.cylinder_diagnostics)
     if "mms" in parts:
         mms(args.mms_n, args.mms_nu)
     if "speed" in parts:
