@@ -30,6 +30,7 @@ Re 400 and Re 1000 columns (issue 28; figures in docs/results/flows.md). Measure
 from __future__ import annotations
 
 import argparse
+import math
 import time
 
 import jax
@@ -312,7 +313,8 @@ def box_momentum(geom, u, v, p, nu, cx, cy, r, half):
     return jnp.stack([mx, my]), jnp.stack([-fx, -fy])
 
 
-def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack", cfl=0.4, tol=1e-5, diagnostics=False):
+def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack", cfl=0.4, tol=1e-5, diagnostics=False,
+             outflow="outflow"):
     """Schaefer & Turek (1996) benchmark 2D-2: channel 2.2 x 0.41 (here lx = nx h with nx even, <= 0.2% longer
     so cells stay square and the grid coarsens), cylinder centre (0.2, 0.2), r 0.05, parabolic inflow peak 1.5
     (mean 1), nu 1e-3, Re 100, dt = cfl h / 1.5. Cd = 2 Fx / (U^2 D), Cl = 2 Fy / (U^2 D) with U = 1, D = 0.1;
@@ -321,8 +323,9 @@ def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack", cfl=0.4, tol
     steps averaged (t^{n+1}, the velocity's time level, instead of the stored t^{n+1/2}) and the unsteady
     control-volume force on a square 5 radii wide (``box_momentum``: S - dM/dt, a check that samples no wall)."""
     h = 0.41 / ny
-    nx = 2 * round(2.2 / h / 2)
-    geom = Geometry(nx, ny, nx * h, 0.41, left="inflow", right="outflow")
+    # nested grids (86 x 16 doubled; flow_bodies.py): 2 round(2.2 / h / 2) gives 686 at ny 128, past the multigrid
+    nx = 86 * ny // 16 if ny % 16 == 0 else 2 * round(2.2 / h / 2)
+    geom = Geometry(nx, ny, nx * h, 0.41, left="inflow", right=outflow)
     params = Params(nu=1e-3, inflow=1.5, circle=(0.2, 0.2, 0.05))
     from pdestream.generator.flow.step import operator, solid_mask  # noqa: PLC0415
 
@@ -375,7 +378,7 @@ def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack", cfl=0.4, tol
     cd, cl, st = summary(fs, t)
     area = float(jnp.sum(solid)) * h * h / (np.pi * 0.05 ** 2)
     print(f"Schaefer-Turek 2D-2, {nx}x{ny} (h {h:.5f}, D = {0.1 / h:.1f} cells, masked area {area:.3f} of the "
-          f"circle), {advection}, {steps} steps of {dt:.5f} (CFL {cfl:g}), tol {tol:g}, to t {t_end} ({wall:.0f} s "
+          f"circle), {advection}, right side {outflow}, {steps} steps of {dt:.5f} (CFL {cfl:g}), tol {tol:g}, to t {t_end} ({wall:.0f} s "
           f"incl. compile), finite {bool(jnp.isfinite(s.u).all())}, capped {int(s.capped)}")
     print(f"  Cd max {cd.max():.4f} (3.22-3.24), Cl max {cl.max():.4f} (0.99-1.01), St {st:.4f} (0.295-0.305); "
           f"Cd mean {cd.mean():.4f}, Cd min {cd.min():.4f}, Cl min {cl.min():.4f}, over t > {t_end - window:g}")
@@ -404,6 +407,49 @@ def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack", cfl=0.4, tol
             out[name] = (float(a.max()), float(b.max()), float(c), float(a.mean()), float(b.min()))
     print(flush=True)
     return out
+
+
+ST2D2 = {"cd_max": (3.22, 3.24), "cl_max": (0.99, 1.01), "st": (0.295, 0.305)}  # Schaefer & Turek 1996, Table 5
+
+
+def cylinder_table(rows) -> str:
+    """Markdown table of ``cylinder`` results: per grid Cd max, Cl max and St with their error against the published
+    interval's middle, the order of that error between successive grids (log2 of the ratio: loose where the error
+    changes sign), and per three successive grids (each twice the last, one advection / CFL / tol) each quantity's
+    observed order p = log2((f1 - f2) / (f2 - f3)) and Richardson limit f3 + (f3 - f2) / (2^p - 1), or 'sign'
+    where the successive differences change sign (not in the asymptotic range)."""
+    keys = ("cd_max", "cl_max", "st")
+    lines = ["| grid | D/h | advection | CFL | Cd max | Cl max | St | order Cd | order Cl | order St |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    groups = {}
+    for r in rows:
+        groups.setdefault((r["advection"], r["cfl"], r["tol"]), []).append(r)
+    three = []
+    for (adv, cfl, _), rs in groups.items():
+        rs = sorted(rs, key=lambda r: r["ny"])
+        for k, r in enumerate(rs):
+            err = {key: r[key] - 0.5 * sum(ST2D2[key]) for key in keys}
+            orders = [""] * 3
+            if k and rs[k - 1]["ny"] * 2 == r["ny"]:
+                prev = {key: rs[k - 1][key] - 0.5 * sum(ST2D2[key]) for key in keys}
+                orders = [f"{math.log2(abs(prev[key]) / max(abs(err[key]), 1e-12)):.2f}" for key in keys]
+            lines.append(f"| {r['nx']}x{r['ny']} | {0.1 / (0.41 / r['ny']):.1f} | {adv} | {cfl:g} | "
+                         + " | ".join(f"{r[key]:.4f} ({err[key]:+.4f})" for key in keys) + " | "
+                         + " | ".join(orders) + " |")
+        for a, b, c in zip(rs, rs[1:], rs[2:]):
+            if a["ny"] * 2 == b["ny"] and b["ny"] * 2 == c["ny"]:
+                cells = []
+                for key in keys:
+                    d1, d2 = a[key] - b[key], b[key] - c[key]
+                    p = math.log2(d1 / d2) if d1 * d2 > 0 else None
+                    cells.append("sign" if p is None else f"{p:.2f}, {c[key] - d2 / (2 ** p - 1):.4f}" if p > 0
+                                 else f"{p:.2f}, grows")
+                three.append(f"| {a['ny']}/{b['ny']}/{c['ny']} | {adv} | {cfl:g} | " + " | ".join(cells) + " |")
+    lines.append("| published | | | | 3.22-3.24 | 0.99-1.01 | 0.295-0.305 | | | |")
+    if three:
+        lines += ["", "| grids (ny) | advection | CFL | Cd max: order, limit | Cl max: order, limit | St: order, limit |",
+                  "|---|---|---|---|---|---|", *three]
+    return "\n".join(lines)
 
 
 def speed(nx=128, ny=64, batches=(1, 8), n_steps=100, reps=3, advection=None):
@@ -488,6 +534,8 @@ def main(argv=None):
                     help="dt = CFL h / 1.5 (the inflow peak)")
     ap.add_argument("--cylinder-tol", type=lambda a: [float(c) for c in a.split(",")], default=[1e-5],
                     help="the pressure solve's relative tolerance")
+    ap.add_argument("--cylinder-outflow", default="outflow", help="the right side's kind: outflow (zero "
+                    "gradient) or convective")
     ap.add_argument("--cylinder-diagnostics", action="store_true",
                     help="also the force with the pressure at the velocity's time level and the unsteady "
                          "control-volume force")
@@ -520,12 +568,15 @@ def main(argv=None):
     if "transient" in parts:
         cavity_transient(re=args.steady_re[0] if args.steady_re else 400.0)
     if "cylinder" in parts:
+        rows = []
         for ny in args.cylinder_ny:
             for adv in args.cylinder_advection.split(","):
                 for cfl in args.cylinder_cfl:
                     for tol in args.cylinder_tol:
-                        cylinder(ny, args.cylinder_t, advection=adv, cfl=cfl, tol=tol,
-                                 diagnostics=args.cylinder_diagnostics)
+                        rows.append(cylinder(ny, args.cylinder_t, advection=adv, cfl=cfl, tol=tol,
+                                             diagnostics=args.cylinder_diagnostics, outflow=args.cylinder_outflow))
+        if len(rows) > 1:
+            print(cylinder_table(rows))
     if "mms" in parts:
         mms(args.mms_n, args.mms_nu)
     if "speed" in parts:
