@@ -4,7 +4,8 @@ published benchmarks (lid-driven cavity, Ghia, Ghia & Shin 1982; cylinder in a c
     nice python -m benchmarks.flow_validation [--parts iterations,cavity,steady,transient,cylinder,mms,speed,speed2]
         [--cavity-n 32,64] [--steady-n 64] [--steady-re 400,1000] [--steady-tmax 120] [--steady-tol 1e-4]
         [--mms-n 16,32,64,128] [--mms-nu 0.01]
-        [--cylinder-ny 64] [--cylinder-t 10]
+        [--cylinder-ny 64] [--cylinder-t 10] [--cylinder-advection maccormack] [--cylinder-cfl 0.4]
+        [--cylinder-tol 1e-5] [--cylinder-outflow outflow] [--cylinder-diagnostics]
 
 Figures, not pass/fail; each part says its case, grid and what it measured. ``steady`` runs the ``cavity2d``
 entry's own solver settings from rest to a steady state and prints the largest centreline deviations from Ghia's
@@ -13,11 +14,8 @@ Re 400 and Re 1000 columns (issue 28; figures in docs/results/flows.md). Measure
   coarse correction), float32 warm (step 20) 7/7/10.
 - cavity Re 100, max |deviation| from Ghia's u / v: 64^2 maccormack 0.0027 / 0.0072, semi-Lagrangian
   0.0130 / 0.0082; 32^2 maccormack 0.0044 / 0.0044, semi-Lagrangian 0.0225 / 0.0214.
-- Schaefer-Turek 2D-2 (measured with the staircase body, before the sharp one became the default), maccormack,
-  344x64 (15.6 cells per diameter; the finest that ran in a few minutes here,
-  145 s; 688x128 would take ~8x): Cd max 3.236 (in 3.22-3.24), St 0.2964 (in 0.295-0.305), Cl max 0.827
-  (17% under 0.99-1.01; Cl min -0.671). 172x32 (7.8 cells): Cd max 3.301, St 0.285, Cl swings -0.99..0.02:
-  the staircase circle (masked area 0.98 of it, asymmetric about the centre at this h) biases the lift.
+- Schaefer-Turek 2D-2, sharp body, maccormack: the grid study (172x32 to 1376x256, inside the published intervals
+  at 1376x256) and each candidate of the 344x64 drag excess measured: docs/results/flows.md.
 - mms (manufactured steady box flow, four no-slip walls, nu 0.01, dt = 0.5 h / pi, t 8): maccormack max / RMS
   velocity error 1.43e-1 / 5.28e-2, 2.02e-2 / 6.77e-3, 1.87e-3 / 5.30e-4, 2.16e-4 / 8.42e-5 at n 16/32/64/128
   (orders max 2.83/3.43/3.11, RMS 2.96/3.68/2.65, pressure 2.44/2.54/2.47; 128: 6434 steps, 175 s);
