@@ -4,7 +4,8 @@ published benchmarks (lid-driven cavity, Ghia, Ghia & Shin 1982; cylinder in a c
     nice python -m benchmarks.flow_validation [--parts iterations,cavity,steady,transient,cylinder,mms,speed,speed2]
         [--cavity-n 32,64] [--steady-n 64] [--steady-re 400,1000] [--steady-tmax 120] [--steady-tol 1e-4]
         [--mms-n 16,32,64,128] [--mms-nu 0.01]
-        [--cylinder-ny 64] [--cylinder-t 10]
+        [--cylinder-ny 64] [--cylinder-t 10] [--cylinder-advection maccormack] [--cylinder-cfl 0.4]
+        [--cylinder-tol 1e-5] [--cylinder-outflow outflow] [--cylinder-diagnostics]
 
 Figures, not pass/fail; each part says its case, grid and what it measured. ``steady`` runs the ``cavity2d``
 entry's own solver settings from rest to a steady state and prints the largest centreline deviations from Ghia's
@@ -13,11 +14,8 @@ Re 400 and Re 1000 columns (issue 28; figures in docs/results/flows.md). Measure
   coarse correction), float32 warm (step 20) 7/7/10.
 - cavity Re 100, max |deviation| from Ghia's u / v: 64^2 maccormack 0.0027 / 0.0072, semi-Lagrangian
   0.0130 / 0.0082; 32^2 maccormack 0.0044 / 0.0044, semi-Lagrangian 0.0225 / 0.0214.
-- Schaefer-Turek 2D-2 (measured with the staircase body, before the sharp one became the default), maccormack,
-  344x64 (15.6 cells per diameter; the finest that ran in a few minutes here,
-  145 s; 688x128 would take ~8x): Cd max 3.236 (in 3.22-3.24), St 0.2964 (in 0.295-0.305), Cl max 0.827
-  (17% under 0.99-1.01; Cl min -0.671). 172x32 (7.8 cells): Cd max 3.301, St 0.285, Cl swings -0.99..0.02:
-  the staircase circle (masked area 0.98 of it, asymmetric about the centre at this h) biases the lift.
+- Schaefer-Turek 2D-2, sharp body, maccormack: the grid study (172x32 to 1376x256, inside the published intervals
+  at 1376x256) and each candidate of the 344x64 drag excess measured: docs/results/flows.md.
 - mms (manufactured steady box flow, four no-slip walls, nu 0.01, dt = 0.5 h / pi, t 8): maccormack max / RMS
   velocity error 1.43e-1 / 5.28e-2, 2.02e-2 / 6.77e-3, 1.87e-3 / 5.30e-4, 2.16e-4 / 8.42e-5 at n 16/32/64/128
   (orders max 2.83/3.43/3.11, RMS 2.96/3.68/2.65, pressure 2.44/2.54/2.47; 128: 6434 steps, 175 s);
@@ -30,13 +28,14 @@ Re 400 and Re 1000 columns (issue 28; figures in docs/results/flows.md). Measure
 from __future__ import annotations
 
 import argparse
+import math
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pdestream.generator.flow import Geometry, Params, initial_state, run, run_batch, step
+from pdestream.generator.flow import Geometry, Params, forces, initial_state, run, run_batch, step
 from pdestream.generator.flow.forces import body_force, circle_force  # the library's forces (karman2d's drag, lift)
 
 
@@ -273,49 +272,182 @@ def cavity_transient(ns=(32, 64), n_ref=128, re=400.0, t_end=4.0):
               f"return-flow min u on x = 0.5 {u[:, n // 2].min():.4f} vs {uf[:, n_ref // 2].min():.4f}", flush=True)
 
 
-def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack"):
+def box_momentum(geom, u, v, p, nu, cx, cy, r, half):
+    """Control-volume terms on the square of half-width ``half`` cells about (cx, cy) [m] (jnp): (Mx, My), the
+    fluid's momentum inside per unit depth and density (u faces on the box's edges weighted 1/2, faces whose
+    centre lies inside the circle r left out: they hold ghost values), and (Sx, Sy), minus the outward flux of
+    momentum, pressure and viscous stress through its edges (the MAC values averaged onto the edges). The force on
+    the body inside: F = S - dM/dt (Newton's law for the box); at a steady state F = S (flow_bodies.py)."""
+    h = geom.h
+    i0, i1 = int(round(cx / h)) - half, int(round(cx / h)) + half
+    j0, j1 = int(round(cy / h)) - half, int(round(cy / h)) + half
+    uc, vc = 0.5 * (u[:, 1:] + u[:, :-1]), 0.5 * (v[1:] + v[:-1])
+    fx = fy = 0.0
+    js = slice(j0, j1)
+    for i, sign in ((i0, -1), (i1, 1)):  # vertical edges x = i h
+        un, vv, pp = u[js, i], 0.5 * (vc[js, i - 1] + vc[js, i]), 0.5 * (p[js, i - 1] + p[js, i])
+        dudx = (u[js, i + 1] - u[js, i - 1]) / (2 * h)
+        dvdx = (vc[js, i] - vc[js, i - 1]) / h
+        dudy = (u[j0 + 1:j1 + 1, i] - u[j0 - 1:j1 - 1, i]) / (2 * h)
+        fx += sign * h * jnp.sum(un * un + pp - 2 * nu * dudx)
+        fy += sign * h * jnp.sum(un * vv - nu * (dvdx + dudy))
+    is_ = slice(i0, i1)
+    for j, sign in ((j0, -1), (j1, 1)):  # horizontal edges y = j h
+        vn, uu, pp = v[j, is_], 0.5 * (uc[j - 1, is_] + uc[j, is_]), 0.5 * (p[j - 1, is_] + p[j, is_])
+        dvdy = (v[j + 1, is_] - v[j - 1, is_]) / (2 * h)
+        dudy = (uc[j, is_] - uc[j - 1, is_]) / h
+        dvdx = (v[j, i0 + 1:i1 + 1] - v[j, i0 - 1:i1 - 1]) / (2 * h)
+        fx += sign * h * jnp.sum(vn * uu - nu * (dudy + dvdx))
+        fy += sign * h * jnp.sum(vn * vn + pp - 2 * nu * dvdy)
+    # momentum inside: u faces i0..i1 (edges halved) on rows j0..j1-1, v faces j0..j1 (edges halved) on columns
+    xu, yu = jnp.arange(i0, i1 + 1) * h, (jnp.arange(j0, j1) + 0.5) * h
+    xv, yv = (jnp.arange(i0, i1) + 0.5) * h, jnp.arange(j0, j1 + 1) * h
+    wu = jnp.ones(i1 - i0 + 1).at[0].set(0.5).at[-1].set(0.5)
+    wv = jnp.ones(j1 - j0 + 1).at[0].set(0.5).at[-1].set(0.5)
+    outu = (xu[None, :] - cx) ** 2 + (yu[:, None] - cy) ** 2 > r * r
+    outv = (xv[None, :] - cx) ** 2 + (yv[:, None] - cy) ** 2 > r * r
+    mx = h * h * jnp.sum(jnp.where(outu, u[j0:j1, i0:i1 + 1], 0) * wu[None, :])
+    my = h * h * jnp.sum(jnp.where(outv, v[j0:j1 + 1, i0:i1], 0) * wv[:, None])
+    return jnp.stack([mx, my]), jnp.stack([-fx, -fy])
+
+
+def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack", cfl=0.4, tol=1e-5, diagnostics=False,
+             outflow="outflow"):
     """Schaefer & Turek (1996) benchmark 2D-2: channel 2.2 x 0.41 (here lx = nx h with nx even, <= 0.2% longer
     so cells stay square and the grid coarsens), cylinder centre (0.2, 0.2), r 0.05, parabolic inflow peak 1.5
-    (mean 1), nu 1e-3, Re 100. Cd = 2 Fx / (U^2 D), Cl = 2 Fy / (U^2 D) with U = 1, D = 0.1; St = f D / U from
-    the lift's upward zero crossings over the last ``window`` s. Published: Cd max 3.22-3.24, Cl max 0.99-1.01,
-    St 0.295-0.305."""
+    (mean 1), nu 1e-3, Re 100, dt = cfl h / 1.5. Cd = 2 Fx / (U^2 D), Cl = 2 Fy / (U^2 D) with U = 1, D = 0.1;
+    St = f D / U from the lift's upward mean crossings over the last ``window`` s. Published: Cd max 3.22-3.24,
+    Cl max 0.99-1.01, St 0.295-0.305. ``diagnostics``: also the surface force with the pressure of two successive
+    steps averaged (t^{n+1}, the velocity's time level, instead of the stored t^{n+1/2}) and the unsteady
+    control-volume force on a square 5 radii wide (``box_momentum``: S - dM/dt, a check that samples no wall)."""
     h = 0.41 / ny
-    nx = 2 * round(2.2 / h / 2)
-    geom = Geometry(nx, ny, nx * h, 0.41, left="inflow", right="outflow")
+    # nested grids (86 x 16 doubled; flow_bodies.py): 2 round(2.2 / h / 2) gives 686 at ny 128, past the multigrid
+    nx = 86 * ny // 16 if ny % 16 == 0 else 2 * round(2.2 / h / 2)
+    geom = Geometry(nx, ny, nx * h, 0.41, left="inflow", right=outflow)
     params = Params(nu=1e-3, inflow=1.5, circle=(0.2, 0.2, 0.05))
     from pdestream.generator.flow.step import operator, solid_mask  # noqa: PLC0415
 
     solid = solid_mask(geom, params)
-    dt = 0.4 * h / 1.5
+    dt = cfl * h / 1.5
     steps = int(round(t_end / dt))
+    half = int(round(2.5 * 0.05 / h))
+
+    def force(s):
+        if geom.body == "sharp":  # the default: the force on the exact circle (its surface integral)
+            return jnp.stack(circle_force(geom, s, params.nu, 0.2, 0.2, 0.05))
+        return jnp.stack(body_force(geom, solid, s, params.nu))
 
     def go(s):
         op = operator(geom, params)
 
         def one(s, _):
-            s = step(geom, s, params, dt, op=op, advection=advection)
-            if geom.body == "sharp":  # the default: the force on the exact circle (its surface integral)
-                return s, jnp.stack(circle_force(geom, s, params.nu, 0.2, 0.2, 0.05))
-            return s, jnp.stack(body_force(geom, solid, s, params.nu))
+            p_prev = s.p
+            s = step(geom, s, params, dt, tol, op=op, advection=advection)
+            out = {"f": force(s)}
+            if diagnostics:
+                out["f_avg"] = force(s._replace(p=0.5 * (p_prev + s.p)))  # p at t^n (its half steps averaged)
+                out["m"], out["s"] = box_momentum(geom, s.u, s.v, s.p, params.nu, 0.2, 0.2, 0.05, half)
+                out["f_p"] = jnp.stack(circle_force(geom, s, 0.0, 0.2, 0.2, 0.05))  # the pressure's part alone
+                for d in (0.5, 2.0):  # the wall samples d cells out (forces.FORCE_DISTANCE, 1 by default)
+                    default, forces.FORCE_DISTANCE = forces.FORCE_DISTANCE, d
+                    try:
+                        out[f"f_d{d:g}"] = force(s)
+                    finally:
+                        forces.FORCE_DISTANCE = default
+            return s, out
 
         return jax.lax.scan(one, s, None, length=steps)
 
     t0 = time.perf_counter()
-    s, forces = jax.jit(go)(initial_state(geom, params))
-    forces = np.asarray(forces) * 2 / (1.0 ** 2 * 0.1)
+    s, rec = jax.jit(go)(initial_state(geom, params))
+    scale = 2 / (1.0 ** 2 * 0.1)
+    fs = np.asarray(rec["f"]) * scale
     wall = time.perf_counter() - t0
     t = (np.arange(steps) + 1) * dt
     last = t > t_end - window
-    cd, cl = forces[last, 0], forces[last, 1]
-    up = np.flatnonzero((cl[:-1] < np.mean(cl)) & (cl[1:] >= np.mean(cl)))
-    st = (len(up) - 1) / ((up[-1] - up[0]) * dt) * 0.1 if len(up) > 2 else float("nan")
+
+    def summary(f, tt):
+        keep = tt > t_end - window
+        cd, cl = f[keep, 0], f[keep, 1]
+        up = np.flatnonzero((cl[:-1] < np.mean(cl)) & (cl[1:] >= np.mean(cl)))
+        st = (len(up) - 1) / ((up[-1] - up[0]) * dt) * 0.1 if len(up) > 2 else float("nan")
+        return cd, cl, st
+
+    cd, cl, st = summary(fs, t)
     area = float(jnp.sum(solid)) * h * h / (np.pi * 0.05 ** 2)
     print(f"Schaefer-Turek 2D-2, {nx}x{ny} (h {h:.5f}, D = {0.1 / h:.1f} cells, masked area {area:.3f} of the "
-          f"circle), {advection}, {steps} steps of {dt:.5f} to t {t_end} ({wall:.0f} s incl. compile), "
-          f"finite {bool(jnp.isfinite(s.u).all())}")
-    print(f"  Cd max {cd.max():.3f} (3.22-3.24), Cl max {cl.max():.3f} (0.99-1.01), St {st:.4f} (0.295-0.305); "
-          f"Cd mean {cd.mean():.3f}, Cl min {cl.min():.3f}, over t > {t_end - window:g}")
-    return cd, cl, st
+          f"circle), {advection}, right side {outflow}, {steps} steps of {dt:.5f} (CFL {cfl:g}), tol {tol:g}, to t {t_end} ({wall:.0f} s "
+          f"incl. compile), finite {bool(jnp.isfinite(s.u).all())}, capped {int(s.capped)}")
+    print(f"  Cd max {cd.max():.4f} (3.22-3.24), Cl max {cl.max():.4f} (0.99-1.01), St {st:.4f} (0.295-0.305); "
+          f"Cd mean {cd.mean():.4f}, Cd min {cd.min():.4f}, Cl min {cl.min():.4f}, over t > {t_end - window:g}")
+    out = {"ny": ny, "nx": nx, "cfl": cfl, "tol": tol, "advection": advection, "cd_max": float(cd.max()),
+           "cl_max": float(cl.max()), "st": float(st), "cd_mean": float(cd.mean()), "cl_min": float(cl.min()),
+           "wall_s": wall}
+    if diagnostics:
+        fa = np.asarray(rec["f_avg"]) * scale
+        # the pressure average of steps n, n+1 sits at t^n (the stored p is at t^{n+1/2}), with the velocity of t^n
+        fa = np.concatenate([fa[1:], fa[-1:]])  # entry n: p^{n-1/2}, p^{n+1/2} averaged, u of step n
+        m, sflux = np.asarray(rec["m"], np.float64), np.asarray(rec["s"], np.float64)
+        # Newton's law for the box over each step: F^{n+1/2} = (S^n + S^{n+1}) / 2 - (M^{n+1} - M^n) / dt
+        fcv = (0.5 * (sflux[1:] + sflux[:-1]) - (m[1:] - m[:-1]) / dt) * scale
+        fst = sflux[1:] * scale  # without the d/dt term (the steady balance)
+        tc = 0.5 * (t[1:] + t[:-1])
+        fp = np.asarray(rec["f_p"]) * scale
+        print(f"  surface force split: pressure Cd mean {fp[last, 0].mean():.4f}, viscous Cd mean "
+              f"{(fs[last, 0] - fp[last, 0]).mean():.4f}")
+        for name, f, tt in (("surface, p averaged to t^n", fa[:-1], t[:-1]), ("control volume S - dM/dt", fcv, tc),
+                            ("control volume S alone", fst, t[1:]),
+                            ("surface, wall samples 0.5 h out", np.asarray(rec["f_d0.5"]) * scale, t),
+                            ("surface, wall samples 2 h out", np.asarray(rec["f_d2"]) * scale, t)):
+            a, b, c = summary(f, tt)
+            print(f"  {name}: Cd max {a.max():.4f}, Cl max {b.max():.4f}, St {c:.4f}, Cd mean {a.mean():.4f}, "
+                  f"Cl min {b.min():.4f}")
+            out[name] = (float(a.max()), float(b.max()), float(c), float(a.mean()), float(b.min()))
+    print(flush=True)
+    return out
+
+
+ST2D2 = {"cd_max": (3.22, 3.24), "cl_max": (0.99, 1.01), "st": (0.295, 0.305)}  # Schaefer & Turek 1996, Table 5
+
+
+def cylinder_table(rows) -> str:
+    """Markdown table of ``cylinder`` results: per grid Cd max, Cl max and St with their error against the published
+    interval's middle, the order of that error between successive grids (log2 of the ratio: loose where the error
+    changes sign), and per three successive grids (each twice the last, one advection / CFL / tol) each quantity's
+    observed order p = log2((f1 - f2) / (f2 - f3)) and Richardson limit f3 + (f3 - f2) / (2^p - 1), or 'sign'
+    where the successive differences change sign (not in the asymptotic range)."""
+    keys = ("cd_max", "cl_max", "st")
+    lines = ["| grid | D/h | advection | CFL | Cd max | Cl max | St | order Cd | order Cl | order St |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    groups = {}
+    for r in rows:
+        groups.setdefault((r["advection"], r["cfl"], r["tol"]), []).append(r)
+    three = []
+    for (adv, cfl, _), rs in groups.items():
+        rs = sorted(rs, key=lambda r: r["ny"])
+        for k, r in enumerate(rs):
+            err = {key: r[key] - 0.5 * sum(ST2D2[key]) for key in keys}
+            orders = [""] * 3
+            if k and rs[k - 1]["ny"] * 2 == r["ny"]:
+                prev = {key: rs[k - 1][key] - 0.5 * sum(ST2D2[key]) for key in keys}
+                orders = [f"{math.log2(abs(prev[key]) / max(abs(err[key]), 1e-12)):.2f}" for key in keys]
+            lines.append(f"| {r['nx']}x{r['ny']} | {0.1 / (0.41 / r['ny']):.1f} | {adv} | {cfl:g} | "
+                         + " | ".join(f"{r[key]:.4f} ({err[key]:+.4f})" for key in keys) + " | "
+                         + " | ".join(orders) + " |")
+        for a, b, c in zip(rs, rs[1:], rs[2:]):
+            if a["ny"] * 2 == b["ny"] and b["ny"] * 2 == c["ny"]:
+                cells = []
+                for key in keys:
+                    d1, d2 = a[key] - b[key], b[key] - c[key]
+                    p = math.log2(d1 / d2) if d1 * d2 > 0 else None
+                    cells.append("sign" if p is None else f"{p:.2f}, {c[key] - d2 / (2 ** p - 1):.4f}" if p > 0
+                                 else f"{p:.2f}, grows")
+                three.append(f"| {a['ny']}/{b['ny']}/{c['ny']} | {adv} | {cfl:g} | " + " | ".join(cells) + " |")
+    lines.append("| published | | | | 3.22-3.24 | 0.99-1.01 | 0.295-0.305 | | | |")
+    if three:
+        lines += ["", "| grids (ny) | advection | CFL | Cd max: order, limit | Cl max: order, limit | St: order, limit |",
+                  "|---|---|---|---|---|---|", *three]
+    return "\n".join(lines)
 
 
 def speed(nx=128, ny=64, batches=(1, 8), n_steps=100, reps=3, advection=None):
@@ -395,6 +527,16 @@ def main(argv=None):
     ap.add_argument("--parts", default="iterations,cavity,cylinder")
     ap.add_argument("--cylinder-ny", type=lambda a: [int(n) for n in a.split(",")], default=[64])
     ap.add_argument("--cylinder-t", type=float, default=10.0)
+    ap.add_argument("--cylinder-advection", default="maccormack", help="comma-separated advection schemes")
+    ap.add_argument("--cylinder-cfl", type=lambda a: [float(c) for c in a.split(",")], default=[0.4],
+                    help="dt = CFL h / 1.5 (the inflow peak)")
+    ap.add_argument("--cylinder-tol", type=lambda a: [float(c) for c in a.split(",")], default=[1e-5],
+                    help="the pressure solve's relative tolerance")
+    ap.add_argument("--cylinder-outflow", default="outflow", help="the right side's kind: outflow (zero "
+                    "gradient) or convective")
+    ap.add_argument("--cylinder-diagnostics", action="store_true",
+                    help="also the force with the pressure at the velocity's time level and the unsteady "
+                         "control-volume force")
     ap.add_argument("--cavity-n", type=lambda a: [int(n) for n in a.split(",")], default=[32, 64])
     ap.add_argument("--steady-n", type=lambda a: [int(n) for n in a.split(",")], default=[None],
                     help="grids of --parts steady (default: cavity2d's default grid)")
@@ -424,8 +566,15 @@ def main(argv=None):
     if "transient" in parts:
         cavity_transient(re=args.steady_re[0] if args.steady_re else 400.0)
     if "cylinder" in parts:
+        rows = []
         for ny in args.cylinder_ny:
-            cylinder(ny, args.cylinder_t)
+            for adv in args.cylinder_advection.split(","):
+                for cfl in args.cylinder_cfl:
+                    for tol in args.cylinder_tol:
+                        rows.append(cylinder(ny, args.cylinder_t, advection=adv, cfl=cfl, tol=tol,
+                                             diagnostics=args.cylinder_diagnostics, outflow=args.cylinder_outflow))
+        if len(rows) > 1:
+            print(cylinder_table(rows))
     if "mms" in parts:
         mms(args.mms_n, args.mms_nu)
     if "speed" in parts:
