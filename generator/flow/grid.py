@@ -188,9 +188,14 @@ def circle_cut_faces(geom: Geometry, cx, cy, r, dtype=jnp.float32):
         blocked = jnp.clip(b1 - b0, 0.0, h)
         a = 1.0 - blocked / h
         a = jnp.where(a < MIN_APERTURE, 0.0, a)
-        # centroid of the open part: the face's first moment less the blocked interval's
-        centroid = (h * (lo + 0.5 * h) - blocked * 0.5 * (b0 + b1)) / jnp.maximum(h - blocked, 1e-6 * h)
-        centroid = jnp.where((a > 0) & (a < 1), centroid, lo + 0.5 * h)
+        # centroid of the open part: the face's first moment less the blocked interval's, (h c - blocked m) /
+        # (h - blocked) for the face's centre c and the blocked interval's m, written c + blocked (c - m) /
+        # (h - blocked): no product feeds a sum, so LLVM has no multiply-add to contract (XLA's CPU backend
+        # lets it, and whether it fused h c - blocked m followed the vector width: cut faces' last bits differed
+        # between CPUs)
+        centre = lo + 0.5 * h
+        centroid = centre + blocked * (centre - 0.5 * (b0 + b1)) / jnp.maximum(h - blocked, 1e-6 * h)
+        centroid = jnp.where((a > 0) & (a < 1), centroid, centre)
         return a.astype(dtype), centroid.astype(dtype)
 
     xf = jnp.arange(geom.nx + 1, dtype=dtype) * h

@@ -96,9 +96,11 @@ def _centroid_weights(geom: Geometry, params: Params, dtype):
     out = []
     for a, m, offset, axis in ((ax, my, 0.5, 0), (ay, mx, 0.5, 1)):
         shape = a.shape
-        pos = (jnp.arange(shape[axis], dtype=dtype) + offset) * h
+        pos = jnp.arange(shape[axis], dtype=dtype) + offset  # the face centres in cells (exact)
         pos = pos[:, None] if axis == 0 else pos[None, :]
-        s = (m - pos) / h  # 0 on whole and closed faces (their centroid is the centre)
+        # 0 on whole and closed faces (their centroid is the centre); m / h - pos, not (m - pos h) / h: a product
+        # feeding a difference is a multiply-add LLVM may contract or not by the vector width (bits by CPU)
+        s = m / h - pos
         a_up, a_down = _neighbours(a, axis)
         cut = (a > 0) & (a < 1)
         up = jnp.where(cut & (s > 0) & (a_up == 1), s, 0.0).astype(dtype)
@@ -152,8 +154,11 @@ def inflow_profile(geom: Geometry, params: Params, dtype=jnp.float32, t=None):
     """Left-side inflow u [ny]: parabolic with peak params.inflow at mid-height (zero at walls), blended with
     a plug of the same flux by params.plug (0: parabola; 1: uniform 2/3 * inflow); at time t (s) times
     1 + A sin(2 pi f t) where params.pulse = (A, f) pulses it."""
-    y = (jnp.arange(geom.ny, dtype=dtype) + 0.5) / geom.ny
-    profile = params.inflow * ((1 - params.plug) * 4 * y * (1 - y) + params.plug * (2.0 / 3.0))
+    # 4 y (1 - y) at y = (j + 1/2) / ny as 4 (j + 1/2) (ny - j - 1/2) / ny^2: exact until the division, and no
+    # product feeds a sum (LLVM's multiply-add contraction followed the vector width: the bits, the CPU)
+    j = jnp.arange(geom.ny, dtype=dtype) + 0.5
+    parabola = 4 * j * (geom.ny - j) / float(geom.ny * geom.ny)
+    profile = params.inflow * ((1 - params.plug) * parabola + params.plug * (2.0 / 3.0))
     if params.pulse is None:
         return profile
     if t is None:
