@@ -177,3 +177,33 @@ def test_the_pressure_solve_has_the_same_bits_at_every_vector_width():
         outs.add(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                                 check=True).stdout)
     assert len(outs) == 1
+
+
+def test_the_sharp_circle_geometry_has_the_same_bits_at_every_vector_width():
+    """The cut faces' centroids, their weights along the face and the inflow profile hold no product that feeds a
+    sum: XLA's CPU backend lets LLVM contract one into a fused multiply-add, and whether it did followed the vector
+    width (karman2d's centroid weights had different last bits at --xla_cpu_prefer_vector_width 128 and 512, in a
+    single sample's program and in a vectorised batch, at n=32 and n=48)."""
+    import subprocess
+    import sys
+
+    code = ("import hashlib, jax, jax.numpy as jnp, numpy as np; from pdestream.generator.flow import Geometry, Params;"
+            "import importlib; from pdestream.generator.flow import grid; step = importlib.import_module("
+            "'pdestream.generator.flow.step');"
+            "k = jax.random.PRNGKey(1); out = [];\n"
+            "for n in (32, 48):\n"
+            " g = Geometry(2 * n, n, 2.0, 1.0, left='inflow', right='outflow', body='sharp')\n"
+            " cx, cy, r, plug = (jax.random.uniform(jax.random.fold_in(k, i), (16,), minval=a, maxval=b)"
+            " for i, (a, b) in enumerate(((0.4, 0.6), (0.42, 0.46), (0.08, 0.2), (0.0, 0.3))))\n"
+            " f = lambda cx, cy, r, plug: (grid.circle_cut_faces(g, cx, cy, r), step.inflow_profile(g, Params("
+            "nu=1e-2, inflow=1.0, plug=plug)), [w[:3] for w in step._centroid_weights(g, Params(nu=1e-2, inflow=1.0,"
+            " circle=(cx, cy, r)), jnp.float32)])\n"
+            " out += jax.tree_util.tree_leaves((jax.jit(jax.vmap(f))(cx, cy, r, plug), jax.jit(f)(cx[0], cy[0], r[0],"
+            " plug[0])))\n"
+            "print(hashlib.sha256(b''.join(np.asarray(a).tobytes() for a in out)).hexdigest())")
+    outs = set()
+    for width in (128, 512):
+        env = {**os.environ, "XLA_FLAGS": f"--xla_cpu_prefer_vector_width={width}"}
+        outs.add(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                check=True).stdout)
+    assert len(outs) == 1
