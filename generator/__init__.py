@@ -46,9 +46,11 @@ from .user import unregister
 # the exact circle, and its forces on it; 6: a cut face's flux the velocity at its open part's centroid, projected
 # consistently: karman2d's bits; 7: the sharp body's wall pressure read from the fluid only: karman2d's drag and
 # lift outputs; 8: the pressure V-cycle's Jacobi sweeps in a loop and its coarse weight on the restricted residual:
-# every flow's bits, rounding-level).
+# every flow's bits, rounding-level; 9: the sharp body's cut-face centroids, centroid weights and the inflow
+# parabola written with no product feeding a sum, so LLVM's multiply-add contraction cannot follow the CPU's
+# vector width: karman2d's and channel2d's bits, rounding-level).
 # Caches record it and --resume compares it, so a cache is never finished with samples of other bits.
-NUMERICS = 8
+NUMERICS = 9
 
 _REFUSED_CACHE_DIRS: set[str] = set()
 CACHE_MAX_BYTES = 2 * 1024**3  # the compilation cache's bound (least recently used programs go first)
