@@ -37,12 +37,13 @@ class Relax(NamedTuple):
     target: tuple
 
 
-def ball_fraction(box: mac3d.Box, centre, radius: float, k: int, dtype=jnp.float32):
+def ball_fraction(box: mac3d.Box, centre, radius: float, k: int, dtype=jnp.float32, ramp: float = 1.0):
     """Smoothed volume fraction [*face_shape(k)] of the ball (centre per axis [m], radius [m]) on velocity
-    component k's faces: clamp(1/2 + (radius - distance) / h, 0, 1) (one cell wide ramp)."""
+    component k's faces: clamp(1/2 + (radius - distance) / (ramp h), 0, 1) (a ramp ``ramp`` cells wide; 1: a
+    face's cell cut by a plane at the surface; -> 0: the sharp indicator, a staircase)."""
     x = mac3d.points(box, box.face_shape(k), box.offsets(k), dtype)
     r = jnp.sqrt(sum((xi - c) ** 2 for xi, c in zip(x, centre)))
-    return jnp.clip(0.5 + (radius - r) / box.h, 0.0, 1.0)
+    return jnp.clip(0.5 + (radius - r) / (ramp * box.h), 0.0, 1.0)
 
 
 def _smoothstep(s):
