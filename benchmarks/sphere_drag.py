@@ -1,6 +1,6 @@
 """Drag of a sphere at Re 100 (issue 28, item 5): the 3D MAC solver with a penalised body in a free stream.
 
-    nice python -m benchmarks.sphere_drag [--d-cells 8,12] [--widths 8,12] [--length 12] [--t-max 30]
+    nice python -m benchmarks.sphere_drag [--d-cells 8,12] [--widths 6] [--length 10] [--t-max 15] [--stokes 4,6]
 
 A sphere of diameter D = 1 in a stream U = 1 (nu = 0.01: Re = U D / nu = 100), impulsively started. The box is
 ``length`` D along the stream and ``width`` D square across, periodic on every axis: a fringe over the last
@@ -13,7 +13,10 @@ F the momentum the fringe adds per unit time ("push": the whole box's momentum b
 momentum the advection gains or loses besides the body's). The run stops when the body's Cd changes by < 0.1%
 over one time unit (or at --t-max). Prints per (cells per D, width) the cells, both Cd, their relative errors
 against Johnson & Patel 1999 (J. Fluid Mech. 378, 19-70: Cd 1.087 at Re 100, steady axisymmetric wake; the
-Clift, Grace & Weber 1978 correlation 24/Re (1 + 0.1935 Re^0.6305) gives 1.0870 too) and the wall time. float32. Measured figures in docs/results/flows.md ("Sphere drag at Re 100").
+Clift, Grace & Weber 1978 correlation 24/Re (1 + 0.1935 Re^0.6305) gives 1.0870 too) and the wall time.
+``--stokes``: the body alone against an exact figure, Stokes flow through a periodic array of the penalised
+spheres against Hasimoto 1959's drag (``stokes_array``). float32. Measured figures in docs/results/flows.md
+("Sphere drag at Re 100").
 """
 
 from __future__ import annotations
@@ -30,8 +33,8 @@ from pdestream.generator.flow import body3d, mac3d
 REFERENCE_CD = 1.087  # Johnson & Patel 1999, Re 100
 
 
-def drag(d_cells: int, width: float, length: float = 12.0, upstream: float = 3.0, fringe: float = 2.5,
-         fringe_rate: float = 4.0, eta: float = 0.25, cfl: float = 0.5, t_max: float = 30.0, re: float = 100.0,
+def drag(d_cells: int, width: float, length: float = 10.0, upstream: float = 3.0, fringe: float = 2.0,
+         fringe_rate: float = 4.0, eta: float = 0.25, cfl: float = 1.0, t_max: float = 15.0, re: float = 100.0,
          chunk_time: float = 1.0, ramp: float = 1.0, log=print):
     """Run one (cells per diameter, width in D) case to a steady drag: (Cd from the body's force, Cd from the
     fringe's push, t reached, cells, Cd per time unit)."""
@@ -104,15 +107,15 @@ def stokes_array(d_cells: int, period: float = 3.0, nu: float = 1.0, push: float
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--d-cells", default="8,12", help="cells per diameter, comma-separated ('': none)")
-    ap.add_argument("--widths", default="8,12", help="box widths in diameters, comma-separated")
-    ap.add_argument("--length", type=float, default=12.0, help="box length along the stream [D]")
+    ap.add_argument("--widths", default="6", help="box widths in diameters, comma-separated")
+    ap.add_argument("--length", type=float, default=10.0, help="box length along the stream [D]")
     ap.add_argument("--upstream", type=float, default=3.0, help="sphere centre from x = 0 (the fringe's exit) [D]")
-    ap.add_argument("--fringe", type=float, default=2.5, help="fringe length [D]")
+    ap.add_argument("--fringe", type=float, default=2.0, help="fringe length [D]")
     ap.add_argument("--fringe-rate", type=float, default=4.0, help="fringe relaxation rate [U/D]")
     ap.add_argument("--eta", type=float, default=0.25, help="penalisation time [dt]")
     ap.add_argument("--ramp", type=float, default=1.0, help="the mask's ramp width [cells] (small: a staircase)")
-    ap.add_argument("--cfl", type=float, default=0.5)
-    ap.add_argument("--t-max", type=float, default=30.0)
+    ap.add_argument("--cfl", type=float, default=1.0, help="the step: CFL at |u| = 1.2")
+    ap.add_argument("--t-max", type=float, default=15.0)
     ap.add_argument("--stokes", default="", help="also the Stokes array check on these cells per D (e.g. 4,6,8)")
     args = ap.parse_args(argv)
     if args.stokes:
