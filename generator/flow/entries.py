@@ -66,8 +66,9 @@ class Karman2D(FlowProblem):
     does not shed has sheds = 0 and St = amplitude = drift = 0, never NaN)."""
 
     NAME: ClassVar[str] = "karman2d"
-    # `pdestream generate karman2d --n 4` on 2 CPU cores (load 1.5), no compilation cache (progress lines)
-    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 11.3, "unit_s": 18.5}
+    # `pdestream generate karman2d --n 4` on 2 shared CPU cores (load 4-6, 2026-11-27: chunks row by row), no
+    # compilation cache (the progress history's record)
+    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 24.7, "unit_s": 7.1}
     EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u, div u = 0; cylinder in a channel, "
                                "nu = U D / Re")
     FIELDS: ClassVar[tuple] = ("u", "v", "p", "solid")
@@ -179,9 +180,9 @@ class Cavity2D(FlowProblem):
     grid); ``t_start`` ~ 30 burns in to it, at ~8x the cost of a default sample."""
 
     NAME: ClassVar[str] = "cavity2d"
-    # `pdestream generate cavity2d --n 4` on 2 shared CPU cores (load 6-7), no compilation cache (progress lines;
-    # 64^2 at the viscous step limit of Re 100: 729 steps, 4x the cells and 2.8x the steps of the former 32^2)
-    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 33.6, "unit_s": 26.6}
+    # `pdestream generate cavity2d --n 4` on 2 shared CPU cores (load 5-6, 2026-11-27: chunks row by row), no
+    # compilation cache (the progress history's record; 64^2 at the viscous step limit of Re 100: 729 steps)
+    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 12.7, "unit_s": 1.5}
     EQUATION: ClassVar[str] = "u_t + (u.grad)u = -grad p + nu lap u, div u = 0; lid-driven cavity, nu = U L / Re"
     FIELDS: ClassVar[tuple] = ("u", "v", "p")
     FIELD_UNITS: ClassVar[dict] = FLOW_UNITS
@@ -225,8 +226,9 @@ class Channel2D(FlowProblem):
     with U the mean inflow speed and H the channel height. The bodies come from the sample's geometry key."""
 
     NAME: ClassVar[str] = "channel2d"
-    # `pdestream generate channel2d --n 4` on 2 shared CPU cores (load 3-4), no compilation cache (progress lines)
-    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 25.0, "unit_s": 25.8}
+    # `pdestream generate channel2d --n 4` on 2 shared CPU cores (load 5-6, 2026-11-27: chunks row by row), no
+    # compilation cache (the progress history's record)
+    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 13.0, "unit_s": 1.4}
     EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u, div u = 0; channel with random obstacles, "
                                "nu = U H / Re")
     FIELDS: ClassVar[tuple] = ("u", "v", "p", "solid")

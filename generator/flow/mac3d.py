@@ -325,6 +325,13 @@ def stable_dt(box: Box, nu, umax, cfl: float = 1.0):
 
 def step(box: Box, state: State, params: Params3, dt) -> State:
     """Advance one step of dt (s): the 2D maccormack step's scheme (module docstring)."""
+    vel, scalar = predict(box, state, params, dt)
+    return finish(box, state, vel, scalar, dt)
+
+
+def predict(box: Box, state: State, params: Params3, dt):
+    """The step before its projection: (velocity one array per component with its boundary faces set, scalar
+    [*shape]); a caller may add its own forcing (generator.flow.body3d: a penalised body) before ``finish``."""
     vel, d = state.vel, box.ndim
     lap = [params.nu * laplacian(box, vel[k], k) for k in range(d)]
     if params.force is not None:  # a steady body force rides the trapezoid with the viscous force
@@ -342,7 +349,12 @@ def step(box: Box, state: State, params: Params3, dt) -> State:
     scalar = scalar + jnp.minimum(dt * rate, 1.0) * source_weight(box, params, scalar.dtype) * (1 - scalar)
     z = d - 1  # buoyancy along the last axis, on its faces: the mean of the two cells' scalar
     new[z] = new[z] + dt * params.buoyancy * face_mean(box, scalar, z)
-    vel_new, p = project(box, apply_bc(box, tuple(new)), dt)
+    return apply_bc(box, tuple(new)), scalar
+
+
+def finish(box: Box, state: State, vel, scalar, dt) -> State:
+    """Project ``predict``'s velocity and advance the state's pressure and time."""
+    vel_new, p = project(box, vel, dt)
     # the projection adds the other half of the pressure force: p^{n+1/2} = (p^n + 2 increment) / 2 (step.step)
     return State(vel_new, 0.5 * (state.p + 2 * p), scalar, state.t + dt, state.iterations, state.capped)
 

@@ -1,0 +1,165 @@
+"""Drag of a sphere at Re 100 (issue 28, item 5): the 3D MAC solver with a penalised body in a free stream.
+
+    nice python -m benchmarks.sphere_drag [--d-cells 8,12] [--widths 6] [--length 10] [--t-max 15] [--stokes 4,6]
+
+A sphere of diameter D = 1 in a stream U = 1 (nu = 0.01: Re = U D / nu = 100), impulsively started. The box is
+``length`` D along the stream and ``width`` D square across, periodic on every axis: a fringe over the last
+``fringe`` D of the stream axis relaxes the velocity to (U, 0, 0) (rate ``--fringe-rate``), so the flow leaves the
+box through it and re-enters at x = 0 as a uniform stream; the sphere's centre is ``--upstream`` D from x = 0. The
+lateral period is the blockage (a periodic array of spheres): two widths measure what it adds. The body is
+generator.flow.body3d's smoothed volume fraction relaxed to rest with eta = ``--eta`` dt. Cd = 2 F_x / (U^2 pi
+D^2 / 4) over the last time unit, two ways: F the momentum the penalisation removes per unit time ("body"), and
+F the momentum the fringe adds per unit time ("push": the whole box's momentum balance, steady, so it holds the
+momentum the advection gains or loses besides the body's). The run stops when the body's Cd changes by < 0.1%
+over one time unit (or at --t-max). Prints per (cells per D, width) the cells, both Cd, their relative errors
+against Johnson & Patel 1999 (J. Fluid Mech. 378, 19-70: Cd 1.087 at Re 100, steady axisymmetric wake; the
+Clift, Grace & Weber 1978 correlation 24/Re (1 + 0.1935 Re^0.6305) gives 1.0870 too) and the wall time.
+``--stokes``: the body alone against an exact figure, Stokes flow through a periodic array of the penalised
+spheres against Hasimoto 1959's drag (``stokes_array``). float32. Measured figures in docs/results/flows.md
+("Sphere drag at Re 100").
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+
+import jax
+import jax.numpy as jnp
+
+from pdestream.generator.flow import body3d, mac3d
+
+REFERENCE_CD = 1.087  # Johnson & Patel 1999, Re 100
+
+
+def drag(d_cells: int, width: float, length: float = 10.0, upstream: float = 3.0, fringe: float = 2.0,
+         fringe_rate: float = 4.0, eta: float = 0.25, cfl: float = 1.0, t_max: float = 15.0, re: float = 100.0,
+         chunk_time: float = 1.0, ramp: float = 1.0, log=print):
+    """Run one (cells per diameter, width in D) case to a steady drag: (Cd from the body's force, Cd from the
+    fringe's push, t reached, cells, Cd per time unit)."""
+    h = 1.0 / d_cells
+    n_x, n_w = round(length * d_cells), round(width * d_cells)
+    box = mac3d.Box((n_x, n_w, n_w), h, (True, True, True))
+    lx, lw = n_x * h, n_w * h
+    centre = (upstream, lw / 2, lw / 2)
+    nu = 1.0 / re
+    dt = min(cfl * h / 1.2, 0.9 * h * h / (6 * nu))  # |u| <= ~1.2 around the sphere
+    steps = max(1, round(chunk_time / dt))
+    dt = chunk_time / steps
+    start = lx - fringe
+    r = body3d.Relax(
+        chi=tuple(body3d.ball_fraction(box, centre, 0.5, k, ramp=ramp) for k in range(3)),
+        eta=eta * dt,
+        fringe=tuple(body3d.fringe_rate(box, start, lx, fringe / 3, fringe_rate, k) for k in range(3)),
+        target=(1.0, 0.0, 0.0))
+    state = body3d.stream_state(box, 1.0)
+    params = mac3d.Params3(nu=nu)
+    fn = jax.jit(body3d.run, static_argnums=(0, 5))
+    area = math.pi / 4
+    history = []
+    t = 0.0
+    while t < t_max - 1e-9:
+        t0 = time.perf_counter()
+        state, forces = fn(box, state, params, r, dt, steps)
+        cd = float(jnp.mean(forces[:, 0, 0])) / (0.5 * area)
+        cd_fringe = float(jnp.mean(forces[:, 1, 0])) / (0.5 * area)
+        t += chunk_time
+        history.append(cd)
+        pushed = cd_fringe
+        if not math.isfinite(cd):
+            raise RuntimeError(f"Cd not finite at t={t}")
+        lateral = float(jnp.abs(jnp.mean(forces[:, 0, 1:], 0)).max()) / (0.5 * area)
+        log(f"  t={t:5.1f} Cd {cd:.4f} (the fringe's push {cd_fringe:.4f}, |Cl| {lateral:.1e}; "
+            f"{time.perf_counter() - t0:.1f} s)")
+        if len(history) >= 5 and abs(history[-1] - history[-2]) < 1e-3 * abs(history[-1]):
+            break
+    return history[-1], pushed, t, box.shape, history
+
+
+def hasimoto(c: float) -> float:
+    """Stokes drag of a simple cubic array of spheres over a lone sphere's 6 pi mu R U at solid fraction c
+    (Hasimoto 1959, with Sangani & Acrivos 1982's next terms; U the box-averaged velocity): valid for c << 0.2."""
+    return 1 / (1 - 1.7601 * c ** (1 / 3) + c - 1.5593 * c**2)
+
+
+def stokes_array(d_cells: int, period: float = 3.0, nu: float = 1.0, push: float = 0.01, t_end: float = 8.0,
+                 eta: float = 0.25, ramp: float = 1.0):
+    """The penalised sphere (D = 1) in a periodic cube of side ``period`` D, driven by a uniform body force ``push``
+    [m/s^2] at Re ~ 0.02, to t_end (5 of the mean flow's time constants): (F / (6 pi nu R U), Hasimoto's value,
+    F / (push L^3): 1 once steady). The body's own error, apart from the advection and the fringe."""
+    n = round(period * d_cells)
+    h, side = 1.0 / d_cells, n / d_cells
+    box = mac3d.Box((n, n, n), h, (True, True, True))
+    dt = 0.9 * h * h / (6 * nu)
+    steps = math.ceil(t_end / dt)
+    chi = tuple(body3d.ball_fraction(box, (side / 2,) * 3, 0.5, k, ramp=ramp) for k in range(3))
+    zero = tuple(jnp.zeros(box.face_shape(k)) for k in range(3))
+    r = body3d.Relax(chi, eta * dt, zero, (0.0, 0.0, 0.0))
+    force = (jnp.full(box.face_shape(0), push),) + zero[1:]
+    s, f = jax.jit(body3d.run, static_argnums=(0, 5))(box, mac3d.initial_state(box), mac3d.Params3(nu=nu, force=force),
+                                                      r, dt, steps)
+    u = float(jnp.mean(s.vel[0][:-1]))  # the box average (the last face copies the first)
+    drag = float(f[-1, 0, 0])
+    return drag / (6 * math.pi * nu * 0.5 * u), hasimoto(math.pi / 6 / side**3), drag / (push * side**3)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--d-cells", default="8,12", help="cells per diameter, comma-separated ('': none)")
+    ap.add_argument("--widths", default="6", help="box widths in diameters, comma-separated")
+    ap.add_argument("--length", type=float, default=10.0, help="box length along the stream [D]")
+    ap.add_argument("--upstream", type=float, default=3.0, help="sphere centre from x = 0 (the fringe's exit) [D]")
+    ap.add_argument("--fringe", type=float, default=2.0, help="fringe length [D]")
+    ap.add_argument("--fringe-rate", type=float, default=4.0, help="fringe relaxation rate [U/D]")
+    ap.add_argument("--eta", type=float, default=0.25, help="penalisation time [dt]")
+    ap.add_argument("--ramp", type=float, default=1.0, help="the mask's ramp width [cells] (small: a staircase)")
+    ap.add_argument("--cfl", type=float, default=1.0, help="the step: CFL at |u| = 1.2")
+    ap.add_argument("--t-max", type=float, default=15.0)
+    ap.add_argument("--stokes", default="", help="also the Stokes array check on these cells per D (e.g. 4,6,8)")
+    args = ap.parse_args(argv)
+    if args.stokes:
+        prev = prev_n = None
+        for n in (int(v) for v in args.stokes.split(",") if v):
+            t0 = time.perf_counter()
+            ratio, want, steady = stokes_array(n, eta=args.eta, ramp=args.ramp)
+            err = ratio / want - 1
+            order = f"{math.log(abs(prev / err)) / math.log(n / prev_n):.2f}" if prev else "-"
+            print(f"stokes D = {n} cells: F / (6 pi mu R U) {ratio:.4f}, Hasimoto {want:.4f}: {100 * err:+.2f}% "
+                  f"(order {order}; F / pushed {steady:.4f}; {time.perf_counter() - t0:.0f} s)", flush=True)
+            prev, prev_n = err, n
+    try:
+        grids = [int(v) for v in args.d_cells.split(",") if v]
+        widths = [float(v) for v in args.widths.split(",") if v]
+    except ValueError:
+        raise SystemExit(f"--d-cells {args.d_cells!r} --widths {args.widths!r}: comma-separated numbers") from None
+    if not grids and args.stokes:
+        return
+    if not grids or min(grids) < 2:
+        raise SystemExit(f"--d-cells {args.d_cells}: at least 2 cells per diameter")
+    if not widths or min(widths) <= 1.5:
+        raise SystemExit(f"--widths {args.widths}: widths > 1.5 diameters (the sphere and its side flow)")
+    if not 0.5 < args.upstream < args.length - args.fringe - 0.5:
+        raise SystemExit(f"--upstream {args.upstream}: the sphere must lie between x = 0.5 and the fringe "
+                         f"(length - fringe - 0.5 = {args.length - args.fringe - 0.5:g})")
+    for name in ("fringe", "fringe_rate", "eta", "ramp", "cfl", "t_max"):
+        if not getattr(args, name) > 0:
+            raise SystemExit(f"--{name.replace('_', '-')} {getattr(args, name)}: must be > 0")
+    rows = []
+    for n in grids:
+        for w in widths:
+            print(f"D = {n} cells, width {w:g} D:", flush=True)
+            t0 = time.perf_counter()
+            cd, pushed, t, shape, _ = drag(n, w, args.length, args.upstream, args.fringe, args.fringe_rate, args.eta,
+                                   args.cfl, args.t_max, ramp=args.ramp, log=lambda s: print(s, flush=True))
+            rows.append((n, w, shape, cd, pushed, t, time.perf_counter() - t0))
+    print(f"\n{'D cells':>7} {'width':>5} {'cells':>14} {'Cd body':>7} {'vs 1.087':>8} {'Cd push':>7} {'vs 1.087':>8}"
+          f" {'t':>5} {'wall s':>6}")
+    for n, w, shape, cd, pushed, t, wall in rows:
+        cells = "x".join(map(str, shape))
+        print(f"{n:>7} {w:>5g} {cells:>14} {cd:7.4f} {100 * (cd / REFERENCE_CD - 1):+7.2f}% {pushed:7.4f} "
+              f"{100 * (pushed / REFERENCE_CD - 1):+7.2f}% {t:5.1f} {wall:6.0f}")
+
+
+if __name__ == "__main__":
+    main()
