@@ -81,12 +81,18 @@ def main(argv: list[str] | None = None) -> None:
     if bad or not pdes or a.n < 1 or not 0 < a.eps < 1:
         sys.exit(f"--pdes {a.pdes!r} / --n {a.n} / --eps {a.eps}: need catalog entries (unknown: {', '.join(bad) or '-'}),"
                  " n >= 1 and 0 < eps < 1")
+    bad_set = [kv for kv in a.set if "=" not in kv or not kv.split("=", 1)[0]]
+    if bad_set:
+        sys.exit(f"--set {bad_set[0]!r}: need KEY=VALUE, e.g. --set n=64")
     settings = dict(kv.split("=", 1) for kv in a.set)
     print("| entry | t_end | " + " | ".join(f"t_end/{2 ** k}" for k in range(HALVINGS, -1, -1)) + " | horizon |")
     print("|---" * (HALVINGS + 4) + "|")
     for i, name in enumerate(pdes):
         print(f"[{i + 1}/{len(pdes)}] {name} ...", file=sys.stderr, flush=True)
-        g = growth(name, a.n, a.eps, settings)
+        try:
+            g = growth(name, a.n, a.eps, settings)
+        except ValueError as err:  # a setting the entry refuses, a steady entry, a blow-up: one line
+            sys.exit(str(err).splitlines()[0])
         cells = [f"{amp:.3g} ({mv:.2f})" for amp, mv in zip(g["amplification"], g["moved"])]
         print(f"| {name} | {g['t_end']:g} | " + " | ".join(cells) + f" | {horizon(g):g} |", flush=True)
     print(f"\ncells: median amplification of a {a.eps:g} relative IC perturbation (median ||u(t) - u0|| / ||u0||); "
