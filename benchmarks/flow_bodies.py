@@ -46,6 +46,13 @@ def momentum_balance(u, v, p, h, box):
     index bounds box = (i0, i1, j0, j1): minus the flux of momentum, pressure and viscous stress out of it (the
     MAC values averaged to the square's edges, numpy float64)."""
     u, v, p = (np.asarray(a, np.float64) for a in (u, v, p))
+    return edge_flux(u, v, p, h, box, NU, np)
+
+
+def edge_flux(u, v, p, h, box, nu, xp=np):
+    """Minus the flux of momentum, pressure and viscous stress (kinematic viscosity ``nu``) out of the square of
+    cell index bounds box = (i0, i1, j0, j1), (Sx, Sy) per unit depth and density, the MAC values u [ny, nx + 1],
+    v [ny + 1, nx], p [ny, nx] averaged to its edges; ``xp`` numpy or jax.numpy (traced in a jitted scan)."""
     uc, vc = 0.5 * (u[:, 1:] + u[:, :-1]), 0.5 * (v[1:] + v[:-1])
     i0, i1, j0, j1 = box
     fx = fy = 0.0
@@ -55,16 +62,16 @@ def momentum_balance(u, v, p, h, box):
         dudx = (u[js, i + 1] - u[js, i - 1]) / (2 * h)
         dvdx = (vc[js, i] - vc[js, i - 1]) / h
         dudy = (u[j0 + 1:j1 + 1, i] - u[j0 - 1:j1 - 1, i]) / (2 * h)
-        fx += sign * h * np.sum(un * un + pp - 2 * NU * dudx)
-        fy += sign * h * np.sum(un * vv - NU * (dvdx + dudy))
+        fx += sign * h * xp.sum(un * un + pp - 2 * nu * dudx)
+        fy += sign * h * xp.sum(un * vv - nu * (dvdx + dudy))
     is_ = slice(i0, i1)
     for j, sign in ((j0, -1), (j1, 1)):  # horizontal edges y = j h: v on its faces
         vn, uu, pp = v[j, is_], 0.5 * (uc[j - 1, is_] + uc[j, is_]), 0.5 * (p[j - 1, is_] + p[j, is_])
         dvdy = (v[j + 1, is_] - v[j - 1, is_]) / (2 * h)
         dudy = (uc[j, is_] - uc[j - 1, is_]) / h
         dvdx = (v[j, i0 + 1:i1 + 1] - v[j, i0 - 1:i1 - 1]) / (2 * h)
-        fx += sign * h * np.sum(vn * uu - NU * (dudy + dvdx))
-        fy += sign * h * np.sum(vn * vn + pp - 2 * NU * dvdy)
+        fx += sign * h * xp.sum(vn * uu - nu * (dudy + dvdx))
+        fy += sign * h * xp.sum(vn * vn + pp - 2 * nu * dvdy)
     return -fx, -fy
 
 

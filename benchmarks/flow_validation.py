@@ -38,6 +38,8 @@ import numpy as np
 from pdestream.generator.flow import Geometry, Params, forces, initial_state, run, run_batch, step
 from pdestream.generator.flow.forces import body_force, circle_force  # the library's forces (karman2d's drag, lift)
 
+from .flow_bodies import edge_flux  # the steady control volume's edge fluxes (its momentum balance)
+
 
 def iterations(grids=((64, 32), (128, 64), (256, 128)), tol=1e-5):
     """Pressure-solve iterations on a karman-like channel (2 x 1, cylinder r 0.1 at (0.5, 0.52), parabolic
@@ -281,24 +283,7 @@ def box_momentum(geom, u, v, p, nu, cx, cy, r, half):
     h = geom.h
     i0, i1 = int(round(cx / h)) - half, int(round(cx / h)) + half
     j0, j1 = int(round(cy / h)) - half, int(round(cy / h)) + half
-    uc, vc = 0.5 * (u[:, 1:] + u[:, :-1]), 0.5 * (v[1:] + v[:-1])
-    fx = fy = 0.0
-    js = slice(j0, j1)
-    for i, sign in ((i0, -1), (i1, 1)):  # vertical edges x = i h
-        un, vv, pp = u[js, i], 0.5 * (vc[js, i - 1] + vc[js, i]), 0.5 * (p[js, i - 1] + p[js, i])
-        dudx = (u[js, i + 1] - u[js, i - 1]) / (2 * h)
-        dvdx = (vc[js, i] - vc[js, i - 1]) / h
-        dudy = (u[j0 + 1:j1 + 1, i] - u[j0 - 1:j1 - 1, i]) / (2 * h)
-        fx += sign * h * jnp.sum(un * un + pp - 2 * nu * dudx)
-        fy += sign * h * jnp.sum(un * vv - nu * (dvdx + dudy))
-    is_ = slice(i0, i1)
-    for j, sign in ((j0, -1), (j1, 1)):  # horizontal edges y = j h
-        vn, uu, pp = v[j, is_], 0.5 * (uc[j - 1, is_] + uc[j, is_]), 0.5 * (p[j - 1, is_] + p[j, is_])
-        dvdy = (v[j + 1, is_] - v[j - 1, is_]) / (2 * h)
-        dudy = (uc[j, is_] - uc[j - 1, is_]) / h
-        dvdx = (v[j, i0 + 1:i1 + 1] - v[j, i0 - 1:i1 - 1]) / (2 * h)
-        fx += sign * h * jnp.sum(vn * uu - nu * (dudy + dvdx))
-        fy += sign * h * jnp.sum(vn * vn + pp - 2 * nu * dvdy)
+    sx, sy = edge_flux(u, v, p, h, (i0, i1, j0, j1), nu, jnp)
     # momentum inside: u faces i0..i1 (edges halved) on rows j0..j1-1, v faces j0..j1 (edges halved) on columns
     xu, yu = jnp.arange(i0, i1 + 1) * h, (jnp.arange(j0, j1) + 0.5) * h
     xv, yv = (jnp.arange(i0, i1) + 0.5) * h, jnp.arange(j0, j1 + 1) * h
@@ -308,7 +293,7 @@ def box_momentum(geom, u, v, p, nu, cx, cy, r, half):
     outv = (xv[None, :] - cx) ** 2 + (yv[:, None] - cy) ** 2 > r * r
     mx = h * h * jnp.sum(jnp.where(outu, u[j0:j1, i0:i1 + 1], 0) * wu[None, :])
     my = h * h * jnp.sum(jnp.where(outv, v[j0:j1 + 1, i0:i1], 0) * wv[:, None])
-    return jnp.stack([mx, my]), jnp.stack([-fx, -fy])
+    return jnp.stack([mx, my]), jnp.stack([sx, sy])
 
 
 def cylinder(ny=32, t_end=10.0, window=3.0, advection="maccormack", cfl=0.4, tol=1e-5, diagnostics=False,

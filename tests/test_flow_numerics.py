@@ -157,13 +157,23 @@ def test_the_host_pseudo_inverse_is_exact_and_the_same_on_every_blas_kernel():
         assert bytes.fromhex(out.stdout) == x.tobytes(), core
 
 
+def _outputs_at_vector_widths(code: str) -> set:
+    """The distinct stdouts of ``python -c code`` run with XLA's CPU vector width at 128 and at 512 bits."""
+    import subprocess
+    import sys
+
+    outs = set()
+    for width in (128, 512):
+        env = {**os.environ, "XLA_FLAGS": f"--xla_cpu_prefer_vector_width={width}"}
+        outs.add(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                check=True).stdout)
+    return outs
+
+
 def test_the_pressure_solve_has_the_same_bits_at_every_vector_width():
     """CG's sums are added in a fixed order (pressure._tree_sum): with jnp.sum the solve's bits followed the vector
     width XLA prefers on the host CPU (three widths, three results at 64x32), so the flows' bits differed between
     CPUs of one instruction set."""
-    import subprocess
-    import sys
-
     code = ("import hashlib, jax, numpy as np; from pdestream.generator.flow import Geometry, Params, pressure;"
             "from pdestream.generator.flow.step import faces, solid_mask;"
             "g = Geometry(64, 32, 2.0, 1.0, left='inflow', right='outflow');"
@@ -171,12 +181,7 @@ def test_the_pressure_solve_has_the_same_bits_at_every_vector_width():
             "b = jax.random.normal(jax.random.PRNGKey(0), (32, 64)) * (1 - fc.solid);"
             "p = jax.jit(lambda b: pressure.solve(fc, b, False, False, g.singular).p)(b);"
             "print(hashlib.sha256(np.asarray(p).tobytes()).hexdigest())")
-    outs = set()
-    for width in (128, 512):
-        env = {**os.environ, "XLA_FLAGS": f"--xla_cpu_prefer_vector_width={width}"}
-        outs.add(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                                check=True).stdout)
-    assert len(outs) == 1
+    assert len(_outputs_at_vector_widths(code)) == 1
 
 
 def test_the_sharp_circle_geometry_has_the_same_bits_at_every_vector_width():
@@ -184,9 +189,6 @@ def test_the_sharp_circle_geometry_has_the_same_bits_at_every_vector_width():
     sum: XLA's CPU backend lets LLVM contract one into a fused multiply-add, and whether it did followed the vector
     width (karman2d's centroid weights had different last bits at --xla_cpu_prefer_vector_width 128 and 512, in a
     single sample's program and in a vectorised batch, at n=32 and n=48)."""
-    import subprocess
-    import sys
-
     code = ("import hashlib, jax, jax.numpy as jnp, numpy as np; from pdestream.generator.flow import Geometry, Params;"
             "import importlib; from pdestream.generator.flow import grid; step = importlib.import_module("
             "'pdestream.generator.flow.step');"
@@ -201,9 +203,4 @@ def test_the_sharp_circle_geometry_has_the_same_bits_at_every_vector_width():
             " out += jax.tree_util.tree_leaves((jax.jit(jax.vmap(f))(cx, cy, r, plug), jax.jit(f)(cx[0], cy[0], r[0],"
             " plug[0])))\n"
             "print(hashlib.sha256(b''.join(np.asarray(a).tobytes() for a in out)).hexdigest())")
-    outs = set()
-    for width in (128, 512):
-        env = {**os.environ, "XLA_FLAGS": f"--xla_cpu_prefer_vector_width={width}"}
-        outs.add(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                                check=True).stdout)
-    assert len(outs) == 1
+    assert len(_outputs_at_vector_widths(code)) == 1
