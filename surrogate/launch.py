@@ -262,10 +262,12 @@ def launch_ranks(cfg: TrainConfig, ranks: int) -> None:
     import tempfile
     from multiprocessing.connection import wait
 
+    held, before = [], None
     if cfg.resume is not None:
         data_cfg = check_resume(cfg, ranks)[0]["data_cfg"] or {}
     else:
-        check_new(cfg, ranks)
+        held = check_new(cfg, ranks)[1]
+        before = None if held else snapshot(cfg.out)
         data_cfg = cfg.reservoir or {}
     check_rank_count(ranks, cfg.device)  # (after the run's own checks: a resume names its world size first)
     with tempfile.TemporaryDirectory(prefix="pdestream-ddp-") as tmp, contextlib.ExitStack() as stack:
@@ -287,23 +289,38 @@ def launch_ranks(cfg: TrainConfig, ranks: int) -> None:
         except KeyboardInterrupt:  # the terminal's Ctrl-C reached the ranks too: they leave as one process would
             interrupted = True
         for proc in procs:  # a failed rank leaves the others waiting in a collective: stop them
-            proc.join(60 if interrupted else 0.5)
+            proc.join(120 if interrupted else 0.5)
             if proc.exitcode is None:
                 proc.terminate()
                 proc.join()
         failed = [r for r, p in enumerate(procs) if p.exitcode != 0]
         if not failed and not interrupted:
             return None
+        if interrupted or any(procs[r].exitcode == 130 for r in failed):
+            raise KeyboardInterrupt(_ranks_left(Path(tmp), cfg, held, before))
         said = [(Path(tmp) / f"rank{r}.err") for r in range(ranks)]
         said = [f.read_text() for f in said if f.is_file()]
-        if interrupted or any(procs[r].exitcode == 130 for r in failed):
-            raise KeyboardInterrupt(said[0] if said else "")
         if said:
             raise ValueError(said[0])
         log = Path(tmp) / f"rank{failed[0]}.log"
         tail = log.read_text().strip().splitlines()[-1:] if log.is_file() else []
         raise RuntimeError(f"rank {failed[0]} of {ranks} failed (exit code {procs[failed[0]].exitcode})"
                            + (f": {tail[0]}" if tail else ""))
+
+
+def _ranks_left(tmp: Path, cfg: TrainConfig, held: list, before) -> str:
+    """What interrupted ranks left, in words: rank 0's own account (it writes every file) or, where rank 0 could
+    not give one (its interrupt arrived as a collective's failure, or it was stopped), the launcher's from the disk,
+    with rank 0's clean-up done here: a new run without a checkpoint is removed, as one process would."""
+    said = tmp / "rank0.err"
+    if said.is_file() and said.read_text():
+        return said.read_text()
+    if cfg.resume is not None:
+        return ""  # a resumed run keeps its last checkpoint, as after a one-process interrupt
+    from pdestream.surrogate.runs import staging_dir
+
+    out = Path(cfg.out)
+    return _overwrite_left(staging_dir(out), out) if held else _train_left(out, before)
 
 
 def train_rank(rank: int, ranks: int, cfg: TrainConfig, tmp: str, env: dict) -> None:

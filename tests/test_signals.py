@@ -460,3 +460,34 @@ def test_call_size_is_checked_and_restored():
             assert (dispatch.work(), dispatch.step_overhead()) == (9, dispatch.STEP_OVERHEAD)
         assert (dispatch.work(), dispatch.step_overhead(), dispatch.pieces(5, 3)) == (7, 1, [2, 2, 1])
     assert dispatch.work() == dispatch.DISPATCH_WORK
+
+
+def test_interrupted_ranks_without_rank_0_s_account_are_described_from_the_disk(tmp_path):
+    """When rank 0 leaves no words (its Ctrl-C arrived as a failed collective, or it was stopped), the launcher
+    says what the run directory holds and does rank 0's clean-up: a checkpoint is kept for --resume; a new run
+    without one is removed, and what was there before stays."""
+    from pdestream.interrupts import snapshot
+    from pdestream.surrogate.config import TrainConfig
+    from pdestream.surrogate.launch import _ranks_left
+
+    tmp = tmp_path / "ranks"
+    tmp.mkdir()
+    (tmp / "rank1.err").write_text("")  # the other ranks have nothing to say
+    kept = tmp_path / "kept"
+    cfg = TrainConfig(pde="burgers1d", out=str(kept))
+    before = snapshot(kept)
+    kept.mkdir()
+    (kept / "run.json").write_text("{}")
+    (kept / "checkpoint.pt").write_bytes(b"")
+    assert _ranks_left(tmp, cfg, [], before) == (f"{kept} holds a checkpoint; pdestream train --resume {kept} "
+                                                  "continues from it")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("the user's")
+    before = snapshot(mine)
+    (mine / "run.json").write_text("{}")
+    cfg = TrainConfig(pde="burgers1d", out=str(mine))
+    assert _ranks_left(tmp, cfg, [], before) == "nothing was kept (no checkpoint yet); run the command again to start over"
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    (tmp / "rank0.err").write_text("rank 0's words")
+    assert _ranks_left(tmp, cfg, [], before) == "rank 0's words"
