@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -334,6 +335,13 @@ def train_rank(rank: int, ranks: int, cfg: TrainConfig, tmp: str, env: dict) -> 
     if rank > 0:  # their output would repeat rank 0's; a crash's traceback is kept for the launcher
         sys.stdout = open(os.devnull, "w")
         sys.stderr = open(Path(tmp) / f"rank{rank}.log", "w", buffering=1)
+    seen = []
+
+    def interrupt(signum, frame):
+        seen.append(signum)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, interrupt)
     try:
         train(cfg)
     except USER_ERRORS as err:
@@ -341,6 +349,12 @@ def train_rank(rank: int, ranks: int, cfg: TrainConfig, tmp: str, env: dict) -> 
         sys.exit(2)
     except KeyboardInterrupt as err:
         (Path(tmp) / f"rank{rank}.err").write_text(str(err))
+        sys.exit(130)
+    except Exception:
+        if not seen:
+            raise
+        # the Ctrl-C reached a peer first, and this rank's collective failed before its own interrupt was
+        # raised: an interrupt all the same (no traceback), which the launcher describes from the disk
         sys.exit(130)
 
 
