@@ -254,3 +254,24 @@ def test_shifted_pde_lies_outside_the_training_domain():
     assert above.param_domains["alpha"].bounds == (3.0, 3.5)
     assert below.param_domains["alpha"].bounds == (0.5, 1.0)
     assert below.param_domains["beta"].bounds[1] == 0.5 and above.param_domains["beta"].bounds[0] == 2.0
+
+
+@pytest.mark.parametrize("name", ["helmholtz1d", "karman2d", "smoke2d", "swift_hohenberg2d"])
+def test_the_default_shift_gives_every_entry_a_domain_it_accepts(name):
+    """The default shift (25% below) of a positive wavenumber reached 0, of a blend in [0, 1] went below 0 and of
+    a source radius fell under the grid: compare refused these entries at its defaults. Now a positive parameter
+    is shifted geometrically, and one refused below is shifted above; every shifted domain lies outside the
+    training one and the problem accepts it."""
+    from pdestream import generator
+    from pdestream.experiments.compare import shifted_pde
+
+    pde = generator.get_pde(name)
+    shifted = shifted_pde(pde, -0.25)
+    for param, domain in pde.param_domains.items():
+        lo, hi = domain.bounds
+        a, b = shifted.param_domains[param].bounds
+        assert b <= lo or a >= hi, (param, domain, shifted.param_domains[param])
+    if name == "helmholtz1d":  # k uniform(0.5, 2.5): 0.5 (0.5 / 2.5)^0.25 below it, not 0
+        assert shifted.param_domains["k"].bounds == pytest.approx((0.5 * 0.2 ** 0.25, 0.5), rel=1e-5)
+    if name == "karman2d":  # the plug blend uniform(0, 0.3) cannot go below 0: above it
+        assert shifted.param_domains["plug"].bounds == (0.3, 0.375)
