@@ -223,7 +223,12 @@ class Channel2D(FlowProblem):
     """A channel (inflow left, outflow right, walls bottom and top) with ``obstacles`` random bodies: each a
     circle, box or ellipse (equally likely) of half-sizes in [size_min, size_max] at a random position in its
     own slot of the channel's length (so bodies never overlap and none alone closes the channel). Re = U H / nu
-    with U the mean inflow speed and H the channel height. The bodies come from the sample's geometry key."""
+    with U the mean inflow speed and H the channel height. The bodies come from the sample's geometry key; the
+    solver sees each as the cells whose centre lies inside it (a staircase, not karman2d's sharp circle).
+
+    Outputs beside the fields (``OUTPUTS``): ``drag`` and ``lift`` [T] of all the bodies together, C = 2 F / (U^2
+    H) from ``forces.body_force`` on the staircase (first order in h), and ``sdf`` [nx, ny], the exact signed
+    distance to that staircase (``forces.mask_distance``; solid == sdf < 0)."""
 
     NAME: ClassVar[str] = "channel2d"
     # `pdestream generate channel2d --n 4` on 2 shared CPU cores (load 5-6, 2026-11-27: chunks row by row), no
@@ -248,6 +253,27 @@ class Channel2D(FlowProblem):
     size_max: float = 0.14
     re: Any = "uniform(200, 600)"
     speed: Any = Fixed(1.0)
+
+    OUTPUTS: ClassVar[dict] = {
+        "drag": Output("drag coefficient C_d = 2 Fx / (U^2 H) of all the bodies together (U mean inflow speed, H the "
+                       "channel height; pressure and wall shear summed over the staircase's fluid-solid faces: the "
+                       "bodies the solver sees, first order in h)", "1", "time"),
+        "lift": Output("lift coefficient C_l = 2 Fy / (U^2 H) of all the bodies together", "1", "time"),
+        "sdf": Output("signed distance of the cell centre to the bodies' surface (the union of their solid cells, "
+                      "negative inside; the channel's walls are not part of it)", "m", "space"),
+    }
+
+    def sample_outputs(self, frames: jax.Array, p: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
+        geom = self.geometry()
+        fp = self.flow_params(p, None)
+        solid = frames[0, self.FIELDS.index("solid")].T > 0.5  # the bodies do not move: the first frame's mask
+
+        def coefficients(frame):
+            fx, fy = forces.body_force(geom, solid, self.state_of(frame, fp), fp.nu)
+            return jnp.stack(forces.force_coefficients(fx, fy, p["speed"], self.length))
+
+        cd, cl = jax.lax.map(coefficients, frames).T
+        return {"drag": cd, "lift": cl, "sdf": forces.mask_distance(geom, solid).T}
 
     def slots(self) -> tuple[float, float]:
         """(x of the first slot's left end, slot width) (m): bodies sit in equal slots of [0.3, lx - 0.3]."""

@@ -8,7 +8,8 @@
   and wall shear sampled along its normals: second order, the force of the sharp body (grid.BODIES).
 - ``force_coefficients``: C = 2 F / (U^2 D) (F per unit depth and density, U the reference speed, D the
   reference length), the Schaefer & Turek (1996) normalisation with U their mean inflow speed and D the diameter.
-- ``circle_distance``: the exact signed distance of cell centres to a circle (negative inside).
+- ``circle_distance``: the exact signed distance of cell centres to a circle (negative inside); ``mask_distance``:
+  to a staircase body (the union of its solid cells), exact for what the solver sees.
 - ``shedding``: the Strouhal number of a lift series and whether its oscillation is developed (rules there).
 """
 
@@ -174,6 +175,30 @@ def circle_distance(geom, cx, cy, r, dtype=jnp.float32):
     y = (jnp.arange(geom.ny, dtype=dtype) + 0.5) * h
     x, y = jnp.meshgrid(x, y)
     return jnp.sqrt((x - cx) ** 2 + (y - cy) ** 2) - r
+
+
+def mask_distance(geom, solid, dtype=jnp.float32):
+    """Signed distance [ny, nx] (m) of the cell centres to the surface of the masked body, the union of its
+    solid cells (closed h x h squares; solid [ny, nx] bool): the distance to the nearest solid cell outside the
+    body, minus the distance to the nearest fluid cell inside it, so solid == (value < 0) and a cell next to the
+    surface is h / 2 from it. Exact for the staircase body the solver sees (the box walls are not a surface
+    here); every cell at a large value (1e15 m) where there is no solid (or no fluid) cell.
+
+    Separable: the squared distance to a square is g(dx) + g(dy) with g(d) = max(|d| - h / 2, 0)^2, so the
+    minimum over cells is a minimum along rows, then along columns (O(nx ny (nx + ny)) per call)."""
+    h = geom.h
+    x = (jnp.arange(geom.nx, dtype=dtype) + 0.5) * h
+    y = (jnp.arange(geom.ny, dtype=dtype) + 0.5) * h
+    gx = jnp.maximum(jnp.abs(x[:, None] - x[None, :]) - h / 2, 0) ** 2  # [nx, nx]
+    gy = jnp.maximum(jnp.abs(y[:, None] - y[None, :]) - h / 2, 0) ** 2  # [ny, ny]
+    far = jnp.asarray(1e30, dtype)
+
+    def distance_to(cells):  # [ny, nx] bool -> distance of every centre to the nearest closed square of cells
+        rows = jnp.min(jnp.where(cells[:, None, :], gx[None], far), axis=2)  # [ny, nx]: along its row
+        both = jnp.min(gy[:, :, None] + rows[None], axis=1)  # [ny, nx]: then along its column
+        return jnp.sqrt(jnp.minimum(both, far))
+
+    return jnp.where(solid, -distance_to(~solid), distance_to(solid))
 
 
 def shedding(lift, t, length, speed, min_amplitude=MIN_LIFT_AMPLITUDE, max_drift=MAX_DRIFT,
