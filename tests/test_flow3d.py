@@ -67,10 +67,11 @@ def test_plume3d_stream_equals_its_cache_which_records_the_closed_box(tmp_path):
 
 @pytest.mark.slow
 def test_compare_trains_on_plume3d(capsys, tmp_path):
-    # the small plume (n=12) through compare's cache and stream arms: the 3D FNO trains on a 3D flow
+    # the small plume (n=12) through compare's cache and stream arms: the 3D FNO trains on a 3D flow (batches of
+    # 2: the stream's 2 steps then draw 4 samples beyond its calibration draw, not 64)
     sets = [a for k, v in SMALL["plume3d"].items() for a in ("--set", f"{k}={v}")]
     code = cli.main(["compare", "plume3d", "--steps", "2", "--seeds", "1", "--test-samples", "4",
-                     "--cache-samples", "4", *sets,
+                     "--cache-samples", "4", "--batch-size", "2", *sets,
                      "--shift-set", "sx=uniform(0.34, 0.35)", "--shift-set", "sy=uniform(0.34, 0.35)",
                      "--out", str(tmp_path / "c")])
     out = capsys.readouterr().out

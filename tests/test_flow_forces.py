@@ -21,8 +21,9 @@ from tests.reference_samples import FLOW_SMALL
 
 T = np.linspace(4.0, 8.0, 21).astype(np.float32)  # karman2d's former default frames: ~4 per period, a hard case
 D, U = 0.2, 1.0
-# one worker runs the whole file (--dist loadgroup), so its module fixture solves the default karman2d once
-pytestmark = pytest.mark.xdist_group("flow_forces")
+# one worker runs the whole file (--dist loadgroup), so its module fixture solves the default karman2d once; the
+# karman2d group's worker, which has the small karman2d's programs compiled for the flow tests already
+pytestmark = pytest.mark.xdist_group("karman2d")
 
 
 def _shed(lift, t=T):

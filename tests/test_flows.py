@@ -61,6 +61,7 @@ def test_samples_have_their_shape_params_in_domain_and_evolve(name):
         assert smoke[:, 0].max() == 0 and smoke[:, -1].sum() > smoke[:, 1].sum() > 0 and smoke.min() >= -1e-3
 
 
+@pytest.mark.xdist_group("karman2d")
 def test_the_karman_mask_is_the_drawn_cylinder():
     pde = small("karman2d")
     traj = generator.sample(pde, [0, 1], seed=0)
@@ -107,6 +108,7 @@ def test_samples_are_bit_identical_alone_in_batches_and_with_explicit_params(nam
     assert not np.array_equal(np.asarray(generator.sample(pde, [3], seed=2).u[0]), np.asarray(alone.u[0]))
 
 
+@pytest.mark.xdist_group("cavity2d")
 def test_the_vectorised_chunk_keeps_a_sample_s_bits_and_agrees_with_the_row_by_row_one(monkeypatch):
     # a GPU advances a chunk's rows as one vectorised program, a CPU row by row (flow.problem.vectorise_chunks):
     # both keep a sample's bits whatever its batch, and differ from each other only by float32 rounding
@@ -122,6 +124,7 @@ def test_the_vectorised_chunk_keeps_a_sample_s_bits_and_agrees_with_the_row_by_r
     np.testing.assert_allclose(np.asarray(batch.u), np.asarray(rows.u), rtol=0, atol=1e-4 * scale)
 
 
+@pytest.mark.xdist_group("cavity2d")
 def test_new_parameters_and_seeds_never_recompile():
     pde = small("cavity2d")
     generator.sample(pde, [0, 1], seed=0)
@@ -214,6 +217,7 @@ def stream_equals_cache(pde, path, n_samples: int):
     return plain, batch
 
 
+@pytest.mark.xdist_group("karman2d")
 @pytest.mark.parametrize("fmt", ["zarr", "h5"])
 def test_stream_and_cache_give_the_same_bits_and_the_cache_records_the_box(tmp_path, fmt):
     pde = small("karman2d")
@@ -228,6 +232,7 @@ def test_stream_and_cache_give_the_same_bits_and_the_cache_records_the_box(tmp_p
     assert np.array_equal(solid.T, batch["u"][0, 0, pde.FIELDS.index("solid")].numpy())
 
 
+@pytest.mark.xdist_group("karman2d")
 def test_the_reservoir_serves_flow_samples():
     pde = small("karman2d")
     stream = ReservoirStream(pde, seed=3, view="next_step", batch_size=4, capacity=6, max_reuse=2, solve_batch=4,
@@ -246,6 +251,7 @@ def test_the_reservoir_serves_flow_samples():
                for b in batches for k, i in enumerate(b["index"].tolist()))
 
 
+@pytest.mark.xdist_group("cavity2d")
 def test_the_cli_lists_generates_and_refuses_flows(tmp_path, capsys):
     assert cli.main(["list"]) == 0
     out = capsys.readouterr().out
@@ -278,6 +284,7 @@ def test_the_oracle_continues_a_sampled_frame_to_the_next_one(name):
     assert torch.equal(one[0], oracle(t["u"][:, 0], t["params"])[1])  # alone == in a batch
 
 
+@pytest.mark.xdist_group("karman2d")
 def test_a_solver_step_keeps_the_frame_s_mask_and_karman_flows_ignore_it():
     # a coarse solver's frame restricted from a finer one carries a mask that is not the coarse grid's own staircase
     # (a coarse cell is solid when any fine cell is): the step hands it back as given, so no frame's geometry
@@ -347,13 +354,14 @@ def test_vorticity_of_a_solid_body_rotation_is_twice_its_rate_on_arrays_tensors_
     assert np.allclose(shear, rate)
 
 
+@pytest.mark.xdist_group("cavity2d")
 def test_a_pressure_solve_stopped_by_max_iter_fails_the_sample_in_one_line():
     # cavity2d --set max_iter=1 left a divergence 58x the stated tolerance in the samples, rc 0, nothing said
-    small = {"n": 16, "n_frames": 2, "t_end": 0.05, "re": "uniform(100, 200)"}
+    # (the small cavity of the other tests: the default's program is compiled once in the cavity2d group)
     with pytest.raises(generator.BlowUpError, match=r"pressure solve stopped at max_iter=1 above tol=1e-05") as err:
-        generator.sample(generator.get_pde("cavity2d", max_iter=1, **small), [0, 1])
+        generator.sample(generator.get_pde("cavity2d", max_iter=1, **SMALL["cavity2d"]), [0, 1])
     assert "\n" not in str(err.value)
-    assert generator.sample(generator.get_pde("cavity2d", **small), [0, 1]).u.shape[0] == 2  # the default converges
+    assert generator.sample(small("cavity2d"), [0, 1]).u.shape[0] == 2  # the default max_iter converges
 
 
 def test_the_description_states_the_cfl_number_the_step_has_and_what_set_it():
