@@ -73,6 +73,7 @@ def test_the_karman_mask_is_the_drawn_cylinder():
         assert np.array_equal(got, inside) and inside.sum() >= 8
 
 
+@pytest.mark.xdist_group("channel2d")
 def test_channel_samples_carry_the_force_on_their_bodies_and_the_exact_distance_to_them():
     """channel2d's outputs: the signed distance of every cell centre to the staircase body (the union of its solid
     cells as closed squares), checked against a brute-force minimum over the cells; the bodies' drag points
