@@ -1,0 +1,172 @@
+"""The FNO paper's Navier-Stokes nu = 1e-3 task, trained on the recipe and on the original generation algorithm:
+``python -m benchmarks.fno_ns_reproduction [--n-train 64 --n-test 32 --epochs 4 --seeds 0,1,2]``.
+
+Issue 31's CPU fallback: the same FNO, the same training loop and budget, two data arms:
+
+- "recipe": ``fno_ns2d_nu1e-3`` from pdestream's generator (ETDRK4 on 64^2, train split seed, frames t = 0..50);
+- "original": the paper's generation algorithm, written here from its description (Li et al. 2021, section 5.3
+  and appendix A.3.3): vorticity form on the unit torus, f = 0.1 (sin 2 pi (x + y) + cos 2 pi (x + y)),
+  w0 ~ N(0, 7^3 (-Lap + 49 I)^-2.5), pseudo-spectral, Crank-Nicolson for the viscous term and explicit (forward
+  Euler) for the advection term and the forcing, 2/3 dealiasing of the advection term, frames at t = 1..50. It
+  solves on 64^2 directly (the paper: 256^2, subsampled) at dt = 1e-3 (the paper: 1e-4, see
+  docs/results/recipes.md on that solver's float32 rounding), in float64.
+
+The task is the paper's: frames t = 1..10 in, t = 11..50 out, one frame per network call, autoregressive; the
+error is the relative L2 over the 40 predicted frames of each test trajectory, mean over trajectories. Both arms
+are evaluated on the same two test sets: the original algorithm's test trajectories and the recipe's (its test
+split). Each (arm, seed) result is written to ``--results`` as it finishes and skipped on a rerun; generated
+data is cached under ``--cache-dir``. Figures: docs/results/recipes.md (section fno_ns2d_nu1e-3).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+NU = 1e-3
+FRAMES = 50  # t = 1..50 (the paper drops w0)
+K_IN = 10  # the paper's input frames: t = 1..10
+RESULTS = Path(__file__).resolve().parent.parent / "docs" / "results" / "fno_ns" / "results.json"
+
+
+def progress(label: str, done: int, total: int, started: float) -> None:
+    """One overwritten line: ``label done/total``, elapsed and an estimate of what is left (seconds)."""
+    elapsed = time.perf_counter() - started
+    left = elapsed / max(done, 1) * (total - done)
+    end = "\n" if done >= total else ""
+    print(f"\r  {label}: {done}/{total}, {elapsed:.0f} s, about {left:.0f} s left   ", end=end, file=sys.stderr,
+          flush=True)
+
+
+def grf_w0(rng: np.random.Generator, samples: int, n: int) -> np.ndarray:
+    """Draws of N(0, 7^3 (-Lap + 49 I)^-2.5) on the unit torus, zero mean: float64 [samples, n, n].
+
+    White noise filtered by the square root of the covariance's eigenvalues 7^3 (4 pi^2 |m|^2 + 49)^-2.5 on
+    every mode m of the n^2 grid (the m = 0 one set to 0), so the pointwise variance is their sum."""
+    m = np.fft.fftfreq(n, 1.0 / n)
+    m2 = m[:, None] ** 2 + m[None, :] ** 2
+    lam = np.where(m2 > 0, 7.0**3 * (4 * np.pi**2 * m2 + 49.0) ** -2.5, 0.0)
+    noise = rng.standard_normal((samples, n, n))
+    return np.fft.ifft2(np.sqrt(lam) * np.fft.fft2(noise)).real * n
+
+
+def forcing(n: int, amplitude: float = 0.1) -> np.ndarray:
+    """f(x, y) = amplitude (sin 2 pi (x + y) + cos 2 pi (x + y)) at x_i = i / n (axis 0: x, axis 1: y): [n, n]."""
+    x = np.arange(n) / n
+    s = 2 * np.pi * (x[:, None] + x[None, :])
+    return amplitude * (np.sin(s) + np.cos(s))
+
+
+def solve_cn(w0: np.ndarray, nu: float, dt: float, times, f: np.ndarray | None = None, label: str = "") -> np.ndarray:
+    """The paper's scheme, vorticity form on the unit torus: w0 [B, n, n] -> w at ``times`` [B, len(times), n, n].
+
+    w_t + u . grad w = nu Lap w + f, u = (psi_y, -psi_x), -Lap psi = w. Per step, in Fourier space (k = 2 pi m):
+    w^ <- (dt (f^ - D (u . grad w)^) + (1 - dt nu |k|^2 / 2) w^) / (1 + dt nu |k|^2 / 2), D the 2/3 rule (modes
+    |m_x|, |m_y| <= n / 3 kept). times: multiples of dt (time units); f: [n, n] forcing (None: none). float64.
+    """
+    w0 = torch.as_tensor(np.asarray(w0), dtype=torch.float64)
+    n = w0.shape[-1]
+    kx = 2 * np.pi * torch.fft.fftfreq(n, 1.0 / n, dtype=torch.float64)[:, None]  # [n, 1]
+    ky = 2 * np.pi * torch.fft.rfftfreq(n, 1.0 / n, dtype=torch.float64)[None, :]  # [1, n/2+1]
+    k2 = kx**2 + ky**2
+    inv = torch.where(k2 > 0, 1.0 / torch.where(k2 > 0, k2, 1.0), 0.0)  # psi^ = w^ / |k|^2
+    keep = (kx.abs() <= 2 * np.pi * n / 3) & (ky.abs() <= 2 * np.pi * n / 3)
+    f_hat = torch.zeros_like(k2, dtype=torch.complex128) if f is None else torch.fft.rfft2(torch.as_tensor(f))
+    half = 0.5 * dt * nu * k2
+    a, b = (1 - half) / (1 + half), dt / (1 + half)
+    steps = [round(t / dt) for t in times]
+    if any(abs(s * dt - t) > 1e-9 * max(1.0, t) for s, t in zip(steps, times)) or steps != sorted(steps):
+        raise ValueError(f"times={list(times)} must be increasing multiples of dt={dt}")
+    w_hat, out, started = torch.fft.rfft2(w0), [], time.perf_counter()
+    irfft = lambda z: torch.fft.irfft2(z, s=(n, n))  # noqa: E731
+    for step in range(steps[-1] + 1):
+        while len(out) < len(steps) and steps[len(out)] == step:
+            out.append(irfft(w_hat))
+            if label:
+                progress(label, step, steps[-1], started)
+        if step == steps[-1]:
+            break
+        psi = w_hat * inv
+        adv = irfft(1j * ky * psi) * irfft(1j * kx * w_hat) - irfft(1j * kx * psi) * irfft(1j * ky * w_hat)
+        w_hat = a * w_hat + b * (f_hat - keep * torch.fft.rfft2(adv))
+    return torch.stack(out, 1).numpy()
+
+
+ORIGINAL_SEEDS = {"train": 100, "test": 102}  # numpy seeds of the original arm's draws (sample i: [seed, i])
+CHUNK = 16  # samples solved (and cached) together
+
+
+def original_w0(split: str, lo: int, hi: int, n: int) -> np.ndarray:
+    """w0 of the original arm's samples lo..hi-1 of ``split``: [hi - lo, n, n], each from its own generator."""
+    return np.concatenate([grf_w0(np.random.default_rng([ORIGINAL_SEEDS[split], i]), 1, n) for i in range(lo, hi)])
+
+
+def original_data(split: str, count: int, n: int, dt: float, cache: Path) -> np.ndarray:
+    """The original algorithm's trajectories t = 1..50 of ``split``'s samples 0..count-1: float32 [count, 50, n, n],
+    solved CHUNK at a time, each chunk cached under ``cache`` (a rerun solves only what is missing)."""
+    parts = []
+    for lo in range(0, count, CHUNK):
+        hi = min(lo + CHUNK, count)
+        path = cache / f"original_{split}_n{n}_dt{dt:g}_{lo}-{hi}.npy"
+        if not path.is_file():
+            w = solve_cn(original_w0(split, lo, hi, n), NU, dt, range(1, FRAMES + 1), forcing(n),
+                         label=f"original {split} samples {lo}..{hi - 1}, dt {dt:g}")
+            tmp = path.with_suffix(".tmp.npy")
+            np.save(tmp, w.astype(np.float32))
+            tmp.replace(path)
+        parts.append(np.load(path))
+    return np.concatenate(parts)
+
+
+def recipe_data(split: str, count: int, cache: Path) -> np.ndarray:
+    """The recipe's ``split`` samples 0..count-1 (its split seed), frames t = 1..50: float32 [count, 50, 64, 64]."""
+    from pdestream import generator
+    from pdestream.recipes import RECIPES
+
+    seed = RECIPES["fno_ns2d_nu1e-3"].splits[split].seed
+    parts = []
+    for lo in range(0, count, CHUNK):
+        hi = min(lo + CHUNK, count)
+        path = cache / f"recipe_{split}_seed{seed}_{lo}-{hi}.npy"
+        if not path.is_file():
+            t0 = time.perf_counter()
+            u = np.asarray(generator.sample(generator.get_pde("fno_ns2d_nu1e-3"), range(lo, hi), seed=seed).u)
+            tmp = path.with_suffix(".tmp.npy")
+            np.save(tmp, u[:, 1:, 0].astype(np.float32))  # drop w0: t = 1..50
+            tmp.replace(path)
+            print(f"  recipe {split} samples {lo}..{hi - 1}: {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+        parts.append(np.load(path))
+    return np.concatenate(parts)
+
+
+def rel(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Relative L2 of a against b over the last two axes: [...]."""
+    return np.sqrt(((a - b) ** 2).sum((-2, -1)) / (b**2).sum((-2, -1)))
+
+
+def sanity(dt: float, few: int = 4) -> dict:
+    """The same w0 (the original arm's first ``few`` test draws) through both solvers: rel L2 at t = 1, 10, 50,
+    and the original scheme at dt against dt / 4 (its own time-step error)."""
+    from pdestream import generator
+
+    w0 = original_w0("test", 0, few, 64)
+    times = [1, 10, 50]
+    ours = solve_cn(w0, NU, dt, times, forcing(64), label=f"sanity: {few} w0, dt {dt:g}")
+    fine = solve_cn(w0, NU, dt / 4, times, forcing(64), label=f"sanity: {few} w0, dt {dt / 4:g}")
+    pde = generator.get_pde("fno_ns2d_nu1e-3")
+    recipe = np.asarray(generator.solve(pde, w0[:, None].astype(np.float32), {"nu": np.full(few, NU, np.float32)}).u)
+    recipe = recipe[:, times, 0]
+    out = {"times": times, "recipe_vs_original": rel(ours, recipe).max(0).tolist(),
+           "recipe_vs_original_fine": rel(fine, recipe).max(0).tolist(),
+           "original_dt_vs_dt/4": rel(ours, fine).max(0).tolist(), "samples": few, "dt": dt}
+    for key in ("recipe_vs_original", "recipe_vs_original_fine", "original_dt_vs_dt/4"):
+        print(f"  {key} (max of {few}) at t = {times}: " + " / ".join(f"{e:.1e}" for e in out[key]))
+    return out
