@@ -1,5 +1,5 @@
 """The FNO paper's Navier-Stokes nu = 1e-3 task, trained on the recipe and on the original generation algorithm:
-``python -m benchmarks.fno_ns_reproduction [--n-train 64 --n-test 32 --epochs 4 --seeds 0,1,2]``.
+``python -m benchmarks.fno_ns_reproduction [--n-train 64 --n-test 32 --epochs 7 --seeds 0,1,2]``.
 
 Issue 31's CPU fallback: the same FNO, the same training loop and budget, two data arms:
 
@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import statistics
 import sys
 import time
@@ -170,3 +169,167 @@ def sanity(dt: float, few: int = 4) -> dict:
     for key in ("recipe_vs_original", "recipe_vs_original_fine", "original_dt_vs_dt/4"):
         print(f"  {key} (max of {few}) at t = {times}: " + " / ".join(f"{e:.1e}" for e in out[key]))
     return out
+
+
+class Windows(torch.utils.data.Dataset):
+    """The paper's training pairs of in-memory trajectories u [N, T, 1, s, s]: K_IN frames -> the next one, every
+    window (``datasets.NextStep``); each example a batch-dict item with no parameters ("params": [0])."""
+
+    def __init__(self, u: torch.Tensor):
+        from pdestream.datasets.views import NextStep
+
+        self.u, self.view = u, NextStep(K_IN, 1)
+        self.per = self.view.per_trajectory(u.shape[1])
+        self.t = torch.arange(u.shape[1], dtype=torch.float32)
+
+    def __len__(self) -> int:
+        return len(self.u) * self.per
+
+    def __getitem__(self, i: int) -> dict:
+        traj, start = divmod(i, self.per)
+        return {**self.view.example(self.u[traj], self.t, start), "params": torch.zeros(0),
+                "index": torch.tensor(traj)}
+
+    def normalization(self):
+        """Per-field mean / std over every training trajectory (the training loop's statistics)."""
+        from pdestream.datasets.normalize import Normalization
+
+        n = len(self.u)
+        return Normalization.from_batch({"u": self.u, "params": torch.zeros(n, 0), "index": torch.arange(n)}, 2,
+                                        fields=["w"])
+
+
+def test_batches(u: torch.Tensor, batch: int = 16) -> list[dict]:
+    """Whole test trajectories u [N, T, 1, s, s] as the evaluator's batches {"u", "params": [B, 0], "index"}."""
+    return [{"u": u[i:i + batch], "params": torch.zeros(len(u[i:i + batch]), 0),
+             "index": torch.arange(i, i + len(u[i:i + batch]))} for i in range(0, len(u), batch)]
+
+
+def train_one(arm: str, seed: int, train_u: torch.Tensor, tests: dict, args, run_dir: Path) -> dict:
+    """Train the project's FNO on ``train_u`` (one arm's trajectories) with the project's loop; the relative L2
+    over the 40 rolled-out frames per test trajectory, mean and std over each test set's trajectories."""
+    from pdestream import datasets
+    from pdestream.surrogate.checkpoint import CHECKPOINT, load_train_state
+    from pdestream.surrogate.data import EpochBatchSampler
+    from pdestream.surrogate.evaluate import rollout_errors
+    from pdestream.surrogate.models import build_model
+    from pdestream.surrogate.modes import OneStep
+    from pdestream.surrogate.train import train
+
+    data = Windows(train_u)
+    torch.manual_seed(seed)
+    model = build_model("fno", 2, K_IN, 1, 0, bc=None, width=args.width, modes=args.modes, layers=args.layers)
+    sampler = EpochBatchSampler(len(data), args.batch_size, seed, drop_last=True)
+    loader = torch.utils.data.DataLoader(data, batch_sampler=sampler, collate_fn=datasets.collate,
+                                         generator=torch.Generator())
+    steps = args.epochs * len(sampler)
+    meta = {"arm": arm, "seed": seed, "n_train": len(train_u), "s": train_u.shape[-1]}
+    ckpt = run_dir / CHECKPOINT
+    resume = load_train_state(ckpt) if ckpt.is_file() and not (run_dir / "metrics.json").is_file() else None
+    t0 = time.perf_counter()
+    summary = train(model, loader, steps, run_dir, lr=args.lr, schedule="cosine", mode=OneStep(loss="relative"),
+                    label=f"{arm} seed {seed}", checkpoint_every=100, resume=resume, meta=meta)
+    view = data.view
+    errors = {}
+    for name, batches in tests.items():
+        per = rollout_errors(model, summary["normalizer"], batches, view).trajectory()  # [N]
+        errors[name] = {"mean": float(per.mean()), "std": float(per.std()), "n": len(per)}
+    return {**meta, "steps": summary["steps"], "final_loss": summary["final_loss"], "wall_s": summary["wall"],
+            "eval_and_train_s": time.perf_counter() - t0, "test": errors}
+
+
+def mean_std(values: list[float]) -> tuple[float, float]:
+    """Mean and sample std (0 for one value)."""
+    return statistics.fmean(values), (statistics.stdev(values) if len(values) > 1 else 0.0)
+
+
+def report(results: dict, arms, seeds, tests) -> None:
+    """Per arm and test set: mean +- std over seeds; whether |difference| <= std_a + std_b (compare.md's rule)."""
+    for test in tests:
+        rows = {}
+        for arm in arms:
+            done = [results[f"{arm}/seed{s}"]["test"][test]["mean"] for s in seeds if f"{arm}/seed{s}" in results]
+            if done:
+                rows[arm] = (*mean_std(done), len(done))
+                print(f"  {test} test set, trained on {arm:8s}: rel L2 {rows[arm][0]:.4f} +- {rows[arm][1]:.4f} "
+                      f"({rows[arm][2]} seeds: " + ", ".join(f"{v:.4f}" for v in done) + ")")
+        if len(rows) == 2:
+            (ma, sa, _), (mb, sb, _) = rows.values()
+            verdict = "agree" if abs(ma - mb) <= sa + sb else "differ"
+            print(f"  {test} test set: |difference| {abs(ma - mb):.4f}, std_a + std_b {sa + sb:.4f}: {verdict}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--n-train", type=int, default=64, help="training trajectories per arm")
+    parser.add_argument("--n-test", type=int, default=32, help="test trajectories per test set")
+    parser.add_argument("--epochs", type=int, default=7)
+    parser.add_argument("--batch-size", type=int, default=20)
+    parser.add_argument("--lr", type=float, default=4e-3)
+    parser.add_argument("--width", type=int, default=20)
+    parser.add_argument("--modes", type=int, default=12)
+    parser.add_argument("--layers", type=int, default=4)
+    parser.add_argument("--sub", type=int, default=2, help="subsample the 64^2 solutions by this (2: 32^2)")
+    parser.add_argument("--dt", type=float, default=2e-3, help="the original algorithm's time step")
+    parser.add_argument("--seeds", default="0,1,2")
+    parser.add_argument("--arms", default="recipe,original")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (1: best on shared cores)")
+    parser.add_argument("--cache-dir", default="/tmp/pdestream_fno_ns")
+    parser.add_argument("--results", default=str(RESULTS))
+    parser.add_argument("--sanity", action="store_true", help="only the same-w0 check of the two solvers")
+    args = parser.parse_args(argv)
+    for name in ("n_train", "n_test", "epochs", "batch_size", "width", "modes", "layers", "sub", "threads"):
+        if getattr(args, name) < 1:
+            parser.exit(2, f"--{name.replace('_', '-')}={getattr(args, name)} not allowed; must be >= 1\n")
+    if not 0 < args.dt <= 0.01 or abs(round(1 / args.dt) * args.dt - 1) > 1e-9:
+        parser.exit(2, f"--dt={args.dt} not allowed; must divide 1 and be in (0, 0.01]\n")
+    if 64 % args.sub:
+        parser.exit(2, f"--sub={args.sub} not allowed; must divide 64\n")
+    arms = args.arms.split(",")
+    if not set(arms) <= {"recipe", "original"}:
+        parser.exit(2, f"--arms={args.arms} not allowed; allowed: recipe, original (comma-separated)\n")
+    seeds = [int(s) for s in args.seeds.split(",")]
+    torch.set_num_threads(args.threads)
+    cache, results_path = Path(args.cache_dir), Path(args.results)
+    cache.mkdir(parents=True, exist_ok=True)
+    if args.sanity:
+        print(json.dumps(sanity(args.dt)))
+        return
+    setup = {"n_train": args.n_train, "n_test": args.n_test, "epochs": args.epochs, "batch_size": args.batch_size,
+             "lr": args.lr, "fno": {"width": args.width, "modes": args.modes, "layers": args.layers},
+             "s": 64 // args.sub, "dt_original": args.dt, "loss": "relative", "schedule": "cosine"}
+    saved = json.loads(results_path.read_text()) if results_path.is_file() else {}
+    if saved and saved.get("setup") != setup:
+        parser.exit(2, f"{results_path} holds results of another set-up ({saved.get('setup')}); pass --results "
+                       "ANOTHER.json for this one\n")
+    results = saved.get("runs", {})
+    print(f"fno_ns2d_nu1e-3 reproduction: {setup}")
+    t0 = time.perf_counter()
+    sub = slice(None, None, args.sub)
+
+    def load(u: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(np.ascontiguousarray(u[:, :, sub, sub]))[:, :, None]  # [N, 50, 1, s, s]
+
+    tests = {"original": test_batches(load(original_data("test", args.n_test, 64, args.dt, cache))),
+             "recipe": test_batches(load(recipe_data("test", args.n_test, cache)))}
+    print(f"  test sets ready ({time.perf_counter() - t0:.0f} s)")
+    for arm in arms:
+        todo = [s for s in seeds if f"{arm}/seed{s}" not in results]
+        if not todo:
+            continue
+        train_u = load(original_data("train", args.n_train, 64, args.dt, cache) if arm == "original"
+                       else recipe_data("train", args.n_train, cache))
+        for seed in todo:
+            run = train_one(arm, seed, train_u, tests, args, cache / "runs" / f"{arm}_seed{seed}_n{args.n_train}_e{args.epochs}_s{64 // args.sub}")
+            results[f"{arm}/seed{seed}"] = run
+            results_path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = results_path.with_suffix(".tmp")
+            tmp.write_text(json.dumps({"setup": setup, "runs": results}, indent=2))
+            tmp.replace(results_path)
+            print(f"  {arm} seed {seed}: " + ", ".join(f"{k} test {v['mean']:.4f}" for k, v in run["test"].items())
+                  + f" ({run['steps']} steps, {run['eval_and_train_s']:.0f} s)")
+    report(results, arms, seeds, tests)
+
+
+if __name__ == "__main__":
+    main()
