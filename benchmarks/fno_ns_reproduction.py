@@ -276,7 +276,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1: best on shared cores)")
     parser.add_argument("--cache-dir", default="/tmp/pdestream_fno_ns")
     parser.add_argument("--results", default=str(RESULTS))
-    parser.add_argument("--sanity", action="store_true", help="only the same-w0 check of the two solvers")
+    parser.add_argument("--sanity", action="store_true", help="only the same-w0 check of the two solvers "
+                        "(written to sanity.json beside --results)")
     args = parser.parse_args(argv)
     for name in ("n_train", "n_test", "epochs", "batch_size", "width", "modes", "layers", "sub", "threads"):
         if getattr(args, name) < 1:
@@ -293,7 +294,9 @@ def main(argv: list[str] | None = None) -> None:
     cache, results_path = Path(args.cache_dir), Path(args.results)
     cache.mkdir(parents=True, exist_ok=True)
     if args.sanity:
-        print(json.dumps(sanity(args.dt)))
+        out = results_path.with_name("sanity.json")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(sanity(args.dt), indent=2))  # committed beside the results
         return
     setup = {"n_train": args.n_train, "n_test": args.n_test, "epochs": args.epochs, "batch_size": args.batch_size,
              "lr": args.lr, "fno": {"width": args.width, "modes": args.modes, "layers": args.layers},
@@ -313,14 +316,14 @@ def main(argv: list[str] | None = None) -> None:
     tests = {"original": test_batches(load(original_data("test", args.n_test, 64, args.dt, cache))),
              "recipe": test_batches(load(recipe_data("test", args.n_test, cache)))}
     print(f"  test sets ready ({time.perf_counter() - t0:.0f} s)")
-    for arm in arms:
-        todo = [s for s in seeds if f"{arm}/seed{s}" not in results]
-        if not todo:
-            continue
-        train_u = load(original_data("train", args.n_train, 64, args.dt, cache) if arm == "original"
-                       else recipe_data("train", args.n_train, cache))
-        for seed in todo:
-            run = train_one(arm, seed, train_u, tests, args, cache / "runs" / f"{arm}_seed{seed}_n{args.n_train}_e{args.epochs}_s{64 // args.sub}")
+    train_sets = {}
+    for seed in seeds:  # seed by seed, both arms: a budget cut short leaves them balanced
+        for arm in (a for a in arms if f"{a}/seed{seed}" not in results):
+            if arm not in train_sets:
+                train_sets[arm] = load(original_data("train", args.n_train, 64, args.dt, cache) if arm == "original"
+                                       else recipe_data("train", args.n_train, cache))
+            name = f"{arm}_seed{seed}_n{args.n_train}_e{args.epochs}_s{64 // args.sub}"
+            run = train_one(arm, seed, train_sets[arm], tests, args, cache / "runs" / name)
             results[f"{arm}/seed{seed}"] = run
             results_path.parent.mkdir(parents=True, exist_ok=True)
             tmp = results_path.with_suffix(".tmp")
