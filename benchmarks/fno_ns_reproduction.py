@@ -108,12 +108,13 @@ def original_w0(split: str, lo: int, hi: int, n: int) -> np.ndarray:
     return np.concatenate([grf_w0(np.random.default_rng([ORIGINAL_SEEDS[split], i]), 1, n) for i in range(lo, hi)])
 
 
-def original_data(split: str, count: int, n: int, dt: float, cache: Path) -> np.ndarray:
-    """The original algorithm's trajectories t = 1..50 of ``split``'s samples 0..count-1: float32 [count, 50, n, n],
-    solved CHUNK at a time, each chunk cached under ``cache`` (a rerun solves only what is missing)."""
+def original_data(split: str, count: int, n: int, dt: float, cache: Path, first: int = 0) -> np.ndarray:
+    """The original algorithm's trajectories t = 1..50 of ``split``'s samples first..first+count-1: float32
+    [count, 50, n, n], solved CHUNK at a time, each chunk cached under ``cache`` (a rerun solves only what is
+    missing)."""
     parts = []
-    for lo in range(0, count, CHUNK):
-        hi = min(lo + CHUNK, count)
+    for lo in range(first, first + count, CHUNK):
+        hi = min(lo + CHUNK, first + count)
         path = cache / f"original_{split}_n{n}_dt{dt:g}_{lo}-{hi}.npy"
         if not path.is_file():
             w = solve_cn(original_w0(split, lo, hi, n), NU, dt, range(1, FRAMES + 1), forcing(n),
@@ -125,15 +126,16 @@ def original_data(split: str, count: int, n: int, dt: float, cache: Path) -> np.
     return np.concatenate(parts)
 
 
-def recipe_data(split: str, count: int, cache: Path) -> np.ndarray:
-    """The recipe's ``split`` samples 0..count-1 (its split seed), frames t = 1..50: float32 [count, 50, 64, 64]."""
+def recipe_data(split: str, count: int, cache: Path, first: int = 0) -> np.ndarray:
+    """The recipe's ``split`` samples first..first+count-1 (its split seed), frames t = 1..50: float32
+    [count, 50, 64, 64]."""
     from pdestream import generator
     from pdestream.recipes import RECIPES
 
     seed = RECIPES["fno_ns2d_nu1e-3"].splits[split].seed
     parts = []
-    for lo in range(0, count, CHUNK):
-        hi = min(lo + CHUNK, count)
+    for lo in range(first, first + count, CHUNK):
+        hi = min(lo + CHUNK, first + count)
         path = cache / f"recipe_{split}_seed{seed}_{lo}-{hi}.npy"
         if not path.is_file():
             t0 = time.perf_counter()
@@ -243,12 +245,14 @@ def mean_std(values: list[float]) -> tuple[float, float]:
     return statistics.fmean(values), (statistics.stdev(values) if len(values) > 1 else 0.0)
 
 
-def report(results: dict, arms, seeds, tests) -> None:
-    """Per arm and test set: mean +- std over seeds; whether |difference| <= std_a + std_b (compare.md's rule)."""
+def report(results: dict, arms, seeds, tests, tag: str = "") -> None:
+    """Per arm and test set: mean +- std over seeds; whether |difference| <= std_a + std_b (compare.md's rule).
+    tag: "" (the first training draw) or "drawK/"."""
     for test in tests:
         rows = {}
         for arm in arms:
-            done = [results[f"{arm}/seed{s}"]["test"][test]["mean"] for s in seeds if f"{arm}/seed{s}" in results]
+            done = [results[f"{arm}/{tag}seed{s}"]["test"][test]["mean"] for s in seeds
+                    if f"{arm}/{tag}seed{s}" in results]
             if done:
                 rows[arm] = (*mean_std(done), len(done))
                 print(f"  {test} test set, trained on {arm:8s}: rel L2 {rows[arm][0]:.4f} +- {rows[arm][1]:.4f} "
@@ -272,6 +276,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--sub", type=int, default=2, help="subsample the 64^2 solutions by this (2: 32^2)")
     parser.add_argument("--dt", type=float, default=2e-3, help="the original algorithm's time step")
     parser.add_argument("--seeds", default="0,1,2")
+    parser.add_argument("--draw", type=int, default=0, help="train on each arm's training samples "
+                        "draw*n_train .. (draw+1)*n_train-1 (another draw of the same size: the data-draw spread)")
     parser.add_argument("--arms", default="recipe,original")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1: best on shared cores)")
     parser.add_argument("--cache-dir", default="/tmp/pdestream_fno_ns")
@@ -284,6 +290,8 @@ def main(argv: list[str] | None = None) -> None:
             parser.exit(2, f"--{name.replace('_', '-')}={getattr(args, name)} not allowed; must be >= 1\n")
     if not 0 < args.dt <= 0.01 or abs(round(1 / args.dt) * args.dt - 1) > 1e-9:
         parser.exit(2, f"--dt={args.dt} not allowed; must divide 1 and be in (0, 0.01]\n")
+    if args.draw < 0:
+        parser.exit(2, f"--draw={args.draw} not allowed; must be >= 0\n")
     if 64 % args.sub:
         parser.exit(2, f"--sub={args.sub} not allowed; must divide 64\n")
     arms = args.arms.split(",")
@@ -317,21 +325,22 @@ def main(argv: list[str] | None = None) -> None:
              "recipe": test_batches(load(recipe_data("test", args.n_test, cache)))}
     print(f"  test sets ready ({time.perf_counter() - t0:.0f} s)")
     train_sets = {}
+    first, tag = args.draw * args.n_train, f"draw{args.draw}/" if args.draw else ""
     for seed in seeds:  # seed by seed, both arms: a budget cut short leaves them balanced
-        for arm in (a for a in arms if f"{a}/seed{seed}" not in results):
+        for arm in (a for a in arms if f"{a}/{tag}seed{seed}" not in results):
             if arm not in train_sets:
-                train_sets[arm] = load(original_data("train", args.n_train, 64, args.dt, cache) if arm == "original"
-                                       else recipe_data("train", args.n_train, cache))
-            name = f"{arm}_seed{seed}_n{args.n_train}_e{args.epochs}_s{64 // args.sub}"
+                train_sets[arm] = load(original_data("train", args.n_train, 64, args.dt, cache, first)
+                                       if arm == "original" else recipe_data("train", args.n_train, cache, first))
+            name = f"{arm}_{tag.rstrip('/') or 'draw0'}_seed{seed}_n{args.n_train}_e{args.epochs}_s{64 // args.sub}"
             run = train_one(arm, seed, train_sets[arm], tests, args, cache / "runs" / name)
-            results[f"{arm}/seed{seed}"] = run
+            results[f"{arm}/{tag}seed{seed}"] = {**run, "draw": args.draw, "first_sample": first}
             results_path.parent.mkdir(parents=True, exist_ok=True)
             tmp = results_path.with_suffix(".tmp")
             tmp.write_text(json.dumps({"setup": setup, "runs": results}, indent=2))
             tmp.replace(results_path)
-            print(f"  {arm} seed {seed}: " + ", ".join(f"{k} test {v['mean']:.4f}" for k, v in run["test"].items())
+            print(f"  {arm} {tag}seed {seed}: " + ", ".join(f"{k} test {v['mean']:.4f}" for k, v in run["test"].items())
                   + f" ({run['steps']} steps, {run['eval_and_train_s']:.0f} s)")
-    report(results, arms, seeds, tests)
+    report(results, arms, seeds, tests, tag)
 
 
 if __name__ == "__main__":
