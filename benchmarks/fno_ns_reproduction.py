@@ -1,5 +1,6 @@
 """The FNO paper's Navier-Stokes nu = 1e-3 task, trained on the recipe and on the original generation algorithm:
-``python -m benchmarks.fno_ns_reproduction [--n-train 64 --n-test 32 --epochs 7 --seeds 0,1,2]``.
+``python -m benchmarks.fno_ns_reproduction [--n-train 64 --n-test 32 --epochs 7 --seeds 0,1,2] [--draw 1]``
+(``--sanity``: only the two solvers on the same w0).
 
 Issue 31's CPU fallback: the same FNO, the same training loop and budget, two data arms:
 
@@ -14,8 +15,9 @@ Issue 31's CPU fallback: the same FNO, the same training loop and budget, two da
 The task is the paper's: frames t = 1..10 in, t = 11..50 out, one frame per network call, autoregressive; the
 error is the relative L2 over the 40 predicted frames of each test trajectory, mean over trajectories. Both arms
 are evaluated on the same two test sets: the original algorithm's test trajectories and the recipe's (its test
-split). Each (arm, seed) result is written to ``--results`` as it finishes and skipped on a rerun; generated
-data is cached under ``--cache-dir``. Figures: docs/results/recipes.md (section fno_ns2d_nu1e-3).
+split). ``--draw K`` trains on each arm's training samples K n_train .. (K + 1) n_train - 1 instead: another
+training set of the same size, whose spread the model seeds do not show. Each (arm, draw, seed) result is written
+to ``--results`` as it finishes and skipped on a rerun; generated data is cached under ``--cache-dir``. Figures: docs/results/recipes.md (section fno_ns2d_nu1e-3).
 """
 
 from __future__ import annotations
