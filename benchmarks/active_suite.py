@@ -1,7 +1,7 @@
 """Issue 30's decisive measurement: active sampling against uniform, with the settings fixed on burgers1d and kdv1d,
 run unchanged on ks2d, ns2d, grayscott2d and two catalog entries nobody tuned on; resumable unit by unit.
 
-``python -m benchmarks.active_suite --out DIR [--problems fisher_kpp1d,ns2d] [--seeds 3] [--max-minutes M]
+``python -m benchmarks.active_suite [--out DIR] [--problems fisher_kpp1d,ns2d] [--seeds 3] [--max-minutes M]
 [--summary-only]``: rerun the same command to go on from the finished units.
 
 **The two untuned entries (rule written before any run, 2026-11-27).** In catalog order (``catalog_names.NAMES``),
@@ -135,6 +135,11 @@ def test_set(pde, cfg, path: Path) -> list[dict]:
     return tests
 
 
+# Where the units are kept by default: in the repository, so a later session (a fresh machine) resumes from them;
+# each unit's record is ~100 KB (its weights are dropped), the test sets are not committed (.gitignore)
+RESULTS = Path(__file__).parent / "results" / "active_suite"
+
+
 def unit_dir(out: Path, name: str, arm: str, seed: int) -> Path:
     return out / name / f"{arm}_seed{seed}"
 
@@ -263,7 +268,8 @@ def summary(out: Path, problems, seeds: int) -> str:
 
 def main(argv: list[str] | None = None, tiny: dict | None = None) -> None:
     p = argparse.ArgumentParser(prog="python -m benchmarks.active_suite", description=__doc__.splitlines()[0])
-    p.add_argument("--out", type=Path, required=True, help="output directory (kept across sessions: rerun to resume)")
+    p.add_argument("--out", type=Path, default=RESULTS, help="output directory (default: the records committed in the "
+                   f"repository, {RESULTS.relative_to(Path(__file__).parent.parent)}: rerun to resume)")
     p.add_argument("--problems", default=",".join(PROBLEMS), help=f"comma-separated (default {','.join(PROBLEMS)})")
     p.add_argument("--seeds", type=int, default=3, help="seeds per arm (default 3)")
     p.add_argument("--max-minutes", type=float, default=60.0, help="stop cleanly before this wall time (default 60)")
