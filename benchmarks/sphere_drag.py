@@ -70,14 +70,23 @@ def load_record(path):
 
 
 def save_row(path, row):
-    """Replace (or add) the row with row's settings in the record at ``path``, written whole, then renamed."""
-    rows = [r for r in load_record(path) if tuple(r[k] for k in KEY) != tuple(row[k] for k in KEY)]
-    rows.append(row)
-    rows.sort(key=lambda r: tuple(r[k] for k in KEY))
-    with open(path + ".tmp", "w") as f:
-        json.dump(rows, f, indent=1)
-        f.write("\n")
-    os.replace(path + ".tmp", path)
+    """Replace (or add) the row with row's settings in the record at ``path``, written whole, then renamed; under
+    a lock where the system has one (two runs may share the record)."""
+    try:
+        import fcntl
+    except ImportError:  # no POSIX locks: one run at a time
+        fcntl = None
+    with open(path + ".lock", "w") as lock:
+        if fcntl is not None:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        rows = [r for r in load_record(path) if tuple(r[k] for k in KEY) != tuple(row[k] for k in KEY)]
+        rows.append(row)
+        rows.sort(key=lambda r: tuple(r[k] for k in KEY))
+        tmp = f"{path}.{os.getpid()}.tmp"
+        with open(tmp, "w") as f:
+            json.dump(rows, f, indent=1)
+            f.write("\n")
+        os.replace(tmp, path)
 
 
 def drag(d_cells: int, width: float, length: float = 10.0, upstream: float = 3.0, fringe: float = 2.0,
