@@ -178,6 +178,8 @@ def main(argv=None) -> None:
     ap.add_argument("--t-max", type=float, default=15.0)
     ap.add_argument("--record", default=RECORD, help="the JSON record each row is written to as it runs; a row "
                     "recorded done with the same settings is read from it, not run again ('': no record)")
+    ap.add_argument("--table", action="store_true", help="print the recorded rows for these settings (a row still "
+                    "running or stopped: its last time unit), run nothing")
     ap.add_argument("--stokes", default="", help="also the Stokes array check on these cells per D (e.g. 4,6,8)")
     args = ap.parse_args(argv)
     if args.stokes:
@@ -208,7 +210,8 @@ def main(argv=None) -> None:
         if not getattr(args, name) > 0:
             raise SystemExit(f"--{name.replace('_', '-')} {getattr(args, name)}: must be > 0")
     rows = []
-    done = {tuple(r[k] for k in KEY): r for r in (load_record(args.record) if args.record else []) if r["done"]}
+    recorded = {tuple(r[k] for k in KEY): r for r in (load_record(args.record) if args.record else [])}
+    done = {key: r for key, r in recorded.items() if r["done"] or args.table}
     for n in grids:
         for w in widths:
             settings = dict(d_cells=n, width=w, length=args.length, upstream=args.upstream, fringe=args.fringe,
@@ -216,8 +219,12 @@ def main(argv=None) -> None:
                             t_max=args.t_max)
             key = tuple(settings[k] for k in KEY)
             if key in done:
-                print(f"D = {n} cells, width {w:g} D: recorded in {args.record}", flush=True)
+                state = "" if done[key]["done"] else f" (not finished: t = {len(done[key]['cd_body'])})"
+                print(f"D = {n} cells, width {w:g} D: recorded in {args.record}{state}", flush=True)
                 rows.append(done[key])
+                continue
+            if args.table:
+                print(f"D = {n} cells, width {w:g} D: not recorded", flush=True)
                 continue
             print(f"D = {n} cells, width {w:g} D:", flush=True)
             t0 = time.perf_counter()
@@ -251,19 +258,21 @@ def print_table(rows):
         drift = f"{100 * (hist[-1] / hist[-2] - 1):+6.2f}%" if len(hist) > 1 else "-"
         print(f"{r['d_cells']:>7} {r['width']:>5g} {cells:>14} {cd:7.4f} {100 * (cd / REFERENCE_CD - 1):+7.2f}% "
               f"{pushed:7.4f} {100 * (pushed / REFERENCE_CD - 1):+7.2f}% {len(hist):5.1f} {drift:>7} "
-              f"{r['wall_s']:6.0f}")
+              f"{r['wall_s']:6.0f}{'' if r['done'] else ' (not finished)'}")
     for w in sorted({r["width"] for r in rows}):
         same = sorted((r for r in rows if r["width"] == w), key=lambda r: r["d_cells"])[-3:]
         if len({r["d_cells"] for r in same}) < 3:
             continue
+        t = min(len(r["cd_body"]) for r in same)  # compared at one time: Cd still drifts
         for name in ("cd_body", "cd_push"):
-            fit = richardson([r["d_cells"] for r in same], [r[name][-1] for r in same])
+            fit = richardson([r["d_cells"] for r in same], [r[name][t - 1] for r in same])
             grids = "/".join(str(r["d_cells"]) for r in same)
             if fit is None:
-                print(f"width {w:g}, {grids} cells, {name}: no fit C + a h^p with p in (0.05, 12), no Richardson limit")
+                print(f"width {w:g}, {grids} cells, {name} at t = {t}: no fit C + a h^p with p in (0.05, 12), "
+                      "no Richardson limit")
             else:
-                print(f"width {w:g}, {grids} cells, {name}: observed order {fit[0]:.2f}, Richardson limit "
-                      f"{fit[1]:.4f} ({100 * (fit[1] / REFERENCE_CD - 1):+.2f}% vs 1.087)")
+                print(f"width {w:g}, {grids} cells, {name} at t = {t}: observed order {fit[0]:.2f}, Richardson "
+                      f"limit {fit[1]:.4f} ({100 * (fit[1] / REFERENCE_CD - 1):+.2f}% vs 1.087)")
 
 if __name__ == "__main__":
     main()
