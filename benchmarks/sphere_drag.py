@@ -1,6 +1,7 @@
 """Drag of a sphere at Re 100 (issue 28, item 5): the 3D MAC solver with a penalised body in a free stream.
 
     nice python -m benchmarks.sphere_drag [--d-cells 8,12] [--widths 6] [--length 10] [--t-max 15] [--stokes 4,6]
+        [--record FILE] [--table]
 
 A sphere of diameter D = 1 in a stream U = 1 (nu = 0.01: Re = U D / nu = 100), impulsively started. The box is
 ``length`` D along the stream and ``width`` D square across, periodic on every axis: a fringe over the last
