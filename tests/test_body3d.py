@@ -64,3 +64,28 @@ def test_a_periodic_array_of_penalised_spheres_converges_to_hasimotos_stokes_dra
         errors.append(ratio / want - 1)
     order = math.log(errors[0] / errors[1]) / math.log(6 / 4)
     assert abs(errors[1]) < 0.1 and order > 0.9, (errors, order)
+
+
+def test_the_richardson_fit_recovers_a_power_law_through_unequal_grid_ratios():
+    # Cd = 1.09 + 3 h^p on 10 / 12 / 14 cells (ratios 1.2 and 1.17): the order and the limit come back; a sequence
+    # whose differences change sign has no fit
+    from benchmarks.sphere_drag import richardson
+
+    for p in (1.0, 2.0, 2.7):
+        cells = (14, 10, 12)  # any order
+        order, limit = richardson(cells, [1.09 + 3 * n**-p for n in cells])
+        assert order == pytest.approx(p, abs=1e-6) and limit == pytest.approx(1.09, abs=1e-9)
+    assert richardson((8, 10, 12), (1.29, 1.23, 1.25)) is None
+
+
+def test_the_drag_record_keeps_one_row_per_setting(tmp_path):
+    from benchmarks.sphere_drag import KEY, load_record, save_row
+
+    path = str(tmp_path / "runs.json")
+    assert load_record(path) == []
+    row = dict.fromkeys(KEY, 1.0) | dict(cd_body=[1.3], cd_push=[1.2], done=False)
+    save_row(path, row)
+    save_row(path, row | dict(cd_body=[1.3, 1.25], done=True))  # the same settings: replaced
+    save_row(path, row | dict(width=2.0))
+    rows = load_record(path)
+    assert len(rows) == 2 and rows[0]["cd_body"] == [1.3, 1.25] and rows[0]["done"] and rows[1]["width"] == 2.0
