@@ -9,7 +9,7 @@ Issue 31's CPU fallback: the same FNO, the same training loop and budget, two da
   and appendix A.3.3): vorticity form on the unit torus, f = 0.1 (sin 2 pi (x + y) + cos 2 pi (x + y)),
   w0 ~ N(0, 7^3 (-Lap + 49 I)^-2.5), pseudo-spectral, Crank-Nicolson for the viscous term and explicit (forward
   Euler) for the advection term and the forcing, 2/3 dealiasing of the advection term, frames at t = 1..50. It
-  solves on 64^2 directly (the paper: 256^2, subsampled) at dt = 1e-3 (the paper: 1e-4, see
+  solves on 64^2 directly (the paper: 256^2, subsampled) at dt = 2e-3 (``--dt``; the paper: 1e-4, see
   docs/results/recipes.md on that solver's float32 rounding), in float64.
 
 The task is the paper's: frames t = 1..10 in, t = 11..50 out, one frame per network call, autoregressive; the
