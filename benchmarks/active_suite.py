@@ -70,6 +70,7 @@ import shutil
 import signal
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -86,6 +87,35 @@ METRICS = ("mean", "p95", "p99", "cvar95", "max")
 UNTRAINED = 0.5  # a uniform arm's mean relative L2 at or above this: the FNO did not learn the operator
 
 
+@dataclass(frozen=True)
+class Suite:
+    """One resumable measurement over PROBLEMS: its ``compare`` settings (``CompareCommand`` fields), its arms
+    (``extra``: more arms on some problems), the pairs its verdicts compare ((baseline, contender): a ratio
+    baseline / contender > 1 says the contender is better), its test sets (in-domain, and compare's shifted one when
+    ``shift`` is set) and where its units live (``results``, the default --out)."""
+
+    title: str
+    settings: dict
+    arms: tuple
+    pairs: tuple
+    results: Path
+    labels: dict  # arm -> the name the summary gives it
+    shift: float | None = None
+    n_test: int | None = None  # test trajectories per set (None: the rule above, n_test())
+    extra: dict = field(default_factory=dict)  # problem -> arms run there beside ``arms``
+
+    def arms_of(self, name: str) -> tuple:
+        return self.arms + tuple(self.extra.get(name, ()))
+
+
+# Where the units are kept by default: in the repository, so a later session (a fresh machine) resumes from them;
+# each unit's record is ~100 KB (its weights are dropped), the test sets are not committed (.gitignore)
+RESULTS = Path(__file__).parent / "results" / "active_suite"
+ACTIVE = Suite(title="Active sampling suite (issue 30)", settings=SETTINGS, arms=ARMS,
+               pairs=(("reservoir", "reservoir_active"),), results=RESULTS,
+               labels={"reservoir": "uniform", "reservoir_active": "active"})
+
+
 class Deadline(BaseException):
     """Raised in the unit under way when --max-minutes is reached (a BaseException: nothing on the way catches it)."""
 
@@ -100,28 +130,27 @@ def n_test(name: str) -> int:
     return TEST_SMALL.get(name, 1024)
 
 
-def setup(name: str, tiny: dict | None = None):
-    """(pde, BudgetConfig, view) of ``name`` under SETTINGS and its grid, as compare builds them; ``tiny``
-    overrides settings and SETTINGS entries (the harness's own test)."""
+def setup(name: str, tiny: dict | None = None, suite: Suite = ACTIVE):
+    """(pde, BudgetConfig, view) of ``name`` under the suite's settings and its grid, as compare builds them;
+    ``tiny`` overrides settings and the suite's entries (the harness's own test)."""
     from pdestream import datasets, generator
     from pdestream.experiments.command import CompareCommand, budget_setup
     from pdestream.surrogate.modes import make_mode, training_view
 
-    s = {**SETTINGS, **(tiny or {})}
+    s = {**suite.settings, **(tiny or {})}
     settings = {**grid(name, generator.get_pde(name).NDIM), **s.pop("settings", {})}
-    cmd = CompareCommand(pde=name, out="", settings=settings, sim_budget=s["sim_budget"], steps=s["steps"],
-                         sim_warmup_share=s["sim_warmup_share"], batch_size=s["batch_size"], lr=s["lr"],
-                         model_cfg=s["model_cfg"], loss=s["loss"], threads=s["threads"], arms=ARMS, seeds=1,
-                         test_samples=s.get("n_test", n_test(name)))
+    n = s.pop("n_test", suite.n_test or n_test(name))
+    cmd = CompareCommand(pde=name, out="", settings=settings, arms=suite.arms_of(name), seeds=1, test_samples=n,
+                         shift=-0.25 if suite.shift is None else suite.shift, **s)
     pde, cfg = budget_setup(cmd, log=lambda line: None)
-    cfg.shift = 0.0
     view = training_view(make_mode(cfg.mode), datasets.for_sample(datasets.make_view(cfg.view), pde.n_frames,
                                                                   len(pde.INPUTS)))
     return pde, cfg, view
 
 
 def test_set(pde, cfg, path: Path) -> list[dict]:
-    """The problem's stratified in-domain test set, solved once and kept at ``path`` (written whole or not at all)."""
+    """The stratified test set of ``pde`` (its own domain), solved once and kept at ``path`` (written whole or
+    not at all)."""
     import torch
 
     from pdestream.experiments.budget import stratified_test_set
@@ -135,25 +164,26 @@ def test_set(pde, cfg, path: Path) -> list[dict]:
     return tests
 
 
-# Where the units are kept by default: in the repository, so a later session (a fresh machine) resumes from them;
-# each unit's record is ~100 KB (its weights are dropped), the test sets are not committed (.gitignore)
-RESULTS = Path(__file__).parent / "results" / "active_suite"
-
-
 def unit_dir(out: Path, name: str, arm: str, seed: int) -> Path:
     return out / name / f"{arm}_seed{seed}"
 
 
-def units(problems, seeds: int) -> list[tuple]:
-    """(problem, seed, arm) in run order: seed by seed, problems in the given order, uniform then active."""
-    return [(p, s, a) for s in range(seeds) for p in problems for a in ARMS]
+def units(problems, seeds: int, suite: Suite = ACTIVE) -> list[tuple]:
+    """(problem, seed, arm) in run order: seed by seed, problems in the given order, the suite's arms in order."""
+    return [(p, s, a) for s in range(seeds) for p in problems for a in suite.arms_of(p)]
 
 
-def prepare(out: Path, name: str, tiny: dict | None = None):
-    """(pde, cfg, view, tests) of ``name``: its settings and its test set (solved on the first call, then read)."""
-    pde, cfg, view = setup(name, tiny)
+def prepare(out: Path, name: str, tiny: dict | None = None, suite: Suite = ACTIVE):
+    """(pde, cfg, view, tests) of ``name``: its settings and its test sets ("test", and "shifted" where the suite
+    has a shift: compare's shifted domain), solved on the first call, then read."""
+    from pdestream.experiments.compare import shifted_pde
+
+    pde, cfg, view = setup(name, tiny, suite)
     (out / name).mkdir(parents=True, exist_ok=True)
     tests = {"test": test_set(pde, cfg, out / name / "test.pt")}
+    shifted = None if suite.shift is None else shifted_pde(pde, suite.shift)
+    if shifted is not None:
+        tests["shifted"] = test_set(shifted, cfg, out / name / "shifted.pt")
     params = out / name / "test_params.json"
     if not params.is_file():
         import torch
@@ -162,12 +192,12 @@ def prepare(out: Path, name: str, tiny: dict | None = None):
     return pde, cfg, view, tests
 
 
-def run_unit(out: Path, name: str, seed: int, arm: str, tiny: dict | None = None) -> dict:
+def run_unit(out: Path, name: str, seed: int, arm: str, tiny: dict | None = None, suite: Suite = ACTIVE) -> dict:
     """Train and evaluate one unit into its directory via a ``.tmp-`` directory renamed when finished (its
     arm.json, compare's record, and unit.json: the unit's wall seconds, test set excluded)."""
     from pdestream.experiments.budget import run_arm
 
-    pde, cfg, view, tests = prepare(out, name, tiny)
+    pde, cfg, view, tests = prepare(out, name, tiny, suite)
     t0 = time.monotonic()
     final = unit_dir(out, name, arm, seed)
     tmp = final.with_name(".tmp-" + final.name)
@@ -177,7 +207,7 @@ def run_unit(out: Path, name: str, seed: int, arm: str, tiny: dict | None = None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    for f in ("model.pt", "checkpoint.pt"):  # weights are not part of the record (and MBs per unit)
+    for f in ("model.pt", "checkpoint.pt", "cache.h5"):  # weights and data are not part of the record (MBs)
         (tmp / f).unlink(missing_ok=True)
     (tmp / "unit.json").write_text(json.dumps({"unit_s": time.monotonic() - t0}))
     tmp.replace(final)
@@ -212,64 +242,105 @@ def explained(out: Path, name: str, runs: list[dict]) -> float | None:
     return float(1 - ((y - fitted) ** 2).sum() / max(((y - y.mean()) ** 2).sum(), 1e-300))
 
 
-def summary(out: Path, problems, seeds: int) -> str:
-    """summary.md's text: per problem, each arm over its finished seeds and the ratio uniform / active with the
-    verdict per metric (compare.md's rule: the margin against the two arms' standard deviations added)."""
+def _verdict(runs: dict, stats: dict, pair: tuple, metric: str, labels: dict) -> str:
+    """compare.md's rule for one metric of one pair: the margin against the two arms' standard deviations added."""
+    (base, cont), key = pair, metric
+    (mb, sb), (mc, sc) = stats[base][key], stats[cont][key]
+    if min(len(runs[base]), len(runs[cont])) < 2:
+        verdict = "one seed, no verdict"
+    elif abs(mb - mc) > sb + sc:
+        verdict = f"{labels[cont]} {'better' if mb > mc else 'worse'}, outside the spread"
+    else:
+        verdict = "within the spread"
+    return f"x{mb / max(mc, 1e-300):.2f} ({verdict})"
+
+
+def summary(out: Path, problems, seeds: int, suite: Suite = ACTIVE) -> str:
+    """summary.md's text: per problem, each arm over its finished seeds (steps, wall, the metrics of every test
+    set) and, for each of the suite's pairs, the ratio baseline / contender with compare.md's verdict per metric
+    and the contender's steps against the baseline's."""
     from pdestream import generator
 
-    lines = ["# Active sampling suite (issue 30)", "",
-             f"Settings: {json.dumps(SETTINGS)}; arms uniform (reservoir) and active (reservoir_active); "
-             "per-trajectory relative L2 on one in-domain stratified test set per problem; mean ± std over the "
-             "finished seeds (std with ddof 1).", "",
-             "| problem (grid, test set) | arm | seeds | steps (mean) | wall s (mean) | " + " | ".join(METRICS) + " |",
-             "| --- " * (5 + len(METRICS)) + "|"]
+    sets = ("test",) if suite.shift is None else ("test", "shifted")
+    keys = [f"{t}_{m}" for t in sets for m in METRICS]
+    head = [m if t == "test" else f"{t} {m}" for t in sets for m in METRICS]
+    named = ", ".join(f"{v} ({k})" for k, v in suite.labels.items())
+    lines = [f"# {suite.title}", "",
+             f"Settings: {json.dumps(suite.settings)}; arms {named}; per-trajectory relative L2 on in-domain"
+             + (f" and shifted (shift {suite.shift:g})" if suite.shift is not None else "") + " stratified test sets"
+             " per problem; mean ± std over the finished seeds (std with ddof 1).", "",
+             "| problem (grid, test set) | arm | seeds | steps (mean) | wall s (mean) | " + " | ".join(head) + " |",
+             "| --- " * (5 + len(keys)) + "|"]
     notes = []
     for name in problems:
-        runs = {a: _load(out, name, a, seeds) for a in ARMS}
+        runs = {a: _load(out, name, a, seeds) for a in suite.arms_of(name)}
         stats = {}
         for a, rs in runs.items():
             if not rs:
                 continue
-            v = {m: np.array([r[f"test_{m}"] for r in rs]) for m in METRICS}
-            stats[a] = {m: (x.mean(), x.std(ddof=1) if len(x) > 1 else 0.0) for m, x in v.items()}
+            v = {k: np.array([r[k] for r in rs]) for k in keys}
+            stats[a] = {k: (x.mean(), x.std(ddof=1) if len(x) > 1 else 0.0) for k, x in v.items()}
+            stats[a]["steps"] = (np.mean([r["steps"] for r in rs]), 0.0)
             g = grid(name, generator.get_pde(name).NDIM)
             horizon = f", t_end={g['t_end']}" if "t_end" in g else ""
-            lines.append(f"| {name} (n={g['n']}{horizon}, {len(rs[0]['errors']['test'])}) | {a} | "
-                         f"{','.join(str(r['seed']) for r in rs)} | {np.mean([r['steps'] for r in rs]):.0f} | "
+            lines.append(f"| {name} (n={g['n']}{horizon}, {len(rs[0]['errors']['test'])}) | {suite.labels[a]} | "
+                         f"{','.join(str(r['seed']) for r in rs)} | {stats[a]['steps'][0]:.0f} | "
                          f"{np.mean([r['wall_s'] for r in rs]):.0f} | "
-                         + " | ".join(f"{stats[a][m][0]:.4f} ± {stats[a][m][1]:.4f}" for m in METRICS) + " |")
-        if len(stats) == 2:
-            u, ac = stats["reservoir"], stats["reservoir_active"]
-            both = min(len(runs["reservoir"]), len(runs["reservoir_active"]))
-            cells = []
-            for m in METRICS:
-                margin, spread = u[m][0] - ac[m][0], u[m][1] + ac[m][1]
-                verdict = ("one seed, no verdict" if both < 2 else
-                           ("active better, outside the spread" if margin > 0 else "active worse, outside the spread")
-                           if abs(margin) > spread else "within the spread")
-                cells.append(f"x{u[m][0] / max(ac[m][0], 1e-300):.2f} ({verdict})")
-            lines.append(f"| {name} | **uniform / active** | | | | " + " | ".join(cells) + " |")
-            if u["mean"][0] >= UNTRAINED:
-                notes.append(f"- {name}: **not trained** (uniform mean {u['mean'][0]:.3f} >= {UNTRAINED}): the FNO does "
-                             "not learn u(0) -> u(t_end) at this budget, so its ratios compare two untrained models.")
-            gate = [r["stats"] for r in runs["reservoir_active"] if "proposal_skill" in (r.get("stats") or {})]
-            if gate:
-                notes.append(f"- {name}: the active arm's skill gate at the end (mean over its seeds): skill "
-                             f"{np.mean([g['proposal_skill'] for g in gate]):.2f}, steered share "
-                             f"{np.mean([g['proposal_steer'] for g in gate]):.2f} (of 0.75 at most: floor 0.25).")
-            share = explained(out, name, runs["reservoir"])
-            if share is not None:
-                notes.append(f"- {name}: the parameters explain {100 * share:.0f}% of the variance of the uniform "
-                             f"arm's log error (test trajectories binned in the unit parameter box).")
-    missing = [f"{p} {a} seed {s}" for p, s, a in units(problems, seeds)
+                         + " | ".join(f"{stats[a][k][0]:.4f} ± {stats[a][k][1]:.4f}" for k in keys) + " |")
+        for base, cont in suite.pairs:
+            if base not in stats or cont not in stats:
+                continue
+            cells = [_verdict(runs, stats, (base, cont), k, suite.labels) for k in keys]
+            steps = stats[cont]["steps"][0] / max(stats[base]["steps"][0], 1e-300)
+            met = "at least 95%: met" if steps >= 0.95 else f"short of 95% by {100 * (0.95 - steps):.0f} points"
+            lines.append(f"| {name} | **{suite.labels[base]} / {suite.labels[cont]}** | | {suite.labels[cont]} "
+                         f"x{steps:.2f} the steps ({met}) | | " + " | ".join(cells) + " |")
+        first = stats.get(suite.pairs[0][0])
+        if first and first["test_mean"][0] >= UNTRAINED:
+            notes.append(f"- {name}: **not trained** ({suite.labels[suite.pairs[0][0]]} mean {first['test_mean'][0]:.3f}"
+                         f" >= {UNTRAINED}): the FNO does not learn u(0) -> u(t_end) at this budget, so its ratios "
+                         "compare untrained models.")
+        gate = [r["stats"] for r in runs.get("reservoir_active", []) if "proposal_skill" in (r.get("stats") or {})]
+        if gate:
+            notes.append(f"- {name}: the active arm's skill gate at the end (mean over its seeds): skill "
+                         f"{np.mean([g['proposal_skill'] for g in gate]):.2f}, steered share "
+                         f"{np.mean([g['proposal_steer'] for g in gate]):.2f} (of 0.75 at most: floor 0.25).")
+        notes += _spending(name, runs, suite.labels)
+        share = explained(out, name, runs.get("reservoir", []))
+        if share is not None:
+            notes.append(f"- {name}: the parameters explain {100 * share:.0f}% of the variance of the "
+                         f"{suite.labels['reservoir']} arm's log error (test trajectories binned in the unit parameter box).")
+    missing = [f"{p} {a} seed {s}" for p, s, a in units(problems, seeds, suite)
                if not (unit_dir(out, p, a, s) / "arm.json").is_file()]
     return "\n".join(lines + ["", *notes, "", f"Units missing ({len(missing)}): " + (", ".join(missing) or "none")]) + "\n"
 
 
-def main(argv: list[str] | None = None, tiny: dict | None = None) -> None:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.active_suite", description=__doc__.splitlines()[0])
-    p.add_argument("--out", type=Path, default=RESULTS, help="output directory (default: the records committed in the "
-                   f"repository, {RESULTS.relative_to(Path(__file__).parent.parent)}: rerun to resume)")
+def _spending(name: str, runs: dict, labels: dict) -> list[str]:
+    """Where a time-budget arm's seconds went (mean over its seeds): the precomputed arm's solve share and dataset,
+    a reservoir's solves, its reuse target and its producer's idle share. Empty at a simulation budget."""
+    lines = []
+    for arm, rs in runs.items():
+        plans = [r["precompute"] for r in rs if r.get("precompute") and "solve_share" in r["precompute"]]
+        if plans:
+            lines.append(f"- {name} {labels[arm]}: solved {np.mean([r['trajectories_solved'] for r in rs]):.0f} "
+                         f"trajectories in {100 * np.mean([p['solve_share'] for p in plans]):.0f}% of its budget, "
+                         f"then trained {np.mean([r['steps'] for r in rs]):.0f} steps over them "
+                         f"({np.mean([p['epochs_planned'] for p in plans]):.1f} epochs planned).")
+        paced = [r["stats"] for r in rs if "target_reuse" in (r.get("stats") or {})]
+        if paced and rs[0].get("precompute") is None and "pace_slowdown" in paced[0]:
+            lines.append(f"- {name} {labels[arm]}: solved {np.mean([r['trajectories_solved'] for r in rs]):.0f} "
+                         f"trajectories, reuse target {np.mean([float(s['target_reuse'] or 0) for s in paced]):.1f}, "
+                         f"producer idle {100 * np.mean([s.get('producer_idle_share', 0.0) for s in paced]):.0f}%, "
+                         f"training loop waiting {100 * np.mean([r['wait_share'] for r in rs]):.0f}%.")
+    return lines
+
+
+def main(argv: list[str] | None = None, tiny: dict | None = None, suite: Suite = ACTIVE, doc: str = __doc__) -> None:
+    """The command line of a suite (``python -m benchmarks.active_suite``, ``benchmarks.wallclock_suite``)."""
+    prog = "benchmarks.active_suite" if suite is ACTIVE else "benchmarks.wallclock_suite"
+    p = argparse.ArgumentParser(prog=f"python -m {prog}", description=doc.splitlines()[0])
+    p.add_argument("--out", type=Path, default=suite.results, help="output directory (default: the records committed "
+                   f"in the repository, {suite.results.relative_to(Path(__file__).parent.parent)}: rerun to resume)")
     p.add_argument("--problems", default=",".join(PROBLEMS), help=f"comma-separated (default {','.join(PROBLEMS)})")
     p.add_argument("--seeds", type=int, default=3, help="seeds per arm (default 3)")
     p.add_argument("--max-minutes", type=float, default=60.0, help="stop cleanly before this wall time (default 60)")
@@ -287,13 +358,14 @@ def main(argv: list[str] | None = None, tiny: dict | None = None) -> None:
     out = a.out
     out.mkdir(parents=True, exist_ok=True)
     if a.summary_only:
-        text = summary(out, problems, a.seeds)
+        text = summary(out, problems, a.seeds, suite)
         (out / "summary.md").write_text(text)
         print(text, flush=True)
         return
     start, limit = time.monotonic(), 60 * a.max_minutes
-    todo = [(p_, s, arm) for p_, s, arm in units(problems, a.seeds) if not (unit_dir(out, p_, arm, s) / "arm.json").is_file()]
-    print(f"active suite: {len(todo)} of {len(problems) * a.seeds * len(ARMS)} units to run, stop before "
+    every = units(problems, a.seeds, suite)
+    todo = [(p_, s, arm) for p_, s, arm in every if not (unit_dir(out, p_, arm, s) / "arm.json").is_file()]
+    print(f"{suite.title}: {len(todo)} of {len(every)} units to run, stop before "
           f"{a.max_minutes:g} min", flush=True)
 
     def on_alarm(signum, frame):
@@ -310,17 +382,17 @@ def main(argv: list[str] | None = None, tiny: dict | None = None) -> None:
     saved = (signal.signal(signal.SIGALRM, on_alarm), signal.signal(signal.SIGINT, first_interrupt), sys.unraisablehook)
     sys.unraisablehook = on_unraisable
     try:
-        _loop(out, todo, problems, a, start, limit, tiny)
+        _loop(out, todo, problems, a, start, limit, tiny, suite)
     finally:
         signal.signal(signal.SIGALRM, saved[0])
         signal.signal(signal.SIGINT, saved[1])
         sys.unraisablehook = saved[2]
-    text = summary(out, problems, a.seeds)
+    text = summary(out, problems, a.seeds, suite)
     (out / "summary.md").write_text(text)
     print(text, flush=True)
 
 
-def _loop(out: Path, todo: list, problems: list, a, start: float, limit: float, tiny) -> None:
+def _loop(out: Path, todo: list, problems: list, a, start: float, limit: float, tiny, suite: Suite) -> None:
     """Run the units of ``todo`` in order until one would pass ``limit`` seconds from ``start`` (see main)."""
     done = 0
     for name, seed, arm in todo:
@@ -337,9 +409,9 @@ def _loop(out: Path, todo: list, problems: list, a, start: float, limit: float, 
         signal.alarm(max(1, int(limit - elapsed)))
         t0 = time.monotonic()
         try:
-            prepare(out, name, tiny)  # the test set, once per problem (not in the unit's estimate)
+            prepare(out, name, tiny, suite)  # the test sets, once per problem (not in the unit's estimate)
             t0 = time.monotonic()
-            rec = run_unit(out, name, seed, arm, tiny)
+            rec = run_unit(out, name, seed, arm, tiny, suite)
         except Deadline:
             print(f"stop: {max(a.max_minutes, 0):g} min reached; {name} {arm} seed {seed} discarded", flush=True)
             break
@@ -351,7 +423,7 @@ def _loop(out: Path, todo: list, problems: list, a, start: float, limit: float, 
         done += 1
         print(f"  done in {unit / 60:.1f} min: mean {rec['test_mean']:.4f} p95 {rec['test_p95']:.4f} p99 "
               f"{rec['test_p99']:.4f} cvar95 {rec['test_cvar95']:.4f}; {rec['steps']} steps", flush=True)
-        (out / "summary.md").write_text(summary(out, problems, a.seeds))
+        (out / "summary.md").write_text(summary(out, problems, a.seeds, suite))
 
 
 def _estimate(out: Path, name: str) -> float | None:
