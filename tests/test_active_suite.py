@@ -77,3 +77,26 @@ def test_the_horizon_rule_keeps_a_diffusive_entry_and_cuts_a_chaotic_one():
     chaotic = {"t": [1.0, 2.0, 4.0], "amplification": [2.0, 9.0, 300.0]}
     assert pr.horizon(chaotic) == 2.0
     assert pr.horizon({"t": [1.0, 2.0], "amplification": [50.0, 900.0]}) == 1.0  # none within: the shortest
+
+
+@pytest.mark.slow
+def test_wall_clock_suite_runs_its_arms_on_both_test_sets_and_keeps_no_data(tmp_path, capsys):
+    """benchmarks.wallclock_suite: the precomputed arm, the stream and (on an untuned entry) the active arm at one
+    time budget; every unit is evaluated on the in-domain and the shifted set; the precomputed arm's cache is not
+    kept in the record; the summary gives both pairs' ratios and the stream's steps against the precomputed arm's."""
+    from benchmarks import wallclock_suite as wall
+
+    tiny = {"settings": {"n": "32"}, "budget": 3.0, "batch_size": 4, "n_test": 8,
+            "model_cfg": {"width": 4, "modes": 4, "layers": 1}}
+    wall.main(["--out", str(tmp_path), "--problems", "fisher_kpp1d", "--seeds", "1"], tiny=tiny)
+    assert "3 of 3 units to run" in capsys.readouterr().out
+    for arm in ("precomputed", "reservoir", "reservoir_active"):
+        unit = tmp_path / "fisher_kpp1d" / f"{arm}_seed0"
+        rec = json.loads((unit / "arm.json").read_text())
+        assert len(rec["errors"]["test"]) == len(rec["errors"]["shifted"]) == 8
+        assert not any(f.suffix in (".h5", ".pt") for f in unit.iterdir())
+    precomputed = json.loads((tmp_path / "fisher_kpp1d" / "precomputed_seed0" / "arm.json").read_text())
+    assert precomputed["precompute"]["solve_share"] > 0 and precomputed["trajectories_solved"] >= 4
+    text = (tmp_path / "summary.md").read_text()
+    assert "**precomputed / stream**" in text and "**stream / active**" in text and "shifted p99" in text
+    assert "stream x" in text and "the steps" in text and "Units missing (0)" in text
