@@ -10,7 +10,11 @@ chosen from rates ``Pacer`` keeps re-measuring while the run goes on (a rate mea
 - ``k``: how much a running solve slows a training step (t while solving = t alone x (1 + k)): "cores free",
   measured by its effect rather than counted (a core free by count may be another program's, or the GIL's);
   fitted by least squares of each step's time on the share of it a solve was running, over about the last
-  1 / (1 - DECAY) steps; K_PRIOR before steps with and without solves have been seen;
+  1 / (1 - DECAY) steps, and taken at the fit's upper bound (slope + K_Z standard errors): on cores that other
+  programs load, step times scatter and a plain fit often says "free" (k = 0) when it is not, which let the solver
+  run flat out and cost training half its steps (docs/results/compare.md, equal wall clock). K_PRIOR before steps
+  with and without solves have been seen; with no spread in the solve share (the producer always or never
+  running, so nothing can be fitted) k relaxes toward K_PRIOR, which changes R and so brings the spread back;
 - ``b``: examples per batch, ``per``: examples per use of a trajectory (the view's).
 
 The rule: solving at reuse R keeps a solve running a share ``D = b s / (per R t)`` of the wall clock, which costs
@@ -36,7 +40,9 @@ K_PRIOR = 1.0  # k before it is measured: a solve halves a training step (two th
 K_MAX = 8.0  # (a fitted k is clipped to [0, K_MAX]: one slow step must not stop the producer)
 DECAY = 0.98  # the regression's weight per step: about the last 50 steps count
 MIN_STEPS = 8.0  # weighted steps, and a spread of the solve share, before k is fitted
-MIN_SPREAD = 0.01  # (variance of the per-step solve share below this: no fit, the last k stays)
+MIN_SPREAD = 0.01  # (variance of the per-step solve share below this: no fit, k relaxes toward K_PRIOR)
+K_Z = 2.0  # k is the fit's slope plus this many standard errors (an overestimate costs reuse, an underestimate steps)
+RELAX = 0.02  # per step without spread, the share of the way k moves back toward K_PRIOR
 
 
 class Pacer:
@@ -52,7 +58,9 @@ class Pacer:
         self.b, self.per, self.max_reuse, self.mode, self.cost = batch_size, per_trajectory, max_reuse, target, cost
         self.s = self.i = None  # seconds per trajectory: solving (the job's own wall time), inserting
         self.k = K_PRIOR
-        self.sums = [0.0] * 5  # decayed sums of 1, f, f^2, t, f t (f: the share of a step a solve ran, t: its seconds)
+        # decayed sums of 1, f, f^2, t, f t, t^2 and of the squared weights (f: the share of a step a solve ran, t: its
+        # seconds)
+        self.sums = [0.0] * 7
         self.steps = self.solved_n = 0
         self.solve_s = 0.0  # seconds of solving in all (the jobs' own), for the producer's idle time
 
@@ -72,19 +80,28 @@ class Pacer:
         """A training step took ``seconds`` with a solve running ``share`` (in [0, 1]) of it."""
         if not seconds > 0 or not 0 <= share <= 1:
             return
-        s0, sf, sff, st, sft = self.sums
+        s0, sf, sff, st, sft, stt, sww = self.sums
         if s0 >= MIN_STEPS:  # a step held up by something else (a checkpoint, a snapshot) does not pass for a solve's cost
             seconds = min(seconds, 4 * st / s0)
         self.steps += 1
         self.sums = [DECAY * s0 + 1, DECAY * sf + share, DECAY * sff + share * share, DECAY * st + seconds,
-                     DECAY * sft + share * seconds]
-        s0, sf, sff, st, sft = self.sums
+                     DECAY * sft + share * seconds, DECAY * stt + seconds * seconds, DECAY * DECAY * sww + 1]
+        s0, sf, sff, st, sft, stt, sww = self.sums
         spread = sff / s0 - (sf / s0) ** 2
-        if s0 >= MIN_STEPS and spread >= MIN_SPREAD:
-            slope = (sft / s0 - (sf / s0) * (st / s0)) / spread
-            alone = st / s0 - slope * sf / s0  # t with no solve running
-            if alone > 0:
-                self.k = min(max(slope / alone, 0.0), K_MAX)
+        if s0 < MIN_STEPS:
+            return
+        if spread < MIN_SPREAD:
+            self.k += RELAX * (K_PRIOR - self.k)
+            return
+        cov = sft / s0 - (sf / s0) * (st / s0)
+        slope = cov / spread
+        alone = st / s0 - slope * sf / s0  # t with no solve running
+        # the slope's standard error over the weighted steps (n: their effective number)
+        resid = max(stt / s0 - (st / s0) ** 2 - slope * cov, 0.0)
+        n = s0 * s0 / sww
+        se = math.sqrt(resid / (max(n - 2.0, 1.0) * spread))
+        if alone > 0:
+            self.k = min(max((slope + K_Z * se) / alone, 0.0), K_MAX)
 
     @property
     def step_s(self) -> float | None:
