@@ -328,9 +328,13 @@ def _spending(name: str, runs: dict, labels: dict) -> list[str]:
                          f"({np.mean([p['epochs_planned'] for p in plans]):.1f} epochs planned).")
         paced = [r["stats"] for r in rs if "target_reuse" in (r.get("stats") or {})]
         if paced and rs[0].get("precompute") is None and "pace_slowdown" in paced[0]:
+            # what solving cost training by the pacer's own measure: busy share D x k / (1 + k) (its docstring)
+            cost = [(1 - s.get("producer_idle_share", 1.0)) * s["pace_slowdown"] / (1 + s["pace_slowdown"]) for s in paced]
             lines.append(f"- {name} {labels[arm]}: solved {np.mean([r['trajectories_solved'] for r in rs]):.0f} "
                          f"trajectories, reuse target {np.mean([float(s['target_reuse'] or 0) for s in paced]):.1f}, "
                          f"producer idle {100 * np.mean([s.get('producer_idle_share', 0.0) for s in paced]):.0f}%, "
+                         f"solving cost ~{100 * np.mean(cost):.0f}% of the steps (busy share x k / (1 + k), k "
+                         f"{np.mean([s['pace_slowdown'] for s in paced]):.2f}), "
                          f"training loop waiting {100 * np.mean([r['wait_share'] for r in rs]):.0f}%.")
     return lines
 
