@@ -29,6 +29,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+import jax
 import jax.numpy as jnp
 
 from ...boundaries import Boundary, is_periodic
@@ -254,7 +255,7 @@ class Box(NamedTuple):
         return x, y, nx_, ny_, w
 
 
-ELLIPSE_NEWTON = 8  # Newton steps for an ellipse's nearest point (from the radial guess: < 1e-6 h in 4-5)
+ELLIPSE_BISECTIONS = 40  # bisections for an ellipse's nearest point (its bracket halves to ~1e-12 of its width)
 
 
 class Ellipse(NamedTuple):
@@ -273,20 +274,37 @@ class Ellipse(NamedTuple):
         return c_lo - s, c_lo + s
 
     def _foot(self, x, y):
-        """Nearest surface point (fx, fy) of points (x, y) and whether they are inside: Newton on the angle t of
-        (a cos t, b sin t) in the points' quadrant, f(t) = (a^2 - b^2) sin t cos t - a X sin t + b Y cos t = 0."""
-        a, b = self.a, self.b
+        """Nearest surface point (fx, fy) of points (x, y) and whether they are inside (Eberly's robust method:
+        in the points' quadrant, axes sorted e0 >= e1, the root t > -e1^2 of F(t) = (e0 y0 / (t + e0^2))^2 +
+        (e1 y1 / (t + e1^2))^2 - 1, decreasing there, by ELLIPSE_BISECTIONS bisections; the foot
+        (e0^2 y0 / (t + e0^2), e1^2 y1 / (t + e1^2)); on the major axis inside the evolute, the off-axis foot)."""
         px, py = x - self.cx, y - self.cy
-        X, Y = jnp.abs(px), jnp.abs(py)
-        t = jnp.arctan2(a * Y, b * X)
-        for _ in range(ELLIPSE_NEWTON):
-            c, s = jnp.cos(t), jnp.sin(t)
-            f = (a * a - b * b) * s * c - a * X * s + b * Y * c
-            df = (a * a - b * b) * (c * c - s * s) - a * X * c - b * Y * s
-            t = jnp.clip(t - f / jnp.where(jnp.abs(df) > 1e-30, df, -1e-30), 0.0, 0.5 * math.pi)
-        fx = jnp.where(px < 0, -a * jnp.cos(t), a * jnp.cos(t))
-        fy = jnp.where(py < 0, -b * jnp.sin(t), b * jnp.sin(t))
-        inside = (px / a) ** 2 + (py / b) ** 2 < 1
+        swap = self.a < self.b
+        e0, e1 = jnp.maximum(self.a, self.b), jnp.minimum(self.a, self.b)
+        y0, y1 = jnp.where(swap, jnp.abs(py), jnp.abs(px)), jnp.where(swap, jnp.abs(px), jnp.abs(py))
+        lo = -e1 * e1 + e1 * y1
+        hi = -e1 * e1 + jnp.sqrt(e0 * e0 * y0 * y0 + e1 * e1 * y1 * y1) + 1e-30
+
+        def bisect(_, bounds):
+            lo, hi = bounds
+            t = 0.5 * (lo + hi)
+            f = (e0 * y0 / (t + e0 * e0)) ** 2 + (e1 * y1 / jnp.maximum(t + e1 * e1, 1e-30)) ** 2 - 1
+            return jnp.where(f > 0, t, lo), jnp.where(f > 0, hi, t)
+
+        lo, hi = jax.lax.fori_loop(0, ELLIPSE_BISECTIONS, bisect, (lo, hi))
+        t = 0.5 * (lo + hi)
+        x0 = e0 * e0 * y0 / (t + e0 * e0)
+        x1 = e1 * e1 * y1 / jnp.maximum(t + e1 * e1, 1e-30)
+        # on the major axis (y1 = 0) inside the evolute the foot leaves the axis
+        axis = y1 <= 1e-7 * e1
+        evolute = y0 < (e0 * e0 - e1 * e1) / e0
+        xa = jnp.where(evolute, e0 * e0 * y0 / jnp.maximum(e0 * e0 - e1 * e1, 1e-30), e0)
+        ya = jnp.where(evolute, e1 * _safe_sqrt(1 - (xa / e0) ** 2), 0.0)
+        x0, x1 = jnp.where(axis, xa, x0), jnp.where(axis, ya, x1)
+        fx, fy = jnp.where(swap, x1, x0), jnp.where(swap, x0, x1)
+        fx = jnp.where(px < 0, -fx, fx)
+        fy = jnp.where(py < 0, -fy, fy)
+        inside = (px / self.a) ** 2 + (py / self.b) ** 2 < 1
         return self.cx + fx, self.cy + fy, inside
 
     def ghost_frame(self, x, y, d):
