@@ -140,10 +140,13 @@ def _drag(ny: int, body: str, offsets, t_end: float = 0.4):
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 28's target missed (docs/results/flows.md, 'Sharp squares'): the sharp "
+                   "square's drag jumps where its upstream edge crosses a face line (0.216 at offset 0.81 here, the "
+                   "staircase's largest jump 0.320); a fix makes this pass and strict xfail then flags it")
 def test_drag_of_a_square_moves_smoothly_with_a_sub_cell_offset_and_the_staircase_in_jumps():
     """A square (D = 3.84 cells, Re 30) moved downstream by 0..1 cell in eighths, at t 0.4 from rest: the
-    staircase's drag holds still and jumps where an edge crosses a cell centre; the sharp square's changes by
-    small, even steps (its geometry moves continuously)."""
+    staircase's drag holds still and jumps where an edge crosses a cell centre; the sharp square's should change
+    by small, even steps (its geometry moves continuously)."""
     offsets = np.arange(9) / 8
     sharp, stair = _drag(16, "sharp", offsets), _drag(16, "staircase", offsets)
     ds, dst = np.abs(np.diff(sharp)), np.abs(np.diff(stair))
