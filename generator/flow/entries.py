@@ -262,7 +262,8 @@ class Channel2D(FlowProblem):
     re: Any = "uniform(200, 600)"
     speed: Any = Fixed(1.0)
     body: str = "staircase"  # one of grid.BODIES: 'staircase' (cells whose centre lies inside) or 'sharp' (the
-    # exact bodies: cut faces, ghost velocities); benchmarks/square_cylinder.py compares them
+    # exact bodies: cut faces, ghost velocities; ~8x the staircase's time per sample); not the default: on a square
+    # it is no more accurate (benchmarks/square_cylinder.py, docs/results/flows.md "Sharp squares")
     BODY_NOUN: ClassVar[str] = "bodies"
 
     OUTPUTS: ClassVar[dict] = {
