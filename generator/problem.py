@@ -112,10 +112,12 @@ class Problem(Protocol):
     def failure_causes(self) -> list[str]: ...  # why each sample of this thread's last run_keys failed ('' if not)
 
     # OUTPUTS {name: Output}: per-sample variables beside the fields (forces, distances, flags); ``outputs``
-    # computes them from the final samples u [B, ...] and params {name: [B]}: {name: [B, *dims]} ({} if none)
+    # computes them from the final samples u [B, ...], params {name: [B]} and the samples' keys [B] (their random
+    # geometry, where it is not in u): {name: [B, *dims]} ({} if none)
     OUTPUTS: Mapping[str, Output]
 
-    def outputs(self, u: jax.Array, params: Mapping[str, jax.Array]) -> dict[str, jax.Array]: ...
+    def outputs(self, u: jax.Array, params: Mapping[str, jax.Array], keys: jax.Array | None = None
+                ) -> dict[str, jax.Array]: ...
 
 
 def draw_params(problem, key: jax.Array) -> dict[str, jax.Array]:
@@ -194,8 +196,10 @@ class ProblemBase(abc.ABC):
         the family has no per-sample cause (a NaN/Inf is its only failure, said by ``failure``)."""
         return []
 
-    def outputs(self, u: jax.Array, params: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
-        """The OUTPUTS of samples u [B, ...] with parameters params {name: [B]}: {name: [B, *dims]} in OUTPUTS
+    def outputs(self, u: jax.Array, params: Mapping[str, jax.Array], keys: jax.Array | None = None
+                ) -> dict[str, jax.Array]:
+        """The OUTPUTS of samples u [B, ...] with parameters params {name: [B]} and keys [B] (the keys run_keys
+        solved them with; used where the outputs need geometry drawn from them): {name: [B, *dims]} in OUTPUTS
         order, a pure function of each sample (its bits do not depend on its batch). None declared: {}."""
         return {}
 

@@ -184,7 +184,8 @@ def sample(
     lat = explicit_latent(pde, latent, len(idx))
     extra = {} if lat is None else {"latent": lat}  # only a latent-taking family is handed one
     # each kind of PDE solves its samples its own way (time-dependent: ETDRK4 rollouts; steady: PCG)
-    u, params, finite, inputs = pde.run_keys(sample_keys(int(seed), idx), explicit, given, **extra)
+    keys = sample_keys(int(seed), idx)
+    u, params, finite, inputs = pde.run_keys(keys, explicit, given, **extra)
     causes = _causes(pde, len(idx))
     redraws = np.zeros(len(idx), np.int64)
     attempt = 0
@@ -194,11 +195,12 @@ def sample(
         # rerun the full batch shape (failed keys padded by repetition) so no new compile is needed
         retry = np.resize(bad, len(idx))
         again = {} if lat is None else {"latent": (lat[0][retry], lat[1][retry])}  # a given latent is kept
-        u2, p2, f2, in2 = pde.run_keys(sample_keys(int(seed), idx[retry], attempt), explicit[retry], given[retry],
-                                       **again)
+        keys2 = sample_keys(int(seed), idx[retry], attempt)
+        u2, p2, f2, in2 = pde.run_keys(keys2, explicit[retry], given[retry], **again)
         causes[bad] = _causes(pde, len(idx))[: bad.size]
         sel = jnp.asarray(bad)
         u = u.at[sel].set(u2[: bad.size])
+        keys = keys.at[sel].set(keys2[: bad.size])
         inputs = None if inputs is None else inputs.at[sel].set(in2[: bad.size])
         params = {k: v.at[sel].set(p2[k][: bad.size]) for k, v in params.items()}
         redraws[bad] = attempt
@@ -209,7 +211,8 @@ def sample(
         what, remedy = pde.failure()
         raise BlowUpError(f"{pde.NAME}: {bad.size} of {len(idx)} {what}: {detail}{hint}; {remedy}")
     # the per-sample outputs of the final samples (after redraws): a pure function of each sample's u and params
-    outputs = pde.outputs(u, params) if getattr(pde, "OUTPUTS", None) else {}
+    # (and of its key: geometry drawn from it that u does not hold, e.g. channel2d's sharp bodies)
+    outputs = pde.outputs(u, params, keys) if getattr(pde, "OUTPUTS", None) else {}
     if bad.size:
         return _skipping(pde, u, params, idx, redraws, inputs, bad, causes, outputs)
     return Trajectory(u=u, t=pde.times(), params=params, pde=pde, indices=idx, redraws=redraws, inputs=inputs,

@@ -30,9 +30,10 @@ API (geom is static, params traced: changing Reynolds number, inflow, lid or cir
 
 Modules: grid (Geometry, Params, obstacle masks, face coefficients), pressure (multigrid-preconditioned CG),
 batch (run_batch: lax.map over fixed chunks, batch-invariant bits), step (advection, viscosity, buoyancy, projection, step/run, derived fields),
-forces (body force on a staircase or on the exact circle and C_d / C_l, signed distance to a circle, shedding
-detection: karman2d's per-sample outputs). Geometry(body=) picks how Params.circle meets the grid: 'sharp' (the
-default, grid.DEFAULT_BODY: cut faces and ghost velocities on the exact circle) or 'staircase' (masked cells).
+forces (body force on a staircase or on the exact bodies and C_d / C_l, signed distances, shedding detection:
+karman2d's and channel2d's per-sample outputs). Geometry(body=) picks how Params.circle and Params.obstacles meet
+the grid: 'sharp' (the default, grid.DEFAULT_BODY: cut faces and ghost velocities on the exact circles, boxes and
+ellipses of grid's sharp-body protocol) or 'staircase' (masked cells).
 """
 
 from .batch import run_batch

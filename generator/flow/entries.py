@@ -223,12 +223,20 @@ class Channel2D(FlowProblem):
     """A channel (inflow left, outflow right, walls bottom and top) with ``obstacles`` random bodies: each a
     circle, box or ellipse (equally likely) of half-sizes in [size_min, size_max] at a random position in its
     own slot of the channel's length (so bodies never overlap and none alone closes the channel). Re = U H / nu
-    with U the mean inflow speed and H the channel height. The bodies come from the sample's geometry key; the
-    solver sees each as the cells whose centre lies inside it (a staircase, not karman2d's sharp circle).
+    with U the mean inflow speed and H the channel height. The bodies come from the sample's geometry key.
+    ``body`` (grid.BODIES): 'staircase' (the default) makes the cells whose centre lies inside a body solid;
+    'sharp' puts the exact bodies below the cell, as karman2d's sharp circle (cut faces with open fractions,
+    ghost velocities through no-slip on the true surface; grid's sharp-body protocol: Circle, Box, Ellipse).
+    Either way the stored ``solid`` field is the cells whose centre lies inside.
 
     Outputs beside the fields (``OUTPUTS``): ``drag`` and ``lift`` [T] of all the bodies together, C = 2 F / (U^2
-    H) from ``forces.body_force`` on the staircase (first order in h), and ``sdf`` [nx, ny], the exact signed
-    distance to that staircase (``forces.mask_distance``; solid == sdf < 0)."""
+    H): 'staircase': ``forces.body_force`` over the mask's fluid-solid faces (first order in h); 'sharp':
+    ``forces.bodies_force``, the surface integral of pressure and wall shear on the exact bodies. ``sdf`` [nx, ny]:
+    the exact signed distance to the bodies the solver sees ('staircase': the union of solid cells,
+    ``forces.mask_distance``; 'sharp': the exact circles, boxes and ellipses, ``forces.bodies_distance``;
+    solid == sdf < 0). A sharp sample's geometry is not in its frames: its outputs are computed from the sample's
+    key (``sample_outputs``' key); the oracle (``interactive.advance``) continuing a frame sees the frame's
+    ``solid`` cells, a staircase, so it continues a sharp sample only approximately (docs/results/flows.md)."""
 
     NAME: ClassVar[str] = "channel2d"
     # `pdestream generate channel2d --n 4` on 2 shared CPU cores (load 5-6, 2026-11-27: chunks row by row), no
@@ -253,27 +261,47 @@ class Channel2D(FlowProblem):
     size_max: float = 0.14
     re: Any = "uniform(200, 600)"
     speed: Any = Fixed(1.0)
+    body: str = "staircase"  # one of grid.BODIES: 'staircase' (cells whose centre lies inside) or 'sharp' (the
+    # exact bodies: cut faces, ghost velocities; ~8x the staircase's time per sample); not the default: on a square
+    # it is no more accurate (benchmarks/square_cylinder.py, docs/results/flows.md "Sharp squares")
+    BODY_NOUN: ClassVar[str] = "bodies"
 
     OUTPUTS: ClassVar[dict] = {
         "drag": Output("drag coefficient C_d = 2 Fx / (U^2 H) of all the bodies together (U mean inflow speed, H the "
-                       "channel height; pressure and wall shear summed over the staircase's fluid-solid faces: the "
-                       "bodies the solver sees, first order in h)", "1", "time"),
+                       "channel height; pressure and wall shear integrated over the bodies the solver sees: the "
+                       "staircase's fluid-solid faces, first order in h, or the exact surfaces where body = sharp)",
+                       "1", "time"),
         "lift": Output("lift coefficient C_l = 2 Fy / (U^2 H) of all the bodies together", "1", "time"),
-        "sdf": Output("signed distance of the cell centre to the bodies' surface (the union of their solid cells, "
-                      "negative inside; the channel's walls are not part of it)", "m", "space"),
+        "sdf": Output("signed distance of the cell centre to the bodies' surface (the union of their solid cells, or "
+                      "the exact bodies where body = sharp; negative inside; the channel's walls are not part of it)",
+                      "m", "space"),
     }
+    @property
+    def OUTPUTS_NEED_KEY(self) -> bool:  # noqa: N802 (the base's class constant): a sharp sample's bodies come
+        return self.body == "sharp"  # from its key (sample_outputs)
 
-    def sample_outputs(self, frames: jax.Array, p: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
+    def sample_outputs(self, frames: jax.Array, p: Mapping[str, jax.Array], key: jax.Array | None = None
+                       ) -> dict[str, jax.Array]:
+        """The outputs of one sample; key: the sample's key (its bodies, needed where body is 'sharp')."""
         geom = self.geometry()
         fp = self.flow_params(p, None)
         solid = frames[0, self.FIELDS.index("solid")].T > 0.5  # the bodies do not move: the first frame's mask
+        if self.body == "sharp":
+            if key is None:
+                raise ValueError(f"{self.NAME}: body='sharp' outputs need the sample's key (its bodies)")
+            fp = self.flow_params(p, jax.random.split(key)[1])  # the geometry key, as the solver's (_programs)
 
         def coefficients(frame):
-            fx, fy = forces.body_force(geom, solid, self.state_of(frame, fp), fp.nu)
+            state = self.state_of(frame, fp)
+            if self.body == "sharp":
+                fx, fy = forces.bodies_force(geom, state, fp.nu, fp)
+            else:
+                fx, fy = forces.body_force(geom, solid, state, fp.nu)
             return jnp.stack(forces.force_coefficients(fx, fy, p["speed"], self.length))
 
         cd, cl = jax.lax.map(coefficients, frames).T
-        return {"drag": cd, "lift": cl, "sdf": forces.mask_distance(geom, solid).T}
+        sdf = forces.bodies_distance(geom, fp) if self.body == "sharp" else forces.mask_distance(geom, solid)
+        return {"drag": cd, "lift": cl, "sdf": sdf.T}
 
     def slots(self) -> tuple[float, float]:
         """(x of the first slot's left end, slot width) (m): bodies sit in equal slots of [0.3, lx - 0.3]."""
@@ -317,8 +345,10 @@ class Channel2D(FlowProblem):
             raise ValueError(f"{self.NAME}: size_min={self.size_min:g}, size_max={self.size_max:g} not allowed: need "
                              "0 < size_min <= size_max")
         if cells < MIN_CELLS_ACROSS:
+            need = 2 * math.ceil(MIN_CELLS_ACROSS * self.length / (2 * self.size_min) / 2)
             raise ValueError(f"{self.NAME}: size_min={self.size_min:g} not allowed: a body {cells:.2g} cells across is "
-                             f"below {MIN_CELLS_ACROSS:g} cells on this grid (h={self.h:.4g}); a finer n or larger bodies")
+                             f"below {MIN_CELLS_ACROSS:g} cells on this grid (h={self.h:.4g}); it needs n >= {need}, "
+                             f"or size_min >= {MIN_CELLS_ACROSS * self.h / 2:.3g}")
         margin = self.size_max + CLEARANCE_CELLS * self.h
         if 2 * margin >= self.length:
             raise ValueError(f"{self.NAME}: size_max={self.size_max:g} not allowed: a body could close the channel "

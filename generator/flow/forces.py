@@ -5,7 +5,9 @@
   shear nu du_t/dn over the half cell between the fluid cell's centre velocity and the no-slip face. First order in
   h (the staircase); Schaefer-Turek 2D-1/2D-2 figures in benchmarks/flow_validation.py.
 - ``circle_force`` (with ``circle_surface``): the force on an exact circle, a surface integral of the wall pressure
-  and wall shear sampled along its normals: second order, the force of the sharp body (grid.BODIES).
+  and wall shear sampled along its normals (``wall_traction``): second order, the force of the sharp body
+  (grid.BODIES); ``bodies_force``: the same integral over every sharp body of a Params (circles, boxes, ellipses:
+  channel2d's sharp obstacles), ``bodies_distance`` their exact signed distance.
 - ``force_coefficients``: C = 2 F / (U^2 D) (F per unit depth and density, U the reference speed, D the
   reference length), the Schaefer & Turek (1996) normalisation with U their mean inflow speed and D the diameter.
 - ``circle_distance``: the exact signed distance of cell centres to a circle (negative inside); ``mask_distance``:
@@ -113,35 +115,42 @@ def _corrected_sampler(geom, a, ox: float, oy: float):
     return sample
 
 
-def circle_surface(geom, state, nu, cx, cy, r, theta):
-    """Pressure and wall shear on the exact circle (cx, cy, r) [m] at angles theta [N] (rad, from +x):
-    (p [N] (m^2/s^2), shear [N] = nu du_t/dn (m^2/s^2), t = (-sin, cos) the counter-clockwise tangent, n the
-    outward normal). Both from the fluid along the normal at d1 = FORCE_DISTANCE h and d2 = 2 d1 (bilinear
-    samples of the pressure, its covered cells refilled from the fluid by ``_extend_from_fluid``, and the
-    ghost-filled velocities): p linearly extrapolated to the wall, 2 p(d1) - p(d2), and
-    du_t/dn by the quadratic through u_t = 0 on the wall, (4 u_t(d1) - u_t(d2)) / (2 d1): both second order."""
-    from .grid import Params  # noqa: PLC0415
+def wall_traction(geom, state, nu, params, solid, nx_, ny_, at):
+    """Pressure and wall shear on a body's surface at points whose outward normals are (nx_, ny_) [N]: (p [N]
+    (m^2/s^2), shear [N] = nu du_t/dn (m^2/s^2), t = (-ny, nx) the counter-clockwise tangent). ``at(d)`` gives
+    the points (x, y) [N] (m) d along the normals from the surface. Both from the fluid along the normal at
+    d1 = FORCE_DISTANCE h and d2 = 2 d1 (bilinear samples less their leading error of the pressure, its covered
+    cells (solid [ny, nx]) refilled from the fluid by ``_extend_from_fluid``, and of the ghost-filled velocities of
+    params' sharp bodies): p linearly extrapolated to the wall, 2 p(d1) - p(d2), and du_t/dn by the quadratic
+    through u_t = 0 on the wall, (4 u_t(d1) - u_t(d2)) / (2 d1): both second order on a smooth surface."""
     from .step import fill_ghosts  # noqa: PLC0415
 
     # the samples' stencils reach the ghost faces: rebuilt from the fluid (a stored frame holds 0 there)
-    u, v = fill_ghosts(geom, Params(circle=(cx, cy, r)), state.u, state.v)
+    u, v = fill_ghosts(geom, params, state.u, state.v)
     state = state._replace(u=u, v=v)
     d1 = FORCE_DISTANCE * geom.h
-    nx_, ny_ = jnp.cos(theta), jnp.sin(theta)
-    from .grid import circle_solid  # noqa: PLC0415
-
     # the pressure of the covered cells is the solver's, not the fluid's: rebuilt from the fluid before sampling
-    p = _extend_from_fluid(state.p, circle_solid(geom, cx, cy, r, state.p.dtype))
+    p = _extend_from_fluid(state.p, solid)
     sp, su, sv = (_corrected_sampler(geom, p, 0.5, 0.5), _corrected_sampler(geom, state.u, 0.0, 0.5),
                   _corrected_sampler(geom, state.v, 0.5, 0.0))
 
-    def at(d):
-        x, y = cx + (r + d) * nx_, cy + (r + d) * ny_
+    def sample(d):
+        x, y = at(d)
         return sp(x, y), -ny_ * su(x, y) + nx_ * sv(x, y)
 
-    p1, t1 = at(d1)
-    p2, t2 = at(2 * d1)
+    p1, t1 = sample(d1)
+    p2, t2 = sample(2 * d1)
     return 2 * p1 - p2, nu * (4 * t1 - t2) / (2 * d1)
+
+
+def circle_surface(geom, state, nu, cx, cy, r, theta):
+    """Pressure and wall shear on the exact circle (cx, cy, r) [m] at angles theta [N] (rad, from +x):
+    ``wall_traction`` there (p [N], shear [N] = nu du_t/dn, t = (-sin, cos), n the outward normal)."""
+    from .grid import Params, circle_solid  # noqa: PLC0415
+
+    nx_, ny_ = jnp.cos(theta), jnp.sin(theta)
+    return wall_traction(geom, state, nu, Params(circle=(cx, cy, r)), circle_solid(geom, cx, cy, r, state.p.dtype),
+                         nx_, ny_, lambda d: (cx + (r + d) * nx_, cy + (r + d) * ny_))
 
 
 def circle_force(geom, state, nu, cx, cy, r, points: int = SURFACE_POINTS):
@@ -158,6 +167,41 @@ def circle_force(geom, state, nu, cx, cy, r, points: int = SURFACE_POINTS):
     from .pressure import _tree_sum  # noqa: PLC0415 (a fixed order of additions: the same bits on every CPU)
 
     return ds * _tree_sum(-p * c - tau * s), ds * _tree_sum(-p * s + tau * c)
+
+
+def bodies_force(geom, state, nu, params, points: int = SURFACE_POINTS):
+    """Force on all of params' sharp bodies together (generator.flow.step.sharp_bodies: Params.circle and the
+    Params.obstacles rows, geom.body 'sharp') per unit depth and density (Fx, Fy) [m^3/s^2]: the surface integral
+    of -p n + nu du_t/dn t over each body's exact surface (grid's protocol ``surface``: ``points`` quadrature
+    points per body, the trapezoid rule in the angle on a circle or ellipse, the midpoint rule on each edge of a
+    box) with ``wall_traction``. A box's corners are no quadrature points; the wall samples near them see the
+    corner's singular pressure (docs/results/flows.md has the order measured on a square)."""
+    from .pressure import _tree_sum  # noqa: PLC0415
+    from .step import sharp_bodies, solid_mask  # noqa: PLC0415
+
+    bodies = sharp_bodies(geom, params)
+    if not bodies:
+        raise ValueError(f"body={geom.body!r} with no circle or obstacle rows: bodies_force needs sharp bodies "
+                         "(geom.body 'sharp' and Params.circle or Params.obstacles)")
+    parts = [b.surface(points) for b in bodies]
+    x, y, nx_, ny_, w = (jnp.concatenate([q[i] for q in parts]).astype(state.p.dtype) for i in range(5))
+    p, tau = wall_traction(geom, state, nu, params, solid_mask(geom, params), nx_, ny_,
+                           lambda d: (x + d * nx_, y + d * ny_))
+    return _tree_sum(w * (-p * nx_ - tau * ny_)), _tree_sum(w * (-p * ny_ + tau * nx_))
+
+
+def bodies_distance(geom, params, dtype=jnp.float32):
+    """Exact signed distance [ny, nx] (m) of the cell centres to the surface of params' sharp bodies (the union:
+    the minimum over the bodies; negative inside; grid's protocol ``distance``)."""
+    from .grid import centres  # noqa: PLC0415
+    from .step import sharp_bodies  # noqa: PLC0415
+
+    x, y = centres(geom, dtype)
+    out = None
+    for body in sharp_bodies(geom, params):
+        d = body.distance(x, y).astype(dtype)
+        out = d if out is None else jnp.minimum(out, d)
+    return jnp.full((geom.ny, geom.nx), 1e15, dtype) if out is None else out
 
 
 def force_coefficients(fx, fy, speed, length):
@@ -252,5 +296,5 @@ def shedding(lift, t, length, speed, min_amplitude=MIN_LIFT_AMPLITUDE, max_drift
 
 
 __all__ = ["DRIFT_PERIODS", "FILL_LAYERS", "FORCE_DISTANCE", "MAX_DRIFT", "MIN_LIFT_AMPLITUDE", "SURFACE_POINTS", "body_force", "circle_distance",
-           "circle_force", "circle_surface",
+           "bodies_distance", "bodies_force", "circle_force", "circle_surface", "wall_traction",
            "force_coefficients", "shedding"]

@@ -40,9 +40,9 @@ from ..chunked import join, split
 from ..grids import GridBase
 from ..problem import MAX_STEPS, ProblemBase, resolve_params
 from . import interactive
-from .grid import BODIES, OPEN_SIDES, SIDE_KINDS, Geometry, Params, circle_apertures
+from .grid import BODIES, OPEN_SIDES, SIDE_KINDS, Geometry, Params
 from .pressure import MAX_COARSE_CELLS, coarsest_shape
-from .step import ADVECTION, State, initial_state, operator, run, run_counted, solid_mask
+from .step import ADVECTION, State, body_apertures, initial_state, operator, run, run_counted, solid_mask
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
 # Work of one flow step per cell, in the spectral family's point-steps (generator.dispatch): a projection's
@@ -125,6 +125,8 @@ class FlowProblem(ProblemBase):
     # thinner than a cell); the advection stays stable there but the data would be numerical noise
     MAX_CELL_REYNOLDS: ClassVar[float] = 40.0
     PROJECTION: ClassVar[str] = "multigrid-CG projection"  # describe()'s words for the pressure solve
+    BODY_NOUN: ClassVar[str] = "circle"  # describe()'s word for the bodies of an entry with a ``body`` setting
+    OUTPUTS_NEED_KEY: ClassVar[bool] = False  # sample_outputs takes the sample's key (geometry not in its frames)
 
     n: int = 32  # cells across the box (y)
     aspect: int = 1  # nx = aspect * n
@@ -166,9 +168,8 @@ class FlowProblem(ProblemBase):
         return FlowGrid(self.NDIM, self.n, self.length, self.aspect, self.SIDES)
 
     def geometry(self) -> Geometry:
-        """The solver's static geometry: the grid's, with the entry's ``body`` setting where it has a circle body
-        (karman2d). An entry without one runs 'staircase': the sharp treatment acts on Params.circle only, and its
-        ghost and cut-face work would be spent on nothing (the bits are the staircase's either way)."""
+        """The solver's static geometry: the grid's, with the entry's ``body`` setting where it has one (karman2d's
+        circle, channel2d's obstacles). An entry without one runs 'staircase'."""
         g = self.grid.geometry()
         return Geometry(g.nx, g.ny, g.lx, g.ly, g.left, g.right, g.bottom, g.top, getattr(self, "body", "staircase"))
 
@@ -262,7 +263,7 @@ class FlowProblem(ProblemBase):
         return (f"  fields: {', '.join(self.FIELDS)}   grid: {self.grid.describe()}\n"
                 f"  t in [{self.t_start:g}, {self.t_end:g}] {start}, {self.n_frames} frames, "
                 f"step {self.step_dt:.4g} s ({self.steps_per_frame}/frame, {self.describe_step_limit()}); MAC grid, {self.advection.replace('_', '-')} advection, {self.PROJECTION}"
-                + (f", {self.body} circle" if hasattr(self, "body") else "")
+                + (f", {self.body} {self.BODY_NOUN}" if hasattr(self, "body") else "")
                 + (f"\n  {self.describe_geometry()}" if self.describe_geometry() else ""))
 
     def describe_step_limit(self) -> str:
@@ -281,9 +282,10 @@ class FlowProblem(ProblemBase):
     # --- a sample ------------------------------------------------------------------------------------
     def frame_fields(self, geom: Geometry, state: State, fp: Params) -> jax.Array:
         """One frame [C, nx, ny] over FIELDS at cell centres from a solver state (arrays [y, x])."""
-        if geom.body == "sharp":  # faces a sharp circle covers whole hold ghost values: stored as no flow (the
-            # solver rebuilds them from the fluid before every use, so a frame still continues exactly)
-            ax, ay = circle_apertures(geom, *fp.circle, state.u.dtype)
+        cut = body_apertures(geom, fp, state.u.dtype)
+        if cut is not None:  # faces a sharp body covers whole hold ghost values: stored as no flow (the solver
+            # rebuilds them from the fluid before every use, so a frame still continues exactly)
+            ax, ay = cut[:2]
             state = state._replace(u=jnp.where(ax > 0, state.u, 0.0), v=jnp.where(ay > 0, state.v, 0.0))
         made = {
             "u": lambda: state.u[:, :-1],
@@ -304,16 +306,24 @@ class FlowProblem(ProblemBase):
 
     def sample_outputs(self, frames: jax.Array, p: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
         """Subclass hook: the OUTPUTS of one sample, frames [T, C, nx, ny] and parameters p {name: scalar},
-        traced: {name: array [*dims]} (an entry that declares OUTPUTS defines it)."""
+        traced: {name: array [*dims]} (an entry that declares OUTPUTS defines it; one whose outputs need the
+        sample's key sets OUTPUTS_NEED_KEY and takes it as a third argument)."""
         raise NotImplementedError(f"{self.NAME} declares no per-sample outputs")
 
-    def outputs(self, u: jax.Array, params: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
-        """The OUTPUTS of samples u [B, T, C, nx, ny] (params {name: [B]}): ``sample_outputs`` of each sample in
-        one compiled per-sample program inside jax.lax.map over chunks of CHUNK rows (padded), so a sample's
-        outputs have the same bits alone and in any batch; {} where the entry declares none."""
+    def outputs(self, u: jax.Array, params: Mapping[str, jax.Array], keys: jax.Array | None = None
+                ) -> dict[str, jax.Array]:
+        """The OUTPUTS of samples u [B, T, C, nx, ny] (params {name: [B]}; keys [B]: the samples' keys, used where
+        OUTPUTS_NEED_KEY) from ``sample_outputs`` of each sample in one compiled per-sample program inside
+        jax.lax.map over chunks of CHUNK rows (padded), so a sample's outputs have the same bits alone and in any
+        batch; {} where the entry declares none."""
         if not self.OUTPUTS:
             return {}
         cols = [jnp.asarray(params[name], jnp.float32) for name in self.PARAMS]
+        if self.OUTPUTS_NEED_KEY:
+            if keys is None:
+                raise ValueError(f"{self.NAME}: the outputs of this setting need the samples' keys (its bodies are "
+                                 "drawn from them): outputs(u, params, keys)")
+            cols.append(jax.random.key_data(keys))
         parts = [_outputs_program(self)(*part) for part in split([jnp.asarray(u), *cols], CHUNK)]
         out = join(parts, int(u.shape[0]))
         return {name: out[name] for name in self.OUTPUTS}  # OUTPUTS order (a pytree's dict comes back sorted)
@@ -420,7 +430,11 @@ def _outputs_program(problem: FlowProblem):
 
     def one(row):
         frames, *values = row
-        out = problem.sample_outputs(frames, dict(zip(names, values)))
+        if problem.OUTPUTS_NEED_KEY:
+            *values, key = values
+            out = problem.sample_outputs(frames, dict(zip(names, values)), jax.random.wrap_key_data(key))
+        else:
+            out = problem.sample_outputs(frames, dict(zip(names, values)))
         return {name: out[name].astype(spec.dtype) for name, spec in problem.OUTPUTS.items()}
 
     return jax.jit(lambda u, *cols: jax.lax.map(one, (u, *cols)))

@@ -22,12 +22,13 @@ import numpy as np
 from . import pressure
 from .grid import (
     OPEN_SIDES,
+    Circle,
     Geometry,
+    ObstacleRow,
     Params,
-    circle_apertures,
-    circle_cut_faces,
-    circle_ghosts,
+    body_ghosts,
     circle_solid,
+    cut_faces,
     faces,
     obstacles_solid,
     velocity_masks,
@@ -57,25 +58,47 @@ def solid_mask(geom: Geometry, params: Params):
     return solid if params.obstacles is None else solid | obstacles_solid(geom, jnp.asarray(params.obstacles))
 
 
-def _staircase_solid(geom: Geometry, params: Params):
-    """The cells the solver treats as solid: solid_mask's, less the circle where geom.body is 'sharp' (it then
-    enters through its apertures and ghosts instead)."""
+def sharp_bodies(geom: Geometry, params: Params) -> list:
+    """The bodies the sharp treatment sees where geom.body is 'sharp' (grid's sharp-body protocol): Params.circle
+    (left out where its radius is a Python number <= 0: no circle) and each row of Params.obstacles; [] for
+    'staircase'. With none, every sharp path reduces to the staircase's bits."""
     if geom.body == "staircase":
+        return []
+    cx, cy, r = params.circle
+    bodies = [] if isinstance(r, (int, float)) and r <= 0 else [Circle(cx, cy, r)]
+    if params.obstacles is not None:
+        rows = jnp.asarray(params.obstacles)
+        bodies += [ObstacleRow(*(rows[k, i] for i in range(5))) for k in range(rows.shape[0])]
+    return bodies
+
+
+def _staircase_solid(geom: Geometry, params: Params):
+    """The cells the solver treats as solid: solid_mask's, less the sharp bodies (they enter through their
+    apertures and ghosts instead)."""
+    if not sharp_bodies(geom, params):
         return solid_mask(geom, params)
     solid = jnp.zeros((geom.ny, geom.nx), bool)
-    if params.mask is not None:
-        solid = solid | params.mask
-    return solid if params.obstacles is None else solid | obstacles_solid(geom, jnp.asarray(params.obstacles))
+    return solid if params.mask is None else solid | params.mask
+
+
+def body_apertures(geom: Geometry, params: Params, dtype=None):
+    """``grid.cut_faces`` (ax, ay, my, mx) of params' sharp bodies, or None where there are none; dtype: the
+    coefficients' (float64 under x64 where the geometry is traced in it: they are differentiated)."""
+    bodies = sharp_bodies(geom, params)
+    if not bodies:
+        return None
+    if dtype is None:
+        dtype = jnp.result_type(*(jnp.asarray(b[-1]) for b in bodies))  # the radius / last half-size
+    return cut_faces(geom, bodies, dtype)
 
 
 def body_faces(geom: Geometry, params: Params):
     """The pressure operator's face coefficients (grid.Faces) of params' bodies: staircase cells, and the exact
-    circle's open fractions where geom.body is 'sharp'."""
-    if geom.body == "staircase":
+    bodies' open fractions where geom.body is 'sharp'."""
+    cut = body_apertures(geom, params)
+    if cut is None:
         return faces(geom, solid_mask(geom, params))
-    cx, cy, r = params.circle
-    dtype = jnp.result_type(jnp.asarray(r))  # float64 under x64: the coefficients are differentiated in it
-    return faces(geom, _staircase_solid(geom, params), circle_apertures(geom, cx, cy, r, dtype))
+    return faces(geom, _staircase_solid(geom, params), cut[:2])
 
 
 def _neighbours(a, axis: int):
@@ -86,12 +109,12 @@ def _neighbours(a, axis: int):
 
 
 def _centroid_weights(geom: Geometry, params: Params, dtype):
-    """Where geom.body is 'sharp': the open fractions (ax, ay) and, per face, the weights (up, down) [face shape]
-    of its neighbours along the face in the linear interpolation of the velocity at the open part's centroid:
-    u(centroid) = (1 - up - down) u + up u_next + down u_prev. Nonzero on cut faces only, toward the fluid (the
-    neighbour is then a whole face: a circle's chord ends in at most one face per side), < 1/2."""
-    cx, cy, r = params.circle
-    ax, ay, my, mx = circle_cut_faces(geom, cx, cy, r, dtype)
+    """Where geom.body is 'sharp' (with bodies): the open fractions (ax, ay) and, per face, the weights (up, down)
+    [face shape] of its neighbours along the face in the linear interpolation of the velocity at the open part's
+    centroid: u(centroid) = (1 - up - down) u + up u_next + down u_prev. Nonzero on cut faces only, toward the
+    fluid (the neighbour is then a whole face: a convex body's chord ends in at most one face per side, for a body
+    at least 2 cells across), < 1/2."""
+    ax, ay, my, mx = body_apertures(geom, params, dtype)
     h = geom.h
     out = []
     for a, m, offset, axis in ((ax, my, 0.5, 0), (ay, mx, 0.5, 1)):
@@ -123,24 +146,24 @@ def _from_centroid(qc, up, down, axis):
 
 
 def _fluxes(geom: Geometry, params: Params, u, v):
-    """Volume fluxes per face width (m/s): u, v, and on the sharp circle's cut faces its open fraction
-    (grid.circle_apertures) times the velocity at the open part's centroid, interpolated linearly along the face
+    """Volume fluxes per face width (m/s): u, v, and on the sharp bodies' cut faces its open fraction
+    (grid.cut_faces) times the velocity at the open part's centroid, interpolated linearly along the face
     (``_centroid_weights``; at the face's centre, the flux misses a h (1 - a) du/ds / 2 per face: an O(1)
     divergence in the cut cells, a first-order mass source along the wall)."""
-    if geom.body == "staircase":
+    if not sharp_bodies(geom, params):
         return u, v
     (ax, uu, ud, _), (ay, vu, vd, _) = _centroid_weights(geom, params, u.dtype)
     return ax * _to_centroid(u, uu, ud, 0), ay * _to_centroid(v, vu, vd, 1)
 
 
 def fill_ghosts(geom: Geometry, params: Params, u, v):
-    """u, v with the sharp circle's ghost faces set (grid.circle_ghosts: the quadratic through no-slip on the
-    circle and two image points) and the faces deeper inside zero; unchanged where geom.body is 'staircase'."""
-    if geom.body == "staircase":
+    """u, v with the sharp bodies' ghost faces set (grid.body_ghosts: the quadratic through no-slip on the
+    surface and two image points) and the faces deeper inside zero; unchanged without sharp bodies."""
+    bodies = sharp_bodies(geom, params)
+    if not bodies:
         return u, v
-    cx, cy, r = params.circle
-    gu = circle_ghosts(geom, cx, cy, r, 0.0, 0.5, u.shape, u.dtype)
-    gv = circle_ghosts(geom, cx, cy, r, 0.5, 0.0, v.shape, v.dtype)
+    gu = body_ghosts(geom, bodies, 0.0, 0.5, u.shape, u.dtype)
+    gv = body_ghosts(geom, bodies, 0.5, 0.0, v.shape, v.dtype)
     # the image stencils hold fluid faces only (IMAGE_DISTANCE), so one pass is exact: no ghost reads a ghost
     su, sv = _sampler(geom, u, 0.0, 0.5), _sampler(geom, v, 0.5, 0.0)
     ug = gu.w1 * su(gu.x1, gu.y1) + gu.w2 * su(gu.x2, gu.y2)
@@ -333,7 +356,7 @@ def viscous(geom: Geometry, params: Params, u, v):
 
 def divergence(geom: Geometry, u, v, params: Params | None = None):
     """Discrete divergence [ny, nx] in 1/s: of the fluxes through the faces' open fractions where geom.body is
-    'sharp' and params (with its circle) is given (what ``project`` makes zero), else of the face velocities."""
+    'sharp' and params (with its bodies) is given (what ``project`` makes zero), else of the face velocities."""
     if params is not None:
         u, v = _fluxes(geom, params, u, v)
     return (u[:, 1:] - u[:, :-1] + v[1:] - v[:-1]) / geom.h
@@ -352,7 +375,7 @@ def project(geom: Geometry, params: Params, u, v, dt, tol=1e-5, max_iter=200, op
     op = operator(geom, params) if op is None else op
     fc = op.levels[0]
     h = geom.h
-    sharp = geom.body == "sharp"
+    sharp = bool(sharp_bodies(geom, params))
     if sharp:  # project the centroid velocities (the fluxes' own), then recover the face centres' from them
         (ax, uu, ud, _), (ay, vu, vd, _) = _centroid_weights(geom, params, u.dtype)
         u, v = _to_centroid(u, uu, ud, 0), _to_centroid(v, vu, vd, 1)
@@ -374,7 +397,8 @@ def project(geom: Geometry, params: Params, u, v, dt, tol=1e-5, max_iter=200, op
 
 
 def _open(geom: Geometry, fc):
-    """Faces the pressure gradient acts on: fc's coefficients (0 or 1) for staircase bodies, else coefficient > 0."""
+    """Faces the pressure gradient acts on: fc's coefficients (0 or 1) for staircase bodies, else coefficient > 0
+    (the same where a sharp geometry has no bodies)."""
     if geom.body == "staircase":
         return fc.cx, fc.cy
     return (fc.cx > 0).astype(fc.cx.dtype), (fc.cy > 0).astype(fc.cy.dtype)
@@ -420,7 +444,7 @@ def predict(geom: Geometry, state: State, params: Params, dt, advection: str = "
     if advection not in ADVECTION:
         raise ValueError(f"advection={advection!r}: allowed are {sorted(ADVECTION)}")
     adv = ADVECTION[advection]
-    # the last projection moved the cut faces inside a sharp circle: their ghost values again, before any stencil
+    # the last projection moved the cut faces inside a sharp body: their ghost values again, before any stencil
     state = state._replace(**dict(zip("uv", fill_ghosts(geom, params, state.u, state.v))))
     u, v = state.u, state.v
     lu, lv = viscous(geom, params, u, v)
