@@ -304,7 +304,7 @@ def _plot_sitl_rollouts(path: Path, fine, coarse, test: dict, runs: list[Path], 
     device = check_device(cfg.device)
     u, params = test["u"][:1].to(device), test["params"][:1].to(device)
     rows = {}
-    arms = _corrector_arms(cfg, 0)
+    arms = _corrector_arms(cfg, _settings(cfg, "solver-in-the-loop")["unroll"])  # (0 here labelled it "unroll 0")
     for label, run in (("coarse solver", None), (arms[0][0], runs[0]), (arms[2][0], runs[2])):
         run = None if run is None else _run_dir(run, cfg, cfg.seed)
         model, norm = (None, _identity_norm(fine)) if run is None else load_checkpoint(run / "model.pt")[:2]

@@ -85,6 +85,15 @@ def test_a_one_seed_run_is_read_back_as_seed_0_of_a_several_seed_rerun(tmp_path,
         if a["mode"] == "solver-in-the-loop":
             assert a["seeds"] == [0, 1] and a["per_seed"][0]["rollout_mean"] == one[a["arm"]]
 
+
+def test_the_rollouts_figure_names_the_unroll_it_shows(tmp_path, monkeypatch):
+    from pdestream.experiments import interactive_compare
+
+    seen = []
+    monkeypatch.setattr(interactive_compare, "plot_rollouts", lambda path, pde, rows, *a, **k: seen.extend(rows))
+    assert cli.main([*SMALL, "--steps", "1", "--seeds", "1", "--unroll", "3", "--out", str(tmp_path / "c")]) == 0
+    assert "solver-in-the-loop (unroll 3)" in seen and not any("unroll 0" in r for r in seen)
+
 def test_unroll_at_follows_the_schedule_and_the_loss_unrolls_that_many_steps():
     fine = generator.get_pde("burgers1d", n=32, n_frames=11)
     mode = make_mode({"name": "solver-in-the-loop", "unroll": 3, "coarse_n": 16,
