@@ -239,8 +239,16 @@ def _seeds(cfg: InteractiveConfig) -> range:
 
 
 def _run_dir(run_dir: Path, cfg: InteractiveConfig, seed: int) -> Path:
-    """One seed's run directory: the arm's own with one seed (as before seeds), ARM_seedS with several."""
-    return run_dir if cfg.seeds == 1 else run_dir.with_name(f"{run_dir.name}_seed{seed}")
+    """One seed's run directory: the arm's own with one seed (as before seeds), ARM_seedS with several; with several,
+    a seed that a one-seed run on the same out trained (the arm's own directory, its run.json of that seed) is
+    found there, so ``--seeds 1`` then ``--seeds 3`` reads seed 0 back instead of training it again."""
+    if cfg.seeds == 1:
+        return run_dir
+    named = run_dir.with_name(f"{run_dir.name}_seed{seed}")
+    if not named.exists() and (run_dir / "run.json").is_file():
+        if json.loads((run_dir / "run.json").read_text()).get("seed") == seed:
+            return run_dir
+    return named
 
 
 CHECKPOINTS = 20  # per arm: an interrupted arm loses at most 5% of its steps
@@ -296,7 +304,7 @@ def _plot_sitl_rollouts(path: Path, fine, coarse, test: dict, runs: list[Path], 
     device = check_device(cfg.device)
     u, params = test["u"][:1].to(device), test["params"][:1].to(device)
     rows = {}
-    arms = _corrector_arms(cfg, 0)
+    arms = _corrector_arms(cfg, _settings(cfg, "solver-in-the-loop")["unroll"])  # (0 here labelled it "unroll 0")
     for label, run in (("coarse solver", None), (arms[0][0], runs[0]), (arms[2][0], runs[2])):
         run = None if run is None else _run_dir(run, cfg, cfg.seed)
         model, norm = (None, _identity_norm(fine)) if run is None else load_checkpoint(run / "model.pt")[:2]

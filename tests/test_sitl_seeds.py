@@ -60,6 +60,40 @@ def test_corrector_arms_train_every_seed_report_mean_and_std_and_resume(tmp_path
     assert "\n" not in err
 
 
+
+def test_a_one_seed_run_is_read_back_as_seed_0_of_a_several_seed_rerun(tmp_path, capsys, monkeypatch):
+    """--seeds 1 then --seeds 2 on the same out: seed 0 (in ARM/, not ARM_seed0/) is read back, only seed 1 trains
+    (before, the rerun trained seed 0 again under ARM_seed0: on ns2d a quarter of an hour)."""
+    out = tmp_path / "cmp"
+    assert cli.main([*SMALL, "--steps", "2", "--seeds", "1", "--out", str(out)]) == 0
+    one = {a["arm"]: a["rollout_mean"] for a in json.loads((out / "compare.json").read_text())["arms"]}
+    capsys.readouterr()
+    from pdestream.experiments import interactive_compare
+
+    trained, real = [], interactive_compare.train_run
+
+    def seed_1_only(*args, **kwargs):
+        assert kwargs["seed"] == 1, "seed 0 was trained again"
+        trained.append(kwargs["seed"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(interactive_compare, "train_run", seed_1_only)
+    assert cli.main([*SMALL, "--steps", "2", "--seeds", "2", "--out", str(out)]) == 0
+    assert capsys.readouterr().out.count("read back (not retrained)") == 3 and trained == [1, 1, 1]
+    assert not any((out / f"{run}_seed0").exists() for run in ("sitl_unroll1", "sitl_unroll1_noise", "sitl_unroll4"))
+    for a in json.loads((out / "compare.json").read_text())["arms"]:
+        if a["mode"] == "solver-in-the-loop":
+            assert a["seeds"] == [0, 1] and a["per_seed"][0]["rollout_mean"] == one[a["arm"]]
+
+
+def test_the_rollouts_figure_names_the_unroll_it_shows(tmp_path, monkeypatch):
+    from pdestream.experiments import interactive_compare
+
+    seen = []
+    monkeypatch.setattr(interactive_compare, "plot_rollouts", lambda path, pde, rows, *a, **k: seen.extend(rows))
+    assert cli.main([*SMALL, "--steps", "1", "--seeds", "1", "--unroll", "3", "--out", str(tmp_path / "c")]) == 0
+    assert "solver-in-the-loop (unroll 3)" in seen and not any("unroll 0" in r for r in seen)
+
 def test_unroll_at_follows_the_schedule_and_the_loss_unrolls_that_many_steps():
     fine = generator.get_pde("burgers1d", n=32, n_frames=11)
     mode = make_mode({"name": "solver-in-the-loop", "unroll": 3, "coarse_n": 16,
