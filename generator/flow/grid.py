@@ -212,22 +212,27 @@ class Circle(NamedTuple):
         return self.cx + self.r * c, self.cy + self.r * s, c, s, jnp.full_like(c, self.r * (2 * math.pi / n))
 
 
-def _axes(body, along_y: bool):
-    """(centre across the line, centre along it, half-width across, half-width along) of an axis-aligned body
-    (cx, cy, a, b) for a grid line x = pos (along_y) or y = pos."""
-    return (body.cx, body.cy, body.a, body.b) if along_y else (body.cy, body.cx, body.b, body.a)
-
-
-class Box(NamedTuple):
-    """The axis-aligned box of centre (cx, cy) and half-widths (a, b) [m]: x in [cx - a, cx + a], y likewise."""
+class _AxisAligned(NamedTuple):
+    """An axis-aligned body of centre (cx, cy) and half-widths / semi-axes (a, b) [m] (Box and Ellipse add the shape)."""
 
     cx: Any
     cy: Any
     a: Any
     b: Any
 
+    def axes(self, along_y: bool):
+        """(centre across the line, centre along it, half-width across, half-width along) for a grid line x = pos
+        (along_y) or y = pos."""
+        return (self.cx, self.cy, self.a, self.b) if along_y else (self.cy, self.cx, self.b, self.a)
+
+
+class Box(_AxisAligned):
+    """The axis-aligned box of centre (cx, cy) and half-widths (a, b) [m]: x in [cx - a, cx + a], y likewise."""
+
+    __slots__ = ()
+
     def chord(self, pos, along_y: bool):
-        c_pos, c_lo, half_pos, half = _axes(self, along_y)
+        c_pos, c_lo, half_pos, half = self.axes(along_y)
         hit = jnp.abs(pos - c_pos) <= half_pos
         return c_lo - half, jnp.where(hit, c_lo + half, c_lo - half)
 
@@ -263,16 +268,13 @@ class Box(NamedTuple):
 ELLIPSE_BISECTIONS = 40  # bisections for an ellipse's nearest point (its bracket halves to ~1e-12 of its width)
 
 
-class Ellipse(NamedTuple):
+class Ellipse(_AxisAligned):
     """The axis-aligned ellipse of centre (cx, cy) and semi-axes (a, b) [m]."""
 
-    cx: Any
-    cy: Any
-    a: Any
-    b: Any
+    __slots__ = ()
 
     def chord(self, pos, along_y: bool):
-        c_pos, c_lo, half_pos, half = _axes(self, along_y)
+        c_pos, c_lo, half_pos, half = self.axes(along_y)
         arg = 1 - ((pos - c_pos) / half_pos) ** 2
         s = half * _safe_sqrt(arg) * (arg > 0)
         return c_lo - s, c_lo + s
