@@ -131,3 +131,17 @@ def test_tests_patch_the_cache_formats_on_their_classes():
     offenders = [f"{p.name}:{i}" for p in Path(__file__).parent.glob("test_*.py")
                  for i, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
     assert offenders == [], offenders
+
+
+def test_ci_runs_the_readmes_test_command_and_full_runs_every_test():
+    """The README's test command is what the gate (.ci/run) runs; .ci/full adds the slow set to the same command."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    command = next(line for line in readme.splitlines() if line.startswith("python3 -m venv") and "pytest" in line)
+    tests = command[command.index("ruff check ."):]  # after the installs, which CI runs quietly (pip -q)
+    gate, full = (root / ".ci" / "run").read_text(), (root / ".ci" / "full").read_text()
+    assert tests + " && " in gate, f".ci/run no longer runs the README's {tests!r}"
+    assert tests + ' -m "slow or not slow"' in full, f".ci/full no longer runs {tests!r} over every test"
+    assert "-m" not in tests.split("pytest", 1)[1], "the README's test command selects the default (quick) set"
