@@ -1,13 +1,16 @@
 """What does a batch cost the training loop, by data route? The host seconds between two training steps.
 
-``python -m benchmarks.batch_cost [PDE] [--set n=128] [--batches 600] [--rounds 3]``
+``python -m benchmarks.batch_cost [PDE] [--set n=128] [--batches 600] [--rounds 3] [--train]``
 
 In one process, rounds alternating: the precomputed route (a cache of ``--cache-size`` trajectories read through
 ``CachedTrajectories`` and the epoch sampler, as ``compare``'s precomputed arm reads it) and the stream's
 (``ReservoirStream`` at compare's defaults, async, its pacer on), each handing out ``--batches`` batches of 32
 (operator view) after 50 unmeasured ones, the reservoir given a loss per example after each (as training does).
 No model is trained, so the figures are the routes' own cost per step: torch on one thread, as in the suites.
-Printed per round: ms per batch, and the reservoir's ratio to the cache. Explains issue 30's step gap on
+Printed per round: ms per batch, and the reservoir's ratio to the cache. With ``--train``, each route instead feeds
+compare's FNO (32 / 12 / 3, Adam, lr 3e-3, relative L2), the reservoir twice (its solver a thread of this process,
+as compare runs it, and ``producer='process'``), and the seconds inside the optimizer step are timed apart from
+those waiting for a batch: whether a solve beside training slows the step itself. Explains issue 30's step gap on
 fisher_kpp1d (docs/results/compare.md): figures, not pass/fail.
 """
 
@@ -33,6 +36,22 @@ def per_batch_ms(batches, n: int, after_each=None, skip: int = 50) -> float:
     return (time.perf_counter() - t0) / n * 1e3
 
 
+def train_ms(batches, step, n: int, after_each=None, skip: int = 50) -> tuple[float, float]:
+    """(ms waiting for a batch, ms in ``step(batch)``) per step over ``n`` steps, after ``skip`` unmeasured ones."""
+    wait = work = 0.0
+    for i in range(skip + n):
+        t0 = time.perf_counter()
+        batch = next(batches)
+        t1 = time.perf_counter()
+        step(batch)
+        t2 = time.perf_counter()
+        if after_each is not None:
+            after_each(batch)
+        if i >= skip:
+            wait, work = wait + t1 - t0, work + t2 - t1
+    return wait / n * 1e3, work / n * 1e3
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="python -m benchmarks.batch_cost", description=__doc__.splitlines()[0])
     p.add_argument("pde", nargs="?", default="fisher_kpp1d", help="catalog entry (default fisher_kpp1d)")
@@ -40,6 +59,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--batches", type=int, default=600, help="measured batches per route and round")
     p.add_argument("--rounds", type=int, default=3, help="alternated rounds")
     p.add_argument("--cache-size", type=int, default=512, help="trajectories in the precomputed cache")
+    p.add_argument("--train", action="store_true", help="train compare's FNO on each route; time the step apart")
     a = p.parse_args(argv)
     import torch
     from torch.utils.data import DataLoader
@@ -60,10 +80,12 @@ def main(argv: list[str] | None = None) -> None:
             yield from DataLoader(cached, batch_sampler=sampler, collate_fn=datasets.collate)
             epoch += 1
 
+    cache = cache_batches()
+    if a.train:
+        return _train_routes(pde, cache, a.batches, a.rounds)
     stream = datasets.ReservoirStream(pde, seed=0, view="operator", batch_size=32, target_reuse="auto")
     reservoir = iter(stream)
     report = lambda batch: stream.report_losses(batch, torch.rand(len(batch["index"])))  # noqa: E731
-    cache = cache_batches()
     rows = []
     for r in range(a.rounds):
         c = per_batch_ms(cache, a.batches)
@@ -75,6 +97,43 @@ def main(argv: list[str] | None = None) -> None:
     c, s = statistics.median(x for x, _ in rows), statistics.median(y for _, y in rows)
     print(f"median: cache {c:.3f} ms, reservoir {s:.3f} ms per batch (x{s / c:.2f}; +{s - c:.3f} ms); "
           f"the reservoir solved {solved} trajectories meanwhile")
+
+
+def _train_routes(pde, cache, n: int, rounds: int) -> None:
+    """Rounds of ``n`` FNO steps on each route (cache, reservoir with a thread producer, with a process one)."""
+    import torch
+
+    from pdestream import datasets
+    from pdestream.surrogate.models import build_model
+
+    streams = {p: datasets.ReservoirStream(pde, seed=0, view="operator", batch_size=32, target_reuse="auto",
+                                           producer=p) for p in ("thread", "process")}
+    routes = {"cache": (cache, None)}
+    for p, st in streams.items():
+        routes[f"reservoir ({p})"] = (iter(st), lambda b, st=st: st.report_losses(b, torch.rand(len(b["index"]))))
+    torch.manual_seed(0)
+    model = build_model("fno", pde.NDIM, 1, 1, len(pde.PARAMS), width=32, modes=12, layers=3)
+    opt = torch.optim.Adam(model.parameters(), 3e-3)
+
+    def step(batch):
+        out = model(batch["x"], batch["params"])
+        loss = ((out - batch["y"]).flatten(1).norm(dim=1) / batch["y"].flatten(1).norm(dim=1)).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+
+    got = {k: [] for k in routes}
+    for r in range(rounds):
+        for name, (batches, after) in routes.items():
+            wait, work = train_ms(batches, step, n, after)
+            got[name].append((wait, work))
+            print(f"round {r}: {name}: waiting {wait:.2f} ms, step {work:.2f} ms per step", flush=True)
+    base = statistics.median(w for _, w in got["cache"])
+    for name, rows in got.items():
+        wait, work = statistics.median(x for x, _ in rows), statistics.median(y for _, y in rows)
+        print(f"median {name}: waiting {wait:.2f} ms, step {work:.2f} ms (x{work / base:.2f} the cache's step)")
+    for st in streams.values():
+        st.close()
 
 
 if __name__ == "__main__":
