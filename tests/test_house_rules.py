@@ -134,7 +134,8 @@ def test_tests_patch_the_cache_formats_on_their_classes():
 
 
 def test_ci_runs_the_readmes_test_command_and_full_runs_every_test():
-    """The README's test command is what the gate (.ci/run) runs; .ci/full adds the slow set to the same command."""
+    """The README's test command is what the gate (.ci/run) runs, with the docs' code blocks; .ci/full adds the slow
+    set to the same command."""
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
@@ -143,5 +144,6 @@ def test_ci_runs_the_readmes_test_command_and_full_runs_every_test():
     tests = command[command.index("ruff check ."):]  # after the installs, which CI runs quietly (pip -q)
     gate, full = (root / ".ci" / "run").read_text(), (root / ".ci" / "full").read_text()
     assert tests + " && " in gate, f".ci/run no longer runs the README's {tests!r}"
+    assert "-m slow tests/test_docs.py" in gate, ".ci/run no longer runs the docs' code blocks (the slow set's)"
     assert tests + ' -m "slow or not slow"' in full, f".ci/full no longer runs {tests!r} over every test"
     assert "-m" not in tests.split("pytest", 1)[1], "the README's test command selects the default (quick) set"
