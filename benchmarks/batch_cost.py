@@ -23,33 +23,22 @@ import tempfile
 import time
 
 
-def per_batch_ms(batches, n: int, after_each=None, skip: int = 50) -> float:
-    """Milliseconds per batch over ``n`` batches of the iterator ``batches``, after ``skip`` unmeasured ones;
-    ``after_each(batch)`` runs after each (a loss report)."""
-    t0 = None
-    for i in range(skip + n):
-        if i == skip:
-            t0 = time.perf_counter()
-        batch = next(batches)
-        if after_each is not None:
-            after_each(batch)
-    return (time.perf_counter() - t0) / n * 1e3
-
-
-def train_ms(batches, step, n: int, after_each=None, skip: int = 50) -> tuple[float, float]:
-    """(ms waiting for a batch, ms in ``step(batch)``) per step over ``n`` steps, after ``skip`` unmeasured ones."""
-    wait = work = 0.0
+def route_ms(batches, n: int, step=None, after_each=None, skip: int = 50) -> tuple[float, float]:
+    """(ms the route takes: waiting for a batch and ``after_each(batch)``, a loss report; ms in ``step(batch)``)
+    per step over ``n`` steps of the iterator ``batches``, after ``skip`` unmeasured ones."""
+    route = work = 0.0
     for i in range(skip + n):
         t0 = time.perf_counter()
         batch = next(batches)
         t1 = time.perf_counter()
-        step(batch)
+        if step is not None:
+            step(batch)
         t2 = time.perf_counter()
         if after_each is not None:
             after_each(batch)
         if i >= skip:
-            wait, work = wait + t1 - t0, work + t2 - t1
-    return wait / n * 1e3, work / n * 1e3
+            route, work = route + (t1 - t0) + (time.perf_counter() - t2), work + t2 - t1
+    return route / n * 1e3, work / n * 1e3
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -88,8 +77,8 @@ def main(argv: list[str] | None = None) -> None:
     report = lambda batch: stream.report_losses(batch, torch.rand(len(batch["index"])))  # noqa: E731
     rows = []
     for r in range(a.rounds):
-        c = per_batch_ms(cache, a.batches)
-        s = per_batch_ms(reservoir, a.batches, report)
+        c = route_ms(cache, a.batches)[0]
+        s = route_ms(reservoir, a.batches, after_each=report)[0]
         rows.append((c, s))
         print(f"round {r}: cache {c:.3f} ms/batch, reservoir {s:.3f} ms/batch, reservoir / cache x{s / c:.2f}")
     solved = stream.stats()["inserted"]
@@ -125,7 +114,7 @@ def _train_routes(pde, cache, n: int, rounds: int) -> None:
     got = {k: [] for k in routes}
     for r in range(rounds):
         for name, (batches, after) in routes.items():
-            wait, work = train_ms(batches, step, n, after)
+            wait, work = route_ms(batches, n, step, after)
             got[name].append((wait, work))
             print(f"round {r}: {name}: waiting {wait:.2f} ms, step {work:.2f} ms per step", flush=True)
     base = statistics.median(w for _, w in got["cache"])
