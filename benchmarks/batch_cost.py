@@ -51,14 +51,23 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--train", action="store_true", help="train compare's FNO on each route; time the step apart")
     a = p.parse_args(argv)
     import torch
-    from torch.utils.data import DataLoader
 
-    from pdestream import datasets, generator
-    from pdestream.surrogate.data import EpochBatchSampler
+    from pdestream import generator
 
     torch.set_num_threads(1)
     pde = generator.get_pde(a.pde).replace(dict(s.split("=", 1) for s in a.set))
-    path = os.path.join(tempfile.mkdtemp(prefix="batch_cost_"), "cache.h5")
+    with tempfile.TemporaryDirectory(prefix="batch_cost_") as tmp:  # the cache is this run's alone: removed after
+        _measure(pde, os.path.join(tmp, "cache.h5"), a)
+
+
+def _measure(pde, path: str, a) -> None:
+    """The rounds of ``main``'s arguments ``a`` on ``pde``, the precomputed route's cache written to ``path``."""
+    import torch
+    from torch.utils.data import DataLoader
+
+    from pdestream import datasets
+    from pdestream.surrogate.data import EpochBatchSampler
+
     datasets.write_cache(pde, path, a.cache_size, seed=0, progress=False)
     cached = datasets.CachedTrajectories(path, view="operator")
 
