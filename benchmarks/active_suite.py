@@ -334,9 +334,20 @@ def _spending(name: str, runs: dict, labels: dict) -> list[str]:
                          f"trajectories, reuse target {np.mean([float(s['target_reuse'] or 0) for s in paced]):.1f}, "
                          f"producer idle {100 * np.mean([s.get('producer_idle_share', 0.0) for s in paced]):.0f}%, "
                          f"solving cost ~{100 * np.mean(cost):.0f}% of the steps (busy share x k / (1 + k), k "
-                         f"{np.mean([s['pace_slowdown'] for s in paced]):.2f}), "
+                         f"{np.mean([s['pace_slowdown'] for s in paced]):.2f}){_probed(paced)}, "
                          f"training loop waiting {100 * np.mean([r['wait_share'] for r in rs]):.0f}%.")
     return lines
+
+
+def _probed(paced: list[dict]) -> str:
+    """The pacer's probes' words (datasets/reservoir_pacer.py): the share of steps the producer's pace cost as they
+    measured it and the k they read, mean over seeds; "" where no probe was pooled."""
+    got = [s for s in paced if s.get("pace_probes", 0) and s.get("pace_probe_cost") == s.get("pace_probe_cost")]
+    if not got:
+        return ""
+    k = [s["pace_probe_k"] for s in got if s["pace_probe_k"] == s["pace_probe_k"]]
+    return (f"; its probes measured {100 * np.mean([s['pace_probe_cost'] for s in got]):.1f}% of the steps lost "
+            f"({np.mean([s['pace_probes'] for s in got]):.0f} probes" + (f", k {np.mean(k):.2f}" if k else "") + ")")
 
 
 def main(argv: list[str] | None = None, tiny: dict | None = None, suite: Suite = ACTIVE, doc: str = __doc__) -> None:

@@ -229,7 +229,8 @@ class ReservoirStream(IterableDataset):
     def _paced(self) -> bool:
         """Async mode with a reuse target (``reservoir_pacer``'s rule): hold the next solve until the draws so far
         have paid for the solves submitted (one batch ahead): warmup + the uses drawn, each at the target R in
-        force when it was drawn, / R. A solver faster than that leaves its core to training."""
+        force when it was drawn, / R, and during the pacer's probes. A solver faster than that leaves its core to
+        training."""
         if self.mode != "async" or self.target_reuse is None:
             return False
         r = self.pacer.target()
@@ -239,7 +240,8 @@ class ReservoirStream(IterableDataset):
         self._paid_drawn = drawn
         if not len(self.res.eligible()):
             return False  # (nothing drawable: the loop is waiting, so solve regardless)
-        return self.next_index >= self._paid + self.solve_batch
+        ahead = self.next_index >= self._paid  # (a producer behind the draws is the bottleneck: no probe holds it)
+        return self.next_index >= self._paid + self.solve_batch or (ahead and self.pacer.probing())
 
     def _step_done(self, busy: bool, t0: float) -> None:
         """The training step between a batch handed out at ``t0`` and now, for pacing: its seconds and the share

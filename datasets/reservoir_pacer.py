@@ -29,6 +29,21 @@ a GPU trainer) is paced at R = 1 (each trajectory drawn once); one that shares t
 reuse each trajectory more; a solver slower than that (the bottleneck) is never held: when nothing held is
 drawable (the loop would wait) the producer solves regardless. Pacing changes only *when* jobs are submitted,
 never which samples they solve (sample identity). ``target_reuse=R`` fixes R, ``None`` ("off") solves flat out.
+
+The share fit may under-read k: the share is measured with error (a solve's CPU use is not even over its wall
+time; a step's cost need not end when the job's future does), and an error in the regressor pulls a slope toward
+zero. So the pacer also measures the cost directly, by **probes**: every PROBE_EVERY steps (auto mode) the
+producer holds for PROBE_STEPS steps, unless it is behind the draws (a solver that is the bottleneck is never
+held). The steps of the probe that no solve touched (share 0) give the step time alone, t_0; the PROBE_STEPS
+steps just before it, the time with the producer at its pace, t_1, and the share D of their time a solve ran.
+Training lost ``1 - t_0 / t_1`` of those steps (``probe_cost``: what pacing cost, measured rather than modelled)
+to a producer busy ``D`` of the time, so each busy second costs ``q = (1 - t_0 / t_1) / D`` of a step-second,
+i.e. ``k = q / (1 - q)``; pooled over probes (sums decayed by PROBE_DECAY per probe) and, from PROBES_MIN probes
+on, k is the larger of the fit and the probes' (at most K_MAX): an overestimate costs reuse, an underestimate
+steps. Adjacent windows a second apart cancel the drift of a shared machine's speed (10-20% over minutes on the 2
+cores here). A probe delays solves, never skips them: after it the producer catches up to the draws. (Measured on
+fisher_kpp1d, 2 cores: the probes read k 0.2-0.6 where the fit read 0.8, so there the fit is the conservative
+one; docs/results/compare.md.)
 """
 
 from __future__ import annotations
@@ -43,6 +58,10 @@ MIN_STEPS = 8.0  # weighted steps, and a spread of the solve share, before k is 
 MIN_SPREAD = 0.01  # (variance of the per-step solve share below this: no fit, k relaxes toward K_PRIOR)
 K_Z = 2.0  # k is the fit's slope plus this many standard errors (an overestimate costs reuse, an underestimate steps)
 RELAX = 0.02  # per step without spread, the share of the way k moves back toward K_PRIOR
+PROBE_EVERY = 320  # steps from one probe's start to the next
+PROBE_STEPS = 32  # steps a probe holds the producer (and the window before it that it is compared with)
+PROBE_DECAY = 0.8  # a probe's weight in the pool per later probe: about the last 5 count
+PROBES_MIN = 3  # probes before their k is used
 
 
 class Pacer:
@@ -63,6 +82,15 @@ class Pacer:
         self.sums = [0.0] * 7
         self.steps = self.solved_n = 0
         self.solve_s = 0.0  # seconds of solving in all (the jobs' own), for the producer's idle time
+        # probes: this cycle's window before the probe and the probe's clean steps (sum of seconds, sum of shares,
+        # count), the pool (decayed sums of lost share and busy share, probes), and the k they give
+        self._before, self._alone = [0.0, 0.0, 0], [0.0, 0]
+        self.probe_lost = self.probe_busy = self.probe_w = self.probes = 0.0
+        self.k_probe = None
+
+    def probing(self) -> bool:
+        """Whether the next steps are a probe's, for which the producer holds (auto mode; the module docstring)."""
+        return self.mode == "auto" and self.steps % PROBE_EVERY >= PROBE_EVERY - PROBE_STEPS
 
     def solved(self, n: int, seconds: float) -> None:
         """A job of ``n`` trajectories took ``seconds`` (where it ran)."""
@@ -83,6 +111,7 @@ class Pacer:
         s0, sf, sff, st, sft, stt, sww = self.sums
         if s0 >= MIN_STEPS:  # a step held up by something else (a checkpoint, a snapshot) does not pass for a solve's cost
             seconds = min(seconds, 4 * st / s0)
+        self._probe_step(seconds, share)
         self.steps += 1
         self.sums = [DECAY * s0 + 1, DECAY * sf + share, DECAY * sff + share * share, DECAY * st + seconds,
                      DECAY * sft + share * seconds, DECAY * stt + seconds * seconds, DECAY * DECAY * sww + 1]
@@ -103,6 +132,40 @@ class Pacer:
         if alone > 0:
             self.k = min(max((slope + K_Z * se) / alone, 0.0), K_MAX)
 
+    def _probe_step(self, seconds: float, share: float) -> None:
+        """Step number ``self.steps`` (about to be counted) into this cycle's windows; a probe ending is pooled."""
+        if self.mode != "auto":
+            return
+        at = self.steps % PROBE_EVERY
+        if PROBE_EVERY - 2 * PROBE_STEPS <= at < PROBE_EVERY - PROBE_STEPS:  # the window before the probe
+            b = self._before
+            b[0], b[1], b[2] = b[0] + seconds, b[1] + share * seconds, b[2] + 1
+        elif at >= PROBE_EVERY - PROBE_STEPS and share == 0:  # the probe's clean steps
+            self._alone[0], self._alone[1] = self._alone[0] + seconds, self._alone[1] + 1
+        if at != PROBE_EVERY - 1:
+            return
+        (t_sum, f_sum, n1), (t0_sum, n0) = self._before, self._alone
+        self._before, self._alone = [0.0, 0.0, 0], [0.0, 0]
+        if n1 < PROBE_STEPS // 2 or n0 < PROBE_STEPS // 2 or f_sum <= 0:  # (no probe held, or nothing solved before)
+            return
+        self.probe_lost = PROBE_DECAY * self.probe_lost + (1 - (t0_sum / n0) / (t_sum / n1))
+        self.probe_busy = PROBE_DECAY * self.probe_busy + f_sum / t_sum  # (the busy share of the window's time)
+        self.probe_w = PROBE_DECAY * self.probe_w + 1
+        self.probes += 1
+        if self.probes >= PROBES_MIN:
+            q = max(self.probe_lost / self.probe_busy, 0.0)
+            self.k_probe = K_MAX if q >= K_MAX / (1 + K_MAX) else q / (1 - q)
+
+    @property
+    def probe_cost(self) -> float | None:
+        """The share of steps the producer's pace cost, as the probes measured it (decayed mean; None before one)."""
+        return self.probe_lost / self.probe_w if self.probe_w else None
+
+    @property
+    def slowdown(self) -> float:
+        """k in force: the share fit's, or the probes' where they measured more (module docstring)."""
+        return self.k if self.k_probe is None else max(self.k, self.k_probe)
+
     @property
     def step_s(self) -> float | None:
         """Training step seconds (the decayed mean; None before a step)."""
@@ -117,7 +180,8 @@ class Pacer:
         t = self.step_s
         if self.s is None or t is None:
             return self.max_reuse
-        cost = self.s * self.k / (1 + self.k) + (self.i or 0.0)
+        k = self.slowdown
+        cost = self.s * k / (1 + k) + (self.i or 0.0)
         r = self.b * cost / (self.per * t * self.cost)
         return min(max(r, 1.0), self.max_reuse) if math.isfinite(r) else self.max_reuse
 
@@ -125,7 +189,9 @@ class Pacer:
         """What pacing chose and measured (flat numbers for metrics.csv; nan where not measured yet)."""
         nan = float("nan")
         r = self.target()
-        return {"target_reuse": nan if r is None else r, "pace_slowdown": self.k,
+        return {"target_reuse": nan if r is None else r, "pace_slowdown": self.slowdown, "pace_fit_k": self.k,
+                "pace_probe_k": nan if self.k_probe is None else self.k_probe, "pace_probes": self.probes,
+                "pace_probe_cost": nan if self.probe_cost is None else self.probe_cost,
                 "solve_s_per_traj": nan if self.s is None else self.s,
                 "step_s": nan if self.step_s is None else self.step_s}
 

@@ -143,7 +143,10 @@ def pacing_line(arms: list[dict], target="auto") -> str:
         solve = _number(st.get("solve_s_per_traj"))
         parts.append(f"{a['arm']} R {st['target_reuse']:.2f} (step {1e3 * st['step_s']:.1f} ms, solve "
                      + (f"{1e3 * solve:.2f} ms/trajectory" if solve != "" else "not measured")
-                     + f", a solve slowing a step by k = {st['pace_slowdown']:.2f}), {a['trajectories_solved']} "
+                     + f", a solve slowing a step by k = {st['pace_slowdown']:.2f}"
+                     + (f"; its probes measured {100 * st['pace_probe_cost']:.1f}% of the steps lost"
+                        if _number(st.get("pace_probe_cost")) != "" else "")
+                     + f"), {a['trajectories_solved']} "
                      f"solves for {a['steps']} steps, mean reuse {st.get('reuse_mean', 0):.2f}, producer idle "
                      f"{100 * st.get('producer_idle_share', 0):.0f}% of its time")
     if not parts:
@@ -151,7 +154,8 @@ def pacing_line(arms: list[dict], target="auto") -> str:
     rule = ("R = clip(b (s k / (1 + k) + i) / (per t 0.05), 1, max reuse), the least reuse at which solving costs "
             "training at most 5% of its steps, from rates re-measured as the run goes: b examples per batch, per "
             "examples per use of a trajectory, t the step's seconds, s and i the seconds per trajectory of solving and "
-            "of inserting, k how much a running solve slows a step" if target == "auto"
+            "of inserting, k how much a running solve slows a step (the larger of a fit over the steps and the "
+            "probes': every 320 steps the producer holds for 32, timed against the 32 before)" if target == "auto"
             else f"--target-reuse {target}")
     return f"Pacing of the reservoir's producer (seed 0, at the end; {rule}): " + "; ".join(parts) + "."
 

@@ -131,7 +131,8 @@ POSTFIX_STATS = ("wait_share", "reuse_mean")  # data-source stats shown in the p
 # the only values a resume may change: the loop's timers and the data source's rates
 # (and a reservoir's pacing rates, datasets/reservoir_pacer.py: deterministic mode's batches read none of them)
 TIMINGS = ("t_data", "t_compute", "elapsed", "wall", "data_share", "wait_share", "solver_traj_per_s", "examples_per_s",
-           "pace_slowdown", "solve_s_per_traj", "step_s", "producer_idle_s", "producer_idle_share")
+           "pace_slowdown", "pace_fit_k", "pace_probe_k", "pace_probes", "pace_probe_cost", "solve_s_per_traj", "step_s",
+           "producer_idle_s", "producer_idle_share")
 
 
 SCHEDULES = ("cosine", "onecycle", "constant")

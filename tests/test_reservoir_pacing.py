@@ -251,3 +251,59 @@ def test_compare_md_says_what_pacing_chose_and_what_it_cost():
     assert "precomputed" not in line and "--target-reuse 4" in pacing_line(arms, 4)
     off = [{**arms[1], "stats": {**st, "target_reuse": float("nan")}}]  # --target-reuse off: nothing to say
     assert pacing_line(off) == ""
+
+
+def feed_probed(p: Pacer, steps: int, t: float, k: float, hidden: float = 0.0, solve_s: float = 0.002) -> None:
+    """As ``feed``, but a probe's steps run with no solve (the producer held) and every other step is slower by
+    ``hidden`` too: a cost the per-step solve share cannot see (it falls on the steps between solves as well)."""
+    for n in range(steps):
+        if p.probing():
+            p.step(t, 0.0)
+            continue
+        running = n % 3 == 0
+        p.step(t * (1 + hidden) * (1 + k if running else 1), 1.0 if running else 0.0)
+        if running:
+            p.solved(4, 4 * solve_s)
+
+
+def test_probes_measure_what_solving_costs_where_the_share_fit_cannot():
+    """A cost the share sees (k = 0.5 on the steps a solve runs in): the probes read the same k. A cost spread over
+    every step while the producer runs (x1.3, whatever the share): the fit reads about no slope, the probes the
+    real one, q = (1 - 1 / 1.3) / (about 1/3) of a step-second per busy second, and R rises to price it."""
+    import pdestream.datasets.reservoir_pacer as rp
+
+    seen = Pacer(32, 1, 16.0)
+    feed_probed(seen, 10 * rp.PROBE_EVERY, t=0.03, k=0.5)
+    assert seen.probes >= rp.PROBES_MIN and seen.k_probe == pytest.approx(0.5, rel=1e-6)
+    assert seen.slowdown == pytest.approx(0.5, rel=1e-6)
+    # lost share: 1 - t / (mean step with the producer at its pace); a window of 32 steps holds 10 or 11 solving ones
+    assert seen.probe_cost == pytest.approx(1 - 1 / (1 + 0.5 / 3), rel=0.05)
+    hidden = Pacer(32, 1, 16.0)
+    feed_probed(hidden, 10 * rp.PROBE_EVERY, t=0.03, k=0.0, hidden=0.3, solve_s=0.001)
+    q = (1 - 1 / 1.3) / (1 / 3)
+    assert hidden.k_probe == pytest.approx(q / (1 - q), rel=0.1) and hidden.k < 0.2 * hidden.k_probe  # the fit: no slope
+    assert hidden.target() == pytest.approx(rule(32, 1, 0.001, hidden.k_probe, hidden.step_s), rel=1e-6)
+    assert hidden.target() > 3 * rule(32, 1, 0.001, hidden.k, hidden.step_s)  # priced: far fewer solves than the fit allows
+    st = hidden.stats()
+    assert st["pace_fit_k"] == hidden.k and st["pace_probe_k"] == hidden.k_probe == st["pace_slowdown"]
+    # fixed or off: no probes
+    for target in (4.0, None):
+        fixed = Pacer(32, 1, 16.0, target=target)
+        feed_probed(fixed, 3 * rp.PROBE_EVERY, t=0.03, k=0.5)
+        assert fixed.probes == 0 and fixed.k_probe is None and fixed.stats()["pace_probes"] == 0
+
+
+def test_the_stream_holds_its_producer_for_a_probe_unless_it_is_behind(monkeypatch):
+    import pdestream.datasets.reservoir_pacer as rp
+
+    monkeypatch.setattr(rp, "PROBE_EVERY", 20)
+    monkeypatch.setattr(rp, "PROBE_STEPS", 5)
+    s = paced_stream(monkeypatch, "auto", max_reuse=8)
+    s.res.insert(*_zeros(8), np.arange(8))
+    s.pacer.steps = 15  # a probe's steps (15..19 of each 20)
+    s.next_index, s._paid = 8, 8.0  # on its quota: not ahead by a job, so only the probe holds it
+    assert s.pacer.probing() and s._paced()
+    s.pacer.steps = 10
+    assert not s.pacer.probing() and not s._paced()
+    s.pacer.steps, s.next_index = 15, 4  # behind the draws: the solver is the bottleneck, a probe never holds it
+    assert not s._paced()
