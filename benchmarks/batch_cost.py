@@ -1,6 +1,7 @@
 """What does a batch cost the training loop, by data route? The host seconds between two training steps.
 
-``python -m benchmarks.batch_cost [PDE] [--set n=128] [--batches 600] [--rounds 3] [--train]``
+``python -m benchmarks.batch_cost [PDE] [--set n=128] [--batches 600] [--rounds 3] [--train] [--target-reuse R]
+[--producers thread,process]``
 
 In one process, rounds alternating: the precomputed route (a cache of ``--cache-size`` trajectories read through
 ``CachedTrajectories`` and the epoch sampler, as ``compare``'s precomputed arm reads it) and the stream's
@@ -10,8 +11,10 @@ No model is trained, so the figures are the routes' own cost per step: torch on 
 Printed per round: ms per batch, and the reservoir's ratio to the cache. With ``--train``, each route instead feeds
 compare's FNO (32 / 12 / 3, Adam, lr 3e-3, relative L2), the reservoir twice (its solver a thread of this process,
 as compare runs it, and ``producer='process'``), and the seconds inside the optimizer step are timed apart from
-those waiting for a batch: whether a solve beside training slows the step itself. Explains issue 30's step gap on
-fisher_kpp1d (docs/results/compare.md): figures, not pass/fail.
+those waiting for a batch: whether a solve beside training slows the step itself. Short rounds, many
+(``--rounds 40 --batches 50``), interleave the routes finely enough that a shared machine's drifting speed cancels;
+``--target-reuse`` sets the reservoir's pace (auto, a number, off) to price its solves by the step time they cost.
+Issue 30's step gap on fisher_kpp1d (docs/results/compare.md): figures, not pass/fail.
 """
 
 from __future__ import annotations
@@ -49,6 +52,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--rounds", type=int, default=3, help="alternated rounds")
     p.add_argument("--cache-size", type=int, default=512, help="trajectories in the precomputed cache")
     p.add_argument("--train", action="store_true", help="train compare's FNO on each route; time the step apart")
+    p.add_argument("--target-reuse", default="auto", help="the reservoir's pace: auto, a number or off (default auto)")
+    p.add_argument("--producers", default="thread,process", help="--train: the reservoir's producers to time")
     a = p.parse_args(argv)
     import torch
 
@@ -80,8 +85,8 @@ def _measure(pde, path: str, a) -> None:
 
     cache = cache_batches()
     if a.train:
-        return _train_routes(pde, cache, a.batches, a.rounds)
-    stream = datasets.ReservoirStream(pde, seed=0, view="operator", batch_size=32, target_reuse="auto")
+        return _train_routes(pde, cache, a)
+    stream = datasets.ReservoirStream(pde, seed=0, view="operator", batch_size=32, target_reuse=_pace(a.target_reuse))
     reservoir = iter(stream)
     report = lambda batch: stream.report_losses(batch, torch.rand(len(batch["index"])))  # noqa: E731
     rows = []
@@ -97,15 +102,21 @@ def _measure(pde, path: str, a) -> None:
           f"the reservoir solved {solved} trajectories meanwhile")
 
 
-def _train_routes(pde, cache, n: int, rounds: int) -> None:
-    """Rounds of ``n`` FNO steps on each route (cache, reservoir with a thread producer, with a process one)."""
+def _pace(text: str):
+    """--target-reuse as ReservoirStream takes it: "auto", None (off) or a number."""
+    return text if text == "auto" else None if text == "off" else float(text)
+
+
+def _train_routes(pde, cache, a) -> None:
+    """Rounds of ``a.batches`` FNO steps on each route (the cache, the reservoir with each of ``a.producers``)."""
     import torch
 
     from pdestream import datasets
     from pdestream.surrogate.models import build_model
 
-    streams = {p: datasets.ReservoirStream(pde, seed=0, view="operator", batch_size=32, target_reuse="auto",
-                                           producer=p) for p in ("thread", "process")}
+    pace = _pace(a.target_reuse)
+    streams = {p: datasets.ReservoirStream(pde, seed=0, view="operator", batch_size=32, target_reuse=pace,
+                                           producer=p) for p in a.producers.split(",")}
     routes = {"cache": (cache, None)}
     for p, st in streams.items():
         routes[f"reservoir ({p})"] = (iter(st), lambda b, st=st: st.report_losses(b, torch.rand(len(b["index"]))))
@@ -120,17 +131,23 @@ def _train_routes(pde, cache, n: int, rounds: int) -> None:
         loss.backward()
         opt.step()
 
-    got = {k: [] for k in routes}
-    for r in range(rounds):
+    n, got = a.batches, {k: [] for k in routes}
+    for r in range(a.rounds):
         for name, (batches, after) in routes.items():
-            wait, work = route_ms(batches, n, step, after)
+            wait, work = route_ms(batches, n, step, after, skip=50 if r == 0 else 0)  # (warm-up: once)
             got[name].append((wait, work))
-            print(f"round {r}: {name}: waiting {wait:.2f} ms, step {work:.2f} ms per step", flush=True)
+            if a.rounds <= 10:
+                print(f"round {r}: {name}: waiting {wait:.2f} ms, step {work:.2f} ms per step", flush=True)
     base = statistics.median(w for _, w in got["cache"])
     for name, rows in got.items():
         wait, work = statistics.median(x for x, _ in rows), statistics.median(y for _, y in rows)
         print(f"median {name}: waiting {wait:.2f} ms, step {work:.2f} ms (x{work / base:.2f} the cache's step)")
-    for st in streams.values():
+    for p, st in streams.items():
+        solved, steps = st.stats()["inserted"], a.rounds * n
+        extra = (statistics.mean(w for _, w in got[f"reservoir ({p})"]) - statistics.mean(w for _, w in got["cache"]))
+        print(f"reservoir ({p}): {solved} trajectories solved beside {steps} measured steps (mean reuse "
+              f"{st.stats()['reuse_mean']:.1f}); the mean step {extra:+.2f} ms against the cache's, "
+              f"{extra * steps / max(solved, 1):+.3f} ms of training per trajectory solved, pacer k {st.pacer.slowdown:.2f}")
         st.close()
 
 

@@ -41,9 +41,9 @@ to a producer busy ``D`` of the time, so each busy second costs ``q = (1 - t_0 /
 i.e. ``k = q / (1 - q)``; pooled over probes (sums decayed by PROBE_DECAY per probe) and, from PROBES_MIN probes
 on, k is the larger of the fit and the probes' (at most K_MAX): an overestimate costs reuse, an underestimate
 steps. Adjacent windows a second apart cancel the drift of a shared machine's speed (10-20% over minutes on the 2
-cores here). A probe delays solves, never skips them: after it the producer catches up to the draws. (Measured on
-fisher_kpp1d, 2 cores: the probes read k 0.2-0.6 where the fit read 0.8, so there the fit is the conservative
-one; docs/results/compare.md.)
+cores here). A probe delays solves, never skips them: after it the producer catches up to the draws. (On
+fisher_kpp1d, 2 quiet cores, 3 seeds, the probes put the pace's cost at 3.1-7.1% of the steps, the rule's 5%; 32
+steps scatter, so the probes' k does too, 0.7-5.1 where the fit read 0.9-1.0: docs/results/compare.md.)
 """
 
 from __future__ import annotations
