@@ -82,8 +82,8 @@ class Pacer:
         self.sums = [0.0] * 7
         self.steps = self.solved_n = 0
         self.solve_s = 0.0  # seconds of solving in all (the jobs' own), for the producer's idle time
-        # probes: this cycle's window before the probe and the probe's clean steps (sum of seconds, sum of shares,
-        # count), the pool (decayed sums of lost share and busy share, probes), and the k they give
+        # probes: this cycle's window before the probe (sum of seconds, of seconds a solve ran, steps) and the probe's
+        # clean steps (sum of seconds, steps); the pool (decayed sums of lost share, busy share, weight); its k
         self._before, self._alone = [0.0, 0.0, 0], [0.0, 0]
         self.probe_lost = self.probe_busy = self.probe_w = self.probes = 0.0
         self.k_probe = None

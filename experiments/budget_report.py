@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from pdestream import datasets
+from pdestream.datasets.reservoir_pacer import PROBE_EVERY, PROBE_STEPS
 from pdestream.surrogate.tails import METRICS, TAIL_MIN, bootstrap_intervals, rests_on, tail_note
 
 
@@ -155,7 +156,8 @@ def pacing_line(arms: list[dict], target="auto") -> str:
             "training at most 5% of its steps, from rates re-measured as the run goes: b examples per batch, per "
             "examples per use of a trajectory, t the step's seconds, s and i the seconds per trajectory of solving and "
             "of inserting, k how much a running solve slows a step (the larger of a fit over the steps and the "
-            "probes': every 320 steps the producer holds for 32, timed against the 32 before)" if target == "auto"
+            f"probes': every {PROBE_EVERY} steps the producer holds for {PROBE_STEPS}, timed against the {PROBE_STEPS} "
+            "before)" if target == "auto"
             else f"--target-reuse {target}")
     return f"Pacing of the reservoir's producer (seed 0, at the end; {rule}): " + "; ".join(parts) + "."
 
