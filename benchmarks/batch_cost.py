@@ -143,10 +143,11 @@ def _train_routes(pde, cache, a) -> None:
         wait, work = statistics.median(x for x, _ in rows), statistics.median(y for _, y in rows)
         print(f"median {name}: waiting {wait:.2f} ms, step {work:.2f} ms (x{work / base:.2f} the cache's step)")
     for p, st in streams.items():
-        solved, steps = st.stats()["inserted"], a.rounds * n
+        stats, steps = st.stats(), a.rounds * n
+        solved = stats["inserted"]
         extra = (statistics.mean(w for _, w in got[f"reservoir ({p})"]) - statistics.mean(w for _, w in got["cache"]))
         print(f"reservoir ({p}): {solved} trajectories solved beside {steps} measured steps (mean reuse "
-              f"{st.stats()['reuse_mean']:.1f}); the mean step {extra:+.2f} ms against the cache's, "
+              f"{stats['reuse_mean']:.1f}); the mean step {extra:+.2f} ms against the cache's, "
               f"{extra * steps / max(solved, 1):+.3f} ms of training per trajectory solved, pacer k {st.pacer.slowdown:.2f}")
         st.close()
 
