@@ -32,18 +32,23 @@ never which samples they solve (sample identity). ``target_reuse=R`` fixes R, ``
 
 The share fit may under-read k: the share is measured with error (a solve's CPU use is not even over its wall
 time; a step's cost need not end when the job's future does), and an error in the regressor pulls a slope toward
-zero. So the pacer also measures the cost directly, by **probes**: every PROBE_EVERY steps (auto mode) the
-producer holds for PROBE_STEPS steps, unless it is behind the draws (a solver that is the bottleneck is never
-held). The steps of the probe that no solve touched (share 0) give the step time alone, t_0; the PROBE_STEPS
-steps just before it, the time with the producer at its pace, t_1, and the share D of their time a solve ran.
-Training lost ``1 - t_0 / t_1`` of those steps (``probe_cost``: what pacing cost, measured rather than modelled)
-to a producer busy ``D`` of the time, so each busy second costs ``q = (1 - t_0 / t_1) / D`` of a step-second,
-i.e. ``k = q / (1 - q)``; pooled over probes (sums decayed by PROBE_DECAY per probe) and, from PROBES_MIN probes
-on, k is the larger of the fit and the probes' (at most K_MAX): an overestimate costs reuse, an underestimate
-steps. Adjacent windows a second apart cancel the drift of a shared machine's speed (10-20% over minutes on the 2
-cores here). A probe delays solves, never skips them: after it the producer catches up to the draws. (On
-fisher_kpp1d, 2 quiet cores, 3 seeds, the probes put the pace's cost at 3.1-7.1% of the steps, the rule's 5%; 32
-steps scatter, so the probes' k does too, 0.7-5.1 where the fit read 0.9-1.0: docs/results/compare.md.)
+zero. So the pacer also measures the cost directly, by **probes**. Training runs in cycles of PROBE_CYCLE windows
+of w steps, w chosen at each cycle's start so that a window lasts about PROBE_WINDOW_S seconds (from PROBE_STEPS_MIN
+to PROBE_STEPS steps; the first cycle's is PROBE_STEPS_MIN, the step time unknown yet): a fast 1D step gets 32-step
+windows, a 2D step of a quarter second 8, so a 90-second 2D run is probed too. In each cycle's last window (auto
+mode) the producer holds, unless it is behind the draws (a solver that is the bottleneck is never held). The steps
+of that probe that no solve touched (share 0) give the step time alone, t_0; the window just before it, the time
+with the producer at its pace, t_1, and the share D of its time a solve ran. Training lost ``1 - t_0 / t_1`` of
+those steps (``probe_cost``: what pacing cost, measured rather than modelled) to a producer busy ``D`` of the time,
+so each busy second costs ``q = (1 - t_0 / t_1) / D`` of a step-second, i.e. ``k = q / (1 - q)``. The probes are
+pooled (each weighted PROBE_DECAY per later probe) by the ratio of their sums, and q is taken at the pool's **lower**
+bound (the ratio minus K_Z of its standard errors, from the probes' scatter about it): a window of a few steps
+scatters, and a point estimate that reads high by chance held the producer at the reuse bound for nothing (on
+fisher_kpp1d probes read k 0.7-5.1 where the fit read 0.9-1.0: docs/results/compare.md). The probes correct the
+fit only where they are sure: from PROBES_MIN probes on, k is the larger of the fit's upper bound and the probes'
+lower bound (at most K_MAX). Adjacent windows a second apart cancel the drift of a shared machine's speed (10-20%
+over minutes on the 2 cores here). A probe delays solves, never skips them: after it the producer catches up to
+the draws.
 """
 
 from __future__ import annotations
@@ -58,8 +63,10 @@ MIN_STEPS = 8.0  # weighted steps, and a spread of the solve share, before k is 
 MIN_SPREAD = 0.01  # (variance of the per-step solve share below this: no fit, k relaxes toward K_PRIOR)
 K_Z = 2.0  # k is the fit's slope plus this many standard errors (an overestimate costs reuse, an underestimate steps)
 RELAX = 0.02  # per step without spread, the share of the way k moves back toward K_PRIOR
-PROBE_EVERY = 320  # steps from one probe's start to the next
-PROBE_STEPS = 32  # steps a probe holds the producer (and the window before it that it is compared with)
+PROBE_CYCLE = 10  # windows per cycle: the last is the probe, the one before it what the probe is compared with
+PROBE_WINDOW_S = 1.0  # seconds a window should last (the probe's, and the one before it)
+PROBE_STEPS_MIN = 8  # steps per window at least (fewer would scatter too much to bound)
+PROBE_STEPS = 32  # and at most (a fast step's probe need not hold the producer longer)
 PROBE_DECAY = 0.8  # a probe's weight in the pool per later probe: about the last 5 count
 PROBES_MIN = 3  # probes before their k is used
 
@@ -82,15 +89,18 @@ class Pacer:
         self.sums = [0.0] * 7
         self.steps = self.solved_n = 0
         self.solve_s = 0.0  # seconds of solving in all (the jobs' own), for the producer's idle time
-        # probes: this cycle's window before the probe (sum of seconds, of seconds a solve ran, steps) and the probe's
-        # clean steps (sum of seconds, steps); the pool (decayed sums of lost share, busy share, weight); its k
+        # probes: the cycle's first step and window length w; its window before the probe (sum of seconds, of seconds
+        # a solve ran, steps) and the probe's clean steps (sum of seconds, steps); the pool: decayed sums of the lost
+        # share, the busy share and the weight, and of their squares and product with squared weights (the scatter)
+        self._cycle_at, self._w = 0, PROBE_STEPS_MIN
         self._before, self._alone = [0.0, 0.0, 0], [0.0, 0]
-        self.probe_lost = self.probe_busy = self.probe_w = self.probes = 0.0
+        self._pool = [0.0] * 7  # w lost, w busy, w, w^2 lost^2, w^2 lost busy, w^2 busy^2, w^2
+        self.probes = 0
         self.k_probe = None
 
     def probing(self) -> bool:
         """Whether the next steps are a probe's, for which the producer holds (auto mode; the module docstring)."""
-        return self.mode == "auto" and self.steps % PROBE_EVERY >= PROBE_EVERY - PROBE_STEPS
+        return self.mode == "auto" and self.steps - self._cycle_at >= (PROBE_CYCLE - 1) * self._w
 
     def solved(self, n: int, seconds: float) -> None:
         """A job of ``n`` trajectories took ``seconds`` (where it ran)."""
@@ -136,30 +146,44 @@ class Pacer:
         """Step number ``self.steps`` (about to be counted) into this cycle's windows; a probe ending is pooled."""
         if self.mode != "auto":
             return
-        at = self.steps % PROBE_EVERY
-        if PROBE_EVERY - 2 * PROBE_STEPS <= at < PROBE_EVERY - PROBE_STEPS:  # the window before the probe
+        at, w = self.steps - self._cycle_at, self._w
+        if (PROBE_CYCLE - 2) * w <= at < (PROBE_CYCLE - 1) * w:  # the window before the probe
             b = self._before
             b[0], b[1], b[2] = b[0] + seconds, b[1] + share * seconds, b[2] + 1
-        elif at >= PROBE_EVERY - PROBE_STEPS and share == 0:  # the probe's clean steps
+        elif at >= (PROBE_CYCLE - 1) * w and share == 0:  # the probe's clean steps
             self._alone[0], self._alone[1] = self._alone[0] + seconds, self._alone[1] + 1
-        if at != PROBE_EVERY - 1:
+        if at != PROBE_CYCLE * w - 1:
             return
         (t_sum, f_sum, n1), (t0_sum, n0) = self._before, self._alone
         self._before, self._alone = [0.0, 0.0, 0], [0.0, 0]
-        if n1 < PROBE_STEPS // 2 or n0 < PROBE_STEPS // 2 or f_sum <= 0:  # (no probe held, or nothing solved before)
+        self._cycle_at = self.steps + 1
+        t = self.step_s
+        self._w = PROBE_STEPS_MIN if not t else min(max(round(PROBE_WINDOW_S / t), PROBE_STEPS_MIN), PROBE_STEPS)
+        if n1 < w // 2 or n0 < w // 2 or f_sum <= 0:  # (no probe held, or nothing solved before)
             return
-        self.probe_lost = PROBE_DECAY * self.probe_lost + (1 - (t0_sum / n0) / (t_sum / n1))
-        self.probe_busy = PROBE_DECAY * self.probe_busy + f_sum / t_sum  # (the busy share of the window's time)
-        self.probe_w = PROBE_DECAY * self.probe_w + 1
+        lost, busy = 1 - (t0_sum / n0) / (t_sum / n1), f_sum / t_sum  # (busy: the share of the window's time)
+        d, d2 = PROBE_DECAY, PROBE_DECAY * PROBE_DECAY
+        a, b, n, ll, lb, bb, n2 = self._pool
+        self._pool = [d * a + lost, d * b + busy, d * n + 1, d2 * ll + lost * lost, d2 * lb + lost * busy,
+                      d2 * bb + busy * busy, d2 * n2 + 1]
         self.probes += 1
         if self.probes >= PROBES_MIN:
-            q = max(self.probe_lost / self.probe_busy, 0.0)
+            q = max(self._probe_q_low(), 0.0)
             self.k_probe = K_MAX if q >= K_MAX / (1 + K_MAX) else q / (1 - q)
+
+    def _probe_q_low(self) -> float:
+        """The pool's q (lost share per busy share, the ratio of the weighted sums) minus K_Z standard errors, the
+        error from the probes' residuals about it (weighted, with the small-sample factor n / (n - 1))."""
+        a, b, n, ll, lb, bb, n2 = self._pool
+        q = a / b
+        resid = max(ll - 2 * q * lb + q * q * bb, 0.0)
+        n_eff = n * n / n2
+        return q - K_Z * math.sqrt(resid * n_eff / max(n_eff - 1, 1e-9)) / b
 
     @property
     def probe_cost(self) -> float | None:
         """The share of steps the producer's pace cost, as the probes measured it (decayed mean; None before one)."""
-        return self.probe_lost / self.probe_w if self.probe_w else None
+        return self._pool[0] / self._pool[2] if self._pool[2] else None
 
     @property
     def slowdown(self) -> float:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from pdestream import datasets
-from pdestream.datasets.reservoir_pacer import PROBE_EVERY, PROBE_STEPS
+from pdestream.datasets.reservoir_pacer import PROBE_CYCLE, PROBE_STEPS, PROBE_STEPS_MIN, PROBE_WINDOW_S
 from pdestream.surrogate.tails import METRICS, TAIL_MIN, bootstrap_intervals, rests_on, tail_note
 
 
@@ -156,8 +156,9 @@ def pacing_line(arms: list[dict], target="auto") -> str:
             "training at most 5% of its steps, from rates re-measured as the run goes: b examples per batch, per "
             "examples per use of a trajectory, t the step's seconds, s and i the seconds per trajectory of solving and "
             "of inserting, k how much a running solve slows a step (the larger of a fit over the steps and the "
-            f"probes': every {PROBE_EVERY} steps the producer holds for {PROBE_STEPS}, timed against the {PROBE_STEPS} "
-            "before)" if target == "auto"
+            f"probes' lower bound: in every {PROBE_CYCLE} windows of {PROBE_STEPS_MIN}-{PROBE_STEPS} steps (about "
+            f"{PROBE_WINDOW_S:g} s each) the producer holds for the last, timed against the one before)"
+            if target == "auto"
             else f"--target-reuse {target}")
     return f"Pacing of the reservoir's producer (seed 0, at the end; {rule}): " + "; ".join(parts) + "."
 
