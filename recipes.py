@@ -302,8 +302,8 @@ def split_of(name: str, split: str) -> Split:
 
 def listing() -> str:
     """`pdestream recipes`: every recipe with its entry and source, then the sets not expressible (and why)."""
-    width = max(len(n) for n in RECIPES)
-    lines = [f"{r.name:<{width}}  {r.entry:<13} {r.paper}, {r.where}" for r in RECIPES.values()]
+    width, entry = max(len(n) for n in RECIPES), max(len(r.entry) for r in RECIPES.values())
+    lines = [f"{r.name:<{width}}  {r.entry:<{entry}}  {r.paper}, {r.where}" for r in RECIPES.values()]
     lines += ["", "not expressible yet (skipped, not approximated):"]
     lines += [f"  {name}: {why}" for name, why in NOT_EXPRESSIBLE.items()]
     lines += ["", "pdestream recipes show NAME: its settings; a recipe name works wherever a PDE name does"]
