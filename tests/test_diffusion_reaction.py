@@ -30,6 +30,7 @@ def centres(n, length=2.0):
     return np.meshgrid(x, x, indexing="ij")
 
 
+@pytest.mark.slow
 def test_small_cosine_modes_follow_the_linear_systems_exact_solution():
     # k = 0 and amplitude 1e-4: the cubic is 1e-8 of the linear terms, so each cosine mode (an eigenfunction of the
     # no-flux Laplacian) evolves by the 2 x 2 matrix exponential of its (u, v) system, two modes independently
@@ -51,6 +52,7 @@ def test_small_cosine_modes_follow_the_linear_systems_exact_solution():
     assert np.abs(exact[-1] - exact[0]).max() > 0.3 * np.abs(exact[0]).max()  # the modes changed
 
 
+@pytest.mark.slow
 def test_a_uniform_state_follows_the_kinetics_ode_on_no_flux_walls():
     # no flux through the walls: a uniform state stays uniform and obeys u' = u - u^3 - k - v, v' = u - v
     pde = neumann(n=16, t_end=5.0, n_frames=11)
@@ -62,6 +64,7 @@ def test_a_uniform_state_follows_the_kinetics_ode_on_no_flux_walls():
     assert np.abs(ode.y[:, -1] - ode.y[:, 0]).max() > 0.3  # and it moved
 
 
+@pytest.mark.slow
 def test_the_inhibitor_mean_obeys_its_exact_law_under_no_flux_walls():
     # integrating v_t = Dv Lap v + u - v over the box with zero flux: d<v>/dt = <u> - <v>, whatever the pattern;
     # so <v>(t) = e^-t <v>(0) + int_0^t e^-(t-s) <u>(s) ds (Simpson on frames 0.01 apart: error ~1e-9)
@@ -122,6 +125,7 @@ def test_the_nonlinear_solution_matches_a_finite_difference_solve_to_its_own_err
     assert np.abs(fine[-1] - fine[0]).max() > 0.3  # it evolved nonlinearly (the IC is order one)
 
 
+@pytest.mark.slow
 def test_white_noise_is_drawn_unfolded_on_walls_and_frame_zero_is_its_projection():
     pde = g.get_pde("pdebench_diffusion_reaction2d", n=32, t_end=0.1, n_frames=2)
     import jax
@@ -134,6 +138,7 @@ def test_white_noise_is_drawn_unfolded_on_walls_and_frame_zero_is_its_projection
     assert u[:, 1].std() < u[:, 0].std()  # diffusion removes the noise
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, settings", [("pdebench_diffusion_reaction2d", {}),
                                             ("allen_cahn2d", {"bc": "neumann", "nu": "0.005"}),
                                             ("allen_cahn2d", {"bc": "dirichlet", "nu": "0.005"})])
@@ -167,3 +172,10 @@ def test_bad_white_noise_and_walls_are_one_line():
         assert words in str(err.value) and "\n" not in str(err.value), str(err.value)
     with pytest.raises(ValueError, match="unknown ic kind 'white'"):
         g.get_pde("allen_cahn2d", ic="white")  # not in the shared vocabulary: only entries that list it
+
+
+def test_a_near_miss_of_the_recipe_name_is_one_line(capsys):
+    assert cli.main(["recipes", "show", "pdebench_diffusion_reaction"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert "unknown recipe 'pdebench_diffusion_reaction'; did you mean pdebench_diffusion_reaction2d" in err
