@@ -423,7 +423,8 @@ class RandomSines:
 class WhiteNoise:
     """Independent N(mean, std^2) values at every grid point of every field (PDEBench's 2D diffusion-reaction IC:
     a standard normal per cell). Not band-limited: a spectral solver starts from its 2/3-rule projection (frame 0),
-    which keeps (2/3)^d of its variance on a grid with walls, less on a periodic one. ``pointwise``: on a grid with
+    which keeps about (2/3)^d of its variance ((floor(2n/3) + 1)^d / n^d on walls: std 0.672 at n = 128, 2D).
+    ``pointwise``: on a grid with
     walls it is drawn at the grid's own points, not folded from the doubled box (a fold averages 2^d independent
     draws and would shrink its variance). Not in IC_KINDS: only an entry that lists it (diffusion_reaction2d)
     takes it; on most equations a grid-scale field is not a meaningful start.
