@@ -42,6 +42,7 @@ NAMES: dict[str, str] = {
     "cahn_hilliard2d": "reaction-diffusion",
     "swift_hohenberg2d": "reaction-diffusion",
     "grayscott3d": "reaction-diffusion",
+    "diffusion_reaction2d": "reaction-diffusion",
     "ns2d": "fluids",
     "karman2d": "fluids",
     "cavity2d": "fluids",

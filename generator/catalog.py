@@ -28,6 +28,7 @@ from .spectral.base import PDE
 from .spectral.burgers import Burgers
 from .spectral.cahn_hilliard import CahnHilliard
 from .spectral.diffusion import Diffusion
+from .spectral.diffusion_reaction import DiffusionReaction
 from .spectral.dispersion import Dispersion
 from .spectral.fisher_kpp import FisherKPP
 from .spectral.grayscott import GrayScott
@@ -83,6 +84,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("cahn_hilliard2d", CahnHilliard, {"ndim": 2}, "reaction-diffusion"),
     Entry("swift_hohenberg2d", SwiftHohenberg, {"ndim": 2}, "reaction-diffusion"),
     Entry("grayscott3d", GrayScott, {"ndim": 3}, "reaction-diffusion"),
+    Entry("diffusion_reaction2d", DiffusionReaction, {"ndim": 2}, "reaction-diffusion"),
     Entry("ns2d", NS2D, {}, "fluids"),
     Entry("karman2d", Karman2D, {}, "fluids"),
     Entry("cavity2d", Cavity2D, {}, "fluids"),

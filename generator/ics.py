@@ -419,6 +419,38 @@ class RandomSines:
         return 1.0 if self.normalise else float(self.max_mode)  # |u0| <= sum_k A_k <= max_mode
 
 
+@dataclass(frozen=True)
+class WhiteNoise:
+    """Independent N(mean, std^2) values at every grid point of every field (PDEBench's 2D diffusion-reaction IC:
+    a standard normal per cell). Not band-limited: a spectral solver starts from its 2/3-rule projection (frame 0),
+    which keeps about (2/3)^d of its variance ((floor(2n/3) + 1)^d / n^d on walls: std 0.672 at n = 128, 2D).
+    ``pointwise``: on a grid with
+    walls it is drawn at the grid's own points, not folded from the doubled box (a fold averages 2^d independent
+    draws and would shrink its variance). Not in IC_KINDS: only an entry that lists it (diffusion_reaction2d)
+    takes it; on most equations a grid-scale field is not a meaningful start.
+    """
+
+    std: float = 1.0
+    mean: float = 0.0
+    kind = "white"
+    field_count = None  # any: one independent draw per PDE field
+    pointwise = True
+
+    def check(self, grid: Grid) -> None:
+        if not (self.std > 0 and math.isfinite(self.std)):
+            raise ValueError(f"ic.std={self.std} not allowed: must be a finite number > 0")
+        if not math.isfinite(self.mean):
+            raise ValueError(f"ic.mean={self.mean} not allowed: must be a finite number")
+
+    def sample(self, key: jax.Array, grid: Grid, n_fields: int = 1) -> jax.Array:
+        return self.mean + self.std * jax.random.normal(key, (n_fields, *grid.shape), jnp.float32)
+
+    def bound(self, grid: Grid) -> float:
+        """A practical bound on max|u0|: |mean| + 5 std (exceeded at one of 2^15 points with probability ~2%)."""
+        del grid
+        return abs(self.mean) + 5.0 * self.std
+
+
 IC_KINDS: Mapping[str, type] = {"fourier": FourierSeries, "grf": GaussianRandomField, "spots": GrayScottSpots,
                                 "sines": RandomSines}
 

@@ -141,7 +141,10 @@ class Walls(WallGrid):
     def sample_ic(self, key: jax.Array, p=None, latent=None) -> jax.Array:
         """One initial condition float32 [C, *space] satisfying the walls (the folded draw, its latent set to
         ``latent`` [L] where given), plus the lifting."""
-        u = fold(self._draw_ic(key, self.box, latent), self.BCS, self.n)
+        if getattr(self.ic, "pointwise", False):  # i.i.d. per point (white noise): drawn where it lives, unfolded
+            u = self._draw_ic(key, self.grid, latent)
+        else:
+            u = fold(self._draw_ic(key, self.box, latent), self.BCS, self.n)
         return u if p is None or "bc_lo" not in self.PARAMS else u + self.lift(p)[None]
 
     @property
