@@ -50,6 +50,7 @@ NAMES: dict[str, str] = {
     "smoke2d": "fluids",
     "plume3d": "fluids",
     "euler1d": "fluids",
+    "compressible_ns1d": "fluids",
     "euler2d": "fluids",
     "shallow_water2d": "fluids",
     "darcy2d": "steady",

@@ -17,7 +17,7 @@ from pdestream.recipes import RECIPES
 
 from . import user
 from .external.exponax import exponax_pde_class
-from .finite_volume.problem import Euler1D
+from .finite_volume.problem import CompressibleNS1D, Euler1D
 from .finite_volume.problem2d import Euler2D, ShallowWater2D
 from .flow.entries import Cavity2D, Channel2D, Karman2D, Smoke2D
 from .flow.entries3d import Plume3D
@@ -92,6 +92,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("smoke2d", Smoke2D, {}, "fluids"),
     Entry("plume3d", Plume3D, {}, "fluids"),
     Entry("euler1d", Euler1D, {}, "fluids"),
+    Entry("compressible_ns1d", CompressibleNS1D, {}, "fluids"),
     Entry("euler2d", Euler2D, {}, "fluids"),
     Entry("shallow_water2d", ShallowWater2D, {}, "fluids"),
     Entry("darcy2d", Darcy2D, {}, "steady"),

@@ -127,7 +127,7 @@ def cfl_2d(q: jax.Array, gamma, dt, h) -> jax.Array:
     return (jnp.max(jnp.abs(u) + c) + jnp.max(jnp.abs(v) + c)) * dt / h
 
 
-def _code(rho, p, q, cfl, cfl_limit: float) -> jax.Array:
+def failure_code(rho, p, q, cfl, cfl_limit: float) -> jax.Array:
     finite = jnp.all(jnp.isfinite(q))
     return jnp.where(~finite, NOT_FINITE, jnp.where(jnp.any(rho <= 0), BAD_DENSITY, jnp.where(
         jnp.any(p <= 0), BAD_PRESSURE, jnp.where(cfl > cfl_limit, CFL_EXCEEDED, OK)))).astype(jnp.int32)
@@ -144,7 +144,7 @@ def run(q: jax.Array, health: Health, gamma, dt, n_steps, h, sides: jax.Array, l
     the sample failed (``scheme.run``). Everything but q's shape may be traced (one program per grid size)."""
     def code(new, cfl):
         rho, _, p = to_primitive(new, gamma)
-        return _code(rho, p, new, cfl, cfl_limit)
+        return failure_code(rho, p, new, cfl, cfl_limit)
 
     return scheme.run(q, health, lambda x: step(x, gamma, dt, h, sides, limiter),
                       lambda x: max_speed(x, gamma) * dt / h, code, n_steps)
@@ -154,7 +154,7 @@ def run_2d(q: jax.Array, health: Health, gamma, dt, n_steps, h, sides: jax.Array
     """``run`` for the 2D state q [4, nx, ny] (sides [4]); the CFL number is ``cfl_2d``'s."""
     def code(new, cfl):
         rho, _, _, p = to_primitive_2d(new, gamma)
-        return _code(rho, p, new, cfl, cfl_limit)
+        return failure_code(rho, p, new, cfl, cfl_limit)
 
     return scheme.run(q, health, lambda x: scheme.ssp_rk3(x, lambda y: rate_2d(y, gamma, h, sides, limiter), dt),
                       lambda x: cfl_2d(x, gamma, dt, h), code, n_steps)

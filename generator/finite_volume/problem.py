@@ -34,8 +34,9 @@ from .. import dispatch
 from ..chunked import chunked_map, join, split
 from ..domains import Fixed, parse_domain
 from ..grids import GridBase
+from ..ics import RandomSines
 from ..problem import MAX_STEPS, Param, ProblemBase, resolve_params
-from . import euler, scheme, shallow_water
+from . import euler, navier_stokes, scheme, shallow_water
 from .scheme import LIMITERS, SIDE_KINDS, Health
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
@@ -220,7 +221,100 @@ class Smooth:
         return f"smooth periodic state, amplitude {self.amplitude:g} about (1, 0, 1), modes 1..{self.max_mode}"
 
 
-IC_KINDS: dict[str, type] = {c.kind: c for c in (Riemann, Sod, Lax, Toro123, Smooth)}
+@dataclass(frozen=True)
+class SineStates:
+    """A random gas state of sines, PDEBench's 1D compressible measure (its ``init_multi_HD``, mode 1D_rand): rho,
+    u and p each an independent ``RandomSines`` shape s (modes 1..max_mode, n_modes of them drawn, |s| with
+    probability abs_prob, a random sign) times, with probability window_prob, the window
+    0.5 (tanh((x - x_l) / w) - tanh((x - x_r) / w)), x_l ~ window_left, x_r ~ window_right, w = window_width (all
+    fractions of the length); then rho = rho_scale (s - min s) / (max s - min s) + rho_base, p likewise with
+    p_scale and p_base (each scale and base drawn per sample from its domain), u = u_scale s."""
+
+    max_mode: int = 3
+    n_modes: int = 2
+    abs_prob: float = 0.1
+    window_prob: float = 0.5
+    window_left: str = "uniform(0.55, 0.725)"
+    window_right: str = "uniform(0.775, 0.95)"
+    window_width: float = 0.005
+    rho_scale: str = "loguniform(1, 10)"
+    rho_base: str = "loguniform(1, 10)"
+    p_scale: str = "loguniform(10, 100)"
+    p_base: str = "loguniform(10, 100)"
+    u_scale: float = 1.0
+    kind = "sines"
+    field_count = 3
+    DRAWN: ClassVar[tuple] = ("window_left", "window_right", "rho_scale", "rho_base", "p_scale", "p_base")
+
+    def domains(self) -> dict:
+        """{name: Domain} of the drawn settings; a bad one is refused naming it (ic.NAME=...)."""
+        doms = {}
+        for name in self.DRAWN:
+            try:
+                doms[name] = parse_domain(getattr(self, name))
+            except ValueError as err:
+                raise ValueError(f"ic.{name}={getattr(self, name)!r} not allowed: must be a finite number or a domain "
+                                 f"of finite numbers ({err})") from None
+        return doms
+
+    def _shape(self) -> RandomSines:
+        return RandomSines(max_mode=self.max_mode, n_modes=self.n_modes, abs_prob=self.abs_prob, window_prob=0.0)
+
+    def sample(self, key: jax.Array, grid, n_fields: int = 3) -> jax.Array:
+        x = jnp.asarray(grid.coords(), jnp.float32)
+        d = self.domains()
+        fields = []
+        for f in range(3):  # rho, u, p
+            k_field = jax.random.fold_in(key, f)
+            s = self._shape()._one(k_field, x, grid.length)
+            k_win, k_l, k_r, k_scale, k_base = jax.random.split(jax.random.fold_in(k_field, 1), 5)
+            x_l = grid.length * d["window_left"].sample(k_l)
+            x_r = grid.length * d["window_right"].sample(k_r)
+            w = self.window_width * grid.length
+            window = 0.5 * (jnp.tanh((x - x_l) / w) - jnp.tanh((x - x_r) / w))
+            s = jnp.where(jax.random.uniform(k_win) < self.window_prob, s * window, s)
+            if f == 1:
+                fields.append(self.u_scale * s)
+                continue
+            name = "rho" if f == 0 else "p"
+            s = s - jnp.min(s)
+            s = s / jnp.maximum(jnp.max(s), jnp.finfo(jnp.float32).tiny)
+            fields.append(d[f"{name}_scale"].sample(k_scale) * s + d[f"{name}_base"].sample(k_base))
+        return jnp.stack(fields).astype(jnp.float32)
+
+    def check(self, grid) -> None:
+        self._shape().check(type("_Open", (), {"ndim": 1, "n": grid.n, "bc": ("periodic",)})())
+        d = self.domains()
+        for name in ("window_left", "window_right"):
+            lo, hi = d[name].bounds
+            if not 0 <= lo <= hi <= 1:
+                raise ValueError(f"ic.{name}={d[name]} not allowed: a fraction of the length, in [0, 1]")
+        if not self.window_width > 0:
+            raise ValueError(f"ic.window_width={self.window_width} not allowed: must be > 0 (a fraction of the length)")
+        for name in ("rho_scale", "rho_base", "p_scale", "p_base"):
+            if not min(d[name].bounds) > 0:
+                raise ValueError(f"ic.{name}={d[name]} not allowed: density and pressure scales and bases must be > 0")
+        if not (math.isfinite(self.u_scale) and self.u_scale >= 0):
+            raise ValueError(f"ic.u_scale={self.u_scale} not allowed: must be a finite number >= 0")
+
+    def bound(self, grid) -> float:
+        d = self.domains()
+        top = [max(d[f"{n}_scale"].bounds) + max(d[f"{n}_base"].bounds) for n in ("rho", "p")]
+        return max(*top, self.u_scale * self.max_mode)
+
+    def speed(self, gamma: float) -> float:
+        """Largest |u| + c the distribution allows: |u| <= u_scale max_mode, c <= sqrt(gamma p_max / rho_min)."""
+        d = self.domains()
+        p_max = max(d["p_scale"].bounds) + max(d["p_base"].bounds)
+        return self.u_scale * self.max_mode + math.sqrt(gamma * p_max / min(d["rho_base"].bounds))
+
+    def __str__(self) -> str:
+        return (f"PDEBench's random sines: modes 1..{self.max_mode} ({self.n_modes} drawn) per field, |.| p="
+                f"{self.abs_prob:g}, window p={self.window_prob:g}; rho in [{self.rho_base}, + {self.rho_scale}], "
+                f"p in [{self.p_base}, + {self.p_scale}], u x {self.u_scale:g}")
+
+
+IC_KINDS: dict[str, type] = {c.kind: c for c in (Riemann, Sod, Lax, Toro123, Smooth, SineStates)}
 
 _LAST = threading.local()  # the causes of this thread's last run_keys (failure_causes)
 
@@ -229,7 +323,8 @@ _LAST = threading.local()  # the causes of this thread's last run_keys (failure_
 class Scheme:
     """One solver of the family as the problems use it: ``run(q, health, phys, dt, k, h, sides, limiter,
     cfl_limit)`` (a module's guarded stepping loop), ``to_state(w, phys)`` stored fields -> conserved state,
-    ``to_output(q, phys)`` the reverse, ``causes`` {health code: words}; phys is the one physical parameter."""
+    ``to_output(q, phys)`` the reverse, ``causes`` {health code: words}; phys [P] holds the entry's physical
+    parameters (``FiniteVolume.PHYS``, in that order)."""
 
     run: Callable
     to_state: Callable
@@ -237,24 +332,32 @@ class Scheme:
     causes: Mapping
 
 
+def _on_first(run, to_state, to_output, causes) -> Scheme:
+    """A Scheme of a module whose functions take one physical scalar (phys[0]) where the family passes phys [P]."""
+    return Scheme(lambda q, hl, ph, *rest: run(q, hl, ph[0], *rest), lambda w, ph: to_state(w, ph[0]),
+                  lambda q, ph: to_output(q, ph[0]), causes)
+
+
 def _same(q, phys):
     return q
 
 
-EULER_1D = Scheme(euler.run, euler.to_conserved, euler.to_primitive, euler.CAUSES)
-EULER_2D = Scheme(euler.run_2d, euler.to_conserved_2d, euler.to_primitive_2d, euler.CAUSES)
-SHALLOW_WATER = Scheme(shallow_water.run, _same, _same, shallow_water.CAUSES)
+EULER_1D = _on_first(euler.run, euler.to_conserved, euler.to_primitive, euler.CAUSES)
+EULER_2D = _on_first(euler.run_2d, euler.to_conserved_2d, euler.to_primitive_2d, euler.CAUSES)
+SHALLOW_WATER = _on_first(shallow_water.run, _same, _same, shallow_water.CAUSES)
+NAVIER_STOKES_1D = Scheme(navier_stokes.run, navier_stokes.to_conserved, navier_stokes.to_primitive,
+                          navier_stokes.CAUSES)
 
 
 @dataclass(frozen=True)
 class FiniteVolume(ProblemBase):
     """What every entry of the family shares: the fixed step, the chunked batch-invariant rollout, the failure
-    causes, the interactive oracle and its VJP. A subclass declares SCHEME, PHYS (its physical parameter's name),
+    causes, the interactive oracle and its VJP. A subclass declares SCHEME, PHYS (its physical parameters' names),
     MAX_CFL and the settings n, length, ic, t_end, n_frames, bc, cfl, limiter; ``sides`` (the side kinds, 2 per
     axis), ``speed_bound`` and ``grid`` come from it too."""
 
     SCHEME: ClassVar[Scheme] = EULER_1D
-    PHYS: ClassVar[str] = "gamma"
+    PHYS: ClassVar[tuple[str, ...]] = ("gamma",)  # the parameters the scheme reads, in its order (phys [P])
     MAX_CFL: ClassVar[float] = MAX_CFL
     FAILURE_WORDS: ClassVar[str] = "a non-positive density or pressure, a NaN/Inf"
 
@@ -351,7 +454,7 @@ class FiniteVolume(ProblemBase):
         results = []
         for part in parts:
             p, q, hl = start(*part)
-            results.append((*self._rollout(q, hl, p[self.PHYS], count), p))
+            results.append((*self._rollout(q, hl, _phys(self, p), count), p))
         u, health, params = join(results, int(keys.shape[0]))
         _LAST.causes = self._causes(health)
         return u, params, health.code == scheme.OK, None
@@ -359,7 +462,7 @@ class FiniteVolume(ProblemBase):
     def evolve(self, u0: jax.Array, p: Mapping[str, jax.Array]):
         """A caller's states u0 [B, C, *grid] (the stored fields), params {name: [B]} -> (u [B, T, C, *grid],
         ok [B])."""
-        phys = jnp.broadcast_to(jnp.asarray(p[self.PHYS], jnp.float32), (u0.shape[0],))
+        phys = jnp.broadcast_to(_phys(self, p, jnp.float32), (u0.shape[0], len(self.PHYS)))
         parts = split([jnp.asarray(u0, jnp.float32), phys], CHUNK)
         count = [0, len(parts) * (self.n_frames - 1) * self.steps_per_frame]
         results = []
@@ -374,7 +477,7 @@ class FiniteVolume(ProblemBase):
         """Frames u [B, C, *grid] advanced ``frames`` frame intervals: (u_k, ok [B]) (generator.interactive): the
         sampler's step sequence, so frame i advanced once is frame i + 1 to the rounding of the conversion
         round trip (bit for bit where the stored fields are the conserved ones)."""
-        phys = jnp.asarray(params[self.PHYS], u.dtype)
+        phys = jnp.broadcast_to(_phys(self, params, u.dtype), (u.shape[0], len(self.PHYS)))
         consts = self.consts(u.dtype)
         k = jnp.int32(frames * self.steps_per_frame)
         return chunked_map(lambda w, g: _oracle(self.SCHEME, self.MAX_CFL, w, g, *consts, k), CHUNK, u, phys)
@@ -382,13 +485,13 @@ class FiniteVolume(ProblemBase):
     def advance_frames_vjp(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int, wrt_params: bool):
         """``advance_frames`` with its VJP: (u_k, ok, vjp); vjp(g) -> (g_u, g_params or None). A vmapped scan of
         the same steps, equal to ``advance_frames`` to rounding."""
-        phys = jnp.asarray(params[self.PHYS], u.dtype)
+        phys = jnp.broadcast_to(_phys(self, params, u.dtype), (u.shape[0], len(self.PHYS)))
         go = _oracle_vjp(self.SCHEME, self.MAX_CFL, frames * self.steps_per_frame, wrt_params)
         out, ok, vjp = go(u, phys, *self.consts(u.dtype))
 
         def back(g):
             got = _apply(vjp, jnp.asarray(g, out.dtype))
-            return (got[0], {self.PHYS: got[1]}) if wrt_params else (got[0], None)
+            return (got[0], {name: got[1][:, j] for j, name in enumerate(self.PHYS)}) if wrt_params else (got[0], None)
 
         return out, ok, back
 
@@ -452,6 +555,65 @@ class Euler1D(FiniteVolume):
                 f"  {self._step_words()}; finite volumes: MUSCL ({self.limiter}) on (rho, u, p), HLLC, SSP-RK3")
 
 
+def _phys(problem: FiniteVolume, params: Mapping[str, jax.Array], dtype=None) -> jax.Array:
+    """The scheme's physical parameters stacked last: [..., P] in ``problem.PHYS`` order (scalars and [B] arrays
+    broadcast together)."""
+    return jnp.stack(jnp.broadcast_arrays(*(jnp.asarray(params[name], dtype) for name in problem.PHYS)), axis=-1)
+
+
+@dataclass(frozen=True)
+class CompressibleNS1D(Euler1D):
+    """1D compressible Navier-Stokes of an ideal gas, PDEBench's 1D CFD model: euler1d's scheme plus the viscous
+    stress tau = rho (4/3 eta + zeta) u_x with kinematic viscosities eta, zeta (``navier_stokes``); no heat
+    conduction. Dimensionless."""
+
+    NAME: ClassVar[str] = "compressible_ns1d"
+    EQUATION: ClassVar[str] = ("rho_t + (rho u)_x = 0, (rho u)_t + (rho u^2 + p - tau)_x = 0, E_t + ((E + p) u - "
+                               "tau u)_x = 0, tau = rho (4/3 eta + zeta) u_x, E = p / (gamma - 1) + rho u^2 / 2; "
+                               "stored: primitive rho, u, p")
+    PARAMS: ClassVar[dict] = {
+        "gamma": Param("ratio of specific heats (ideal gas)", "1", positive=True),
+        "eta": Param("shear viscosity, kinematic (the dynamic one is rho eta)", "length^2/time"),
+        "zeta": Param("bulk viscosity, kinematic (the dynamic one is rho zeta)", "length^2/time")}
+    SCHEME: ClassVar[Scheme] = NAVIER_STOKES_1D
+    PHYS: ClassVar[tuple[str, ...]] = ("gamma", "eta", "zeta")
+
+    n: int = 256
+    length: float = 2.0
+    ic: Any = SineStates()
+    t_end: float = 1.0
+    n_frames: int = 21
+    bc: str = "periodic"
+    limiter: str = "mc"
+    gamma: Any = Fixed(5.0 / 3.0)
+    eta: Any = Fixed(0.01)
+    zeta: Any = Fixed(0.01)
+
+    def nu_max(self) -> float:
+        """The largest 4/3 eta + zeta the parameter domains allow (length^2 / time)."""
+        return 4.0 / 3.0 * max(self.eta.bounds) + max(self.zeta.bounds)
+
+    @property
+    def steps_per_frame(self) -> int:
+        """Steps of one frame interval: dt (s0 / h + 2 nu_l / h^2) <= cfl, s0 and nu_l their largest values."""
+        bound = self.frame_dt * (self.speed_bound() / self.h + 2 * self.nu_max() / self.h**2) / self.cfl
+        return max(1, math.ceil(bound * (1 - 1e-9)))
+
+    def validate(self) -> None:
+        for name in ("eta", "zeta"):
+            lo, hi = getattr(self, name).bounds
+            if not (0 <= lo and math.isfinite(hi)):
+                raise ValueError(f"{self.NAME}: {name}={getattr(self, name)} not allowed: a viscosity must be a finite "
+                                 "number >= 0")
+        super().validate()
+
+    def describe_setup(self) -> str:
+        return (f"  fields: {', '.join(self.FIELDS)} (primitive)   grid: {self.grid.describe()}\n"
+                f"  {self._step_words()} with the viscous limit 2 nu_l / h^2 (nu_l = 4/3 eta + zeta <= "
+                f"{self.nu_max():.3g}); finite volumes: MUSCL ({self.limiter}) on (rho, u, p), HLLC, central viscous "
+                "fluxes, SSP-RK3")
+
+
 # --- compiled programs: each row the unbatched solver inside jax.lax.map over a fixed chunk (batch-invariant
 # bits); the settings (dt, h, sides, limiter, steps) are traced, so one program serves every entry of a grid size
 # and scheme (static: which equations)
@@ -483,7 +645,7 @@ def _start(problem: FiniteVolume):
         k_param, k_ic = jax.random.split(key)
         p = resolve_params(problem, k_param, explicit, given)
         w = problem.ic.sample(k_ic, grid, len(problem.FIELDS))
-        return p, sch.to_state(w, p[problem.PHYS]), scheme.healthy()
+        return p, sch.to_state(w, _phys(problem, p)), scheme.healthy()
 
     return jax.jit(lambda keys, ex, gv: jax.lax.map(lambda t: one(*t), (keys, ex, gv)))
 
@@ -519,4 +681,4 @@ def _apply(vjp, g):
     return vjp(g)
 
 
-__all__ = ["Euler1D", "FVGrid", "FiniteVolume", "IC_KINDS", "Lax", "MAX_CFL", "Riemann", "Smooth", "Sod", "Toro123"]
+__all__ = ["CompressibleNS1D", "Euler1D", "FVGrid", "FiniteVolume", "IC_KINDS", "Lax", "MAX_CFL", "Riemann", "SineStates", "Smooth", "Sod", "Toro123"]

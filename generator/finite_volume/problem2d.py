@@ -373,7 +373,7 @@ class FiniteVolume2D(FiniteVolume):
 
     def speed_bound(self) -> float:
         """Largest speed the IC distribution allows at t = 0, at the physical parameter's largest value."""
-        return self.ic.speed(max(getattr(self, self.PHYS).bounds))
+        return self.ic.speed(max(getattr(self, self.PHYS[0]).bounds))
 
 
 def _axes(name: str, bc: Any) -> tuple[str, str]:
@@ -408,7 +408,7 @@ class ShallowWater2D(FiniteVolume2D):
     PARAMS: ClassVar[dict] = {"g": Param("gravitational acceleration", "length/time^2", positive=True)}
     IC_KINDS: ClassVar[Mapping[str, type]] = SW_IC_KINDS
     SCHEME: ClassVar = SHALLOW_WATER
-    PHYS: ClassVar[str] = "g"
+    PHYS: ClassVar[tuple] = ("g",)
     MAX_CFL: ClassVar[float] = SW_MAX_CFL
     FAILURE_WORDS: ClassVar[str] = "a negative depth, a NaN/Inf"
 
@@ -448,7 +448,7 @@ class Euler2D(FiniteVolume2D):
     PARAMS: ClassVar[dict] = {"gamma": Param("ratio of specific heats (ideal gas)", "1", positive=True)}
     IC_KINDS: ClassVar[Mapping[str, type]] = EULER_IC_KINDS
     SCHEME: ClassVar = EULER_2D
-    PHYS: ClassVar[str] = "gamma"
+    PHYS: ClassVar[tuple] = ("gamma",)
 
     n: int = 64  # cells per side
     length: float = 1.0
