@@ -82,6 +82,37 @@ PDEBENCH_IC = ("PDEBench's init_multi (ic kind 'sines'): two wavenumbers drawn f
 PDEBENCH_IC_DIFF = ("our IC is on the cell-left points x_i = i/n of a periodic box; PDEBench's on cell centres with "
                     "wavenumbers 2 pi k / (1 - dx) (not exactly periodic) and draws that share PRNG keys")
 
+_CFD = PDEBENCH + "CompressibleFluid/"
+_CFD_CODE = (_CFD + "config/args/1D_Multi.yaml (nx 1024 on [-1, 1], dt_save 0.01, fin_time 1, gamma 5/3, CFL 0.3, "
+             "eta, zeta, bc periodic), 1D_Multi_trans.yaml (bc trans, eta = zeta = 1e-8), 1D_Multi_shock.yaml "
+             "(dt_save 0.005, fin_time 0.4, init_key 2020); CFD_multi_Hydra.py:657-681 (the ICs: rho from "
+             "init_multi_HD with umin 1, umax 10, p with 10, 100, renormalised; u raw; shocks from "
+             "init_multi_HD_shock), update_vis (the stress (eta + zeta + eta / 3) rho_face du / dx and its work), "
+             "HLLC, limiting_HD (MC limiter on the primitive variables), a predictor-corrector step; utils.py:579-715 "
+             "(init_multi_HD with k_tot 3, num_choise_k 2; init_multi_HD_shock); run_trainset_1D.sh (keys 2020..2029 "
+             "of 1000 samples: 10000)")
+_CFD_SOLVER = ("PDEBench's solver is a MUSCL (MC) HLLC scheme with Davis's wave speeds and a midpoint predictor-"
+               "corrector step at an adaptive CFL 0.3, the viscous stress applied after it by sub-cycled forward-Euler "
+               "steps (operator splitting), a pressure floor 1e-4, float32; ours MUSCL (MC), HLLC with Einfeldt's "
+               "speeds, the stress in the same SSP-RK3 step (unsplit) at one fixed step per configuration (CFL 0.4 "
+               "at the distribution's largest speed plus the viscous limit), a sample failing instead of a floor")
+_CFD_IC = ("rho, u, p independent draws of PDEBench's init_multi_HD (ic kind 'sines': two wavenumbers drawn from "
+           "1..3, amplitudes U(0,1), phases U(0,2pi), |s| with p=0.1, a random sign, a tanh window with p=0.5 on "
+           "x_l in [0.1, 0.45], x_r in [0.55, 0.9] of PDEBench's [-1, 1]); rho rescaled to [b, b + m], m, b ~ "
+           "loguniform(1, 10); p the same with loguniform(10, 100); u raw (|u| <= 3)")
+_CFD_IC_DIFF = ("our IC is exactly periodic (wavenumbers 2 pi k / 2); PDEBench's uses 2 pi k / (x_last - x_first) "
+                "= 2 pi k / (2 - dx), a seam of O(k dx) at the periodic end, and its draws share PRNG keys within a "
+                "field (which modes and the amplitudes; |s| and the sign; the window's ends), ours are independent")
+_CFD_SPLITS = ("PDEBench ships 10000 samples per file (its scripts hold out the last 10%: here 8000 / 1000 / 1000) "
+               "and its models read 10 frames (config_1D_CFD initial_step 10); ")
+
+
+def _cfd_rand(eta: str, bc: str, where: str) -> dict:
+    """The settings of one of PDEBench's 1D CFD random-IC files."""
+    return {"n": 1024, "length": 2.0, "t_end": 1.0, "n_frames": 101, "bc": bc, "limiter": "mc",
+            "gamma": "1.6666666666666667", "eta": eta, "zeta": eta, "ic": {"kind": "sines"}}
+
+
 RECIPES: dict[str, Recipe] = {r.name: r for r in (
     Recipe(
         name="fno_burgers1d", entry="burgers1d", paper=FNO_PAPER, where="section 5.1 (Burgers), Table 1", url=FNO_URL,
@@ -183,6 +214,33 @@ RECIPES: dict[str, Recipe] = {r.name: r for r in (
                 "their own space errors (2.1%, 1.8%), 0.8% apart at 256^2 (docs/results/recipes.md). PDEBench's published set drew u0 with np.random.seed(seed) + randn "
                 "(2f71cb8, the pdebench 0.1.0 wheel); its current code draws default_rng(seed) (e4acf37): the same "
                 "distribution, other draws, and ours others again (jax keys)"),
+    *(Recipe(
+        name=f"pdebench_cfd1d_rand_{tag}", entry="compressible_ns1d", paper=PDEBENCH_PAPER,
+        where=f"Appendix D (1D compressible Navier-Stokes, Rand, eta = zeta = {eta}, {bc}), Table 5", url=PDEBENCH_URL,
+        code=_CFD_CODE, settings=_cfd_rand(eta, bc, tag), ic=_CFD_IC,
+        grid=f"1024 cells on [0, 2] (PDEBench's [-1, 1] shifted by 1), {'periodic' if bc == 'periodic' else 'zero-gradient (PDEBench trans) ends'}",
+        time="t = 0, 0.01, ..., 1: 101 frames", splits=_splits(8000, 1000, 1000), input_frames=10,
+        differs=_CFD_SPLITS + _CFD_SOLVER + "; " + _CFD_IC_DIFF + "; the viscous limit sets our step where eta >= "
+                "1e-2: 27,300 steps per trajectory at 1e-8, 57,800 at 1e-2, 333,100 at 1e-1 (each a full flux "
+                "evaluation; PDEBench sub-cycles the stress instead: ~40,800 and ~408,000 cheap viscous sub-steps)")
+        for tag, eta, bc in (("eta1e-8", "1e-8", "periodic"), ("eta1e-2", "0.01", "periodic"),
+                             ("eta1e-1", "0.1", "periodic"), ("trans", "1e-8", "outflow"))),
+    Recipe(
+        name="pdebench_cfd1d_shock", entry="compressible_ns1d", paper=PDEBENCH_PAPER,
+        where="Appendix D (1D compressible Navier-Stokes, Shock, eta = zeta = 1e-8, trans), Table 5",
+        url=PDEBENCH_URL, code=_CFD_CODE,
+        settings={"n": 1024, "length": 2.0, "t_end": 0.4, "n_frames": 81, "bc": "outflow", "limiter": "mc",
+                  "gamma": "1.6666666666666667", "eta": "1e-8", "zeta": "1e-8",
+                  "ic": {"kind": "riemann", "rho_l": "loguniform(1, 10)", "rho_r": "loguniform(1, 10)",
+                         "p_l": "loguniform(10, 100)", "p_r": "loguniform(10, 100)", "u_l": "uniform(-0.5, 0.5)",
+                         "u_r": "uniform(-0.5, 0.5)", "x0": "uniform(0.5, 1.5)"}},
+        ic="a random Riemann problem: rho left and right ~ loguniform(1, 10), p ~ loguniform(10, 100), u ~ "
+           "uniform(-0.5, 0.5), the jump at x0 ~ uniform(0.5, 1.5) (PDEBench: at cell int(1024 U(0.25, 0.75)))",
+        grid="1024 cells on [0, 2] (PDEBench's [-1, 1] shifted by 1), zero-gradient (PDEBench trans) ends",
+        time="t = 0, 0.005, ..., 0.4: 81 frames", splits=_splits(8000, 1000, 1000), input_frames=10,
+        differs=_CFD_SPLITS + _CFD_SOLVER + "; PDEBench draws the left and right states with shared PRNG keys "
+                "(init_multi_HD_shock), ours independently; its jump sits on a face, ours between the cell centres "
+                "either side of x0"),
     Recipe(
         name="pdebench_swe2d", entry="shallow_water2d", paper=PDEBENCH_PAPER,
         where="Appendix D (2D shallow-water equations: radial dam break), Table 5", url=PDEBENCH_URL,

@@ -1,0 +1,197 @@
+"""pdebench_cfd1d_* against PDEBench's own 1D compressible generator: ``python -m benchmarks.cfd1d_validation
+--pdebench DIR [--samples 2] [--t-end 0.3] [--eta 0.01] [--parts ic_stats,ours,theirs] [--out DIR]``.
+
+- ``ic_stats``: 256 initial states from each generator (PDEBench's ``init_multi_HD`` as its CFD_multi_Hydra.py
+  calls it, and our ``ic=sines``): per-field moments (mean of the per-sample mean, std, min, max and their
+  spread), the share of windowed samples and the low-wavenumber power, each with its standard error.
+- ``same_ic``: PDEBench's initial states (init_key 2022) given to both solvers at 1024 cells, and at 512 and 2048
+  to each (PDEBench's states at another resolution are the same draws on the other grid: its random numbers do
+  not depend on nx), t in [0, t_end] at 0.01. Reported per frame: the relative L2 distance between the two
+  solvers at 1024, and each solver's own space error at 1024 (its 1024 run against its 2048 run averaged to 1024
+  cells), all fields stacked. PDEBench's solver runs through its Hydra entry point (``main(cfg)``), unchanged.
+
+--pdebench DIR: a directory holding PDEBench's ``pdebench`` package (the pdebench 0.1.0 wheel unpacked); it
+needs ``hydra-core`` and ``omegaconf`` importable. Each part's results are saved under --out as they finish
+(npz of the trajectories outside the repository, json of the figures inside), so a rerun resumes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+GAMMA = 5.0 / 3.0
+KEY = 2022  # PDEBench's default init_key (its train files use 2020..2029)
+
+
+def _pdebench_paths(root: str) -> tuple[str, str]:
+    gen = os.path.join(root, "pdebench", "data_gen", "data_gen_NLE")
+    return gen, os.path.join(gen, "CompressibleFluid")
+
+
+def pdebench_ic(root: str, n: int, count: int, key: int = KEY) -> np.ndarray:
+    """PDEBench's 1D_rand initial states [count, 3, n] (rho, u, p) on its cell centres of [-1, 1], as
+    CFD_multi_Hydra.py:657-669 draws them."""
+    gen, _ = _pdebench_paths(root)
+    sys.path.insert(0, gen)
+    import jax.numpy as jnp
+    from utils import init_multi_HD  # PDEBench's own
+
+    xe = jnp.linspace(-1.0, 1.0, n + 1)
+    xc = xe[:-1] + 0.5 * (2.0 / n)
+    yc = zc = jnp.zeros(1)
+    rho = init_multi_HD(xc, yc, zc, numbers=count, k_tot=3, init_key=key, num_choise_k=2, umin=1.0, umax=10.0,
+                        if_renorm=True)
+    p = init_multi_HD(xc, yc, zc, numbers=count, k_tot=3, init_key=key + 1, num_choise_k=2, umin=10.0, umax=100.0,
+                      if_renorm=True)
+    u = init_multi_HD(xc, yc, zc, numbers=count, k_tot=3, init_key=key + 2, num_choise_k=2, if_renorm=False)
+    return np.stack([np.asarray(a)[..., 0, 0] for a in (rho, u, p)], axis=1).astype(np.float32)
+
+
+def pdebench_run(root: str, n: int, count: int, t_end: float, eta: float, scratch: Path) -> np.ndarray:
+    """PDEBench's solver from its own initial states: frames [count, T, 3, n] (rho, u, p) at t = 0, 0.01, ...,
+    t_end (its Hydra entry point with 1D_Multi.yaml's settings, numbers, nx, fin_time and eta = zeta changed)."""
+    gen, cfd_dir = _pdebench_paths(root)
+    for d in (gen, cfd_dir):
+        sys.path.insert(0, d)
+    import CFD_multi_Hydra as cfd  # PDEBench's own
+    from omegaconf import OmegaConf
+
+    save = scratch / f"pdebench_n{n}_eta{eta:g}_t{t_end:g}/"
+    save.mkdir(parents=True, exist_ok=True)
+    args = dict(save=str(save) + "/", dt_save=0.01, ini_time=0.0, fin_time=t_end, nx=n, ny=1, nz=1, xL=-1.0, xR=1.0,
+                yL=-1.0, yR=1.0, zL=-1.0, zR=1.0, bc="periodic", gamma=GAMMA, eta=eta, zeta=eta, CFL=0.3,
+                if_second_order=1.0, if_show=0, show_steps=100, p_floor=1e-4, numbers=count,
+                init_mode_Multi="1D_rand", init_key=KEY, if_rand_param=False, M0=0.0)
+    cfd.main(OmegaConf.create({"args": args}))
+    stem = f"HD_Sols_1D_rand_Eta{str(eta)[:5]}_Zeta{str(eta)[:5]}_M0.0_key{KEY}_"
+    fields = [np.load(save / f"{stem}{f}.npy")[..., 0, 0] for f in ("D", "Vx", "P")]  # [count, T, n] each
+    return np.stack(fields, axis=2).astype(np.float32)
+
+
+def ours_run(u0: np.ndarray, t_end: float, eta: float) -> np.ndarray:
+    """pdebench_cfd1d_rand's solver (compressible_ns1d) from given states u0 [B, 3, n]: frames [B, T, 3, n]."""
+    from pdestream import generator as g
+
+    n = u0.shape[-1]
+    pde = g.get_pde("pdebench_cfd1d_rand_eta1e-2", n=n, t_end=t_end, n_frames=int(round(t_end / 0.01)) + 1,
+                    eta=str(eta), zeta=str(eta))
+    return np.asarray(g.solve(pde, u0, {"gamma": GAMMA, "eta": eta, "zeta": eta}).u, np.float32)
+
+
+def coarsen(u: np.ndarray, factor: int) -> np.ndarray:
+    """Cell averages [..., n / factor] of [..., n] (the finer run on the coarser grid)."""
+    return u.reshape(*u.shape[:-1], u.shape[-1] // factor, factor).mean(-1)
+
+
+def rel_l2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Relative L2 distance per frame [T] over samples, fields (each scaled by b's rms) and cells."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    scale = np.sqrt((b ** 2).mean(axis=(0, 1, 3), keepdims=True))  # per field
+    d = ((a - b) / scale) ** 2
+    return np.sqrt(d.mean(axis=(0, 2, 3)) / ((b / scale) ** 2).mean(axis=(0, 2, 3)))
+
+
+def moments(u0: np.ndarray) -> dict:
+    """Per-field statistics of initial states [S, 3, n] with their standard errors over samples."""
+    out = {}
+    spec = np.abs(np.fft.rfft(u0, axis=-1)) ** 2 / u0.shape[-1] ** 2
+    for i, name in enumerate(("rho", "u", "p")):
+        f = u0[:, i].astype(np.float64)
+        per = {"mean": f.mean(-1), "std": f.std(-1), "min": f.min(-1), "max": f.max(-1),
+               "power_k1_3": spec[:, i, 1:4].sum(-1), "power_k4_12": spec[:, i, 4:13].sum(-1)}
+        if name == "u":
+            per["flat_half"] = (np.abs(f[:, : f.shape[-1] // 2]).max(-1) < 1e-3).astype(np.float64)
+        out[name] = {k: [float(v.mean()), float(v.std(ddof=1) / np.sqrt(len(v)))] for k, v in per.items()}
+    return out
+
+
+def part_ic_stats(root: str, n: int, count: int) -> dict:
+    import jax
+
+    from pdestream import generator as g
+
+    pde = g.get_pde("pdebench_cfd1d_rand_eta1e-2", n=n)
+    keys = jax.random.split(jax.random.PRNGKey(0), count)
+    ours = np.asarray(jax.jit(jax.vmap(lambda k: pde.ic.sample(k, pde.grid)))(keys))
+    theirs = pdebench_ic(root, n, count)
+    a, b = moments(ours), moments(theirs)
+    z = {f: {k: (a[f][k][0] - b[f][k][0]) / np.hypot(a[f][k][1], b[f][k][1]) for k in a[f]} for f in a}
+    return {"samples": count, "n": n, "ours": a, "pdebench": b, "z": z}
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--pdebench", required=True)
+    ap.add_argument("--samples", type=int, default=2)
+    ap.add_argument("--t-end", type=float, default=0.3)
+    ap.add_argument("--eta", type=float, default=0.01)
+    ap.add_argument("--parts", default="ic_stats,ours,theirs1024,theirs512,theirs2048")
+    ap.add_argument("--scratch", default="/tmp/cfd1d_validation")
+    ap.add_argument("--out", default="benchmarks/results/cfd1d")
+    a = ap.parse_args(argv)
+    out, scratch = Path(a.out), Path(a.scratch)
+    out.mkdir(parents=True, exist_ok=True)
+    scratch.mkdir(parents=True, exist_ok=True)
+    summary_path = out / "summary.json"
+    summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
+    parts = a.parts.split(",")
+    tag = f"eta{a.eta:g}_t{a.t_end:g}_s{a.samples}"
+
+    def save():
+        summary_path.write_text(json.dumps(summary, indent=1))
+
+    if "ic_stats" in parts and "ic_stats" not in summary:
+        t0 = time.time()
+        summary["ic_stats"] = part_ic_stats(a.pdebench, 1024, 256)
+        print(f"ic_stats done in {time.time() - t0:.0f} s", flush=True)
+        save()
+
+    def traj(who: str, n: int) -> np.ndarray | None:
+        path = scratch / f"{who}_n{n}_{tag}.npy"
+        if path.exists():
+            return np.load(path)
+        if f"{who}{n}" not in parts and not (who == "ours" and "ours" in parts):
+            return None
+        t0 = time.time()
+        if who == "ours":
+            u = ours_run(pdebench_ic(a.pdebench, n, a.samples), a.t_end, a.eta)
+        else:
+            u = pdebench_run(a.pdebench, n, a.samples, a.t_end, a.eta, scratch)
+        np.save(path, u)
+        summary.setdefault("wall_s", {})[f"{who}_n{n}_{tag}"] = round(time.time() - t0, 1)
+        print(f"{who} n={n}: {time.time() - t0:.0f} s, finite {bool(np.isfinite(u).all())}", flush=True)
+        save()
+        return u
+
+    runs = {(w, n): traj(w, n) for n in (1024, 512, 2048) for w in ("ours", "theirs")}
+    res = summary.setdefault("same_ic", {}).setdefault(tag, {})
+    times = np.arange(int(round(a.t_end / 0.01)) + 1) * 0.01
+    pick = [i for i, t in enumerate(times) if round(t * 100) % 5 == 0]
+
+    def record(name, x, y):
+        if x is not None and y is not None:
+            m = min(x.shape[1], y.shape[1])
+            res[name] = {f"{times[i]:.2f}": round(float(v), 5) for i, v in enumerate(rel_l2(x[:, :m], y[:, :m]))
+                         if i in pick}
+
+    o, t = runs[("ours", 1024)], runs[("theirs", 1024)]
+    record("apart_1024 (ours vs pdebench)", o, t)
+    for who in ("ours", "theirs"):
+        fine, mid, coarse = runs[(who, 2048)], runs[(who, 1024)], runs[(who, 512)]
+        record(f"{who}_space_error_1024 (vs its 2048)", mid, None if fine is None else coarsen(fine, 2))
+        record(f"{who}_space_error_512 (vs its 1024)", coarse, None if mid is None else coarsen(mid, 2))
+    if runs[("ours", 2048)] is not None and runs[("theirs", 2048)] is not None:
+        record("apart_2048 (ours vs pdebench)", runs[("ours", 2048)], runs[("theirs", 2048)])
+    save()
+    print(json.dumps(res, indent=1))
+
+
+if __name__ == "__main__":
+    main()
