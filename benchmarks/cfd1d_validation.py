@@ -1,12 +1,13 @@
 """pdebench_cfd1d_* against PDEBench's own 1D compressible generator: ``python -m benchmarks.cfd1d_validation
 --pdebench DIR [--samples 2] [--t-end 0.3] [--eta 0.01] [--parts ic_stats,ours,theirs] [--out DIR]``.
 
-- ``ic_stats``: 256 initial states from each generator (PDEBench's ``init_multi_HD`` as its CFD_multi_Hydra.py
+- ``ic_stats``: --ic-samples (1024) initial states from each generator (PDEBench's ``init_multi_HD`` as its CFD_multi_Hydra.py
   calls it, and our ``ic=sines``): per-field moments (mean of the per-sample mean, std, min, max and their
   spread), the share of windowed samples and the low-wavenumber power, each with its standard error.
-- ``same_ic``: PDEBench's initial states (init_key 2022) given to both solvers at 1024 cells, and at 512 and 2048
-  to each (PDEBench's states at another resolution are the same draws on the other grid: its random numbers do
-  not depend on nx), t in [0, t_end] at 0.01. Reported per frame: the relative L2 distance between the two
+- ``same_ic``: PDEBench's initial states (init_key 2022, drawn on 2048 cells and averaged to 1024 and 512) given
+  to both solvers at 1024 cells, and at 512 and 2048 to each, t in [0, t_end] at 0.01 (its draws do not depend
+  on nx, but its wavenumbers 2 pi k / (2 - dx) do: states drawn on each grid would differ by 0.24% between 512 and
+  1024 cells, more than the solvers' own differences). Reported per frame: the relative L2 distance between the two
   solvers at 1024, and each solver's own space error at 1024 (its 1024 run against its 2048 run averaged to 1024
   cells), all fields stacked. PDEBench's solver runs through its Hydra entry point (``main(cfg)``), unchanged.
 
@@ -28,6 +29,7 @@ import numpy as np
 
 GAMMA = 5.0 / 3.0
 KEY = 2022  # PDEBench's default init_key (its train files use 2020..2029)
+FINEST = 2048  # initial states are drawn here and averaged to 1024 and 512 cells, for both solvers
 
 
 def _pdebench_paths(root: str) -> tuple[str, str]:
@@ -54,16 +56,26 @@ def pdebench_ic(root: str, n: int, count: int, key: int = KEY) -> np.ndarray:
     return np.stack([np.asarray(a)[..., 0, 0] for a in (rho, u, p)], axis=1).astype(np.float32)
 
 
-def pdebench_run(root: str, n: int, count: int, t_end: float, eta: float, scratch: Path) -> np.ndarray:
-    """PDEBench's solver from its own initial states: frames [count, T, 3, n] (rho, u, p) at t = 0, 0.01, ...,
-    t_end (its Hydra entry point with 1D_Multi.yaml's settings, numbers, nx, fin_time and eta = zeta changed)."""
+def pdebench_run(root: str, u0: np.ndarray, t_end: float, eta: float, scratch: Path) -> np.ndarray:
+    """PDEBench's solver from the initial states u0 [count, 3, n] (rho, u, p): frames [count, T, 3, n] at t = 0,
+    0.01, ..., t_end (its Hydra entry point with 1D_Multi.yaml's settings, numbers, nx, fin_time and eta = zeta
+    changed; its IC function, called as init_multi_HD(..., init_key=KEY + j) for rho, p, u, hands it u0's fields)."""
     gen, cfd_dir = _pdebench_paths(root)
     for d in (gen, cfd_dir):
         sys.path.insert(0, d)
     import CFD_multi_Hydra as cfd  # PDEBench's own
+    import jax.numpy as jnp
     from omegaconf import OmegaConf
 
-    save = scratch / f"pdebench_n{n}_eta{eta:g}_t{t_end:g}/"
+    count, n = u0.shape[0], u0.shape[-1]
+    fields = {KEY: u0[:, 0], KEY + 1: u0[:, 2], KEY + 2: u0[:, 1]}  # its order of calls: rho, p, u
+
+    def given_ic(xc, yc, zc, numbers, init_key, **_):
+        assert numbers == count and xc.shape[0] == n
+        return jnp.asarray(fields[init_key])[..., None, None]
+
+    cfd.init_multi_HD = given_ic  # its solver unchanged; only where its initial states come from
+    save = scratch / f"pdebench_n{n}_eta{eta:g}_t{t_end:g}_given/"
     save.mkdir(parents=True, exist_ok=True)
     args = dict(save=str(save) + "/", dt_save=0.01, ini_time=0.0, fin_time=t_end, nx=n, ny=1, nz=1, xL=-1.0, xR=1.0,
                 yL=-1.0, yR=1.0, zL=-1.0, zR=1.0, bc="periodic", gamma=GAMMA, eta=eta, zeta=eta, CFL=0.3,
@@ -126,13 +138,39 @@ def part_ic_stats(root: str, n: int, count: int) -> dict:
     return {"samples": count, "n": n, "ours": a, "pdebench": b, "z": z}
 
 
+def plot(ours: np.ndarray, theirs: np.ndarray, path: str, sample: int = 0, frames=(0, 10, 30)) -> None:
+    """rho, u, p of one sample at a few frames (t = 0.01 each): ours (lines) over PDEBench's (dots), 1024 cells."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = ours.shape[-1]
+    x = -1 + (np.arange(n) + 0.5) * 2 / n  # PDEBench's coordinates
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.4))
+    for f, (ax, name) in enumerate(zip(axes, ("rho", "u", "p"))):
+        for j, i in enumerate(frames):
+            ax.plot(x, ours[sample, i, f], color=f"C{j}", lw=1.2, label=f"pdestream t = {i / 100:g}")
+            ax.plot(x[::16], theirs[sample, i, f, ::16], ".", color=f"C{j}", ms=3.5,
+                    label=f"PDEBench t = {i / 100:g}")
+        ax.set_title(name)
+        ax.set_xlabel("x (PDEBench's [-1, 1])")
+    axes[0].legend(fontsize=7, ncol=2)
+    fig.suptitle("The same initial state in both generators (pdebench_cfd1d, 1024 cells; PDEBench every 16th cell)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--pdebench", required=True)
     ap.add_argument("--samples", type=int, default=2)
     ap.add_argument("--t-end", type=float, default=0.3)
     ap.add_argument("--eta", type=float, default=0.01)
-    ap.add_argument("--parts", default="ic_stats,ours,theirs1024,theirs512,theirs2048")
+    ap.add_argument("--parts", default="ic_stats,ours,theirs1024,theirs512,theirs2048",
+                    help="ic_stats; ours (every n) or ours1024 / ours512 / ours2048; theirs1024 / theirs512 / theirs2048")
+    ap.add_argument("--ic-samples", type=int, default=1024)
+    ap.add_argument("--plot", default="", help="a PNG of sample 0 from both generators at 1024 cells")
     ap.add_argument("--scratch", default="/tmp/cfd1d_validation")
     ap.add_argument("--out", default="benchmarks/results/cfd1d")
     a = ap.parse_args(argv)
@@ -142,14 +180,15 @@ def main(argv=None) -> None:
     summary_path = out / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
     parts = a.parts.split(",")
-    tag = f"eta{a.eta:g}_t{a.t_end:g}_s{a.samples}"
+    tag = f"eta{a.eta:g}_t{a.t_end:g}_s{a.samples}_avg{FINEST}"
+    initial = pdebench_ic(a.pdebench, FINEST, a.samples)
 
     def save():
         summary_path.write_text(json.dumps(summary, indent=1))
 
-    if "ic_stats" in parts and "ic_stats" not in summary:
+    if "ic_stats" in parts and summary.get("ic_stats", {}).get("samples") != a.ic_samples:
         t0 = time.time()
-        summary["ic_stats"] = part_ic_stats(a.pdebench, 1024, 256)
+        summary["ic_stats"] = part_ic_stats(a.pdebench, 1024, a.ic_samples)
         print(f"ic_stats done in {time.time() - t0:.0f} s", flush=True)
         save()
 
@@ -160,10 +199,8 @@ def main(argv=None) -> None:
         if f"{who}{n}" not in parts and not (who == "ours" and "ours" in parts):
             return None
         t0 = time.time()
-        if who == "ours":
-            u = ours_run(pdebench_ic(a.pdebench, n, a.samples), a.t_end, a.eta)
-        else:
-            u = pdebench_run(a.pdebench, n, a.samples, a.t_end, a.eta, scratch)
+        u0 = coarsen(initial, FINEST // n)  # the finest grid's states as cell averages
+        u = ours_run(u0, a.t_end, a.eta) if who == "ours" else pdebench_run(a.pdebench, u0, a.t_end, a.eta, scratch)
         np.save(path, u)
         summary.setdefault("wall_s", {})[f"{who}_n{n}_{tag}"] = round(time.time() - t0, 1)
         print(f"{who} n={n}: {time.time() - t0:.0f} s, finite {bool(np.isfinite(u).all())}", flush=True)
@@ -191,6 +228,8 @@ def main(argv=None) -> None:
         record("apart_2048 (ours vs pdebench)", runs[("ours", 2048)], runs[("theirs", 2048)])
     save()
     print(json.dumps(res, indent=1))
+    if a.plot and o is not None and t is not None:
+        plot(o, t, a.plot)
 
 
 if __name__ == "__main__":

@@ -116,3 +116,16 @@ def test_unsupported_settings_are_refused_in_one_line():
         with pytest.raises(ValueError) as err:
             g.get_pde("compressible_ns1d", n=64, **settings)
         assert said in str(err.value) and "\n" not in str(err.value), str(err.value)
+
+
+def test_the_solver_equals_a_numpy_reference_written_apart_from_it():
+    from benchmarks.fv_speed import reference  # float64 numpy, the scheme from its description
+
+    pde = g.get_pde("compressible_ns1d", n=96, t_end=0.01, n_frames=2, eta="0.02", zeta="0.01")
+    traj = g.sample(pde, range(3), seed=4)
+    u0, got = np.asarray(traj.u[:, 0]), np.asarray(traj.u[:, -1], np.float64)
+    want = reference(u0, 5 / 3, 4 / 3 * 0.02 + 0.01, pde.h, pde.step_dt, pde.steps_per_frame)
+    span = want.max(axis=(0, 2)) - want.min(axis=(0, 2))
+    # float32 against float64 over ~50 steps: 2e-6 of the range measured; a wrong face, limiter branch or viscous
+    # sign would be off by >= 1e-3
+    assert (np.abs(got - want).max(axis=(0, 2)) / span < 2e-5).all()
