@@ -52,6 +52,7 @@ NAMES: dict[str, str] = {
     "euler1d": "fluids",
     "compressible_ns1d": "fluids",
     "euler2d": "fluids",
+    "compressible_ns2d": "fluids",
     "shallow_water2d": "fluids",
     "darcy2d": "steady",
     "poisson1d": "steady",

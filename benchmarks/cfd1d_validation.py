@@ -124,6 +124,52 @@ def moments(u0: np.ndarray) -> dict:
     return out
 
 
+def pdebench_ic_2d(root: str, n: int, count: int, mach: float, key: int = KEY) -> np.ndarray:
+    """PDEBench's 2D_rand initial states [count, 4, n, n] (rho, u, v, p) on [0, 1]^2, as CFD_multi_Hydra.py:696-700
+    draws them (init_multi_HD_2DRand, k_tot 4)."""
+    gen, _ = _pdebench_paths(root)
+    sys.path.insert(0, gen)
+    import jax.numpy as jnp
+    from utils import init_multi_HD_2DRand  # PDEBench's own
+
+    edges = jnp.linspace(0.0, 1.0, n + 1)
+    xc = edges[:-1] + 0.5 / n
+    q = jnp.zeros([count, 5, n + 4, n + 4, 5])
+    q = init_multi_HD_2DRand(q, xc, xc, jnp.zeros(1), numbers=count, init_key=key, M0=mach, k_tot=4, gamma=GAMMA)
+    return np.asarray(q[:, (0, 1, 2, 4), 2:-2, 2:-2, 2], np.float32)
+
+
+def moments_2d(u0: np.ndarray) -> dict:
+    """Per-field statistics of 2D states [S, 4, n, n] and the Mach number of the mean speed (standard errors)."""
+    out = {}
+    for i, name in enumerate(("rho", "u", "v", "p")):
+        f = u0[:, i].reshape(len(u0), -1).astype(np.float64)
+        per = {"mean": f.mean(-1), "std": f.std(-1), "min": f.min(-1), "max": f.max(-1)}
+        out[name] = {k: [float(v.mean()), float(v.std(ddof=1) / np.sqrt(len(v)))] for k, v in per.items()}
+    rho, u, v, p = (u0[:, i].astype(np.float64) for i in range(4))
+    mach = np.sqrt(u * u + v * v).mean((1, 2)) / np.sqrt(GAMMA * p.mean((1, 2)) / rho.mean((1, 2)))
+    moving = np.abs(u[:, : u.shape[1] // 20]).max((1, 2)) > 1e-6  # not at rest near x = 0: no window
+    out["mean_speed_over_c"] = [float(mach.mean()), float(mach.std(ddof=1) / np.sqrt(len(mach)))]
+    out["unwindowed_share"] = [float(moving.mean()), float(moving.std(ddof=1) / np.sqrt(len(moving)))]
+    return out
+
+
+def part_ic_stats_2d(root: str, n: int, count: int, mach: float) -> dict:
+    import jax
+
+    from pdestream import generator as g
+
+    pde = g.get_pde(f"pdebench_cfd2d_rand_m{mach:g}_eta1e-2", n=n)
+    keys = jax.random.split(jax.random.PRNGKey(0), count)
+    sample = jax.jit(lambda k: pde.ic.sample(k, pde.grid))
+    ours = np.stack([np.asarray(sample(k)) for k in keys])
+    theirs = pdebench_ic_2d(root, n, count, mach)
+    a, b = moments_2d(ours), moments_2d(theirs)
+    z = {f: ({k: (a[f][k][0] - b[f][k][0]) / np.hypot(a[f][k][1], b[f][k][1]) for k in a[f]}
+             if isinstance(a[f], dict) else (a[f][0] - b[f][0]) / np.hypot(a[f][1], b[f][1])) for f in a}
+    return {"samples": count, "n": n, "mach": mach, "ours": a, "pdebench": b, "z": z}
+
+
 def part_ic_stats(root: str, n: int, count: int) -> dict:
     import jax
 
@@ -168,7 +214,7 @@ def main(argv=None) -> None:
     ap.add_argument("--t-end", type=float, default=0.3)
     ap.add_argument("--eta", type=float, default=0.01)
     ap.add_argument("--parts", default="ic_stats,ours,theirs1024,theirs512,theirs2048",
-                    help="ic_stats; ours (every n) or ours1024 / ours512 / ours2048; theirs1024 / theirs512 / theirs2048")
+                    help="ic_stats, ic_stats_2d_m0.1, ic_stats_2d_m1; ours (every n) or ours1024 / ours512 / ours2048; theirs1024 / theirs512 / theirs2048")
     ap.add_argument("--ic-samples", type=int, default=1024)
     ap.add_argument("--plot", default="", help="a PNG of sample 0 from both generators at 1024 cells")
     ap.add_argument("--scratch", default="/tmp/cfd1d_validation")
@@ -191,6 +237,16 @@ def main(argv=None) -> None:
         summary["ic_stats"] = part_ic_stats(a.pdebench, 1024, a.ic_samples)
         print(f"ic_stats done in {time.time() - t0:.0f} s", flush=True)
         save()
+
+    for mach in (0.1, 1.0):
+        name = f"ic_stats_2d_m{mach:g}"
+        if name in parts and summary.get(name, {}).get("samples") != 256:
+            t0 = time.time()
+            summary[name] = part_ic_stats_2d(a.pdebench, 128, 256, mach)
+            print(f"{name} done in {time.time() - t0:.0f} s", flush=True)
+            save()
+    if not any(p.startswith(("ours", "theirs")) for p in parts):
+        return
 
     def traj(who: str, n: int) -> np.ndarray | None:
         path = scratch / f"{who}_n{n}_{tag}.npy"

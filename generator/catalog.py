@@ -18,7 +18,7 @@ from pdestream.recipes import RECIPES
 from . import user
 from .external.exponax import exponax_pde_class
 from .finite_volume.problem import CompressibleNS1D, Euler1D
-from .finite_volume.problem2d import Euler2D, ShallowWater2D
+from .finite_volume.problem2d import CompressibleNS2D, Euler2D, ShallowWater2D
 from .flow.entries import Cavity2D, Channel2D, Karman2D, Smoke2D
 from .flow.entries3d import Plume3D
 from .spectral.advection import Advection
@@ -94,6 +94,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("euler1d", Euler1D, {}, "fluids"),
     Entry("compressible_ns1d", CompressibleNS1D, {}, "fluids"),
     Entry("euler2d", Euler2D, {}, "fluids"),
+    Entry("compressible_ns2d", CompressibleNS2D, {}, "fluids"),
     Entry("shallow_water2d", ShallowWater2D, {}, "fluids"),
     Entry("darcy2d", Darcy2D, {}, "steady"),
     Entry("poisson1d", Poisson, {"ndim": 1}, "steady"),

@@ -129,3 +129,59 @@ def test_the_solver_equals_a_numpy_reference_written_apart_from_it():
     # float32 against float64 over ~50 steps: 2e-6 of the range measured; a wrong face, limiter branch or viscous
     # sign would be off by >= 1e-3
     assert (np.abs(got - want).max(axis=(0, 2)) / span < 2e-5).all()
+
+
+# --- compressible_ns2d ------------------------------------------------------------------------------------------------
+def shear_wave(eta: float, zeta: float, axis: int, n: int = 32, t_end: float = 0.5) -> float:
+    """|tangential velocity| of mode 1 at t_end over its start: v = 0.1 sin(2 pi x) (axis 0) or u = 0.1 sin(2 pi y)
+    (axis 1) at rho = p = 1 on the periodic unit square (its exact decay: exp(-eta k^2 t), eta alone)."""
+    pde = g.get_pde("compressible_ns2d", n=n, bc="periodic", t_end=t_end, n_frames=2, ic="smooth", gamma="1.4",
+                    eta=str(eta), zeta=str(zeta))
+    c = pde.grid.coords().astype(np.float64)
+    s = 0.1 * np.sin(2 * np.pi * c)
+    field = np.broadcast_to(s[:, None] if axis == 0 else s[None, :], (n, n))
+    u0 = np.stack([np.ones((n, n)), field * (axis == 1), field * (axis == 0), np.ones((n, n))])
+    u = np.asarray(g.solve(pde, u0, {"gamma": 1.4, "eta": eta, "zeta": zeta}).u[0, -1, 2 - axis], np.float64)
+    return float(np.abs(u * field).sum() / (field * field).sum())
+
+
+@pytest.mark.slow  # ~40 s on 2 cores: two 2D programs
+def test_a_shear_wave_decays_with_the_shear_viscosity_alone():
+    k = 2 * math.pi
+    for axis in (0, 1):
+        for eta, zeta in [(0.02, 0.0), (0.02, 0.05)]:  # zeta must not act on a shear wave
+            got, want = shear_wave(eta, zeta, axis), math.exp(-eta * k * k * 0.5)
+            print(axis, eta, zeta, got, want)
+            assert got == pytest.approx(want, rel=0.005)  # 0.67: a stress that used nu_l would give 0.59
+    assert shear_wave(0.0, 0.0, 0) == pytest.approx(1.0, abs=1e-4)  # no scheme diffusion of a standing shear
+
+
+@pytest.mark.slow  # ~30 s on 2 cores: a 2D program
+def test_zero_viscosity_is_euler2d_bit_for_bit_and_2d_keeps_its_sums():
+    settings = dict(n=32, ic="smooth", bc="periodic", t_end=0.05, n_frames=3, gamma="1.4")
+    euler = g.get_pde("euler2d", limiter="mc", **settings)
+    ns = g.get_pde("compressible_ns2d", eta="0", zeta="0", **settings)
+    assert np.array_equal(np.asarray(g.sample(ns, [0]).u), np.asarray(g.sample(euler, [0]).u))
+    viscous = ns.replace(eta="0.05", zeta="0.05")
+    u = np.asarray(g.sample(viscous, [0]).u[0], np.float64)  # [T, 4, n, n]
+    rho, vx, vy, p = u[:, 0], u[:, 1], u[:, 2], u[:, 3]
+    sums = np.stack([rho.sum((1, 2)), (rho * vx).sum((1, 2)), (rho * vy).sum((1, 2)),
+                     (p / 0.4 + 0.5 * rho * (vx * vx + vy * vy)).sum((1, 2))], -1)
+    drift = np.abs(sums - sums[0]) / np.abs(sums[0]).max()
+    assert (drift <= np.arange(3)[:, None] * viscous.steps_per_frame * 2.0**-24 * 4).all(), drift
+
+
+def test_the_random_2d_gas_has_pdebenchs_mach_number_and_rest_state():
+    pde = g.get_pde("compressible_ns2d", n=32, **{"ic.mach": 1.0, "ic.window_prob": 0.0})
+    import jax
+
+    keys = jax.random.split(jax.random.PRNGKey(1), 6)
+    for key in keys:
+        rho, u, v, p = np.asarray(pde.ic.sample(key, pde.grid), np.float64)
+        # the mean speed is mach * sqrt(gamma T0), T0 = mean p / mean rho to the fluctuations' first order
+        t0 = p.mean() / rho.mean()
+        assert np.sqrt(u * u + v * v).mean() == pytest.approx(math.sqrt(5 / 3 * t0), rel=0.05)
+        assert rho.min() > 0 and p.min() > 0
+    windowed = g.get_pde("compressible_ns2d", n=32, **{"ic.window_prob": 1.0})
+    rho, u, v, p = np.asarray(windowed.ic.sample(keys[0], windowed.grid), np.float64)
+    assert np.abs(u[:2]).max() < 1e-4 and np.ptp(rho[:2]) < 1e-4 * rho.max()  # at rest outside x in [0.1, 0.9]

@@ -347,6 +347,8 @@ EULER_2D = _on_first(euler.run_2d, euler.to_conserved_2d, euler.to_primitive_2d,
 SHALLOW_WATER = _on_first(shallow_water.run, _same, _same, shallow_water.CAUSES)
 NAVIER_STOKES_1D = Scheme(navier_stokes.run, navier_stokes.to_conserved, navier_stokes.to_primitive,
                           navier_stokes.CAUSES)
+NAVIER_STOKES_2D = Scheme(navier_stokes.run_2d, navier_stokes.to_conserved_2d, navier_stokes.to_primitive_2d,
+                          navier_stokes.CAUSES)
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..domains import Fixed, parse_domain
 from ..problem import Param
-from .problem import EULER_2D, SHALLOW_WATER, FiniteVolume, FVGrid
+from .problem import EULER_2D, NAVIER_STOKES_2D, SHALLOW_WATER, FiniteVolume, FVGrid
 from .scheme import SIDE_KINDS
 
 SW_MAX_CFL = 0.5  # the positivity bound of MUSCL-HLL with SSP-RK3 (shallow_water's docstring)
@@ -334,7 +334,103 @@ class SmoothGas:
                 f"{self.max_mode}")
 
 
-EULER_IC_KINDS: dict[str, type] = {c.kind: c for c in (Riemann2D, LaxLiu3, Sod2D, SmoothGas)}
+@dataclass(frozen=True)
+class RandomGas2D:
+    """PDEBench's random 2D gas state (``init_multi_HD_2DRand``, mode 2D_rand): with rho0 ~ rho0, T0 ~ T0,
+    d_rho ~ d_rho, d_p ~ d_p per sample, four fields f = sum over modes (i, j) in [-max_mode, max_mode]^2 with
+    i j != 0 of |k|^(-1/2) sin(k . x + phi), phi ~ U(0, 2 pi) each, k = 2 pi (i, j) / length; the velocity (f1, f2)
+    scaled so that its mean magnitude is mach sqrt(gamma T0), rho = rho0 (1 + d_rho f4 / mean|f4|), p = rho0 T0
+    (1 + d_p f3 / mean|f3|); then with probability window_prob the product of tanh windows along x and y (ends
+    x_l ~ window_left, x_r ~ window_right, width window_width, fractions of the length) blends the state into rest
+    at rho0, p = rho0 T0 outside."""
+
+    mach: float = 0.1
+    rho0: str = "uniform(0.1, 10)"
+    T0: str = "uniform(0.1, 10)"
+    d_rho: str = "uniform(0.01, 0.2)"
+    d_p: str = "uniform(0.01, 0.2)"
+    max_mode: int = 4
+    gamma: float = 5.0 / 3.0  # the ratio of specific heats the Mach number is measured with
+    window_prob: float = 0.5
+    window_left: str = "uniform(0.1, 0.45)"
+    window_right: str = "uniform(0.55, 0.9)"
+    window_width: float = 0.01
+    kind = "rand"
+    field_count = 4
+    DRAWN: ClassVar[tuple] = ("rho0", "T0", "d_rho", "d_p", "window_left", "window_right")
+    PEAK_SOUND: ClassVar[float] = 2.0  # sqrt(max(1 + d_p f) / min(1 + d_rho f)) at |f| <= 3 mean|f|, d <= 0.2
+    PEAK_FLOW: ClassVar[float] = 4.0  # max |u| / mean |u| of the random velocity (3.0-3.6 over 64 draws at 128^2)
+
+    def sample(self, key: jax.Array, grid, n_fields: int = 4) -> jax.Array:
+        d = _domains(self, self.DRAWN)
+        k_draw, k_phase, k_win, k_wx, k_wy = jax.random.split(key, 5)
+        rho0, t0, d_rho, d_p, _, _ = _draw(d, k_draw)
+        x, y = _centres(grid)
+        k0 = 2 * np.pi / grid.length
+        f = [jnp.zeros((grid.n, grid.n), jnp.float32) for _ in range(4)]
+        m = 0
+        for j in range(-self.max_mode, self.max_mode + 1):
+            for i in range(-self.max_mode, self.max_mode + 1):
+                if i * j == 0:  # PDEBench skips every mode on an axis
+                    continue
+                phase = 2 * jnp.pi * jax.random.uniform(jax.random.fold_in(k_phase, m), (4,), jnp.float32)
+                arg = k0 * (i * x + j * y)
+                size = float((k0 * k0 * (i * i + j * j)) ** -0.25)
+                f = [f[c] + size * jnp.sin(arg + phase[c]) for c in range(4)]
+                m += 1
+        speed = jnp.mean(jnp.sqrt(f[0] ** 2 + f[1] ** 2))
+        scale = self.mach * jnp.sqrt(self.gamma * t0) / speed
+        rho = rho0 * (1 + d_rho * f[3] / jnp.mean(jnp.abs(f[3])))
+        p = rho0 * t0 * (1 + d_p * f[2] / jnp.mean(jnp.abs(f[2])))
+        w = self.window_width * grid.length
+        ends = [grid.length * d[n].sample(jax.random.fold_in(k, 0)) for k in (k_wx, k_wy)
+                for n in ("window_left", "window_right")]
+        wx = 0.5 * (jnp.tanh((x - ends[0]) / w) - jnp.tanh((x - ends[1]) / w))
+        wy = 0.5 * (jnp.tanh((y - ends[2]) / w) - jnp.tanh((y - ends[3]) / w))
+        mask = jnp.where(jax.random.uniform(k_win) < self.window_prob, wx * wy, jnp.ones_like(wx * wy))
+        state = jnp.stack([rho * mask + rho0 * (1 - mask), scale * f[0] * mask, scale * f[1] * mask,
+                           p * mask + rho0 * t0 * (1 - mask)])
+        return state.astype(jnp.float32)
+
+    def check(self, grid) -> None:
+        d = _domains(self, self.DRAWN)
+        for name in ("rho0", "T0"):
+            if not min(d[name].bounds) > 0:
+                raise ValueError(f"ic.{name}={d[name]} not allowed: must be > 0")
+        for name in ("d_rho", "d_p"):
+            lo, hi = d[name].bounds
+            if not 0 <= lo <= hi <= 0.25:
+                raise ValueError(f"ic.{name}={d[name]} not allowed: a relative amplitude in [0, 0.25] (density and "
+                                 "pressure stay positive)")
+        for name in ("window_left", "window_right"):
+            lo, hi = d[name].bounds
+            if not 0 <= lo <= hi <= 1:
+                raise ValueError(f"ic.{name}={d[name]} not allowed: a fraction of the length, in [0, 1]")
+        if not (math.isfinite(self.mach) and self.mach >= 0):
+            raise ValueError(f"ic.mach={self.mach} not allowed: must be a finite number >= 0")
+        if not 1 <= self.max_mode <= grid.n // 8:
+            raise ValueError(f"ic.max_mode={self.max_mode} not allowed on n={grid.n}: need 1 <= max_mode <= n//8 = "
+                             f"{grid.n // 8}")
+        if not (self.window_width > 0 and 0 <= self.window_prob <= 1 and self.gamma > 1):
+            raise ValueError(f"ic.window_width={self.window_width}, ic.window_prob={self.window_prob}, ic.gamma="
+                             f"{self.gamma} not allowed: need a width > 0, a probability in [0, 1] and gamma > 1")
+
+    def bound(self, grid) -> float:
+        d = _domains(self, self.DRAWN)
+        return 1.5 * max(d["rho0"].bounds) * max(d["T0"].bounds)
+
+    def speed(self, gamma: float) -> float:
+        """An estimate of the largest |u| + c (PEAK_SOUND, PEAK_FLOW); a sample beyond it that outruns its step
+        fails with that cause (MAX_CFL), never silently."""
+        c = math.sqrt(max(gamma, self.gamma) * max(_domains(self, ("T0",))["T0"].bounds))
+        return c * (self.PEAK_SOUND + self.PEAK_FLOW * self.mach)
+
+    def __str__(self) -> str:
+        return (f"PDEBench's random 2D gas: Mach {self.mach:g} velocity of modes |i|, |j| <= {self.max_mode}, rho0 "
+                f"{self.rho0}, T0 {self.T0}, d_rho {self.d_rho}, d_p {self.d_p}, window p={self.window_prob:g}")
+
+
+EULER_IC_KINDS: dict[str, type] = {c.kind: c for c in (Riemann2D, LaxLiu3, Sod2D, SmoothGas, RandomGas2D)}
 
 
 # --- the entries ------------------------------------------------------------------------------------------------------
@@ -473,4 +569,54 @@ class Euler2D(FiniteVolume2D):
                 "SSP-RK3 (unsplit)")
 
 
-__all__ = ["EULER_IC_KINDS", "Euler2D", "SW_IC_KINDS", "ShallowWater2D"]
+@dataclass(frozen=True)
+class CompressibleNS2D(Euler2D):
+    """2D compressible Navier-Stokes, PDEBench's 2D CFD model: euler2d's scheme plus its stress, axis by axis
+    (``navier_stokes.viscous_rate_2d``), kinematic viscosities eta and zeta; no heat conduction. Dimensionless."""
+
+    NAME: ClassVar[str] = "compressible_ns2d"
+    EQUATION: ClassVar[str] = ("euler2d's equations plus viscous fluxes per axis n (t the other): rho (4/3 eta + zeta) "
+                               "(u_n)_n on the normal momentum, rho eta (u_t)_n on the transverse one, and their "
+                               "work on E (PDEBench's stress); stored: primitive rho, u, v, p")
+    PARAMS: ClassVar[dict] = {
+        "gamma": Param("ratio of specific heats (ideal gas)", "1", positive=True),
+        "eta": Param("shear viscosity, kinematic (the dynamic one is rho eta)", "length^2/time"),
+        "zeta": Param("bulk viscosity, kinematic (the dynamic one is rho zeta)", "length^2/time")}
+    SCHEME: ClassVar = NAVIER_STOKES_2D
+    PHYS: ClassVar[tuple] = ("gamma", "eta", "zeta")
+
+    n: int = 64
+    ic: Any = RandomGas2D()
+    t_end: float = 0.2
+    n_frames: int = 5
+    bc: str = "periodic"
+    limiter: str = "mc"
+    gamma: Any = Fixed(5.0 / 3.0)
+    eta: Any = Fixed(0.01)
+    zeta: Any = Fixed(0.01)
+
+    def nu_max(self) -> float:
+        """The largest 4/3 eta + zeta plus eta (u's diffusion along x and y) the domains allow (length^2 / time)."""
+        return 7.0 / 3.0 * max(self.eta.bounds) + max(self.zeta.bounds)
+
+    @property
+    def steps_per_frame(self) -> int:
+        """Steps of one frame interval: dt (2 s0 / h + 2 (nu_l + eta) / h^2) <= cfl at their largest values."""
+        bound = self.frame_dt * (2 * self.speed_bound() / self.h + 2 * self.nu_max() / self.h**2) / self.cfl
+        return max(1, math.ceil(bound * (1 - 1e-9)))
+
+    def validate(self) -> None:
+        for name in ("eta", "zeta"):
+            lo, hi = getattr(self, name).bounds
+            if not (0 <= lo and math.isfinite(hi)):
+                raise ValueError(f"{self.NAME}: {name}={getattr(self, name)} not allowed: a viscosity must be a finite "
+                                 "number >= 0")
+        super().validate()
+
+    def describe_setup(self) -> str:
+        return (f"  fields: {', '.join(self.FIELDS)} (primitive)   grid: {self.grid.describe()}\n"
+                f"  {self._step_words()} with the viscous limit (nu_l + eta <= {self.nu_max():.3g}); finite volumes: "
+                f"MUSCL ({self.limiter}) on (rho, u, v, p), HLLC by axis, central viscous fluxes, SSP-RK3 (unsplit)")
+
+
+__all__ = ["CompressibleNS2D", "EULER_IC_KINDS", "Euler2D", "SW_IC_KINDS", "ShallowWater2D"]
