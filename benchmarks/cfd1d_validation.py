@@ -136,7 +136,8 @@ def pdebench_ic_2d(root: str, n: int, count: int, mach: float, key: int = KEY) -
     xc = edges[:-1] + 0.5 / n
     q = jnp.zeros([count, 5, n + 4, n + 4, 5])
     q = init_multi_HD_2DRand(q, xc, xc, jnp.zeros(1), numbers=count, init_key=key, M0=mach, k_tot=4, gamma=GAMMA)
-    return np.asarray(q[:, (0, 1, 2, 4), 2:-2, 2:-2, 2], np.float32)
+    q = np.asarray(q[:, :, 2:-2, 2:-2, 2], np.float32)  # [count, 5, n, n]: rho, u, v, w, p
+    return q[:, [0, 1, 2, 4]]
 
 
 def moments_2d(u0: np.ndarray) -> dict:
