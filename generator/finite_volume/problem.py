@@ -616,13 +616,16 @@ class CompressibleNS1D(Euler1D):
                 "fluxes, SSP-RK3")
 
 
-# --- compiled programs: each row the unbatched solver inside jax.lax.map over a fixed chunk (batch-invariant
+# --- compiled programs: each row the unbatched solver, mapped over a fixed chunk (batch-invariant
 # bits); the settings (dt, h, sides, limiter, steps) are traced, so one program serves every entry of a grid size
 # and scheme (static: which equations)
 @functools.partial(jax.jit, static_argnums=(0, 1))
 def _advance(sch, cfl_limit, q, hl, phys, dt, h, sides, limiter, k):
-    """(q [K, C, *grid], Health [K], phys [K]) -> (q, health) k steps of dt later."""
-    return jax.lax.map(lambda t: sch.run(t[0], t[1], t[2], dt, k, h, sides, limiter, cfl_limit), (q, hl, phys))
+    """(q [K, C, *grid], Health [K], phys [K, P]) -> (q, health) k steps of dt later."""
+    # vmap over the fixed chunk, not lax.map: 3.8x faster at 1024 cells (a step's arrays are K times wider) and the
+    # same bits, because nothing in a step reduces across samples (each row's max speed is its own) and the chunk's
+    # size never changes; tests/test_finite_volume*.py hold a sample alone to its bits in a batch
+    return jax.vmap(lambda a, b, c: sch.run(a, b, c, dt, k, h, sides, limiter, cfl_limit))(q, hl, phys)
 
 
 @functools.partial(jax.jit, static_argnums=0)
