@@ -1,17 +1,19 @@
 """pdebench_diffusion_sorption1d against PDEBench's generator: ``python -m benchmarks.diffusion_sorption1d_validation
---pdebench DIR [--only pdebench_stats,same_ic,stats,report] [--samples 256] [--minutes 10]``.
+--pdebench DIR [--only pdebench_stats,tight_stats,same_ic,stats,report] [--samples 256] [--minutes 10]``.
 
 pdebench_stats: PDEBench's own Simulator (src/sim_diff_sorp.py of the pdebench 0.1.0 wheel: np.random.seed(seed),
-u0 = U(0, 0.2) in every cell, scipy's RK45 at its default tolerances) for seeds 0, 1, ...; per seed its draw and the
-spatial mean / std of u at every REPORT_EVERY-th frame, one JSON line each in RESULTS/pdebench_seeds.jsonl (resumable:
-seeds already there are skipped; ``--minutes`` bounds one call). same_ic: PDEBench's seed-0 IC given to both
+u0 = U(0, 0.2) in every cell, scipy's RK45 at its default tolerances) for seeds 0, 1, ...; per seed its draw and
+the spatial mean / std of u at every REPORT_EVERY-th frame, one JSON line each in RESULTS/pdebench_seeds.jsonl
+(resumable: seeds already there are skipped; ``--minutes`` bounds one call). tight_stats: the same with PDEBench's
+scheme solved tightly (below), RESULTS/pdebench_tight_seeds.jsonl. same_ic: PDEBench's seed-0 IC given to both
 solvers: PDEBench's Simulator as published (RK45 at scipy's default rtol 1e-3) and the same Simulator with its
 solve_ivp swapped for Radau at rtol 1e-8 (its scheme solved tightly) at 1024, 2048, 4096 cells; ours at the same
 grids and at dt / 4; relative L2 of each against its own finer or tighter run, and of the two against each other,
 with the bound the two errors set (triangle inequality), RESULTS/same_ic.json. stats: the recipe's samples (its
-train split's seed 0) summarised like PDEBench's, RESULTS/ours_seeds.jsonl (resumable in blocks). report: the two
-sets' per-frame mean and std across samples with their sampling errors, and ours re-run at PDEBench's own draws
-(paired: the solvers' difference without sampling error), RESULTS/stats.json. Figures, and one verdict each.
+train split's seed 0) summarised like PDEBench's, RESULTS/ours_seeds.jsonl (resumable in blocks). report: the
+sets' per-frame mean and std across samples with their sampling errors, and ours and the tight scheme re-run at
+PDEBench's own draws (paired: the solvers' difference without sampling error), RESULTS/stats.json. Figures, and
+one verdict each (docs/results/recipes.md).
 
 --pdebench DIR: a directory holding PDEBench's ``pdebench`` package (e.g. the pdebench 0.1.0 wheel unpacked; this
 module needs numpy and scipy only). PDEBench is not part of pdestream and is not imported otherwise.
@@ -114,8 +116,10 @@ def _done(path: Path) -> dict[int, dict]:
     return {r["seed"]: r for r in rows}
 
 
-def pdebench_stats(root: str, samples: int, minutes: float) -> None:
-    path = RESULTS / "pdebench_seeds.jsonl"
+def pdebench_stats(root: str, samples: int, minutes: float, tight: bool = False) -> None:
+    """PDEBench's seeds 0..samples-1 summarised, one JSON line each (resumable); ``tight``: its scheme solved by
+    Radau at rtol 1e-8 (``pdebench_tight``, ~1 s a seed) into pdebench_tight_seeds.jsonl instead."""
+    path = RESULTS / ("pdebench_tight_seeds.jsonl" if tight else "pdebench_seeds.jsonl")
     done = _done(path)
     stop = time.monotonic() + 60 * minutes
     for seed in range(samples):
@@ -125,14 +129,15 @@ def pdebench_stats(root: str, samples: int, minutes: float) -> None:
             print(f"pdebench_stats: stopped at --minutes {minutes:g}; {len(done)} of {samples} seeds done (rerun to go on)")
             return
         t0 = time.perf_counter()
-        u = pdebench_solve(root, seed)
+        u = pdebench_tight(root, seed, N) if tight else pdebench_solve(root, seed)
         row = {"seed": seed, "u0": pdebench_draw(seed), "seconds": round(time.perf_counter() - t0, 2),
                "finite": bool(np.isfinite(u).all()), **summary(u)}
         with path.open("a") as f:
             f.write(json.dumps(row) + "\n")
         done[seed] = row
-        print(f"pdebench seed {seed}: u0 {row['u0']:.4f}, {row['seconds']:.1f} s", flush=True)
-    print(f"pdebench_stats: {samples} seeds done")
+        if not tight:
+            print(f"pdebench seed {seed}: u0 {row['u0']:.4f}, {row['seconds']:.1f} s", flush=True)
+    print(f"pdebench_stats{' (tight)' if tight else ''}: {samples} seeds done")
 
 
 REPORT_T = (5.0, 10.0, 25.0, 50.0, 100.0, 250.0, 500.0)
@@ -234,6 +239,17 @@ def report(root: str | None) -> None:
                      "se_pdebench": (a.std(0, ddof=1) / np.sqrt(len(a))).round(5).tolist(),
                      "se_ours": (b.std(0, ddof=1) / np.sqrt(len(b))).round(5).tolist(), "z": z.round(2).tolist()}
         out[f"{what}_within_sampling_error"] = bool((np.abs(z) < 3).all())
+    tight_set = _done(RESULTS / "pdebench_tight_seeds.jsonl")
+    if tight_set:  # PDEBench's scheme and draws, solved tightly: its law without the RK45 error, on as many seeds
+        out["n_pdebench_tight"] = len(tight_set)
+        for what in ("mean", "std"):
+            a = np.array([r[what] for r in tight_set.values()])
+            b = np.array([r[what] for r in us.values()])
+            se = np.sqrt(a.var(0, ddof=1) / len(a) + b.var(0, ddof=1) / len(b))
+            tiny = se <= 1e-9 + 1e-7 * np.abs(a.mean(0))
+            z = np.where(tiny, 0.0, (b.mean(0) - a.mean(0)) / np.where(tiny, 1.0, se))
+            out[f"tight_{what}"] = {"pdebench_tight": a.mean(0).round(5).tolist(), "z": z.round(2).tolist()}
+            out[f"tight_{what}_within_sampling_error"] = bool((np.abs(z) < 3).all())
     # paired, at PDEBench's own u0 draws: the largest relative difference over samples of each per-frame statistic
     seeds = sorted(pb)
     paired = {"ours": ours([pb[s]["u0"] for s in seeds], N)}
@@ -262,6 +278,10 @@ def report(root: str | None) -> None:
                   f"{s['ours'][k]:.4f} ({s['se_ours'][k]:.4f})  {s['z'][k]:+5.2f}")
     print(f"  means within sampling error (|z| < 3 at every frame): {out['mean_within_sampling_error']}; stds: "
           f"{out['std_within_sampling_error']}")
+    if tight_set:
+        print(f"  against PDEBench's scheme solved tightly on its seeds 0..{max(tight_set)} ({len(tight_set)} samples): "
+              f"|z| of the mean at most {np.abs(out['tight_mean']['z']).max():.2f}, of the std "
+              f"{np.abs(out['tight_std']['z']).max():.2f} (z of the std at t = 500: {out['tight_std']['z'][-1]:+.2f})")
     print("  paired, at PDEBench's draws: largest relative difference over samples (mean / std) at t = "
           + ", ".join(f"{t[k]:g}" for k in range(2, len(t), 4)))
     for key in [k for k in out if k.startswith("paired") and k.endswith("mean max rel diff")]:
@@ -274,7 +294,7 @@ def main(argv=None) -> None:
     parser.add_argument("--samples", type=int, default=256)
     parser.add_argument("--minutes", type=float, default=10.0, help="wall-clock bound of one call's PDEBench runs")
     parser.add_argument("--pdebench", default=None, help="a directory holding PDEBench's pdebench package")
-    parser.add_argument("--only", default="pdebench_stats,same_ic,stats,report")
+    parser.add_argument("--only", default="pdebench_stats,tight_stats,same_ic,stats,report")
     parser.add_argument("--seed", type=int, default=0, help="PDEBench's seed of the same-IC comparison")
     parser.add_argument("--with-2048", action="store_true", help="same_ic: PDEBench's Simulator at 2048 cells too "
                         "(~7 min on a loaded core)")
@@ -285,6 +305,10 @@ def main(argv=None) -> None:
         if not args.pdebench:
             raise SystemExit("pdebench_stats needs --pdebench DIR (a directory holding PDEBench's pdebench package)")
         pdebench_stats(args.pdebench, args.samples, args.minutes)
+    if "tight_stats" in parts:
+        if not args.pdebench:
+            raise SystemExit("tight_stats needs --pdebench DIR (a directory holding PDEBench's pdebench package)")
+        pdebench_stats(args.pdebench, args.samples, args.minutes, tight=True)
     if "same_ic" in parts:
         if not args.pdebench:
             raise SystemExit("same_ic needs --pdebench DIR (a directory holding PDEBench's pdebench package)")
