@@ -250,8 +250,8 @@ class DiffusionSorption1D(ProblemBase):
 
     def advance_frames(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int):
         """Frames u [B, 1, n] advanced ``frames`` frame intervals: (u_k, ok [B]) (generator.interactive): the
-        sampler's steps (one step of state), so frame i advanced once is frame i + 1 bit for bit, but for the
-        maximum-principle range, taken from u here (from the IC in a rollout)."""
+        sampler's steps (one step of state), so frame i advanced once is frame i + 1 bit for bit (the
+        maximum-principle range that decides a failure is taken from u here, from the IC in a rollout)."""
         names = list(self.PARAMS)
         pa = jnp.stack([jnp.broadcast_to(jnp.asarray(params[k], u.dtype), (u.shape[0],)) for k in names], -1)
         k = jnp.int32(frames * self.steps_per_frame)
