@@ -182,7 +182,7 @@ RECIPES: dict[str, Recipe] = {r.name: r for r in (
                 "scheme, beside its space error 1.0% to 0.12% at 1024 cells; ours: second order at both ends, "
                 "TR-BDF2 at dt = 0.25 with Newton per stage, float32, within 1.3e-4 of its own finer runs (space 4e-5). "
                 "The same IC in both: 0.3% to 1.6% apart, inside PDEBench's own error (docs/results/recipes.md); "
-                "sample means agree, stds differ by its RK45 error (1.7% at t = 500). PDEBench's "
+                "sample means agree, stds differ by its RK45 error (1.8% at t = 500). PDEBench's "
                 "published set drew u0 with np.random.seed(seed) + uniform (2f71cb8, the pdebench 0.1.0 wheel), its "
                 "current code default_rng(seed) (e4acf37): the same law, other draws, and ours others again"),
     Recipe(
