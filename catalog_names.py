@@ -43,6 +43,7 @@ NAMES: dict[str, str] = {
     "swift_hohenberg2d": "reaction-diffusion",
     "grayscott3d": "reaction-diffusion",
     "diffusion_reaction2d": "reaction-diffusion",
+    "diffusion_sorption1d": "reaction-diffusion",
     "ns2d": "fluids",
     "karman2d": "fluids",
     "cavity2d": "fluids",

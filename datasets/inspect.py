@@ -167,7 +167,8 @@ def draw(ds, n_show: int = 4):
     fields = _fields(ds)
     show = min(n_show, ds.sizes["sample"])
     params = ds.attrs["pdestream_params"].split()
-    label = [", ".join(f"{p}={float(ds[p][i]):.3g}" for p in params) for i in range(show)]
+    # wrapped to a panel's width (~34 characters at 8 pt): diffusion_sorption1d's five parameters ran into the next panel
+    label = [textwrap.fill(", ".join(f"{p}={float(ds[p][i]):.3g}" for p in params), 34) for i in range(show)]
     index = ds["sample"].values[:show]
     space = [d for d in ds[fields[0]].dims if d in schema.SPACE]  # stored order: (z,) (y,) x
     mask = None

@@ -17,6 +17,7 @@ from pdestream.recipes import RECIPES
 
 from . import user
 from .external.exponax import exponax_pde_class
+from .finite_volume.diffusion_sorption import DiffusionSorption1D
 from .finite_volume.problem import CompressibleNS1D, Euler1D
 from .finite_volume.problem2d import CompressibleNS2D, Euler2D, ShallowWater2D
 from .flow.entries import Cavity2D, Channel2D, Karman2D, Smoke2D
@@ -85,6 +86,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("swift_hohenberg2d", SwiftHohenberg, {"ndim": 2}, "reaction-diffusion"),
     Entry("grayscott3d", GrayScott, {"ndim": 3}, "reaction-diffusion"),
     Entry("diffusion_reaction2d", DiffusionReaction, {"ndim": 2}, "reaction-diffusion"),
+    Entry("diffusion_sorption1d", DiffusionSorption1D, {}, "reaction-diffusion"),
     Entry("ns2d", NS2D, {}, "fluids"),
     Entry("karman2d", Karman2D, {}, "fluids"),
     Entry("cavity2d", Cavity2D, {}, "fluids"),
