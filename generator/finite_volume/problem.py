@@ -79,6 +79,18 @@ def _step_profile(grid, left, right, x0):
     return jnp.where(x[None] < x0, jnp.stack(left)[:, None], jnp.stack(right)[:, None]).astype(jnp.float32)
 
 
+def ic_domains(ic, names) -> dict:
+    """{name: Domain} of an IC's domain-string settings; a bad one is refused naming it (ic.NAME=...)."""
+    doms = {}
+    for name in names:
+        try:
+            doms[name] = parse_domain(getattr(ic, name))
+        except ValueError as err:
+            raise ValueError(f"ic.{name}={getattr(ic, name)!r} not allowed: must be a finite number or a domain of "
+                             f"finite numbers ({err})") from None
+    return doms
+
+
 @dataclass(frozen=True)
 class Riemann:
     """A random Riemann problem: left and right states (rho, u, p) and the discontinuity position x0, each drawn
@@ -97,14 +109,7 @@ class Riemann:
 
     def domains(self) -> dict:
         """{name: Domain} of the seven settings; a bad one is refused naming it (ic.NAME=...)."""
-        doms = {}
-        for name in self.NAMES:
-            try:
-                doms[name] = parse_domain(getattr(self, name))
-            except ValueError as err:
-                raise ValueError(f"ic.{name}={getattr(self, name)!r} not allowed: must be a finite number or a domain "
-                                 f"of finite numbers ({err})") from None
-        return doms
+        return ic_domains(self, self.NAMES)
 
     def sample(self, key: jax.Array, grid, n_fields: int = 3) -> jax.Array:
         v = [d.sample(jax.random.fold_in(key, j)) for j, d in enumerate(self.domains().values())]
@@ -248,14 +253,7 @@ class SineStates:
 
     def domains(self) -> dict:
         """{name: Domain} of the drawn settings; a bad one is refused naming it (ic.NAME=...)."""
-        doms = {}
-        for name in self.DRAWN:
-            try:
-                doms[name] = parse_domain(getattr(self, name))
-            except ValueError as err:
-                raise ValueError(f"ic.{name}={getattr(self, name)!r} not allowed: must be a finite number or a domain "
-                                 f"of finite numbers ({err})") from None
-        return doms
+        return ic_domains(self, self.DRAWN)
 
     def _shape(self) -> RandomSines:
         return RandomSines(max_mode=self.max_mode, n_modes=self.n_modes, abs_prob=self.abs_prob, window_prob=0.0)
@@ -563,6 +561,22 @@ def _phys(problem: FiniteVolume, params: Mapping[str, jax.Array], dtype=None) ->
     return jnp.stack(jnp.broadcast_arrays(*(jnp.asarray(params[name], dtype) for name in problem.PHYS)), axis=-1)
 
 
+# The compressible Navier-Stokes entries' parameters (1D and 2D)
+VISCOUS_GAS_PARAMS: dict[str, Param] = {
+    "gamma": Param("ratio of specific heats (ideal gas)", "1", positive=True),
+    "eta": Param("shear viscosity, kinematic (the dynamic one is rho eta)", "length^2/time"),
+    "zeta": Param("bulk viscosity, kinematic (the dynamic one is rho zeta)", "length^2/time")}
+
+
+def check_viscosities(problem) -> None:
+    """Refuses, in one line, an eta or zeta domain that is not finite and >= 0."""
+    for name in ("eta", "zeta"):
+        lo, hi = getattr(problem, name).bounds
+        if not (0 <= lo and math.isfinite(hi)):
+            raise ValueError(f"{problem.NAME}: {name}={getattr(problem, name)} not allowed: a viscosity must be a "
+                             "finite number >= 0")
+
+
 @dataclass(frozen=True)
 class CompressibleNS1D(Euler1D):
     """1D compressible Navier-Stokes of an ideal gas, PDEBench's 1D CFD model: euler1d's scheme plus the viscous
@@ -573,10 +587,7 @@ class CompressibleNS1D(Euler1D):
     EQUATION: ClassVar[str] = ("rho_t + (rho u)_x = 0, (rho u)_t + (rho u^2 + p - tau)_x = 0, E_t + ((E + p) u - "
                                "tau u)_x = 0, tau = rho (4/3 eta + zeta) u_x, E = p / (gamma - 1) + rho u^2 / 2; "
                                "stored: primitive rho, u, p")
-    PARAMS: ClassVar[dict] = {
-        "gamma": Param("ratio of specific heats (ideal gas)", "1", positive=True),
-        "eta": Param("shear viscosity, kinematic (the dynamic one is rho eta)", "length^2/time"),
-        "zeta": Param("bulk viscosity, kinematic (the dynamic one is rho zeta)", "length^2/time")}
+    PARAMS: ClassVar[dict] = VISCOUS_GAS_PARAMS
     SCHEME: ClassVar[Scheme] = NAVIER_STOKES_1D
     PHYS: ClassVar[tuple[str, ...]] = ("gamma", "eta", "zeta")
 
@@ -602,11 +613,7 @@ class CompressibleNS1D(Euler1D):
         return max(1, math.ceil(bound * (1 - 1e-9)))
 
     def validate(self) -> None:
-        for name in ("eta", "zeta"):
-            lo, hi = getattr(self, name).bounds
-            if not (0 <= lo and math.isfinite(hi)):
-                raise ValueError(f"{self.NAME}: {name}={getattr(self, name)} not allowed: a viscosity must be a finite "
-                                 "number >= 0")
+        check_viscosities(self)
         super().validate()
 
     def describe_setup(self) -> str:

@@ -23,27 +23,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..domains import Fixed, parse_domain
+from ..domains import Fixed
 from ..problem import Param
-from .problem import EULER_2D, NAVIER_STOKES_2D, SHALLOW_WATER, FiniteVolume, FVGrid
+from .problem import (
+    EULER_2D,
+    NAVIER_STOKES_2D,
+    SHALLOW_WATER,
+    VISCOUS_GAS_PARAMS,
+    FiniteVolume,
+    FVGrid,
+    check_viscosities,
+    ic_domains,
+)
 from .scheme import SIDE_KINDS
 
 SW_MAX_CFL = 0.5  # the positivity bound of MUSCL-HLL with SSP-RK3 (shallow_water's docstring)
 
 
 # --- the ICs' shared pieces -----------------------------------------------------------------------------------------
-def _domains(ic, names) -> dict:
-    """{name: Domain} of an IC's domain-string settings; a bad one is refused naming it (ic.NAME=...)."""
-    doms = {}
-    for name in names:
-        try:
-            doms[name] = parse_domain(getattr(ic, name))
-        except ValueError as err:
-            raise ValueError(f"ic.{name}={getattr(ic, name)!r} not allowed: must be a finite number or a domain of "
-                             f"finite numbers ({err})") from None
-    return doms
-
-
 def _draw(doms: dict, key: jax.Array) -> list:
     return [d.sample(jax.random.fold_in(key, j)) for j, d in enumerate(doms.values())]
 
@@ -100,13 +97,13 @@ class RadialDamBreak:
     NAMES: ClassVar[tuple] = ("h_in", "h_out", "radius", "cx", "cy")
 
     def sample(self, key: jax.Array, grid, n_fields: int = 3) -> jax.Array:
-        h_in, h_out, radius, cx, cy = _draw(_domains(self, self.NAMES), key)
+        h_in, h_out, radius, cx, cy = _draw(ic_domains(self, self.NAMES), key)
         x, y = _centres(grid)
         h = jnp.where((x - cx) ** 2 + (y - cy) ** 2 <= radius**2, h_in, h_out)
         return jnp.stack([h, jnp.zeros_like(h), jnp.zeros_like(h)]).astype(jnp.float32)
 
     def check(self, grid) -> None:
-        doms = _domains(self, self.NAMES)
+        doms = ic_domains(self, self.NAMES)
         if not min(doms["h_in"].bounds) > 0 or not min(doms["h_out"].bounds) >= 0:
             raise ValueError(f"ic.h_in={doms['h_in']}, ic.h_out={doms['h_out']} not allowed: need h_in > 0, h_out >= 0")
         if not min(doms["radius"].bounds) > 0:
@@ -115,7 +112,7 @@ class RadialDamBreak:
         _check_inside("cy", doms["cy"], grid)
 
     def bound(self, grid) -> float:
-        d = _domains(self, ("h_in", "h_out"))
+        d = ic_domains(self, ("h_in", "h_out"))
         return max(max(abs(b) for b in v.bounds) for v in d.values())
 
     def speed(self, g: float) -> float:
@@ -217,7 +214,7 @@ class Riemann2D:
     NAMES: ClassVar[tuple] = ("rho", "u", "v", "p", "x0", "y0")
 
     def sample(self, key: jax.Array, grid, n_fields: int = 4) -> jax.Array:
-        doms = _domains(self, self.NAMES)
+        doms = ic_domains(self, self.NAMES)
         states = [[doms[n].sample(jax.random.fold_in(key, 4 * q + j)) for j, n in enumerate(("rho", "u", "v", "p"))]
                   for q in range(4)]
         x0 = doms["x0"].sample(jax.random.fold_in(key, 16))
@@ -225,7 +222,7 @@ class Riemann2D:
         return _quadrants(grid, states, x0, y0)
 
     def check(self, grid) -> None:
-        doms = _domains(self, self.NAMES)
+        doms = ic_domains(self, self.NAMES)
         for name in ("rho", "p"):
             if not min(doms[name].bounds) > 0:
                 raise ValueError(f"ic.{name}={doms[name]} not allowed: densities and pressures must be > 0")
@@ -233,11 +230,11 @@ class Riemann2D:
         _check_inside("y0", doms["y0"], grid)
 
     def bound(self, grid) -> float:
-        return max(max(abs(b) for b in d.bounds) for d in _domains(self, self.NAMES).values())
+        return max(max(abs(b) for b in d.bounds) for d in ic_domains(self, self.NAMES).values())
 
     def speed(self, gamma: float) -> float:
         """Largest max(|u|, |v|) + c of the quadrant states over the domains."""
-        d = _domains(self, self.NAMES)
+        d = ic_domains(self, self.NAMES)
         vel = max(abs(b) for n in ("u", "v") for b in d[n].bounds)
         return vel + math.sqrt(gamma * max(d["p"].bounds) / min(d["rho"].bounds))
 
@@ -362,7 +359,7 @@ class RandomGas2D:
     PEAK_FLOW: ClassVar[float] = 4.0  # max |u| / mean |u| of the random velocity (3.0-3.6 over 64 draws at 128^2)
 
     def sample(self, key: jax.Array, grid, n_fields: int = 4) -> jax.Array:
-        d = _domains(self, self.DRAWN)
+        d = ic_domains(self, self.DRAWN)
         k_draw, k_phase, k_win, k_wx, k_wy = jax.random.split(key, 5)
         rho0, t0, d_rho, d_p, _, _ = _draw(d, k_draw)
         x, y = _centres(grid)
@@ -393,7 +390,7 @@ class RandomGas2D:
         return state.astype(jnp.float32)
 
     def check(self, grid) -> None:
-        d = _domains(self, self.DRAWN)
+        d = ic_domains(self, self.DRAWN)
         for name in ("rho0", "T0"):
             if not min(d[name].bounds) > 0:
                 raise ValueError(f"ic.{name}={d[name]} not allowed: must be > 0")
@@ -416,13 +413,13 @@ class RandomGas2D:
                              f"{self.gamma} not allowed: need a width > 0, a probability in [0, 1] and gamma > 1")
 
     def bound(self, grid) -> float:
-        d = _domains(self, self.DRAWN)
+        d = ic_domains(self, self.DRAWN)
         return 1.5 * max(d["rho0"].bounds) * max(d["T0"].bounds)
 
     def speed(self, gamma: float) -> float:
         """An estimate of the largest |u| + c (PEAK_SOUND, PEAK_FLOW); a sample beyond it that outruns its step
         fails with that cause (MAX_CFL), never silently."""
-        c = math.sqrt(max(gamma, self.gamma) * max(_domains(self, ("T0",))["T0"].bounds))
+        c = math.sqrt(max(gamma, self.gamma) * max(ic_domains(self, ("T0",))["T0"].bounds))
         return c * (self.PEAK_SOUND + self.PEAK_FLOW * self.mach)
 
     def __str__(self) -> str:
@@ -578,10 +575,7 @@ class CompressibleNS2D(Euler2D):
     EQUATION: ClassVar[str] = ("euler2d's equations plus viscous fluxes per axis n (t the other): rho (4/3 eta + zeta) "
                                "(u_n)_n on the normal momentum, rho eta (u_t)_n on the transverse one, and their "
                                "work on E (PDEBench's stress); stored: primitive rho, u, v, p")
-    PARAMS: ClassVar[dict] = {
-        "gamma": Param("ratio of specific heats (ideal gas)", "1", positive=True),
-        "eta": Param("shear viscosity, kinematic (the dynamic one is rho eta)", "length^2/time"),
-        "zeta": Param("bulk viscosity, kinematic (the dynamic one is rho zeta)", "length^2/time")}
+    PARAMS: ClassVar[dict] = VISCOUS_GAS_PARAMS
     SCHEME: ClassVar = NAVIER_STOKES_2D
     PHYS: ClassVar[tuple] = ("gamma", "eta", "zeta")
 
@@ -606,11 +600,7 @@ class CompressibleNS2D(Euler2D):
         return max(1, math.ceil(bound * (1 - 1e-9)))
 
     def validate(self) -> None:
-        for name in ("eta", "zeta"):
-            lo, hi = getattr(self, name).bounds
-            if not (0 <= lo and math.isfinite(hi)):
-                raise ValueError(f"{self.NAME}: {name}={getattr(self, name)} not allowed: a viscosity must be a finite "
-                                 "number >= 0")
+        check_viscosities(self)
         super().validate()
 
     def describe_setup(self) -> str:
