@@ -1,7 +1,7 @@
-"""Compressible Navier-Stokes of an ideal gas, 1D and 2D: ``euler``'s MUSCL-HLLC schemes plus a viscous stress (JAX, one
-sample unbatched; jit/vmap-able).
+"""Compressible Navier-Stokes of an ideal gas, 1D and 2D: ``euler``'s MUSCL-HLLC schemes plus a viscous stress
+(JAX, one sample unbatched; jit/vmap-able). The 2D functions (``*_2d``) are below, with their stress.
 
-State: conserved U [3, n] = (rho, rho u, E) as in ``euler``. phys [3] = (gamma, eta, zeta): the ratio of specific
+1D state: conserved U [3, n] = (rho, rho u, E) as in ``euler``. phys [3] = (gamma, eta, zeta): the ratio of specific
 heats and the shear and bulk viscosities, kinematic (length^2 / time): the stress is
 tau = rho (4/3 eta + zeta) u_x, so the dynamic viscosities are rho eta and rho zeta (PDEBench's compressible
 model, whose viscous update multiplies its eta and zeta by the density). No heat conduction. The viscous fluxes
