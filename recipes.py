@@ -245,13 +245,14 @@ RECIPES: dict[str, Recipe] = {r.name: r for r in (
         name=f"pdebench_cfd1d_rand_{tag}", entry="compressible_ns1d", paper=PDEBENCH_PAPER,
         where=f"Appendix D (1D compressible Navier-Stokes, Rand, eta = zeta = {eta}, {bc}), Table 5", url=PDEBENCH_URL,
         code=_CFD_CODE, settings=_cfd_rand(eta, bc, tag), ic=_CFD_IC,
-        grid=f"1024 cells on [0, 2] (PDEBench's [-1, 1] shifted by 1), {'periodic' if bc == 'periodic' else 'zero-gradient (PDEBench trans) ends'}",
+        grid=f"1024 cells on [0, 2] (PDEBench's [-1, 1] shifted by 1), {ends}",
         time="t = 0, 0.01, ..., 1: 101 frames", splits=_splits(8000, 1000, 1000), input_frames=10,
         differs=_CFD_SPLITS + _CFD_SOLVER + "; " + _CFD_IC_DIFF + "; the viscous limit sets our step where eta >= "
                 "1e-2: 27,300 steps per trajectory at 1e-8, 57,800 at 1e-2, 333,100 at 1e-1 (each a full flux "
                 "evaluation; PDEBench sub-cycles the stress instead: ~40,800 and ~408,000 cheap viscous sub-steps)")
-        for tag, eta, bc in (("eta1e-8", "1e-8", "periodic"), ("eta1e-2", "0.01", "periodic"),
-                             ("eta1e-1", "0.1", "periodic"), ("trans", "1e-8", "outflow"))),
+        for tag, eta, bc, ends in (("eta1e-8", "1e-8", "periodic", "periodic"), ("eta1e-2", "0.01", "periodic", "periodic"),
+                                   ("eta1e-1", "0.1", "periodic", "periodic"),
+                                   ("trans", "1e-8", "outflow", "zero-gradient (PDEBench trans) ends"))),
     Recipe(
         name="pdebench_cfd1d_shock", entry="compressible_ns1d", paper=PDEBENCH_PAPER,
         where="Appendix D (1D compressible Navier-Stokes, Shock, eta = zeta = 1e-8, trans), Table 5",
