@@ -34,7 +34,7 @@ from ..chunked import chunked_map, join, split
 from ..domains import Fixed
 from ..problem import MAX_STEPS, Param, ProblemBase, resolve_params
 from . import sorption
-from .problem import FVGrid
+from .problem import FVGrid, UniformFrames
 
 CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits never depend on its batch)
 STEP_WORK_PER_CELL = 64  # one step's work per cell in point-steps (generator.dispatch): 2 stages x NEWTON solves
@@ -86,7 +86,7 @@ IC_KINDS: dict[str, type] = {"constant": ConstantIC}
 
 
 @dataclass(frozen=True)
-class DiffusionSorption1D(ProblemBase):
+class DiffusionSorption1D(UniformFrames, ProblemBase):
     """PDEBench's 1D diffusion-sorption equation (a contaminant diffusing into a soil column with Freundlich
     sorption); SI units as PDEBench states them (m, s, kg)."""
 
@@ -124,18 +124,6 @@ class DiffusionSorption1D(ProblemBase):
     @property
     def grid(self) -> SorptionGrid:
         return SorptionGrid(1, self.n, self.length, ("dirichlet", "robin"))
-
-    @property
-    def h(self) -> float:
-        return self.length / self.n
-
-    def times(self) -> np.ndarray:
-        """Frame times, float32 [n_frames] (s)."""
-        return np.linspace(0.0, self.t_end, self.n_frames).astype(np.float32)
-
-    @property
-    def frame_dt(self) -> float:
-        return self.t_end / (self.n_frames - 1)
 
     @property
     def steps_per_frame(self) -> int:

@@ -349,19 +349,10 @@ NAVIER_STOKES_2D = Scheme(navier_stokes.run_2d, navier_stokes.to_conserved_2d, n
                           navier_stokes.CAUSES)
 
 
-@dataclass(frozen=True)
-class FiniteVolume(ProblemBase):
-    """What every entry of the family shares: the fixed step, the chunked batch-invariant rollout, the failure
-    causes, the interactive oracle and its VJP. A subclass declares SCHEME, PHYS (its physical parameters' names),
-    MAX_CFL and the settings n, length, ic, t_end, n_frames, bc, cfl, limiter; ``sides`` (the side kinds, 2 per
-    axis), ``speed_bound`` and ``grid`` come from it too."""
+class UniformFrames:
+    """The family's uniform grid and frames from its settings n, length, t_end, n_frames: the cell size ``h``,
+    ``times()`` (float32 [n_frames], 0 .. t_end) and ``frame_dt``."""
 
-    SCHEME: ClassVar[Scheme] = EULER_1D
-    PHYS: ClassVar[tuple[str, ...]] = ("gamma",)  # the parameters the scheme reads, in its order (phys [P])
-    MAX_CFL: ClassVar[float] = MAX_CFL
-    FAILURE_WORDS: ClassVar[str] = "a non-positive density or pressure, a NaN/Inf"
-
-    # --- settings ------------------------------------------------------------------------------------
     @property
     def h(self) -> float:
         return self.length / self.n
@@ -374,6 +365,28 @@ class FiniteVolume(ProblemBase):
     def frame_dt(self) -> float:
         return self.t_end / (self.n_frames - 1)
 
+
+def viscous_steps_per_frame(problem) -> int:
+    """Steps of one frame interval of a viscous entry: dt (NDIM s0 / h + 2 nu / h^2) <= cfl, with s0 and nu =
+    ``problem.nu_max()`` (the diffusion coefficients summed over the axes) at their largest."""
+    h = problem.h
+    bound = problem.frame_dt * (problem.NDIM * problem.speed_bound() / h + 2 * problem.nu_max() / h**2) / problem.cfl
+    return max(1, math.ceil(bound * (1 - 1e-9)))
+
+
+@dataclass(frozen=True)
+class FiniteVolume(UniformFrames, ProblemBase):
+    """What every entry of the family shares: the fixed step, the chunked batch-invariant rollout, the failure
+    causes, the interactive oracle and its VJP. A subclass declares SCHEME, PHYS (its physical parameters' names),
+    MAX_CFL and the settings n, length, ic, t_end, n_frames, bc, cfl, limiter; ``sides`` (the side kinds, 2 per
+    axis), ``speed_bound`` and ``grid`` come from it too."""
+
+    SCHEME: ClassVar[Scheme] = EULER_1D
+    PHYS: ClassVar[tuple[str, ...]] = ("gamma",)  # the parameters the scheme reads, in its order (phys [P])
+    MAX_CFL: ClassVar[float] = MAX_CFL
+    FAILURE_WORDS: ClassVar[str] = "a non-positive density or pressure, a NaN/Inf"
+
+    # --- settings ------------------------------------------------------------------------------------
     @property
     def steps_per_frame(self) -> int:
         """Steps of one frame interval: dt NDIM s0 / h <= cfl (in 2D the CFL number sums both axes' speeds)."""
@@ -609,8 +622,7 @@ class CompressibleNS1D(Euler1D):
     @property
     def steps_per_frame(self) -> int:
         """Steps of one frame interval: dt (s0 / h + 2 nu_l / h^2) <= cfl, s0 and nu_l their largest values."""
-        bound = self.frame_dt * (self.speed_bound() / self.h + 2 * self.nu_max() / self.h**2) / self.cfl
-        return max(1, math.ceil(bound * (1 - 1e-9)))
+        return viscous_steps_per_frame(self)
 
     def validate(self) -> None:
         check_viscosities(self)

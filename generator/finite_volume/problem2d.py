@@ -34,6 +34,7 @@ from .problem import (
     FVGrid,
     check_viscosities,
     ic_domains,
+    viscous_steps_per_frame,
 )
 from .scheme import SIDE_KINDS
 
@@ -596,8 +597,7 @@ class CompressibleNS2D(Euler2D):
     @property
     def steps_per_frame(self) -> int:
         """Steps of one frame interval: dt (2 s0 / h + 2 (nu_l + eta) / h^2) <= cfl at their largest values."""
-        bound = self.frame_dt * (2 * self.speed_bound() / self.h + 2 * self.nu_max() / self.h**2) / self.cfl
-        return max(1, math.ceil(bound * (1 - 1e-9)))
+        return viscous_steps_per_frame(self)
 
     def validate(self) -> None:
         check_viscosities(self)
