@@ -13,6 +13,7 @@ the dimension. The catalog (generator.catalog) makes one entry per dimension, na
 from __future__ import annotations
 
 import abc
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -41,6 +42,7 @@ class PDE(ProblemBase):
     n_frames: int = 51  # saved frames including the first, at t = t_start
     dt: float | None = None  # internal step; None: the largest stable step that divides a frame interval
     t_start: float = 0.0  # a burn-in from the IC at t = 0, not recorded (chaotic entries: frames on the attractor)
+    refine: int = 1  # solve on n * refine points per axis and keep every refine-th (a set published that way)
 
     # --- what subclasses provide -------------------------------------------------------------------
     @abc.abstractmethod
@@ -64,7 +66,10 @@ class PDE(ProblemBase):
     def sample_ic(self, key: jax.Array, p: Mapping[str, jax.Array] | None = None, latent: jax.Array | None = None
                   ) -> jax.Array:
         """One initial condition, float32 [C, *space] (p: the sample's parameters, for ICs that depend on them;
-        latent: float32 [L], the IC's latent coordinates (``latent_size``), None: the key's own)."""
+        latent: float32 [L], the IC's latent coordinates (``latent_size``), None: the key's own). With ``refine``:
+        the solve grid's draw, every refine-th point kept."""
+        if self.refine > 1:
+            return self.keep_points(self.solved.sample_ic(key, p, latent))
         return self._draw_ic(key, self.grid, latent)
 
     def _draw_ic(self, key: jax.Array, grid, latent: jax.Array | None) -> jax.Array:
@@ -75,8 +80,16 @@ class PDE(ProblemBase):
 
     @property
     def ic_grid(self) -> Grid:
-        """The grid the IC is drawn on (the periodic box of a walled entry)."""
-        return self.grid
+        """The grid the IC is drawn on (the periodic box of a walled entry; the solve grid with ``refine``)."""
+        return self.solved.grid if self.refine > 1 else self.grid
+
+    @functools.cached_property
+    def solved(self) -> "PDE":
+        """The problem the solver runs: this one on n * refine points per axis (``refine`` 1: itself). Its samples,
+        every refine-th point kept, are this problem's."""
+        if self.refine == 1:
+            return self
+        return dataclasses.replace(self, n=self.n * self.refine, refine=1)
 
     def latent_size(self) -> int:
         """L: the steerable coordinates of this entry's IC (``generator.ics.LatentIC``), 0 if it has none."""
@@ -144,21 +157,35 @@ class PDE(ProblemBase):
         return np.linspace(self.t_start, self.t_end, self.n_frames).astype(np.float32)
 
     def config(self) -> dict:
-        """``ProblemBase.config``; ``t_start`` only when there is a burn-in, so the configs and hashes of every
-        cache and run written before the setting existed (or without one) are unchanged."""
+        """``ProblemBase.config``; ``t_start`` only when there is a burn-in and ``refine`` only above 1, so the
+        configs and hashes of every cache and run written before those settings existed are unchanged."""
         out = super().config()
         if not self.t_start:
             out.pop("t_start", None)
+        if self.refine == 1:
+            out.pop("refine", None)
         return out
+
+    def keep_points(self, u: jax.Array) -> jax.Array:
+        """Fields [..., *solve shape] of ``solved`` -> every refine-th point per axis, [..., *shape]."""
+        r = self.refine
+        return u[(Ellipsis, *(slice(None, None, r),) * self.NDIM)] if r > 1 else u
 
     def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray, latent=None):
         """Solve one sample per key [B] (explicit float32 [B, P] parameter values where given bool [B, P]; latent:
         None, or (float32 [B, L] IC latents, bool [B] where given)): (u [B, T, C, *space], params {name: [B]},
-        ok bool [B] (finite), inputs None). ETDRK4 rollouts."""
+        ok bool [B] (finite), inputs None). ETDRK4 rollouts (with ``refine``: on the finer grid, points kept)."""
+        if self.refine > 1:
+            u, params, ok = rollout.run_keys(self.solved, keys, explicit, given, latent)
+            return self.keep_points(u), params, ok, None
         return (*rollout.run_keys(self, keys, explicit, given, latent), None)
 
     def evolve(self, u0: jax.Array, p: Mapping[str, jax.Array]):
-        """A caller's initial conditions u0 [B, C, *space], params {name: [B]} -> (u [B, T, C, *space], finite [B])."""
+        """A caller's initial conditions u0 [B, C, *space], params {name: [B]} -> (u [B, T, C, *space], finite [B]).
+        With ``refine``, u0 is interpolated (trigonometrically, every mode kept) onto the solve grid first."""
+        if self.refine > 1:
+            u, finite = rollout.evolve_from(self.solved, self.grid.interpolate(u0, self.refine), p)
+            return self.keep_points(u), finite
         return rollout.evolve_from(self, u0, p)
 
     def failure(self) -> tuple[str, str]:
@@ -207,6 +234,7 @@ class PDE(ProblemBase):
         if isinstance(self.n_frames, bool) or not isinstance(self.n_frames, int) or self.n_frames < 2:
             raise ValueError(f"{self.NAME}: n_frames={self.n_frames!r} not allowed: need an integer >= 2 (t=0 and t_end)")
         self._check_size()  # before anything allocates arrays of the grid's size
+        self._check_refine()
         self._check_ic()
         self.check_settings()
         if self.dt is not None:
@@ -220,6 +248,24 @@ class PDE(ProblemBase):
                 )
         self._check_steps()
         check_operators(self)
+
+    def _check_refine(self) -> None:
+        """refine is an integer >= 1; above 1 only on a periodic grid, and the solve grid's problem must hold."""
+        r = self.refine
+        if isinstance(r, bool) or not isinstance(r, int) or r < 1:
+            raise ValueError(f"{self.NAME}: refine={r!r} not allowed: need an integer >= 1 (1: solve on the n points "
+                             "kept; k: solve on n * k points per axis and keep every k-th)")
+        if r == 1:
+            return
+        if self.grid.bc != Grid(self.NDIM, self.n, self.length).bc:
+            raise ValueError(f"{self.NAME}: refine={r} not allowed with walls ({', '.join(self.grid.bc)}): a finer "
+                             "grid's points do not include a walled grid's (cell centres); allowed: refine=1")
+        try:
+            self.solved  # noqa: B018 (builds and so validates the solve grid's problem)
+        except ValueError as err:
+            why = str(err).removeprefix(f"{self.NAME}: ")
+            raise ValueError(f"{self.NAME}: refine={r} not allowed with n={self.n}: the solve grid (n * refine = "
+                             f"{self.n * r} points per axis) fails: {why}") from None
 
     def _check_ic(self) -> None:
         """The IC fits this PDE: its kind's field count, its own rules on this grid, a float32-safe magnitude."""
@@ -248,10 +294,12 @@ class PDE(ProblemBase):
                              "(a shorter t_end, a larger dt, or a smaller initial condition, whose size sets the step)")
 
     def describe_setup(self) -> str:
-        return (f"  fields: {', '.join(self.FIELDS)}   grid: {self.grid.describe()}"
-                f"   t in [{self.t_start:g}, {self.t_end:g}], {self.n_frames} frames, step {self.step_dt:.4g} "
-                f"({self.steps_per_frame}/frame)" + (f"; after a burn-in of {self.burn_in_steps} steps from the IC at t = 0"
-                                                     if self.t_start else ""))
+        run = self.solved
+        solved = (f" (solved on {run.grid.describe()}, 1 point in {self.refine} kept per axis)" if self.refine > 1 else "")
+        return (f"  fields: {', '.join(self.FIELDS)}   grid: {self.grid.describe()}{solved}"
+                f"   t in [{self.t_start:g}, {self.t_end:g}], {self.n_frames} frames, step {run.step_dt:.4g} "
+                f"({run.steps_per_frame}/frame)" + (f"; after a burn-in of {run.burn_in_steps} steps from the IC at t = 0"
+                                                    if self.t_start else ""))
 
 
 @dataclass(frozen=True)

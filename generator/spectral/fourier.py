@@ -86,6 +86,27 @@ class Grid(GridBase):
         """Fourier [..., *kshape] -> physical [..., *shape] float32 (last ndim axes)."""
         return jnp.fft.irfftn(v, s=self.shape, axes=tuple(range(-self.ndim, 0)))
 
+    def interpolate(self, u: jax.Array, factor: int) -> jax.Array:
+        """Fields u [..., *shape] on this grid -> their trigonometric interpolant on the grid of n * factor points
+        per axis, [..., *(n * factor,) * ndim] (same dtype): every mode kept, the Nyquist mode split evenly between
+        +n/2 and -n/2, so keeping every factor-th point gives u back (to rounding)."""
+        n, m, axes = self.n, self.n * factor, tuple(range(-self.ndim, 0))
+        v = jnp.fft.rfftn(u, axes=axes)
+        half = n // 2
+        for axis in axes[:-1]:  # full axes: 0..n/2-1 first, -n/2+1..-1 last, the Nyquist row halved into both
+            low, nyq, high = (jax.lax.slice_in_dim(v, a, b, axis=axis) for a, b in ((0, half), (half, half + 1),
+                                                                                    (half + 1, n)))
+            zeros = jnp.zeros_like(jax.lax.slice_in_dim(v, 0, 1, axis=axis))
+            pad = jnp.concatenate([zeros] * (m - n - 1), axis=axis) if m - n - 1 else None
+            parts = [low, nyq / 2, *([pad] if pad is not None else []), nyq / 2, high]
+            v = jnp.concatenate(parts, axis=axis)
+        # the rfft axis: modes 0..n/2 (the Nyquist one halved: its -n/2 twin is implied by the real transform)
+        last = v.shape[-1]
+        v = jnp.concatenate([v[..., :half], v[..., half:last] / 2,
+                             jnp.zeros((*v.shape[:-1], m // 2 + 1 - last), v.dtype)], axis=-1)
+        out = jnp.fft.irfftn(v, s=(m,) * self.ndim, axes=axes) * factor**self.ndim
+        return out.astype(u.dtype)
+
 
 @dataclass(frozen=True)
 class ETDRK4Coefficients:
