@@ -53,7 +53,7 @@ def pdebench_run(root: str, scratch: Path, tag: str, n: int, count: int, beta: f
     save = scratch / tag
     stem = f"beta{str(beta)[:5]}_key{key}"
     frames, coef = save / f"2D_ReacDiff_Multi_{stem}.npy", save / f"nu_diff_coef_{stem}.npy"
-    if not frames.exists():
+    if not coef.exists():  # its last file (it opens the frames' file before its asynchronous run has finished)
         gen = os.path.join(root, "pdebench", "data_gen", "data_gen_NLE")
         for d in (gen, os.path.join(gen, "ReactionDiffusionEq")):
             if d not in sys.path:
