@@ -10,10 +10,10 @@ Solved by second-order finite differences with harmonic-mean face coefficients a
 A sample has no time axis: it is (a [1, n, n], u [1, n, n]) at ``points``: ``nodes``, the n x n nodes
 x_i = i L / (n - 1) including the boundary, which holds u = 0 (FNO's 421 x 421 data has n = 421), or ``cells``,
 the n x n cell centres (i + 1/2) L / n with u = 0 held at the ghost centres half a cell outside the walls
-(PDEBench's placement; the solve runs on the n + 2 nodes the ghosts add, a copied into them). Sample identity follows the sampler's key discipline: the
-key of (seed, index) is split into a parameter key and a field key; the set-up and the solve each run as a
-fixed-size compiled program per chunk of samples, and each CG solve stops on its own residual, so a sample
-is bit-identical alone and in any batch.
+(PDEBench's placement; the solve runs on the n + 2 nodes the ghosts add, a copied into them). Sample identity
+follows the sampler's key discipline: the key of (seed, index) is split into a parameter key and a field key;
+the set-up and the solve each run as a fixed-size compiled program per chunk of samples, and each CG solve
+stops on its own residual, so a sample is bit-identical alone and in any batch.
 """
 
 from __future__ import annotations
@@ -158,9 +158,10 @@ class Darcy2D(SteadyProblem):
     """-div(a grad u) = f on (0, length)^2, u = 0 on the boundary; a = a_pos where g > 0, a_neg elsewhere.
 
     ``ic`` is the distribution of the random field g (NeumannGRF or GaussianBumps); ``points`` where the values
-    sit (a key of LAYOUTS: ``nodes``, n per side with the boundary, or ``cells``, n cell centres per side); tol is CG's relative-residual tolerance and max_iter its iteration limit. Parameters a_pos,
-    a_neg, f are per-sample coefficients (fixed by default, any domain allowed); a sample is
-    (a [1, n, n], u [1, n, n]) float32, no time axis.
+    sit (a key of LAYOUTS: ``nodes``, n per side with the boundary, or ``cells``, n cell centres per side); tol is
+    CG's relative-residual tolerance and max_iter its iteration limit. Parameters a_pos, a_neg, f are per-sample
+    coefficients (fixed by default, any domain allowed); a sample is (a [1, n, n], u [1, n, n]) float32, no time
+    axis.
     """
 
     NAME: ClassVar[str] = "darcy2d"
@@ -174,7 +175,8 @@ class Darcy2D(SteadyProblem):
         "a_neg": Param("coefficient a where the random field is <= 0", "1", positive=True),
         "f": Param("source term (constant over the square)", "1"),
     }
-    IC_KINDS: ClassVar[dict] = {NeumannGRF.kind: NeumannGRF, GaussianBumps.kind: GaussianBumps}  # `--set ic=...` names this vocabulary
+    # `--set ic=...` names this vocabulary
+    IC_KINDS: ClassVar[dict] = {NeumannGRF.kind: NeumannGRF, GaussianBumps.kind: GaussianBumps}
     IC_LABEL: ClassVar[str] = "ic (random field g)"
 
     n: int = 64
