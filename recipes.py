@@ -266,7 +266,7 @@ RECIPES: dict[str, Recipe] = {r.name: r for r in (
                 "pseudo-time t = 2 of an explicit run from a random start (init_multi_2DRand: mean U(0.1, 10)), ours "
                 "the steady state it approaches, solved directly: its transient decays independently of beta, so "
                 "its small-beta files are not steady (its u(t = 2) against its own scheme's steady state, median / "
-                "max over 32 samples: 22% / 544% at beta = 0.01, 2.1% / 54% at 0.1, 0.11% / 4.9% at 1, under 0.51% "
+                "max over 32 samples: 6.5% / 535% at beta = 0.01, 2.1% / 54% at 0.1, 0.11% / 4.9% at 1, under 0.51% "
                 "from 10 on; docs/results/recipes.md). Its face coefficient is the arithmetic mean of the two cells, "
                 "ours the harmonic mean (exact across a layered jump); ours Jacobi-preconditioned CG to relative "
                 "residual 1e-5, float32. On its coefficient fields ours is 0.81% (median; max 4.0%) from its "
