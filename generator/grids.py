@@ -2,8 +2,8 @@
 
 ``bc`` gives each axis's boundary condition, one of ``BOUNDARY_TYPES``; a cache records it (and The Well's
 ``bc_type`` word for it, ``BC_TYPE``), and a model builder pads non-periodic axes accordingly. The periodic
-spectral grid is ``generator.spectral.Grid``; the node grid of the elliptic family (boundary nodes included)
-is ``NodeGrid`` here.
+spectral grid is ``generator.spectral.Grid``; the grids of the elliptic family are ``NodeGrid`` (boundary nodes
+included) and ``GhostCellGrid`` (cell centres, the boundary value held half a cell outside) here.
 """
 
 from __future__ import annotations
@@ -69,3 +69,28 @@ class NodeGrid(GridBase):
 
     def describe(self) -> str:
         return f"{'x'.join(map(str, self.shape))} nodes on [0, {self.length:g}]^{self.ndim} (boundary included)"
+
+
+@dataclass(frozen=True)
+class GhostCellGrid(GridBase):
+    """n x n cell centres x_i = (i + 1/2) h, h = length / n, of (0, length): the boundary value is held at the ghost
+    centres -h/2 and length + h/2, half a cell outside each wall (PDEBench's placement for its 2D Darcy flow: first
+    order in the wall's position). A solver on nodes sees it as n + 2 nodes of spacing h, ghosts included."""
+
+    POINTS: ClassVar[str] = "cell centres of (0, length); the boundary value held at ghost centres half a cell outside"
+
+    @property
+    def spacing(self) -> float:
+        return self.length / self.n
+
+    @property
+    def bc(self) -> tuple[str, ...]:
+        return (Boundary.DIRICHLET.value,) * self.ndim
+
+    def coords(self, axis: int = 0) -> np.ndarray:
+        """Cell-centre positions along ``axis``, float32 [n] (the same on every axis)."""
+        return ((np.arange(self.n) + 0.5) * (self.length / self.n)).astype(np.float32)
+
+    def describe(self) -> str:
+        return (f"{'x'.join(map(str, self.shape))} cell centres of (0, {self.length:g})^{self.ndim} (u = 0 at ghost "
+                "centres half a cell outside)")

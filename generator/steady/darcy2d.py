@@ -1,20 +1,25 @@
-"""Steady Darcy flow on the unit square (the FNO paper's set-up): a random coefficient field in, a pressure out.
+"""Steady Darcy flow on the unit square: a random coefficient field in, a pressure out.
 
--div(a grad u) = f on (0, L)^2, u = 0 on the boundary, with a = a_pos where a Gaussian random field
-g ~ N(0, (-Laplacian + tau^2 I)^(-alpha)) is positive and a_neg elsewhere (defaults: tau = 3, alpha = 2,
-a_pos = 12, a_neg = 3, f = 1, as in Li et al. 2021). Solved by second-order finite differences with
-harmonic-mean face coefficients and Jacobi-preconditioned CG (generator/elliptic.py).
+-div(a grad u) = f on (0, L)^2, u = 0 on the boundary, with a = a_pos where a random field g is positive and
+a_neg elsewhere. The field g (``ic``) is a Gaussian random field g ~ N(0, (-Laplacian + tau^2 I)^(-alpha))
+(``neumann_grf``; defaults tau = 3, alpha = 2, a_pos = 12, a_neg = 3, f = 1: the FNO paper's set-up, Li et al.
+2021) or five Gaussian bumps less their expected mean (``bumps``: PDEBench's, with a_pos = 1, a_neg = 0.1).
+Solved by second-order finite differences with harmonic-mean face coefficients and Jacobi-preconditioned CG
+(generator/elliptic.py).
 
-A sample has no time axis: it is (a [1, n, n], u [1, n, n]) on the n x n nodes x_i = i L / (n - 1) including
-the boundary (FNO's 421 x 421 data has n = 421). Sample identity follows the sampler's key discipline: the
-key of (seed, index) is split into a parameter key and a field key; the set-up and the solve each run as a
-fixed-size compiled program per chunk of samples, and each CG solve stops on its own residual, so a sample
-is bit-identical alone and in any batch.
+A sample has no time axis: it is (a [1, n, n], u [1, n, n]) at ``points``: ``nodes``, the n x n nodes
+x_i = i L / (n - 1) including the boundary, which holds u = 0 (FNO's 421 x 421 data has n = 421), or ``cells``,
+the n x n cell centres (i + 1/2) L / n with u = 0 held at the ghost centres half a cell outside the walls
+(PDEBench's placement; the solve runs on the n + 2 nodes the ghosts add, a copied into them). Sample identity
+follows the sampler's key discipline: the key of (seed, index) is split into a parameter key and a field key;
+the set-up and the solve each run as a fixed-size compiled program per chunk of samples, and each CG solve
+stops on its own residual, so a sample is bit-identical alone and in any batch.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -24,7 +29,7 @@ import numpy as np
 
 from ..chunked import chunked_map
 from ..domains import Fixed
-from ..grids import NodeGrid
+from ..grids import GhostCellGrid, NodeGrid
 from ..problem import Param, resolve_params
 from . import elliptic
 from .base import SteadyProblem
@@ -34,6 +39,9 @@ CHUNK = 8
 # The FNO threshold field's contrast (a_pos / a_neg = 4) needs ~2.6 n CG iterations on an n x n grid;
 # non-convergence within max_iter is reported like a blow-up (BlowUpError, or a redraw).
 MAX_BACKWARD_ERROR = 1e-5  # ~100 float32 epsilons: a returned u solves the discrete system to this backward error
+# Where a sample's values sit: {points: (grid class, ghost layers the node solver adds around the points)}
+LAYOUTS = {"nodes": (NodeGrid, 0), "cells": (GhostCellGrid, 1)}
+BUMP_QUADRATURE = 256  # Gauss-Legendre nodes for the bumps' expected mean (its integrand is smooth in sqrt(w))
 
 
 @dataclass(frozen=True)
@@ -89,13 +97,71 @@ class NeumannGRF:
 
 
 @dataclass(frozen=True)
+class GaussianBumps:
+    """g = s - c with s(x, y) = sum over m = 1..count of exp(-((x - x_m)^2 + (y - y_m)^2) / w_m): centres (x_m, y_m)
+    uniform on [0, length]^2, widths w_m ~ U(0, w_max] (length^2), all independent; c = E[mean of s over the grid's
+    points], the expectation under this measure (``threshold``).
+
+    PDEBench's 2D Darcy coefficient (count 5, w_max = 0.5 (x_R - x_L) on the unit square) is 1 where s exceeds the
+    mean of s over its whole batch of 200 samples and 0.1 elsewhere: that mean estimates c, so thresholding at c
+    keeps its law and makes a sample independent of its batch. Only the sign of g is used.
+    """
+
+    count: int = 5
+    w_max: float = 0.5
+    kind = "bumps"
+    field_count = 1
+
+    def check(self, grid) -> None:
+        if isinstance(self.count, bool) or not isinstance(self.count, int) or self.count < 1:
+            raise ValueError(f"ic.count={self.count!r} not allowed: the number of bumps must be an integer >= 1")
+        if not self.w_max > 0:
+            raise ValueError(f"ic.w_max={self.w_max} not allowed: the widest bump's w must be > 0")
+
+    def mean_profile(self, grid, w: np.ndarray) -> np.ndarray:
+        """M(w) [len(w)]: the mean over the grid's points of one bump's profile along one axis, averaged over its
+        centre: mean_i (1/L) int_0^L exp(-(x_i - c)^2 / w) dc, float64."""
+        x, length = grid.coords().astype(np.float64), grid.length
+        r = np.sqrt(np.asarray(w, np.float64))[:, None]
+        erf = np.vectorize(math.erf)
+        return (np.sqrt(np.pi) * r / (2 * length) * (erf((length - x) / r) + erf(x / r))).mean(-1)
+
+    def threshold(self, grid) -> float:
+        """c = E[mean of s over the grid's points] = count E_w[M(w)^2] (the bump separates into x and y factors and
+        the points are the same on both axes), by Gauss-Legendre quadrature in t = sqrt(w / w_max)."""
+        t, weights = np.polynomial.legendre.leggauss(BUMP_QUADRATURE)
+        t, weights = 0.5 * (t + 1), 0.5 * weights  # on [0, 1]
+        # E_w[F(w)] = (1 / w_max) int_0^w_max F dw = int_0^1 F(w_max t^2) 2 t dt
+        return float(self.count * np.sum(weights * 2 * t * self.mean_profile(grid, self.w_max * t * t) ** 2))
+
+    def sample(self, key: jax.Array, grid, n_fields: int = 1) -> jax.Array:
+        """float32 [n_fields, n, n]: s - c at the grid's points, one independent draw per field."""
+        x = jnp.asarray(grid.coords())
+        c = jnp.float32(self.threshold(grid))
+
+        def one(k):
+            kx, ky, kw = jax.random.split(k, 3)
+            cx = grid.length * jax.random.uniform(kx, (self.count,))
+            cy = grid.length * jax.random.uniform(ky, (self.count,))
+            w = self.w_max * (1.0 - jax.random.uniform(kw, (self.count,)))  # in (0, w_max]: no division by 0
+            d2 = (x[:, None, None] - cx) ** 2 + (x[None, :, None] - cy) ** 2  # [n, n, count]
+            return jnp.sum(jnp.exp(-d2 / w), axis=-1) - c
+
+        return jnp.stack([one(k) for k in jax.random.split(key, n_fields)]).astype(jnp.float32)
+
+    def bound(self, grid) -> float:
+        return 1.0  # only the sign is used: a is a_pos or a_neg
+
+
+@dataclass(frozen=True)
 class Darcy2D(SteadyProblem):
     """-div(a grad u) = f on (0, length)^2, u = 0 on the boundary; a = a_pos where g > 0, a_neg elsewhere.
 
-    ``ic`` is the distribution of the random field g (a NeumannGRF); n counts nodes per side, boundary
-    included; tol is CG's relative-residual tolerance and max_iter its iteration limit. Parameters a_pos,
-    a_neg, f are per-sample coefficients (fixed by default, any domain allowed); a sample is
-    (a [1, n, n], u [1, n, n]) float32, no time axis.
+    ``ic`` is the distribution of the random field g (NeumannGRF or GaussianBumps); ``points`` where the values
+    sit (a key of LAYOUTS: ``nodes``, n per side with the boundary, or ``cells``, n cell centres per side); tol is
+    CG's relative-residual tolerance and max_iter its iteration limit. Parameters a_pos, a_neg, f are per-sample
+    coefficients (fixed by default, any domain allowed); a sample is (a [1, n, n], u [1, n, n]) float32, no time
+    axis.
     """
 
     NAME: ClassVar[str] = "darcy2d"
@@ -109,26 +175,41 @@ class Darcy2D(SteadyProblem):
         "a_neg": Param("coefficient a where the random field is <= 0", "1", positive=True),
         "f": Param("source term (constant over the square)", "1"),
     }
-    IC_KINDS: ClassVar[dict] = {NeumannGRF.kind: NeumannGRF}  # `--set ic=...` names this vocabulary
+    # `--set ic=...` names this vocabulary
+    IC_KINDS: ClassVar[dict] = {NeumannGRF.kind: NeumannGRF, GaussianBumps.kind: GaussianBumps}
     IC_LABEL: ClassVar[str] = "ic (random field g)"
 
     n: int = 64
     length: float = 1.0
     ic: Any = NeumannGRF()
+    points: str = "nodes"
     tol: float = 1e-5
     max_iter: int = 5000
     a_pos: Any = Fixed(12.0)
     a_neg: Any = Fixed(3.0)
     f: Any = Fixed(1.0)
 
+    @property
+    def grid(self):
+        """NodeGrid (points=nodes) or GhostCellGrid (points=cells), n per side."""
+        return LAYOUTS[self.points][0](self.NDIM, self.n, self.length)
+
+    @property
+    def ghosts(self) -> int:
+        """Node layers the solve adds around the points (1 for cells: the ghosts holding u = 0)."""
+        return LAYOUTS[self.points][1]
+
     def check_settings(self) -> None:
+        if self.points not in LAYOUTS:
+            raise ValueError(f"{self.NAME}: points={self.points!r} not allowed; allowed: {', '.join(LAYOUTS)} (nodes: n "
+                             "per side with the boundary; cells: n cell centres, u = 0 half a cell outside)")
         if not 0 < self.tol < 1:
             raise ValueError(f"{self.NAME}: tol={self.tol} not allowed: the relative residual tolerance must be in (0, 1)")
         if not self.max_iter >= 1:
             raise ValueError(f"{self.NAME}: max_iter={self.max_iter} not allowed: must be an integer >= 1")
-        if not isinstance(self.ic, NeumannGRF):
+        if not isinstance(self.ic, tuple(self.IC_KINDS.values())):
             raise ValueError(f"{self.NAME}: ic={self.ic.kind!r} not allowed: the coefficient field comes from "
-                             f"ic={NeumannGRF.kind!r} (set ic.tau, ic.alpha)")
+                             f"ic={' or '.join(map(repr, self.IC_KINDS))}")
 
     def describe_solver(self) -> str:
         return f"PCG to relative residual {self.tol:g} (at most {self.max_iter} iterations)"
@@ -176,11 +257,14 @@ def _compiled_setup(pde: Darcy2D):
 
 @functools.lru_cache(maxsize=32)
 def _compiled_solve(pde: Darcy2D):
-    """jit(vmap) of (a [K, n, n], f [K]) -> (u [K, n, n], converged [K], iterations [K])."""
+    """jit(vmap) of (a [K, n, n], f [K]) -> (u [K, n, n], converged [K], iterations [K]); with ghosts the solve runs
+    on the points plus that many node layers, a copied into them (the face coefficient there is the edge value)."""
+    g = pde.ghosts
 
     def one(a, f):
-        sol = elliptic.solve(a, jnp.full(a.shape, f, a.dtype), pde.grid.spacing, pde.tol, pde.max_iter)
+        a_nodes = jnp.pad(a, g, mode="edge")
+        sol = elliptic.solve(a_nodes, jnp.full(a_nodes.shape, f, a.dtype), pde.grid.spacing, pde.tol, pde.max_iter)
         ok = sol.reached & (sol.backward_error <= MAX_BACKWARD_ERROR) & jnp.all(jnp.isfinite(sol.u))
-        return sol.u, ok, sol.iterations
+        return sol.u[g:sol.u.shape[0] - g, g:sol.u.shape[1] - g], ok, sol.iterations
 
     return jax.jit(jax.vmap(one))
