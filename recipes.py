@@ -103,7 +103,8 @@ _CFD_IC = ("rho, u, p independent draws of PDEBench's init_multi_HD (ic kind 'si
 _CFD_IC_DIFF = ("our IC is exactly periodic (wavenumbers 2 pi k / 2); PDEBench's uses 2 pi k / (x_last - x_first) "
                 "= 2 pi k / (2 - dx), a seam of O(k dx) at the periodic end, and its draws share PRNG keys within a "
                 "field (which modes and the amplitudes; |s| and the sign; the window's ends), ours are independent")
-_CFD_SPLITS = ("PDEBench ships 10000 samples per file (its scripts hold out the last 10%: here 8000 / 1000 / 1000) "
+_CFD_SPLITS = ("PDEBench ships 10000 samples per file (its models test on a file's first 10%, models/fno/utils.py "
+               "FNODatasetSingle: here 8000 / 1000 / 1000) "
                "and its models read 10 frames (config_1D_CFD initial_step 10); ")
 
 
