@@ -441,7 +441,8 @@ class SmokeBox2D(FlowProblem):
 
     def speed_bound(self) -> float:
         # smoke of order 1 (the noise has spatial std 1) rising over the box height: ~ sqrt(b L), as smoke2d's
-        # plume (PhiFlow's run of PDEArena's set peaked at 3.6 m/s against this bound's 4: docs/results/recipes.md)
+        # plume (PDEArena's set, bound 4 m/s: its peaks were 3.7-4.1 m/s in PhiFlow, 4.1-4.3 in ours; docs/results/
+        # recipes.md); the bound sets the step's accuracy and the blow-up check at 100x, nothing is clipped at it
         return math.sqrt(_bounds(self, "buoyancy")[1] * self.length)
 
     def viscosity_range(self) -> tuple[float, float]:
