@@ -240,14 +240,13 @@ def sample_recipe(count: int, substeps: int) -> dict:
     The family refuses these settings (cell Reynolds number 100 > 40: docs/results/recipes.md); here its guard is
     lifted for the measurement, which changes no bit of a sample."""
     import dataclasses
-    from typing import ClassVar
 
     from pdestream.generator.flow.entries import SmokeBox2D
     from pdestream.generator.sampler import sample
 
     @dataclasses.dataclass(frozen=True)
     class Unguarded(SmokeBox2D):
-        MAX_CELL_REYNOLDS: ClassVar[float] = math.inf
+        MAX_CELL_REYNOLDS = 1e9  # a class attribute, not a setting (no annotation)
 
     pde = Unguarded().replace({"n": N, "length": L, "buoyancy": "0.5", "nu": "0.01",
                                "ic": {"kind": "noise", "scale": SCALE, "smoothness": SMOOTHNESS},

@@ -418,6 +418,9 @@ class SmokeBox2D(FlowProblem):
     total is conserved to the advection scheme's accuracy (tests/test_smoke_box.py measures the drift)."""
 
     NAME: ClassVar[str] = "smoke_box2d"
+    # `pdestream generate smoke_box2d --n 4` on 2 shared CPU cores at load 11-12 (2026-11-28: the compile took most
+    # of it; smoke2d's 17 s was at load 3-4), no compilation cache (progress history's record)
+    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 84.1, "unit_s": 0.61}
     EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u + b s e_y, div u = 0, s_t + u.grad s = 0; "
                                "closed box, random smoke")
     FIELDS: ClassVar[tuple] = ("u", "v", "p", "smoke")
