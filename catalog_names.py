@@ -49,6 +49,7 @@ NAMES: dict[str, str] = {
     "cavity2d": "fluids",
     "channel2d": "fluids",
     "smoke2d": "fluids",
+    "smoke_box2d": "fluids",
     "plume3d": "fluids",
     "euler1d": "fluids",
     "compressible_ns1d": "fluids",

@@ -371,12 +371,19 @@ RECIPES: dict[str, Recipe] = {r.name: r for r in (
 
 # Published sets no catalog entry can express today: listed with the reason, never approximated.
 NOT_EXPRESSIBLE: dict[str, str] = {
-    "pdearena_smoke2d": ("github.com/pdearena/pdearena@b633984, pdedatagen/navier_stokes.py and "
-                         "configs/navierstokes2dsmoke.yaml: a closed 32 x 32 box at 128^2 (zero velocity on every "
-                         "side), smoke drawn as |PhiFlow Noise(scale 11, smoothness 6)| with no source, buoyancy "
-                         "0.5, nu 0.01, semi-Lagrangian advection, frames every 1.5 from t = 18 to 102 after 8 "
-                         "skipped steps; smoke2d has a smoke source near the floor, an open top and MacCormack "
-                         "advection, and no random smoke field"),
+    "pdearena_smoke2d": (
+        "github.com/pdearena/pdearena@78a8b03 (the generator unchanged since b633984), pdedatagen/navier_stokes.py, "
+        "pdedatagen/configs/navierstokes2dsmoke.yaml, pdedatagen/scripts/navierstokes_jobs.sh: a closed 32 x 32 box "
+        "at 128^2 (zero velocity on every side), smoke |PhiFlow 2.1 Noise(scale 11, smoothness 6)| with no source, "
+        "buoyancy 0.5, nu 0.01, PhiFlow's semi-Lagrangian step of dt 1.5, the states after steps 9, 13, ..., 61 "
+        "kept (skip_nt 8, sample_rate 4: 14 frames at t = 13.5, ..., 91.5 s, labelled linspace(18, 102) in its "
+        "files), 52 seeds x 100 / 25 / 25 = 5200 / 1300 / 1300 trajectories. smoke_box2d makes this set-up "
+        "(--set n=128 length=32 buoyancy=0.5 nu=0.01 ic.scale=11 advection=semi_lagrangian t_start=13.5 "
+        "t_end=91.5 n_frames=14) but the flow family refuses it: cell Reynolds number u_max h / nu = 4 * 0.25 / "
+        "0.01 = 100 > 40 (measured peaks 3.7-4.3 m/s), and the measurement agrees that 128^2 does not resolve it: "
+        "our 128^2 against 256^2 from the same smoke differs by 11% in velocity at t = 13.5 and 45% at 25.5, "
+        "PhiFlow's dt 1.5 against dt 0.375 by 40% at t = 13.5 (benchmarks/smoke_phiflow_validation.py, "
+        "docs/results/recipes.md); resolving it needs n >= 320 (cell Reynolds number 40 at 4 m/s)"),
     "cfdbench_cavity_bc": (
         _CAVITY_WHY + CFDBENCH + "generation-code/fluent-scheme/create_scheme.py:58-67: lid speed 1, 2, ..., 50 m/s "
         "(50 cases) at density 1, viscosity 1e-5 Pa s (nu = 1e-5 m^2/s). On 64^2 the cell Reynolds number "

@@ -20,7 +20,7 @@ from .external.exponax import exponax_pde_class
 from .finite_volume.diffusion_sorption import DiffusionSorption1D
 from .finite_volume.problem import CompressibleNS1D, Euler1D
 from .finite_volume.problem2d import CompressibleNS2D, Euler2D, ShallowWater2D
-from .flow.entries import Cavity2D, Channel2D, Karman2D, Smoke2D
+from .flow.entries import Cavity2D, Channel2D, Karman2D, Smoke2D, SmokeBox2D
 from .flow.entries3d import Plume3D
 from .spectral.advection import Advection
 from .spectral.advection_diffusion import AdvectionDiffusion
@@ -92,6 +92,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("cavity2d", Cavity2D, {}, "fluids"),
     Entry("channel2d", Channel2D, {}, "fluids"),
     Entry("smoke2d", Smoke2D, {}, "fluids"),
+    Entry("smoke_box2d", SmokeBox2D, {}, "fluids"),
     Entry("plume3d", Plume3D, {}, "fluids"),
     Entry("euler1d", Euler1D, {}, "fluids"),
     Entry("compressible_ns1d", CompressibleNS1D, {}, "fluids"),

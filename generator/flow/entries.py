@@ -21,6 +21,7 @@ from ..domains import Fixed
 from ..problem import Output, Param
 from . import forces
 from .grid import DEFAULT_BODY, Params
+from .noise import SmokeNoise
 from .problem import FlowProblem
 
 MIN_CELLS_ACROSS = 4.0  # an obstacle narrower than this many cells is a staircase of a few cells, not a body
@@ -405,6 +406,50 @@ class Smoke2D(FlowProblem):
             raise ValueError(f"{self.NAME}: rate={self.rate:g} not allowed: must be >= 0")
         _check_disc(self, "source", _bounds(self, "sx"), (self.source_y, self.source_y), _bounds(self, "radius"),
                     inflow=False)
+
+
+@dataclass(frozen=True)
+class SmokeBox2D(FlowProblem):
+    """Random smoke rising in a closed box (PDEArena's smoke set-up, Gupta & Brandstetter 2022; recipe
+    ``pdearena_smoke2d``): walls on all four sides (zero normal velocity), no source, the fluid at rest at t = 0
+    and the smoke a random field, by default |PhiFlow Noise| (``generator.flow.noise.SmokeNoise``: PDEArena's
+    scale 11 and smoothness 6 on its 32 x 32 box are scale 11 / 32 on this unit box). Smoke pushes the fluid up
+    with acceleration buoyancy * smoke and is carried by it (no diffusion): with no source and closed walls its
+    total is conserved to the advection scheme's accuracy (tests/test_smoke_box.py measures the drift)."""
+
+    NAME: ClassVar[str] = "smoke_box2d"
+    # `pdestream generate smoke_box2d --n 4` on 2 shared CPU cores at load 11-12 (2026-11-28: the compile took most
+    # of it; smoke2d's 17 s was at load 3-4), no compilation cache (progress history's record)
+    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 84.1, "unit_s": 0.61}
+    EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u + b s e_y, div u = 0, s_t + u.grad s = 0; "
+                               "closed box, random smoke")
+    FIELDS: ClassVar[tuple] = ("u", "v", "p", "smoke")
+    FIELD_UNITS: ClassVar[dict] = {**FLOW_UNITS, "smoke": "1"}
+    SIDES: ClassVar[tuple] = ("wall", "wall", "wall", "wall")
+    IC_KINDS: ClassVar[Mapping[str, type]] = {SmokeNoise.kind: SmokeNoise}
+    PARAMS: ClassVar[dict] = {
+        "buoyancy": Param("buoyancy b per unit smoke", "m/s^2", positive=True),
+        "nu": Param("kinematic viscosity", "m^2/s", positive=True),
+    }
+
+    n: int = 32
+    aspect: int = 1
+    t_end: float = 3.0
+    ic: Any = SmokeNoise(scale=11 / 32)
+    buoyancy: Any = "uniform(0.5, 1.5)"
+    nu: Any = Fixed(2e-3)
+
+    def flow_params(self, p: Mapping[str, jax.Array], key: jax.Array | None) -> Params:
+        return Params(nu=p["nu"], buoyancy=p["buoyancy"])
+
+    def speed_bound(self) -> float:
+        # smoke of order 1 (the noise has spatial std 1) rising over the box height: ~ sqrt(b L), as smoke2d's
+        # plume (PDEArena's set, bound 4 m/s: its peaks were 3.7-4.1 m/s in PhiFlow, 4.1-4.3 in ours; docs/results/
+        # recipes.md); the bound sets the step's accuracy and the blow-up check at 100x, nothing is clipped at it
+        return math.sqrt(_bounds(self, "buoyancy")[1] * self.length)
+
+    def viscosity_range(self) -> tuple[float, float]:
+        return _bounds(self, "nu")
 
 
 def _check_disc(problem: FlowProblem, what: str, xs, ys, rs, inflow: bool = True) -> None:

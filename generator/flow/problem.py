@@ -48,6 +48,7 @@ CHUNK = 4  # samples per compiled call (a fixed program shape: a sample's bits n
 # Work of one flow step per cell, in the spectral family's point-steps (generator.dispatch): a projection's
 # ~20 multigrid-preconditioned CG iterations cost ~200x a spectral point-step here (2-core CPU, 64x32 cells).
 STEP_WORK_PER_CELL = 256
+IC_KEY = 3  # fold_in(sample key, IC_KEY): a random initial smoke field's key (split(key) gives the other two)
 BLOW_UP_FACTOR = 100.0  # a speed above this many times the largest inflow/lid speed counts as blown up
 
 
@@ -230,6 +231,7 @@ class FlowProblem(ProblemBase):
             raise ValueError(f"{self.NAME}: advection={self.advection!r} not allowed: allowed are "
                              f"{', '.join(sorted(ADVECTION))}")
         self._check_size()
+        self._check_ic_on_grid()
         self.check_flow()
         nu_min = self.viscosity_range()[0]
         cell_re = self.speed_bound() * self.h / nu_min
@@ -460,7 +462,12 @@ def _programs(problem: FlowProblem, vectorise: bool = True):
         k_param, k_geom = jax.random.split(key)
         p = resolve_params(problem, k_param, explicit, given)
         fp = problem.flow_params(p, k_geom)
-        return p, fp, initial_state(geom, fp), operator(geom, fp)
+        state = initial_state(geom, fp)
+        if "smoke" in problem.FIELDS and not isinstance(problem.ic, AtRest):  # a random smoke field: its own key
+            # (fold_in leaves the parameter and geometry keys, and so every at-rest sample's bits, as they were)
+            frame0 = problem.ic.sample(jax.random.fold_in(key, IC_KEY), problem.grid, len(problem.FIELDS))
+            state = state._replace(smoke=frame0[problem.FIELDS.index("smoke")].T)
+        return p, fp, state, operator(geom, fp)
 
     start = jax.jit(lambda keys, ex, gv: jax.lax.map(lambda t: start_one(*t), (keys, ex, gv)))
 
