@@ -180,19 +180,22 @@ def test_paced_it_produces_what_training_consumes_at_the_target(monkeypatch):
 
 def test_a_slow_solver_is_never_held_back_and_training_never_starves(monkeypatch):
     # a trainer that takes no time at all (the clock never moves: no step is measured, R stays at the bound, 2):
-    # the solver is the bottleneck, the loop waits for it again and again
-    s = paced_stream(monkeypatch, "auto", max_reuse=2, gated=False)
+    # the solver is the bottleneck, the loop waits for it again and again. A job submitted while a batch is drawn
+    # runs only once the loop waits for it (gated, released by the wait itself): on a loaded machine a quick job
+    # could otherwise finish before the loop looks, and the loop would never wait
+    s = paced_stream(monkeypatch, "auto", max_reuse=2)
     waits = []
     collect = s.pipeline.collect
 
     def watched(res, block):
         if block:  # the loop waits for solves: something must be in flight (else the stream would end)
             waits.append(len(s.pipeline.pending))
+            s.release.set()
         return collect(res, block)
 
     s.pipeline.collect = watched
     assert train(s, 60, t=0.0) == 60  # every batch came
-    assert s.pacer.target() == 2.0 and waits and all(n > 0 for n in waits)
+    assert s.pacer.target() == 2.0 and waits and all(n > 0 for n in waits), waits
     s2 = paced_stream(monkeypatch, "auto", max_reuse=2)
     s2.res.insert(*_zeros(8), np.arange(8))
     s2.next_index = 1000  # far past what the draws paid for ...
