@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import difflib
 import json
+import shlex
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -483,7 +484,7 @@ def show(name: str, as_json: bool = False) -> str:
                            "settings": dict(r.settings), "ic": r.ic, "grid": r.grid, "time": r.time,
                            "splits": {k: {"seed": s.seed, "n": s.n} for k, s in r.splits.items()},
                            "input_frames": r.input_frames, "differs": r.differs}, indent=2)
-    sets = " ".join(f"--set {k}={_text(v)}" for k, v in r.settings.items())
+    sets = " ".join(_sets(k, v) for k, v in r.settings.items())
     lines = [f"{r.name}: {r.entry} with the settings of {r.paper}",
              f"  source:   {r.where} ({r.url})",
              f"  code:     {r.code}",
@@ -516,10 +517,19 @@ def command(args: list[str], as_json: bool = False) -> str:
                      "`pdestream recipes show NAME`")
 
 
-def _text(value) -> str:
-    """A setting as --set writes it (an ic dict as kind plus ic.FIELD keys)."""
+def _sets(key: str, value) -> str:
+    """A setting as --set arguments a shell takes as written: each KEY=VALUE quoted where it needs it (a domain's
+    spaces and parentheses), numbers at full precision (the same config and bits as the recipe's), an ic dict as
+    its kind plus one --set ic.FIELD per field."""
     if isinstance(value, Mapping):
-        rest = " ".join(f"--set ic.{k}={v:.6g}" if isinstance(v, float) else f"--set ic.{k}={v}"
-                        for k, v in value.items() if k != "kind")
-        return f"{value['kind']}" + (f" {rest}" if rest else "")
-    return f"{value:g}" if isinstance(value, float) else str(value)
+        kind = value["kind"]
+        return " ".join([_sets(key, kind), *(_sets(f"{key}.{k}", v) for k, v in value.items() if k != "kind")])
+    return "--set " + shlex.quote(f"{key}={_number(value)}")
+
+
+def _number(value) -> str:
+    """A value as --set reads it back exactly: a float by its shortest round-trip form (7.0 as 7), else str."""
+    if isinstance(value, float):
+        text = repr(value)
+        return text[:-2] if text.endswith(".0") else text
+    return str(value)

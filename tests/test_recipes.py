@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import shlex
 
 import jax
 import numpy as np
@@ -39,6 +40,17 @@ def test_show_prints_source_settings_splits_and_differences(capsys):
         assert words in out, words
     shown = json.loads(recipes.show("pdebench_advection1d", as_json=True))
     assert shown["settings"]["c"] == "choice(0.1, 0.4, 1.0, 4.0)" and shown["splits"]["valid"] == {"seed": 1, "n": 500}
+
+
+@pytest.mark.parametrize("name", list(recipes.RECIPES))
+def test_the_shown_settings_copied_into_a_shell_make_the_recipes_own_problem(name):
+    """The settings line of `recipes show`, as a shell splits it, gives the entry the recipe's exact config (a rounded
+    number, e.g. ic.sigma 18.5203 for 18.520259..., or an unquoted choice(...) would not)."""
+    line = next(x for x in recipes.show(name).splitlines() if x.startswith("  settings:"))
+    words = shlex.split(line.removeprefix("  settings:"))
+    assert words[::2] == ["--set"] * (len(words) // 2), words
+    made = g.get_pde(recipes.RECIPES[name].entry, dict(w.split("=", 1) for w in words[1::2]))
+    assert made == dataclasses.replace(g.get_pde(name), recipe=made.recipe)
 
 
 @pytest.mark.parametrize("argv, words", [
