@@ -384,6 +384,13 @@ def _blown_up(pde, finite, frames: int) -> None:
             f"frame(s) with step {pde.step_dt:.4g}: those states or parameters are outside what the step resolves")
 
 
+def refuse_refined(pde) -> None:
+    """One-line ValueError if ``pde`` has ``refine`` above 1 (the interactive modes step states on their own grid)."""
+    from pdestream.generator.spectral import interactive
+
+    interactive.refuse_refined(pde)
+
+
 def solver_advance(pde, u, params, frames: int = 1):
     """torch u [B, C, *space], params [B, P] (PARAMS order) -> u advanced ``frames`` frames, torch, on u's device.
 

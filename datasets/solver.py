@@ -32,6 +32,7 @@ class SolverOracle:
         if not getattr(self.pde, "ADVANCES", True):
             raise ValueError(f"{self.pde.NAME}: its solver does not advance a given state (an external solver makes "
                              "whole trajectories); allowed: --mode one-step, or a catalog / spectral PDE")
+        _bridge.refuse_refined(self.pde)  # now, not at the first state it is given
         self.param_names: list[str] = list(self.pde.PARAMS)
 
     def __call__(self, u: torch.Tensor, params: torch.Tensor | None = None, frames: int = 1) -> torch.Tensor:

@@ -283,7 +283,7 @@ class Oracle:
         try:
             out[ok] = self.solver(u[ok], params[ok], frames=1)
         except ValueError:  # BlowUpError is one: find the states it came from
-            for i in torch.flatnonzero(ok).tolist():
+            for i in torch.nonzero(ok).flatten().tolist():
                 try:
                     out[i] = self.solver(u[i : i + 1], params[i : i + 1], frames=1)[0]
                 except ValueError:
@@ -434,6 +434,10 @@ class SolverInTheLoop:
         line) when the sizes do not fit."""
         self.seed = seed
         n = pde.n
+        if getattr(pde, "refine", 1) > 1:  # the coarse solver would carry it: its grid n = coarse_n * refine
+            raise ValueError(f"solver-in-the-loop: refine={pde.refine} not allowed: the coarse solver steps the fine "
+                             f"states restricted to its own grid; allowed: refine=1 (--set n={n * pde.refine} "
+                             "--set refine=1 trains on the fine grid itself)")
         if isinstance(self.coarse_n, bool) or not isinstance(self.coarse_n, int) or not (
                 0 < self.coarse_n < n and n % self.coarse_n == 0):
             raise ValueError(f"solver-in-the-loop: coarse n={self.coarse_n!r} does not fit the fine grid n={n}; "

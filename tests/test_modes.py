@@ -144,6 +144,25 @@ def test_oracle_drops_states_the_solver_cannot_advance():
     assert torch.isnan(out[1]).all() and torch.isfinite(out[[0, 2, 3]]).all()
 
 
+def test_oracle_keeps_the_states_a_refusing_solver_takes_one_by_one():
+    """A batch the solver refuses (a ValueError, e.g. BlowUpError) is solved state by state: the refused state's
+    row is NaN, the others the solver's answers."""
+    batch = batch_of(PDE, 1, size=4)
+    solver = datasets.SolverOracle(PDE)
+
+    def refusing(u, params, frames=1):
+        if bool((u.abs() > 1e3).any()):
+            raise ValueError("blew up")
+        return solver(u, params, frames=frames)
+
+    u = batch["x"][:, 0].clone()
+    u[2] = 1e4
+    out = Oracle(1, solver=refusing).answer(u, batch["params"])
+    assert torch.isnan(out[2]).all()
+    keep = [0, 1, 3]
+    assert torch.equal(out[keep], solver(u[keep], batch["params"][keep]))
+
+
 def test_solver_in_the_loop_differentiates_through_the_coarse_solver():
     batch = batch_of(FINE, 2)
     norm, model = norm_of(batch), net()
@@ -175,6 +194,9 @@ def test_bad_settings_are_one_line():
          "coarse n=24 does not fit the fine grid n=64"),
         (lambda: training_view(Pushforward(2), datasets.Operator()), "needs the next_step view, not 'operator'"),
         (lambda: training_view(SolverInTheLoop(2), datasets.NextStep(2, 1)), "--k-in=2 not allowed"),
+        (lambda: bound({"name": "oracle", "unroll": 2}, PDE.replace(refine=2)), "refine=2 not allowed here"),
+        (lambda: bound({"name": "solver-in-the-loop", "unroll": 2, "coarse_n": 16}, PDE.replace(refine=2)),
+         "solver-in-the-loop: refine=2 not allowed"),
         (lambda: check_fits(Pushforward(11), datasets.NextStep(1, 11), PDE), "allowed: --unroll <= 10"),
     ]
     for call, message in cases:
@@ -219,6 +241,8 @@ def test_modes_ask_the_view_not_its_class():
     (["--mode", "pushforward", "--view", "operator"], "needs the next_step view"),
     (["--mode", "pushforward", "--unroll", "11"], "allowed: --unroll <= 10"),
     (["--mode", "solver-in-the-loop", "--coarse-n", "12"], "coarse n=12 does not fit the fine grid n=32"),
+    (["--mode", "oracle", "--set", "refine=2"], "burgers1d: refine=2 not allowed here"),
+    (["--mode", "solver-in-the-loop", "--coarse-n", "16", "--set", "refine=2"], "solver-in-the-loop: refine=2 not"),
 ])
 def test_cli_refuses_bad_modes_in_one_line(tmp_path, capsys, argv, message):
     out = tmp_path / "run"

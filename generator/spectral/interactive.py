@@ -141,16 +141,23 @@ def _apply(vjp, g):
     return vjp(g)
 
 
+def refuse_refined(pde) -> None:
+    """One-line ValueError for a problem with ``refine`` above 1: its samples come from a finer grid than the
+    states a caller holds, which these functions step on their own grid (the oracle and solver-in-the-loop modes
+    ask before a run starts)."""
+    if getattr(pde, "refine", 1) > 1:
+        raise ValueError(f"{pde.NAME}: refine={pde.refine} not allowed here: the interactive modes step the states "
+                         f"they are given on their own grid, and this problem's samples come from a grid {pde.refine} "
+                         f"times finer; allowed: refine=1 (n={pde.n * pde.refine} steps the fine grid itself)")
+
+
 def _check(pde: PDE, u: jax.Array, params: Mapping[str, jax.Array], frames: int) -> None:
     grid, n_fields = pde.grid, len(pde.FIELDS)
     if getattr(pde, "STEADY", False):
         raise ValueError(f"{pde.NAME}: a steady PDE has no frames to advance; allowed: time-dependent PDEs")
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
         raise ValueError(f"{pde.NAME}: frames={frames!r} not allowed: need an integer >= 1")
-    if getattr(pde, "refine", 1) > 1:  # its samples come from a finer grid than the states a caller holds
-        raise ValueError(f"{pde.NAME}: refine={pde.refine} not allowed here: the interactive modes step the states "
-                         f"they are given on their own grid, and this problem's samples come from a grid {pde.refine} "
-                         f"times finer; allowed: refine=1 (n={pde.n * pde.refine} steps the fine grid itself)")
+    refuse_refined(pde)
     if u.ndim != 2 + grid.ndim or u.shape[1:] != (n_fields, *grid.shape):
         raise ValueError(f"{pde.NAME}: state has shape {tuple(u.shape)}; expected [B, {n_fields}, "
                          f"{', '.join(map(str, grid.shape))}]")
