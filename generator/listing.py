@@ -44,7 +44,12 @@ def listing(name: str | None = None, as_json: bool = False) -> str:
 def entry_settings(pde, as_json: bool = False) -> str:
     """Every setting of one entry: its value (the default), and for parameters their domain, meaning and units."""
     config = pde.config()
-    rows = {key: {"default": value} for key, value in config.items() if key not in ("pde", "ic", "origin")}
+    rows = {}
+    # in the class's order; a setting its config leaves out at its default (refine, t_start, points: so the hashes
+    # of caches written before it existed hold) is still one to list
+    for key in (*getattr(pde, "config_fields", list)(), *config):
+        if key not in rows and key not in ("pde", "ic", "origin"):
+            rows[key] = {"default": config[key] if key in config else getattr(pde, key)}
     for name, spec in pde.PARAMS.items():
         rows[name].update(meaning=spec.description, units=spec.units)  # the default is its domain
     rows.update({f"ic.{k}": {"default": v} for k, v in config["ic"].items() if k != "kind"})

@@ -3,6 +3,7 @@ paper's Navier-Stokes sets: 256^2 solved, 64^2 kept; recipes fno_ns2d_nu1e-4 / _
 
 from __future__ import annotations
 
+import json
 import math
 
 import jax.numpy as jnp
@@ -75,6 +76,20 @@ def test_bad_refine_is_one_line_naming_it(name, settings, words):
     with pytest.raises(ValueError) as err:
         generator.get_pde(name).replace(**settings)
     assert words in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("name, shown", [("ns2d", {"refine": 1, "t_start": 0.0}), ("darcy2d", {"points": "nodes"}),
+                                          ("fno_ns2d_nu1e-4", {"refine": 4})])
+def test_the_list_shows_the_settings_a_config_leaves_out_at_their_defaults(capsys, name, shown):
+    """refine, t_start and points stay out of a config at their defaults (hashes unchanged), not out of the list."""
+    from pdestream import cli
+
+    assert cli.main(["list", name]) == 0
+    out = capsys.readouterr().out
+    assert cli.main(["list", name, "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["settings"]
+    for key, value in shown.items():
+        assert f"\n  {key} = {value}\n" in out and rows[key]["default"] == value, (key, out)
 
 
 def test_the_interactive_modes_refuse_a_refined_problem():
