@@ -19,7 +19,7 @@ class GenerateConfig:
     n: int | None = None  # samples; None: the split's size (with ``split``)
     out: str = ""
     settings: dict = field(default_factory=dict)
-    seed: int = 0
+    seed: int | None = None  # None: 0, or with ``split`` the split's seed (an explicit other seed is refused)
     resume: bool = False
     overwrite: bool = False
     block: int | None = None  # samples solved and written per block (None: ~32 MiB)
@@ -38,11 +38,11 @@ def resolve_split(cfg: GenerateConfig) -> tuple[int, int]:
     if cfg.split is None:
         if cfg.n is None:
             raise ValueError("give --n N (the number of samples), or --split train|valid|test with a recipe")
-        return cfg.seed, cfg.n
+        return (0 if cfg.seed is None else cfg.seed), cfg.n
     from pdestream.recipes import split_of
 
     split = split_of(cfg.pde, cfg.split)
-    if cfg.seed not in (0, split.seed):
+    if cfg.seed not in (None, split.seed):  # --seed 0 too: the train split's seed given with another split
         raise ValueError(f"--split {cfg.split} fixes the seed ({split.seed}); drop --seed {cfg.seed}")
     return split.seed, split.n if cfg.n is None else cfg.n
 

@@ -60,6 +60,8 @@ def test_the_shown_settings_copied_into_a_shell_make_the_recipes_own_problem(nam
     (("generate", "fno_burgrs1d", "--n", "1", "--out", "x.h5"), ["unknown PDE 'fno_burgrs1d'", "fno_burgers1d"]),
     (("generate", "burgers1d", "--split", "train", "--out", "x.h5"), ["--split train needs a recipe", "'burgers1d'"]),
     (("generate", "fno_burgers1d", "--split", "test", "--seed", "5", "--out", "x.h5"), ["fixes the seed (2)"]),
+    (("generate", "fno_burgers1d", "--split", "valid", "--seed", "0", "--out", "x.h5"), ["fixes the seed (1)",
+                                                                                          "drop --seed 0"]),
 ])
 def test_bad_recipe_input_is_one_line(capsys, tmp_path, monkeypatch, argv, words):
     monkeypatch.chdir(tmp_path)
