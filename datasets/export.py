@@ -27,8 +27,9 @@ time series.
 
 PDEBench (``--to pdebench``): one HDF5 file in the layout of PDEBench's own loaders (``FNODatasetSingle`` /
 ``UNetDatasetSingle``): a single-field cache's field is ``tensor`` [N, T, x(, y, z)] (x first) as in the 1D and
-2D scalar files; a cache of several fields has one dataset per field, named as in the cache ([N, T, x(, y)],
-the CFD files' layout, whose loader however reads the names density/Vx/Vy/pressure), plus ``x-coordinate``
+2D scalar files; a cache of several fields has one dataset per field [N, T, x(, y)] (the CFD files' layout), named
+as in the cache, except a compressible flow's primitive fields (rho, u(, v, w), p: euler1d / 2d, compressible_ns1d
+/ 2d), named density, Vx(, Vy, Vz), pressure as PDEBench's CFD files and loaders name them, plus ``x-coordinate``
 (, ``y-coordinate``, ``z-coordinate``) and ``t-coordinate`` (the T frame times). A steady cache is laid out as
 PDEBench's Darcy file: its input fields as their own datasets [N, x(, y)], its solution as ``tensor``
 [N, 1, x(, y)] (no ``t-coordinate``). Each parameter is a dataset [N] named after it.
@@ -191,6 +192,19 @@ class TheWell:
 
 
 # --- PDEBench --------------------------------------------------------------------------------------
+CFD_NAMES = {"rho": "density", "u": "Vx", "v": "Vy", "w": "Vz", "p": "pressure"}  # PDEBench's compressible files
+
+
+def _pdebench_keys(fields) -> dict[str, str]:
+    """Each field's dataset in a PDEBench file: ``tensor`` for a single field, PDEBench's CFD names for a
+    compressible flow's primitive fields (its loader reads density, Vx, ..., pressure), else the field's name."""
+    if len(fields) == 1:
+        return {fields[0]: "tensor"}
+    if {"rho", "u", "p"} <= set(fields) <= set(CFD_NAMES):
+        return {f: CFD_NAMES[f] for f in fields}
+    return {f: f for f in fields}
+
+
 class PDEBench:
     """PDEBench's HDF5 layout (see the module docstring)."""
 
@@ -212,8 +226,7 @@ class PDEBench:
                 _copy_field(ds, name, v, len(space))
                 v.attrs.update(_attrs(ds[name].attrs))
             frames = ds.sizes["time"] if timed else 1
-            for name in fields:
-                key = "tensor" if len(fields) == 1 else name
+            for name, key in _pdebench_keys(fields).items():
                 v = f.create_dataset(key, shape=(n, frames, *grid), dtype="float32")
                 _copy_field(ds, name, v, len(space), time_axis=not timed)
                 v.attrs.update({**_attrs(ds[name].attrs), "pdestream_name": name})
@@ -231,8 +244,8 @@ class PDEBench:
         names = str(plain(f.attrs["pdestream_fields"])).split()
         inputs = str(plain(f.attrs.get("pdestream_inputs", ""))).split()
         fields = {name: (f[name][()], dict(f[name].attrs)) for name in inputs}
-        for name in names:
-            a = f["tensor" if len(names) == 1 else name]
+        for name, key in _pdebench_keys(names).items():
+            a = f[key if key in f else name]  # an export written before the CFD names: the field's own
             fields[name] = (a[()] if timed else a[:, 0], dict(a.attrs))
         params = {p: (f[p][()], dict(f[p].attrs)) for p in str(plain(f.attrs["pdestream_params"])).split()}
         return {"space": space, "coords": coords, "fields": fields, "params": params, "drop": (),

@@ -24,6 +24,7 @@ ENTRIES = {  # tiny caches: a 1D entry, a 2D entry of two fields, a steady 2D en
     "burgers1d": ["--n", "3", "--set", "n=32", "--set", "n_frames=4"],
     "wave2d": ["--n", "2", "--set", "n=16", "--set", "n_frames=3"],
     "darcy2d": ["--n", "2", "--set", "n=16"],
+    "euler1d": ["--n", "2", "--set", "n=16", "--set", "n_frames=3", "--set", "t_end=0.02"],  # PDEBench's CFD names
 }
 
 
@@ -106,10 +107,12 @@ def test_pdebench_layout_read_as_pdebenchs_loaders_do(caches, tmp_path, name):
             np.testing.assert_array_equal(f["t-coordinate"][...], coords["time"])
             if len(fields) == 1:  # one field: "tensor" [N, T, x(, y)]
                 np.testing.assert_array_equal(np.array(f["tensor"], dtype=np.float32), fields["u"])
-            else:  # several: one dataset per field, as PDEBench's CFD files
+            else:  # several: one dataset per field, as PDEBench's CFD files (a compressible flow: their names)
                 assert "tensor" not in f
+                names = {"rho": "density", "u": "Vx", "p": "pressure"} if name == "euler1d" else {k: k for k in fields}
+                assert set(names) == set(fields)
                 for k, v in fields.items():
-                    np.testing.assert_array_equal(f[k][...], v)
+                    np.testing.assert_array_equal(f[names[k]][...], v)
         for p, v in params.items():
             np.testing.assert_array_equal(f[p][...], v)
 
