@@ -31,8 +31,9 @@ PDEBench (``--to pdebench``): one HDF5 file in the layout of PDEBench's own load
 as in the cache, except a compressible flow's primitive fields (rho, u(, v, w), p: euler1d / 2d, compressible_ns1d
 / 2d), named density, Vx(, Vy, Vz), pressure as PDEBench's CFD files and loaders name them, plus ``x-coordinate``
 (, ``y-coordinate``, ``z-coordinate``) and ``t-coordinate`` (the T frame times). A steady cache is laid out as
-PDEBench's Darcy file: its input fields as their own datasets [N, x(, y)], its solution as ``tensor``
-[N, 1, x(, y)] (no ``t-coordinate``). Each parameter is a dataset [N] named after it.
+PDEBench's Darcy file: its input field as ``nu`` [N, x(, y)] (where its loader reads Darcy's coefficient; several
+inputs: each under its own name), its solution as ``tensor`` [N, 1, x(, y)] (no ``t-coordinate``). Each parameter
+is a dataset [N] named after it.
 
 Writes are atomic (``OUT.tmp-PID``, then ``os.replace``); an existing OUT is refused unless ``overwrite`` is
 given and OUT is an export pdestream wrote (anything else is never replaced).
@@ -195,6 +196,14 @@ class TheWell:
 CFD_NAMES = {"rho": "density", "u": "Vx", "v": "Vy", "w": "Vz", "p": "pressure"}  # PDEBench's compressible files
 
 
+def _pdebench_input_keys(inputs, names) -> dict[str, str]:
+    """Each input field's dataset: a steady cache's single input is ``nu``, as in PDEBench's Darcy file (its loader
+    reads the coefficient there), unless a field or parameter is called so; else the input's own name."""
+    if len(inputs) == 1 and "nu" not in names:
+        return {inputs[0]: "nu"}
+    return {f: f for f in inputs}
+
+
 def _pdebench_keys(fields) -> dict[str, str]:
     """Each field's dataset in a PDEBench file: ``tensor`` for a single field, PDEBench's CFD names for a
     compressible flow's primitive fields (its loader reads density, Vx, ..., pressure), else the field's name."""
@@ -221,10 +230,10 @@ class PDEBench:
             if timed:
                 f.create_dataset("t-coordinate", data=ds["time"].values).attrs.update(_attrs(ds["time"].attrs))
             grid = tuple(ds.sizes[d] for d in space)
-            for name in inputs:  # a steady PDE's inputs (Darcy's "nu"): [N, *space]
-                v = f.create_dataset(name, shape=(n, *grid), dtype="float32")
+            for name, key in _pdebench_input_keys(inputs, (*fields, *params)).items():  # a steady PDE's: [N, *space]
+                v = f.create_dataset(key, shape=(n, *grid), dtype="float32")
                 _copy_field(ds, name, v, len(space))
-                v.attrs.update(_attrs(ds[name].attrs))
+                v.attrs.update({**_attrs(ds[name].attrs), "pdestream_name": name})
             frames = ds.sizes["time"] if timed else 1
             for name, key in _pdebench_keys(fields).items():
                 v = f.create_dataset(key, shape=(n, frames, *grid), dtype="float32")
@@ -243,11 +252,14 @@ class PDEBench:
         coords["time"] = (f["t-coordinate"][()], dict(f["t-coordinate"].attrs)) if timed else None
         names = str(plain(f.attrs["pdestream_fields"])).split()
         inputs = str(plain(f.attrs.get("pdestream_inputs", ""))).split()
-        fields = {name: (f[name][()], dict(f[name].attrs)) for name in inputs}
+        params = {p: (f[p][()], dict(f[p].attrs)) for p in str(plain(f.attrs["pdestream_params"])).split()}
+        fields = {}
+        for name, key in _pdebench_input_keys(inputs, (*names, *params)).items():
+            a = f[key if key in f else name]  # an export written before Darcy's name: the input's own
+            fields[name] = (a[()], dict(a.attrs))
         for name, key in _pdebench_keys(names).items():
             a = f[key if key in f else name]  # an export written before the CFD names: the field's own
             fields[name] = (a[()] if timed else a[:, 0], dict(a.attrs))
-        params = {p: (f[p][()], dict(f[p].attrs)) for p in str(plain(f.attrs["pdestream_params"])).split()}
         return {"space": space, "coords": coords, "fields": fields, "params": params, "drop": (),
                 "drop_var": ("pdestream_name",)}
 

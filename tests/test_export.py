@@ -99,9 +99,9 @@ def test_pdebench_layout_read_as_pdebenchs_loaders_do(caches, tmp_path, name):
         np.testing.assert_array_equal(f["x-coordinate"][...], coords["x"])
         if "y" in coords:
             np.testing.assert_array_equal(f["y-coordinate"][...], coords["y"])
-        if name == "darcy2d":  # Darcy's layout: the input as its own dataset, the solution as tensor [N, 1, x, y]
-            assert "t-coordinate" not in f
-            np.testing.assert_array_equal(f["a"][...], fields["a"])
+        if name == "darcy2d":  # Darcy's layout: the input as nu (where its loader reads it), the solution as tensor
+            assert "t-coordinate" not in f and "a" not in f
+            np.testing.assert_array_equal(f["nu"][...], fields["a"])
             np.testing.assert_array_equal(f["tensor"][...], fields["u"][:, None])
         else:
             np.testing.assert_array_equal(f["t-coordinate"][...], coords["time"])
