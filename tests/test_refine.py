@@ -31,6 +31,14 @@ def test_interpolation_keeps_the_points_and_is_exact_for_band_limited_fields(ndi
     np.testing.assert_allclose(got, exact, atol=2e-5)
 
 
+def test_interpolation_by_one_is_the_field_itself_and_a_bad_factor_is_one_line():
+    u = jnp.asarray(np.random.default_rng(0).standard_normal((2, 8, 8)), jnp.float32)
+    assert np.array_equal(np.asarray(Grid(2, 8, 1.0).interpolate(u, 1)), np.asarray(u))
+    for bad in (0, -2, 1.5, True):
+        with pytest.raises(ValueError, match=f"factor={bad!r} not allowed: need an integer >= 1"):
+            Grid(2, 8, 1.0).interpolate(u, bad)
+
+
 def test_a_refined_sample_is_the_fine_solve_with_its_points_kept_alone_and_in_a_batch():
     pde = generator.get_pde("fno_ns2d_nu1e-3").replace(n=16, refine=4, t_end=2.0, n_frames=3)
     fine = generator.get_pde("fno_ns2d_nu1e-3").replace(n=64, t_end=2.0, n_frames=3)

@@ -89,7 +89,11 @@ class Grid(GridBase):
     def interpolate(self, u: jax.Array, factor: int) -> jax.Array:
         """Fields u [..., *shape] on this grid -> their trigonometric interpolant on the grid of n * factor points
         per axis, [..., *(n * factor,) * ndim] (same dtype): every mode kept, the Nyquist mode split evenly between
-        +n/2 and -n/2, so keeping every factor-th point gives u back (to rounding)."""
+        +n/2 and -n/2, so keeping every factor-th point gives u back (to rounding). factor 1: u itself."""
+        if isinstance(factor, bool) or not isinstance(factor, int) or factor < 1:
+            raise ValueError(f"interpolate: factor={factor!r} not allowed: need an integer >= 1")
+        if factor == 1:  # no finer grid: the Nyquist split below would make n + 1 modes
+            return u
         n, m, axes = self.n, self.n * factor, tuple(range(-self.ndim, 0))
         v = jnp.fft.rfftn(u, axes=axes)
         half = n // 2
