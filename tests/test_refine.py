@@ -65,6 +65,20 @@ def test_a_refined_solve_interpolates_the_callers_state_onto_the_solve_grid():
         np.testing.assert_allclose(np.asarray(traj.u)[0, i, 0], exact, atol=3e-6)
 
 
+def test_a_refined_cache_holds_the_kept_grid_and_says_it_was_solved_finer(tmp_path, capsys):
+    from pdestream import cli, datasets
+
+    path = tmp_path / "r.h5"
+    assert cli.main(["generate", "diffusion1d", "--n", "2", "--set", "n=16", "--set", "refine=4", "--set", "n_frames=2",
+                     "--set", "length=2", "--out", str(path)]) == 0
+    with datasets.open_cache(path) as ds:  # the kept points' coordinates: spacing length / n, not length / (4 n)
+        np.testing.assert_allclose(ds["x"].values, np.arange(16) * 2 / 16)
+        assert ds["u"].sizes["x"] == 16 and json.loads(ds.attrs["pdestream_config"])["refine"] == 4
+    capsys.readouterr()
+    assert cli.main(["inspect", str(path)]) == 0
+    assert "x=16 (solved on 4 times as many points per axis, 1 point in 4 kept)" in capsys.readouterr().out
+
+
 def test_refine_enters_the_config_only_above_one():
     plain = generator.get_pde("ns2d")
     assert "refine" not in plain.config()
