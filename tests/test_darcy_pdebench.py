@@ -176,6 +176,7 @@ def test_the_recipes_show_their_source_settings_and_differences(capsys):
 
 @pytest.mark.parametrize("setting, message", [
     ({"ic.count": "0"}, "ic.count=0 not allowed: the number of bumps must be an integer >= 1"),
+    ({"ic.count": "10000000"}, "ic.count=10000000 not allowed on 16384 points: .* allowed: 1 <= count <= 2048"),
     ({"ic.w_max": "0"}, "ic.w_max=0.0 not allowed: the widest bump's w must be > 0"),
     ({"points": "faces"}, "points='faces' not allowed; allowed: nodes, cells"),
     ({"ic": "sines"}, "unknown ic kind 'sines'; allowed: neumann_grf, bumps"),

@@ -30,7 +30,7 @@ import numpy as np
 from ..chunked import chunked_map
 from ..domains import Fixed
 from ..grids import GhostCellGrid, NodeGrid
-from ..problem import Param, resolve_params
+from ..problem import MAX_TRAJECTORY_BYTES, Param, resolve_params
 from . import elliptic
 from .base import SteadyProblem
 
@@ -115,6 +115,11 @@ class GaussianBumps:
     def check(self, grid) -> None:
         if isinstance(self.count, bool) or not isinstance(self.count, int) or self.count < 1:
             raise ValueError(f"ic.count={self.count!r} not allowed: the number of bumps must be an integer >= 1")
+        points = len(grid.coords()) ** 2
+        most = max(1, MAX_TRAJECTORY_BYTES // (4 * CHUNK * points))  # ``sample`` holds [n, n, count] per sample
+        if self.count > most:
+            raise ValueError(f"ic.count={self.count} not allowed on {points} points: a chunk's bump distances would "
+                             f"take {4 * CHUNK * points * self.count / 2**30:.3g} GiB; allowed: 1 <= count <= {most}")
         if not self.w_max > 0:
             raise ValueError(f"ic.w_max={self.w_max} not allowed: the widest bump's w must be > 0")
 
