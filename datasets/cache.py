@@ -47,8 +47,10 @@ class WriteSummary:
 
 
 def default_block(pde, n_samples: int) -> int:
-    """Samples per block: ~TARGET_BLOCK_BYTES of float32 data (4 B x C x T x n**NDIM each), 1..256."""
-    per_sample = 4 * len((*pde.INPUTS, *pde.FIELDS)) * pde.n_frames * math.prod(pde.grid.shape)  # steady: n_frames is 1
+    """Samples per block: ~TARGET_BLOCK_BYTES of float32 data (4 B x C x T x n**NDIM each, n of the grid solved on:
+    a refined spectral entry holds its block's trajectories there before keeping every refine-th point), 1..256."""
+    solved = getattr(pde, "solved", pde)  # ``refine``: n * refine points per axis
+    per_sample = 4 * len((*pde.INPUTS, *pde.FIELDS)) * pde.n_frames * math.prod(solved.grid.shape)  # steady: 1 frame
     return max(1, min(n_samples, 256, TARGET_BLOCK_BYTES // per_sample))
 
 

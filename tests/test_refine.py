@@ -79,6 +79,15 @@ def test_a_refined_cache_holds_the_kept_grid_and_says_it_was_solved_finer(tmp_pa
     assert "x=16 (solved on 4 times as many points per axis, 1 point in 4 kept)" in capsys.readouterr().out
 
 
+def test_a_refined_block_holds_about_32_mib_of_the_solve_grids_trajectories():
+    from pdestream.datasets import cache
+
+    pde = generator.get_pde("ns2d", n=64, refine=16, n_frames=31)
+    fine = 4 * pde.n_frames * (64 * 16) ** 2  # one trajectory on the 1024^2 grid solved on: 130 MB
+    assert cache.default_block(pde, 1000) * fine <= max(fine, cache.TARGET_BLOCK_BYTES)
+    assert cache.default_block(pde.replace(refine=1), 1000) == 2**25 // (4 * 31 * 64**2)  # unrefined: as before (66)
+
+
 def test_refine_enters_the_config_only_above_one():
     plain = generator.get_pde("ns2d")
     assert "refine" not in plain.config()
