@@ -48,7 +48,7 @@ def entry_settings(pde, as_json: bool = False) -> str:
     # in the class's order; a setting its config leaves out at its default (refine, t_start, points: so the hashes
     # of caches written before it existed hold) is still one to list
     for key in (*getattr(pde, "config_fields", list)(), *config):
-        if key not in rows and key not in ("pde", "ic", "origin"):
+        if key not in rows and key not in ("pde", "ic", "origin", "recipe"):  # a recipe is named, not --set
             rows[key] = {"default": config[key] if key in config else getattr(pde, key)}
     for name, spec in pde.PARAMS.items():
         rows[name].update(meaning=spec.description, units=spec.units)  # the default is its domain
@@ -61,9 +61,12 @@ def entry_settings(pde, as_json: bool = False) -> str:
         rows.setdefault("bc", {"default": PERIODIC.value})["allowed"] = list(offered)
     if as_json:
         where = {"origin": config["origin"]} if "origin" in config else {}  # a user's PDE: where its code is
-        return json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, **where, "fields": fields, "settings": rows},
-                          indent=2)
+        recipe = {"recipe": config["recipe"]} if config.get("recipe") else {}
+        return json.dumps({"pde": pde.NAME, "equation": pde.EQUATION, **recipe, **where, "fields": fields,
+                           "settings": rows}, indent=2)
     out = [pde.describe()]
+    if config.get("recipe"):  # the entry with a published set's settings (the defaults below)
+        out.append(f"  recipe: {config['recipe']} (pdestream recipes show {config['recipe']}: its source and splits)")
     if "origin" in config:  # a user's PDE: where its code is (its identity in caches and runs)
         out.append("  from {module}:{class} version {version!r} source sha256 {source_sha256}".format(**config["origin"]))
     out.append("\nfields (units): " + ", ".join(f"{f} [{u}]" for f, u in fields.items()))

@@ -53,6 +53,15 @@ def test_the_shown_settings_copied_into_a_shell_make_the_recipes_own_problem(nam
     assert made == dataclasses.replace(g.get_pde(name), recipe=made.recipe)
 
 
+def test_the_list_of_a_recipe_names_it_and_offers_only_settings_set_takes(capsys):
+    code, out, _ = run_cli(capsys, "list", "fno_ns2d_nu1e-4")
+    assert code == 0 and "  recipe: fno_ns2d_nu1e-4 (pdestream recipes show fno_ns2d_nu1e-4" in out
+    assert "  refine = 4\n" in out and "recipe = " not in out  # --set recipe=... is refused: not a setting
+    code, out, _ = run_cli(capsys, "list", "fno_ns2d_nu1e-4", "--json")
+    shown = json.loads(out)
+    assert shown["recipe"] == "fno_ns2d_nu1e-4" and "recipe" not in shown["settings"]
+
+
 @pytest.mark.parametrize("argv, words", [
     (("recipes", "show", "fno_burger"), ["'fno_burger'", "did you mean fno_burgers1d", "allowed: fno_burgers1d"]),
     (("recipes", "show"), ["give one recipe", "pdebench_advection1d"]),
