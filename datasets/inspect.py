@@ -68,6 +68,20 @@ def boundary_line(attrs: dict, ndim: int) -> str:
     return ", ".join(f"{schema.SPACE[i]} {b} ({t})" for i, (b, t) in enumerate(zip(bcs, types))) + recorded
 
 
+def split_note(recipe: str, seed: int, n: int) -> str:
+    """' (the test split's seed: its first 16 of 200)': which split of ``recipe`` the seed is, and how much of it
+    the cache holds ('' when the seed is none of its splits')."""
+    from pdestream.recipes import RECIPES
+
+    r = RECIPES.get(recipe)
+    split = next((k for k, s in r.splits.items() if s.seed == seed), None) if r else None
+    if split is None:
+        return ""
+    size = r.splits[split].n
+    held = "all" if n == size else f"its first {n} of {size}" if n < size else f"its {size} and {n - size} beyond it"
+    return f" (the {split} split's seed: {held})"
+
+
 def summary(path) -> str:
     """Several lines: PDE, equation, config, samples complete of total, parameter ranges, field statistics,
     bytes on disk."""
@@ -94,6 +108,7 @@ def summary(path) -> str:
         ]
         if a.get("pdestream_recipe"):
             lines.insert(2, f"  recipe: {a['pdestream_recipe']}: {a.get('pdestream_recipe_source', '')}")
+            lines[3] += split_note(a["pdestream_recipe"], int(a["pdestream_seed"]), complete.size)
         damaged = set()
         for name in a["pdestream_params"].split():
             values = ds[name].values[rows]

@@ -108,6 +108,12 @@ def test_set_overrides_a_recipe_and_a_cache_records_the_recipe_and_its_source(ca
         assert np.allclose(ds["c"].values, 0.4)
     code, shown, _ = run_cli(capsys, "inspect", str(out))
     assert code == 0 and "recipe: pdebench_advection1d: Takamoto et al. 2022" in shown
+    assert "; seed 0 (the train split's seed: its first 2 of 9000)" in shown  # the seed says which split it is
+    from pdestream.datasets.inspect import split_note
+
+    assert split_note("pdebench_advection1d", 2, 1000) == " (the test split's seed: all)"
+    assert split_note("pdebench_advection1d", 1, 600) == " (the valid split's seed: its 500 and 100 beyond it)"
+    assert split_note("pdebench_advection1d", 7, 2) == ""
 
 
 def test_splits_are_reproducible_disjoint_and_prefixes(tmp_path):
