@@ -480,6 +480,11 @@ def _axes(name: str, bc: Any) -> tuple[str, str]:
             raise bad
         return words[0], words[0]
     kinds = {"x": "outflow", "y": "outflow"}
+    named = [w.partition("=")[0].strip() for w in words]
+    twice = sorted({a for a in named if named.count(a) > 1})
+    if twice:  # the last one would win, silently
+        raise ValueError(f"{name}: bc={bc!r} not allowed: axis {', '.join(twice)} given twice; give each axis once, "
+                         "e.g. 'x=periodic,y=wall'")
     for w in words:
         axis, _, kind = (s.strip() for s in w.partition("="))
         if axis not in kinds or kind not in SIDE_KINDS:
