@@ -92,8 +92,7 @@ def add_generate(sub) -> None:
                        description="Solve samples 0..N-1 under a seed, block by block, into a cache (see schema.py)")
     p.add_argument("pde", nargs="?", help="PDE name (see `pdestream list`); may come from --config instead")
     p.add_argument("--n", type=int, help="number of samples (indices 0..N-1); with --split: its first N (default all)")
-    p.add_argument("--seed", type=int, default=GENERATE.seed,
-                   help="sample i is a pure function of (config, seed, i) (default: 0; with --split: the split's)")
+    p.add_argument("--seed", type=int, help="sample i is a pure function of (config, seed, i) (default: 0, or the --split's)")
     p.add_argument("--split", choices=("train", "valid", "test"), help="a recipe's split (its seed and size)")
     p.add_argument("--out", required=True, metavar="PATH.h5|PATH.zarr", help="cache to write; format by suffix")
     _add_pde_config_args(p)
