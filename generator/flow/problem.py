@@ -39,7 +39,7 @@ from ...boundaries import DIRICHLET, NEUMANN, PERIODIC, is_periodic
 from .. import dispatch
 from ..chunked import join, split
 from ..grids import GridBase
-from ..problem import MAX_STEPS, ProblemBase, resolve_params
+from ..problem import MAX_STEPS, ProblemBase, check_refine, check_solve_grid, resolve_params
 from . import interactive
 from .grid import BODIES, OPEN_SIDES, SIDE_KINDS, Geometry, Params
 from .pressure import MAX_COARSE_CELLS, coarsest_shape
@@ -297,22 +297,16 @@ class FlowProblem(ProblemBase):
         """refine is an integer >= 1; above 1 only for a 2D entry without bodies (a coarse cell partly solid has no
         one mask or force), and the solve grid's problem must pass every check (its cell Reynolds number, steps,
         multigrid). Whether the solve grid was checked (refine > 1)."""
+        check_refine(self, "1: solve on the n cells stored; k: solve on n * k cells per axis and store each k x k "
+                           "block's means")
         r = self.refine
-        if isinstance(r, bool) or not isinstance(r, int) or r < 1:
-            raise ValueError(f"{self.NAME}: refine={r!r} not allowed: need an integer >= 1 (1: solve on the n cells "
-                             "stored; k: solve on n * k cells per axis and store each k x k block's means)")
         if r == 1:
             return False
         if self.NDIM != 2 or "solid" in self.FIELDS or self.OUTPUTS:
             what = "3D flows" if self.NDIM != 2 else "entries with bodies or per-sample outputs (forces)"
             raise ValueError(f"{self.NAME}: refine={r} not allowed: {what} store their own grid's solve; allowed: "
                              f"refine=1 (or n={self.n * r} to solve and store the finer grid)")
-        try:
-            self.solved  # noqa: B018 (builds and so validates the solve grid's problem)
-        except ValueError as err:
-            why = str(err).removeprefix(f"{self.NAME}: ")
-            raise ValueError(f"{self.NAME}: refine={r} not allowed with n={self.n}: the solve grid (n * refine = "
-                             f"{self.n * r} cells across) fails: {why}") from None
+        check_solve_grid(self, "cells across")
         return True
 
     def _check_multigrid(self) -> None:
