@@ -109,23 +109,24 @@ def _flow():
     return jax, jnp, step, Geometry, Params
 
 
-def run_ours(smoke0: np.ndarray, n: int, substeps: int, advection: str = "semi_lagrangian") -> dict:
+def run_ours(smoke0: np.ndarray, n: int, substeps: int, advection: str = "semi_lagrangian", frames: int = 14) -> dict:
     """Our solver from initial smoke [B, n, n] (x, y) in the closed box, steps of DT / substeps: smoke, u, v
-    [B, 14, n, n] at PDEArena's frame times (u on left faces, v on bottom faces, as PhiFlow's)."""
+    [B, frames, n, n] at PDEArena's first ``frames`` frame times (u on left faces, v on bottom faces, as
+    PhiFlow's)."""
     jax, jnp, step, Geometry, Params = _flow()
     geom = Geometry(n, n, L, L, "wall", "wall", "wall", "wall")
     fp = Params(nu=jnp.float32(NU), buoyancy=jnp.float32(BUOYANCY), source=(0.0, 0.0, 0.0, 0.0))
     op = step.operator(geom, fp)
     dt = jnp.float32(DT / substeps)
     advance = jax.jit(lambda s, k: step.run_counted(geom, s, fp, dt, k, op, max_iter=200, advection=advection))
-    out = {k: np.zeros((len(smoke0), len(FRAME_STEPS), n, n), np.float32) for k in ("smoke", "u", "v")}
+    out = {k: np.zeros((len(smoke0), frames, n, n), np.float32) for k in ("smoke", "u", "v")}
     out["seconds"] = np.zeros(len(smoke0))
     out["capped"] = np.zeros(len(smoke0), np.int64)
     for b, s0 in enumerate(smoke0):
         t0 = time.time()
         state = step.initial_state(geom, fp)._replace(smoke=jnp.asarray(s0.T, jnp.float32))
         done = 0
-        for j, k in enumerate(FRAME_STEPS):
+        for j, k in enumerate(FRAME_STEPS[:frames]):
             state = advance(state, jnp.int32((k - done) * substeps))
             done = k
             out["smoke"][b, j], out["u"][b, j], out["v"][b, j] = (np.asarray(state.smoke).T, np.asarray(state.u)[:, :-1].T,
@@ -141,19 +142,62 @@ def coarsen(run: dict) -> dict:
             "u": 0.5 * (u[..., 0::2, 0::2] + u[..., 0::2, 1::2]), "v": 0.5 * (v[..., 0::2, 0::2] + v[..., 1::2, 0::2])}
 
 
-def initial_smoke(n_samples: int, seed: int = 0):
-    """Signed noise drawn with our law at 128^2 (keys fold_in(key(seed), i)), and |.| on 128^2 and on 256^2 (the
-    same field, Fourier-interpolated: the draw is band-limited)."""
+def initial_smoke(n_samples: int, seed: int = 0, factor: int = 2):
+    """Signed noise drawn with our law at 128^2 (keys fold_in(key(seed), i)), and |.| on 128^2 and on (factor 128)^2
+    (the same field, Fourier-interpolated: the draw is band-limited)."""
     import jax
 
     from pdestream.generator.flow.noise import signed_noise
     f = np.stack([np.asarray(signed_noise(jax.random.fold_in(jax.random.key(seed), i), (N, N), (L, L), SCALE,
                                           SMOOTHNESS)) for i in range(n_samples)]).astype(np.float64)
     hat = np.fft.fftshift(np.fft.fft2(f), axes=(-2, -1))
-    big = np.zeros((n_samples, 2 * N, 2 * N), complex)
-    big[:, N // 2: N // 2 + N, N // 2: N // 2 + N] = hat
-    fine = 4 * np.real(np.fft.ifft2(np.fft.ifftshift(big, axes=(-2, -1))))
+    big = np.zeros((n_samples, factor * N, factor * N), complex)
+    at = (factor - 1) * N // 2  # where the zero mode of the 128^2 spectrum goes in the finer one (fftshift order)
+    big[:, at: at + N, at: at + N] = hat
+    fine = factor**2 * np.real(np.fft.ifft2(np.fft.ifftshift(big, axes=(-2, -1))))
     return np.abs(f).astype(np.float32), np.abs(fine).astype(np.float32)
+
+
+def restrict(run: dict, factor: int) -> dict:
+    """A (factor 128)^2 run on 128^2 through the recipe's own restriction (``FlowProblem.restrict``: block means,
+    face fluxes): {smoke, u, v} [B, T, 128, 128]."""
+    from pdestream import generator
+
+    if factor == 1:
+        return {k: run[k] for k in ("smoke", "u", "v")}
+    # (the restriction reads only the fields' places and the factor: a viscosity any refine accepts builds it)
+    pde = generator.get_pde("smoke_box2d", n=N, length=L, refine=factor, nu="1")
+    stacked = np.stack([run["u"], run["v"], np.zeros_like(run["u"]), run["smoke"]], axis=2)  # FIELDS: u, v, p, smoke
+    out = np.asarray(pde.restrict(stacked))
+    return {"u": out[:, :, 0], "v": out[:, :, 1], "smoke": out[:, :, 3]}
+
+
+def resolution(args) -> dict:
+    """The recipe's grid against finer and coarser ones from the same initial smoke (drawn on 128^2, Fourier-
+    interpolated), each at its own CFL-0.5 step with the recipe's MacCormack advection, restricted to 128^2 like
+    the recipe: relative L2 distances per frame to the finest run. Each grid's run is kept (npz, resumable)."""
+    factors = [int(k) for k in args.factors.split(",")]
+    runs, seconds = {}, {}
+    for k in factors:
+        path = os.path.join(OUT, f"resolution_x{k}_s{args.samples}_f{args.frames}.npz")
+        if not os.path.exists(path):
+            smoke0 = initial_smoke(args.samples, factor=k)[1] if k > 1 else initial_smoke(args.samples)[0]
+            substeps = 48 * k  # steps per 1.5 s: CFL 0.5 at 4 m/s on (128 k)^2 (h 0.25 / k m, step 1.5 / (48 k) s)
+            run = run_ours(smoke0, N * k, substeps, advection="maccormack", frames=args.frames)
+            np.savez(path, **restrict(run, k), seconds=run["seconds"], capped=run["capped"])
+            print(f"x{k}: {np.mean(run['seconds']):.0f} s a sample", flush=True)
+        with np.load(path) as f:
+            runs[k] = {name: f[name] for name in f.files}
+        seconds[k] = float(np.mean(runs[k]["seconds"]))
+    finest = max(factors)
+    return {"samples": args.samples, "frame_times": [DT * k for k in FRAME_STEPS[:args.frames]],
+            "steps_s": {f"{N * k}^2": DT / (48 * k) for k in factors},
+            "seconds_per_sample": {f"{N * k}^2": seconds[k] for k in factors},
+            "capped_solves": {f"{N * k}^2": int(runs[k]["capped"].sum()) for k in factors},
+            "distance_to_finest": {f"{N * k}^2 vs {N * finest}^2": rel(runs[k], runs[finest])
+                                   for k in factors if k != finest},
+            "distance_to_next": {f"{N * a}^2 vs {N * b}^2": rel(runs[a], runs[b])
+                                 for a, b in zip(factors, factors[1:])}}
 
 
 def rel(a: dict, b: dict) -> dict:
@@ -271,17 +315,21 @@ def main() -> None:
         phiflow_worker(sys.argv[2], sys.argv[3])
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--part", choices=("trajectories", "statistics"), required=True)
+    ap.add_argument("--part", choices=("trajectories", "statistics", "resolution"), required=True)
     ap.add_argument("--samples", type=int, default=3, help="same-IC trajectories")
     ap.add_argument("--phi", type=int, default=32, help="PhiFlow samples for the statistics")
     ap.add_argument("--ours", type=int, default=64, help="our samples for the statistics")
     ap.add_argument("--substeps", type=int, default=24, help="our steps per 1.5 s on 128^2 (24: 0.0625 s, CFL 1 at 4 m/s)")
     ap.add_argument("--phi-only", action="store_true", help="statistics: make the PhiFlow rows only (resumable)")
     ap.add_argument("--phi-python", default=os.environ.get("PHIFLOW_PYTHON", ".venv-phi/bin/python"))
+    ap.add_argument("--factors", default="1,2,3,4", help="resolution: grids 128 k for these k (the last the reference)")
+    ap.add_argument("--frames", type=int, default=3, help="resolution: PDEArena's first frames run (3: t <= 25.5)")
     args = ap.parse_args()
     os.makedirs(OUT, exist_ok=True)
     path = os.path.join(OUT, f"{args.part}{'_phiflow_rows' if args.phi_only else ''}.json")
-    result = trajectories(args) if args.part == "trajectories" else statistics(args)
+    if args.part == "resolution":
+        path = os.path.join(OUT, f"resolution_s{args.samples}_f{args.frames}.json")
+    result = {"trajectories": trajectories, "statistics": statistics, "resolution": resolution}[args.part](args)
     result["load_average"] = os.getloadavg()
     with open(path, "w") as f:
         json.dump(result, f, indent=1)

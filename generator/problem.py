@@ -380,6 +380,24 @@ class ProblemBase(abc.ABC):
     IC_LABEL: ClassVar[str] = "ic"  # how describe() names the IC distribution (darcy2d: its random field g)
 
 
+def check_refine(problem, meaning: str) -> None:
+    """Refuses, in one line, a ``refine`` that is not an integer >= 1 (``meaning``: what 1 and k do, for the message)."""
+    r = problem.refine
+    if isinstance(r, bool) or not isinstance(r, int) or r < 1:
+        raise ValueError(f"{problem.NAME}: refine={r!r} not allowed: need an integer >= 1 ({meaning})")
+
+
+def check_solve_grid(problem, unit: str) -> None:
+    """Builds (and so validates) ``problem.solved``, the problem on n * refine ``unit`` per axis; its refusal is
+    restated as refine's, in one line."""
+    try:
+        problem.solved  # noqa: B018
+    except ValueError as err:
+        why = str(err).removeprefix(f"{problem.NAME}: ")
+        raise ValueError(f"{problem.NAME}: refine={problem.refine} not allowed with n={problem.n}: the solve grid "
+                         f"(n * refine = {problem.n * problem.refine} {unit}) fails: {why}") from None
+
+
 def _root(limit: int, ndim: int) -> int:
     """The largest n with n**ndim <= limit."""
     n = round(limit ** (1 / ndim))

@@ -29,7 +29,7 @@ def test_the_list_names_every_recipe_with_its_source_and_the_sets_it_skips(capsy
     for r in recipes.RECIPES.values():
         line = next(line for line in out.splitlines() if line.startswith(r.name + " "))
         assert r.entry in line and r.paper in line and r.where in line
-    assert "pdearena_smoke2d" in out and "not expressible" in out
+    assert "cfdbench_cavity_bc" in out and "not expressible" in out
 
 
 def test_show_prints_source_settings_splits_and_differences(capsys):

@@ -591,7 +591,34 @@ def check_viscosities(problem) -> None:
 
 
 @dataclass(frozen=True)
-class CompressibleNS1D(Euler1D):
+class ViscousGas:
+    """What the compressible Navier-Stokes entries (1D, 2D) add to their Euler entry: the viscosities eta, zeta as
+    parameters beside gamma (PDEBench's values as defaults: gamma 5/3, eta = zeta = 0.01), periodic sides and the mc
+    limiter by default, the step's viscous limit and the viscosities' checks. Listed before the Euler class in the
+    bases, so its defaults and ``validate`` come first; the entry states ``nu_max`` (its diffusion coefficients
+    summed over the axes)."""
+
+    PARAMS: ClassVar[dict] = VISCOUS_GAS_PARAMS
+    PHYS: ClassVar[tuple[str, ...]] = ("gamma", "eta", "zeta")
+
+    bc: str = "periodic"
+    limiter: str = "mc"
+    gamma: Any = Fixed(5.0 / 3.0)
+    eta: Any = Fixed(0.01)
+    zeta: Any = Fixed(0.01)
+
+    @property
+    def steps_per_frame(self) -> int:
+        """Steps of one frame interval: dt (NDIM s0 / h + 2 nu_max / h^2) <= cfl, s0 and nu_max at their largest."""
+        return viscous_steps_per_frame(self)
+
+    def validate(self) -> None:
+        check_viscosities(self)
+        super().validate()
+
+
+@dataclass(frozen=True)
+class CompressibleNS1D(ViscousGas, Euler1D):
     """1D compressible Navier-Stokes of an ideal gas, PDEBench's 1D CFD model: euler1d's scheme plus the viscous
     stress tau = rho (4/3 eta + zeta) u_x with kinematic viscosities eta, zeta (``navier_stokes``); no heat
     conduction. Dimensionless."""
@@ -600,33 +627,17 @@ class CompressibleNS1D(Euler1D):
     EQUATION: ClassVar[str] = ("rho_t + (rho u)_x = 0, (rho u)_t + (rho u^2 + p - tau)_x = 0, E_t + ((E + p) u - "
                                "tau u)_x = 0, tau = rho (4/3 eta + zeta) u_x, E = p / (gamma - 1) + rho u^2 / 2; "
                                "stored: primitive rho, u, p")
-    PARAMS: ClassVar[dict] = VISCOUS_GAS_PARAMS
     SCHEME: ClassVar[Scheme] = NAVIER_STOKES_1D
-    PHYS: ClassVar[tuple[str, ...]] = ("gamma", "eta", "zeta")
 
     n: int = 256
     length: float = 2.0
     ic: Any = SineStates()
     t_end: float = 1.0
     n_frames: int = 21
-    bc: str = "periodic"
-    limiter: str = "mc"
-    gamma: Any = Fixed(5.0 / 3.0)
-    eta: Any = Fixed(0.01)
-    zeta: Any = Fixed(0.01)
 
     def nu_max(self) -> float:
         """The largest 4/3 eta + zeta the parameter domains allow (length^2 / time)."""
         return 4.0 / 3.0 * max(self.eta.bounds) + max(self.zeta.bounds)
-
-    @property
-    def steps_per_frame(self) -> int:
-        """Steps of one frame interval: dt (s0 / h + 2 nu_l / h^2) <= cfl, s0 and nu_l their largest values."""
-        return viscous_steps_per_frame(self)
-
-    def validate(self) -> None:
-        check_viscosities(self)
-        super().validate()
 
     def describe_setup(self) -> str:
         return (f"  fields: {', '.join(self.FIELDS)} (primitive)   grid: {self.grid.describe()}\n"
@@ -705,4 +716,4 @@ def _apply(vjp, g):
     return vjp(g)
 
 
-__all__ = ["CompressibleNS1D", "Euler1D", "FVGrid", "FiniteVolume", "IC_KINDS", "Lax", "MAX_CFL", "Riemann", "SineStates", "Smooth", "Sod", "Toro123"]
+__all__ = ["CompressibleNS1D", "ViscousGas", "Euler1D", "FVGrid", "FiniteVolume", "IC_KINDS", "Lax", "MAX_CFL", "Riemann", "SineStates", "Smooth", "Sod", "Toro123"]

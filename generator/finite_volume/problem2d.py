@@ -29,12 +29,10 @@ from .problem import (
     EULER_2D,
     NAVIER_STOKES_2D,
     SHALLOW_WATER,
-    VISCOUS_GAS_PARAMS,
     FiniteVolume,
     FVGrid,
-    check_viscosities,
+    ViscousGas,
     ic_domains,
-    viscous_steps_per_frame,
 )
 from .scheme import SIDE_KINDS
 
@@ -573,7 +571,7 @@ class Euler2D(FiniteVolume2D):
 
 
 @dataclass(frozen=True)
-class CompressibleNS2D(Euler2D):
+class CompressibleNS2D(ViscousGas, Euler2D):
     """2D compressible Navier-Stokes, PDEBench's 2D CFD model: euler2d's scheme plus its stress, axis by axis
     (``navier_stokes.viscous_rate_2d``), kinematic viscosities eta and zeta; no heat conduction. Dimensionless."""
 
@@ -581,32 +579,16 @@ class CompressibleNS2D(Euler2D):
     EQUATION: ClassVar[str] = ("euler2d's equations plus viscous fluxes per axis n (t the other): rho (4/3 eta + zeta) "
                                "(u_n)_n on the normal momentum, rho eta (u_t)_n on the transverse one, and their "
                                "work on E (PDEBench's stress); stored: primitive rho, u, v, p")
-    PARAMS: ClassVar[dict] = VISCOUS_GAS_PARAMS
     SCHEME: ClassVar = NAVIER_STOKES_2D
-    PHYS: ClassVar[tuple] = ("gamma", "eta", "zeta")
 
     n: int = 64
     ic: Any = RandomGas2D()
     t_end: float = 0.2
     n_frames: int = 5
-    bc: str = "periodic"
-    limiter: str = "mc"
-    gamma: Any = Fixed(5.0 / 3.0)
-    eta: Any = Fixed(0.01)
-    zeta: Any = Fixed(0.01)
 
     def nu_max(self) -> float:
         """The largest 4/3 eta + zeta plus eta (u's diffusion along x and y) the domains allow (length^2 / time)."""
         return 7.0 / 3.0 * max(self.eta.bounds) + max(self.zeta.bounds)
-
-    @property
-    def steps_per_frame(self) -> int:
-        """Steps of one frame interval: dt (2 s0 / h + 2 (nu_l + eta) / h^2) <= cfl at their largest values."""
-        return viscous_steps_per_frame(self)
-
-    def validate(self) -> None:
-        check_viscosities(self)
-        super().validate()
 
     def describe_setup(self) -> str:
         return (f"  fields: {', '.join(self.FIELDS)} (primitive)   grid: {self.grid.describe()}\n"

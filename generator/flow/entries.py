@@ -211,6 +211,8 @@ class Cavity2D(FlowProblem):
 
     def validate(self) -> None:
         super().validate()  # a refused setting (the family's cell Reynolds limit) raises before any warning
+        if self.refine > 1:  # the solve grid's problem warned (``FlowProblem._check_refine`` validated it)
+            return
         re_max = _bounds(self, "re")[1]
         if re_max / self.n > CAVITY_CELL_RE:
             need = 2 * math.ceil(re_max / CAVITY_CELL_RE / 2)

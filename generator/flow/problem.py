@@ -25,6 +25,7 @@ calls (``generator.dispatch``: a Ctrl-C or a gone consumer stops it between two)
 from __future__ import annotations
 
 import abc
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -38,7 +39,7 @@ from ...boundaries import DIRICHLET, NEUMANN, PERIODIC, is_periodic
 from .. import dispatch
 from ..chunked import join, split
 from ..grids import GridBase
-from ..problem import MAX_STEPS, ProblemBase, resolve_params
+from ..problem import MAX_STEPS, ProblemBase, check_refine, check_solve_grid, resolve_params
 from . import interactive
 from .grid import BODIES, OPEN_SIDES, SIDE_KINDS, Geometry, Params
 from .pressure import MAX_COARSE_CELLS, coarsest_shape
@@ -141,6 +142,7 @@ class FlowProblem(ProblemBase):
     max_iter: int = 100  # pressure solve: CG iterations per step at most
     advection: str = "maccormack"  # a key of generator.flow.step.ADVECTION: second order (Ghia and Schaefer-Turek
     # checks in benchmarks/flow_validation.py), ~8% slower per karman2d trajectory than "semi_lagrangian" (first order)
+    refine: int = 1  # solve on n * refine cells per axis, store each refine x refine block's means (``restrict``)
 
     # --- what an entry provides --------------------------------------------------------------------
     @abc.abstractmethod
@@ -178,6 +180,49 @@ class FlowProblem(ProblemBase):
     def h(self) -> float:
         return self.length / self.n
 
+    def config(self) -> dict:
+        """``ProblemBase.config``; ``refine`` only above 1, so every cache and run written before it is unchanged."""
+        out = super().config()
+        if self.refine == 1:
+            out.pop("refine", None)
+        return out
+
+    @functools.cached_property
+    def solved(self) -> "FlowProblem":
+        """The problem the solver runs: this one on n * refine cells per axis (refine 1: itself); its samples,
+        each refine x refine block's means stored (``restrict``), are this problem's."""
+        if self.refine == 1:
+            return self
+        return dataclasses.replace(self, n=self.n * self.refine, refine=1)
+
+    def restrict(self, u: jax.Array) -> jax.Array:
+        """Frames [..., C, nx * r, ny * r] of ``solved`` -> [..., C, nx, ny], r = refine: a centre field the mean of
+        its r x r fine cells, u on a coarse cell's left face the mean of the r fine faces that tile it (v likewise
+        on the bottom face). The face means are the fine fluxes through the coarse face, so a divergence-free fine
+        field stays divergence-free on the coarse cells. The sums run in a fixed order of whole-array adds (the
+        same bits in any batch)."""
+        r = self.refine
+        if r == 1:
+            return u
+
+        def mean(parts):
+            total = parts[0]
+            for part in parts[1:]:
+                total = total + part
+            return total / r
+
+        fields = []
+        for i, name in enumerate(self.FIELDS):
+            f = u[..., i, :, :]
+            where = self.FIELD_LOCATIONS[name]
+            if where == "face_x":  # the coarse left faces lie on every r-th fine x-face
+                fields.append(mean([f[..., ::r, j::r] for j in range(r)]))
+            elif where == "face_y":
+                fields.append(mean([f[..., i2::r, ::r] for i2 in range(r)]))
+            else:  # a cell-centred field: the block's mean (rows of the block summed first, then the rows' means)
+                fields.append(mean([mean([f[..., a::r, b::r] for b in range(r)]) for a in range(r)]))
+        return jnp.stack(fields, axis=-3)
+
     def times(self) -> np.ndarray:
         """Frame times, float32 [n_frames] (s)."""
         return np.linspace(self.t_start, self.t_end, self.n_frames).astype(np.float32)
@@ -185,6 +230,8 @@ class FlowProblem(ProblemBase):
     def stable_dt(self) -> float:
         """Largest step (s): ``cfl`` h / u_max and the explicit viscous limit h^2 / (2 d nu_max), at the domains'
         extremes (both advection schemes are stable beyond CFL 1 but loses accuracy as h^2 / dt grows)."""
+        if self.refine > 1:  # the solve grid's step
+            return self.solved.stable_dt()
         return min(self.cfl * self.h / self.speed_bound(), 0.9 * self.h**2 / (2 * self.NDIM * self.viscosity_range()[1]))
 
     @property
@@ -213,6 +260,8 @@ class FlowProblem(ProblemBase):
             raise ValueError(f"{self.NAME}: aspect={self.aspect} not allowed: the box is aspect * n x n cells with "
                              "aspect an integer in 1..16")
         self._check_length()
+        if self._check_refine():
+            return  # the solve grid's problem held every check of the flow (``solved``)
         self._check_multigrid()
         if not 0 <= self.t_start < self.t_end:
             raise ValueError(f"{self.NAME}: t_start={self.t_start:g}, t_end={self.t_end:g} not allowed: need "
@@ -244,6 +293,22 @@ class FlowProblem(ProblemBase):
             raise ValueError(f"{self.NAME}: t_end={self.t_end:g} with step {self.stable_dt():.3g} would take ~{steps:.3g}"
                              f" steps per trajectory; the limit is {MAX_STEPS} (a shorter time window or a coarser grid)")
 
+    def _check_refine(self) -> bool:
+        """refine is an integer >= 1; above 1 only for a 2D entry without bodies (a coarse cell partly solid has no
+        one mask or force), and the solve grid's problem must pass every check (its cell Reynolds number, steps,
+        multigrid). Whether the solve grid was checked (refine > 1)."""
+        check_refine(self, "1: solve on the n cells stored; k: solve on n * k cells per axis and store each k x k "
+                           "block's means")
+        r = self.refine
+        if r == 1:
+            return False
+        if self.NDIM != 2 or "solid" in self.FIELDS or self.OUTPUTS:
+            what = "3D flows" if self.NDIM != 2 else "entries with bodies or per-sample outputs (forces)"
+            raise ValueError(f"{self.NAME}: refine={r} not allowed: {what} store their own grid's solve; allowed: "
+                             f"refine=1 (or n={self.n * r} to solve and store the finer grid)")
+        check_solve_grid(self, "cells across")
+        return True
+
     def _check_multigrid(self) -> None:
         """One line when n leaves the pressure multigrid a coarsest level too large for its dense solve
         (generator.flow.pressure.MAX_COARSE_CELLS), naming the nearest n on either side that it accepts."""
@@ -261,6 +326,12 @@ class FlowProblem(ProblemBase):
                          + " or ".join(str(n) for n in (below, above) if n is not None))
 
     def describe_setup(self) -> str:
+        if self.refine > 1:
+            run, r = self.solved, self.refine
+            return run.describe_setup().replace(
+                f"grid: {run.grid.describe()}",
+                f"grid: {self.grid.describe()}, solved on {'x'.join(map(str, run.grid.shape))} cells (each {r}x{r} "
+                "block's means stored)", 1)
         start = "after a warm-up from rest" if self.t_start > 0 else "from rest"
         return (f"  fields: {', '.join(self.FIELDS)}   grid: {self.grid.describe()}\n"
                 f"  t in [{self.t_start:g}, {self.t_end:g}] {start}, {self.n_frames} frames, "
@@ -332,11 +403,20 @@ class FlowProblem(ProblemBase):
 
     def advance_frames(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int):
         """Frames u [B, C, nx, ny] advanced ``frames`` frame intervals: (u_k, finite [B]) (generator.interactive)."""
+        self._check_interactive()
         return interactive.advance(self, u, params, frames)
 
     def advance_frames_vjp(self, u: jax.Array, params: Mapping[str, jax.Array], frames: int, wrt_params: bool):
         """``advance_frames`` with its VJP (generator.interactive.advance_vjp's contract)."""
+        self._check_interactive()
         return interactive.advance_vjp(self, u, params, frames, wrt_params)
+
+    def _check_interactive(self) -> None:
+        if self.refine > 1:  # a stored frame is a block mean of a finer state, not a state this grid's solver holds
+            raise ValueError(f"{self.NAME}: refine={self.refine} not allowed here: the interactive modes step the "
+                             "frames they are given on their own grid, and this problem's frames are block means of a "
+                             f"grid {self.refine} times finer; allowed: refine=1 (n={self.n * self.refine} steps the "
+                             "fine grid itself)")
 
     def state_of(self, frame: jax.Array, fp: Params) -> State:
         """The solver state of one frame [C, nx, ny] (the inverse of ``frame_fields``): the right-most u and top v
@@ -376,7 +456,10 @@ class FlowProblem(ProblemBase):
     def run_keys(self, keys: jax.Array, explicit: np.ndarray, given: np.ndarray):
         """keys [B], explicit float32 [B, P], given bool [B, P] -> (u [B, T, C, nx, ny], params {name: [B]},
         ok bool [B] (finite, below the blow-up speed, every pressure solve within max_iter), None): the
-        sampler's interface."""
+        sampler's interface. With ``refine``: solved on the finer grid, blocks' means stored (``restrict``)."""
+        if self.refine > 1:
+            u, params, ok, _ = self.solved.run_keys(keys, explicit, given)
+            return self.restrict(u), params, ok, None
         start, advance, frame = self.programs()
         speed_cap = BLOW_UP_FACTOR * self.speed_bound()
         cells = math.prod(self.grid.shape)

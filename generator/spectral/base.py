@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..ics import LatentIC
-from ..problem import MAX_IC_BOUND, MAX_STEPS, Param, ProblemBase
+from ..problem import MAX_IC_BOUND, MAX_STEPS, Param, ProblemBase, check_refine, check_solve_grid
 from . import rollout
 from .fourier import Grid
 from .walls import with_bc
@@ -251,21 +251,14 @@ class PDE(ProblemBase):
 
     def _check_refine(self) -> None:
         """refine is an integer >= 1; above 1 only on a periodic grid, and the solve grid's problem must hold."""
+        check_refine(self, "1: solve on the n points kept; k: solve on n * k points per axis and keep every k-th")
         r = self.refine
-        if isinstance(r, bool) or not isinstance(r, int) or r < 1:
-            raise ValueError(f"{self.NAME}: refine={r!r} not allowed: need an integer >= 1 (1: solve on the n points "
-                             "kept; k: solve on n * k points per axis and keep every k-th)")
         if r == 1:
             return
         if self.grid.bc != Grid(self.NDIM, self.n, self.length).bc:
             raise ValueError(f"{self.NAME}: refine={r} not allowed with walls ({', '.join(self.grid.bc)}): a finer "
                              "grid's points do not include a walled grid's (cell centres); allowed: refine=1")
-        try:
-            self.solved  # noqa: B018 (builds and so validates the solve grid's problem)
-        except ValueError as err:
-            why = str(err).removeprefix(f"{self.NAME}: ")
-            raise ValueError(f"{self.NAME}: refine={r} not allowed with n={self.n}: the solve grid (n * refine = "
-                             f"{self.n * r} points per axis) fails: {why}") from None
+        check_solve_grid(self, "points per axis")
 
     def _check_ic(self) -> None:
         """The IC fits this PDE: its kind's field count, its own rules on this grid, a float32-safe magnitude."""
