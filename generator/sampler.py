@@ -207,7 +207,8 @@ def sample(
         bad = bad[~np.asarray(f2[: bad.size])]
     if bad.size and on_blowup != "skip":
         detail = "; ".join(_failed(pde.NAME, idx[b], causes[b], params, b) for b in bad[:5])
-        hint = "" if on_blowup == "redraw" else " (on_blowup='redraw' draws replacements, 'skip' leaves them out)"
+        hint = "" if on_blowup == "redraw" else (" (on_blowup='redraw' draws replacements; a stream or reservoir may also "
+                                                     "'skip' them, a cache may not: it holds every index)")
         what, remedy = pde.failure()
         raise BlowUpError(f"{pde.NAME}: {bad.size} of {len(idx)} {what}: {detail}{hint}; {remedy}")
     # the per-sample outputs of the final samples (after redraws): a pure function of each sample's u and params
