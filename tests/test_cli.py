@@ -198,7 +198,7 @@ def test_version_prints_the_installed_version(capsys):
 
 
 @pytest.mark.parametrize("command, shown", [
-    ("generate", ["seed, i) (default: 0)", "(default: raise)"]),
+    ("generate", ["seed, i) (default: 0, or the --split's)", "(default: raise)"]),
     ("train", ["(default: stream)", "optimizer steps (default: 1000)", "(default: 0.001)"]),
     ("compare", ["(default: 128)", "(default: h5)", "(default: 0.003)"]),
 ])
