@@ -71,9 +71,9 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
         check_compare_out(cmd.out, cmd.overwrite)
     check_writable_dir(cmd.out)
     if isinstance(cmd.pde, str):
-        from pdestream.catalog_names import check_name
+        from pdestream.settings import build_pde
 
-        check_name(cmd.pde)  # before JAX is imported
+        build_pde(cmd.pde, cmd.settings)  # the name and --set checked before torch (and JAX) are imported
     before = snapshot(cmd.out)
     try:
         return _compare(cmd, log)

@@ -11,12 +11,11 @@ initial conditions and ETDRK4 coefficients; the elliptic family's input fields a
 
 from __future__ import annotations
 
-import functools
 from typing import Callable, Sequence
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jit, jnp
 
 from . import dispatch
 
@@ -36,7 +35,7 @@ def split(arrays: Sequence, chunk: int) -> list[tuple]:
     return [tuple(a[i : i + chunk] for a in padded) for i in range(0, padded[0].shape[0], chunk)]
 
 
-@functools.partial(jax.jit, static_argnums=1)
+@jit(static_argnums=1)
 def join(parts, batch: int):
     """Chunk results (pytrees with a leading chunk axis) -> one batch of ``batch`` rows, in one dispatch (copies
     only: bits unchanged)."""

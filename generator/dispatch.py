@@ -19,8 +19,7 @@ from __future__ import annotations
 import contextlib
 import threading
 
-import jax
-
+from pdestream.generator.lazy_jax import jax
 from pdestream.meter import progress_to, report  # noqa: F401  (the progress hook: see the docstring)
 
 DISPATCH_WORK = 2**24

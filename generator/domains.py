@@ -12,9 +12,9 @@ import re
 from dataclasses import dataclass
 from typing import Union
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 
 @dataclass(frozen=True)

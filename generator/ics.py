@@ -21,9 +21,9 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping, Protocol, runtime_checkable
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ..boundaries import is_periodic
 from .spectral.fourier import Grid

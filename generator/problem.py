@@ -18,8 +18,9 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping, Protocol
 
-import jax
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax
 
 from .domains import Domain, Fixed, parse_domain
 from .grids import GridBase

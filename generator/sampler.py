@@ -9,13 +9,12 @@ only through the protocol (generator.problem); nothing below it imports it.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, field
 from typing import Literal, Mapping, Sequence
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jit, jnp
 
 from .catalog import get_pde
 from .dispatch import Cancelled, cancel_on
@@ -72,7 +71,7 @@ class Trajectory:
         return int(self.u.shape[0])
 
 
-@functools.partial(jax.jit, static_argnums=2)
+@jit(static_argnums=2)
 def _fold_keys(base: jax.Array, idx: jax.Array, attempt: int) -> jax.Array:
     # jitted: traced eagerly, these two vmaps cost ~3 ms per sample() call (integer hashing: same bits)
     keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(idx)

@@ -30,9 +30,9 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
     elif Path(cfg.resume).is_dir():
         check_writable_dir(cfg.resume, "--resume")
     if cfg.resume is None and isinstance(cfg.pde, str):
-        from pdestream.catalog_names import check_name
+        from pdestream.settings import build_pde
 
-        check_name(cfg.pde)
+        build_pde(cfg.pde, cfg.settings)  # the name and --set checked before torch (and JAX) are imported
     from pdestream.datasets.generate import configure_solvers
     from pdestream.surrogate import ddp
 

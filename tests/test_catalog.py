@@ -93,6 +93,25 @@ def test_an_operator_of_the_wrong_shape_is_refused_naming_the_pde():
     assert msg.startswith("wrong2d: linear(grid, p) has shape (16, 9); the state is [C, *kshape] = (1, 16, 9)"), msg
 
 
+def test_every_spectral_entry_has_operators_of_the_states_shape():
+    """Building a catalog entry skips the operator-shape check (so it needs no JAX); it is made here, for each
+    spectral entry at its defaults, and for a walled variant where the entry has walls."""
+    from pdestream.generator.spectral.base import PDE, check_operators, is_catalog_class
+
+    checked = 0
+    for name, cls in g.PDES.items():
+        if not issubclass(cls, PDE):
+            continue
+        assert is_catalog_class(cls), name
+        check_operators(cls())
+        checked += 1
+    assert checked >= 25
+    walled = g.get_pde("burgers1d", {"bc": "dirichlet"})
+    assert is_catalog_class(type(walled))
+    check_operators(walled)
+    assert not is_catalog_class(type("Mine", (PDE,), {"NAME": "burgers1d", "__module__": "mypdes"}))
+
+
 def test_initial_conditions_follow_one_protocol():
     for kind, cls in g.IC_KINDS.items():
         ic = cls()

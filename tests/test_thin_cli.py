@@ -19,6 +19,12 @@ LIGHT = [
     (["generate", "nosuchpde", "--n", "2", "--out", "x.h5"], 2, "unknown PDE 'nosuchpde'"),
     (["train", "nosuchpde", "--out", "run"], 2, "unknown PDE 'nosuchpde'"),
     (["compare", "burgers1d", "--out", "cmp", "--loss", "relative"], 2, "--loss relative goes with --budget"),
+    # a bad --set value: the problem's own checks run without JAX (generator.lazy_jax) or torch
+    (["generate", "burgers1d", "--n", "2", "--out", "x.h5", "--set", "n=-4"], 2, "n=-4 not allowed"),
+    (["generate", "karman2d", "--n", "2", "--out", "x.h5", "--set", "re=abc"], 2, "parameter re: bad domain 'abc'"),
+    (["generate", "pdearena_smoke2d", "--n", "2", "--out", "x.h5", "--set", "refine=0"], 2, "refine=0 not allowed"),
+    (["train", "burgers1d", "--out", "run", "--set", "nu=abc"], 2, "parameter nu: bad domain 'abc'"),
+    (["compare", "ks1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--set", "n=7"], 2, "n=7 not allowed"),
 ]
 
 
@@ -33,6 +39,31 @@ def test_help_and_refusals_import_neither_jax_nor_torch(tmp_path, argv, code, sa
     assert rc == code and said in said_there, (rc, said_there, res.stderr)
     assert not jax and not torch, f"{argv}: jax imported {jax}, torch imported {torch}"
     assert list(tmp_path.iterdir()) == []
+
+
+def test_every_entry_refuses_bad_settings_and_builds_its_defaults_without_jax():
+    """Each catalog entry: an unknown setting, n=-4 and a bad domain for its first parameter refused, its defaults
+    built, in one process that never imports JAX (the first entry that did is named)."""
+    script = """
+import json, sys
+from pdestream import generator
+from pdestream.catalog_names import NAMES
+for name in NAMES:
+    cls = generator.pde_class(name)
+    bad = [{"bogus": "1"}, {"n": "-4"}] + [{p: "abc"} for p in list(cls.PARAMS)[:1]]
+    for settings in bad:
+        try:
+            generator.get_pde(name, settings)
+            raise SystemExit(f"{name}: {settings} was accepted")
+        except ValueError:
+            pass
+    generator.get_pde(name)
+    if "jax" in sys.modules:
+        raise SystemExit(f"{name}: building it imported JAX")
+print("ok", len(NAMES))
+"""
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0 and res.stdout.startswith("ok"), res.stdout + res.stderr
 
 
 def test_the_jax_free_names_are_the_catalogs():

@@ -22,9 +22,9 @@ import re
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ..dispatch import report, sync
 from ..ics import FourierSeries

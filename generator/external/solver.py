@@ -49,9 +49,9 @@ from concurrent.futures import Future, wait
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ...boundaries import BOUNDARY_TYPES, Boundary, is_periodic
 from ..dispatch import Cancelled, cancelled, report

@@ -24,9 +24,9 @@ import threading
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jit, jnp
 
 from ...boundaries import NEUMANN
 from .. import dispatch
@@ -173,7 +173,7 @@ class DiffusionSorption1D(UniformFrames, ProblemBase):
         return list(getattr(_LAST, "causes", ()))
 
     # --- solving -------------------------------------------------------------------------------------
-    def coefficients(self, p: Mapping[str, jax.Array], dtype=jnp.float32) -> sorption.Coefficients:
+    def coefficients(self, p: Mapping[str, jax.Array], dtype=np.float32) -> sorption.Coefficients:
         """One sample's (or a batch's, [K]) traced constants from its parameters {name: scalar or [K]}."""
         f = {k: jnp.asarray(v, dtype) for k, v in p.items()}
         K = (1 - f["por"]) / f["por"] * f["rho_s"] * f["k_f"]
@@ -265,7 +265,7 @@ class DiffusionSorption1D(UniformFrames, ProblemBase):
 
 # --- compiled programs: each row the unbatched solver inside jax.lax.map over a fixed chunk (batch-invariant bits);
 # the settings (dt, h, u_left, eps, steps) are traced, so one program serves every configuration of a grid size
-@jax.jit
+@jit
 def _advance(u, hl, coeffs, lo, hi, dt, k):
     """(u [K, n], Health [K], Coefficients [K], lo, hi [K]) -> (u, health) k steps of dt later."""
     return jax.lax.map(lambda t: sorption.run(t[0], t[1], t[2], dt, k, t[3], t[4]), (u, hl, coeffs, lo, hi))
@@ -291,7 +291,7 @@ def _oracle_one(problem, w, pa, dt, k):
     return u[None], hl.code == sorption.OK
 
 
-@functools.partial(jax.jit, static_argnums=0)
+@jit(static_argnums=0)
 def _oracle(problem, u, pa, dt, k):
     return jax.lax.map(lambda t: _oracle_one(problem, t[0], t[1], dt, k), (u, pa))
 
@@ -311,7 +311,7 @@ def _oracle_vjp(problem, k: int, wrt_params: bool):
     return jax.jit(go)
 
 
-@jax.jit
+@jit
 def _apply(vjp, g):
     return vjp(g)
 

@@ -12,8 +12,7 @@ assumed (``Health``).
 
 from __future__ import annotations
 
-import jax
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jax, jnp
 
 from . import scheme
 from .scheme import BAD_DENSITY, BAD_PRESSURE, CFL_EXCEEDED, NOT_FINITE, OK, Health

@@ -13,8 +13,7 @@ step; the step's CFL number is dt (max(|u| + c) / h + 2 nu_l / h^2) (the advecti
 
 from __future__ import annotations
 
-import jax
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jax, jnp
 
 from . import euler, scheme
 from .euler import to_conserved as _to_conserved

@@ -19,9 +19,9 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ..domains import Fixed
 from ..problem import Param

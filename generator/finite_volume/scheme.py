@@ -12,8 +12,7 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
-import jax
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jax, jnp
 
 SIDE_KINDS = ("outflow", "periodic", "wall")  # outflow: zero gradient; wall: reflective (mirror, u_n -> -u_n)
 OUTFLOW, PERIODIC, WALL = range(3)
@@ -34,7 +33,7 @@ class Health(NamedTuple):
     steps: jax.Array
 
 
-def healthy(dtype=jnp.float32) -> Health:
+def healthy(dtype="float32") -> Health:
     return Health(jnp.int32(OK), jnp.int32(-1), jnp.zeros((), dtype), jnp.int32(0))
 
 

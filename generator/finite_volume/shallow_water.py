@@ -19,8 +19,7 @@ as 0 (no division by a vanishing depth).
 
 from __future__ import annotations
 
-import jax
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jax, jnp
 
 from . import scheme
 from .scheme import CFL_EXCEEDED, NOT_FINITE, OK, Health

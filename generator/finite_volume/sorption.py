@@ -32,8 +32,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
+import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 GAMMA = 2.0 - math.sqrt(2.0)  # TR-BDF2's stage point
 NEWTON = 4  # Newton iterations per stage: 3 leave the first step (u0 meeting u_left at x = 0) above NEWTON_TOL
@@ -66,11 +67,11 @@ class Health(NamedTuple):
     steps: jax.Array
 
 
-def healthy(dtype=jnp.float32) -> Health:
+def healthy(dtype="float32") -> Health:
     return Health(jnp.int32(OK), jnp.int32(-1), jnp.zeros((), dtype), jnp.int32(0))
 
 
-def healthy_batch(k: int, dtype=jnp.float32) -> Health:
+def healthy_batch(k: int, dtype=np.float32) -> Health:
     """``healthy()`` for k samples: each field [k]."""
     return jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (k,)), healthy(dtype))
 

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import functools
 
-import jax
-import jax.numpy as jnp
+import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ..chunked import chunked_map
 from .grid import Geometry, Params
@@ -35,7 +36,7 @@ def _program(geom: Geometry, n_steps: int, chunk: int, advection: str = "semi_la
     return jax.jit(lambda *cols: jax.lax.map(one, cols))
 
 
-def run_batch(geom: Geometry, params: Params, dt, n_steps: int, chunk: int = 4, dtype=jnp.float32,
+def run_batch(geom: Geometry, params: Params, dt, n_steps: int, chunk: int = 4, dtype=np.float32,
               advection: str = "semi_lagrangian") -> State:
     """n_steps steps of dt (s) from rest (initial_state) for a batch of parameter sets.
 

@@ -19,8 +19,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
+import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from . import mac3d
 
@@ -37,7 +38,7 @@ class Relax(NamedTuple):
     target: tuple
 
 
-def ball_fraction(box: mac3d.Box, centre, radius: float, k: int, dtype=jnp.float32, ramp: float = 1.0):
+def ball_fraction(box: mac3d.Box, centre, radius: float, k: int, dtype=np.float32, ramp: float = 1.0):
     """Smoothed volume fraction [*face_shape(k)] of the ball (centre per axis [m], radius [m]) on velocity
     component k's faces: clamp(1/2 + (radius - distance) / (ramp h), 0, 1) (a ramp ``ramp`` cells wide; 1: a
     face's cell cut by a plane at the surface; -> 0: the sharp indicator, a staircase)."""
@@ -51,7 +52,7 @@ def _smoothstep(s):
     return s * s * (3 - 2 * s)
 
 
-def fringe_rate(box: mac3d.Box, start: float, end: float, rise: float, rate: float, k: int, dtype=jnp.float32):
+def fringe_rate(box: mac3d.Box, start: float, end: float, rise: float, rate: float, k: int, dtype=np.float32):
     """Fringe relaxation rate [1/s] on component k's faces [*face_shape(k)]: ``rate`` for start + rise <= x <=
     end - rise along axis 0 (m), smooth (C1) ramps of width ``rise`` up from start and down to end, 0 elsewhere."""
     x = mac3d.points(box, box.face_shape(k), box.offsets(k), dtype)[0]
@@ -101,7 +102,7 @@ def run(box: mac3d.Box, state: mac3d.State, params: mac3d.Params3, r: Relax, dt,
     return jax.lax.scan(lambda s, _: step(box, s, params, r, dt), state, None, length=n_steps)
 
 
-def stream_state(box: mac3d.Box, speed: float, dtype=jnp.float32) -> mac3d.State:
+def stream_state(box: mac3d.Box, speed: float, dtype=np.float32) -> mac3d.State:
     """A uniform stream (speed, 0, 0) [m/s] on every face: an impulsively started body's initial state."""
     s = mac3d.initial_state(box, dtype)
     vel = (jnp.full(box.face_shape(0), speed, dtype),) + s.vel[1:]

@@ -14,8 +14,7 @@ import warnings
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
-import jax
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ..domains import Fixed
 from ..problem import Output, Param

@@ -14,8 +14,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
-import jax
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ..problem import Param, resolve_params
 from . import mac3d

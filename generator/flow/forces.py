@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import math
 
-import jax.numpy as jnp
+import numpy as np
+
+from pdestream.generator.lazy_jax import jnp
 
 # Shedding rules (``shedding``): a lift oscillation of fitted amplitude below MIN_LIFT_AMPLITUDE (in C_l) is
 # "no shedding" (karman2d's non-shedding sample of issue 28 had 0.004, the shedding ones 0.3-0.9); "developed"
@@ -190,7 +192,7 @@ def bodies_force(geom, state, nu, params, points: int = SURFACE_POINTS):
     return _tree_sum(w * (-p * nx_ - tau * ny_)), _tree_sum(w * (-p * ny_ + tau * nx_))
 
 
-def bodies_distance(geom, params, dtype=jnp.float32):
+def bodies_distance(geom, params, dtype=np.float32):
     """Exact signed distance [ny, nx] (m) of the cell centres to the surface of params' sharp bodies (the union:
     the minimum over the bodies; negative inside; grid's protocol ``distance``)."""
     from .grid import centres  # noqa: PLC0415
@@ -211,7 +213,7 @@ def force_coefficients(fx, fy, speed, length):
     return fx * scale, fy * scale
 
 
-def circle_distance(geom, cx, cy, r, dtype=jnp.float32):
+def circle_distance(geom, cx, cy, r, dtype=np.float32):
     """Signed distance [ny, nx] (m) of the cell centres to the circle (cx, cy, r): |x - c| - r, negative inside
     (exact for a circle; the solver's mask is the cells with a negative value, ``grid.circle_solid``)."""
     h = geom.h
@@ -221,7 +223,7 @@ def circle_distance(geom, cx, cy, r, dtype=jnp.float32):
     return jnp.sqrt((x - cx) ** 2 + (y - cy) ** 2) - r
 
 
-def mask_distance(geom, solid, dtype=jnp.float32):
+def mask_distance(geom, solid, dtype=np.float32):
     """Signed distance [ny, nx] (m) of the cell centres to the surface of the masked body, the union of its
     solid cells (closed h x h squares; solid [ny, nx] bool): the distance to the nearest solid cell outside the
     body, minus the distance to the nearest fluid cell inside it, so solid == (value < 0) and a cell next to the

@@ -29,8 +29,9 @@ import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
-import jax
-import jax.numpy as jnp
+import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ...boundaries import Boundary, is_periodic
 
@@ -125,7 +126,7 @@ class Params(NamedTuple):
 OBSTACLE_KINDS = {0: "none", 1: "circle (radius a)", 2: "box (half-widths a, b)", 3: "ellipse (semi-axes a, b)"}
 
 
-def centres(geom: Geometry, dtype=jnp.float32):
+def centres(geom: Geometry, dtype=np.float32):
     """Cell-centre coordinates (x [ny, nx], y [ny, nx]) in m."""
     h = geom.h
     x = (jnp.arange(geom.nx, dtype=dtype) + 0.5) * h
@@ -133,25 +134,25 @@ def centres(geom: Geometry, dtype=jnp.float32):
     return jnp.meshgrid(x, y)
 
 
-def circle_solid(geom: Geometry, cx, cy, r, dtype=jnp.float32):
+def circle_solid(geom: Geometry, cx, cy, r, dtype=np.float32):
     """Boolean solid mask [ny, nx]: cell centres inside the circle (traced cx, cy, r; r <= 0 gives none)."""
     x, y = centres(geom, dtype)
     return (x - cx) ** 2 + (y - cy) ** 2 < r * r
 
 
-def box_solid(geom: Geometry, x0, y0, x1, y1, dtype=jnp.float32):
+def box_solid(geom: Geometry, x0, y0, x1, y1, dtype=np.float32):
     """Boolean solid mask [ny, nx]: cell centres inside the box [x0, x1] x [y0, y1]."""
     x, y = centres(geom, dtype)
     return (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
 
 
-def ellipse_solid(geom: Geometry, cx, cy, ax, ay, dtype=jnp.float32):
+def ellipse_solid(geom: Geometry, cx, cy, ax, ay, dtype=np.float32):
     """Boolean solid mask [ny, nx]: cell centres inside the axis-aligned ellipse with semi-axes ax, ay."""
     x, y = centres(geom, dtype)
     return ((x - cx) / ax) ** 2 + ((y - cy) / ay) ** 2 < 1
 
 
-def obstacles_solid(geom: Geometry, rows, dtype=jnp.float32):
+def obstacles_solid(geom: Geometry, rows, dtype=np.float32):
     """Boolean solid mask [ny, nx] of obstacle rows [K, 5] (kind, cx, cy, a, b) (traced; kind 0 adds nothing)."""
     x, y = centres(geom, dtype)
     solid = jnp.zeros((geom.ny, geom.nx), bool)
@@ -374,7 +375,7 @@ class ObstacleRow(NamedTuple):
         return self._select(res, (zero, zero, zero, zero, zero))
 
 
-def cut_faces(geom: Geometry, bodies, dtype=jnp.float32):
+def cut_faces(geom: Geometry, bodies, dtype=np.float32):
     """Open fractions of the faces against the exact bodies (a list of the sharp-body protocol's bodies, not
     overlapping): ax [ny, nx+1] of the vertical faces (x = i h, y in [j h, (j+1) h]), ay [ny+1, nx] of the
     horizontal ones (1 where no body meets the face, 0 where they cover it; below MIN_APERTURE counted as 0), and
@@ -413,14 +414,14 @@ def cut_faces(geom: Geometry, bodies, dtype=jnp.float32):
     return ax, ay, my, mx
 
 
-def circle_apertures(geom: Geometry, cx, cy, r, dtype=jnp.float32):
+def circle_apertures(geom: Geometry, cx, cy, r, dtype=np.float32):
     """Open fractions of the faces against the exact circle (cx, cy, r) [m]: ax [ny, nx+1] of the vertical faces
     (x = i h, y in [j h, (j+1) h]), ay [ny+1, nx] of the horizontal ones; 1 where the circle misses the face
     (r <= 0: no circle), 0 where it covers it; below MIN_APERTURE counted as 0."""
     return circle_cut_faces(geom, cx, cy, r, dtype)[:2]
 
 
-def circle_cut_faces(geom: Geometry, cx, cy, r, dtype=jnp.float32):
+def circle_cut_faces(geom: Geometry, cx, cy, r, dtype=np.float32):
     """``cut_faces`` of the one circle (cx, cy, r) [m]: (ax, ay, my, mx)."""
     return cut_faces(geom, [Circle(cx, cy, r)], dtype)
 
@@ -441,7 +442,7 @@ class Ghosts(NamedTuple):
     y2: jnp.ndarray
 
 
-def body_ghosts(geom: Geometry, bodies, ox: float, oy: float, shape, dtype=jnp.float32) -> Ghosts:
+def body_ghosts(geom: Geometry, bodies, ox: float, oy: float, shape, dtype=np.float32) -> Ghosts:
     """Ghosts of the faces of a velocity component whose index (i, j) sits at ((i+ox) h, (j+oy) h), array
     ``shape`` [m, n], for the bodies (the sharp-body protocol; each face is inside one body at most)."""
     h = geom.h
@@ -463,7 +464,7 @@ def body_ghosts(geom: Geometry, bodies, ox: float, oy: float, shape, dtype=jnp.f
     return Ghosts(ghost, inside & ~ghost, w1, w2, x1, y1, x2, y2)
 
 
-def circle_ghosts(geom: Geometry, cx, cy, r, ox: float, oy: float, shape, dtype=jnp.float32) -> Ghosts:
+def circle_ghosts(geom: Geometry, cx, cy, r, ox: float, oy: float, shape, dtype=np.float32) -> Ghosts:
     """``body_ghosts`` of the one circle (cx, cy, r) [m] (r <= 0: none)."""
     return body_ghosts(geom, [Circle(cx, cy, r)], ox, oy, shape, dtype)
 

@@ -24,8 +24,7 @@ from __future__ import annotations
 
 import functools
 
-import jax
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jax, jit, jnp
 
 from ..chunked import chunked_map
 
@@ -70,7 +69,7 @@ def _program_vjp(problem, frames: int, wrt_params: bool):
     return jax.jit(go)
 
 
-@jax.jit
+@jit
 def _apply(vjp, g):
     return vjp(g)
 

@@ -27,9 +27,11 @@ import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
-import jax
-import jax.numpy as jnp
-from jax.scipy import fft as jfft
+import numpy as np
+
+from pdestream.generator.lazy_jax import LazyModule, jax, jnp
+
+jfft = LazyModule("jax.scipy.fft")
 
 
 @dataclass(frozen=True)
@@ -87,14 +89,14 @@ class State(NamedTuple):
     capped: jax.Array
 
 
-def initial_state(box: Box, dtype=jnp.float32) -> State:
+def initial_state(box: Box, dtype=np.float32) -> State:
     """Fluid at rest, zero scalar."""
     z = jnp.zeros
     return State(tuple(z(box.face_shape(k), dtype) for k in range(box.ndim)), z(box.shape, dtype),
                  z(box.shape, dtype), z((), dtype), z((), jnp.int32), z((), jnp.int32))
 
 
-def points(box: Box, shape, offsets, dtype=jnp.float32):
+def points(box: Box, shape, offsets, dtype=np.float32):
     """Coordinates (one array of ``shape`` per axis, m) of the nodes of a field at ``offsets`` (cells)."""
     axes = [(jnp.arange(n, dtype=dtype) + o) * box.h for n, o in zip(shape, offsets)]
     return jnp.meshgrid(*axes, indexing="ij")
@@ -310,7 +312,7 @@ def project(box: Box, vel, dt):
     return apply_bc(box, tuple(v - gk for v, gk in zip(vel, g))), phi / dt
 
 
-def source_weight(box: Box, params: Params3, dtype=jnp.float32):
+def source_weight(box: Box, params: Params3, dtype=np.float32):
     """1 inside the source ball (centre, radius of params.source), 0 outside [*shape]."""
     *centre, r, _ = params.source
     x = points(box, box.shape, box.offsets(None), dtype)

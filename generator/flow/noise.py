@@ -16,9 +16,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 LOWEST = 0.1  # PhiFlow's lowest_frequency: modes with |k|^2 <= this get no weight (|k| in scale / length units)
 

@@ -17,9 +17,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from .grid import Faces
 

@@ -31,9 +31,9 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ...boundaries import DIRICHLET, NEUMANN, PERIODIC, is_periodic
 from .. import dispatch

@@ -15,9 +15,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from . import pressure
 from .grid import (
@@ -173,7 +173,7 @@ def fill_ghosts(geom: Geometry, params: Params, u, v):
     return u, v
 
 
-def inflow_profile(geom: Geometry, params: Params, dtype=jnp.float32, t=None):
+def inflow_profile(geom: Geometry, params: Params, dtype=np.float32, t=None):
     """Left-side inflow u [ny]: parabolic with peak params.inflow at mid-height (zero at walls), blended with
     a plug of the same flux by params.plug (0: parabola; 1: uniform 2/3 * inflow); at time t (s) times
     1 + A sin(2 pi f t) where params.pulse = (A, f) pulses it."""
@@ -190,7 +190,7 @@ def inflow_profile(geom: Geometry, params: Params, dtype=jnp.float32, t=None):
     return profile * (1 + amplitude * jnp.sin(2 * jnp.pi * frequency * t)).astype(dtype)
 
 
-def initial_state(geom: Geometry, params: Params, dtype=jnp.float32) -> State:
+def initial_state(geom: Geometry, params: Params, dtype=np.float32) -> State:
     """Fluid at rest (inflow faces set), zero smoke."""
     z = jnp.zeros
     s = State(z((geom.ny, geom.nx + 1), dtype), z((geom.ny + 1, geom.nx), dtype), z((geom.ny, geom.nx), dtype),
@@ -237,7 +237,7 @@ def _balance_convective(geom: Geometry, u, v, mu, mv):
     return u.at[:, -1].add(shift * open_right), v.at[-1].add(shift * open_top)
 
 
-def source_rate(geom: Geometry, params: Params, dtype=jnp.float32):
+def source_rate(geom: Geometry, params: Params, dtype=np.float32):
     """Smoke added per second [ny, nx]: params.source's rate inside its disc (sx, sy, r), zero elsewhere."""
     sx, sy, r, rate = params.source
     return rate * circle_solid(geom, sx, sy, r, dtype).astype(dtype)

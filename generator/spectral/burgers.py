@@ -1,10 +1,12 @@
 """Viscous Burgers: u_t + u u_x = nu u_xx (1D, written as u_t = nu u_xx - (u^2 / 2)_x); in 2D/3D the vector
 equation u_t + (u . grad) u = nu Laplacian(u) for the velocity u = (u, v[, w])."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jnp
 
 from ...boundaries import BOUNDARY_TYPES, pins_value
 from ..domains import LogUniform

@@ -1,6 +1,8 @@
 """Pieces shared by several PDE definitions."""
 
-import jax.numpy as jnp
+from __future__ import annotations
+
+from pdestream.generator.lazy_jax import jnp
 
 from .base import Param
 from .fourier import cmul

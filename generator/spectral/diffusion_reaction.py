@@ -1,9 +1,11 @@
 """Two-field diffusion-reaction of FitzHugh-Nagumo type (PDEBench's 2D diffusion-reaction set), in 2D."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jnp
 
 from ..domains import LogUniform, Uniform
 from ..ics import FourierSeries, GaussianRandomField, WhiteNoise

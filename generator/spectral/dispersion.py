@@ -1,9 +1,11 @@
 """Linear dispersion (the linear part of KdV) in 1D: u_t + beta u_xxx = 0."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jnp
 
 from ..domains import LogUniform
 from ..ics import FourierSeries

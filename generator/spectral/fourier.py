@@ -11,11 +11,11 @@ mean of Kassam & Trefethen (2005), which avoids the cancellation of the direct f
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, ClassVar
+from typing import Callable, ClassVar, NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ...boundaries import periodic_words
 from ..grids import GridBase
@@ -112,9 +112,9 @@ class Grid(GridBase):
         return out.astype(u.dtype)
 
 
-@dataclass(frozen=True)
-class ETDRK4Coefficients:
-    """Per-wavenumber ETDRK4 multipliers for step h; each array has the shape of L."""
+class ETDRK4Coefficients(NamedTuple):
+    """Per-wavenumber ETDRK4 multipliers for step h; each array has the shape of L (a tuple: a JAX pytree as it
+    is, with no registration that would import JAX with this module)."""
 
     exp_hl: jax.Array  # e^{hL}
     exp_hl2: jax.Array  # e^{hL/2}
@@ -122,13 +122,6 @@ class ETDRK4Coefficients:
     f1: jax.Array
     f2: jax.Array
     f3: jax.Array
-
-
-jax.tree_util.register_pytree_node(
-    ETDRK4Coefficients,
-    lambda c: ((c.exp_hl, c.exp_hl2, c.q, c.f1, c.f2, c.f3), None),
-    lambda _, xs: ETDRK4Coefficients(*xs),
-)
 
 
 def etdrk4_coefficients(linear: jax.Array, h: float | jax.Array) -> ETDRK4Coefficients:
@@ -169,7 +162,7 @@ def etdrk4_coefficients(linear: jax.Array, h: float | jax.Array) -> ETDRK4Coeffi
     return ETDRK4Coefficients(exp_hl, exp_hl2, q, f1, f2, f3)
 
 
-Nonlinear = Callable[[jax.Array], jax.Array]
+Nonlinear = Callable[["jax.Array"], "jax.Array"]
 
 
 def cmul(a: jax.Array, b: jax.Array) -> jax.Array:

@@ -1,10 +1,13 @@
 """Gray-Scott reaction-diffusion on the periodic square and cube (Pearson 1993 pattern formation)."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jnp
 
 from ..domains import Fixed, Uniform
 from ..ics import GrayScottSpots

@@ -28,9 +28,9 @@ import threading
 from collections import OrderedDict
 from typing import Mapping
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jit, jnp
 
 from ..chunked import join as _join
 from ..chunked import split
@@ -135,7 +135,7 @@ def _evolve_vjp(pde: PDE, frames: int, wrt_params: bool):
     return jax.jit(run)
 
 
-@jax.jit
+@jit
 def _apply(vjp, g):
     """A VJP closure returned by a compiled program, applied to the cotangent g (compiled once per closure)."""
     return vjp(g)
@@ -234,7 +234,7 @@ def _device(x: jax.Array):
     return device
 
 
-@functools.partial(jax.jit, static_argnums=1)
+@jit(static_argnums=1)
 def _split(tree, n_chunks: int):
     """[B, ...] leaves -> n_chunks trees of SETUP_CHUNK rows (zero rows after B), in one dispatch."""
     def pad(x):

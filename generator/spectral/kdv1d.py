@@ -1,9 +1,11 @@
 """Korteweg-de Vries: u_t + alpha u u_x + beta u_xxx = 0."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jnp
 
 from ..domains import LogUniform, Uniform
 from ..ics import FourierSeries

@@ -1,11 +1,14 @@
 """Incompressible Navier-Stokes in vorticity form on the periodic square, decaying or Kolmogorov-forced."""
 
+from __future__ import annotations
+
 import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jnp
 
 from ..domains import LogUniform
 from ..ics import GaussianRandomField

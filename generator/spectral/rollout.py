@@ -13,8 +13,7 @@ from __future__ import annotations
 import functools
 from typing import Mapping
 
-import jax
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jax, jit, jnp
 
 from .. import dispatch
 from ..chunked import chunked_map
@@ -219,7 +218,7 @@ def evolve_bounded(pde: PDE, parts, shared: bool = False):
     return [finish(v, buf, p) for v, buf, p, _ in states]
 
 
-@jax.jit
+@jit
 def _first_row(tree):
     return jax.tree_util.tree_map(lambda x: x[0], tree)
 

@@ -8,9 +8,9 @@ reduction differently per batch size, which would change a sample's bits with it
 
 from __future__ import annotations
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 
 def ddx(k: np.ndarray, v: jax.Array) -> jax.Array:

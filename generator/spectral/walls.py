@@ -24,9 +24,9 @@ import dataclasses
 import functools
 from typing import Any, Mapping
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ... import boundaries
 from ..domains import Fixed

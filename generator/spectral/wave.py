@@ -1,12 +1,14 @@
 """The wave equation in 1D/2D, u_tt = c^2 Laplacian(u), as the first-order system (u, v = u_t) solved in
 spectral form: per Fourier mode, exactly, in the variables that diagonalise it."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ..domains import Uniform
 from ..ics import FourierSeries

@@ -23,8 +23,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
+from pdestream.generator.lazy_jax import jax, jnp
 
 
 class Faces(NamedTuple):

@@ -25,9 +25,9 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from pdestream.generator.lazy_jax import jax, jnp
 
 from ... import boundaries
 from ..chunked import chunked_map
