@@ -482,6 +482,24 @@ def split_of(name: str, split: str) -> Split:
     return RECIPES[name].splits[split]
 
 
+def changed_from(name: str, config: Mapping[str, Any]) -> list[str]:
+    """The settings of ``config`` (a problem's ``config()``, labelled as recipe ``name``) that differ from the
+    recipe's own ([] when it is the recipe as published, or a recipe this version does not declare)."""
+    if name not in RECIPES:
+        return []
+    from pdestream import generator
+
+    own = generator.get_pde(name).config()
+    return [k for k in sorted(set(own) | set(config)) if own.get(k) != config.get(k)]
+
+
+def changed_note(name: str, config: Mapping[str, Any]) -> str:
+    """' with n, c changed (not the published set)' for a problem made from recipe ``name`` with other settings
+    ('' when it is the recipe's own)."""
+    changed = changed_from(name, config)
+    return f" with {', '.join(changed)} changed (not the published set)" if changed else ""
+
+
 def listing() -> str:
     """`pdestream recipes`: every recipe with its entry and source, then the sets not expressible (and why)."""
     width, entry = max(len(n) for n in RECIPES), max(len(r.entry) for r in RECIPES.values())

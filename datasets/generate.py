@@ -67,9 +67,21 @@ def generate(cfg: GenerateConfig) -> str:
     pde = build_pde(cfg.pde, cfg.settings)
     cfg = replace(cfg, seed=seed, n=n)
     try:
-        return _generate(pde, cfg)
+        return _generate(pde, cfg) + recipe_note(pde)
     except KeyboardInterrupt:
         raise KeyboardInterrupt(left_after_interrupt(cfg.out, cfg.resume)) from None
+
+
+def recipe_note(pde) -> str:
+    """A second line when ``pde`` is a recipe whose settings --set changed: its cache is labelled with the recipe
+    (where it came from), and `inspect` says the same; '' otherwise."""
+    recipe = getattr(pde, "recipe", "")
+    if not recipe:
+        return ""
+    from pdestream.recipes import changed_note
+
+    changed = changed_note(recipe, pde.config())
+    return f"\nnote: recipe {recipe}{changed}; `pdestream inspect` says so too" if changed else ""
 
 
 def _generate(pde, cfg: GenerateConfig) -> str:

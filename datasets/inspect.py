@@ -107,7 +107,10 @@ def summary(path) -> str:
             f"jax {a['jax_version']} (threefry_partitionable={a['jax_threefry_partitionable']})",
         ]
         if a.get("pdestream_recipe"):
-            lines.insert(2, f"  recipe: {a['pdestream_recipe']}: {a.get('pdestream_recipe_source', '')}")
+            from pdestream.recipes import changed_note
+
+            changed = changed_note(a["pdestream_recipe"], json.loads(a[schema.CONFIG_ATTR]))
+            lines.insert(2, f"  recipe: {a['pdestream_recipe']}{changed}: {a.get('pdestream_recipe_source', '')}")
             lines[3] += split_note(a["pdestream_recipe"], int(a["pdestream_seed"]), complete.size)
         damaged = set()
         for name in a["pdestream_params"].split():

@@ -97,9 +97,11 @@ def test_set_overrides_a_recipe_and_a_cache_records_the_recipe_and_its_source(ca
     pde = g.get_pde("fno_burgers1d", {"n": "64"})
     assert pde.n == 64 and str(pde.nu) == "0.1" and pde.ic.alpha == 2.0 and pde.recipe == "fno_burgers1d"
     out = tmp_path / "a.h5"
-    code, _, err = run_cli(capsys, "generate", "pdebench_advection1d", "--n", "2", "--out", str(out),
-                           "--set", "n=32", "--set", "n_frames=3", "--set", "c=0.4")
+    code, said, err = run_cli(capsys, "generate", "pdebench_advection1d", "--n", "2", "--out", str(out),
+                              "--set", "n=32", "--set", "n_frames=3", "--set", "c=0.4")
     assert code == 0, err
+    # the label keeps where the data came from, and says they are not the published set
+    assert "note: recipe pdebench_advection1d with c, n, n_frames changed (not the published set)" in said, said
     with open_cache(out) as ds:
         config = json.loads(ds.attrs["pdestream_config"])
         assert ds.attrs["pdestream_recipe"] == "pdebench_advection1d" and config["recipe"] == "pdebench_advection1d"
@@ -107,7 +109,8 @@ def test_set_overrides_a_recipe_and_a_cache_records_the_recipe_and_its_source(ca
         assert config["n"] == 32 and config["c"] == "0.4" and config["ic"]["kind"] == "sines"
         assert np.allclose(ds["c"].values, 0.4)
     code, shown, _ = run_cli(capsys, "inspect", str(out))
-    assert code == 0 and "recipe: pdebench_advection1d: Takamoto et al. 2022" in shown
+    assert code == 0 and ("recipe: pdebench_advection1d with c, n, n_frames changed (not the published set): "
+                          "Takamoto et al. 2022") in shown, shown
     assert "; seed 0 (the train split's seed: its first 2 of 9000)" in shown  # the seed says which split it is
     from pdestream.datasets.inspect import split_note
 
@@ -235,3 +238,11 @@ def test_cfdbench_cylinder_reynolds_limit_is_karman2ds_own():
     with pytest.raises(ValueError, match=r"cell Reynolds number .* = 42.2; the limit is 40"):
         cylinder(300)
     assert "Re <= 284" in recipes.not_expressible("cfdbench_cylinder_prop")
+
+
+def test_a_recipe_as_published_has_nothing_changed_and_a_set_names_what_it_changed():
+    for name in recipes.RECIPES:
+        assert recipes.changed_from(name, g.get_pde(name).config()) == [], name
+    pde = g.get_pde("pdearena_smoke2d", {"refine": "4", "nu": "0.01"})  # nu: the recipe's own value
+    assert pde.recipe == "pdearena_smoke2d" and recipes.changed_from(pde.recipe, pde.config()) == ["refine"]
+    assert recipes.changed_note("no_such_recipe", {"n": 3}) == ""
