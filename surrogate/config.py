@@ -42,7 +42,7 @@ class TrainConfig:
     model: str = "fno"
     model_cfg: dict = field(default_factory=dict)
     view: str | None = None
-    k_in: int = 1
+    k_in: int | None = None  # None: a recipe's published input frames (recipes.Recipe.input_frames), else 1
     k_out: int = 1
     steps: int | None = None
     batch_size: int = 32

@@ -106,6 +106,21 @@ def make_view(name: str, k_in: int = 1, k_out: int = 1):
     return datasets.make_view(name, k_in=k_in, k_out=k_out) if name == "next_step" else datasets.make_view(name)
 
 
+def input_frames(pde, cfg: TrainConfig, log=print) -> int:
+    """next_step's input frames: ``cfg.k_in``, or for a recipe (``pde.recipe``) its published input frames when its
+    trajectories hold them and a frame to predict (said in a line), else 1."""
+    if cfg.k_in is not None:
+        return cfg.k_in
+    from pdestream.recipes import RECIPES
+
+    recipe = RECIPES.get(getattr(pde, "recipe", ""))
+    k = recipe.input_frames if recipe is not None else None
+    if not k or pde.STEADY or (cfg.view or "next_step") != "next_step" or pde.n_frames < k + cfg.k_out:
+        return 1
+    log(f"--k-in {k}: recipe {recipe.name}'s published input frames (give --k-in to choose)")
+    return k
+
+
 def mode_settings(cfg: TrainConfig) -> dict:
     """The mode's settings for train_run: the mode table's defaults, one line for an option the mode does not
     take (surrogate.mode_table.mode_settings); k_out is checked with the view (surrogate.modes)."""
@@ -145,7 +160,8 @@ def _new(cfg: TrainConfig, ranks: int, log) -> dict | None:
     ddp.init_from_env(cfg.device)  # several ranks: every rank has passed the checks once all have joined
     out = Path(cfg.out)
     kw = dict(model=cfg.model, model_cfg=dict(cfg.model_cfg),
-              view=make_view(cfg.view or ("operator" if pde.STEADY else "next_step"), cfg.k_in, cfg.k_out),
+              view=make_view(cfg.view or ("operator" if pde.STEADY else "next_step"), input_frames(pde, cfg, log),
+                             cfg.k_out),
               steps=TRAIN_STEPS if cfg.steps is None else cfg.steps, batch_size=cfg.batch_size, lr=cfg.lr,
               schedule=cfg.schedule, seed=cfg.seed, n_test=cfg.test_samples, explicit=dict(cfg.settings),
               checkpoint_every=cfg.checkpoint_every, data_cfg=cfg.reservoir, device=cfg.device,

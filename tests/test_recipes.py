@@ -246,3 +246,31 @@ def test_a_recipe_as_published_has_nothing_changed_and_a_set_names_what_it_chang
     pde = g.get_pde("pdearena_smoke2d", {"refine": "4", "nu": "0.01"})  # nu: the recipe's own value
     assert pde.recipe == "pdearena_smoke2d" and recipes.changed_from(pde.recipe, pde.config()) == ["refine"]
     assert recipes.changed_note("no_such_recipe", {"n": 3}) == ""
+
+
+def test_training_a_recipe_takes_its_published_input_frames_unless_told(tmp_path):
+    from pdestream.surrogate.config import TrainConfig
+    from pdestream.surrogate.launch import input_frames
+
+    pde = g.get_pde("pdebench_diffusion_sorption1d", {"n": "32", "n_frames": "12", "t_end": "5"})
+    assert recipes.RECIPES["pdebench_diffusion_sorption1d"].input_frames == 10
+    said = []
+    assert input_frames(pde, TrainConfig(), said.append) == 10 and "--k-in 10: recipe pdebench_diffusion_sorption1d" in said[0]
+    assert input_frames(pde, TrainConfig(k_in=2), said.append) == 2  # told
+    assert input_frames(g.get_pde("pdebench_diffusion_sorption1d", {"n_frames": "8"}), TrainConfig(), said.append) == 1  # no room
+    assert input_frames(g.get_pde("burgers1d"), TrainConfig(), said.append) == 1  # not a recipe
+    assert input_frames(g.get_pde("fno_burgers1d"), TrainConfig(), said.append) == 1  # an operator set: none
+    assert input_frames(pde, TrainConfig(view="operator"), said.append) == 1
+
+
+@pytest.mark.slow
+def test_a_trained_recipe_records_its_input_frames(tmp_path):
+    from pdestream.surrogate.config import TrainConfig
+    from pdestream.surrogate.launch import train
+
+    lines = []
+    s = train(TrainConfig(pde="pdebench_diffusion_sorption1d", settings={"n": "32", "n_frames": "12", "t_end": "5"}, out=str(tmp_path / "r"),
+                          steps=1, batch_size=2, test_samples=1, threads=1, model_cfg={"width": 4, "modes": 2,
+                                                                                         "layers": 1}), log=lines.append)
+    run = json.loads((tmp_path / "r" / "run.json").read_text())
+    assert s["steps"] == 1 and "k_in" in json.dumps(run) and '"k_in": 10' in json.dumps(run), run
