@@ -33,7 +33,8 @@ as in the cache, except a compressible flow's primitive fields (rho, u(, v, w), 
 (, ``y-coordinate``, ``z-coordinate``) and ``t-coordinate`` (the T frame times). A steady cache is laid out as
 PDEBench's Darcy file: its input field as ``nu`` [N, x(, y)] (where its loader reads Darcy's coefficient; several
 inputs: each under its own name), its solution as ``tensor`` [N, 1, x(, y)] (no ``t-coordinate``). Each parameter
-is a dataset [N] named after it.
+is a dataset [N] named after it. The sets PDEBench ships one group per sample (diffusion-sorption,
+diffusion-reaction, shallow water) get that layout instead (``datasets.pdebench_seeds``).
 
 Writes are atomic (``OUT.tmp-PID``, then ``os.replace``); an existing OUT is refused unless ``overwrite`` is
 given and OUT is an export pdestream wrote (anything else is never replaced).
@@ -220,6 +221,10 @@ class PDEBench:
     name = "pdebench"
 
     def write(self, ds, out: Path) -> None:
+        from . import pdebench_seeds
+
+        if pdebench_seeds.per_seed_entry(ds) is not None:  # a set PDEBench ships per seed: its layout
+            return pdebench_seeds.write(ds, out, _new_hdf5)
         inputs, fields, params = _names(ds)
         space = _space(ds)
         n, timed = ds.sizes["sample"], "time" in ds.dims
@@ -243,9 +248,16 @@ class PDEBench:
                 f.create_dataset(p, data=_param_data(ds, p)).attrs.update(_attrs(ds[p].attrs))
 
     def looks_like(self, f) -> bool:
-        return "x-coordinate" in f and ("tensor" in f or "density" in f or "pdestream_fields" in f.attrs)
+        from . import pdebench_seeds
+
+        return ("x-coordinate" in f and ("tensor" in f or "density" in f or "pdestream_fields" in f.attrs)) \
+            or pdebench_seeds.looks_like(f)
 
     def read(self, f) -> dict:
+        from . import pdebench_seeds
+
+        if "x-coordinate" not in f and pdebench_seeds.looks_like(f):
+            return pdebench_seeds.read(f)
         space = tuple(d for d in schema.SPACE if f"{d}-coordinate" in f)
         timed = "t-coordinate" in f
         coords = {d: (f[f"{d}-coordinate"][()], dict(f[f"{d}-coordinate"].attrs)) for d in space}
@@ -388,15 +400,16 @@ def read_export(path):
         if not found:
             raise ValueError(f"{path} is neither a The Well nor a PDEBench HDF5 file; allowed: files written by "
                              "`pdestream export --to the-well|pdebench`")
-        if schema.CONFIG_ATTR not in f.attrs or GROUP not in f:
+        if schema.CONFIG_ATTR not in f.attrs:
             raise ValueError(f"{path} is a {found[0].name} file not written by pdestream (no {schema.CONFIG_ATTR} "
                              "attribute): pdestream reads back only its own exports")
         fmt = FORMATS.get(plain(f.attrs.get("pdestream_export")), found[0])
         try:
             got = fmt.read(f)
             attrs = {k: plain(v) for k, v in f.attrs.items() if k not in (*got["drop"], "pdestream_export")}
-            sample = f[GROUP]["sample"][()].astype(np.int64)
-            redraws = f[GROUP]["redraws"][()].astype(np.int8)
+            # the per-seed layout keeps them in each sample's group (its loaders take every top-level key for one)
+            sample = got["sample"] if "sample" in got else f[GROUP]["sample"][()].astype(np.int64)
+            redraws = got["redraws"] if "redraws" in got else f[GROUP]["redraws"][()].astype(np.int8)
         except KeyError as err:  # a dataset or attribute the format puts there is gone
             text = str(err.args[0] if err.args else err)
             named = re.search(r"object '([^']+)'", text)  # h5py: "Unable to ... open object (object 'nu' ...)"

@@ -262,3 +262,57 @@ def test_a_damaged_export_is_refused_in_one_line_and_nothing_is_written(caches, 
     with pytest.raises(ValueError, match=words) as err:
         import_export(export, tmp_path / "c.h5")  # the bad config was imported with rc 0, then refused by readers
     assert "\n" not in str(err.value) and [p.name for p in tmp_path.iterdir()] == ["e.h5"]
+
+
+PER_SEED = {  # the sets PDEBench ships per seed (its FNODatasetMult / UNetDatasetMult files), tiny
+    "diffusion_sorption1d": ["--n", "3", "--set", "n=16", "--set", "n_frames=3", "--set", "t_end=1"],
+    "diffusion_reaction2d": ["--n", "3", "--set", "n=32", "--set", "n_frames=3", "--set", "t_end=0.1"],
+    "shallow_water2d": ["--n", "3", "--set", "n=16", "--set", "n_frames=3", "--set", "t_end=0.1"],
+}
+
+
+@pytest.fixture(scope="module")
+def per_seed_caches(tmp_path_factory):
+    root = tmp_path_factory.mktemp("per_seed")
+    out = {}
+    for name, argv in PER_SEED.items():
+        out[name] = root / f"{name}.h5"
+        assert cli.main(["generate", name, *argv, "--out", str(out[name])]) == 0
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(PER_SEED))
+def test_pdebench_per_seed_sets_are_laid_out_as_its_mult_loaders_read_them(per_seed_caches, tmp_path, name):
+    """Every top-level key a sample's group ("0000", ...: the loaders take each key for one and split by sorted
+    name), ``data`` [T, x(, y), C] with PDEBench's channels, ``grid/x``(, ``grid/y``), ``grid/t``; our other
+    fields beside ``data``; and read back and imported, the cache again."""
+    from pdestream.datasets.pdebench_seeds import PER_SEED_CHANNELS
+
+    out = tmp_path / f"{name}.h5"
+    export_cache(per_seed_caches[name], "pdebench", out)
+    fields, params, coords = _fields(per_seed_caches[name])
+    channels = PER_SEED_CHANNELS[name]
+    with h5py.File(out, "r") as f:
+        assert sorted(f.keys()) == ["0000", "0001", "0002"]
+        for i, key in enumerate(sorted(f.keys())):
+            g = f[key]
+            stacked = g["data"][()]
+            assert stacked.shape == (*fields[channels[0]].shape[1:], len(channels))
+            for c, field in enumerate(channels):
+                np.testing.assert_array_equal(stacked[..., c], fields[field][i])
+            for field in set(fields) - set(channels):  # shallow water's hu, hv
+                np.testing.assert_array_equal(g[field][()], fields[field][i])
+            np.testing.assert_array_equal(g["grid/t"][()], coords["time"])
+            for d in ("x", "y"):
+                if d in coords:
+                    np.testing.assert_array_equal(g[f"grid/{d}"][()], coords[d])
+            assert all(g.attrs[p] == params[p][i] for p in params)
+    with open_cache(per_seed_caches[name]) as ds:
+        original = ds.load()
+    back = read_export(out)
+    xr.testing.assert_equal(back, original)
+    assert _same_attrs(back.attrs, original.attrs)
+    assert all(_same_attrs(back[v].attrs, original[v].attrs) for v in original.variables)
+    with open_cache(import_export(out, tmp_path / "again.h5")) as ds:
+        xr.testing.assert_equal(ds.load(), original)
