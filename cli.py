@@ -221,9 +221,8 @@ def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
         g.add_argument("--mode", default=d.mode, choices=MODE_NAMES,
                        help="; ".join(f"{name}: {spec.help}" for name, spec in MODE_SPECS.items()))
     else:
-        g.add_argument("--modes", metavar="M1,M2,...",
-                       help="compare training modes at equal steps (rollout error against time): a comma-separated "
-                            f"subset of {', '.join(MODE_NAMES)}")
+        g.add_argument("--modes", metavar="M1,M2,...", help="compare training modes at equal steps (rollout error "
+                       f"against time): a comma-separated subset of {', '.join(MODE_NAMES)}")
         g.add_argument("--fine-n", type=int, metavar="N", help="solver-in-the-loop: the fine grid (default: the PDE's n)")
     g.add_argument("--loss", choices=("mse", "relative"), default=d.loss,
                    help="training loss: mse (in normalized units) or relative (the mean per-example relative L2, the "
@@ -236,6 +235,7 @@ def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
     g.add_argument("--corrector-start", metavar="|".join(CORRECTOR_STARTS), help=hint["corrector_start"])
     if not isinstance(d, TrainConfig):
         g.add_argument("--unroll-schedule", metavar="K1:S1,K2:S2,...", help=hint["unroll_schedule"])
+        g.add_argument("--pairs-steps", type=int, metavar="N", help="the corrector's pairs arms' steps (default --steps)")
 
 
 def add_train(sub) -> None:
@@ -371,7 +371,7 @@ def compare_command(args: argparse.Namespace) -> CompareCommand:
         steps=args.steps, batch_size=args.batch_size, lr=args.lr, threads=args.threads, device=args.device,
         modes=None if args.modes is None else tuple(args.modes.split(",")), fine_n=args.fine_n, loss=args.loss,
         unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise, corrector_start=args.corrector_start,
-        unroll_schedule=args.unroll_schedule, reservoir=reservoir)
+        unroll_schedule=args.unroll_schedule, pairs_steps=args.pairs_steps, reservoir=reservoir)
 
 
 def cmd_compare(args: argparse.Namespace) -> None:

@@ -60,6 +60,7 @@ class CompareCommand:
     noise: float | str | None = None
     corrector_start: str | None = None
     unroll_schedule: str | None = None
+    pairs_steps: int | None = None  # --modes: the corrector's pairs arms' steps (equal wall clock), None: steps
     reservoir: dict = field(default_factory=dict)
 
 
@@ -191,9 +192,9 @@ def _compare(cmd: CompareCommand, log) -> str:
     if cmd.modes is not None:
         return _interactive(cmd)
     if (cmd.unroll is not None or cmd.coarse_n is not None or cmd.fine_n is not None or cmd.noise is not None
-            or cmd.corrector_start is not None or cmd.unroll_schedule is not None):
-        raise ValueError("--unroll, --unroll-schedule, --coarse-n, --fine-n, --corrector-start and --noise go with "
-                         "--modes (compare training modes)")
+            or cmd.corrector_start is not None or cmd.unroll_schedule is not None or cmd.pairs_steps is not None):
+        raise ValueError("--unroll, --unroll-schedule, --coarse-n, --fine-n, --corrector-start, --noise and --pairs-steps "
+                         "go with --modes (compare training modes)")
     if budget:
         return _budget(cmd, log)
     from pdestream.experiments import compare as module
@@ -304,7 +305,7 @@ def _interactive(cmd: CompareCommand) -> str:
         steps=20 if quick else cmd.steps, batch_size=8 if quick else cmd.batch_size, lr=cmd.lr, model=cmd.model,
         model_cfg=model_cfg, k_in=cmd.k_in, seed=0, seeds=1 if cmd.seeds is None else cmd.seeds,
         unroll_schedule=cmd.unroll_schedule, resume=not cmd.overwrite, n_test=4 if cmd.quick and cmd.test_samples == 128 else
-        cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device, budget_s=cmd.budget)
+        cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device, budget_s=cmd.budget, pairs_steps=cmd.pairs_steps)
     if cmd.k_out != 1:
         raise ValueError(f"--k-out={cmd.k_out} not allowed with --modes: every mode predicts one frame per step")
     module.interactive_compare(pde, cmd.out, cfg)

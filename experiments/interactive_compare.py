@@ -84,7 +84,9 @@ class InteractiveConfig:
     ``mode_table.parse_unroll_schedule``; its longest unroll replaces sitl_unroll); seed: the first model and data
     seed and the test set's; seeds: how many (seed, seed + 1, ...); resume: read back finished (arm, seed) runs;
     budget_s: equal wall clock instead of equal steps: every trained arm trains this many seconds (solver calls
-    included; the steps it reaches are in the table), None: ``steps`` each."""
+    included; the steps it reaches are in the table), None: ``steps`` each; pairs_steps: the corrector's two pairs
+    arms' steps (None: ``steps``), for equal wall clock with solver-in-the-loop, whose unrolled steps cost more
+    (read off a run at equal steps: ``steps`` x its wall / theirs)."""
 
     modes: tuple = NETWORK_MODES
     unroll: int = DEFAULTS["unroll"]
@@ -106,6 +108,7 @@ class InteractiveConfig:
     resume: bool = True
     device: str = "cpu"
     budget_s: float | None = None
+    pairs_steps: int | None = None
 
     def schedule(self) -> list | None:
         """The solver-in-the-loop arm's unroll curriculum in optimizer steps ([[k, steps], ...]) or None."""
@@ -123,6 +126,11 @@ class InteractiveConfig:
         for name, value in (("--steps", self.steps), ("--batch-size", self.batch_size), ("--test-samples", self.n_test),
                             ("--k-in", self.k_in), ("--seeds", self.seeds)):
             check_count(name, value)
+        if self.pairs_steps is not None:
+            check_count("--pairs-steps", self.pairs_steps)
+            if "solver-in-the-loop" not in self.modes or self.budget_s is not None:
+                raise ValueError(f"--pairs-steps {self.pairs_steps} goes with the corrector's arms (--modes "
+                                 "...,solver-in-the-loop) at equal steps (not with --budget)")
         if self.budget_s is not None:
             check_number("--budget", self.budget_s, 0, unit="seconds")
             if self.unroll_schedule is not None:
@@ -234,6 +242,13 @@ def _corrector_arms(cfg: InteractiveConfig, k: int) -> list[tuple]:
              f"sitl_unroll{'-'.join(str(u) for u, _ in schedule)}" if schedule else f"sitl_unroll{k}")]
 
 
+def _arm_steps(cfg: InteractiveConfig, settings: dict) -> int:
+    """The optimizer steps of the arm with mode ``settings``: pairs_steps for the corrector's pairs arms (unroll
+    1), when given, else steps."""
+    pairs = settings["name"] == "solver-in-the-loop" and settings.get("unroll") == 1
+    return cfg.pairs_steps if pairs and cfg.pairs_steps is not None else cfg.steps
+
+
 def _seeds(cfg: InteractiveConfig) -> range:
     return range(cfg.seed, cfg.seed + cfg.seeds)
 
@@ -257,7 +272,7 @@ RESUME_KEYS = ("model", "model_cfg", "steps", "seconds", "batch_size", "lr", "se
 
 def _differ(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int) -> list[str]:
     """The RESUME_KEYS in which the run.json in ``run_dir`` differs from what this arm and seed train with."""
-    want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": cfg.steps,
+    want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": _arm_steps(cfg, settings),
                                   "seconds": cfg.budget_s,
                                   "batch_size": cfg.batch_size, "lr": cfg.lr, "seed": seed,
                                   "mode": make_mode(settings).settings(), "pde": pde.config()}))
@@ -337,12 +352,14 @@ def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: Interacti
         log(f"{label} seed {seed}: finished in {run_dir}, read back (not retrained)")
     elif _unfinished(run_dir, pde, settings, cfg, seed):
         summary, at = resume_run(run_dir, tests={})
-        log(f"{label} seed {seed}: interrupted in {run_dir}, went on from its checkpoint at step {at} of {cfg.steps}")
+        log(f"{label} seed {seed}: interrupted in {run_dir}, went on from its checkpoint at step {at} of "
+            f"{_arm_steps(cfg, settings)}")
     else:
+        steps = _arm_steps(cfg, settings)
         summary = train_run(pde, "stream", run_dir, model=cfg.model, model_cfg=cfg.model_cfg,
-                            view=datasets.NextStep(cfg.k_in, 1), steps=cfg.steps, batch_size=cfg.batch_size,
+                            view=datasets.NextStep(cfg.k_in, 1), steps=steps, batch_size=cfg.batch_size,
                             lr=cfg.lr, seed=seed, data_seed=seed, tests={}, label=label,
-                            checkpoint_every=max(1, cfg.steps // CHECKPOINTS), device=cfg.device, mode=settings,
+                            checkpoint_every=max(1, steps // CHECKPOINTS), device=cfg.device, mode=settings,
                             seconds=cfg.budget_s)
     model, norm, _ = load_checkpoint(run_dir / "model.pt")
     model.to(check_device(cfg.device))

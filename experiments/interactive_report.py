@@ -110,7 +110,9 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
         noise += f", corrector start: {cfg.corrector_start}" + (" (every corrector's output layer zero at step 0)"
                                                                  if cfg.corrector_start == "zero" else "")
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
-    per_arm = (f"{cfg.steps} optimizer steps" if cfg.budget_s is None else
+    pairs = getattr(cfg, "pairs_steps", None)
+    per_arm = (f"{cfg.steps} optimizer steps" + (f" (the two pairs arms: {pairs})" if pairs else "")
+               if cfg.budget_s is None else
                f"equal wall clock: {cfg.budget_s:g} s of training (the steps each arm reached: steps column)")
     if cfg.unroll_schedule and "solver-in-the-loop" in cfg.modes:
         noise += (f", solver-in-the-loop unroll curriculum {cfg.unroll_schedule} (unroll:share of the steps; in steps "

@@ -196,3 +196,32 @@ def test_compare_pairs_noise_arm_at_zero_is_the_pairs_arm_and_the_corrector_metr
     assert got == pytest.approx(noisy["curve_p95"], rel=1e-5)
     assert float(rows[0]["t"]) == pytest.approx(result["frame_dt"])
     assert (out / "corrector.png").stat().st_size > 1000 and "corrector.png" in text
+
+
+@pytest.mark.slow
+def test_pairs_steps_give_the_pairs_arms_their_own_steps_and_a_rerun_reads_them_back(tmp_path, capsys):
+    """--pairs-steps: equal wall clock for the corrector's arms (solver-in-the-loop's unrolled steps cost more)."""
+    out = tmp_path / "cmp"
+    argv = ["compare", "burgers1d", "--modes", "solver-in-the-loop", "--quick", "--unroll", "2", "--pairs-steps",
+            "30", "--out", str(out)]
+    assert cli.main(argv) == 0
+    arms = {a["arm"]: a for a in json.loads((out / "compare.json").read_text())["arms"]}
+    assert arms["pairs (unroll 1)"]["steps"] == arms["pairs + noise (unroll 1)"]["steps"] == 30
+    assert arms["solver-in-the-loop (unroll 2)"]["steps"] == 20
+    assert "20 optimizer steps (the two pairs arms: 30)" in (out / "compare.md").read_text()
+    capsys.readouterr()
+    assert cli.main(argv) == 0  # every arm read back, none retrained
+    assert capsys.readouterr().out.count("read back (not retrained)") == 3
+    runs = [json.loads((out / d / "run.json").read_text())["steps"] for d in ("sitl_unroll1", "sitl_unroll2")]
+    assert runs == [30, 20]
+
+
+@pytest.mark.parametrize("extra, said", [
+    (["--pairs-steps", "30"], "--pairs-steps go with --modes"),
+    (["--modes", "solver-in-the-loop", "--pairs-steps", "0"], "--pairs-steps"),
+    (["--modes", "pushforward", "--pairs-steps", "30"], "--pairs-steps 30 goes with the corrector's arms"),
+])
+def test_pairs_steps_refusals_are_one_line(tmp_path, capsys, extra, said):
+    assert cli.main(["compare", "burgers1d", "--quick", "--out", str(tmp_path / "c"), *extra]) == 2
+    err = capsys.readouterr().err
+    assert said in err and err.count("\n") == 1, err
