@@ -44,6 +44,10 @@ def resolve_split(cfg: GenerateConfig) -> tuple[int, int]:
     split = split_of(cfg.pde, cfg.split)
     if cfg.seed not in (None, split.seed):  # --seed 0 too: the train split's seed given with another split
         raise ValueError(f"--split {cfg.split} fixes the seed ({split.seed}); drop --seed {cfg.seed}")
+    if cfg.n is not None and cfg.n > split.n:  # samples past the published set would be silently labelled as it
+        raise ValueError(f"--n {cfg.n} is more than the {cfg.split} split's {split.n} samples; allowed: --n 1..{split.n}"
+                         f" (for more of that seed's draws, drop --split and give --seed {split.seed} --n {cfg.n}: its "
+                         f"first {split.n} are the split)")
     return split.seed, split.n if cfg.n is None else cfg.n
 
 

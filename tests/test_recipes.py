@@ -71,6 +71,8 @@ def test_the_list_of_a_recipe_names_it_and_offers_only_settings_set_takes(capsys
     (("generate", "fno_burgers1d", "--split", "test", "--seed", "5", "--out", "x.h5"), ["fixes the seed (2)"]),
     (("generate", "fno_burgers1d", "--split", "valid", "--seed", "0", "--out", "x.h5"), ["fixes the seed (1)",
                                                                                           "drop --seed 0"]),
+    (("generate", "pdebench_advection1d", "--split", "test", "--n", "5000", "--out", "x.h5"),
+     ["--n 5000 is more than the test split's 1000 samples; allowed: --n 1..1000", "--seed 2 --n 5000"]),
 ])
 def test_bad_recipe_input_is_one_line(capsys, tmp_path, monkeypatch, argv, words):
     monkeypatch.chdir(tmp_path)
