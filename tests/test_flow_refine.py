@@ -79,6 +79,10 @@ def test_the_solve_grid_decides_the_cell_reynolds_limit():
     ("channel2d", {"refine": 2}, "refine=2 not allowed: entries with bodies"),
     ("plume3d", {"refine": 2}, "refine=2 not allowed: 3D flows"),
     ("cavity2d", {"refine": 400}, "refine=400 not allowed with n=64: the solve grid"),
+    # a grid past the size limit is refused as that, before the multigrid's search for a nearby n (linear in n:
+    # refine=99999999999999999999 or n=1e20 + 2 hung); these two were refused as the multigrid's
+    ("smoke2d", {"refine": 100000}, "n=3200000 not allowed: 10240000000000 grid points per field"),
+    ("cavity2d", {"n": 1000002}, "n=1000002 not allowed: 1000004000004 grid points per field"),
 ])
 def test_bad_refine_is_one_line_naming_it(name, settings, words):
     with pytest.raises(ValueError) as err:

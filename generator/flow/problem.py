@@ -260,6 +260,8 @@ class FlowProblem(ProblemBase):
             raise ValueError(f"{self.NAME}: aspect={self.aspect} not allowed: the box is aspect * n x n cells with "
                              "aspect an integer in 1..16")
         self._check_length()
+        # the grid's size before the multigrid's, whose search for a nearby n is linear in n (a huge n or refine hung)
+        self._check_size()
         if self._check_refine():
             return  # the solve grid's problem held every check of the flow (``solved``)
         self._check_multigrid()
@@ -279,7 +281,6 @@ class FlowProblem(ProblemBase):
         if self.advection not in ADVECTION:
             raise ValueError(f"{self.NAME}: advection={self.advection!r} not allowed: allowed are "
                              f"{', '.join(sorted(ADVECTION))}")
-        self._check_size()
         self._check_ic_on_grid()
         self.check_flow()
         nu_min = self.viscosity_range()[0]
