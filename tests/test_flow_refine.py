@@ -113,3 +113,19 @@ def test_pdearena_smoke_recipe_solves_on_384_and_stores_128():
     assert (pde.n, pde.refine, pde.solved.n, pde.length) == (128, 3, 384, 32.0)
     assert pde.grid.shape == (128, 128) and pde.n_frames == 14 and (pde.t_start, pde.t_end) == (13.5, 91.5)
     assert pde.solved.speed_bound() * pde.solved.h / 0.01 <= pde.MAX_CELL_REYNOLDS
+
+
+@pytest.mark.slow  # a flow compile (~25 s on 2 shared cores)
+def test_inspect_says_a_refined_flow_cache_holds_block_means(tmp_path, capsys):
+    # a flow stores each block's means, not every k-th point (inspect said "1 point in 2 kept", a spectral refine's)
+    from pdestream import cli
+
+    path = tmp_path / "s.h5"
+    args = [f"{k}={v}" for k, v in SMALL.items()]
+    assert cli.main(["generate", "smoke_box2d", "--n", "1", "--out", str(path)]
+                    + [w for a in args for w in ("--set", a)]) == 0
+    capsys.readouterr()
+    assert cli.main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "x=8 (solved on 2 times as many points per axis, each 2x2 block's means stored)" in out
+    assert "kept)" not in out
