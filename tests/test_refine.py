@@ -130,6 +130,20 @@ def test_the_interactive_modes_refuse_a_refined_problem():
         generator.interactive.advance(pde, u, {"nu": jnp.full((1,), 1e-3, jnp.float32)})
 
 
+def test_compare_modes_refuse_a_refined_oracle_before_any_work(tmp_path, capsys):
+    # `compare --modes one-step,oracle --set refine=2` built the test set and trained the one-step arm, then refused
+    # the oracle, leaving OUT with a run in it (and `--modes oracle` an empty OUT)
+    from pdestream import cli
+
+    for modes in ("oracle", "one-step,oracle"):
+        out = tmp_path / modes
+        assert cli.main(["compare", "burgers1d", "--modes", modes, "--set", "n=16", "--set", "refine=2", "--set",
+                         "n_frames=4", "--steps", "1", "--seeds", "1", "--test-samples", "1", "--unroll", "1",
+                         "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert "refine=2 not allowed here" in err and "test set" not in err and not out.exists(), (modes, err)
+
+
 def test_the_fno_recipes_at_low_viscosity_solve_on_256_and_keep_64():
     for name, t_end in (("fno_ns2d_nu1e-4", 30.0), ("fno_ns2d_nu1e-5", 20.0)):
         pde = generator.get_pde(name)
