@@ -129,3 +129,12 @@ def test_inspect_says_a_refined_flow_cache_holds_block_means(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "x=8 (solved on 2 times as many points per axis, each 2x2 block's means stored)" in out
     assert "kept)" not in out
+
+
+def test_solve_from_a_callers_state_refuses_a_flow_in_one_line():
+    # generator.solve(flow, u0, params) raised AttributeError ('SmokeBox2D' object has no attribute 'evolve')
+    for settings in ({**SMALL, "n": 16, "refine": 1}, SMALL):
+        pde = generator.get_pde("smoke_box2d", settings)
+        with pytest.raises(ValueError, match="smoke_box2d: its solver does not start from a caller's state") as err:
+            generator.solve(pde, np.zeros((1, 4, *pde.grid.shape), np.float32), {"buoyancy": [1.0], "nu": [2e-3]})
+        assert "allowed: sample(pde, indices, seed" in str(err.value)
