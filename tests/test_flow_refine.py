@@ -83,6 +83,11 @@ def test_the_solve_grid_decides_the_cell_reynolds_limit():
     # refine=99999999999999999999 or n=1e20 + 2 hung); these two were refused as the multigrid's
     ("smoke2d", {"refine": 100000}, "n=3200000 not allowed: 10240000000000 grid points per field"),
     ("cavity2d", {"n": 1000002}, "n=1000002 not allowed: 1000004000004 grid points per field"),
+    # the multigrid's nearby n are coarse n that work at this refine (it named the solve grid's: "196 or 200")
+    ("cavity2d", {"n": 66, "refine": 3}, "refine=3 with n=66 (solved on 198 cells across) not allowed: the pressure "
+                                         "multigrid"),
+    ("cavity2d", {"n": 66, "refine": 3}, "nearby n that halve further with refine=3: 64 or 68"),
+    ("cavity2d", {"n": 8, "refine": 65}, "no n halves further with refine=65"),
 ])
 def test_bad_refine_is_one_line_naming_it(name, settings, words):
     with pytest.raises(ValueError) as err:
