@@ -390,6 +390,13 @@ def check_refine(problem, meaning: str) -> None:
 def check_solve_grid(problem, unit: str) -> None:
     """Builds (and so validates) ``problem.solved``, the problem on n * refine ``unit`` per axis; its refusal is
     restated as refine's, in one line."""
+    points, r = math.prod(problem.grid.shape), problem.refine
+    if points * r**problem.NDIM > MAX_GRID_POINTS:  # named as refine's largest (the solve grid's n meant little)
+        most = next(k for k in range(_root(MAX_GRID_POINTS // points, problem.NDIM) + 1, 0, -1)
+                    if points * k**problem.NDIM <= MAX_GRID_POINTS)
+        raise ValueError(f"{problem.NAME}: refine={r} not allowed with n={problem.n}: the solve grid would hold "
+                         f"{points} * {r}^{problem.NDIM} points per field; the limit is {MAX_GRID_POINTS}; allowed: "
+                         f"refine <= {most} with n={problem.n}")
     try:
         problem.solved  # noqa: B018
     except ValueError as err:

@@ -80,8 +80,10 @@ def test_the_solve_grid_decides_the_cell_reynolds_limit():
     ("plume3d", {"refine": 2}, "refine=2 not allowed: 3D flows"),
     ("cavity2d", {"refine": 400}, "refine=400 not allowed with n=64: the solve grid"),
     # a grid past the size limit is refused as that, before the multigrid's search for a nearby n (linear in n:
-    # refine=99999999999999999999 or n=1e20 + 2 hung); these two were refused as the multigrid's
-    ("smoke2d", {"refine": 100000}, "n=3200000 not allowed: 10240000000000 grid points per field"),
+    # refine=99999999999999999999 or n=1e20 + 2 hung); these two were refused as the multigrid's, naming the solve
+    # grid's n; a refine too large names the largest refine allowed
+    ("smoke2d", {"refine": 100000}, "refine=100000 not allowed with n=32: the solve grid would hold 1024 * 100000^2 "
+                                    "points per field; the limit is 16777216; allowed: refine <= 128 with n=32"),
     ("cavity2d", {"n": 1000002}, "n=1000002 not allowed: 1000004000004 grid points per field"),
     # the multigrid's nearby n are coarse n that work at this refine (it named the solve grid's: "196 or 200")
     ("cavity2d", {"n": 66, "refine": 3}, "refine=3 with n=66 (solved on 198 cells across) not allowed: the pressure "

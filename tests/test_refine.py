@@ -101,6 +101,8 @@ def test_refine_enters_the_config_only_above_one():
     ("ns2d", {"refine": 0}, "refine=0 not allowed: need an integer >= 1"),
     ("ns2d", {"refine": 2.5}, "refine"),
     ("ns2d", {"refine": 100}, "refine=100 not allowed with n=64: the solve grid"),
+    # too large a refine names the largest allowed (it was restated from the solve grid's n: "n <= 4096 in 1D")
+    ("burgers1d", {"refine": 99999999999999999999}, "allowed: refine <= 65536 with n=256"),
     ("diffusion2d", {"bc": "dirichlet", "refine": 2}, "refine=2 not allowed with walls"),
 ])
 def test_bad_refine_is_one_line_naming_it(name, settings, words):
