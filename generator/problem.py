@@ -400,9 +400,24 @@ def check_solve_grid(problem, unit: str) -> None:
     try:
         problem.solved  # noqa: B018
     except ValueError as err:
+        if _fails_alike(problem, err):  # a setting bad on any grid (n_frames=1): its own line, not refine's
+            raise ValueError(str(err)) from None
         why = str(err).removeprefix(f"{problem.NAME}: ")
         raise ValueError(f"{problem.NAME}: refine={problem.refine} not allowed with n={problem.n}: the solve grid "
                          f"(n * refine = {problem.n * problem.refine} {unit}) fails: {why}") from None
+
+
+def _fails_alike(problem, err: ValueError) -> bool:
+    """Whether ``problem`` at refine 1 (its own grid) is refused with the very words the solve grid was."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (its grid's own warnings, e.g. under-resolved, are not this refusal's)
+        try:
+            dataclasses.replace(problem, refine=1)
+        except ValueError as plain:
+            return str(plain) == str(err)
+    return False
 
 
 def _root(limit: int, ndim: int) -> int:

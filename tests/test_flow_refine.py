@@ -145,3 +145,16 @@ def test_solve_from_a_callers_state_refuses_a_flow_in_one_line():
         with pytest.raises(ValueError, match="smoke_box2d: its solver does not start from a caller's state") as err:
             generator.solve(pde, np.zeros((1, 4, *pde.grid.shape), np.float32), {"buoyancy": [1.0], "nu": [2e-3]})
         assert "allowed: sample(pde, indices, seed" in str(err.value)
+
+
+@pytest.mark.parametrize("settings, said", [
+    ({"n_frames": 1}, "smoke_box2d: n_frames=1 not allowed: must be >= 2"),
+    ({"cfl": 5}, "smoke_box2d: cfl=5 not allowed"),
+    ({"advection": "x"}, "smoke_box2d: advection='x' not allowed"),
+    ({"max_iter": 0}, "smoke_box2d: max_iter=0 not allowed"),
+])
+def test_a_setting_bad_on_any_grid_is_not_blamed_on_refine(settings, said):
+    # it was "refine=2 not allowed with n=8: the solve grid (n * refine = 16 cells across) fails: n_frames=1 ..."
+    with pytest.raises(ValueError) as err:
+        generator.get_pde("smoke_box2d", {**SMALL, **settings})
+    assert str(err.value).startswith(said) and "refine" not in str(err.value), str(err.value)
