@@ -160,6 +160,20 @@ def test_a_cache_of_another_refine_names_both_values_not_none():
         assert said in str(err.value), str(err.value)
 
 
+def test_a_refined_problem_steps_as_its_solve_grid_and_the_operator_arm_stores_its_frames():
+    # step_dt was the kept grid's (0.02 here, unstable on the solve grid): compare --budget's operator arm pinned it
+    # as dt and refused the run ("dt=0.020000000020000002 is unstable"), leaving OUT behind; a blow-up named it too
+    from pdestream import datasets
+    from pdestream.experiments.budget import stored_pde
+
+    pde = generator.get_pde("burgers1d", n=16, refine=2, n_frames=5)
+    assert pde.step_dt == pde.solved.step_dt and pde.steps_per_frame == pde.solved.steps_per_frame
+    stored = stored_pde(pde, datasets.make_view("operator"))
+    full = np.asarray(generator.sample(pde, range(2), seed=1).u)
+    ends = np.asarray(generator.sample(stored, range(2), seed=1).u)
+    assert stored.n_frames == 2 and np.array_equal(ends[:, -1], full[:, -1]) and np.array_equal(ends[:, 0], full[:, 0])
+
+
 def test_the_fno_recipes_at_low_viscosity_solve_on_256_and_keep_64():
     for name, t_end in (("fno_ns2d_nu1e-4", 30.0), ("fno_ns2d_nu1e-5", 20.0)):
         pde = generator.get_pde(name)
