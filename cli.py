@@ -338,7 +338,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
     cfg = TrainConfig(
         pde=name, settings=settings, source=args.source, out=args.out, overwrite=args.overwrite, seed=args.seed,
         test_samples=args.test_samples, checkpoint_every=args.checkpoint_every, ddp=args.ddp, model=args.model,
-        model_cfg=parse_sets(args.model_set), view=args.view, k_in=args.k_in, k_out=args.k_out, steps=args.steps,
+        model_cfg=parse_sets(args.model_set, "--model-set"), view=args.view, k_in=args.k_in, k_out=args.k_out, steps=args.steps,
         batch_size=args.batch_size, lr=args.lr, schedule=args.schedule, threads=args.threads, device=args.device,
         mode=args.mode, loss=args.loss, unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise,
         corrector_start=args.corrector_start,
@@ -363,11 +363,11 @@ def compare_command(args: argparse.Namespace) -> CompareCommand:
                                                "proposal_kappa", "priority_power", "priority_floor", "solve_batch")}
     return CompareCommand(
         pde=name, out=args.out, settings=settings, overwrite=args.overwrite, cache_samples=args.cache_samples,
-        seeds=args.seeds, test_samples=args.test_samples, shift=args.shift, shift_set=parse_sets(args.shift_set),
+        seeds=args.seeds, test_samples=args.test_samples, shift=args.shift, shift_set=parse_sets(args.shift_set, "--shift-set"),
         format=args.format, budget=args.budget, sim_budget=args.sim_budget,
         arms=tuple(a.strip() for a in args.arms.split(",") if a.strip()), priority_cap=args.priority_cap,
         precompute_share=args.precompute_share, sim_warmup_share=args.sim_warmup_share, quick=args.quick,
-        model=args.model, model_cfg=parse_sets(args.model_set), view=args.view, k_in=args.k_in, k_out=args.k_out,
+        model=args.model, model_cfg=parse_sets(args.model_set, "--model-set"), view=args.view, k_in=args.k_in, k_out=args.k_out,
         steps=args.steps, batch_size=args.batch_size, lr=args.lr, threads=args.threads, device=args.device,
         modes=None if args.modes is None else tuple(args.modes.split(",")), fine_n=args.fine_n, loss=args.loss,
         unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise, corrector_start=args.corrector_start,

@@ -8,14 +8,21 @@ from __future__ import annotations
 import argparse
 
 
-def parse_sets(pairs: list[str] | None) -> dict[str, str]:
-    """["nu=0.1", "ic.alpha=2"] -> {"nu": "0.1", "ic.alpha": "2"}; values stay strings for the PDE to parse."""
+def parse_sets(pairs: list[str] | None, option: str = "--set") -> dict[str, str]:
+    """["nu=0.1", "ic.alpha=2"] -> {"nu": "0.1", "ic.alpha": "2"}; values stay strings for the PDE to parse. A key
+    given twice with other values is refused (the last one won, silently: --set refine=2 --set refine=3); ``option``:
+    the flag the pairs came from, for the messages."""
     out = {}
     for pair in pairs or []:
         key, sep, value = pair.partition("=")
         if not sep or not key.strip():
-            raise ValueError(f"bad --set {pair!r}: expected KEY=VALUE, e.g. --set nu=0.01")
-        out[key.strip()] = value.strip()
+            raise ValueError(f"bad {option} {pair!r}: expected KEY=VALUE, e.g. {option} "
+                             + ("width=32" if option == "--model-set" else "nu=0.01"))
+        key, value = key.strip(), value.strip()
+        if out.get(key, value) != value:
+            raise ValueError(f"{option} {key} given twice ({key}={out[key]} and {key}={value}); allowed: one value "
+                             "per key")
+        out[key] = value
     return out
 
 

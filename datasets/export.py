@@ -431,7 +431,7 @@ def read_export(path):
     for d in space:
         coords[d] = (d, got["coords"][d][0], clean(got["coords"][d][1]))
     for p, (v, a) in got["params"].items():
-        coords[p] = ("sample", v.astype(np.float32), clean(a))
+        coords[p] = ("sample", _finite(path, p, v.astype(np.float32)), clean(a))
     coords["redraws"] = ("sample", redraws, {"long_name": "blow-up redraws used for this sample", "units": "1"})
     coords["complete"] = ("sample", np.ones(len(sample), np.int8),
                           {"long_name": "sample fully written", "flag_values": [0, 1], "flag_meanings": "missing written"})
@@ -439,8 +439,20 @@ def read_export(path):
     data = {}
     for name, (a, at) in got["fields"].items():
         dims = ("sample", *(("time",) if timed and name not in inputs else ()), *disk)
-        data[name] = (dims, np.ascontiguousarray(schema.to_disk(a.astype(np.float32), ndim)), clean(at, got["drop_var"]))
+        values = _finite(path, name, np.ascontiguousarray(schema.to_disk(a.astype(np.float32), ndim)))
+        data[name] = (dims, values, clean(at, got["drop_var"]))
     return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def _finite(path, name: str, a: np.ndarray) -> np.ndarray:
+    """``a`` [sample, ...]; one-line ValueError naming the samples when any value is NaN/Inf (pdestream writes
+    none: such an export was changed after it was written, and a cache made from it would train on NaN)."""
+    bad = ~np.isfinite(a.reshape(len(a), -1)).all(axis=1) if a.size else np.zeros(0, bool)
+    if bad.any():
+        rows = np.flatnonzero(bad)
+        raise ValueError(f"{path}: {name} holds NaN/Inf in {rows.size} sample(s) (rows {rows[:5].tolist()}"
+                         f"{' ...' if rows.size > 5 else ''}); allowed: finite values, as pdestream exports them")
+    return a
 
 
 def _check_export_attrs(path: Path, attrs: dict, got: dict) -> None:

@@ -93,8 +93,10 @@ def summary(path) -> str:
         state = "complete" if is_complete(ds) else "INCOMPLETE (finish with `pdestream generate ... --resume`)"
         sizes = ", ".join(f"{d}={n}" for d, n in ds.sizes.items())
         refine = json.loads(a[schema.CONFIG_ATTR]).get("refine", 1)
-        if refine > 1:  # the stored grid is a subsample of the one solved on
-            sizes += f" (solved on {refine} times as many points per axis, 1 point in {refine} kept)"
+        if refine > 1:  # the stored grid is a subsample (a MAC-grid flow: the block means) of the one solved on
+            kept = (f"each {refine}x{refine} block's means stored" if a.get("sides")
+                    else f"1 point in {refine} kept")
+            sizes += f" (solved on {refine} times as many points per axis, {kept})"
         lines = [
             f"{path}: pdestream cache ({schema.cache_format(path)}), {schema.disk_bytes(path):,} bytes on disk",
             f"  pde: {a['pde']}: {a['equation']}",

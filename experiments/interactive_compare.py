@@ -171,6 +171,8 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
     net_modes = [m for m in cfg.modes if m in NETWORK_MODES]
     sitl = "solver-in-the-loop" in cfg.modes
     fine = pde.replace({"n": cfg.fine_n}) if sitl and cfg.fine_n not in (None, pde.n) else pde
+    for name in net_modes:  # the oracle's solver refuses this PDE (refine, steady, external) before any work
+        make_mode(_settings(cfg, name)).bind(pde)
     if sitl:
         make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)  # sizes fit?
     out.mkdir(parents=True, exist_ok=True)

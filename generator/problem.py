@@ -391,12 +391,34 @@ def check_refine(problem, meaning: str) -> None:
 def check_solve_grid(problem, unit: str) -> None:
     """Builds (and so validates) ``problem.solved``, the problem on n * refine ``unit`` per axis; its refusal is
     restated as refine's, in one line."""
+    points, r = math.prod(problem.grid.shape), problem.refine
+    if points * r**problem.NDIM > MAX_GRID_POINTS:  # named as refine's largest (the solve grid's n meant little)
+        most = next(k for k in range(_root(MAX_GRID_POINTS // points, problem.NDIM) + 1, 0, -1)
+                    if points * k**problem.NDIM <= MAX_GRID_POINTS)
+        raise ValueError(f"{problem.NAME}: refine={r} not allowed with n={problem.n}: the solve grid would hold "
+                         f"{points} * {r}^{problem.NDIM} points per field; the limit is {MAX_GRID_POINTS}; allowed: "
+                         f"refine <= {most} with n={problem.n}")
     try:
         problem.solved  # noqa: B018
     except ValueError as err:
+        if _fails_alike(problem, err):  # a setting bad on any grid (n_frames=1): its own line, not refine's
+            raise ValueError(str(err)) from None
         why = str(err).removeprefix(f"{problem.NAME}: ")
         raise ValueError(f"{problem.NAME}: refine={problem.refine} not allowed with n={problem.n}: the solve grid "
                          f"(n * refine = {problem.n * problem.refine} {unit}) fails: {why}") from None
+
+
+def _fails_alike(problem, err: ValueError) -> bool:
+    """Whether ``problem`` at refine 1 (its own grid) is refused with the very words the solve grid was."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (its grid's own warnings, e.g. under-resolved, are not this refusal's)
+        try:
+            dataclasses.replace(problem, refine=1)
+        except ValueError as plain:
+            return str(plain) == str(err)
+    return False
 
 
 def _root(limit: int, ndim: int) -> int:

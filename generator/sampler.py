@@ -265,6 +265,9 @@ def solve(pde: PDE | str, u0, params: Mapping[str, float | Sequence[float]]) -> 
     if pde.STEADY:
         raise ValueError(f"{pde.NAME} is steady: it has no initial condition to evolve; use sample(pde, indices, seed, "
                          "params=...) (its input field comes from the key of each index)")
+    if not callable(getattr(pde, "evolve", None)):  # the flows (AttributeError before)
+        raise ValueError(f"{pde.NAME}: its solver does not start from a caller's state (its samples start from the "
+                         "state its IC draws); allowed: sample(pde, indices, seed, params=...)")
     grid, n_fields = pde.grid, len(pde.FIELDS)
     u0 = jnp.asarray(u0, jnp.float32)
     if u0.shape == grid.shape:

@@ -65,11 +65,22 @@ def check_cache_matches(cached, pde, explicit: dict | None = None) -> None:
     differ = [k for k in (explicit or {}) if (k.split(".")[0] in wanted or k.split(".")[0] in cached.config)
               and _lookup(wanted, k) != _lookup(cached.config, k)]
     if differ:
-        shown = {k: (_lookup(cached.config, k), _lookup(wanted, k)) for k in differ}
-        shown = {k: tuple(PERIODIC.value if v is None and k.split(".")[0] == "bc" else v for v in pair)
-                 for k, pair in shown.items()}
+        # a setting a config leaves out is at its default (bc: periodic, refine: 1): shown as that, not as None
+        shown = {k: tuple(_default(pde, k) if v is None else v for v in (_lookup(cached.config, k), _lookup(wanted, k)))
+                 for k in differ}
         detail = ", ".join(f"{k}: cache {c!r} vs asked {w!r}" for k, (c, w) in shown.items())
         raise ValueError(f"cache {cached.path} was written with other settings ({detail})")
+
+
+def _default(pde, key: str):
+    """The default of the setting ``key`` that a config leaves out (bc: periodic; a field of ``pde``'s dataclass:
+    its default), or None."""
+    import dataclasses
+
+    if key.split(".")[0] == "bc":
+        return PERIODIC.value
+    field = next((f for f in dataclasses.fields(pde) if f.name == key), None) if dataclasses.is_dataclass(pde) else None
+    return None if field is None or field.default is dataclasses.MISSING else field.default
 
 
 def _lookup(config: dict, key: str):

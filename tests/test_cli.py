@@ -83,6 +83,12 @@ def test_generate_from_toml(capsys, tmp_path):
     (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/a.h5", "--set", "nu"], "bad --set 'nu'"),
     (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/a.h5", "--set", "nu=-1"], "nu=-1"),
     (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/a.h5", "--set", "colour=3"], "unknown setting 'colour'"),
+    # a key given twice with other values: the last one won, silently
+    (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/a.h5", "--set", "refine=2", "--set", "refine=3"],
+     "--set refine given twice (refine=2 and refine=3); allowed: one value per key"),
+    (["train", "burgers1d", "--out", "{tmp}/r", "--model-set", "width=8", "--model-set", "width=16"],
+     "--model-set width given twice"),
+    (["train", "burgers1d", "--out", "{tmp}/r", "--model-set", "width"], "bad --model-set 'width'"),
     (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/nodir/a.h5"], "does not exist"),
     (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/locked/a.h5"], "not writable"),
     (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/exists.h5/a.h5"], "is not a directory"),

@@ -112,10 +112,17 @@ def test_unsupported_settings_are_refused_in_one_line():
                            ({"ic.rho_base": "uniform(0, 1)"}, "ic.rho_base=uniform(0.0, 1.0) not allowed"),
                            ({"ic.window_left": "uniform(0.5, 1.5)"}, "ic.window_left=uniform(0.5, 1.5) not allowed"),
                            ({"ic.u_scale": -1.0}, "ic.u_scale=-1.0 not allowed"),
-                           ({"ic.max_mode": 40}, "ic.max_mode=40, ic.n_modes=2 not allowed on n=64")]:
+                           ({"ic.max_mode": 40}, "ic.max_mode=40, ic.n_modes=2 not allowed on n=64"),
+                           # a viscosity whose step limit passes MAX_STEPS is named, with the largest allowed (it was
+                           # refused as t_end's: "t_end=1 would take ~1.71e+301 steps")
+                           ({"eta": "1e300"}, "eta=1e+300, zeta=0.01 not allowed with n=64, t_end=1: the viscous "
+                                              "step limit"),
+                           ({"zeta": "uniform(0, 1e6)"}, "allowed: nu_l <= 195 here")]:
         with pytest.raises(ValueError) as err:
             g.get_pde("compressible_ns1d", n=64, **settings)
         assert said in str(err.value) and "\n" not in str(err.value), str(err.value)
+    with pytest.raises(ValueError, match=r"compressible_ns2d: eta=1000000.0, zeta=0.01 not allowed with n=64"):
+        g.get_pde("compressible_ns2d", n=64, eta="1e6")
 
 
 def test_the_solver_equals_a_numpy_reference_written_apart_from_it():

@@ -248,11 +248,20 @@ def test_an_export_never_replaces_a_file_another_export_made_meanwhile(caches, t
     assert out.read_bytes() == b"theirs" and [p.name for p in tmp_path.iterdir()] == ["e.h5"]
 
 
+def _put_nan(dataset, index) -> None:
+    values = dataset[()]
+    values[index] = np.nan
+    dataset[...] = values
+
+
 @pytest.mark.parametrize("damage, words", [
     (lambda f: f["t0_fields"].__delitem__("u"), "damaged the-well export: u is missing"),  # was a KeyError
     (lambda f: f["scalars"].__delitem__("nu"), "damaged the-well export: nu is missing"),
     (lambda f: f.attrs.__setitem__("pdestream_params", "nu kappa"), "parameter kappa is listed but not in the file"),
     (lambda f: f.attrs.__setitem__("pdestream_config", "{not json"), "pdestream_config attribute is not a JSON object"),
+    # a NaN put into an export was imported silently, rc 0 (and trained on)
+    (lambda f: _put_nan(f["t0_fields"]["u"], (1, 0, 3)), r"u holds NaN/Inf in 1 sample\(s\) \(rows \[1\]\)"),
+    (lambda f: _put_nan(f["scalars"]["nu"], (0,)), r"nu holds NaN/Inf in 1 sample\(s\) \(rows \[0\]\)"),
 ])
 def test_a_damaged_export_is_refused_in_one_line_and_nothing_is_written(caches, tmp_path, damage, words):
     export = tmp_path / "e.h5"

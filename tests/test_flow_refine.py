@@ -79,6 +79,17 @@ def test_the_solve_grid_decides_the_cell_reynolds_limit():
     ("channel2d", {"refine": 2}, "refine=2 not allowed: entries with bodies"),
     ("plume3d", {"refine": 2}, "refine=2 not allowed: 3D flows"),
     ("cavity2d", {"refine": 400}, "refine=400 not allowed with n=64: the solve grid"),
+    # a grid past the size limit is refused as that, before the multigrid's search for a nearby n (linear in n:
+    # refine=99999999999999999999 or n=1e20 + 2 hung); these two were refused as the multigrid's, naming the solve
+    # grid's n; a refine too large names the largest refine allowed
+    ("smoke2d", {"refine": 100000}, "refine=100000 not allowed with n=32: the solve grid would hold 1024 * 100000^2 "
+                                    "points per field; the limit is 16777216; allowed: refine <= 128 with n=32"),
+    ("cavity2d", {"n": 1000002}, "n=1000002 not allowed: 1000004000004 grid points per field"),
+    # the multigrid's nearby n are coarse n that work at this refine (it named the solve grid's: "196 or 200")
+    ("cavity2d", {"n": 66, "refine": 3}, "refine=3 with n=66 (solved on 198 cells across) not allowed: the pressure "
+                                         "multigrid"),
+    ("cavity2d", {"n": 66, "refine": 3}, "nearby n that halve further with refine=3: 64 or 68"),
+    ("cavity2d", {"n": 8, "refine": 65}, "no n halves further with refine=65"),
 ])
 def test_bad_refine_is_one_line_naming_it(name, settings, words):
     with pytest.raises(ValueError) as err:
@@ -109,3 +120,41 @@ def test_pdearena_smoke_recipe_solves_on_384_and_stores_128():
     assert (pde.n, pde.refine, pde.solved.n, pde.length) == (128, 3, 384, 32.0)
     assert pde.grid.shape == (128, 128) and pde.n_frames == 14 and (pde.t_start, pde.t_end) == (13.5, 91.5)
     assert pde.solved.speed_bound() * pde.solved.h / 0.01 <= pde.MAX_CELL_REYNOLDS
+
+
+@pytest.mark.slow  # a flow compile (~25 s on 2 shared cores)
+def test_inspect_says_a_refined_flow_cache_holds_block_means(tmp_path, capsys):
+    # a flow stores each block's means, not every k-th point (inspect said "1 point in 2 kept", a spectral refine's)
+    from pdestream import cli
+
+    path = tmp_path / "s.h5"
+    args = [f"{k}={v}" for k, v in SMALL.items()]
+    assert cli.main(["generate", "smoke_box2d", "--n", "1", "--out", str(path)]
+                    + [w for a in args for w in ("--set", a)]) == 0
+    capsys.readouterr()
+    assert cli.main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "x=8 (solved on 2 times as many points per axis, each 2x2 block's means stored)" in out
+    assert "kept)" not in out
+
+
+def test_solve_from_a_callers_state_refuses_a_flow_in_one_line():
+    # generator.solve(flow, u0, params) raised AttributeError ('SmokeBox2D' object has no attribute 'evolve')
+    for settings in ({**SMALL, "n": 16, "refine": 1}, SMALL):
+        pde = generator.get_pde("smoke_box2d", settings)
+        with pytest.raises(ValueError, match="smoke_box2d: its solver does not start from a caller's state") as err:
+            generator.solve(pde, np.zeros((1, 4, *pde.grid.shape), np.float32), {"buoyancy": [1.0], "nu": [2e-3]})
+        assert "allowed: sample(pde, indices, seed" in str(err.value)
+
+
+@pytest.mark.parametrize("settings, said", [
+    ({"n_frames": 1}, "smoke_box2d: n_frames=1 not allowed: must be >= 2"),
+    ({"cfl": 5}, "smoke_box2d: cfl=5 not allowed"),
+    ({"advection": "x"}, "smoke_box2d: advection='x' not allowed"),
+    ({"max_iter": 0}, "smoke_box2d: max_iter=0 not allowed"),
+])
+def test_a_setting_bad_on_any_grid_is_not_blamed_on_refine(settings, said):
+    # it was "refine=2 not allowed with n=8: the solve grid (n * refine = 16 cells across) fails: n_frames=1 ..."
+    with pytest.raises(ValueError) as err:
+        generator.get_pde("smoke_box2d", {**SMALL, **settings})
+    assert str(err.value).startswith(said) and "refine" not in str(err.value), str(err.value)

@@ -240,6 +240,9 @@ def test_modes_ask_the_view_not_its_class():
     (["--mode", "oracle", "--unroll", "0"], "--unroll=0 not allowed"),
     (["--mode", "pushforward", "--view", "operator"], "needs the next_step view"),
     (["--mode", "pushforward", "--unroll", "11"], "allowed: --unroll <= 10"),
+    # --k-in alone too long: it said "allowed: --unroll <= -2" (and offered one-step an --unroll it does not take)
+    (["--k-in", "13"], "allowed: --k-in <= 10 (or --set n_frames=14)"),
+    (["--mode", "pushforward", "--k-in", "13"], "allowed: --k-in <= 7 (or --set n_frames=17)"),
     (["--mode", "solver-in-the-loop", "--coarse-n", "12"], "coarse n=12 does not fit the fine grid n=32"),
     (["--mode", "oracle", "--set", "refine=2"], "burgers1d: refine=2 not allowed here"),
     (["--mode", "solver-in-the-loop", "--coarse-n", "16", "--set", "refine=2"], "solver-in-the-loop: refine=2 not"),

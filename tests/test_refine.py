@@ -101,6 +101,8 @@ def test_refine_enters_the_config_only_above_one():
     ("ns2d", {"refine": 0}, "refine=0 not allowed: need an integer >= 1"),
     ("ns2d", {"refine": 2.5}, "refine"),
     ("ns2d", {"refine": 100}, "refine=100 not allowed with n=64: the solve grid"),
+    # too large a refine names the largest allowed (it was restated from the solve grid's n: "n <= 4096 in 1D")
+    ("burgers1d", {"refine": 99999999999999999999}, "allowed: refine <= 65536 with n=256"),
     ("diffusion2d", {"bc": "dirichlet", "refine": 2}, "refine=2 not allowed with walls"),
 ])
 def test_bad_refine_is_one_line_naming_it(name, settings, words):
@@ -128,6 +130,48 @@ def test_the_interactive_modes_refuse_a_refined_problem():
     u = jnp.zeros((1, 1, 16, 16), jnp.float32)
     with pytest.raises(ValueError, match="refine=2 not allowed here"):
         generator.interactive.advance(pde, u, {"nu": jnp.full((1,), 1e-3, jnp.float32)})
+
+
+def test_compare_modes_refuse_a_refined_oracle_before_any_work(tmp_path, capsys):
+    # `compare --modes one-step,oracle --set refine=2` built the test set and trained the one-step arm, then refused
+    # the oracle, leaving OUT with a run in it (and `--modes oracle` an empty OUT)
+    from pdestream import cli
+
+    for modes in ("oracle", "one-step,oracle"):
+        out = tmp_path / modes
+        assert cli.main(["compare", "burgers1d", "--modes", modes, "--set", "n=16", "--set", "refine=2", "--set",
+                         "n_frames=4", "--steps", "1", "--seeds", "1", "--test-samples", "1", "--unroll", "1",
+                         "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert "refine=2 not allowed here" in err and "test set" not in err and not out.exists(), (modes, err)
+
+
+def test_a_cache_of_another_refine_names_both_values_not_none():
+    # train --source CACHE --set refine=1 on a refined cache said "refine: cache 2 vs asked None" (a config leaves
+    # refine out at 1)
+    from types import SimpleNamespace
+
+    from pdestream.surrogate.data import check_cache_matches
+
+    plain, refined = generator.get_pde("burgers1d", n=16), generator.get_pde("burgers1d", n=16, refine=2)
+    for cache, asked, said in ((refined, plain, "refine: cache 2 vs asked 1"), (plain, refined, "refine: cache 1 vs asked 2")):
+        with pytest.raises(ValueError) as err:
+            check_cache_matches(SimpleNamespace(path="c.h5", config=cache.config()), asked, {"refine": "x"})
+        assert said in str(err.value), str(err.value)
+
+
+def test_a_refined_problem_steps_as_its_solve_grid_and_the_operator_arm_stores_its_frames():
+    # step_dt was the kept grid's (0.02 here, unstable on the solve grid): compare --budget's operator arm pinned it
+    # as dt and refused the run ("dt=0.020000000020000002 is unstable"), leaving OUT behind; a blow-up named it too
+    from pdestream import datasets
+    from pdestream.experiments.budget import stored_pde
+
+    pde = generator.get_pde("burgers1d", n=16, refine=2, n_frames=5)
+    assert pde.step_dt == pde.solved.step_dt and pde.steps_per_frame == pde.solved.steps_per_frame
+    stored = stored_pde(pde, datasets.make_view("operator"))
+    full = np.asarray(generator.sample(pde, range(2), seed=1).u)
+    ends = np.asarray(generator.sample(stored, range(2), seed=1).u)
+    assert stored.n_frames == 2 and np.array_equal(ends[:, -1], full[:, -1]) and np.array_equal(ends[:, 0], full[:, 0])
 
 
 def test_the_fno_recipes_at_low_viscosity_solve_on_256_and_keep_64():

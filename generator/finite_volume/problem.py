@@ -418,8 +418,12 @@ class FiniteVolume(UniformFrames, ProblemBase):
         self._check_ic_on_grid()
         steps = (self.n_frames - 1) * self.steps_per_frame
         if not steps <= MAX_STEPS:
-            raise ValueError(f"{self.NAME}: t_end={self.t_end:g} would take ~{steps:.3g} steps per trajectory; the "
-                             f"limit is {MAX_STEPS} (a shorter time window or a coarser grid)")
+            raise ValueError(self._too_many_steps(steps))
+
+    def _too_many_steps(self, steps: int) -> str:
+        """The one line refusing a trajectory of ``steps`` > MAX_STEPS steps."""
+        return (f"{self.NAME}: t_end={self.t_end:g} would take ~{steps:.3g} steps per trajectory; the limit is "
+                f"{MAX_STEPS} (a shorter time window or a coarser grid)")
 
     def _step_words(self) -> str:
         return (f"t in [0, {self.t_end:g}], {self.n_frames} frames, step {self.step_dt:.4g} ({self.steps_per_frame}/"
@@ -616,6 +620,18 @@ class ViscousGas:
         check_viscosities(self)
         super().validate()
 
+    def _too_many_steps(self, steps: int) -> str:
+        """Names the viscosities when their limit sets the step (eta=1e6 was refused as t_end's alone)."""
+        h, nu = self.h, self.nu_max()
+        advective = self.NDIM * self.speed_bound() / h
+        if 2 * nu / h**2 <= advective:
+            return super()._too_many_steps(steps)
+        most = (MAX_STEPS * self.cfl / self.t_end - advective) * h**2 / 2  # frames from t = 0
+        return (f"{self.NAME}: eta={self.eta}, zeta={self.zeta} not allowed with n={self.n}, t_end={self.t_end:g}: "
+                f"the viscous step limit (nu_l = {self.NU_L} up to {nu:.3g}) would take ~{steps:.3g} steps per "
+                f"trajectory, the limit is {MAX_STEPS}; allowed: nu_l <= {max(most, 0):.3g} here (smaller "
+                "viscosities, a coarser grid or a shorter time window)")
+
 
 @dataclass(frozen=True)
 class CompressibleNS1D(ViscousGas, Euler1D):
@@ -628,6 +644,7 @@ class CompressibleNS1D(ViscousGas, Euler1D):
                                "tau u)_x = 0, tau = rho (4/3 eta + zeta) u_x, E = p / (gamma - 1) + rho u^2 / 2; "
                                "stored: primitive rho, u, p")
     SCHEME: ClassVar[Scheme] = NAVIER_STOKES_1D
+    NU_L: ClassVar[str] = "4/3 eta + zeta"  # nu_max's words
 
     n: int = 256
     length: float = 2.0

@@ -580,6 +580,7 @@ class CompressibleNS2D(ViscousGas, Euler2D):
                                "(u_n)_n on the normal momentum, rho eta (u_t)_n on the transverse one, and their "
                                "work on E (PDEBench's stress); stored: primitive rho, u, v, p")
     SCHEME: ClassVar = NAVIER_STOKES_2D
+    NU_L: ClassVar[str] = "7/3 eta + zeta"  # nu_max's words
 
     n: int = 64
     ic: Any = RandomGas2D()

@@ -39,7 +39,7 @@ from ...boundaries import DIRICHLET, NEUMANN, PERIODIC, is_periodic
 from .. import dispatch
 from ..chunked import join, split
 from ..grids import GridBase
-from ..problem import MAX_STEPS, ProblemBase, check_refine, check_solve_grid, resolve_params
+from ..problem import MAX_GRID_POINTS, MAX_STEPS, ProblemBase, check_refine, check_solve_grid, resolve_params
 from . import interactive
 from .grid import BODIES, OPEN_SIDES, SIDE_KINDS, Geometry, Params
 from .pressure import MAX_COARSE_CELLS, coarsest_shape
@@ -260,6 +260,8 @@ class FlowProblem(ProblemBase):
             raise ValueError(f"{self.NAME}: aspect={self.aspect} not allowed: the box is aspect * n x n cells with "
                              "aspect an integer in 1..16")
         self._check_length()
+        # the grid's size before the multigrid's, whose search for a nearby n is linear in n (a huge n or refine hung)
+        self._check_size()
         if self._check_refine():
             return  # the solve grid's problem held every check of the flow (``solved``)
         self._check_multigrid()
@@ -279,7 +281,6 @@ class FlowProblem(ProblemBase):
         if self.advection not in ADVECTION:
             raise ValueError(f"{self.NAME}: advection={self.advection!r} not allowed: allowed are "
                              f"{', '.join(sorted(ADVECTION))}")
-        self._check_size()
         self._check_ic_on_grid()
         self.check_flow()
         nu_min = self.viscosity_range()[0]
@@ -306,24 +307,32 @@ class FlowProblem(ProblemBase):
             what = "3D flows" if self.NDIM != 2 else "entries with bodies or per-sample outputs (forces)"
             raise ValueError(f"{self.NAME}: refine={r} not allowed: {what} store their own grid's solve; allowed: "
                              f"refine=1 (or n={self.n * r} to solve and store the finer grid)")
+        if math.prod(self.grid.shape) * r**2 <= MAX_GRID_POINTS:  # (a larger one: the solve grid's size refuses it)
+            self._check_multigrid(r)  # named with the n that work at this refine (the solve grid's n would not)
         check_solve_grid(self, "cells across")
         return True
 
-    def _check_multigrid(self) -> None:
-        """One line when n leaves the pressure multigrid a coarsest level too large for its dense solve
-        (generator.flow.pressure.MAX_COARSE_CELLS), naming the nearest n on either side that it accepts."""
+    def _check_multigrid(self, r: int = 1) -> None:
+        """One line when n (solved on n * r cells across) leaves the pressure multigrid a coarsest level too large
+        for its dense solve (generator.flow.pressure.MAX_COARSE_CELLS), naming the nearest n on either side that it
+        accepts with this r."""
         def coarse_cells(n):
-            return math.prod(coarsest_shape((self.aspect * n, n)))
+            return math.prod(coarsest_shape((self.aspect * n * r, n * r)))
 
         if coarse_cells(self.n) <= MAX_COARSE_CELLS:
             return
         below = next((n for n in range(self.n - 2, self.MIN_CELLS - 1, -2) if coarse_cells(n) <= MAX_COARSE_CELLS), None)
-        above = next(n for n in range(self.n + 2, 4 * self.n, 2) if coarse_cells(n) <= MAX_COARSE_CELLS)
-        coarse = "x".join(map(str, coarsest_shape((self.aspect * self.n, self.n))))
-        raise ValueError(f"{self.NAME}: n={self.n} not allowed: the pressure multigrid halves the grid while both sides "
+        above = next((n for n in range(self.n + 2, 4 * self.n, 2) if coarse_cells(n) <= MAX_COARSE_CELLS), None)
+        coarse = "x".join(map(str, coarsest_shape((self.aspect * self.n * r, self.n * r))))
+        grid = f"n={self.n}" if r == 1 else f"refine={r} with n={self.n} (solved on {self.n * r} cells across)"
+        odd = r // (r & -r)  # what no halving removes: every n leaves at least aspect * odd^2 cells
+        hint = (f"nearby n that halve further{f' with refine={r}' if r > 1 else ''}: "
+                + " or ".join(str(n) for n in (below, above) if n is not None) if below or above else
+                f"no n halves further with refine={r} (its odd factor {odd} leaves aspect * {odd}^2 cells or more); "
+                "allowed: a refine with a smaller odd factor")
+        raise ValueError(f"{self.NAME}: {grid} not allowed: the pressure multigrid halves the grid while both sides "
                          f"are even and stops at {coarse} = {coarse_cells(self.n)} cells, more than the "
-                         f"{MAX_COARSE_CELLS} its dense coarse solve allows; nearby n that halve further: "
-                         + " or ".join(str(n) for n in (below, above) if n is not None))
+                         f"{MAX_COARSE_CELLS} its dense coarse solve allows; {hint}")
 
     def describe_setup(self) -> str:
         if self.refine > 1:

@@ -204,6 +204,8 @@ class PDE(ProblemBase):
         """ETDRK4 steps of the burn-in (0 without one): the fewest whose step is <= dt (or stable_dt)."""
         if not self.t_start:
             return 0
+        if self.refine > 1:  # the solve grid's, whose rollout makes the samples
+            return self.solved.burn_in_steps
         target = self.dt if self.dt is not None else self.stable_dt()
         return max(1, math.ceil(self.t_start / target * (1 - 1e-9)))
 
@@ -214,6 +216,8 @@ class PDE(ProblemBase):
 
     @property
     def steps_per_frame(self) -> int:
+        if self.refine > 1:  # the solve grid's, whose rollout makes the samples (a blow-up names its step)
+            return self.solved.steps_per_frame
         target = self.dt if self.dt is not None else self.stable_dt()
         return max(1, math.ceil(self.frame_dt / target * (1 - 1e-9)))
 
