@@ -198,7 +198,7 @@ def _add_model_args(p: argparse.ArgumentParser, d, lr_note: str = "") -> None:
                    help="training pairs: next_step (frames k -> k+1) or operator (u(t=0) -> u(t_end); a steady "
                         "PDE: input field -> solution) (default: train next_step, operator on a steady PDE; compare "
                         "operator)")
-    p.add_argument("--k-in", type=int, default=d.k_in, help="next_step: input frames (default: a recipe's, else 1)")
+    p.add_argument("--k-in", type=int, default=d.k_in, help="next_step: input frames (default 1; train: a recipe's)")
     p.add_argument("--k-out", type=int, default=d.k_out, help="next_step: predicted frames")
     p.add_argument("--steps", type=int, default=d.steps, help="optimizer steps" if d.steps is not None else
                    f"optimizer steps (default: {TRAIN_STEPS}); with --resume RUN_DIR: the run's new total, which "

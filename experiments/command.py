@@ -45,8 +45,8 @@ class CompareCommand:
     model: str = "fno"
     model_cfg: dict = field(default_factory=dict)
     view: str | None = None
-    k_in: int = 1
-    k_out: int = 1
+    k_in: int | None = None  # next_step's frames (None: 1); refused with the operator view, which has none
+    k_out: int | None = None
     steps: int = 1000
     batch_size: int = 32
     lr: float = 3e-3
@@ -191,6 +191,11 @@ def _compare(cmd: CompareCommand, log) -> str:
         check_priority_cap(cmd, False)
     if cmd.modes is not None:
         return _interactive(cmd)
+    if (cmd.view or "operator") == "operator" and (cmd.k_in is not None or cmd.k_out is not None):
+        given = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in (("k_in", cmd.k_in), ("k_out", cmd.k_out))
+                         if v is not None)
+        raise ValueError(f"{given} goes with --view next_step; compare trains the operator view by default "
+                         "(u(t=0) -> u(t_end), no frames to stack)")
     if (cmd.unroll is not None or cmd.coarse_n is not None or cmd.fine_n is not None or cmd.noise is not None
             or cmd.corrector_start is not None or cmd.unroll_schedule is not None or cmd.pairs_steps is not None):
         raise ValueError("--unroll, --unroll-schedule, --coarse-n, --fine-n, --corrector-start, --noise and --pairs-steps "
@@ -207,8 +212,8 @@ def _compare(cmd: CompareCommand, log) -> str:
     set_threads(1 if cmd.threads is None else cmd.threads)
     model_cfg = {**(COMPARE_FNO if cmd.model.startswith("fno") else {}), **cmd.model_cfg}
     seeds = 3 if cmd.seeds is None else cmd.seeds
-    cfg = module.CompareConfig(model=cmd.model, model_cfg=model_cfg, view=make_view(cmd.view or "operator", cmd.k_in,
-                                                                                    cmd.k_out),
+    view = make_view(cmd.view or "operator", 1 if cmd.k_in is None else cmd.k_in, 1 if cmd.k_out is None else cmd.k_out)
+    cfg = module.CompareConfig(model=cmd.model, model_cfg=model_cfg, view=view,
                                steps=cmd.steps, batch_size=cmd.batch_size, lr=cmd.lr, cache_samples=cmd.cache_samples,
                                seeds=tuple(range(seeds)), n_test=cmd.test_samples, shift=cmd.shift,
                                cache_format=cmd.format, device=cmd.device)
@@ -265,7 +270,8 @@ def budget_setup(cmd: CompareCommand, log=print):
     check_priority_cap(cmd, steered and cmd.sim_budget is not None)
     cfg = module.BudgetConfig(
         budget_s=budget_s, sim_budget=cmd.sim_budget, arms=arms, model=cmd.model, model_cfg=model_cfg,
-        view=make_view(cmd.view or "operator", cmd.k_in, cmd.k_out), batch_size=cmd.batch_size, lr=cmd.lr,
+        view=make_view(cmd.view or "operator", 1 if cmd.k_in is None else cmd.k_in,
+                       1 if cmd.k_out is None else cmd.k_out), batch_size=cmd.batch_size, lr=cmd.lr,
         steps=cmd.steps, precompute_share=cmd.precompute_share, capacity=o.capacity, max_reuse=o.max_reuse,
         target_reuse=o.target_reuse, reservoir_mode=o.reservoir_mode, sim_warmup_share=cmd.sim_warmup_share,
         proposal_floor=o.proposal_floor, proposal_kwargs=active_kwargs(o), priority_power=o.priority_power,
@@ -303,10 +309,10 @@ def _interactive(cmd: CompareCommand) -> str:
     cfg = module.InteractiveConfig(
         modes=modes, **{k: v for k, v in given.items() if v is not None},  # else the mode table's
         steps=20 if quick else cmd.steps, batch_size=8 if quick else cmd.batch_size, lr=cmd.lr, model=cmd.model,
-        model_cfg=model_cfg, k_in=cmd.k_in, seed=0, seeds=1 if cmd.seeds is None else cmd.seeds,
+        model_cfg=model_cfg, k_in=(1 if cmd.k_in is None else cmd.k_in), seed=0, seeds=1 if cmd.seeds is None else cmd.seeds,
         unroll_schedule=cmd.unroll_schedule, resume=not cmd.overwrite, n_test=4 if cmd.quick and cmd.test_samples == 128 else
         cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device, budget_s=cmd.budget, pairs_steps=cmd.pairs_steps)
-    if cmd.k_out != 1:
+    if cmd.k_out not in (None, 1):
         raise ValueError(f"--k-out={cmd.k_out} not allowed with --modes: every mode predicts one frame per step")
     module.interactive_compare(pde, cmd.out, cfg)
     corrector = ", corrector.png (corrector arms)" if "solver-in-the-loop" in modes else ""

@@ -141,3 +141,13 @@ def test_the_command_finds_a_plug_in_in_the_current_directory(tmp_path):
     out = subprocess.run([script, "list", "mypdes.damped:DampedBurgers"], cwd=tmp_path, env=env,
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and "damped" in out.stdout.lower(), out.stderr
+
+
+@pytest.mark.parametrize("extra, said", [
+    (["--k-in", "9"], "--k-in 9 goes with --view next_step"),
+    (["--k-out", "2"], "--k-out 2 goes with --view next_step"),
+])
+def test_compare_refuses_frames_options_with_the_operator_view(tmp_path, capsys, extra, said):
+    assert cli.main(["compare", "burgers1d", "--out", str(tmp_path / "c"), *extra]) == 2
+    err = capsys.readouterr().err
+    assert said in err and err.count("\n") == 1, err
