@@ -5,6 +5,7 @@ Reynolds numbers inside the training range and beyond it.
     nice python -m benchmarks.karman_sitl [--seeds 3] [--steps 300] [--fine-n 64] [--coarse-n 32] [--unroll 3]
         [--out /tmp/karman_sitl] [--quick]
     nice python -m benchmarks.karman_sitl --small --coarse-only [--test-samples 8] [--seeds 1]
+    nice python -m benchmarks.karman_sitl --small --window 4 --only-seed 0 --out DIR   # t = 2..6 s, 41 frames
 
 Per seed, ``surrogate.interactive_compare`` (the same code as ``pdestream compare karman2d --modes
 solver-in-the-loop``) trains the pairs-trained correction (unroll 1: precomputed (coarse step, fine) pairs,
@@ -14,7 +15,9 @@ held-out trajectories; then the saved models are rolled out on a second held-out
 beyond the training range (``--shift``: the domain moved by that fraction of its width). Printed per test set
 and arm: the error over the whole rollout (mean over frames and trajectories) and the p95 over trajectories of
 their rollout-mean error, as mean +- spread (half the range) over seeds, and whether solver-in-the-loop beats
-each other arm on every seed. Figures, not pass/fail; rollouts.png of each seed's run shows vorticity.
+each other arm on every seed, then pairs / solver-in-the-loop per frame and averaged up to the frame (each
+seed's frames.json: error per frame per test set and arm). Figures, not pass/fail; rollouts.png of each seed's
+run shows vorticity.
 
 ``--coarse-only`` trains nothing: it rolls out the coarse solver alone with each body treatment
 (``generator.flow.grid.BODIES``: the fine reference keeps the PDE's own, sharp by default) on the same held-out
