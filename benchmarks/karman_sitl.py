@@ -5,6 +5,7 @@ Reynolds numbers inside the training range and beyond it.
     nice python -m benchmarks.karman_sitl [--seeds 3] [--steps 300] [--fine-n 64] [--coarse-n 32] [--unroll 3]
         [--out /tmp/karman_sitl] [--quick]
     nice python -m benchmarks.karman_sitl --small --coarse-only [--test-samples 8] [--seeds 1]
+    nice python -m benchmarks.karman_sitl --small --window 4 --only-seed 0 --out DIR   # t = 2..6 s, 41 frames
 
 Per seed, ``surrogate.interactive_compare`` (the same code as ``pdestream compare karman2d --modes
 solver-in-the-loop``) trains the pairs-trained correction (unroll 1: precomputed (coarse step, fine) pairs,
@@ -14,7 +15,9 @@ held-out trajectories; then the saved models are rolled out on a second held-out
 beyond the training range (``--shift``: the domain moved by that fraction of its width). Printed per test set
 and arm: the error over the whole rollout (mean over frames and trajectories) and the p95 over trajectories of
 their rollout-mean error, as mean +- spread (half the range) over seeds, and whether solver-in-the-loop beats
-each other arm on every seed. Figures, not pass/fail; rollouts.png of each seed's run shows vorticity.
+each other arm on every seed, then pairs / solver-in-the-loop per frame and averaged up to the frame (each
+seed's frames.json: error per frame per test set and arm). Figures, not pass/fail; rollouts.png of each seed's
+run shows vorticity.
 
 ``--coarse-only`` trains nothing: it rolls out the coarse solver alone with each body treatment
 (``generator.flow.grid.BODIES``: the fine reference keeps the PDE's own, sharp by default) on the same held-out
@@ -27,6 +30,7 @@ instead of the given, restricted one.
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 from pathlib import Path
 
@@ -59,6 +63,8 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu", help="where the models train (cpu, cuda)")
     ap.add_argument("--quick", action="store_true", help="a smoke run: --small, 20 steps, 1 seed")
     ap.add_argument("--small", action="store_true", help="n 32 -> 16, larger cylinders, Re 40-80, 1 s windows")
+    ap.add_argument("--window", type=float, help="--small: the rollout window in seconds from t = 2 (default 1; "
+                    "frames 0.1 s apart)")
     ap.add_argument("--coarse-only", action="store_true",
                     help="no training: the coarse solver alone with a staircase and a sharp body, against the fine solve")
     a = ap.parse_args(argv)
@@ -75,19 +81,27 @@ def main(argv=None) -> int:
     settings = dict(FINE, n=a.fine_n)
     if a.quick:
         a.seeds, a.steps, a.test_samples, a.small = 1, 20, 4, True
+    if a.window is not None and not (a.small and 0.2 <= a.window <= 60):
+        ap.error(f"--window {a.window:g}: allowed with --small only, 0.2 to 60 seconds")
     if a.small:
         a.fine_n, a.coarse_n = 32, 16
-        settings = dict(n=32, radius="uniform(0.13, 0.16)", re="uniform(40, 80)", t_start=2.0, t_end=3.0, n_frames=11)
+        window = 1.0 if a.window is None else a.window
+        settings = dict(n=32, radius="uniform(0.13, 0.16)", re="uniform(40, 80)", t_start=2.0, t_end=2.0 + window,
+                        n_frames=round(window / 0.1) + 1)
     pde = generator.get_pde("karman2d", **settings)
     lo, hi = pde.re.bounds
     shifted = pde.replace(re=f"uniform({hi + (a.shift - 0.1) * (hi - lo):g}, {hi + a.shift * (hi - lo):g})")
     print(f"fine: {pde.describe()}\nshifted test Re: {shifted.re}; coarse n={a.coarse_n}, unroll {a.unroll}, "
           f"{a.steps} steps x batch {a.batch_size}, {a.seeds} seeds", flush=True)
     if a.summarize:
-        return _print_table(_load(Path(a.out)))
+        if not list(Path(a.out).glob("seed*/summary.json")):
+            print(f"--summarize: no seed*/summary.json under {a.out}")
+            return 1
+        return _print_table(_load(Path(a.out)), Path(a.out))
     if a.coarse_only:
         return _coarse_bodies(pde, shifted, a)
     results: dict[tuple[str, str], list[tuple[float, float]]] = {}
+    frames: dict[str, dict[str, list[float]]] = {}  # per seed: {test set: {arm: error per frame, mean over trajectories}}
     for seed in [a.only_seed] if a.only_seed is not None else range(a.seeds):
         out = Path(a.out) / f"seed{seed}"
         cfg = InteractiveConfig(modes=("solver-in-the-loop",), unroll=a.unroll, steps=a.steps,
@@ -107,9 +121,11 @@ def main(argv=None) -> int:
                     model.to(a.device)
                 errors = rollout_errors(model, norm, test, datasets.NextStep(1, 1), mode).relative()  # [N, T - 1]
                 results.setdefault((where, arm), []).append(_summary(errors))
+                frames.setdefault(where, {})[arm] = errors.mean(0).tolist()
         mine = {f"{k[0]}|{k[1]}": v[-1] for k, v in results.items()}
+        (out / "frames.json").write_text(json.dumps(frames))
         (out / "summary.json").write_text(json.dumps(mine))
-    return _print_table(_load(Path(a.out)))
+    return _print_table(_load(Path(a.out)), Path(a.out))
 
 
 def _coarse_bodies(pde, shifted, a) -> int:
@@ -174,7 +190,7 @@ def _load(out: Path) -> dict:
     return results
 
 
-def _print_table(results: dict) -> int:
+def _print_table(results: dict, out: Path) -> int:
     print("\n| test Re | arm | rollout error (mean +- spread over seeds) | p95 over trajectories |")
     print("| --- | --- | --- | --- |")
     for (where, arm), vals in results.items():
@@ -191,6 +207,40 @@ def _print_table(results: dict) -> int:
                 print(f"{where}, {what}: solver-in-the-loop vs {other[1]}: {np.mean(base / loop):.2f}x lower rollout "
                       f"error (range {np.min(base / loop):.2f}..{np.max(base / loop):.2f} over seeds; beats it on "
                       f"{int(np.sum(loop < base))} of {len(loop)} seeds)")
+    return _print_frames(out)
+
+
+def _frames(out: Path) -> dict:
+    """{test set: [{arm: error per frame} per seed]} from seed*/frames.json under out; a seed dir without one (runs
+    before frames.json) gives its inside curve from curves.csv (interactive_compare's mean per frame, same test set)."""
+    per: dict = {}
+    for d in sorted(out.glob("seed*/")):
+        if (d / "frames.json").exists():
+            for where, arms in json.loads((d / "frames.json").read_text()).items():
+                per.setdefault(where, []).append(arms)
+        elif (d / "curves.csv").exists():
+            arms: dict = {}
+            for row in csv.DictReader((d / "curves.csv").open()):
+                arms.setdefault(row["arm"], []).append(float(row["mean"]))
+            per.setdefault("inside", []).append(arms)
+    return per
+
+
+def _print_frames(out: Path) -> int:
+    """Per frame: pairs / solver-in-the-loop error (each the mean over trajectories), and the same of the errors
+    averaged from frame 1 to that frame (the rollout mean a window ending there would give); mean over seeds of
+    the per-seed ratio, with its range."""
+    for where, seeds in _frames(out).items():
+        pairs = next(k for k in seeds[0] if k.startswith("pairs ("))
+        loop = next(k for k in seeds[0] if k.startswith("solver-in-the-loop"))
+        n = min(len(s[loop]) for s in seeds)
+        at = sorted({1, 5, n} | set(range(10, n + 1, 10)))
+        print(f"\n{where}, {pairs} / {loop} per frame (mean over {len(seeds)} seeds, range; frames 0.1 s apart)")
+        print("| frame | error at the frame: ratio | error averaged over frames 1..frame: ratio |\n| --- | --- | --- |")
+        for f in at:
+            r = np.array([np.mean(s[pairs][:f]) / np.mean(s[loop][:f]) for s in seeds])
+            e = np.array([s[pairs][f - 1] / s[loop][f - 1] for s in seeds])
+            print(f"| {f} | {e.mean():.2f} ({e.min():.2f}-{e.max():.2f}) | {r.mean():.2f} ({r.min():.2f}-{r.max():.2f}) |")
     return 0
 
 
