@@ -198,7 +198,7 @@ def _compare(cmd: CompareCommand, log) -> str:
                          "(u(t=0) -> u(t_end), no frames to stack)")
     if (cmd.unroll is not None or cmd.coarse_n is not None or cmd.fine_n is not None or cmd.noise is not None
             or cmd.corrector_start is not None or cmd.unroll_schedule is not None or cmd.pairs_steps is not None):
-        raise ValueError("--unroll, --unroll-schedule, --coarse-n, --fine-n, --corrector-start, --noise and --pairs-steps "
+        raise ValueError("--unroll, --unroll-schedule, --coarse-n, --fine-n, --pairs-steps, --corrector-start and --noise "
                          "go with --modes (compare training modes)")
     if budget:
         return _budget(cmd, log)
