@@ -28,14 +28,18 @@ ENTRIES = {  # tiny caches: a 1D entry, a 2D entry of two fields, a steady 2D en
 }
 
 
-@pytest.fixture(scope="module")
-def caches(tmp_path_factory):
-    root = tmp_path_factory.mktemp("caches")
+def _generate(root: Path, entries: dict) -> dict[str, Path]:
+    """{entry: the cache generated from its argv} under ``root``."""
     out = {}
-    for name, argv in ENTRIES.items():
+    for name, argv in entries.items():
         out[name] = root / f"{name}.h5"
         assert cli.main(["generate", name, *argv, "--out", str(out[name])]) == 0
     return out
+
+
+@pytest.fixture(scope="module")
+def caches(tmp_path_factory):
+    return _generate(tmp_path_factory.mktemp("caches"), ENTRIES)
 
 
 def _fields(path) -> dict[str, np.ndarray]:
@@ -282,12 +286,7 @@ PER_SEED = {  # the sets PDEBench ships per seed (its FNODatasetMult / UNetDatas
 
 @pytest.fixture(scope="module")
 def per_seed_caches(tmp_path_factory):
-    root = tmp_path_factory.mktemp("per_seed")
-    out = {}
-    for name, argv in PER_SEED.items():
-        out[name] = root / f"{name}.h5"
-        assert cli.main(["generate", name, *argv, "--out", str(out[name])]) == 0
-    return out
+    return _generate(tmp_path_factory.mktemp("per_seed"), PER_SEED)
 
 
 @pytest.mark.slow
