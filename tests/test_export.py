@@ -56,6 +56,22 @@ def _same_attrs(a, b) -> bool:
     return set(a) == set(b) and all(np.array_equal(np.asarray(a[k]), np.asarray(b[k])) for k in a)
 
 
+def _reads_back_and_imports_as(export: Path, cache: Path, again: Path) -> Path:
+    """The export read back (``read_export``) and imported to ``again`` equal ``cache``, attributes too; returns
+    the imported cache."""
+    with open_cache(cache) as ds:
+        original = ds.load()
+    back = read_export(export)
+    xr.testing.assert_equal(back, original)
+    assert _same_attrs(back.attrs, original.attrs)
+    assert all(_same_attrs(back[v].attrs, original[v].attrs) for v in original.variables)
+    imported = import_export(export, again)
+    with open_cache(imported) as ds:
+        xr.testing.assert_equal(ds.load(), original)
+        assert _same_attrs(ds.attrs, original.attrs)
+    return imported
+
+
 @pytest.mark.parametrize("name", ["burgers1d", "wave2d"])
 def test_the_wells_own_dataset_class_reads_the_export(caches, tmp_path, name):
     well = pytest.importorskip("the_well.data")
@@ -128,16 +144,7 @@ def test_read_back_and_import_equal_the_cache(caches, tmp_path, name, to):
         pytest.skip("steady: The Well holds time series")
     out = tmp_path / "e.hdf5"
     export_cache(caches[name], to, out)
-    with open_cache(caches[name]) as ds:
-        original = ds.load()
-    back = read_export(out)
-    xr.testing.assert_equal(back, original)
-    assert _same_attrs(back.attrs, original.attrs)
-    assert all(_same_attrs(back[v].attrs, original[v].attrs) for v in original.variables)
-    cache = import_export(out, tmp_path / "again.h5")
-    with open_cache(cache) as ds:
-        xr.testing.assert_equal(ds.load(), original)
-        assert _same_attrs(ds.attrs, original.attrs)
+    cache = _reads_back_and_imports_as(out, caches[name], tmp_path / "again.h5")
     a, b = datasets.CachedTrajectories(caches[name]), datasets.CachedTrajectories(cache)
     assert len(a) == len(b) and a.config == b.config
     for k in range(len(a)):
@@ -316,11 +323,4 @@ def test_pdebench_per_seed_sets_are_laid_out_as_its_mult_loaders_read_them(per_s
                 if d in coords:
                     np.testing.assert_array_equal(g[f"grid/{d}"][()], coords[d])
             assert all(g.attrs[p] == params[p][i] for p in params)
-    with open_cache(per_seed_caches[name]) as ds:
-        original = ds.load()
-    back = read_export(out)
-    xr.testing.assert_equal(back, original)
-    assert _same_attrs(back.attrs, original.attrs)
-    assert all(_same_attrs(back[v].attrs, original[v].attrs) for v in original.variables)
-    with open_cache(import_export(out, tmp_path / "again.h5")) as ds:
-        xr.testing.assert_equal(ds.load(), original)
+    _reads_back_and_imports_as(out, per_seed_caches[name], tmp_path / "again.h5")
