@@ -101,7 +101,7 @@ class CacheSettings:
         """What differs from ``other`` that makes samples differ, as "name: cache X vs asked Y" (self: the cache)."""
         out = []
         if self.config_hash != other.config_hash:
-            settings = [f"{k}: cache {a.get(k, '(unset)')} vs asked {b.get(k, '(unset)')}"
+            settings = [f"{k}: cache {a.get(k, 'its default')} vs asked {b.get(k, 'its default')}"
                         for a, b in [(_flat(self.config), _flat(other.config))]
                         for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
             out.append(f"config_hash: cache {self.config_hash!r} vs asked {other.config_hash!r}"

@@ -220,6 +220,9 @@ def test_interrupted_reads_incomplete_then_resumes_identically(pde, tmp_path, mo
         datasets.write_cache(pde, path, N, seed=SEED + 1, resume=True, progress=False)
     with pytest.raises(ValueError, match="different set-up.*config_hash"):
         datasets.write_cache(pde.replace(nu="0.05"), path, N, seed=SEED, resume=True, progress=False)
+    # a setting the config names only when it is not the default: the message says "its default", not "(unset)"
+    with pytest.raises(ValueError, match="t_start: cache its default vs asked 0.01"):
+        datasets.write_cache(pde.replace(t_start=0.01), path, N, seed=SEED, resume=True, progress=False)
     done = datasets.write_cache(pde, path, N, seed=SEED, resume=True, progress=False)
     assert done.written == N - BLOCK
     part = datasets.open_cache(path)

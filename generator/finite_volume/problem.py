@@ -563,8 +563,7 @@ class Euler1D(FiniteVolume):
                              "both ends or two as left,right (e.g. wall,outflow)")
         if len(sides) == 2 and is_periodic(sides[0]) != is_periodic(sides[1]):
             raise ValueError(f"{self.NAME}: bc={self.bc!r} not allowed: periodic ends come in pairs")
-        if not min(self.gamma.bounds) > 1:
-            raise ValueError(f"{self.NAME}: gamma={self.gamma} not allowed: the ratio of specific heats must be > 1")
+        check_gamma(self.NAME, self.gamma)
         self._validate_size()
 
     def describe_setup(self) -> str:
@@ -583,6 +582,17 @@ VISCOUS_GAS_PARAMS: dict[str, Param] = {
     "gamma": Param("ratio of specific heats (ideal gas)", "1", positive=True),
     "eta": Param("shear viscosity, kinematic (the dynamic one is rho eta)", "length^2/time"),
     "zeta": Param("bulk viscosity, kinematic (the dynamic one is rho zeta)", "length^2/time")}
+
+
+GAMMA_MAX = 3.0  # gamma = 1 + 2 / f for f >= 1 degrees of freedom: a monatomic gas 5/3, a 1D gas 3
+
+
+def check_gamma(name: str, gamma) -> None:
+    """Refuse a ratio of specific heats outside (1, 3] (an ideal gas with at least one degree of freedom), in one line."""
+    lo, hi = min(gamma.bounds), max(gamma.bounds)
+    if not (lo > 1 and hi <= GAMMA_MAX):
+        raise ValueError(f"{name}: gamma={gamma} not allowed: the ratio of specific heats of an ideal gas lies in "
+                         f"(1, {GAMMA_MAX:g}] (1 + 2 / degrees of freedom: air 1.4, a monatomic gas 5/3)")
 
 
 def check_viscosities(problem) -> None:

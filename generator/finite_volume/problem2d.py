@@ -32,6 +32,7 @@ from .problem import (
     FiniteVolume,
     FVGrid,
     ViscousGas,
+    check_gamma,
     ic_domains,
 )
 from .scheme import SIDE_KINDS
@@ -560,8 +561,7 @@ class Euler2D(FiniteVolume2D):
     def validate(self) -> None:
         self._validate_common(16)
         _axes(self.NAME, self.bc)
-        if not min(self.gamma.bounds) > 1:
-            raise ValueError(f"{self.NAME}: gamma={self.gamma} not allowed: the ratio of specific heats must be > 1")
+        check_gamma(self.NAME, self.gamma)
         self._validate_size()
 
     def describe_setup(self) -> str:
