@@ -71,7 +71,7 @@ from .budget_report import MIN_STEPS as MIN_STEPS
 from .budget_report import combine_seeds, verdicts, write_tables
 from .budget_report import precompute_line as precompute_line
 from .budget_report import too_few_steps_note as too_few_steps_note
-from .compare import shifted_pde
+from .shift import shifted_pde
 
 ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss", "reservoir_active", "reservoir_priority")
 DEFAULT_ARMS = ARMS[:4]  # the steered arms after them are named to be run (one more arm x seeds each)

@@ -74,7 +74,9 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
     if isinstance(cmd.pde, str):
         from pdestream.settings import build_pde
 
-        build_pde(cmd.pde, cmd.settings)  # the name and --set checked before torch (and JAX) are imported
+        pde = build_pde(cmd.pde, cmd.settings)  # the name and --set checked before torch (and JAX) are imported
+        if cmd.modes is None:
+            check_shift(pde, cmd)  # and --shift / --shift-set (checked again on the comparison's own settings)
     before = snapshot(cmd.out)
     try:
         return _compare(cmd, log)
@@ -168,7 +170,7 @@ def check_priority_cap(cmd: CompareCommand, used: bool) -> None:
 def check_shift(pde, cmd: CompareCommand) -> None:
     """shift and shift_set checked (one line) before any cache or run is written: the shifted PDE is built once
     here the way the comparison builds it later (--shift 0 wrote a 256-sample cache before its refusal)."""
-    from pdestream.experiments.compare import shifted_pde
+    from pdestream.experiments.shift import shifted_pde
 
     if cmd.shift != cmd.shift or cmd.shift in (float("inf"), float("-inf")):
         raise ValueError(f"--shift {cmd.shift} not allowed: a finite fraction like 0.25 or -0.25")

@@ -25,6 +25,9 @@ LIGHT = [
     (["generate", "pdearena_smoke2d", "--n", "2", "--out", "x.h5", "--set", "refine=0"], 2, "refine=0 not allowed"),
     (["train", "burgers1d", "--out", "run", "--set", "nu=abc"], 2, "parameter nu: bad domain 'abc'"),
     (["compare", "ks1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--set", "n=7"], 2, "n=7 not allowed"),
+    (["compare", "burgers1d", "--out", "cmp", "--budget", "5", "--shift-set", "nu=abc"], 2,
+     "parameter nu: bad domain 'abc'"),
+    (["compare", "burgers1d", "--out", "cmp", "--shift", "0"], 2, "--shift 0 would test on the training domain"),
 ]
 
 
