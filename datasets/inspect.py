@@ -177,7 +177,8 @@ def draw(ds, n_show: int = 4):
     """Every field of the first ``n_show`` samples of a cache's Dataset, as a Figure (current backend).
 
     1D: space-time images (x across, t up), one row per field, one column per sample. 2D: first/middle/last
-    frames (x across, y up, origin lower, aspect equal), one row per sample, one group of columns per field,
+    frames (x across, y up, origin lower, aspect equal), one row per sample, one group of columns per field (at
+    most three fields across; more go to a further band of rows),
     frame times in the titles; 3D: the same for the middle z slice. Colour ranges: in 1D one per field over all
     its panels; in 2D/3D one per field and frame column, shared by that column's samples, with its own colourbar
     below it (one range over all frames left ns2d's t = 0 column blank: its vorticity grows ~100x under the
@@ -268,8 +269,12 @@ def _space_time(plt, ds, fields, show, index, label, space):
     return fig
 
 
+MAX_COLUMNS = 9  # panels across a 2D/3D cache's figure (three fields' first/middle/last frames)
+
+
 def _snapshots(plt, ds, fields, show, index, label, space, mask=None):
-    """2D (3D: the middle z slice): one row per sample, first/middle/last frame of each field, x across, y up;
+    """2D (3D: the middle z slice): one row per sample, first/middle/last frame of each field, x across, y up, at
+    most MAX_COLUMNS panels across (further fields in another band of rows);
     one colourbar per field. A steady PDE's cache (no time axis): one panel per field, input fields first.
     ``mask``: a flow's solid cells [sample, time, y, x], drawn in grey over every panel."""
     timed = "time" in ds.dims
@@ -279,14 +284,22 @@ def _snapshots(plt, ds, fields, show, index, label, space, mask=None):
     slab = {space[0]: ds.sizes[space[0]] // 2} if len(space) == 3 else {}
     where = f", {space[0]}={float(ds[space[0]][slab[space[0]]]):.3g}" if slab else ""
     extent = [*_edges(ds[across].values, True), *_edges(ds[up].values, True)]
-    cols = len(fields) * len(frames)
-    fig, axes = plt.subplots(show, cols, figsize=(2.2 * cols + 0.8 * len(fields), 2.4 * show + 0.7), squeeze=False,
-                             layout="constrained")
+    # at most MAX_COLUMNS panels across: a flow's vorticity, u, v, p and scalar made 15 in one row; further fields
+    # go to another band of rows (one row per sample in each band)
+    per_band = max(1, MAX_COLUMNS // len(frames))
+    bands = -(-len(fields) // per_band)
+    across_fields = min(len(fields), per_band)
+    cols = across_fields * len(frames)
+    fig, axes = plt.subplots(show * bands, cols, figsize=(2.2 * cols + 0.8 * across_fields, 2.4 * show * bands + 0.7),
+                             squeeze=False, layout="constrained")
+    for ax in axes[(bands - 1) * show:, (len(fields) - (bands - 1) * per_band) * len(frames):].flat:
+        ax.set_axis_off()  # the last band's empty slots
     for c, name in enumerate(fields):
         var = ds[name].isel(sample=slice(0, show), **slab)
         var = var.isel(time=frames) if timed else var.expand_dims("time", axis=1)
         u = var.transpose("sample", "time", up, across).values  # [S, F, y, x]: row y, column x
-        block = axes[:, c * len(frames):(c + 1) * len(frames)]
+        band, slot = divmod(c, per_band)
+        block = axes[band * show:(band + 1) * show, slot * len(frames):(slot + 1) * len(frames)]
         for j, f in enumerate(frames):
             scale = colour_scale(u[:, j])  # per frame: a forced field grows ~100x from t = 0 (ns2d)
             for i in range(show):
@@ -300,7 +313,7 @@ def _snapshots(plt, ds, fields, show, index, label, space, mask=None):
                 title = f"{name} #{index[i]}" + (f" t={float(ds.time[f]):.4g}" if timed else "") + where
                 ax.set_title(title + (f"\n{label[i]}" if j == 0 and label[i] else ""), fontsize=7)
                 ax.set_xlabel(axis_label(ds[across]) if i == show - 1 else "", fontsize=8)
-                ax.set_ylabel(axis_label(ds[up]) if c == 0 and j == 0 else "", fontsize=8)
+                ax.set_ylabel(axis_label(ds[up]) if slot == 0 and j == 0 else "", fontsize=8)
                 ax.tick_params(labelsize=7)
             bar = fig.colorbar(im, ax=list(block[:, j]), location="bottom", shrink=0.9, fraction=0.05, pad=0.02)
             bar.ax.tick_params(labelsize=7)

@@ -179,6 +179,29 @@ def test_inspect_2d_panels_have_axes_and_colourbars(ns_cache, gs_cache):
             plt.close(fig)
 
 
+def test_inspect_puts_at_most_three_fields_across(ns_cache):
+    """A flow's vorticity, u, v, p and scalar made 15 panels in one row: five fields now take two bands of rows."""
+    ds = open_cache(ns_cache[1])
+    names = ["a", "b", "c", "d", "e"]
+    ds = ds.assign({k: ds["vorticity"] * (i + 1) for i, k in enumerate(names)})
+    ds.attrs["pdestream_fields"] = " ".join(names)
+    fig = inspect.draw(ds, n_show=2)
+    try:
+        ims = _images(fig)
+        assert len(ims) == 5 * 3 * 2
+        rows = {im.axes.get_subplotspec().rowspan.start for im in ims}
+        cols = {im.axes.get_subplotspec().colspan.start for im in ims}
+        assert rows == {0, 1, 2, 3} and cols == set(range(9))  # 2 samples x 2 bands, 3 fields x 3 frames across
+        for i, name in enumerate(names):  # a field's panels share one band: its samples' rows, its own columns
+            mine = [im.axes.get_subplotspec() for im in ims if im.axes.get_title().startswith(f"{name} #")]
+            assert {sp.rowspan.start for sp in mine} == ({0, 1} if i < 3 else {2, 3})
+            assert {sp.colspan.start for sp in mine} == set(range(3 * (i % 3), 3 * (i % 3) + 3))
+        assert sum(1 for ax in fig.axes if not ax.axison) == 2 * 3  # the second band's empty slot, switched off
+    finally:
+        plt.close(fig)
+        ds.close()
+
+
 def test_inspect_one_signed_field_gets_a_sequential_map(gs_cache):
     _, path = gs_cache
     fig = inspect.figure(path, n_show=2)
