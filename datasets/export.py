@@ -29,7 +29,9 @@ PDEBench (``--to pdebench``): one HDF5 file in the layout of PDEBench's own load
 ``UNetDatasetSingle``): a single-field cache's field is ``tensor`` [N, T, x(, y, z)] (x first) as in the 1D and
 2D scalar files; a cache of several fields has one dataset per field [N, T, x(, y)] (the CFD files' layout), named
 as in the cache, except a compressible flow's primitive fields (rho, u(, v, w), p: euler1d / 2d, compressible_ns1d
-/ 2d), named density, Vx(, Vy, Vz), pressure as PDEBench's CFD files and loaders name them, plus ``x-coordinate``
+/ 2d), named density, Vx(, Vy, Vz), pressure as PDEBench's CFD files and loaders name them; an incompressible
+flow's (a MAC-grid entry's) velocity is PDEBench's ``velocity`` [N, T, x, y(, z), d] and its smoke ``particles``
+[N, T, x, y(, z), 1] with the frame times ``t`` [N, T], as its incompressible NS files; plus ``x-coordinate``
 (, ``y-coordinate``, ``z-coordinate``) and ``t-coordinate`` (the T frame times). A steady cache is laid out as
 PDEBench's Darcy file: its input field as ``nu`` [N, x(, y)] (where its loader reads Darcy's coefficient; several
 inputs: each under its own name), its solution as ``tensor`` [N, 1, x(, y)] (no ``t-coordinate``). Each parameter
@@ -205,6 +207,36 @@ def _pdebench_input_keys(inputs, names) -> dict[str, str]:
     return {f: f for f in inputs}
 
 
+VELOCITY = ("u", "v", "w")  # an incompressible flow's components, stacked last in PDEBench's ``velocity``
+PARTICLES = "smoke"  # the passive scalar a flow carries: PDEBench's ``particles`` (its smoke density)
+
+
+def _incompressible(ds, fields) -> tuple[tuple[str, ...], str | None] | None:
+    """(velocity components, passive scalar or None) of a MAC-grid flow's cache (``sides`` set, no density):
+    PDEBench's incompressible files hold ``velocity`` [N, T, x, y(, z), d] and ``particles`` [N, T, x, y(, z), 1];
+    None for any other cache."""
+    if not ds.attrs.get("sides") or "rho" in fields:
+        return None
+    parts = tuple(c for c in VELOCITY if c in fields)
+    if parts != VELOCITY[:len(parts)] or len(parts) != len(_space(ds)):
+        return None
+    return parts, (PARTICLES if PARTICLES in fields else None)
+
+
+def _write_stacked(ds, f, key: str, names: tuple[str, ...], ndim: int) -> None:
+    """Fields ``names`` [N, T, *space] stacked on a last axis as dataset ``key`` [N, T, *space, len(names)]."""
+    n, frames = ds.sizes["sample"], ds.sizes["time"]
+    grid = tuple(ds.sizes[d] for d in schema.SPACE[:ndim])
+    v = f.create_dataset(key, shape=(n, frames, *grid, len(names)), dtype="float32")
+    for lo in range(0, n, CHUNK_SAMPLES):
+        hi = min(lo + CHUNK_SAMPLES, n)
+        v[lo:hi] = np.stack([schema.from_disk(np.asarray(ds[c].isel(sample=slice(lo, hi)).values, np.float32), ndim)
+                             for c in names], axis=-1)
+    v.attrs["pdestream_names"] = " ".join(names)
+    for c in names:  # each component's own attributes (long_name differs), as "u.long_name"
+        v.attrs.update({f"{c}.{k}": a for k, a in _attrs(ds[c].attrs).items()})
+
+
 def _pdebench_keys(fields) -> dict[str, str]:
     """Each field's dataset in a PDEBench file: ``tensor`` for a single field, PDEBench's CFD names for a
     compressible flow's primitive fields (its loader reads density, Vx, ..., pressure), else the field's name."""
@@ -240,7 +272,15 @@ class PDEBench:
                 _copy_field(ds, name, v, len(space))
                 v.attrs.update({**_attrs(ds[name].attrs), "pdestream_name": name})
             frames = ds.sizes["time"] if timed else 1
-            for name, key in _pdebench_keys(fields).items():
+            flow = _incompressible(ds, fields) if timed else None
+            if flow is not None:  # PDEBench's incompressible NS files: velocity, particles, t [N, T]
+                velocity, scalar = flow
+                _write_stacked(ds, f, "velocity", velocity, len(space))
+                if scalar is not None:
+                    _write_stacked(ds, f, "particles", (scalar,), len(space))
+                f.create_dataset("t", data=np.broadcast_to(ds["time"].values.astype(np.float32), (n, frames)))
+                fields = tuple(k for k in fields if k not in velocity and k != scalar)
+            for name, key in ({k: k for k in fields} if flow else _pdebench_keys(fields)).items():  # p: "p"
                 v = f.create_dataset(key, shape=(n, frames, *grid), dtype="float32")
                 _copy_field(ds, name, v, len(space), time_axis=not timed)
                 v.attrs.update({**_attrs(ds[name].attrs), "pdestream_name": name})
@@ -269,9 +309,19 @@ class PDEBench:
         for name, key in _pdebench_input_keys(inputs, (*names, *params)).items():
             a = f[key if key in f else name]  # an export written before Darcy's name: the input's own
             fields[name] = (a[()], dict(a.attrs))
-        for name, key in _pdebench_keys(names).items():
+        rest, flow = names, "velocity" in f and "pdestream_names" in f["velocity"].attrs
+        for key in ("velocity", "particles") if flow else ():  # an incompressible flow's stacked fields
+            if key in f:
+                stacked, attrs = f[key][()], dict(f[key].attrs)
+                parts = str(plain(attrs["pdestream_names"])).split()
+                for i, name in enumerate(parts):
+                    own = {k[len(name) + 1:]: v for k, v in attrs.items() if k.startswith(f"{name}.")}
+                    fields[name] = (stacked[..., i], own)
+                rest = [k for k in rest if k not in parts]
+        for name, key in ({k: k for k in rest} if flow else _pdebench_keys(rest)).items():
             a = f[key if key in f else name]  # an export written before the CFD names: the field's own
             fields[name] = (a[()] if timed else a[:, 0], dict(a.attrs))
+        fields = {k: fields[k] for k in (*inputs, *names)}  # the cache's order
         return {"space": space, "coords": coords, "fields": fields, "params": params, "drop": (),
                 "drop_var": ("pdestream_name",)}
 

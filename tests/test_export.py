@@ -25,6 +25,8 @@ ENTRIES = {  # tiny caches: a 1D entry, a 2D entry of two fields, a steady 2D en
     "wave2d": ["--n", "2", "--set", "n=16", "--set", "n_frames=3"],
     "darcy2d": ["--n", "2", "--set", "n=16"],
     "euler1d": ["--n", "2", "--set", "n=16", "--set", "n_frames=3", "--set", "t_end=0.02"],  # PDEBench's CFD names
+    # an incompressible flow: PDEBench's velocity [N, T, x, y, 2] and particles [..., 1]
+    "smoke2d": ["--n", "2", "--set", "n=32", "--set", "n_frames=3", "--set", "t_end=0.05"],
 }
 
 
@@ -125,7 +127,13 @@ def test_pdebench_layout_read_as_pdebenchs_loaders_do(caches, tmp_path, name):
             np.testing.assert_array_equal(f["tensor"][...], fields["u"][:, None])
         else:
             np.testing.assert_array_equal(f["t-coordinate"][...], coords["time"])
-            if len(fields) == 1:  # one field: "tensor" [N, T, x(, y)]
+            if name == "smoke2d":  # PDEBench's incompressible NS files: velocity, particles, t [N, T]; p as itself
+                np.testing.assert_array_equal(f["velocity"][...], np.stack([fields["u"], fields["v"]], -1))
+                np.testing.assert_array_equal(f["particles"][...], fields["smoke"][..., None])
+                np.testing.assert_array_equal(f["t"][...], np.broadcast_to(coords["time"], f["t"].shape))
+                np.testing.assert_array_equal(f["p"][...], fields["p"])
+                assert not {"u", "v", "smoke", "tensor"} & set(f)
+            elif len(fields) == 1:  # one field: "tensor" [N, T, x(, y)]
                 np.testing.assert_array_equal(np.array(f["tensor"], dtype=np.float32), fields["u"])
             else:  # several: one dataset per field, as PDEBench's CFD files (a compressible flow: their names)
                 assert "tensor" not in f
