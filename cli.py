@@ -125,9 +125,8 @@ def add_inspect(sub) -> None:
 
 def add_export(sub) -> None:
     p = sub.add_parser("export", help="write a complete cache in The Well's or PDEBench's HDF5 layout",
-                       description="Write a complete cache as one HDF5 file that The Well's WellDataset or "
-                                   "PDEBench's loaders read (layouts in datasets/export.py); `pdestream import` "
-                                   "reads it back.")
+                       description="Write a complete cache as one HDF5 file that The Well's WellDataset or PDEBench's "
+                                   "loaders read (layouts in datasets/export.py); `pdestream import` reads it back.")
     p.add_argument("cache", help="cache file (.h5/.hdf5) or directory (.zarr), complete")
     p.add_argument("--to", required=True, metavar="the-well|pdebench", help="the layout to write")
     p.add_argument("--out", required=True, metavar="FILE.hdf5",
@@ -139,8 +138,7 @@ def add_export(sub) -> None:
 
 
 def add_import(sub) -> None:
-    p = sub.add_parser("import", help="turn a file written by `pdestream export` back into a cache "
-                                      "(then `train --source CACHE`)")
+    p = sub.add_parser("import", help="a file written by `pdestream export` back into a cache (then train --source)")
     p.add_argument("path", help="a The Well or PDEBench HDF5 file written by `pdestream export`")
     p.add_argument("--out", required=True, metavar="PATH.h5|PATH.zarr", help="cache to write (must not exist)")
     p.set_defaults(func=cmd_import)
@@ -233,6 +231,8 @@ def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
     g.add_argument("--coarse-n", type=int, metavar="N", help=hint["coarse_n"])
     g.add_argument("--noise", metavar="SIGMA", help=hint["noise"])
     g.add_argument("--corrector-start", metavar="|".join(CORRECTOR_STARTS), help=hint["corrector_start"])
+    g.add_argument("--clip", metavar="NORM", help=hint["clip"])
+    g.add_argument("--remat", action="store_true", help=hint["remat"])
     if not isinstance(d, TrainConfig):
         g.add_argument("--unroll-schedule", metavar="K1:S1,K2:S2,...", help=hint["unroll_schedule"])
         g.add_argument("--pairs-steps", type=int, metavar="N", help="the corrector's pairs arms' steps (default --steps)")
@@ -341,7 +341,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
         model_cfg=parse_sets(args.model_set, "--model-set"), view=args.view, k_in=args.k_in, k_out=args.k_out, steps=args.steps,
         batch_size=args.batch_size, lr=args.lr, schedule=args.schedule, threads=args.threads, device=args.device,
         mode=args.mode, loss=args.loss, unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise,
-        corrector_start=args.corrector_start,
+        corrector_start=args.corrector_start, clip=args.clip, remat=args.remat,
         solver_workers=args.solver_workers, solver_timeout=args.solver_timeout)
     cfg.check()  # its own values first (a cache with --ddp is named as such, not as a cache with --reservoir)
     cfg.reservoir = reservoir_cfg(args)
@@ -371,7 +371,7 @@ def compare_command(args: argparse.Namespace) -> CompareCommand:
         steps=args.steps, batch_size=args.batch_size, lr=args.lr, threads=args.threads, device=args.device,
         modes=None if args.modes is None else tuple(args.modes.split(",")), fine_n=args.fine_n, loss=args.loss,
         unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise, corrector_start=args.corrector_start,
-        unroll_schedule=args.unroll_schedule, pairs_steps=args.pairs_steps, reservoir=reservoir)
+        unroll_schedule=args.unroll_schedule, pairs_steps=args.pairs_steps, clip=args.clip, remat=args.remat, reservoir=reservoir)
 
 
 def cmd_compare(args: argparse.Namespace) -> None:

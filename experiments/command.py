@@ -61,6 +61,8 @@ class CompareCommand:
     corrector_start: str | None = None
     unroll_schedule: str | None = None
     pairs_steps: int | None = None  # --modes: the corrector's pairs arms' steps (equal wall clock), None: steps
+    clip: float | str | None = None  # --modes: the corrector arms' gradient clipping norm
+    remat: bool = False  # --modes: the corrector arms' rematerialisation
     reservoir: dict = field(default_factory=dict)
 
 
@@ -199,9 +201,10 @@ def _compare(cmd: CompareCommand, log) -> str:
         raise ValueError(f"{given} goes with --view next_step; compare trains the operator view by default "
                          "(u(t=0) -> u(t_end), no frames to stack)")
     if (cmd.unroll is not None or cmd.coarse_n is not None or cmd.fine_n is not None or cmd.noise is not None
-            or cmd.corrector_start is not None or cmd.unroll_schedule is not None or cmd.pairs_steps is not None):
-        raise ValueError("--unroll, --unroll-schedule, --coarse-n, --fine-n, --pairs-steps, --corrector-start and --noise "
-                         "go with --modes (compare training modes)")
+            or cmd.corrector_start is not None or cmd.unroll_schedule is not None or cmd.pairs_steps is not None
+            or cmd.clip is not None or cmd.remat):
+        raise ValueError("--unroll, --unroll-schedule, --coarse-n, --fine-n, --pairs-steps, --corrector-start, --noise, "
+                         "--clip and --remat go with --modes (compare training modes)")
     if budget:
         return _budget(cmd, log)
     from pdestream.experiments import compare as module
@@ -289,7 +292,7 @@ def _interactive(cmd: CompareCommand) -> str:
     from pdestream.experiments import interactive_compare as module
     from pdestream.settings import build_pde
     from pdestream.surrogate.launch import set_threads
-    from pdestream.surrogate.mode_table import check_corrector_start, check_noise
+    from pdestream.surrogate.mode_table import check_clip, check_corrector_start, check_noise
 
     if cmd.sim_budget is not None:
         raise ValueError("--modes compares at equal --steps or, with --budget SECONDS, at equal wall clock; "
@@ -298,6 +301,7 @@ def _interactive(cmd: CompareCommand) -> str:
         check_noise(cmd.noise)  # before the PDE (and JAX) is built
     if cmd.corrector_start is not None:
         check_corrector_start(cmd.corrector_start)
+    clip = check_clip(cmd.clip)
     modes = tuple(m.strip() for m in cmd.modes if m.strip())
     settings = {"n": "32", "n_frames": "11", **cmd.settings} if cmd.quick else dict(cmd.settings)  # tiny: tests
     pde = build_pde(cmd.pde, settings)
@@ -313,7 +317,8 @@ def _interactive(cmd: CompareCommand) -> str:
         steps=20 if quick else cmd.steps, batch_size=8 if quick else cmd.batch_size, lr=cmd.lr, model=cmd.model,
         model_cfg=model_cfg, k_in=(1 if cmd.k_in is None else cmd.k_in), seed=0, seeds=1 if cmd.seeds is None else cmd.seeds,
         unroll_schedule=cmd.unroll_schedule, resume=not cmd.overwrite, n_test=4 if cmd.quick and cmd.test_samples == 128 else
-        cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device, budget_s=cmd.budget, pairs_steps=cmd.pairs_steps)
+        cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device, budget_s=cmd.budget, pairs_steps=cmd.pairs_steps,
+        clip=clip, remat=cmd.remat)
     if cmd.k_out not in (None, 1):
         raise ValueError(f"--k-out={cmd.k_out} not allowed with --modes: every mode predicts one frame per step")
     module.interactive_compare(pde, cmd.out, cfg)

@@ -81,7 +81,8 @@ class InteractiveConfig:
     "pairs + noise" arm on its coarse start state, ``surrogate.modes.SolverInTheLoop``); corrector_start: how every
     corrector arm's network starts ("random" or "zero", ``SolverInTheLoop.init_model``); unroll_schedule: the
     solver-in-the-loop arm's unroll curriculum, "K1:S1,K2:S2,..." (unroll Ki for the share Si of the steps,
-    ``mode_table.parse_unroll_schedule``; its longest unroll replaces sitl_unroll); seed: the first model and data
+    ``mode_table.parse_unroll_schedule``; its longest unroll replaces sitl_unroll); clip / remat: every corrector
+    arm's gradient clipping norm and rematerialisation (``SolverInTheLoop``); seed: the first model and data
     seed and the test set's; seeds: how many (seed, seed + 1, ...); resume: read back finished (arm, seed) runs;
     budget_s: equal wall clock instead of equal steps: every trained arm trains this many seconds (solver calls
     included; the steps it reaches are in the table), None: ``steps`` each; pairs_steps: the corrector's two pairs
@@ -104,6 +105,8 @@ class InteractiveConfig:
     noise: float = DEFAULTS["noise"]
     corrector_start: str = DEFAULTS["corrector_start"]
     unroll_schedule: str | None = None
+    clip: float | None = None
+    remat: bool = False
     seeds: int = 1
     resume: bool = True
     device: str = "cpu"
@@ -136,6 +139,9 @@ class InteractiveConfig:
             if self.unroll_schedule is not None:
                 raise ValueError(f"--unroll-schedule {self.unroll_schedule} is in shares of --steps; with --budget "
                                  f"{self.budget_s:g} the steps an arm reaches are not known before it trains")
+        if (self.clip is not None or self.remat) and "solver-in-the-loop" not in self.modes:
+            raise ValueError(f"{'--clip' if self.clip is not None else '--remat'} goes with the corrector's arms "
+                             "(--modes ...,solver-in-the-loop)")
         if self.unroll_schedule is not None:
             if "solver-in-the-loop" not in self.modes:
                 raise ValueError(f"--unroll-schedule {self.unroll_schedule} goes with the solver-in-the-loop arm "
@@ -158,7 +164,7 @@ def _settings(cfg: InteractiveConfig, name: str, **override) -> dict:
         unroll = max(k for k, _ in schedule)
     noise = 0.0 if name == "solver-in-the-loop" else cfg.noise  # (the corrector's noise arm overrides it)
     given = {"unroll": unroll, "coarse_n": cfg.coarse_n, "noise": noise, "corrector_start": cfg.corrector_start,
-             "unroll_schedule": schedule, **override}
+             "unroll_schedule": schedule, "clip": cfg.clip, "remat": cfg.remat, **override}
     if given.get("unroll") == 1:  # the pairs arms: no curriculum
         given["unroll_schedule"] = None
     return mode_settings(name, **{k: v for k, v in given.items() if k in MODE_SPECS[name].settings})

@@ -42,19 +42,21 @@ class TrainProgress:
     rows: list = field(default_factory=list)
     trajectories: set = field(default_factory=set)
     data_stats: dict | None = None
+    clipped: int = 0  # optimizer steps whose gradient norm was clipped (a mode's ``clip``)
 
     def counters(self, wall: float) -> dict:
         """Plain values for checkpoint.pt; ``trajectories`` as a sorted int64 tensor [N]."""
         return {"examples": self.examples, "t_data": self.t_data, "t_compute": self.t_compute, "wall": wall,
                 "trajectories": torch.tensor(sorted(self.trajectories), dtype=torch.int64),
-                "data_stats": self.data_stats}
+                "data_stats": self.data_stats, "clipped": self.clipped}
 
     @classmethod
     def from_checkpoint(cls, ckpt: dict) -> "TrainProgress":
         c = ckpt["counters"]
         return cls(step=int(ckpt["step"]), examples=int(c["examples"]), t_data=float(c["t_data"]),
                    t_compute=float(c["t_compute"]), wall=float(c["wall"]), rows=[dict(r) for r in ckpt["rows"]],
-                   trajectories=set(c["trajectories"].tolist()), data_stats=c["data_stats"])
+                   trajectories=set(c["trajectories"].tolist()), data_stats=c["data_stats"],
+                   clipped=int(c.get("clipped", 0)))  # (absent from checkpoints before clipping)
 
 
 def data_state_owner(loader) -> tuple[str | None, object]:

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 from .checks import check_count
 
 # a setting's default for every mode that takes it
-DEFAULTS = {"unroll": 4, "coarse_n": 64, "noise": 0.01, "corrector_start": "random", "unroll_schedule": None}
+DEFAULTS = {"unroll": 4, "coarse_n": 64, "noise": 0.01, "corrector_start": "random", "unroll_schedule": None,
+            "clip": None, "remat": False}
 # how a correction network starts: "random" (the model's own initialisation) or "zero" (its output layer's weights and
 # bias set to zero, so the corrected solver starts as the coarse solver alone: Mosaic's correctors start this way)
 CORRECTOR_STARTS = ("random", "zero")
@@ -43,7 +44,8 @@ MODE_SPECS = {spec.name: spec for spec in (
              "unroll the network K-1 steps without gradient, train the K-th"),
     ModeSpec("oracle", ("unroll",), True,
              "train on states the network reaches in 0..K steps, labelled by the solver"),
-    ModeSpec("solver-in-the-loop", ("unroll", "coarse_n", "noise", "corrector_start", "unroll_schedule"), False,
+    ModeSpec("solver-in-the-loop", ("unroll", "coarse_n", "noise", "corrector_start", "unroll_schedule", "clip",
+                                    "remat"), False,
              "a correction network on a coarse differentiable solver, unrolled K steps, against the fine solve "
              "(--noise SIGMA: the coarse start state perturbed, the fine target clean; default 0; "
              "--corrector-start zero: the correction's output layer starts at zero)",
@@ -63,7 +65,7 @@ SITL_NOISE_RULE = ("s0 + eps, s0 the coarse start state (the fine state restrict
                    "the correction step from s0 + eps, the fine targets clean")
 # how the CLI spells each setting
 OPTION = {"unroll": "--unroll", "coarse_n": "--coarse-n", "noise": "--noise", "corrector_start": "--corrector-start",
-          "unroll_schedule": "--unroll-schedule"}
+          "unroll_schedule": "--unroll-schedule", "clip": "--clip", "remat": "--remat"}
 
 
 def takes(setting: str) -> str:
@@ -82,7 +84,7 @@ def mode_settings(name: str, **given) -> dict:
     if unknown:
         raise ValueError(f"unknown mode setting(s) {unknown}; allowed: name, {', '.join(DEFAULTS)}")
     for key, value in given.items():
-        if key not in spec.settings and value is not None and not (key == "unroll" and value == 1):
+        if key not in spec.settings and value not in (None, False) and not (key == "unroll" and value == 1):
             raise ValueError(f"{OPTION[key]}={value} goes with {takes(key)}, not {name}")
     out = {"name": name}
     for key in spec.settings:
@@ -163,7 +165,30 @@ def check_noise(value) -> float:
     return float(number)
 
 
-CHECKS = {"noise": check_noise, "corrector_start": check_corrector_start, "unroll_schedule": check_unroll_schedule}  # the settings that are not counts
+def check_clip(value) -> float | None:
+    """The gradient clipping norm: None (no clipping) or a finite number > 0 (the CLI passes the text as typed),
+    else one line naming the value and what is allowed."""
+    if value is None:
+        return None
+    try:
+        number = float(value) if isinstance(value, (str, numbers.Real)) and not isinstance(value, bool) else None
+    except ValueError:
+        number = None
+    if number is None or not math.isfinite(number) or number <= 0:
+        raise ValueError(f"--clip={value!r} not allowed; must be a finite number > 0: the largest global norm of "
+                         "the gradient (clipped to it before each optimizer step), e.g. 1.0")
+    return number
+
+
+def check_remat(value) -> bool:
+    """Rematerialisation on or off: a bool, else one line."""
+    if not isinstance(value, bool):
+        raise ValueError(f"remat={value!r} not allowed; true or false")
+    return value
+
+
+CHECKS = {"noise": check_noise, "corrector_start": check_corrector_start, "unroll_schedule": check_unroll_schedule,
+          "clip": check_clip, "remat": check_remat}  # the settings that are not counts
 
 
 def option_help() -> dict:
@@ -180,6 +205,10 @@ def option_help() -> dict:
                            f"{DEFAULTS['corrector_start']}): random, the model's own initialisation; zero, its output "
                            "layer set to zero, so the corrected solver starts as the coarse solver (compare --modes: "
                            "every corrector arm)",
+        "clip": "solver-in-the-loop: clip the gradient's global norm to NORM before each optimizer step (long "
+                "unrolls; default: no clipping); recorded in run.json, the steps clipped in metrics.json",
+        "remat": "solver-in-the-loop: rematerialise each unrolled step in the backward pass (memory of one step's "
+                 "activations and solver residuals instead of K: long unrolls, large grids; ~1.3-2x the time)",
         "unroll_schedule": "solver-in-the-loop arm: an unroll curriculum (Um et al. 2020), unroll Ki for the share Si "
                            "of --steps, in order (shares summing to 1), e.g. 1:0.3,4:0.3,16:0.4; recorded in run.json",
     }

@@ -45,6 +45,7 @@ from typing import ClassVar, Protocol
 import torch
 import torch.nn.functional as F
 from torch import nn
+from torch.utils.checkpoint import checkpoint
 
 from pdestream import datasets
 from pdestream.datasets.normalize import Normalization
@@ -376,6 +377,15 @@ class SolverInTheLoop:
     ``unroll_schedule`` [[k1, n1], [k2, n2], ...] (an unroll curriculum, Um et al. 2020): unroll k1 for the first
     n1 optimizer steps, then k2 for n2, ...; the last k after the schedule; ``unroll`` is the longest k (the
     window's frames). A pure function of the optimizer step, so a resumed run unrolls as the uninterrupted one.
+
+    ``clip`` (a norm, None: off): the training loop scales the gradient down to this global norm before each
+    optimizer step (``surrogate.train``; the steps clipped go to metrics.json). ``remat``: each unrolled step
+    after the first (solver step and correction) is rematerialised in the backward pass
+    (``torch.utils.checkpoint``, reentrant): the forward keeps only the states between steps, and the backward
+    recomputes one step at a time with its JAX residuals, so memory holds about two steps' activations instead
+    of k. The forward then runs the solver's
+    no-gradient program (the oracle's), equal to the differentiable one's to float32 rounding: the loss and
+    gradients agree with ``remat`` off to that rounding, not bit for bit.
     """
 
     unroll: int = DEFAULTS["unroll"]
@@ -383,6 +393,8 @@ class SolverInTheLoop:
     noise: float = 0.0
     corrector_start: str = DEFAULTS["corrector_start"]
     unroll_schedule: list | None = None
+    clip: float | None = None
+    remat: bool = False
     seed: int = 0
     step: nn.Module | None = None
     factor: int = 0
@@ -399,6 +411,10 @@ class SolverInTheLoop:
             s["corrector_start"] = self.corrector_start
         if self.unroll_schedule:  # (absent: a fixed unroll, as run.json files before the setting)
             s["unroll_schedule"] = [list(p) for p in self.unroll_schedule]
+        if self.clip is not None:  # (absent when off: older run.json files compare equal)
+            s["clip"] = self.clip
+        if self.remat:
+            s["remat"] = True
         return _with_loss(s, self.loss)
 
     def unroll_at(self, step: int) -> int:
@@ -486,12 +502,21 @@ class SolverInTheLoop:
         params, p = batch["params"], norm.normalize_params(batch["params"])
         s = self.start(batch, norm, step)  # [B, C, *coarse]
         states, k = [], self.unroll_at(step)
-        for _ in range(k):
-            s = self.correct(model, norm, self.step(s, params), p)
+        for i in range(k):
+            # remat: from the second step on (a reentrant checkpoint needs an input that wants a gradient; the first
+            # step's solver call from the constant start keeps no residuals anyway)
+            if self.remat and i > 0:
+                s = checkpoint(self._advance, s, params, p, model, norm, use_reentrant=True)
+            else:
+                s = self._advance(s, params, p, model, norm)
             states.append(s)
         pred = norm.normalize(torch.stack(states, dim=1))  # [B, k, C, *coarse]
         target = norm.normalize(subsample(batch["y"][:, :k], self.factor, ndim, self.walls, self.locations))
         return objective(self.loss, pred, target), relative_errors(pred, target)
+
+    def _advance(self, s, params, p, model, norm):
+        """One unrolled step: the coarse solver, then the correction (s [B, C, *coarse] physical -> same)."""
+        return self.correct(model, norm, self.step(s, params), p)
 
     @torch.no_grad()
     def rollout(self, model, norm, u, params, k_in=1):

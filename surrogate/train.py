@@ -231,6 +231,7 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
         torch.set_rng_state(resume["torch_rng"])
     bar = RunProgress(label, stop.steps, progress.step) if writes else None
     model.train()
+    clip = getattr(mode, "clip", None)  # solver-in-the-loop's gradient clipping norm (None: off)
     step, loss_value, ended = progress.step, math.nan, "steps" if stop.steps is not None else "seconds"
     on_device = None if normalizer is None else normalizer.to(device)  # the statistics where the batches are
     while stop.fraction(step, progress.wall + time.perf_counter() - start) < 1:
@@ -249,6 +250,8 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
         opt.zero_grad(set_to_none=True)
         loss.backward()
         loss_value, examples = ddp.average_gradients(model, loss, len(batch["x"]))  # one process: loss, batch size
+        if clip is not None and float(torch.nn.utils.clip_grad_norm_(model.parameters(), clip)) > clip:
+            progress.clipped += 1  # (the norm before clipping; every rank has the averaged gradients: the same)
         opt.step()
         sched.step()
         t2 = time.perf_counter()
@@ -304,6 +307,8 @@ def train(model: nn.Module, loader, steps: int | Stop, out_dir, *, lr: float = 1
     if ranks > 1:
         summary["ranks"] = ranks
     summary["mode"] = mode.settings()
+    if clip is not None:
+        summary["clipped_steps"] = progress.clipped
     if hasattr(mode, "stats"):  # e.g. the oracle's examples dropped for a non-finite solver answer
         summary["mode_stats"] = mode.stats()
     if not writes:  # the other ranks: the summary without test errors, and no file

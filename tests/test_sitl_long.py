@@ -1,0 +1,135 @@
+"""Long unrolls of the corrector (issue 29): gradient clipping (``SolverInTheLoop(clip=NORM)``, the training loop
+clips the global gradient norm) and rematerialisation (``remat``: each unrolled step recomputed in the backward
+pass). Tiny runs: burgers1d n=32 -> coarse 16, a tiny FNO.
+"""
+
+import json
+
+import pytest
+import torch
+
+from pdestream import cli, datasets, generator
+from pdestream.surrogate.mode_table import mode_settings
+from pdestream.surrogate.models import build_model
+from pdestream.surrogate.modes import make_mode
+from pdestream.surrogate.runs import resume_run, train_run
+from tests.interrupt import interrupted_at
+
+torch.set_num_threads(1)
+
+FINE = generator.get_pde("burgers1d", n=32, n_frames=11)
+TINY = {"width": 8, "modes": 4, "layers": 2}
+
+
+def _batch(k: int) -> tuple[dict, datasets.Normalization]:
+    """k + 1 frames of 6 fine trajectories as a next-step window batch, and their normalization."""
+    d = datasets.sample_tensors(FINE, range(6), 0)
+    u = d["u"][:, : k + 1]  # [B, k + 1, C, n]
+    b = {"x": u[:, :1], "y": u[:, 1:], "params": d["params"]}
+    return b, datasets.Normalization.from_batch(b, 1)
+
+
+@pytest.mark.parametrize("k", [1, 4])
+def test_remat_gives_the_loss_and_gradients_of_the_plain_unroll(k):
+    b, norm = _batch(k)
+    grads = {}
+    for remat in (False, True):
+        torch.manual_seed(0)
+        model = build_model("fno", 1, 1, 1, 1, **TINY)
+        mode = make_mode({"name": "solver-in-the-loop", "unroll": k, "coarse_n": 16, "remat": remat}).bind(FINE)
+        loss, per = mode.step_loss(model, b, norm, 1)
+        loss.backward()
+        grads[remat] = (loss.item(), per, [p.grad.clone() for p in model.parameters()])
+    (l0, per0, g0), (l1, per1, g1) = grads[False], grads[True]
+    assert l1 == pytest.approx(l0, rel=1e-5) and torch.allclose(per0, per1, rtol=1e-5)
+    # the forward of remat runs the solver's no-gradient program: equal to float32 rounding, not bit for bit
+    for a, c in zip(g0, g1):
+        assert float((a - c).norm()) <= 1e-4 * float(a.norm()) + 1e-7
+    assert any(float(a.norm()) > 0 for a in g1)  # the parameters got their gradients through the checkpoints
+
+
+def test_remat_keeps_only_the_states_between_steps_until_the_backward():
+    """What the forward pass keeps for the backward: the unrolled steps' activations and the solver's JAX residuals
+    without remat; with it, only each checkpoint's inputs (counted by torch's saved-tensor hooks and the solver's
+    differentiable program's calls)."""
+    from pdestream.datasets import solver
+
+    b, norm = _batch(4)
+    kept = {}
+    for remat in (False, True):
+        torch.manual_seed(0)
+        model = build_model("fno", 1, 1, 1, 1, **TINY)
+        mode = make_mode({"name": "solver-in-the-loop", "unroll": 4, "coarse_n": 16, "remat": remat}).bind(FINE)
+        saved, vjps = [], []
+        forward = solver._SolverFunction.forward
+
+        def counting(ctx, *args):
+            vjps.append(1)
+            return forward(ctx, *args)
+
+        solver._SolverFunction.forward = staticmethod(counting)
+        try:
+            with torch.autograd.graph.saved_tensors_hooks(lambda t: saved.append(t.numel()) or t, lambda t: t):
+                loss, _ = mode.step_loss(model, b, norm, 1)
+        finally:
+            solver._SolverFunction.forward = staticmethod(forward)
+        kept[remat] = (sum(saved), len(vjps))
+        loss.backward()  # the recomputation runs here
+    # the first step from the constant start runs the no-gradient program either way; the other three keep their
+    # JAX residuals across the forward only without remat
+    assert kept[False][1] == 3 and kept[True][1] == 0
+    assert kept[True][0] < kept[False][0] / 2, kept  # step 1's activations and the three checkpoints' inputs
+
+
+def test_settings_state_clip_and_remat_only_when_on_and_only_for_the_corrector():
+    base = {"name": "solver-in-the-loop", "unroll": 4, "coarse_n": 16}
+    assert make_mode({"name": "solver-in-the-loop", "coarse_n": 16}).settings() == base  # run.json as before
+    assert make_mode({**base, "clip": "0.5", "remat": True}).settings() == {**base, "clip": 0.5, "remat": True}
+    for bad in ("0", "-1", "nan", "inf", "abc"):
+        with pytest.raises(ValueError, match=f"^--clip='{bad}' not allowed; must be a finite number > 0"):
+            mode_settings("solver-in-the-loop", clip=bad)
+    with pytest.raises(ValueError, match="^--clip=1.0 goes with solver-in-the-loop, not pushforward"):
+        mode_settings("pushforward", clip=1.0)
+    with pytest.raises(ValueError, match="^--remat=True goes with solver-in-the-loop, not one-step"):
+        mode_settings("one-step", remat=True)
+
+
+def test_clipping_counts_the_steps_it_clipped_and_resumes_exactly(tmp_path, monkeypatch):
+    kw = dict(model_cfg=TINY, steps=6, batch_size=4, n_test=2, checkpoint_every=3, view=datasets.NextStep(1, 1))
+    mode = {"name": "solver-in-the-loop", "unroll": 2, "coarse_n": 16}
+    tight = train_run(FINE, "stream", tmp_path / "tight", mode={**mode, "clip": 1e-6}, **kw)
+    loose = train_run(FINE, "stream", tmp_path / "loose", mode={**mode, "clip": 1e9}, **kw)
+    plain = train_run(FINE, "stream", tmp_path / "plain", mode=mode, **kw)
+    assert tight["clipped_steps"] == 6 and loose["clipped_steps"] == 0 and "clipped_steps" not in plain
+    assert json.loads((tmp_path / "tight" / "run.json").read_text())["mode"]["clip"] == 1e-6
+    a = torch.load(tmp_path / "loose" / "model.pt", weights_only=True)["model"]
+    b = torch.load(tmp_path / "plain" / "model.pt", weights_only=True)["model"]
+    assert all(torch.equal(a[k], b[k]) for k in a)  # a bound never reached changes nothing
+    c = torch.load(tmp_path / "tight" / "model.pt", weights_only=True)["model"]
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+    with interrupted_at(monkeypatch, 5), pytest.raises(KeyboardInterrupt):
+        train_run(FINE, "stream", tmp_path / "cut", mode={**mode, "clip": 1e-6}, **kw)
+    resumed, step = resume_run(tmp_path / "cut")
+    assert step == 3 and resumed["clipped_steps"] == 6  # the counter went on from the checkpoint
+    d = torch.load(tmp_path / "cut" / "model.pt", weights_only=True)["model"]
+    assert all(torch.equal(c[k], d[k]) for k in c)
+
+
+def test_cli_takes_clip_and_remat_and_refuses_them_without_the_corrector(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert cli.main(["train", "burgers1d", "--set", "n=32", "--set", "n_frames=11", "--steps", "2", "--batch-size",
+                     "4", "--model-set", "width=8", "--model-set", "modes=4", "--model-set", "layers=2",
+                     "--test-samples", "2", "--mode", "solver-in-the-loop", "--coarse-n", "16", "--unroll", "2",
+                     "--clip", "1.5", "--remat", "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["mode"] == {
+        "name": "solver-in-the-loop", "unroll": 2, "coarse_n": 16, "clip": 1.5, "remat": True}
+    capsys.readouterr()
+    for argv, said in [(["train", "burgers1d", "--out", str(tmp_path / "r2"), "--clip", "1"],
+                        "--clip=1 goes with solver-in-the-loop, not one-step"),
+                       (["compare", "burgers1d", "--out", str(tmp_path / "c"), "--remat"],
+                        "--clip and --remat go with --modes"),
+                       (["compare", "burgers1d", "--out", str(tmp_path / "c"), "--modes", "one-step", "--clip", "1"],
+                        "--clip goes with the corrector's arms")]:
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err
+        assert said in err and err.count("\n") == 1, err
