@@ -207,8 +207,9 @@ def option_help() -> dict:
                            "every corrector arm)",
         "clip": "solver-in-the-loop: clip the gradient's global norm to NORM before each optimizer step (long "
                 "unrolls; default: no clipping); recorded in run.json, the steps clipped in metrics.json",
-        "remat": "solver-in-the-loop: rematerialise each unrolled step in the backward pass (memory of one step's "
-                 "activations and solver residuals instead of K: long unrolls, large grids; ~1.3-2x the time)",
+        "remat": "solver-in-the-loop: rematerialise each unrolled step in the backward pass (memory of about two "
+                 "steps' activations and solver residuals instead of K: long unrolls, large grids; each step's "
+                 "forward runs twice)",
         "unroll_schedule": "solver-in-the-loop arm: an unroll curriculum (Um et al. 2020), unroll Ki for the share Si "
                            "of --steps, in order (shares summing to 1), e.g. 1:0.3,4:0.3,16:0.4; recorded in run.json",
     }
