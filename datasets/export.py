@@ -38,6 +38,9 @@ inputs: each under its own name), its solution as ``tensor`` [N, 1, x(, y)] (no 
 is a dataset [N] named after it. The sets PDEBench ships one group per sample (diffusion-sorption,
 diffusion-reaction, shallow water) get that layout instead (``datasets.pdebench_seeds``).
 
+Both formats keep a cache's per-sample outputs (a flow's drag, lift, sdf) in the ``pdestream`` group, in the
+cache's own layout (neither project's loaders read that group; ``import`` does).
+
 Writes are atomic (``OUT.tmp-PID``, then ``os.replace``); an existing OUT is refused unless ``overwrite`` is
 given and OUT is an export pdestream wrote (anything else is never replaced).
 """
@@ -114,6 +117,32 @@ def _common(ds, f, fmt: str) -> None:
     g = f.create_group(GROUP)
     g.create_dataset("sample", data=np.asarray(ds["sample"].values, np.int64))
     g.create_dataset("redraws", data=np.asarray(ds["redraws"].values, np.int8))
+    _write_outputs(ds, g)
+
+
+def _write_outputs(ds, g) -> None:
+    """The cache's per-sample outputs (a flow's drag, lift and signed distance) in ``GROUP/outputs``, in the cache's
+    own layout (its dims in ``pdestream_dims``): neither project's loaders read them, ``import`` does."""
+    names = str(ds.attrs.get("pdestream_outputs", "")).split()
+    if not names:
+        return
+    out = g.create_group("outputs")
+    n = ds.sizes["sample"]
+    for name in names:
+        var = ds[name]
+        v = out.create_dataset(name, shape=var.shape, dtype=var.dtype)
+        for lo in range(0, n, CHUNK_SAMPLES):
+            v[lo:min(lo + CHUNK_SAMPLES, n)] = np.asarray(var.isel(sample=slice(lo, lo + CHUNK_SAMPLES)).values)
+        v.attrs.update({**_attrs(var.attrs), "pdestream_dims": " ".join(var.dims)})
+
+
+def _read_outputs(f) -> dict:
+    """{name: (dims, values, attrs)} of ``_write_outputs``' group (empty for an export without outputs)."""
+    group = f[GROUP].get("outputs") if GROUP in f else None
+    if group is None:
+        return {}
+    return {name: (tuple(str(plain(group[name].attrs["pdestream_dims"])).split()), group[name][()],
+                   {k: v for k, v in group[name].attrs.items() if k != "pdestream_dims"}) for name in group}
 
 
 def _new_hdf5(out: Path):
@@ -460,6 +489,7 @@ def read_export(path):
             # the per-seed layout keeps them in each sample's group (its loaders take every top-level key for one)
             sample = got["sample"] if "sample" in got else f[GROUP]["sample"][()].astype(np.int64)
             redraws = got["redraws"] if "redraws" in got else f[GROUP]["redraws"][()].astype(np.int8)
+            outputs = _read_outputs(f)
         except KeyError as err:  # a dataset or attribute the format puts there is gone
             text = str(err.args[0] if err.args else err)
             named = re.search(r"object '([^']+)'", text)  # h5py: "Unable to ... open object (object 'nu' ...)"
@@ -491,7 +521,14 @@ def read_export(path):
         dims = ("sample", *(("time",) if timed and name not in inputs else ()), *disk)
         values = _finite(path, name, np.ascontiguousarray(schema.to_disk(a.astype(np.float32), ndim)))
         data[name] = (dims, values, clean(at, got["drop_var"]))
-    return xr.Dataset(data, coords=coords, attrs=attrs)
+    for name in str(attrs.get("pdestream_outputs", "")).split():  # a flow's drag, lift, sdf
+        if name not in outputs:
+            raise ValueError(f"{path} is a damaged {fmt.name} export: its output {name} is missing (an export "
+                             "written before outputs were kept); export the cache again")
+        dims, values, at = outputs[name]
+        data[name] = (dims, values, clean(at))
+    ds = xr.Dataset(data, coords=coords, attrs=attrs)
+    return ds[[*data]]  # the cache's variable order
 
 
 def _finite(path, name: str, a: np.ndarray) -> np.ndarray:
@@ -543,6 +580,7 @@ def import_export(path, out) -> Path:
     _check_writable(out)
     ds = read_export(path)
     inputs, fields, params = _names(ds)
+    outputs = str(ds.attrs.get("pdestream_outputs", "")).split()
     first = ds[fields[0]]
     lay = schema.Layout(
         dims=dict(ds.sizes),
@@ -553,6 +591,7 @@ def import_export(path, out) -> Path:
         fields={n: {**ds[n].attrs, "coordinates": " ".join((*params, "redraws", "complete"))} for n in (*inputs, *fields)},
         field_dims=first.dims,
         attrs={**ds.attrs, "pdestream_complete": 0},
+        outputs={n: (ds[n].dims, str(ds[n].dtype), dict(ds[n].attrs)) for n in outputs},
     )
     block = int(ds.attrs.get("pdestream_block", ds.sizes["sample"]))
     if fmt.name == "hdf5":
@@ -563,7 +602,7 @@ def import_export(path, out) -> Path:
             fmt.create(tmp, lay, min(block, ds.sizes["sample"]))
             store = fmt.open(tmp, writable=True)
             try:
-                for n in (*inputs, *fields, *params, "redraws"):
+                for n in (*inputs, *fields, *params, *outputs, "redraws"):
                     store[n][...] = ds[n].values
                 store.flush()
                 store["complete"][...] = np.ones(ds.sizes["sample"], np.int8)

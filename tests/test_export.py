@@ -27,6 +27,8 @@ ENTRIES = {  # tiny caches: a 1D entry, a 2D entry of two fields, a steady 2D en
     "euler1d": ["--n", "2", "--set", "n=16", "--set", "n_frames=3", "--set", "t_end=0.02"],  # PDEBench's CFD names
     # an incompressible flow: PDEBench's velocity [N, T, x, y, 2] and particles [..., 1]
     "smoke2d": ["--n", "2", "--set", "n=32", "--set", "n_frames=3", "--set", "t_end=0.05"],
+    # a flow with per-sample outputs (drag, lift [N, T], sdf [N, y, x]): kept in the pdestream group
+    "channel2d": ["--n", "2", "--set", "n_frames=3", "--set", "t_start=0", "--set", "t_end=0.05"],
 }
 
 
@@ -127,11 +129,13 @@ def test_pdebench_layout_read_as_pdebenchs_loaders_do(caches, tmp_path, name):
             np.testing.assert_array_equal(f["tensor"][...], fields["u"][:, None])
         else:
             np.testing.assert_array_equal(f["t-coordinate"][...], coords["time"])
-            if name == "smoke2d":  # PDEBench's incompressible NS files: velocity, particles, t [N, T]; p as itself
+            if name in ("smoke2d", "channel2d"):  # PDEBench's incompressible NS files: velocity, particles, t
                 np.testing.assert_array_equal(f["velocity"][...], np.stack([fields["u"], fields["v"]], -1))
-                np.testing.assert_array_equal(f["particles"][...], fields["smoke"][..., None])
+                if "smoke" in fields:
+                    np.testing.assert_array_equal(f["particles"][...], fields["smoke"][..., None])
                 np.testing.assert_array_equal(f["t"][...], np.broadcast_to(coords["time"], f["t"].shape))
-                np.testing.assert_array_equal(f["p"][...], fields["p"])
+                for k in set(fields) - {"u", "v", "smoke"}:  # p (and solid) as themselves
+                    np.testing.assert_array_equal(f[k][...], fields[k])
                 assert not {"u", "v", "smoke", "tensor"} & set(f)
             elif len(fields) == 1:  # one field: "tensor" [N, T, x(, y)]
                 np.testing.assert_array_equal(np.array(f["tensor"], dtype=np.float32), fields["u"])
@@ -332,3 +336,19 @@ def test_pdebench_per_seed_sets_are_laid_out_as_its_mult_loaders_read_them(per_s
                     np.testing.assert_array_equal(g[f"grid/{d}"][()], coords[d])
             assert all(g.attrs[p] == params[p][i] for p in params)
     _reads_back_and_imports_as(out, per_seed_caches[name], tmp_path / "again.h5")
+
+
+def test_an_export_without_its_outputs_is_refused_not_imported_damaged(caches, tmp_path):
+    """A flow's outputs (drag, lift, sdf) travel in the pdestream group; an export that lacks them (written before
+    they were kept) is one line, not a cache that then reads as damaged."""
+    out = tmp_path / "e.hdf5"
+    export_cache(caches["channel2d"], "pdebench", out)
+    with h5py.File(out, "r") as f:
+        assert sorted(f["pdestream/outputs"]) == ["drag", "lift", "sdf"]
+    with h5py.File(out, "a") as f:
+        del f["pdestream/outputs"]
+    with pytest.raises(ValueError, match="damaged pdebench export: its output drag is missing"):
+        read_export(out)
+    with pytest.raises(ValueError, match="its output drag is missing"):
+        import_export(out, tmp_path / "again.h5")
+    assert not (tmp_path / "again.h5").exists()
