@@ -281,8 +281,8 @@ def add_compare(sub) -> None:
                    "budget or --modes, a verdict per metric (default: 3; a budget with --quick and --modes: 1)")
     p.add_argument("--test-samples", type=int, default=d.test_samples, help="held-out trajectories per test set")
     p.add_argument("--shift", type=float, default=d.shift,
-                   help="shifted test set: parameter domains moved this fraction of their width beyond the "
-                        "training range (< 0: below the lower bound, > 0: above the upper bound)")
+                   help="shifted test set (--modes: every arm rolled out on it too; not with --quick): parameter domains "
+                        "moved this fraction of their width beyond the training range (< 0: below, > 0: above)")
     p.add_argument("--shift-set", action="append", metavar="PARAM=DOMAIN", default=[],
                    help="explicit shifted domain, e.g. --shift-set nu='loguniform(0.1,0.2)'")
     p.add_argument("--format", default=d.format, choices=["h5", "zarr"], help="cache format")

@@ -77,7 +77,7 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
         from pdestream.settings import build_pde
 
         pde = build_pde(cmd.pde, cmd.settings)  # the name and --set checked before torch (and JAX) are imported
-        if cmd.modes is None:
+        if cmd.modes is None or not cmd.quick:
             check_shift(pde, cmd)  # and --shift / --shift-set (checked again on the comparison's own settings)
     before = snapshot(cmd.out)
     try:
@@ -305,6 +305,8 @@ def _interactive(cmd: CompareCommand) -> str:
     modes = tuple(m.strip() for m in cmd.modes if m.strip())
     settings = {"n": "32", "n_frames": "11", **cmd.settings} if cmd.quick else dict(cmd.settings)  # tiny: tests
     pde = build_pde(cmd.pde, settings)
+    if not cmd.quick:
+        check_shift(pde, cmd)  # the set beyond the training range (not with --quick, a smoke run)
     set_threads(1 if cmd.threads is None else cmd.threads)
     model_cfg = ({"width": 8, "modes": 4, "layers": 2} if cmd.quick else {"width": 32, "modes": 12, "layers": 3}) \
         if cmd.model.startswith("fno") else {}
@@ -318,7 +320,7 @@ def _interactive(cmd: CompareCommand) -> str:
         model_cfg=model_cfg, k_in=(1 if cmd.k_in is None else cmd.k_in), seed=0, seeds=1 if cmd.seeds is None else cmd.seeds,
         unroll_schedule=cmd.unroll_schedule, resume=not cmd.overwrite, n_test=4 if cmd.quick and cmd.test_samples == 128 else
         cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device, budget_s=cmd.budget, pairs_steps=cmd.pairs_steps,
-        clip=clip, remat=cmd.remat)
+        clip=clip, remat=cmd.remat, shift=None if cmd.quick else cmd.shift, shift_set=dict(cmd.shift_set))
     if cmd.k_out not in (None, 1):
         raise ValueError(f"--k-out={cmd.k_out} not allowed with --modes: every mode predicts one frame per step")
     module.interactive_compare(pde, cmd.out, cfg)

@@ -71,6 +71,7 @@ from .interactive_report import (
     write_tables,
 )
 from .rollout_figure import plot_rollouts
+from .shift import shifted_pde
 
 
 @dataclass
@@ -82,7 +83,10 @@ class InteractiveConfig:
     corrector arm's network starts ("random" or "zero", ``SolverInTheLoop.init_model``); unroll_schedule: the
     solver-in-the-loop arm's unroll curriculum, "K1:S1,K2:S2,..." (unroll Ki for the share Si of the steps,
     ``mode_table.parse_unroll_schedule``; its longest unroll replaces sitl_unroll); clip / remat: every corrector
-    arm's gradient clipping norm and rematerialisation (``SolverInTheLoop``); seed: the first model and data
+    arm's gradient clipping norm and rematerialisation (``SolverInTheLoop``); shift / shift_set: every arm rolled
+    out again on a second held-out set beyond the training range (``experiments.shift.shifted_pde``: the parameter
+    domains moved by this fraction of their width, or as shift_set names them; None: no such set); seed: the
+    first model and data
     seed and the test set's; seeds: how many (seed, seed + 1, ...); resume: read back finished (arm, seed) runs;
     budget_s: equal wall clock instead of equal steps: every trained arm trains this many seconds (solver calls
     included; the steps it reaches are in the table), None: ``steps`` each; pairs_steps: the corrector's two pairs
@@ -107,6 +111,8 @@ class InteractiveConfig:
     unroll_schedule: str | None = None
     clip: float | None = None
     remat: bool = False
+    shift: float | None = None
+    shift_set: dict = field(default_factory=dict)
     seeds: int = 1
     resume: bool = True
     device: str = "cpu"
@@ -215,6 +221,8 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
         _plot_sitl_rollouts(out / "rollouts.png", fine, coarse, test[0], [p[3] for p in plan[len(net_modes):]], cfg)
     result = {"pde": pde.config(), "fine_pde": fine.config() if sitl else None, "config": asdict(cfg),
               "frame_dt": pde.frame_dt, "arms": arms}
+    if cfg.shift is not None:
+        result["beyond"] = _beyond(pde, fine, plan, net_modes, cfg, log)
     (out / "compare.json").write_text(json.dumps(result, indent=2))
     write_tables(out, result, pde, cfg)
     write_curves(out / "curves.csv", result)
@@ -222,6 +230,41 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
     if sitl:
         plot_corrector(out / "corrector.png", result)
     return result
+
+
+def _beyond(pde, fine, plan: list, net_modes: list, cfg: InteractiveConfig, log) -> dict | None:
+    """Every trained arm (each seed's saved model) and the coarse solver rolled out on a held-out set beyond the
+    training range: {"pde": the shifted PDE's config (the corrector's where it runs), "domains": its parameter
+    domains in words, "arms": records as the main set's}; None when no parameter could be shifted (logged)."""
+    arms, shifted = [], None
+    for base, part, corrector in ((pde, plan[:len(net_modes)], False), (fine, plan[len(net_modes):], True)):
+        if not part:
+            continue
+        shifted = shifted_pde(base, cfg.shift, dict(cfg.shift_set))
+        if shifted is None:
+            log("beyond the training range: no parameter could be shifted; no such set")
+            return None
+        domains = ", ".join(f"{k} ~ {v}" for k, v in shifted.param_domains.items())
+        with phase(f"building the test set beyond the training range ({domains}; {cfg.n_test} trajectories)",
+                   total=cfg.n_test, solves=-(-cfg.n_test // 32)):
+            test = stratified_test_set(shifted, cfg.n_test, cfg.seed)
+        found = []
+        if corrector:  # the coarse solver of the shifted config (it refuses parameters outside its own domains)
+            coarse = make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(shifted)
+            errors = rollout_errors(None, _identity_norm(shifted), test, datasets.NextStep(1, 1), coarse).relative()
+            found.append(record("coarse solver", "none", errors, 0.0, None, cfg.coarse_n))
+        for label, _arm_pde, settings, run_dir in part:
+            runs = [_evaluate(label, shifted, settings, test, cfg, _run_dir(run_dir, cfg, seed), seed,
+                              json.loads((_run_dir(run_dir, cfg, seed) / "metrics.json").read_text()))
+                    for seed in _seeds(cfg)]
+            found.append(combine_seeds(runs))
+            log(f"{label:32s} beyond the range: end error mean {found[-1]['end_mean']:.4f}; rollout mean "
+                f"{found[-1]['rollout_mean']:.4f}")
+        if corrector:
+            score_against_coarse(found)
+        arms += found
+    return {"pde": shifted.config(), "domains": ", ".join(f"{k} ~ {v}" for k, v in shifted.param_domains.items()),
+            "arms": arms}
 
 
 def _check_same_comparison(out: Path, pde, cfg: InteractiveConfig) -> None:
@@ -351,6 +394,25 @@ def _identity_norm(pde) -> datasets.Normalization:
                                   torch.zeros(p), torch.ones(p), pde.NDIM)
 
 
+def _evaluate(label: str, pde, settings: dict, test: list[dict], cfg: InteractiveConfig, run_dir: Path, seed: int,
+              summary: dict) -> dict:
+    """One seed's record of an arm: its saved model (run_dir/model.pt) rolled out on ``test`` of ``pde``."""
+    model, norm, _ = load_checkpoint(run_dir / "model.pt")
+    model.to(check_device(cfg.device))
+    mode = make_mode(settings).bind(pde, seed)
+    with phase(f"{label}: rolling out {sum(len(t['u']) for t in test)} test trajectories"):
+        errors = rollout_errors(model, norm, test, datasets.NextStep(cfg.k_in, 1), mode).relative()  # [N, T - k_in]
+    rec = record(label, settings["name"], errors, summary["wall"], summary, settings.get("coarse_n", pde.n))
+    rec["unroll"] = settings.get("unroll", 1)
+    if "noise" in settings:
+        rec["noise"] = settings["noise"]
+    if settings.get("unroll_schedule"):
+        rec["unroll_schedule"] = settings["unroll_schedule"]
+    rec["mode_stats"] = summary.get("mode_stats", {})
+    rec["seed"] = seed
+    return rec
+
+
 def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: InteractiveConfig, run_dir: Path, log,
                seed: int) -> dict:
     """Train one arm through ``train_run`` (stream, model and data seed ``seed``: every arm of a seed starts from
@@ -369,19 +431,7 @@ def _train_arm(label: str, pde, settings: dict, test: list[dict], cfg: Interacti
                             lr=cfg.lr, seed=seed, data_seed=seed, tests={}, label=label,
                             checkpoint_every=max(1, steps // CHECKPOINTS), device=cfg.device, mode=settings,
                             seconds=cfg.budget_s)
-    model, norm, _ = load_checkpoint(run_dir / "model.pt")
-    model.to(check_device(cfg.device))
-    mode = make_mode(settings).bind(pde, seed)
-    with phase(f"{label}: rolling out {cfg.n_test} test trajectories"):
-        errors = rollout_errors(model, norm, test, datasets.NextStep(cfg.k_in, 1), mode).relative()  # [N, T - k_in]
-    rec = record(label, settings["name"], errors, summary["wall"], summary, settings.get("coarse_n", pde.n))
-    rec["unroll"] = settings.get("unroll", 1)
-    if "noise" in settings:
-        rec["noise"] = settings["noise"]
-    if settings.get("unroll_schedule"):
-        rec["unroll_schedule"] = settings["unroll_schedule"]
-    rec["mode_stats"] = summary.get("mode_stats", {})
-    rec["seed"] = seed
+    rec = _evaluate(label, pde, settings, test, cfg, run_dir, seed, summary)
     log(f"{label:32s} seed {seed}: end error mean {rec['end_mean']:.4f} p95 {rec['end_p95']:.4f} max {rec['end_max']:.4f}; "
         f"rollout mean {rec['rollout_mean']:.4f}; train loss {summary['final_loss']:.3g}; {summary['wall']:.0f} s")
     return rec

@@ -95,8 +95,7 @@ COLUMNS = ("end_mean", "end_p95", "end_max", "rollout_mean", "rollout_p95", "wal
 def write_tables(out: Path, result: dict, pde, cfg) -> None:
     """compare.md and compare.csv of an interactive comparison: one row per arm (mean ± std over seeds), the
     network modes against one-step, the corrector arms against the coarse solver and solver-in-the-loop's verdicts."""
-    rows = [{"arm": a["arm"], "mode": a["mode"], "n": a["n"], "seeds": len(a["seeds"]), **{c: a[c] for c in COLUMNS},
-             **{f"{c}_std": a.get(f"{c}_std", 0.0) for c in SEED_FIGURES}} for a in result["arms"]]
+    rows = _rows(result["arms"])
     with open(out / "compare.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
@@ -125,11 +124,30 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
              f"(Latin hypercube over the parameters), rolled out {frames} frames from the first; end: the last "
              "frame (mean, p95, max over trajectories); rollout mean: over all frames and trajectories; rollout "
              "p95: the 95th percentile over trajectories of each trajectory's error averaged over all frames; wall: "
-             "training time of the arm (solver calls included); error against time per arm: curves.csv", "",
-             "| arm | grid n | end mean | end p95 | end max | rollout mean | rollout p95 | wall s | steps | "
+             "training time of the arm (solver calls included); error against time per arm: curves.csv", ""]
+    lines += _arms_lines(result["arms"])
+    beyond = result.get("beyond")
+    if beyond:
+        lines += ["", f"## Beyond the training range ({beyond['domains']})", "",
+                  f"The same trained models (every seed's) and the coarse solver, rolled out on {cfg.n_test} held-out "
+                  "trajectories whose parameters lie beyond the training range (a Latin hypercube over the shifted "
+                  "domains):", ""]
+        lines += _arms_lines(beyond["arms"])
+    (out / "compare.md").write_text("\n".join(lines) + "\n")
+
+
+def _rows(arms: list[dict]) -> list[dict]:
+    return [{"arm": a["arm"], "mode": a["mode"], "n": a["n"], "seeds": len(a["seeds"]), **{c: a[c] for c in COLUMNS},
+             **{f"{c}_std": a.get(f"{c}_std", 0.0) for c in SEED_FIGURES}} for a in arms]
+
+
+def _arms_lines(arms: list[dict]) -> list[str]:
+    """compare.md's table of ``arms`` (mean ± std over seeds), the network modes against one-step, and the corrector
+    arms against the coarse solver with solver-in-the-loop's verdicts."""
+    lines = ["| arm | grid n | end mean | end p95 | end max | rollout mean | rollout p95 | wall s | steps | "
              "final train loss |",
              "|" + " --- |" * 10]
-    for r in rows:
+    for r in _rows(arms):
         several = r["seeds"] > 1
 
         def cell(c, fmt=".4f"):  # the mean, ± the std over seeds where there are several
@@ -138,13 +156,13 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
         loss = "-" if r["final_loss"] is None else cell("final_loss", ".3g")
         lines.append(f"| {r['arm']} | {r['n']} | {cell('end_mean')} | {cell('end_p95')} | {cell('end_max')} | "
                      f"{cell('rollout_mean')} | {cell('rollout_p95')} | {r['wall_s']:.0f} | {r['steps']} | {loss} |")
-    by = {a["mode"]: a for a in result["arms"] if a["mode"] in NETWORK_MODES}
+    by = {a["mode"]: a for a in arms if a["mode"] in NETWORK_MODES}
     if "one-step" in by:
         for name in ("pushforward", "oracle", "noise"):
             if name in by:
                 lines.append(f"\n{name}: end error {by['one-step']['end_mean'] / by[name]['end_mean']:.2f}x lower "
                              "than one-step (>1: better); " + verdict(by[name], by["one-step"], "end_mean", "end mean"))
-    sitl = [a for a in result["arms"] if a["mode"] in CORRECTOR_MODES]
+    sitl = [a for a in arms if a["mode"] in CORRECTOR_MODES]
     if len(sitl) == 4:
         base, pairs, noisy, loop = sitl
         lines += ["", "Against the coarse solver alone (n=" f"{base['n']}" "): improvement e_coarse / e_arm (> 1: "
@@ -166,7 +184,7 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
                   "error / solver-in-the-loop's, > 1: solver-in-the-loop better; outside the seed spread when the "
                   "margin exceeds the two arms' stds over seeds added):", ""]
         lines += [f"- {verdict(loop, other, key, name)}" for other in (pairs, noisy) for key, name in SCORED]
-    (out / "compare.md").write_text("\n".join(lines) + "\n")
+    return lines
 
 
 def plot(path: Path, result: dict) -> None:

@@ -4,6 +4,7 @@ pass). Tiny runs: burgers1d n=32 -> coarse 16, a tiny FNO.
 """
 
 import json
+import math
 
 import pytest
 import torch
@@ -133,3 +134,31 @@ def test_cli_takes_clip_and_remat_and_refuses_them_without_the_corrector(tmp_pat
         assert cli.main(argv) == 2
         err = capsys.readouterr().err
         assert said in err and err.count("\n") == 1, err
+
+
+def test_compare_modes_rolls_every_arm_out_beyond_the_training_range_too(tmp_path, capsys):
+    """compare --modes (not --quick): a second held-out set with the parameters beyond the training range
+    (--shift), every seed's saved model and the coarse solver rolled out on it, in compare.md and compare.json."""
+    out = tmp_path / "cmp"
+    argv = ["compare", "burgers1d", "--modes", "one-step,solver-in-the-loop", "--set", "n=32", "--set", "n_frames=11",
+            "--steps", "2", "--batch-size", "4", "--model-set", "width=8", "--model-set", "modes=4", "--model-set",
+            "layers=2", "--test-samples", "4", "--coarse-n", "16", "--unroll", "2", "--seeds", "2", "--shift", "-0.25",
+            "--out", str(out)]
+    assert cli.main(argv) == 0
+    said = capsys.readouterr().out
+    result = json.loads((out / "compare.json").read_text())
+    beyond = result["beyond"]
+    assert beyond["domains"] == "nu ~ loguniform(0.00562341, 0.01)"  # below loguniform(0.01, 0.1) by a quarter (log)
+    assert [a["arm"] for a in beyond["arms"]] == [a["arm"] for a in result["arms"]]
+    assert all(a["seeds"] == [0, 1] for a in beyond["arms"] if a["mode"] != "none")
+    assert all(math.isfinite(a["rollout_mean"]) and a["rollout_mean"] > 0 for a in beyond["arms"])
+    inside = {a["arm"]: a["rollout_mean"] for a in result["arms"]}
+    assert all(inside[a["arm"]] != a["rollout_mean"] for a in beyond["arms"])  # another test set
+    md = (out / "compare.md").read_text()
+    assert "## Beyond the training range (nu ~ loguniform(0.00562341, 0.01))" in md
+    assert md.count("Solver-in-the-loop against each non-interacting corrector arm") == 2
+    assert "beyond the range: end error mean" in said
+    # a rerun reads every arm back and rolls it out again on both sets, to the same figures
+    assert cli.main(argv) == 0
+    again = json.loads((out / "compare.json").read_text())["beyond"]
+    assert [a["rollout_mean"] for a in again["arms"]] == [a["rollout_mean"] for a in beyond["arms"]]
