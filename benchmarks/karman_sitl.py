@@ -6,6 +6,7 @@ Reynolds numbers inside the training range and beyond it.
         [--out /tmp/karman_sitl] [--quick]
     nice python -m benchmarks.karman_sitl --small --coarse-only [--test-samples 8] [--seeds 1]
     nice python -m benchmarks.karman_sitl --small --window 4 --only-seed 0 --out DIR   # t = 2..6 s, 41 frames
+    nice python -m benchmarks.karman_sitl --small --re 60,100 --t-start 8 --window 4 --only-seed 0 --out DIR
 
 Per seed, ``surrogate.interactive_compare`` (the same code as ``pdestream compare karman2d --modes
 solver-in-the-loop``) trains the pairs-trained correction (unroll 1: precomputed (coarse step, fine) pairs,
@@ -63,8 +64,10 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu", help="where the models train (cpu, cuda)")
     ap.add_argument("--quick", action="store_true", help="a smoke run: --small, 20 steps, 1 seed")
     ap.add_argument("--small", action="store_true", help="n 32 -> 16, larger cylinders, Re 40-80, 1 s windows")
-    ap.add_argument("--window", type=float, help="--small: the rollout window in seconds from t = 2 (default 1; "
+    ap.add_argument("--window", type=float, help="--small: the rollout window in seconds from --t-start (default 1; "
                     "frames 0.1 s apart)")
+    ap.add_argument("--re", help="--small: the training Re range LO,HI (default 40,80; the beyond set follows --shift)")
+    ap.add_argument("--t-start", type=float, help="--small: the window's first frame in seconds (default 2)")
     ap.add_argument("--coarse-only", action="store_true",
                     help="no training: the coarse solver alone with a staircase and a sharp body, against the fine solve")
     a = ap.parse_args(argv)
@@ -83,11 +86,15 @@ def main(argv=None) -> int:
         a.seeds, a.steps, a.test_samples, a.small = 1, 20, 4, True
     if a.window is not None and not (a.small and 0.2 <= a.window <= 60):
         ap.error(f"--window {a.window:g}: allowed with --small only, 0.2 to 60 seconds")
+    re_lo, re_hi = _re_range(ap, a)
+    if a.t_start is not None and not (a.small and 0 < a.t_start <= 60):
+        ap.error(f"--t-start {a.t_start:g}: allowed with --small only, above 0 and at most 60 seconds")
     if a.small:
         a.fine_n, a.coarse_n = 32, 16
         window = 1.0 if a.window is None else a.window
-        settings = dict(n=32, radius="uniform(0.13, 0.16)", re="uniform(40, 80)", t_start=2.0, t_end=2.0 + window,
-                        n_frames=round(window / 0.1) + 1)
+        t0 = 2.0 if a.t_start is None else a.t_start
+        settings = dict(n=32, radius="uniform(0.13, 0.16)", re=f"uniform({re_lo:g}, {re_hi:g})", t_start=t0,
+                        t_end=t0 + window, n_frames=round(window / 0.1) + 1)
     pde = generator.get_pde("karman2d", **settings)
     lo, hi = pde.re.bounds
     shifted = pde.replace(re=f"uniform({hi + (a.shift - 0.1) * (hi - lo):g}, {hi + a.shift * (hi - lo):g})")
@@ -126,6 +133,21 @@ def main(argv=None) -> int:
         (out / "frames.json").write_text(json.dumps(frames))
         (out / "summary.json").write_text(json.dumps(mine))
     return _print_table(_load(Path(a.out)), Path(a.out))
+
+
+def _re_range(ap, a) -> tuple[float, float]:
+    """--re "LO,HI" -> (LO, HI), the --small training Re range (default (40, 80)); bad values end in ap.error."""
+    if a.re is None:
+        return 40.0, 80.0
+    try:
+        lo, hi = (float(x) for x in a.re.split(","))
+    except ValueError:
+        ap.error(f"--re {a.re}: two numbers LO,HI, e.g. --re 60,100")
+    if not a.small:
+        ap.error(f"--re {a.re}: allowed with --small only")
+    if not (0 < lo < hi and np.isfinite(hi)):
+        ap.error(f"--re {a.re}: needs 0 < LO < HI")
+    return lo, hi
 
 
 def _coarse_bodies(pde, shifted, a) -> int:
