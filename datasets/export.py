@@ -495,7 +495,11 @@ def read_export(path):
             named = re.search(r"object '([^']+)'", text)  # h5py: "Unable to ... open object (object 'nu' ...)"
             raise ValueError(f"{path} is a damaged {fmt.name} export: {named.group(1) if named else text} is "
                              "missing; export the cache again") from None
+        except ValueError as err:  # numpy's stack of unequal shapes, a config that is not JSON: name the file
+            raise ValueError(f"{path} is a damaged {fmt.name} export: {str(err).splitlines()[0]}; export the "
+                             "cache again") from None
     _check_export_attrs(path, attrs, got)
+    _check_samples(path, fmt.name, attrs, got, len(sample))
     space, ndim = got["space"], len(got["space"])
     disk = schema.disk_space_dims(ndim)
     timed = got["coords"].get("time") is not None
@@ -527,8 +531,29 @@ def read_export(path):
                              "written before outputs were kept); export the cache again")
         dims, values, at = outputs[name]
         data[name] = (dims, values, clean(at))
-    ds = xr.Dataset(data, coords=coords, attrs=attrs)
+    try:
+        ds = xr.Dataset(data, coords=coords, attrs=attrs)
+    except ValueError as err:  # xarray: "conflicting sizes for dimension 'sample'" (an array cut short)
+        raise ValueError(f"{path} is a damaged {fmt.name} export: {str(err).splitlines()[0]}; export the cache "
+                         "again") from None
     return ds[[*data]]  # the cache's variable order
+
+
+def _check_samples(path: Path, fmt: str, attrs: dict, got: dict, n: int) -> None:
+    """One line for an export whose sample count (``n``, the samples read) is not the one it lists
+    (``pdestream_n_samples``: a per-seed group deleted was imported, and the cache then read as damaged), or
+    whose cache schema this version cannot read (imported, then refused by every reader)."""
+    listed = attrs.get("pdestream_n_samples")
+    try:
+        ok = int(listed) == n and float(listed) == int(listed)
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"{path} is a damaged {fmt} export: it lists {listed} samples (pdestream_n_samples), "
+                         f"{n} are in the file; export the cache again")
+    first = next(iter(got["fields"].values()))[0]
+    schema.check_readable(path, attrs, ("sample", *(("time",) if first.ndim > len(got["space"]) + 1 else ()),
+                                        *schema.disk_space_dims(len(got["space"]))))
 
 
 def _finite(path, name: str, a: np.ndarray) -> np.ndarray:

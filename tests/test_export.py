@@ -352,3 +352,37 @@ def test_an_export_without_its_outputs_is_refused_not_imported_damaged(caches, t
     with pytest.raises(ValueError, match="its output drag is missing"):
         import_export(out, tmp_path / "again.h5")
     assert not (tmp_path / "again.h5").exists()
+
+
+@pytest.fixture(scope="module")
+def sorption_cache(tmp_path_factory):
+    return _generate(tmp_path_factory.mktemp("sorption"), {"diffusion_sorption1d": PER_SEED["diffusion_sorption1d"]})
+
+
+def _truncate(f, key) -> None:
+    values = f[key][()]
+    del f[key]
+    f[key] = values[:1]
+
+
+@pytest.mark.parametrize("to, damage, words", [
+    # a sample's group deleted: imported with rc 0, then the cache read as damaged ("2 samples stored, 3 expected")
+    ("pdebench", lambda f: f.__delitem__("0001"), "lists 3 samples .pdestream_n_samples., 2 are in the file"),
+    ("pdebench", lambda f: f.attrs.__setitem__("pdestream_n_samples", 5), "lists 5 samples"),
+    ("pdebench", lambda f: f.attrs.__setitem__("pdestream_n_samples", "many"), "lists many samples"),
+    # was numpy's "all input arrays must have the same shape", naming neither the file nor the array
+    ("pdebench", lambda f: _truncate(f, "0000/data"), "damaged pdebench export: .*shape"),
+    # was imported with rc 0, then refused by every reader
+    ("pdebench", lambda f: f.attrs.__setitem__("pdestream_schema", 99), "cache schema 99"),
+    # was xarray's "conflicting sizes for dimension 'sample'", naming neither the file nor the fix
+    ("the-well", lambda f: _truncate(f, "t0_fields/u"), "damaged the-well export: .*size"),
+])
+def test_a_damaged_per_seed_or_resized_export_is_refused_in_one_line(sorption_cache, tmp_path, to, damage, words):
+    export = tmp_path / "e.h5"
+    export_cache(sorption_cache["diffusion_sorption1d"], to, export)
+    with h5py.File(export, "r+") as f:
+        damage(f)
+    with pytest.raises(ValueError, match=words) as err:
+        import_export(export, tmp_path / "c.h5")
+    assert "\n" not in str(err.value) and str(export) in str(err.value)
+    assert [p.name for p in tmp_path.iterdir()] == ["e.h5"]
