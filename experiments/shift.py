@@ -3,6 +3,8 @@ settings work (no torch), so `compare` refuses a bad --shift / --shift-set befor
 
 from __future__ import annotations
 
+import math
+
 
 def shifted_pde(pde, frac: float = 0.25, overrides: dict | None = None):
     """The PDE with each random parameter's domain moved just outside its training range [a, b].
@@ -22,6 +24,9 @@ def shifted_pde(pde, frac: float = 0.25, overrides: dict | None = None):
             continue
         for side in (frac, -frac):  # the asked side first, then the other
             candidate = _shifted_domain(domain, side, pde.PARAMS[name].positive)
+            if candidate is None:
+                raise ValueError(f"shift={frac:g} moves {name}'s domain {domain} past the largest float; use a "
+                                 "fraction like 0.25 or -0.25")
             try:
                 pde.replace({name: candidate})
             except ValueError:
@@ -31,13 +36,19 @@ def shifted_pde(pde, frac: float = 0.25, overrides: dict | None = None):
     return pde.replace(changes) if changes else None
 
 
-def _shifted_domain(domain, frac: float, positive: bool) -> str:
+def _shifted_domain(domain, frac: float, positive: bool) -> str | None:
     """``domain`` (Uniform or LogUniform over [lo, hi]) moved by ``frac`` of its width (in log for loguniform, or
-    for a positive uniform whose linear shift below would reach 0) above (frac > 0) or below its range."""
+    for a positive uniform whose linear shift below would reach 0) above (frac > 0) or below its range; None when
+    a bound would not be a finite float (--shift 1e300 raised OverflowError)."""
     kind, (lo, hi), f = type(domain).__name__, domain.bounds, abs(frac)
     geometric = kind == "LogUniform" or (positive and frac < 0 and lo - f * (hi - lo) <= 0)
-    if geometric:
-        a, b = (hi, hi * (hi / lo) ** f) if frac > 0 else (lo * (lo / hi) ** f, lo)
-    else:
-        a, b = (hi, hi + f * (hi - lo)) if frac > 0 else (lo - f * (hi - lo), lo)
+    try:
+        if geometric:
+            a, b = (hi, hi * (hi / lo) ** f) if frac > 0 else (lo * (lo / hi) ** f, lo)
+        else:
+            a, b = (hi, hi + f * (hi - lo)) if frac > 0 else (lo - f * (hi - lo), lo)
+    except OverflowError:
+        return None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return None
     return f"{kind.lower()}({a:.6g}, {b:.6g})"

@@ -31,6 +31,16 @@ def test_compare_shift_0_is_refused_before_anything_is_written(tmp_path, capsys)
         assert not out.exists()
 
 
+@pytest.mark.parametrize("shift", ["1e300", "-1e300", "1e30"])
+def test_compare_a_shift_past_the_floats_is_one_line(tmp_path, capsys, shift):
+    """--shift 1e300 raised OverflowError from nu's loguniform domain (a traceback)."""
+    out = tmp_path / "c"
+    code = cli.main(["compare", "burgers1d", "--set", "n=32", "--modes", "one-step", f"--shift={shift}",
+                     "--out", str(out)])
+    one_line(code, capsys, f"--shift {float(shift):g}", "nu", "past the largest float")
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("bad", [
     ["--source", "no_such_cache.zarr"],  # missing cache
     ["--reservoir", "--producer", "dask", "--scheduler", "tcp://127.0.0.1:9"],  # unreachable scheduler
