@@ -459,6 +459,28 @@ def exported_as(path) -> str | None:
         return None
 
 
+def named_pde(path) -> str | None:
+    """The PDE a pdestream cache or export at ``path`` holds (its config's ``pde``), read from its attributes
+    alone; None when ``path`` is not one or cannot be read (the reader's own checks then say why)."""
+    import json
+
+    try:
+        path = Path(path)
+        if path.is_dir():  # a Zarr cache
+            import zarr
+
+            attrs = dict(zarr.open_group(str(path), mode="r").attrs)
+        else:
+            import h5py
+
+            with h5py.File(path, "r") as f:
+                attrs = {schema.CONFIG_ATTR: f.attrs.get(schema.CONFIG_ATTR)}
+        name = json.loads(str(plain(attrs.get(schema.CONFIG_ATTR)))).get("pde")
+    except Exception:  # anything unreadable: not ours to explain here
+        return None
+    return name if isinstance(name, str) and name else None
+
+
 def read_export(path):
     """An export written by ``export_cache`` as an xarray.Dataset in pdestream's layout (what ``open_cache``
     gives for the cache it came from, loaded): fields [sample, time, (z,) y, x], per-sample parameters,

@@ -231,6 +231,22 @@ def test_train_on_an_export_equals_training_on_the_cache(caches, tmp_path):
     assert not list((tmp_path / "tmp").glob("pdestream-import-*"))
 
 
+def test_train_on_a_cache_or_export_without_naming_the_pde_trains_the_caches(caches, tmp_path):
+    """`train --source PATH` without a PDE name was refused ("no PDE named"), though the cache (or export) names its
+    PDE; it trains the cache's, as `train NAME --source PATH` does."""
+    out = tmp_path / "e.h5"
+    export_cache(caches["burgers1d"], "pdebench", out)
+    losses = []
+    for source, name in ((caches["burgers1d"], ["burgers1d"]), (caches["burgers1d"], []), (out, [])):
+        run = tmp_path / f"run{len(losses)}"
+        assert cli.main(["train", *name, "--source", str(source), "--steps", "2", "--batch-size", "2",
+                         "--test-samples", "1", "--threads", "1", "--model-set", "width=4", "--model-set", "modes=2",
+                         "--model-set", "layers=1", "--out", str(run)]) == 0
+        losses.append(json.loads((run / "metrics.json").read_text())["final_loss"])
+        assert json.loads((run / "run.json").read_text())["pde"]["pde"] == "burgers1d"
+    assert losses[0] == losses[1] == losses[2]
+
+
 @pytest.mark.parametrize("suffix", [".h5", ".zarr"])
 def test_an_import_never_replaces_a_cache_another_process_made_meanwhile(caches, tmp_path, monkeypatch, suffix):
     # two `pdestream import` runs writing the same new file both exited 0; the file held only the second's data
