@@ -61,6 +61,13 @@ def score_against_coarse(arms: list[dict]) -> None:
                               for key, _ in SCORED}
 
 
+def _times(arm: dict, other: dict, key: str) -> str:
+    """'2.00x lower' or '2.00x higher': ``arm``'s figure ``key`` against ``other``'s, the factor always >= 1 (a
+    ratio below 1 read "0.18x lower" for an error 5.5 times higher)."""
+    ratio = _ratio(other[key], arm[key])
+    return f"{ratio:.2f}x lower" if ratio >= 1 else f"{_ratio(arm[key], other[key]):.2f}x higher"
+
+
 def _ratio(num: float, den: float) -> float:
     return float(num / den) if den > 0 else float("inf") if num > 0 else 1.0
 
@@ -174,12 +181,11 @@ def _arms_lines(arms: list[dict]) -> list[str]:
             v = a["vs_coarse"]
             lines.append(f"| {a['arm']} | " + " | ".join(f"{v[key]['improvement']:.2f}x | {v[key]['gap_closed']:+.1%}"
                                                           for key, _ in SCORED) + " |")
-        lines.append(f"\nsolver-in-the-loop rollout mean error: {base['rollout_mean'] / loop['rollout_mean']:.2f}x "
-                     f"lower than the coarse solver alone, {pairs['rollout_mean'] / loop['rollout_mean']:.2f}x lower "
-                     f"than the correction trained on pairs, {noisy['rollout_mean'] / loop['rollout_mean']:.2f}x "
-                     f"lower than pairs + noise; end error: {base['end_mean'] / loop['end_mean']:.2f}x lower than "
-                     f"the coarse solver alone, {pairs['end_mean'] / loop['end_mean']:.2f}x lower than the correction "
-                     "trained on pairs")
+        lines.append(f"\nsolver-in-the-loop rollout mean error: {_times(loop, base, 'rollout_mean')} than the coarse "
+                     f"solver alone, {_times(loop, pairs, 'rollout_mean')} than the correction trained on pairs, "
+                     f"{_times(loop, noisy, 'rollout_mean')} than pairs + noise; end error: "
+                     f"{_times(loop, base, 'end_mean')} than the coarse solver alone, {_times(loop, pairs, 'end_mean')} "
+                     "than the correction trained on pairs")
         lines += ["", "Solver-in-the-loop against each non-interacting corrector arm per metric (x: the other arm's "
                   "error / solver-in-the-loop's, > 1: solver-in-the-loop better; outside the seed spread when the "
                   "margin exceeds the two arms' stds over seeds added):", ""]
