@@ -575,6 +575,13 @@ def open_cache(path, complete_only: bool = False):
                    if k not in ds.attrs]
         missing += [v for v in ("complete", "sample") if v not in ds.variables]
         if missing:
+            from .export import exported_as
+
+            layout = exported_as(path) if path.is_file() else None
+            if layout is not None:  # (it said "missing complete, sample")
+                raise ValueError(f"{path} is an export written by `pdestream export --to {layout}`, not a cache: "
+                                 f"`pdestream import {path} --out CACHE.h5` makes it one (train --source reads it as "
+                                 "it is)")
             raise ValueError(f"{path} is not a pdestream cache (missing {', '.join(missing)})")
         settings = CacheSettings.from_attrs(ds.attrs, path)
         store = fmt.open(path)  # the arrays themselves: consolidated metadata lists a deleted Zarr array too

@@ -402,3 +402,15 @@ def test_a_damaged_per_seed_or_resized_export_is_refused_in_one_line(sorption_ca
         import_export(export, tmp_path / "c.h5")
     assert "\n" not in str(err.value) and str(export) in str(err.value)
     assert [p.name for p in tmp_path.iterdir()] == ["e.h5"]
+
+
+def test_an_export_given_where_a_cache_goes_says_import_it(caches, tmp_path, capsys):
+    """inspect / export of an export said "is not a pdestream cache (missing complete, sample)"."""
+    out = tmp_path / "e.hdf5"
+    export_cache(caches["burgers1d"], "pdebench", out)
+    for argv in (["inspect", str(out)], ["export", str(out), "--to", "the-well", "--out", str(tmp_path / "w.hdf5")]):
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "is an export written by `pdestream export --to pdebench`" in err \
+            and f"pdestream import {out} --out" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e.hdf5"]
