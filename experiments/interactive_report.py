@@ -115,6 +115,11 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
                   "normalized units (x the data's std), the fine target clean")
         noise += f", corrector start: {cfg.corrector_start}" + (" (every corrector's output layer zero at step 0)"
                                                                  if cfg.corrector_start == "zero" else "")
+        clip, remat = getattr(cfg, "clip", None), getattr(cfg, "remat", False)
+        if clip is not None or remat:  # (compare.json's config alone had them)
+            noise += ", every corrector arm" + (f"'s gradient clipped to global norm {clip:g}" if clip is not None
+                                                else "") + (" and" if clip is not None and remat else "") + \
+                (" rematerialised (--remat)" if remat else "")
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
     pairs = getattr(cfg, "pairs_steps", None)
     per_arm = (f"{cfg.steps} optimizer steps" + (f" (the two pairs arms: {pairs})" if pairs else "")

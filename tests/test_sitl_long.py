@@ -162,3 +162,23 @@ def test_compare_modes_rolls_every_arm_out_beyond_the_training_range_too(tmp_pat
     assert cli.main(argv) == 0
     again = json.loads((out / "compare.json").read_text())["beyond"]
     assert [a["rollout_mean"] for a in again["arms"]] == [a["rollout_mean"] for a in beyond["arms"]]
+
+
+@pytest.mark.parametrize("clip, remat, said", [(0.5, True, ", every corrector arm's gradient clipped to global norm 0.5 "
+                                                            "and rematerialised (--remat)"),
+                                               (0.5, False, ", every corrector arm's gradient clipped to global norm 0.5"),
+                                               (None, True, ", every corrector arm rematerialised (--remat)"),
+                                               (None, False, None)])
+def test_compare_md_says_the_corrector_arms_were_clipped_or_rematerialised(tmp_path, clip, remat, said):
+    """compare.md's header named neither --clip nor --remat (only compare.json's config had them)."""
+    from pdestream.experiments.interactive_config import InteractiveConfig
+    from pdestream.experiments.interactive_report import write_tables
+
+    def arm(name, mode):
+        return {"arm": name, "mode": mode, "n": 16, "seeds": [0], "frames": 4, **dict.fromkeys(
+            ("rollout_mean", "rollout_p95", "end_mean", "end_p95", "end_max", "wall_s", "final_loss"), 0.1), "steps": 2}
+
+    cfg = InteractiveConfig(modes=("solver-in-the-loop",), clip=clip, remat=remat)
+    write_tables(tmp_path, {"arms": [arm("coarse solver", "none")]}, generator.get_pde("burgers1d", n=32), cfg)
+    head = (tmp_path / "compare.md").read_text().splitlines()[0]
+    assert (said in head) if said else ("clipped" not in head and "remat" not in head), head
