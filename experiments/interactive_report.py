@@ -128,11 +128,14 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
     if cfg.unroll_schedule and "solver-in-the-loop" in cfg.modes:
         noise += (f", solver-in-the-loop unroll curriculum {cfg.unroll_schedule} (unroll:share of the steps; in steps "
                   f"{cfg.schedule()})")
+    takes = {"pushforward", "oracle"} & set(cfg.modes) or ("solver-in-the-loop" in cfg.modes and not cfg.unroll_schedule)
+    unroll = (f"unroll {cfg.unroll}" if takes else "the unrolls of the curriculum below" if "solver-in-the-loop"
+              in cfg.modes else "no unroll")  # (it said "unroll 4", which no arm took)
     spread = (f"; {len(seeds)} model and data seeds {seeds} per trained arm, each figure the mean ± std over seeds "
               "(the coarse solver: no seed)" if len(seeds) > 1 else f"; one model and data seed ({cfg.seed})")
     lines = [f"{pde.NAME} ({', '.join(f'{k} ~ {v}' for k, v in pde.param_domains.items())}), {cfg.model} "
              f"{cfg.model_cfg}, {per_arm} x batch {cfg.batch_size} per trained arm, lr {cfg.lr}, "
-             f"unroll {cfg.unroll}{noise}{spread}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "
+             f"{unroll}{noise}{spread}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "
              f"(Latin hypercube over the parameters), rolled out {frames} frames from the first; end: the last "
              "frame (mean, p95, max over trajectories); rollout mean: over all frames and trajectories; rollout "
              "p95: the 95th percentile over trajectories of each trajectory's error averaged over all frames; wall: "

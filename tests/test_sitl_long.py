@@ -182,3 +182,19 @@ def test_compare_md_says_the_corrector_arms_were_clipped_or_rematerialised(tmp_p
     write_tables(tmp_path, {"arms": [arm("coarse solver", "none")]}, generator.get_pde("burgers1d", n=32), cfg)
     head = (tmp_path / "compare.md").read_text().splitlines()[0]
     assert (said in head) if said else ("clipped" not in head and "remat" not in head), head
+
+
+def test_compare_md_names_no_unroll_the_arms_do_not_take(tmp_path):
+    """--unroll-schedule 1:0.5,2:0.5 with the corrector arms alone: the header said "unroll 4" (the default of an
+    --unroll no arm took); the curriculum is named instead."""
+    from pdestream.experiments.interactive_config import InteractiveConfig
+    from pdestream.experiments.interactive_report import write_tables
+
+    arm = {"arm": "coarse solver", "mode": "none", "n": 16, "seeds": [0], "frames": 4, "steps": 2, **dict.fromkeys(
+        ("rollout_mean", "rollout_p95", "end_mean", "end_p95", "end_max", "wall_s", "final_loss"), 0.1)}
+    for modes, schedule, has in ((("solver-in-the-loop",), "1:0.5,2:0.5", False), (("solver-in-the-loop",), None, True),
+                                 (("pushforward", "solver-in-the-loop"), "1:0.5,2:0.5", True)):
+        cfg = InteractiveConfig(modes=modes, unroll_schedule=schedule, steps=4)
+        write_tables(tmp_path, {"arms": [arm]}, generator.get_pde("burgers1d", n=32), cfg)
+        head = (tmp_path / "compare.md").read_text().splitlines()[0]
+        assert ("unroll 4," in head) == has, head
