@@ -129,7 +129,7 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
         noise += (f", solver-in-the-loop unroll curriculum {cfg.unroll_schedule} (unroll:share of the steps; in steps "
                   f"{cfg.schedule()})")
     takes = {"pushforward", "oracle"} & set(cfg.modes) or ("solver-in-the-loop" in cfg.modes and not cfg.unroll_schedule)
-    unroll = (f"unroll {cfg.unroll}" if takes else "the unrolls of the curriculum below" if "solver-in-the-loop"
+    unroll = (f"unroll {cfg.unroll}" if takes else "the curriculum's unrolls" if "solver-in-the-loop"
               in cfg.modes else "no unroll")  # (it said "unroll 4", which no arm took)
     spread = (f"; {len(seeds)} model and data seeds {seeds} per trained arm, each figure the mean ± std over seeds "
               "(the coarse solver: no seed)" if len(seeds) > 1 else f"; one model and data seed ({cfg.seed})")
