@@ -211,8 +211,9 @@ CHECKPOINTS = 20  # per arm: an interrupted arm loses at most 5% of its steps
 RESUME_KEYS = ("model", "model_cfg", "steps", "seconds", "batch_size", "lr", "seed", "mode", "pde")
 
 
-def _differ(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int) -> list[str]:
-    """The RESUME_KEYS in which the run.json in ``run_dir`` differs from what this arm and seed train with."""
+def _differ(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int, said: bool = False) -> list[str]:
+    """The RESUME_KEYS in which the run.json in ``run_dir`` differs from what this arm and seed train with
+    (said: each as "KEY: the run's X, asked Y", a dict's differing entries named, as the refusal says them)."""
     want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": _arm_steps(cfg, settings),
                                   "seconds": cfg.budget_s,
                                   "batch_size": cfg.batch_size, "lr": cfg.lr, "seed": seed,
@@ -221,7 +222,18 @@ def _differ(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: in
         have = json.loads((run_dir / "run.json").read_text())
     except (OSError, ValueError):
         have = {}
-    return [key for key in RESUME_KEYS if not isinstance(have, dict) or have.get(key) != want[key]]
+    keys = [key for key in RESUME_KEYS if not isinstance(have, dict) or have.get(key) != want[key]]
+    return [_said(key, have.get(key) if isinstance(have, dict) else None, want[key]) for key in keys] if said else keys
+
+
+def _said(key: str, have, want) -> str:
+    """One difference in words: "steps: the run's 3, asked 2"; for dicts, "mode: clip the run's 1.0, asked 0.5"
+    (a rerun with another --clip was refused as "other settings (mode)")."""
+    if not (isinstance(have, dict) and isinstance(want, dict)):
+        return f"{key}: the run's {have}, asked {want}"
+    parts = [f"{k} the run's {have.get(k, 'its default')}, asked {want.get(k, 'its default')}"
+             for k in sorted(set(have) | set(want)) if have.get(k) != want.get(k)]
+    return f"{key}: {', '.join(parts[:3])}{' ...' if len(parts) > 3 else ''}"
 
 
 def _unfinished(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int) -> bool:
@@ -237,9 +249,9 @@ def _finished(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: 
     with other settings."""
     if not (cfg.resume and (run_dir / "metrics.json").is_file() and (run_dir / "model.pt").is_file()):
         return None
-    differ = _differ(run_dir, pde, settings, cfg, seed)
+    differ = _differ(run_dir, pde, settings, cfg, seed, said=True)
     if differ:
-        raise ValueError(f"{run_dir} holds a finished run with other settings ({', '.join(differ)}); rerun with its "
+        raise ValueError(f"{run_dir} holds a finished run with other settings ({'; '.join(differ)}); rerun with its "
                          "own settings to go on, or pass --overwrite (retrains every arm) or another --out")
     return json.loads((run_dir / "metrics.json").read_text())
 

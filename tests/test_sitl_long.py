@@ -198,3 +198,24 @@ def test_compare_md_names_no_unroll_the_arms_do_not_take(tmp_path):
         write_tables(tmp_path, {"arms": [arm]}, generator.get_pde("burgers1d", n=32), cfg)
         head = (tmp_path / "compare.md").read_text().splitlines()[0]
         assert ("unroll 4," in head) == has, head
+
+
+def test_a_finished_arm_of_another_clip_is_refused_naming_the_values(tmp_path):
+    """A rerun with another --clip said only "other settings (mode)"."""
+    from pdestream.experiments.interactive_compare import _finished
+    from pdestream.experiments.interactive_config import InteractiveConfig, arm_settings
+
+    cfg = InteractiveConfig(modes=("solver-in-the-loop",), clip=0.5, coarse_n=16, steps=2)
+    pde = generator.get_pde("burgers1d", n=64, n_frames=5)
+    settings = arm_settings(cfg, "solver-in-the-loop", unroll=1)
+    run = tmp_path / "arm"
+    run.mkdir()
+    have = {"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": 3, "seconds": None, "batch_size": cfg.batch_size,
+            "lr": cfg.lr, "seed": 0, "mode": {**make_mode(settings).settings(), "clip": 1.0}, "pde": pde.config()}
+    (run / "run.json").write_text(json.dumps(have))
+    (run / "metrics.json").write_text("{}")
+    (run / "model.pt").write_bytes(b"")
+    with pytest.raises(ValueError) as err:
+        _finished(run, pde, settings, cfg, 0)
+    assert "other settings (steps: the run's 3, asked 2; mode: clip the run's 1.0, asked 0.5)" in str(err.value), \
+        str(err.value)

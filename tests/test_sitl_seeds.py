@@ -56,7 +56,7 @@ def test_corrector_arms_train_every_seed_report_mean_and_std_and_resume(tmp_path
     # other settings on the same out: one line, before any work
     assert cli.main([*SMALL, "--steps", "3", "--seeds", "2", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("pdestream: error: ") and "holds a finished run with other settings (steps)" in err
+    assert err.startswith("pdestream: error: ") and "holds a finished run with other settings (steps: the run's " in err
     assert "\n" not in err
 
 
