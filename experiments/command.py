@@ -179,7 +179,7 @@ def check_shift(pde, cmd: CompareCommand) -> None:
     try:
         shifted_pde(pde, cmd.shift, dict(cmd.shift_set))
     except ValueError as err:
-        raise ValueError(str(err).replace("shift=", "--shift ", 1)) from None
+        raise ValueError(str(err).replace("shift=", "--shift ", 1).replace("shift_set ", "--shift-set ", 1)) from None
 
 
 def _compare(cmd: CompareCommand, log) -> str:

@@ -19,6 +19,8 @@ def shifted_pde(pde, frac: float = 0.25, overrides: dict | None = None):
     if frac == 0:
         raise ValueError("shift=0 would test on the training domain; use a fraction like 0.25 or -0.25")
     changes = dict(overrides or {})
+    for name, domain in changes.items():
+        _check_override(pde, name, domain)
     for name, domain in pde.param_domains.items():
         if name in changes or type(domain).__name__ not in ("Uniform", "LogUniform"):
             continue
@@ -52,3 +54,20 @@ def _shifted_domain(domain, frac: float, positive: bool) -> str | None:
     if not (math.isfinite(a) and math.isfinite(b)):
         return None
     return f"{kind.lower()}({a:.6g}, {b:.6g})"
+
+
+def _check_override(pde, name: str, domain) -> None:
+    """One line for an explicit shifted domain that is not beyond the training range: a setting that is not one of
+    the PDE's parameters (``n=32`` solved the set on another grid) or a domain inside the training one (the
+    training domain itself was accepted and reported as "beyond the training range")."""
+    if name not in pde.param_domains:
+        raise ValueError(f"shift_set {name}={domain}: {name} is not a parameter of {pde.NAME}; allowed: "
+                         f"{', '.join(pde.param_domains) or 'none (no parameters)'}")
+    trained = pde.param_domains[name]
+    lo, hi = pde.replace({name: domain}).param_domains[name].bounds
+    a, b = trained.bounds
+    if a <= lo and hi <= b:
+        beyond = (_shifted_domain(trained, -0.25, pde.PARAMS[name].positive)
+                  if type(trained).__name__ in ("Uniform", "LogUniform") else None)
+        raise ValueError(f"shift_set {name}={domain} lies inside the training range {trained}; allowed: a domain "
+                         f"beyond it{', e.g. ' + beyond if beyond else ''}")
