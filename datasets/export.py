@@ -395,6 +395,7 @@ def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
             done = int((ds["complete"].values == 1).sum())
             raise ValueError(f"{cache} is incomplete ({done} of {ds.sizes['sample']} samples written); only a "
                              "complete cache is exported: finish it with `pdestream generate ... --resume`")
+        _check_finite(cache, ds)
         check_room(out, sum(int(ds[v].size) * 4 for v in ds.data_vars))  # float32 fields, the rest is small
         tmp = out.with_name(f"{out.name}.tmp-{os.getpid()}")
         try:
@@ -415,6 +416,23 @@ def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
 
         write_stats(cache, stats)
     return out
+
+
+def _check_finite(cache, ds) -> None:
+    """One line for a cache whose complete samples hold NaN/Inf (a deleted Zarr chunk, a changed file): it was
+    exported with rc 0 into a file that `import` refuses. Reads the fields a block of samples at a time."""
+    from .cache import damaged_samples
+
+    names = [v for v in ds.data_vars if ds[v].dtype.kind == "f"] + \
+        [c for c in ds.coords if c not in ds.dims and ds[c].dims == ("sample",) and ds[c].dtype.kind == "f"]
+    store = {n: ds[n] for n in names}  # (DataArrays: a block is read at a time)
+    store["complete"] = ds["complete"].values
+    bad = damaged_samples(store, names, int(ds.attrs.get("pdestream_block", 64) or 64))
+    if len(bad):
+        idx = [int(i) for i in ds["sample"].values[bad]]
+        shown = ", ".join(map(str, idx[:8])) + (f", ... ({len(idx)} in all)" if len(idx) > 8 else "")
+        raise ValueError(f"{cache} is damaged: samples {shown} hold non-finite or missing data; recompute them with "
+                         "`pdestream generate ... --resume`, then export it")
 
 
 def well_stats_path(out: Path) -> Path | None:

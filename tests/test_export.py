@@ -414,3 +414,17 @@ def test_an_export_given_where_a_cache_goes_says_import_it(caches, tmp_path, cap
         assert len(err.splitlines()) == 1 and "is an export written by `pdestream export --to pdebench`" in err \
             and f"pdestream import {out} --out" in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["e.hdf5"]
+
+
+def test_a_damaged_cache_is_not_exported(caches, tmp_path):
+    """A cache holding a NaN (a deleted Zarr chunk reads as one) was exported with rc 0, into a file `import` then
+    refuses ("holds NaN/Inf"); it is refused, naming the samples and the repair, and nothing is written."""
+    cache = tmp_path / "c.h5"
+    shutil.copy(caches["burgers1d"], cache)
+    with h5py.File(cache, "r+") as f:
+        _put_nan(f["u"], (2, 1, 3))
+    with pytest.raises(ValueError) as err:
+        export_cache(cache, "pdebench", tmp_path / "e.hdf5")
+    assert "samples 2 hold non-finite or missing data" in str(err.value) and "--resume" in str(err.value), \
+        str(err.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.h5"]
