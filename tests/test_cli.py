@@ -50,8 +50,10 @@ def test_resume_of_a_complete_cache_says_so(capsys, tmp_path):
     path = tmp_path / "b.h5"
     args = ["generate", "burgers1d", "--n", "3", "--out", str(path), *SMALL]
     assert run_cli(capsys, *args)[0] == 0
+    before = path.read_bytes()
     code, out, err = run_cli(capsys, *args, "--resume")
     assert (code, err) == (0, "") and out == f"{path} is already complete: all 3 samples were written; nothing to solve\n"
+    assert path.read_bytes() == before  # not a byte touched (it was opened for writing: 15 bytes of HDF5 metadata)
 
 
 def test_a_cache_larger_than_the_disk_is_refused_up_front(capsys, tmp_path):
