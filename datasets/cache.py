@@ -163,6 +163,8 @@ def _foreign(path: Path) -> str | None:
             return f"a directory that is not a Zarr store (holds {', '.join(held[:3]) or 'nothing'}" + \
                 (", ..." if len(held) > 3 else "") + ")"
         return "a file that is not a readable HDF5 file (if it is a damaged cache, remove it yourself)"
+    if "pdestream_export" in attrs:  # (same attributes as a cache; it was replaced by one)
+        return f"a pdestream export ({plain(attrs['pdestream_export'])} layout), not a cache"
     if not {schema.CONFIG_ATTR, "pdestream_schema", "pdestream_fields", "pdestream_params"} <= set(attrs):
         return f"{fmt.noun} without pdestream's attributes"
     extra = fmt.extra_entries(path, attrs)  # a user's files inside our store would be lost with it

@@ -428,3 +428,14 @@ def test_a_damaged_cache_is_not_exported(caches, tmp_path):
     assert "samples 2 hold non-finite or missing data" in str(err.value) and "--resume" in str(err.value), \
         str(err.value)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.h5"]
+
+
+def test_generate_overwrite_never_replaces_an_export(caches, tmp_path, capsys):
+    """`generate --overwrite` replaces only a cache; an export at the path was replaced by a cache (rc 0)."""
+    out = tmp_path / "e.hdf5"
+    export_cache(caches["burgers1d"], "pdebench", out)
+    before = out.read_bytes()
+    code = cli.main(["generate", "burgers1d", *ENTRIES["burgers1d"], "--out", str(out), "--overwrite"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "it is a pdestream export (pdebench layout)" in err, err
+    assert out.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["e.hdf5"]
