@@ -164,7 +164,7 @@ def cmd_generate(args: argparse.Namespace) -> None:
 def cmd_inspect(args: argparse.Namespace) -> None:
     from pdestream.datasets import inspect, stats
 
-    print(inspect.summary(args.path))
+    print(inspect.summary(args.path, args.plot))  # (a bad --plot refused first)
     if args.plot:
         print(f"plot: {inspect.plot(args.path, args.plot)}")
     if args.stats:
