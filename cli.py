@@ -164,7 +164,7 @@ def cmd_generate(args: argparse.Namespace) -> None:
 def cmd_inspect(args: argparse.Namespace) -> None:
     from pdestream.datasets import inspect, stats
 
-    print(inspect.summary(args.path))
+    print(inspect.summary(args.path, args.plot))  # (a bad --plot refused first)
     if args.plot:
         print(f"plot: {inspect.plot(args.path, args.plot)}")
     if args.stats:
@@ -241,7 +241,7 @@ def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
 def add_train(sub) -> None:
     d = TRAIN
     p = sub.add_parser("train", help="train a surrogate (FNO / U-Net) on the stream or on a cache; --resume a run")
-    p.add_argument("pde", nargs="?", help="PDE name (see `pdestream list`); may come from --config instead")
+    p.add_argument("pde", nargs="?", help="PDE name (see `pdestream list`); may come from --config or --source PATH")
     p.add_argument("--source", default=d.source, metavar="stream|PATH",
                    help="'stream' (solve on the fly), a cache written by `pdestream generate`, or a file written by "
                         "`pdestream export` (read through a temporary cache)")

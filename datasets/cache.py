@@ -163,6 +163,8 @@ def _foreign(path: Path) -> str | None:
             return f"a directory that is not a Zarr store (holds {', '.join(held[:3]) or 'nothing'}" + \
                 (", ..." if len(held) > 3 else "") + ")"
         return "a file that is not a readable HDF5 file (if it is a damaged cache, remove it yourself)"
+    if "pdestream_export" in attrs:  # (same attributes as a cache; it was replaced by one)
+        return f"a pdestream export ({plain(attrs['pdestream_export'])} layout), not a cache"
     if not {schema.CONFIG_ATTR, "pdestream_schema", "pdestream_fields", "pdestream_params"} <= set(attrs):
         return f"{fmt.noun} without pdestream's attributes"
     extra = fmt.extra_entries(path, attrs)  # a user's files inside our store would be lost with it
@@ -461,8 +463,9 @@ def damaged_samples(store, names, block: int = 64) -> np.ndarray:
 
 
 def _reopen_damaged(path: Path, fmt: CacheFormat, settings: CacheSettings) -> int:
-    """Resume: clear the flags of damaged samples (and the global flag) so they are solved again."""
-    store = fmt.open(path, writable=True)
+    """Resume: clear the flags of damaged samples (and the global flag) so they are solved again. Read first: a
+    cache with none is not opened for writing (HDF5 rewrote 15 bytes of metadata of a complete cache)."""
+    store = fmt.open(path)
     try:
         try:
             store["complete"]
@@ -470,6 +473,12 @@ def _reopen_damaged(path: Path, fmt: CacheFormat, settings: CacheSettings) -> in
             raise ValueError(f"cannot resume {path}: its 'complete' flags are missing (deleted?), so which samples "
                              "were written is unknown; regenerate it with --overwrite") from None
         bad = damaged_samples(store, settings.variables, settings.block)
+    finally:
+        store.close()
+    if not len(bad):
+        return 0
+    store = fmt.open(path, writable=True)
+    try:
         if len(bad):
             fmt.mark_complete(store, value=0)  # no longer complete until they are rewritten
             flags = np.asarray(store["complete"][:])
@@ -498,6 +507,23 @@ def pending_blocks(store, block: int) -> list[tuple[int, int]]:
     return [(lo, min(lo + block, len(done))) for lo in range(0, len(done), block) if not done[lo : lo + block].all()]
 
 
+def _finished(job: Job) -> bool:
+    """True when the HDF5 cache of ``job`` has every sample written and is marked complete (read-only). Not for
+    Zarr: its completion also rewrites the consolidated metadata, which repairs a store an older writer cut."""
+    if job.fmt.name != "hdf5":
+        return False
+    try:
+        if int(np.asarray(job.fmt.root_attrs(job.work).get("pdestream_complete", 0))) != 1:
+            return False
+        store = job.fmt.open(job.work)
+        try:
+            return not pending_blocks(store, job.block)
+        finally:
+            store.close()
+    except Exception:  # anything odd: the writable path below decides, as before
+        return False
+
+
 def _fill(pde, job: Job, progress: bool) -> int:
     """Solve and write every pending block of ``job``, then mark it complete; returns the samples written."""
     from pdestream.meter import Meter
@@ -506,6 +532,8 @@ def _fill(pde, job: Job, progress: bool) -> int:
     from ._bridge import progress_key, typical_times
 
     s, block = job.settings, job.block
+    if _finished(job):  # a --resume of a complete cache: not opened for writing (HDF5 rewrote 15 bytes)
+        return 0
     store = job.fmt.open(job.work, writable=True)
     written = 0
     try:
@@ -575,6 +603,13 @@ def open_cache(path, complete_only: bool = False):
                    if k not in ds.attrs]
         missing += [v for v in ("complete", "sample") if v not in ds.variables]
         if missing:
+            from .export import exported_as
+
+            layout = exported_as(path) if path.is_file() else None
+            if layout is not None:  # (it said "missing complete, sample")
+                raise ValueError(f"{path} is an export written by `pdestream export --to {layout}`, not a cache: "
+                                 f"`pdestream import {path} --out CACHE.h5` makes it one (train --source reads it as "
+                                 "it is)")
             raise ValueError(f"{path} is not a pdestream cache (missing {', '.join(missing)})")
         settings = CacheSettings.from_attrs(ds.attrs, path)
         store = fmt.open(path)  # the arrays themselves: consolidated metadata lists a deleted Zarr array too

@@ -395,6 +395,7 @@ def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
             done = int((ds["complete"].values == 1).sum())
             raise ValueError(f"{cache} is incomplete ({done} of {ds.sizes['sample']} samples written); only a "
                              "complete cache is exported: finish it with `pdestream generate ... --resume`")
+        _check_finite(cache, ds)
         check_room(out, sum(int(ds[v].size) * 4 for v in ds.data_vars))  # float32 fields, the rest is small
         tmp = out.with_name(f"{out.name}.tmp-{os.getpid()}")
         try:
@@ -415,6 +416,23 @@ def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
 
         write_stats(cache, stats)
     return out
+
+
+def _check_finite(cache, ds) -> None:
+    """One line for a cache whose complete samples hold NaN/Inf (a deleted Zarr chunk, a changed file): it was
+    exported with rc 0 into a file that `import` refuses. Reads the fields a block of samples at a time."""
+    from .cache import damaged_samples
+
+    names = [v for v in ds.data_vars if ds[v].dtype.kind == "f"] + \
+        [c for c in ds.coords if c not in ds.dims and ds[c].dims == ("sample",) and ds[c].dtype.kind == "f"]
+    store = {n: ds[n] for n in names}  # (DataArrays: a block is read at a time)
+    store["complete"] = ds["complete"].values
+    bad = damaged_samples(store, names, int(ds.attrs.get("pdestream_block", 64) or 64))
+    if len(bad):
+        idx = [int(i) for i in ds["sample"].values[bad]]
+        shown = ", ".join(map(str, idx[:8])) + (f", ... ({len(idx)} in all)" if len(idx) > 8 else "")
+        raise ValueError(f"{cache} is damaged: samples {shown} hold non-finite or missing data; recompute them with "
+                         "`pdestream generate ... --resume`, then export it")
 
 
 def well_stats_path(out: Path) -> Path | None:
@@ -459,6 +477,28 @@ def exported_as(path) -> str | None:
         return None
 
 
+def named_pde(path) -> str | None:
+    """The PDE a pdestream cache or export at ``path`` holds (its config's ``pde``), read from its attributes
+    alone; None when ``path`` is not one or cannot be read (the reader's own checks then say why)."""
+    import json
+
+    try:
+        path = Path(path)
+        if path.is_dir():  # a Zarr cache
+            import zarr
+
+            attrs = dict(zarr.open_group(str(path), mode="r").attrs)
+        else:
+            import h5py
+
+            with h5py.File(path, "r") as f:
+                attrs = {schema.CONFIG_ATTR: f.attrs.get(schema.CONFIG_ATTR)}
+        name = json.loads(str(plain(attrs.get(schema.CONFIG_ATTR)))).get("pde")
+    except Exception:  # anything unreadable: not ours to explain here
+        return None
+    return name if isinstance(name, str) and name else None
+
+
 def read_export(path):
     """An export written by ``export_cache`` as an xarray.Dataset in pdestream's layout (what ``open_cache``
     gives for the cache it came from, loaded): fields [sample, time, (z,) y, x], per-sample parameters,
@@ -495,7 +535,11 @@ def read_export(path):
             named = re.search(r"object '([^']+)'", text)  # h5py: "Unable to ... open object (object 'nu' ...)"
             raise ValueError(f"{path} is a damaged {fmt.name} export: {named.group(1) if named else text} is "
                              "missing; export the cache again") from None
+        except ValueError as err:  # numpy's stack of unequal shapes, a config that is not JSON: name the file
+            raise ValueError(f"{path} is a damaged {fmt.name} export: {str(err).splitlines()[0]}; export the "
+                             "cache again") from None
     _check_export_attrs(path, attrs, got)
+    _check_samples(path, fmt.name, attrs, got, len(sample))
     space, ndim = got["space"], len(got["space"])
     disk = schema.disk_space_dims(ndim)
     timed = got["coords"].get("time") is not None
@@ -527,8 +571,29 @@ def read_export(path):
                              "written before outputs were kept); export the cache again")
         dims, values, at = outputs[name]
         data[name] = (dims, values, clean(at))
-    ds = xr.Dataset(data, coords=coords, attrs=attrs)
+    try:
+        ds = xr.Dataset(data, coords=coords, attrs=attrs)
+    except ValueError as err:  # xarray: "conflicting sizes for dimension 'sample'" (an array cut short)
+        raise ValueError(f"{path} is a damaged {fmt.name} export: {str(err).splitlines()[0]}; export the cache "
+                         "again") from None
     return ds[[*data]]  # the cache's variable order
+
+
+def _check_samples(path: Path, fmt: str, attrs: dict, got: dict, n: int) -> None:
+    """One line for an export whose sample count (``n``, the samples read) is not the one it lists
+    (``pdestream_n_samples``: a per-seed group deleted was imported, and the cache then read as damaged), or
+    whose cache schema this version cannot read (imported, then refused by every reader)."""
+    listed = attrs.get("pdestream_n_samples")
+    try:
+        ok = int(listed) == n and float(listed) == int(listed)
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"{path} is a damaged {fmt} export: it lists {listed} samples (pdestream_n_samples), "
+                         f"{n} are in the file; export the cache again")
+    first = next(iter(got["fields"].values()))[0]
+    schema.check_readable(path, attrs, ("sample", *(("time",) if first.ndim > len(got["space"]) + 1 else ()),
+                                        *schema.disk_space_dims(len(got["space"]))))
 
 
 def _finite(path, name: str, a: np.ndarray) -> np.ndarray:

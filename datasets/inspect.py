@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import textwrap
+from pathlib import Path
 
 import numpy as np
 
@@ -82,9 +83,24 @@ def split_note(recipe: str, seed: int, n: int) -> str:
     return f" (the {split} split's seed: {held})"
 
 
-def summary(path) -> str:
+PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+
+
+def check_plot_path(out) -> None:
+    """One line for a --plot path no figure can be written to: a directory or a name without a figure suffix
+    (``--plot .`` wrote a hidden '.png'), a parent directory that does not exist."""
+    out = Path(out)
+    if out.is_dir() or out.suffix.lower() not in PLOT_SUFFIXES:
+        raise ValueError(f"--plot {out}: allowed: a file ending in {', '.join(PLOT_SUFFIXES)}")
+    if not out.parent.is_dir():
+        raise ValueError(f"cannot write plot {out}: directory {out.parent} does not exist")
+
+
+def summary(path, plot=None) -> str:
     """Several lines: PDE, equation, config, samples complete of total, parameter ranges, field statistics,
-    bytes on disk."""
+    bytes on disk. ``plot``: a --plot path, checked first (``check_plot_path``)."""
+    if plot is not None:
+        check_plot_path(plot)
     ds = open_cache(path)
     try:
         a = ds.attrs
@@ -152,6 +168,7 @@ def plot(path, out, n_show: int = 4) -> str:
     matplotlib.use("Agg")  # a file, no window (and no display needed)
     import matplotlib.pyplot as plt
 
+    check_plot_path(out)
     fig = figure(path, n_show)
     try:
         fig.savefig(out, dpi=80)

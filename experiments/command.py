@@ -179,7 +179,7 @@ def check_shift(pde, cmd: CompareCommand) -> None:
     try:
         shifted_pde(pde, cmd.shift, dict(cmd.shift_set))
     except ValueError as err:
-        raise ValueError(str(err).replace("shift=0", "--shift 0")) from None
+        raise ValueError(str(err).replace("shift=", "--shift ", 1).replace("shift_set ", "--shift-set ", 1)) from None
 
 
 def _compare(cmd: CompareCommand, log) -> str:
@@ -289,9 +289,8 @@ def budget_setup(cmd: CompareCommand, log=print):
 
 def _interactive(cmd: CompareCommand) -> str:
     """modes: training modes at equal steps (experiments.interactive_compare)."""
-    from pdestream.experiments import interactive_compare as module
+    from pdestream.experiments.interactive_config import InteractiveConfig
     from pdestream.settings import build_pde
-    from pdestream.surrogate.launch import set_threads
     from pdestream.surrogate.mode_table import check_clip, check_corrector_start, check_noise
 
     if cmd.sim_budget is not None:
@@ -307,14 +306,13 @@ def _interactive(cmd: CompareCommand) -> str:
     pde = build_pde(cmd.pde, settings)
     if not cmd.quick:
         check_shift(pde, cmd)  # the set beyond the training range (not with --quick, a smoke run)
-    set_threads(1 if cmd.threads is None else cmd.threads)
     model_cfg = ({"width": 8, "modes": 4, "layers": 2} if cmd.quick else {"width": 32, "modes": 12, "layers": 3}) \
         if cmd.model.startswith("fno") else {}
     model_cfg = {**model_cfg, **cmd.model_cfg}
     quick = cmd.quick and cmd.steps == 1000  # quick without steps: a few steps
     given = {"unroll": cmd.unroll, "coarse_n": 16 if cmd.quick and cmd.coarse_n is None else cmd.coarse_n,
              "noise": cmd.noise, "corrector_start": cmd.corrector_start}
-    cfg = module.InteractiveConfig(
+    cfg = InteractiveConfig(
         modes=modes, **{k: v for k, v in given.items() if v is not None},  # else the mode table's
         steps=20 if quick else cmd.steps, batch_size=8 if quick else cmd.batch_size, lr=cmd.lr, model=cmd.model,
         model_cfg=model_cfg, k_in=(1 if cmd.k_in is None else cmd.k_in), seed=0, seeds=1 if cmd.seeds is None else cmd.seeds,
@@ -323,6 +321,11 @@ def _interactive(cmd: CompareCommand) -> str:
         clip=clip, remat=cmd.remat, shift=None if cmd.quick else cmd.shift, shift_set=dict(cmd.shift_set))
     if cmd.k_out not in (None, 1):
         raise ValueError(f"--k-out={cmd.k_out} not allowed with --modes: every mode predicts one frame per step")
+    cfg.check(pde)  # every bad value in one line before torch is imported (3-6 s under load)
+    from pdestream.experiments import interactive_compare as module
+    from pdestream.surrogate.launch import set_threads
+
+    set_threads(1 if cmd.threads is None else cmd.threads)
     module.interactive_compare(pde, cmd.out, cfg)
     corrector = ", corrector.png (corrector arms)" if "solver-in-the-loop" in modes else ""
     return (Path(cmd.out) / "compare.md").read_text() + \

@@ -38,29 +38,21 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 
 from pdestream import datasets
 from pdestream.surrogate.checkpoint import load_checkpoint
-from pdestream.surrogate.checks import check_count, check_number
 from pdestream.surrogate.data import check_device
 from pdestream.surrogate.evaluate import rollout_errors
-from pdestream.surrogate.mode_table import (
-    DEFAULTS,
-    MODE_NAMES,
-    MODE_SPECS,
-    NETWORK_MODES,
-    check_corrector_start,
-    check_noise,
-    mode_settings,
-    parse_unroll_schedule,
-)
+from pdestream.surrogate.mode_table import NETWORK_MODES
 from pdestream.surrogate.modes import make_mode
 from pdestream.surrogate.phases import phase
 from pdestream.surrogate.runs import resume_run, train_run
 
 from .budget import stratified_test_set
+from .interactive_config import InteractiveConfig
+from .interactive_config import arm_settings as _settings
 from .interactive_report import (
     combine_seeds,
     plot,
@@ -72,108 +64,6 @@ from .interactive_report import (
 )
 from .rollout_figure import plot_rollouts
 from .shift import shifted_pde
-
-
-@dataclass
-class InteractiveConfig:
-    """What every arm shares. unroll: k of pushforward, oracle and solver-in-the-loop (sitl_unroll overrides the
-    last); coarse_n / fine_n: the solver-in-the-loop grids (fine_n None: the PDE's n); noise: the noise arms'
-    std as a fraction of the data's std (``surrogate.modes.Noise`` on the network's input frames; the corrector's
-    "pairs + noise" arm on its coarse start state, ``surrogate.modes.SolverInTheLoop``); corrector_start: how every
-    corrector arm's network starts ("random" or "zero", ``SolverInTheLoop.init_model``); unroll_schedule: the
-    solver-in-the-loop arm's unroll curriculum, "K1:S1,K2:S2,..." (unroll Ki for the share Si of the steps,
-    ``mode_table.parse_unroll_schedule``; its longest unroll replaces sitl_unroll); clip / remat: every corrector
-    arm's gradient clipping norm and rematerialisation (``SolverInTheLoop``); shift / shift_set: every arm rolled
-    out again on a second held-out set beyond the training range (``experiments.shift.shifted_pde``: the parameter
-    domains moved by this fraction of their width, or as shift_set names them; None: no such set); seed: the
-    first model and data
-    seed and the test set's; seeds: how many (seed, seed + 1, ...); resume: read back finished (arm, seed) runs;
-    budget_s: equal wall clock instead of equal steps: every trained arm trains this many seconds (solver calls
-    included; the steps it reaches are in the table), None: ``steps`` each; pairs_steps: the corrector's two pairs
-    arms' steps (None: ``steps``), for equal wall clock with solver-in-the-loop, whose unrolled steps cost more
-    (read off a run at equal steps: ``steps`` x its wall / theirs)."""
-
-    modes: tuple = NETWORK_MODES
-    unroll: int = DEFAULTS["unroll"]
-    sitl_unroll: int | None = None
-    steps: int = 2000
-    batch_size: int = 32
-    lr: float = 1e-3
-    model: str = "fno"
-    model_cfg: dict = field(default_factory=lambda: {"width": 32, "modes": 12, "layers": 3})
-    k_in: int = 1
-    seed: int = 0
-    n_test: int = 32
-    coarse_n: int = DEFAULTS["coarse_n"]
-    fine_n: int | None = None
-    noise: float = DEFAULTS["noise"]
-    corrector_start: str = DEFAULTS["corrector_start"]
-    unroll_schedule: str | None = None
-    clip: float | None = None
-    remat: bool = False
-    shift: float | None = None
-    shift_set: dict = field(default_factory=dict)
-    seeds: int = 1
-    resume: bool = True
-    device: str = "cpu"
-    budget_s: float | None = None
-    pairs_steps: int | None = None
-
-    def schedule(self) -> list | None:
-        """The solver-in-the-loop arm's unroll curriculum in optimizer steps ([[k, steps], ...]) or None."""
-        return None if self.unroll_schedule is None else parse_unroll_schedule(self.unroll_schedule, self.steps)
-
-    def check(self, pde) -> None:
-        """ValueError (one line) naming the bad setting, before any work."""
-        unknown = [m for m in self.modes if m not in MODE_NAMES]
-        if unknown or not self.modes:
-            raise ValueError(f"--modes {','.join(self.modes)} not allowed; choose from {', '.join(MODE_NAMES)}")
-        for name in self.modes:
-            _settings(self, name)
-        self.noise = check_noise(self.noise)  # a bad --noise is refused even without the noise arm
-        check_corrector_start(self.corrector_start)  # (and a bad --corrector-start without the corrector arms)
-        for name, value in (("--steps", self.steps), ("--batch-size", self.batch_size), ("--test-samples", self.n_test),
-                            ("--k-in", self.k_in), ("--seeds", self.seeds)):
-            check_count(name, value)
-        if self.pairs_steps is not None:
-            check_count("--pairs-steps", self.pairs_steps)
-            if "solver-in-the-loop" not in self.modes or self.budget_s is not None:
-                raise ValueError(f"--pairs-steps {self.pairs_steps} goes with the corrector's arms (--modes "
-                                 "...,solver-in-the-loop) at equal steps (not with --budget)")
-        if self.budget_s is not None:
-            check_number("--budget", self.budget_s, 0, unit="seconds")
-            if self.unroll_schedule is not None:
-                raise ValueError(f"--unroll-schedule {self.unroll_schedule} is in shares of --steps; with --budget "
-                                 f"{self.budget_s:g} the steps an arm reaches are not known before it trains")
-        if (self.clip is not None or self.remat) and "solver-in-the-loop" not in self.modes:
-            raise ValueError(f"{'--clip' if self.clip is not None else '--remat'} goes with the corrector's arms "
-                             "(--modes ...,solver-in-the-loop)")
-        if self.unroll_schedule is not None:
-            if "solver-in-the-loop" not in self.modes:
-                raise ValueError(f"--unroll-schedule {self.unroll_schedule} goes with the solver-in-the-loop arm "
-                                 "(--modes ...,solver-in-the-loop)")
-            self.schedule()  # one line for a bad value, before any work
-        check_number("--lr", self.lr, 0)
-        longest = max([self.unroll, *(k for k, _ in self.schedule() or ())])
-        if pde.n_frames < self.k_in + longest + 1:
-            raise ValueError(f"--unroll {longest} needs trajectories of at least {self.k_in + longest + 1} "
-                             f"frames; {pde.NAME} has n_frames={pde.n_frames}")
-        check_device(self.device)
-
-
-def _settings(cfg: InteractiveConfig, name: str, **override) -> dict:
-    """Mode ``name``'s settings in this comparison: the config's unroll (sitl_unroll for solver-in-the-loop) and
-    coarse grid where the mode takes them (the mode table decides), ``override`` on top."""
-    unroll = cfg.sitl_unroll if name == "solver-in-the-loop" and cfg.sitl_unroll else cfg.unroll
-    schedule = cfg.schedule() if name == "solver-in-the-loop" else None
-    if schedule:
-        unroll = max(k for k, _ in schedule)
-    noise = 0.0 if name == "solver-in-the-loop" else cfg.noise  # (the corrector's noise arm overrides it)
-    given = {"unroll": unroll, "coarse_n": cfg.coarse_n, "noise": noise, "corrector_start": cfg.corrector_start,
-             "unroll_schedule": schedule, "clip": cfg.clip, "remat": cfg.remat, **override}
-    if given.get("unroll") == 1:  # the pairs arms: no curriculum
-        given["unroll_schedule"] = None
-    return mode_settings(name, **{k: v for k, v in given.items() if k in MODE_SPECS[name].settings})
 
 
 def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict:
@@ -321,8 +211,9 @@ CHECKPOINTS = 20  # per arm: an interrupted arm loses at most 5% of its steps
 RESUME_KEYS = ("model", "model_cfg", "steps", "seconds", "batch_size", "lr", "seed", "mode", "pde")
 
 
-def _differ(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int) -> list[str]:
-    """The RESUME_KEYS in which the run.json in ``run_dir`` differs from what this arm and seed train with."""
+def _differ(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int, said: bool = False) -> list[str]:
+    """The RESUME_KEYS in which the run.json in ``run_dir`` differs from what this arm and seed train with
+    (said: each as "KEY: the run's X, asked Y", a dict's differing entries named, as the refusal says them)."""
     want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": _arm_steps(cfg, settings),
                                   "seconds": cfg.budget_s,
                                   "batch_size": cfg.batch_size, "lr": cfg.lr, "seed": seed,
@@ -331,7 +222,18 @@ def _differ(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: in
         have = json.loads((run_dir / "run.json").read_text())
     except (OSError, ValueError):
         have = {}
-    return [key for key in RESUME_KEYS if not isinstance(have, dict) or have.get(key) != want[key]]
+    keys = [key for key in RESUME_KEYS if not isinstance(have, dict) or have.get(key) != want[key]]
+    return [_said(key, have.get(key) if isinstance(have, dict) else None, want[key]) for key in keys] if said else keys
+
+
+def _said(key: str, have, want) -> str:
+    """One difference in words: "steps: the run's 3, asked 2"; for dicts, "mode: clip the run's 1.0, asked 0.5"
+    (a rerun with another --clip was refused as "other settings (mode)")."""
+    if not (isinstance(have, dict) and isinstance(want, dict)):
+        return f"{key}: the run's {have}, asked {want}"
+    parts = [f"{k} the run's {have.get(k, 'its default')}, asked {want.get(k, 'its default')}"
+             for k in sorted(set(have) | set(want)) if have.get(k) != want.get(k)]
+    return f"{key}: {', '.join(parts[:3])}{' ...' if len(parts) > 3 else ''}"
 
 
 def _unfinished(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int) -> bool:
@@ -347,9 +249,9 @@ def _finished(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: 
     with other settings."""
     if not (cfg.resume and (run_dir / "metrics.json").is_file() and (run_dir / "model.pt").is_file()):
         return None
-    differ = _differ(run_dir, pde, settings, cfg, seed)
+    differ = _differ(run_dir, pde, settings, cfg, seed, said=True)
     if differ:
-        raise ValueError(f"{run_dir} holds a finished run with other settings ({', '.join(differ)}); rerun with its "
+        raise ValueError(f"{run_dir} holds a finished run with other settings ({'; '.join(differ)}); rerun with its "
                          "own settings to go on, or pass --overwrite (retrains every arm) or another --out")
     return json.loads((run_dir / "metrics.json").read_text())
 

@@ -61,6 +61,13 @@ def score_against_coarse(arms: list[dict]) -> None:
                               for key, _ in SCORED}
 
 
+def _times(arm: dict, other: dict, key: str) -> str:
+    """'2.00x lower' or '2.00x higher': ``arm``'s figure ``key`` against ``other``'s, the factor always >= 1 (a
+    ratio below 1 read "0.18x lower" for an error 5.5 times higher)."""
+    ratio = _ratio(other[key], arm[key])
+    return f"{ratio:.2f}x lower" if ratio >= 1 else f"{_ratio(arm[key], other[key]):.2f}x higher"
+
+
 def _ratio(num: float, den: float) -> float:
     return float(num / den) if den > 0 else float("inf") if num > 0 else 1.0
 
@@ -108,6 +115,11 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
                   "normalized units (x the data's std), the fine target clean")
         noise += f", corrector start: {cfg.corrector_start}" + (" (every corrector's output layer zero at step 0)"
                                                                  if cfg.corrector_start == "zero" else "")
+        clip, remat = getattr(cfg, "clip", None), getattr(cfg, "remat", False)
+        if clip is not None or remat:  # (compare.json's config alone had them)
+            noise += ", every corrector arm" + (f"'s gradient clipped to global norm {clip:g}" if clip is not None
+                                                else "") + (" and" if clip is not None and remat else "") + \
+                (" rematerialised (--remat)" if remat else "")
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
     pairs = getattr(cfg, "pairs_steps", None)
     per_arm = (f"{cfg.steps} optimizer steps" + (f" (the two pairs arms: {pairs})" if pairs else "")
@@ -116,11 +128,14 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
     if cfg.unroll_schedule and "solver-in-the-loop" in cfg.modes:
         noise += (f", solver-in-the-loop unroll curriculum {cfg.unroll_schedule} (unroll:share of the steps; in steps "
                   f"{cfg.schedule()})")
+    takes = {"pushforward", "oracle"} & set(cfg.modes) or ("solver-in-the-loop" in cfg.modes and not cfg.unroll_schedule)
+    unroll = (f"unroll {cfg.unroll}" if takes else "the curriculum's unrolls" if "solver-in-the-loop"
+              in cfg.modes else "no unroll")  # (it said "unroll 4", which no arm took)
     spread = (f"; {len(seeds)} model and data seeds {seeds} per trained arm, each figure the mean ± std over seeds "
               "(the coarse solver: no seed)" if len(seeds) > 1 else f"; one model and data seed ({cfg.seed})")
     lines = [f"{pde.NAME} ({', '.join(f'{k} ~ {v}' for k, v in pde.param_domains.items())}), {cfg.model} "
              f"{cfg.model_cfg}, {per_arm} x batch {cfg.batch_size} per trained arm, lr {cfg.lr}, "
-             f"unroll {cfg.unroll}{noise}{spread}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "
+             f"{unroll}{noise}{spread}; errors: relative L2 per trajectory over {cfg.n_test} held-out trajectories "
              f"(Latin hypercube over the parameters), rolled out {frames} frames from the first; end: the last "
              "frame (mean, p95, max over trajectories); rollout mean: over all frames and trajectories; rollout "
              "p95: the 95th percentile over trajectories of each trajectory's error averaged over all frames; wall: "
@@ -174,12 +189,11 @@ def _arms_lines(arms: list[dict]) -> list[str]:
             v = a["vs_coarse"]
             lines.append(f"| {a['arm']} | " + " | ".join(f"{v[key]['improvement']:.2f}x | {v[key]['gap_closed']:+.1%}"
                                                           for key, _ in SCORED) + " |")
-        lines.append(f"\nsolver-in-the-loop rollout mean error: {base['rollout_mean'] / loop['rollout_mean']:.2f}x "
-                     f"lower than the coarse solver alone, {pairs['rollout_mean'] / loop['rollout_mean']:.2f}x lower "
-                     f"than the correction trained on pairs, {noisy['rollout_mean'] / loop['rollout_mean']:.2f}x "
-                     f"lower than pairs + noise; end error: {base['end_mean'] / loop['end_mean']:.2f}x lower than "
-                     f"the coarse solver alone, {pairs['end_mean'] / loop['end_mean']:.2f}x lower than the correction "
-                     "trained on pairs")
+        lines.append(f"\nsolver-in-the-loop rollout mean error: {_times(loop, base, 'rollout_mean')} than the coarse "
+                     f"solver alone, {_times(loop, pairs, 'rollout_mean')} than the correction trained on pairs, "
+                     f"{_times(loop, noisy, 'rollout_mean')} than pairs + noise; end error: "
+                     f"{_times(loop, base, 'end_mean')} than the coarse solver alone, {_times(loop, pairs, 'end_mean')} "
+                     "than the correction trained on pairs")
         lines += ["", "Solver-in-the-loop against each non-interacting corrector arm per metric (x: the other arm's "
                   "error / solver-in-the-loop's, > 1: solver-in-the-loop better; outside the seed spread when the "
                   "margin exceeds the two arms' stds over seeds added):", ""]

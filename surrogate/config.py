@@ -75,8 +75,16 @@ class TrainConfig:
 
     def check(self) -> None:
         """The checks of a new run's own values (one line each), before any file, PDE or rank."""
+        from pdestream.surrogate.checks import check_count, check_number  # (no torch)
+
         if self.test_samples < 1:
             raise ValueError(f"--test-samples={self.test_samples} not allowed; must be >= 1")
+        if self.threads is not None and self.threads < 1:  # (as set_threads says it, which imports torch)
+            raise ValueError(f"--threads={self.threads} not allowed; must be >= 1")
+        if self.steps is not None:  # (None: TRAIN_STEPS)
+            check_count("steps", self.steps)
+        check_count("batch_size", self.batch_size)
+        check_number("lr", self.lr, 0)
         if self.checkpoint_every < 0:
             raise ValueError(f"--checkpoint-every={self.checkpoint_every} not allowed; must be >= 0 (0: only at the "
                              "end)")

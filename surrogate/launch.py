@@ -29,6 +29,12 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
         check_writable_dir(cfg.out)
     elif Path(cfg.resume).is_dir():
         check_writable_dir(cfg.resume, "--resume")
+    if cfg.resume is None and cfg.pde is None and cfg.source not in (None, "stream"):
+        from dataclasses import replace
+
+        from pdestream.datasets.export import named_pde
+
+        cfg = replace(cfg, pde=named_pde(cfg.source))  # `train --source PATH`: the PDE its cache (or export) holds
     if cfg.resume is None and isinstance(cfg.pde, str):
         from pdestream.settings import build_pde
 

@@ -50,8 +50,10 @@ def test_resume_of_a_complete_cache_says_so(capsys, tmp_path):
     path = tmp_path / "b.h5"
     args = ["generate", "burgers1d", "--n", "3", "--out", str(path), *SMALL]
     assert run_cli(capsys, *args)[0] == 0
+    before = path.read_bytes()
     code, out, err = run_cli(capsys, *args, "--resume")
     assert (code, err) == (0, "") and out == f"{path} is already complete: all 3 samples were written; nothing to solve\n"
+    assert path.read_bytes() == before  # not a byte touched (it was opened for writing: 15 bytes of HDF5 metadata)
 
 
 def test_a_cache_larger_than_the_disk_is_refused_up_front(capsys, tmp_path):
@@ -283,3 +285,16 @@ def test_a_warning_of_pdestream_is_one_line_and_others_keep_python_s_form(capsys
     assert len(ours) == 1 and ours[0].startswith("pdestream: warning: cavity2d: re=uniform(100.0, 400.0) on n=32 is "
                                                  "under-resolved"), err
     assert "problem.py" not in err and "validate()" not in err
+
+
+@pytest.mark.parametrize("plot, words", [("nodir/x.png", "directory nodir does not exist"),
+                                         ("x.txt", "--plot x.txt: allowed: a file ending in .png"),
+                                         (".", "--plot .: allowed: a file ending in .png")])
+def test_a_bad_plot_path_is_refused_before_the_summary(capsys, tmp_path, monkeypatch, plot, words):
+    """--plot . wrote a hidden '.png' (rc 0, 'plot: .'); x.txt was matplotlib's error after the whole summary."""
+    path = tmp_path / "b.h5"
+    assert run_cli(capsys, "generate", "burgers1d", "--n", "2", "--out", str(path), *SMALL)[0] == 0
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_cli(capsys, "inspect", str(path), "--plot", plot)
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1 and words in err, (out, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.h5"]

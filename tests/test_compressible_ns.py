@@ -123,6 +123,13 @@ def test_unsupported_settings_are_refused_in_one_line():
         assert said in str(err.value) and "\n" not in str(err.value), str(err.value)
     with pytest.raises(ValueError, match=r"compressible_ns2d: eta=1000000.0, zeta=0.01 not allowed with n=64"):
         g.get_pde("compressible_ns2d", n=64, eta="1e6")
+    # the IC's own ratio of specific heats (the Mach number's): ic.gamma=5 was accepted, ic.gamma=1e300 refused as
+    # t_end's ("t_end=0.2 would take ~1.21e+152 steps"); the gas's own gamma is refused outside (1, 3]
+    for bad in ("5", "1e300", "1", "3.0001"):
+        with pytest.raises(ValueError) as err:
+            g.get_pde("compressible_ns2d", n=64, **{"ic.gamma": bad})
+        assert f"ic.gamma={float(bad)} not allowed" in str(err.value) and "(1, 3]" in str(err.value), str(err.value)
+    g.get_pde("compressible_ns2d", n=64, **{"ic.gamma": "3"})
 
 
 def test_the_solver_equals_a_numpy_reference_written_apart_from_it():

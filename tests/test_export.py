@@ -231,6 +231,22 @@ def test_train_on_an_export_equals_training_on_the_cache(caches, tmp_path):
     assert not list((tmp_path / "tmp").glob("pdestream-import-*"))
 
 
+def test_train_on_a_cache_or_export_without_naming_the_pde_trains_the_caches(caches, tmp_path):
+    """`train --source PATH` without a PDE name was refused ("no PDE named"), though the cache (or export) names its
+    PDE; it trains the cache's, as `train NAME --source PATH` does."""
+    out = tmp_path / "e.h5"
+    export_cache(caches["burgers1d"], "pdebench", out)
+    losses = []
+    for source, name in ((caches["burgers1d"], ["burgers1d"]), (caches["burgers1d"], []), (out, [])):
+        run = tmp_path / f"run{len(losses)}"
+        assert cli.main(["train", *name, "--source", str(source), "--steps", "2", "--batch-size", "2",
+                         "--test-samples", "1", "--threads", "1", "--model-set", "width=4", "--model-set", "modes=2",
+                         "--model-set", "layers=1", "--out", str(run)]) == 0
+        losses.append(json.loads((run / "metrics.json").read_text())["final_loss"])
+        assert json.loads((run / "run.json").read_text())["pde"]["pde"] == "burgers1d"
+    assert losses[0] == losses[1] == losses[2]
+
+
 @pytest.mark.parametrize("suffix", [".h5", ".zarr"])
 def test_an_import_never_replaces_a_cache_another_process_made_meanwhile(caches, tmp_path, monkeypatch, suffix):
     # two `pdestream import` runs writing the same new file both exited 0; the file held only the second's data
@@ -352,3 +368,74 @@ def test_an_export_without_its_outputs_is_refused_not_imported_damaged(caches, t
     with pytest.raises(ValueError, match="its output drag is missing"):
         import_export(out, tmp_path / "again.h5")
     assert not (tmp_path / "again.h5").exists()
+
+
+@pytest.fixture(scope="module")
+def sorption_cache(tmp_path_factory):
+    return _generate(tmp_path_factory.mktemp("sorption"), {"diffusion_sorption1d": PER_SEED["diffusion_sorption1d"]})
+
+
+def _truncate(f, key) -> None:
+    values = f[key][()]
+    del f[key]
+    f[key] = values[:1]
+
+
+@pytest.mark.parametrize("to, damage, words", [
+    # a sample's group deleted: imported with rc 0, then the cache read as damaged ("2 samples stored, 3 expected")
+    ("pdebench", lambda f: f.__delitem__("0001"), "lists 3 samples .pdestream_n_samples., 2 are in the file"),
+    ("pdebench", lambda f: f.attrs.__setitem__("pdestream_n_samples", 5), "lists 5 samples"),
+    ("pdebench", lambda f: f.attrs.__setitem__("pdestream_n_samples", "many"), "lists many samples"),
+    # was numpy's "all input arrays must have the same shape", naming neither the file nor the array
+    ("pdebench", lambda f: _truncate(f, "0000/data"), "damaged pdebench export: .*shape"),
+    # was imported with rc 0, then refused by every reader
+    ("pdebench", lambda f: f.attrs.__setitem__("pdestream_schema", 99), "cache schema 99"),
+    # was xarray's "conflicting sizes for dimension 'sample'", naming neither the file nor the fix
+    ("the-well", lambda f: _truncate(f, "t0_fields/u"), "damaged the-well export: .*size"),
+])
+def test_a_damaged_per_seed_or_resized_export_is_refused_in_one_line(sorption_cache, tmp_path, to, damage, words):
+    export = tmp_path / "e.h5"
+    export_cache(sorption_cache["diffusion_sorption1d"], to, export)
+    with h5py.File(export, "r+") as f:
+        damage(f)
+    with pytest.raises(ValueError, match=words) as err:
+        import_export(export, tmp_path / "c.h5")
+    assert "\n" not in str(err.value) and str(export) in str(err.value)
+    assert [p.name for p in tmp_path.iterdir()] == ["e.h5"]
+
+
+def test_an_export_given_where_a_cache_goes_says_import_it(caches, tmp_path, capsys):
+    """inspect / export of an export said "is not a pdestream cache (missing complete, sample)"."""
+    out = tmp_path / "e.hdf5"
+    export_cache(caches["burgers1d"], "pdebench", out)
+    for argv in (["inspect", str(out)], ["export", str(out), "--to", "the-well", "--out", str(tmp_path / "w.hdf5")]):
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "is an export written by `pdestream export --to pdebench`" in err \
+            and f"pdestream import {out} --out" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e.hdf5"]
+
+
+def test_a_damaged_cache_is_not_exported(caches, tmp_path):
+    """A cache holding a NaN (a deleted Zarr chunk reads as one) was exported with rc 0, into a file `import` then
+    refuses ("holds NaN/Inf"); it is refused, naming the samples and the repair, and nothing is written."""
+    cache = tmp_path / "c.h5"
+    shutil.copy(caches["burgers1d"], cache)
+    with h5py.File(cache, "r+") as f:
+        _put_nan(f["u"], (2, 1, 3))
+    with pytest.raises(ValueError) as err:
+        export_cache(cache, "pdebench", tmp_path / "e.hdf5")
+    assert "samples 2 hold non-finite or missing data" in str(err.value) and "--resume" in str(err.value), \
+        str(err.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.h5"]
+
+
+def test_generate_overwrite_never_replaces_an_export(caches, tmp_path, capsys):
+    """`generate --overwrite` replaces only a cache; an export at the path was replaced by a cache (rc 0)."""
+    out = tmp_path / "e.hdf5"
+    export_cache(caches["burgers1d"], "pdebench", out)
+    before = out.read_bytes()
+    code = cli.main(["generate", "burgers1d", *ENTRIES["burgers1d"], "--out", str(out), "--overwrite"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "it is a pdestream export (pdebench layout)" in err, err
+    assert out.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["e.hdf5"]

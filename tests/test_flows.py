@@ -404,3 +404,13 @@ def test_a_step_above_the_viscous_limit_is_refused_in_one_line():
         with pytest.raises(ValueError, match=r"^dt=0\.0\d+ s is above the explicit viscous limit") as err:
             call()
         assert "\n" not in str(err.value) and "allowed is dt <= 0.03906" in str(err.value)
+
+
+@pytest.mark.parametrize("name, settings, need", [("karman2d", {"n": 16}, "it needs n >= 26, or radius >= 0.125"),
+                                                  ("smoke2d", {"n": 16}, "it needs n >= 30, or radius >= 0.125"),
+                                                  ("plume3d", {"n": 16}, "it needs n >= 20, or radius >= 0.125")])
+def test_a_disc_below_the_grid_names_the_n_it_needs(name, settings, need):
+    """karman2d / smoke2d / plume3d said "a finer n or a larger radius" where channel2d names the n (adv49)."""
+    with pytest.raises(ValueError) as err:
+        generator.get_pde(name, **settings)
+    assert need in str(err.value) and "\n" not in str(err.value), str(err.value)

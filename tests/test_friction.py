@@ -31,6 +31,32 @@ def test_compare_shift_0_is_refused_before_anything_is_written(tmp_path, capsys)
         assert not out.exists()
 
 
+@pytest.mark.parametrize("shift", ["1e300", "-1e300", "1e30"])
+def test_compare_a_shift_past_the_floats_is_one_line(tmp_path, capsys, shift):
+    """--shift 1e300 raised OverflowError from nu's loguniform domain (a traceback)."""
+    out = tmp_path / "c"
+    code = cli.main(["compare", "burgers1d", "--set", "n=32", "--modes", "one-step", f"--shift={shift}",
+                     "--out", str(out)])
+    one_line(code, capsys, f"--shift {float(shift):g}", "nu", "past the largest float")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("shift_set, words", [
+    # the training domain itself, a part of it, a value in it: "Beyond the training range" was the range itself
+    ("nu=loguniform(0.01, 0.1)", "--shift-set nu=loguniform(0.01, 0.1) lies inside the training range"),
+    ("nu=loguniform(0.02, 0.05)", "lies inside the training range loguniform(0.01, 0.1)"),
+    ("nu=0.05", "lies inside the training range"),
+    # a setting, not a parameter: the beyond set was solved on another grid
+    ("n=32", "--shift-set n=32: n is not a parameter of burgers1d; allowed: nu"),
+])
+def test_compare_a_shift_set_that_is_not_beyond_the_range_is_one_line(tmp_path, capsys, shift_set, words):
+    out = tmp_path / "c"
+    code = cli.main(["compare", "burgers1d", "--set", "n=32", "--modes", "one-step", "--shift-set", shift_set,
+                     "--out", str(out)])
+    one_line(code, capsys, words)
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("bad", [
     ["--source", "no_such_cache.zarr"],  # missing cache
     ["--reservoir", "--producer", "dask", "--scheduler", "tcp://127.0.0.1:9"],  # unreachable scheduler

@@ -162,3 +162,60 @@ def test_compare_modes_rolls_every_arm_out_beyond_the_training_range_too(tmp_pat
     assert cli.main(argv) == 0
     again = json.loads((out / "compare.json").read_text())["beyond"]
     assert [a["rollout_mean"] for a in again["arms"]] == [a["rollout_mean"] for a in beyond["arms"]]
+
+
+@pytest.mark.parametrize("clip, remat, said", [(0.5, True, ", every corrector arm's gradient clipped to global norm 0.5 "
+                                                            "and rematerialised (--remat)"),
+                                               (0.5, False, ", every corrector arm's gradient clipped to global norm 0.5"),
+                                               (None, True, ", every corrector arm rematerialised (--remat)"),
+                                               (None, False, None)])
+def test_compare_md_says_the_corrector_arms_were_clipped_or_rematerialised(tmp_path, clip, remat, said):
+    """compare.md's header named neither --clip nor --remat (only compare.json's config had them)."""
+    from pdestream.experiments.interactive_config import InteractiveConfig
+    from pdestream.experiments.interactive_report import write_tables
+
+    def arm(name, mode):
+        return {"arm": name, "mode": mode, "n": 16, "seeds": [0], "frames": 4, **dict.fromkeys(
+            ("rollout_mean", "rollout_p95", "end_mean", "end_p95", "end_max", "wall_s", "final_loss"), 0.1), "steps": 2}
+
+    cfg = InteractiveConfig(modes=("solver-in-the-loop",), clip=clip, remat=remat)
+    write_tables(tmp_path, {"arms": [arm("coarse solver", "none")]}, generator.get_pde("burgers1d", n=32), cfg)
+    head = (tmp_path / "compare.md").read_text().splitlines()[0]
+    assert (said in head) if said else ("clipped" not in head and "remat" not in head), head
+
+
+def test_compare_md_names_no_unroll_the_arms_do_not_take(tmp_path):
+    """--unroll-schedule 1:0.5,2:0.5 with the corrector arms alone: the header said "unroll 4" (the default of an
+    --unroll no arm took); the curriculum is named instead."""
+    from pdestream.experiments.interactive_config import InteractiveConfig
+    from pdestream.experiments.interactive_report import write_tables
+
+    arm = {"arm": "coarse solver", "mode": "none", "n": 16, "seeds": [0], "frames": 4, "steps": 2, **dict.fromkeys(
+        ("rollout_mean", "rollout_p95", "end_mean", "end_p95", "end_max", "wall_s", "final_loss"), 0.1)}
+    for modes, schedule, has in ((("solver-in-the-loop",), "1:0.5,2:0.5", False), (("solver-in-the-loop",), None, True),
+                                 (("pushforward", "solver-in-the-loop"), "1:0.5,2:0.5", True)):
+        cfg = InteractiveConfig(modes=modes, unroll_schedule=schedule, steps=4)
+        write_tables(tmp_path, {"arms": [arm]}, generator.get_pde("burgers1d", n=32), cfg)
+        head = (tmp_path / "compare.md").read_text().splitlines()[0]
+        assert ("unroll 4," in head) == has, head
+
+
+def test_a_finished_arm_of_another_clip_is_refused_naming_the_values(tmp_path):
+    """A rerun with another --clip said only "other settings (mode)"."""
+    from pdestream.experiments.interactive_compare import _finished
+    from pdestream.experiments.interactive_config import InteractiveConfig, arm_settings
+
+    cfg = InteractiveConfig(modes=("solver-in-the-loop",), clip=0.5, coarse_n=16, steps=2)
+    pde = generator.get_pde("burgers1d", n=64, n_frames=5)
+    settings = arm_settings(cfg, "solver-in-the-loop", unroll=1)
+    run = tmp_path / "arm"
+    run.mkdir()
+    have = {"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": 3, "seconds": None, "batch_size": cfg.batch_size,
+            "lr": cfg.lr, "seed": 0, "mode": {**make_mode(settings).settings(), "clip": 1.0}, "pde": pde.config()}
+    (run / "run.json").write_text(json.dumps(have))
+    (run / "metrics.json").write_text("{}")
+    (run / "model.pt").write_bytes(b"")
+    with pytest.raises(ValueError) as err:
+        _finished(run, pde, settings, cfg, 0)
+    assert "other settings (steps: the run's 3, asked 2; mode: clip the run's 1.0, asked 0.5)" in str(err.value), \
+        str(err.value)

@@ -40,8 +40,10 @@ def test_corrector_arms_train_every_seed_report_mean_and_std_and_resume(tmp_path
         assert a["rollout_mean_std"] == pytest.approx(np.std(values, ddof=1))
     md = (out / "compare.md").read_text()
     assert "2 model and data seeds [0, 1]" in md and " ± " in md
-    verdicts = [line for line in md.splitlines() if line.startswith("- ")]
-    assert len(verdicts) == 6 and all("the seed spread" in line for line in verdicts)  # 3 metrics x 2 arms
+    inside, beyond = md.split("## Beyond the training range")  # (since 407da2b every arm is rolled out beyond too)
+    for part in (inside, beyond):
+        verdicts = [line for line in part.splitlines() if line.startswith("- ")]
+        assert len(verdicts) == 6 and all("the seed spread" in line for line in verdicts)  # 3 metrics x 2 arms
     capsys.readouterr()
 
     def no_training(*args, **kwargs):
@@ -56,7 +58,7 @@ def test_corrector_arms_train_every_seed_report_mean_and_std_and_resume(tmp_path
     # other settings on the same out: one line, before any work
     assert cli.main([*SMALL, "--steps", "3", "--seeds", "2", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("pdestream: error: ") and "holds a finished run with other settings (steps)" in err
+    assert err.startswith("pdestream: error: ") and "holds a finished run with other settings (steps: the run's " in err
     assert "\n" not in err
 
 
@@ -196,3 +198,19 @@ def test_modes_at_equal_wall_clock_train_each_arm_for_the_budget_and_say_so(tmp_
     err = capsys.readouterr().err.strip()
     assert "is in shares of --steps; with --budget 3 the steps an arm reaches are not known" in err and "\n" not in err
     assert not (tmp_path / "other").exists()
+
+
+def test_the_corrector_summary_says_higher_when_solver_in_the_loop_is_worse():
+    """compare.md said "0.18x lower than the coarse solver alone" for an error 5.5 times higher."""
+    from pdestream.experiments.interactive_report import _arms_lines, score_against_coarse
+
+    def arm(name, mode, err):
+        return {"arm": name, "mode": mode, "n": 16, "seeds": [0], "rollout_mean": err, "rollout_p95": err,
+                "end_mean": err, "end_p95": err, "end_max": err, "wall_s": 1.0, "steps": 2, "final_loss": 0.1}
+
+    arms = [arm("coarse solver", "none", 0.1), arm("pairs (unroll 1)", "solver-in-the-loop", 0.4),
+            arm("pairs + noise (unroll 1)", "solver-in-the-loop", 0.8), arm("sitl", "solver-in-the-loop", 0.55)]
+    score_against_coarse(arms)
+    line = next(x for x in _arms_lines(arms) if "solver-in-the-loop rollout mean error" in x)
+    assert "5.50x higher than the coarse solver alone" in line and "1.38x higher than the correction trained on " \
+        "pairs" in line and "1.45x lower than pairs + noise" in line and "lower than the coarse" not in line, line

@@ -28,6 +28,24 @@ LIGHT = [
     (["compare", "burgers1d", "--out", "cmp", "--budget", "5", "--shift-set", "nu=abc"], 2,
      "parameter nu: bad domain 'abc'"),
     (["compare", "burgers1d", "--out", "cmp", "--shift", "0"], 2, "--shift 0 would test on the training domain"),
+    # train's own numbers: each imported torch before its refusal (3-4 s at load 8)
+    (["train", "burgers1d", "--out", "run", "--threads", "0"], 2, "--threads=0 not allowed; must be >= 1"),
+    (["train", "burgers1d", "--out", "run", "--batch-size", "0"], 2, "batch_size=0 not allowed"),
+    (["train", "burgers1d", "--out", "run", "--lr", "nan"], 2, "lr=nan not allowed; must be a number > 0"),
+    (["train", "burgers1d", "--out", "run", "--steps", "0"], 2, "steps=0 not allowed"),
+    # compare --modes' own options (stop 49): each imported torch before its refusal (3-6 s at load 8)
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step", "--clip", "1"], 2, "--clip goes with"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--clip", "-3"], 2, "--clip='-3'"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step", "--remat"], 2, "--remat goes with"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--pairs-steps", "0"], 2,
+     "--pairs-steps=0 not allowed"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--budget", "-1"], 2,
+     "--budget=-1.0 not allowed"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--unroll-schedule", "0:1"], 2,
+     "--unroll-schedule '0:1' not allowed"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step,nosuchmode"], 2, "--modes one-step,nosuchmode"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step", "--set", "n_frames=4", "--unroll", "4"], 2,
+     "needs trajectories of at least 6 frames"),
 ]
 
 

@@ -27,6 +27,7 @@ from ..domains import Fixed
 from ..problem import Param
 from .problem import (
     EULER_2D,
+    GAMMA_MAX,
     NAVIER_STOKES_2D,
     SHALLOW_WATER,
     FiniteVolume,
@@ -408,9 +409,13 @@ class RandomGas2D:
         if not 1 <= self.max_mode <= grid.n // 8:
             raise ValueError(f"ic.max_mode={self.max_mode} not allowed on n={grid.n}: need 1 <= max_mode <= n//8 = "
                              f"{grid.n // 8}")
-        if not (self.window_width > 0 and 0 <= self.window_prob <= 1 and self.gamma > 1):
-            raise ValueError(f"ic.window_width={self.window_width}, ic.window_prob={self.window_prob}, ic.gamma="
-                             f"{self.gamma} not allowed: need a width > 0, a probability in [0, 1] and gamma > 1")
+        if not (self.window_width > 0 and 0 <= self.window_prob <= 1):
+            raise ValueError(f"ic.window_width={self.window_width}, ic.window_prob={self.window_prob} not allowed: "
+                             "need a width > 0 and a probability in [0, 1]")
+        if not 1 < self.gamma <= GAMMA_MAX:  # (ic.gamma=5 was accepted, 1e300 refused as t_end's step count)
+            raise ValueError(f"ic.gamma={float(self.gamma)} not allowed: the ratio of specific heats the Mach number is "
+                             f"measured with lies in (1, {GAMMA_MAX:g}], as the gas's own gamma (air 1.4, a monatomic "
+                             "gas 5/3)")
 
     def bound(self, grid) -> float:
         d = ic_domains(self, self.DRAWN)

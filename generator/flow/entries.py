@@ -459,9 +459,11 @@ def _check_disc(problem: FlowProblem, what: str, xs, ys, rs, inflow: bool = True
     h, lx, ly = problem.h, problem.aspect * problem.length, problem.length
     gap = CLEARANCE_CELLS * h
     name = problem.NAME
-    if 2 * rs[0] / h < MIN_CELLS_ACROSS:
+    if 2 * rs[0] / h < MIN_CELLS_ACROSS:  # (named as channel2d names it; it said "a finer n or a larger radius")
+        need = 2 * math.ceil(MIN_CELLS_ACROSS * problem.length / (2 * rs[0]) / 2)
         raise ValueError(f"{name}: radius={problem.radius} not allowed: a {what} {2 * rs[0] / h:.2g} cells across is "
-                         f"below {MIN_CELLS_ACROSS:g} cells on this grid (h={h:.4g}); a finer n or a larger radius")
+                         f"below {MIN_CELLS_ACROSS:g} cells on this grid (h={h:.4g}); it needs n >= {need}, or radius "
+                         f">= {MIN_CELLS_ACROSS * h / 2:.3g}")
     if not (xs[0] - rs[1] >= gap and xs[1] + rs[1] <= lx - gap):
         side = "blocks the inflow" if inflow and xs[0] - rs[1] < gap else "reaches outside the box"
         raise ValueError(f"{name}: the {what} {side}: x in [{xs[0]:g}, {xs[1]:g}] with radius up to {rs[1]:g} must "

@@ -87,9 +87,10 @@ class Plume3D(FlowProblem):
                              "maccormack only")
         h, gap, lx = self.h, CLEARANCE_CELLS * self.h, self.aspect * self.length
         if 2 * self.radius / h < MIN_CELLS_ACROSS:
+            need = 2 * math.ceil(MIN_CELLS_ACROSS * self.length / (2 * self.radius) / 2)  # (as channel2d says it)
             raise ValueError(f"{self.NAME}: radius={self.radius:g} not allowed: a heater {2 * self.radius / h:.2g} "
-                             f"cells across is below {MIN_CELLS_ACROSS:g} cells on this grid (h={h:.4g}); a finer n "
-                             "or a larger radius")
+                             f"cells across is below {MIN_CELLS_ACROSS:g} cells on this grid (h={h:.4g}); it needs n >= "
+                             f"{need}, or radius >= {MIN_CELLS_ACROSS * h / 2:.3g}")
         for name, (lo, hi), top in (("sx", _bounds(self, "sx"), lx), ("sy", _bounds(self, "sy"), self.length),
                                     ("source_z", (self.source_z, self.source_z), self.length)):
             if not (lo - self.radius >= gap and hi + self.radius <= top - gap):
