@@ -28,15 +28,22 @@ ARMS = (("coarse solver", None), ("pairs (unroll 1)", "sitl_unroll1"),
         ("pairs + noise (unroll 1)", "sitl_unroll1_noise"))
 
 
+_JITTED: dict = {}  # id(pde) -> (pde, its jitted sample_outputs)
+
+
 def _outputs(pde, frames, params) -> dict[str, np.ndarray]:
     """karman2d's outputs of each trajectory: frames [B, T, C, *space] (torch, physical units) on ``pde``'s grid,
     params [B, P] -> {"strouhal", "sheds", "drag" (window mean), "lift_amplitude"} as numpy [B]."""
+    import jax
     import jax.numpy as jnp
 
+    if id(pde) not in _JITTED:  # one compiled program per grid (eager calls compiled one per trajectory: out of memory)
+        _JITTED[id(pde)] = (pde, jax.jit(pde.sample_outputs))
+    outputs = _JITTED[id(pde)][1]
     out = {k: [] for k in ("strouhal", "sheds", "drag", "lift_amplitude")}
     for b in range(frames.shape[0]):
-        p = {name: jnp.asarray(float(params[b, i])) for i, name in enumerate(pde.PARAMS)}
-        o = pde.sample_outputs(jnp.asarray(frames[b].numpy()), p)
+        p = {name: jnp.asarray(float(params[b, i]), jnp.float32) for i, name in enumerate(pde.PARAMS)}
+        o = outputs(jnp.asarray(frames[b].numpy()), p)
         out["strouhal"].append(float(o["strouhal"]))
         out["sheds"].append(bool(o["sheds"]))
         out["drag"].append(float(np.mean(o["drag"])))
