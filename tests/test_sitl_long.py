@@ -15,6 +15,7 @@ from pdestream.surrogate.models import build_model
 from pdestream.surrogate.modes import make_mode
 from pdestream.surrogate.runs import resume_run, train_run
 from tests.interrupt import interrupted_at
+from tests.test_sitl_noise import corrector_train_argv
 
 torch.set_num_threads(1)
 
@@ -118,10 +119,7 @@ def test_clipping_counts_the_steps_it_clipped_and_resumes_exactly(tmp_path, monk
 
 def test_cli_takes_clip_and_remat_and_refuses_them_without_the_corrector(tmp_path, capsys):
     out = tmp_path / "run"
-    assert cli.main(["train", "burgers1d", "--set", "n=32", "--set", "n_frames=11", "--steps", "2", "--batch-size",
-                     "4", "--model-set", "width=8", "--model-set", "modes=4", "--model-set", "layers=2",
-                     "--test-samples", "2", "--mode", "solver-in-the-loop", "--coarse-n", "16", "--unroll", "2",
-                     "--clip", "1.5", "--remat", "--out", str(out)]) == 0
+    assert cli.main(corrector_train_argv(out, 2, "--clip", "1.5", "--remat")) == 0
     assert json.loads((out / "run.json").read_text())["mode"] == {
         "name": "solver-in-the-loop", "unroll": 2, "coarse_n": 16, "clip": 1.5, "remat": True}
     capsys.readouterr()

@@ -150,12 +150,16 @@ def test_run_json_records_the_noise_and_resume_is_exact(tmp_path, monkeypatch):
     assert all(torch.equal(a[k], b[k]) for k in a)
 
 
+def corrector_train_argv(out, unroll: int, *extra: str) -> list[str]:
+    """`pdestream train` of a tiny corrector (burgers1d 32 -> 16, 2 steps, a tiny FNO) into ``out``, plus ``extra``."""
+    return ["train", "burgers1d", "--set", "n=32", "--set", "n_frames=11", "--steps", "2", "--batch-size", "4",
+            "--model-set", "width=8", "--model-set", "modes=4", "--model-set", "layers=2", "--test-samples", "2",
+            "--mode", "solver-in-the-loop", "--coarse-n", "16", "--unroll", str(unroll), *extra, "--out", str(out)]
+
+
 def test_cli_train_takes_noise_for_the_corrector(tmp_path, capsys):
     out = tmp_path / "run"
-    assert cli.main(["train", "burgers1d", "--set", "n=32", "--set", "n_frames=11", "--steps", "2", "--batch-size",
-                     "4", "--model-set", "width=8", "--model-set", "modes=4", "--model-set", "layers=2",
-                     "--test-samples", "2", "--mode", "solver-in-the-loop", "--coarse-n", "16", "--unroll", "1",
-                     "--noise", "0.05", "--out", str(out)]) == 0
+    assert cli.main(corrector_train_argv(out, 1, "--noise", "0.05")) == 0
     assert json.loads((out / "run.json").read_text())["mode"]["noise"] == 0.05
     assert "noise 0.05" in capsys.readouterr().out
 
