@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import textwrap
 from pathlib import Path
 
@@ -86,14 +87,32 @@ def split_note(recipe: str, seed: int, n: int) -> str:
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 
+PLOT_MARK = "pdestream inspect"  # in a figure's metadata (PNG Software, PDF / SVG Creator): one we may replace
+MARK_KEY = {".png": "Software", ".pdf": "Creator", ".svg": "Creator"}  # JPEG holds no metadata here
+
+
 def check_plot_path(out) -> None:
     """One line for a --plot path no figure can be written to: a directory or a name without a figure suffix
-    (``--plot .`` wrote a hidden '.png'), a parent directory that does not exist."""
+    (``--plot .`` wrote a hidden '.png'), a parent directory that does not exist, or an existing file that
+    ``plot`` did not write (it replaces only its own figures: the file's metadata names PLOT_MARK)."""
     out = Path(out)
     if out.is_dir() or out.suffix.lower() not in PLOT_SUFFIXES:
         raise ValueError(f"--plot {out}: allowed: a file ending in {', '.join(PLOT_SUFFIXES)}")
     if not out.parent.is_dir():
         raise ValueError(f"cannot write plot {out}: directory {out.parent} does not exist")
+    if out.exists() and not _our_figure(out):
+        jpeg = " (a JPEG holds no mark of it)" if out.suffix.lower() not in MARK_KEY else ""
+        raise ValueError(f"--plot {out}: the file exists and is not a figure pdestream inspect wrote{jpeg}; choose "
+                         "another path or remove it (inspect replaces only its own figures)")
+
+
+def _our_figure(path: Path) -> bool:
+    """Whether ``path`` is a figure ``plot`` wrote (PLOT_MARK in its first 64 KiB, where its metadata is)."""
+    try:
+        with open(path, "rb") as f:
+            return PLOT_MARK.encode() in f.read(65536)
+    except OSError:
+        return False
 
 
 def summary(path, plot=None) -> str:
@@ -170,12 +189,17 @@ def plot(path, out, n_show: int = 4) -> str:
 
     check_plot_path(out)
     fig = figure(path, n_show)
+    out = Path(out)
+    key = MARK_KEY.get(out.suffix.lower())
+    tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}{out.suffix}")  # replaced whole: never half a figure
     try:
-        fig.savefig(out, dpi=80)
+        fig.savefig(tmp, dpi=80, **({"metadata": {key: PLOT_MARK}} if key else {}))
+        os.replace(tmp, out)
     except OSError as err:
         raise ValueError(f"cannot write plot {out}: {err.strerror or err}") from None
     finally:
         plt.close(fig)
+        tmp.unlink(missing_ok=True)
     return str(out)
 
 

@@ -298,3 +298,22 @@ def test_a_bad_plot_path_is_refused_before_the_summary(capsys, tmp_path, monkeyp
     code, out, err = run_cli(capsys, "inspect", str(path), "--plot", plot)
     assert code == 2 and out == "" and len(err.strip().splitlines()) == 1 and words in err, (out, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.h5"]
+
+
+def test_plot_replaces_only_its_own_figures(capsys, tmp_path):
+    """--plot over an existing file of the user's overwrote it (rc 0); it replaces only a figure it wrote (marked
+    in the file's metadata), written whole beside it and moved into place."""
+    path = tmp_path / "b.h5"
+    assert run_cli(capsys, "generate", "burgers1d", "--n", "2", "--out", str(path), *SMALL)[0] == 0
+    for name in ("fig.png", "fig.pdf", "fig.svg"):
+        for _ in range(2):  # the second run replaces the first one's figure
+            assert run_cli(capsys, "inspect", str(path), "--plot", str(tmp_path / name))[0] == 0
+    mine = tmp_path / "mine.png"
+    mine.write_bytes(b"the user's own picture")
+    code, out, err = run_cli(capsys, "inspect", str(path), "--plot", str(mine))
+    assert code == 2 and out == "" and "the file exists and is not a figure pdestream inspect wrote" in err, err
+    assert mine.read_bytes() == b"the user's own picture"
+    assert run_cli(capsys, "inspect", str(path), "--plot", str(tmp_path / "fig.jpg"))[0] == 0
+    code, _, err = run_cli(capsys, "inspect", str(path), "--plot", str(tmp_path / "fig.jpg"))
+    assert code == 2 and "a JPEG holds no mark of it" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.h5", "fig.jpg", "fig.pdf", "fig.png", "fig.svg", "mine.png"]
