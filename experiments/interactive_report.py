@@ -175,8 +175,8 @@ def _arms_lines(arms: list[dict]) -> list[str]:
     if "one-step" in by:
         for name in ("pushforward", "oracle", "noise"):
             if name in by:
-                lines.append(f"\n{name}: end error {by['one-step']['end_mean'] / by[name]['end_mean']:.2f}x lower "
-                             "than one-step (>1: better); " + verdict(by[name], by["one-step"], "end_mean", "end mean"))
+                lines.append(f"\n{name}: end error {_times(by[name], by['one-step'], 'end_mean')} than one-step; "
+                             + verdict(by[name], by["one-step"], "end_mean", "end mean"))
     sitl = [a for a in arms if a["mode"] in CORRECTOR_MODES]
     if len(sitl) == 4:
         base, pairs, noisy, loop = sitl

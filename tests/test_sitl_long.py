@@ -217,3 +217,17 @@ def test_a_finished_arm_of_another_clip_is_refused_naming_the_values(tmp_path):
         _finished(run, pde, settings, cfg, 0)
     assert "other settings (steps: the run's 3, asked 2; mode: clip the run's 1.0, asked 0.5)" in str(err.value), \
         str(err.value)
+
+
+def test_a_network_mode_worse_than_one_step_is_said_higher_not_a_fraction_lower():
+    """compare.md read "0.50x lower than one-step" for an end error twice one-step's (as the corrector's summary did
+    before adv49's fix)."""
+    from pdestream.experiments.interactive_report import _arms_lines
+
+    def arm(name, end):
+        return {"arm": name, "mode": name, "n": 32, "seeds": [0], "end_mean": end, "end_p95": end, "end_max": end,
+                "rollout_mean": end, "rollout_p95": end, "wall_s": 1.0, "steps": 2, "final_loss": 0.1}
+
+    text = "\n".join(_arms_lines([arm("one-step", 0.1), arm("pushforward", 0.2), arm("oracle", 0.05)]))
+    assert "pushforward: end error 2.00x higher than one-step" in text
+    assert "oracle: end error 2.00x lower than one-step" in text

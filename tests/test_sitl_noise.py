@@ -8,6 +8,7 @@ Synthetic batches for the rule; tiny runs (burgers1d n=32 -> coarse 16, 11 frame
 
 import csv
 import json
+import re
 
 import pytest
 import torch
@@ -191,7 +192,8 @@ def test_compare_pairs_noise_arm_at_zero_is_the_pairs_arm_and_the_corrector_metr
             assert v[key]["improvement"] == pytest.approx(base[key] / arms[arm][key])
             assert v[key]["gap_closed"] == pytest.approx(1 - arms[arm][key] / base[key])
         assert f"| {arm} | {v['rollout_mean']['improvement']:.2f}x | {v['rollout_mean']['gap_closed']:+.1%} |" in table
-    assert "rollout p95" in table and "lower than pairs + noise" in table
+    # (a tiny run: solver-in-the-loop may come out worse, said as "Nx higher" since adv49)
+    assert "rollout p95" in table and re.search(r"\d\.\d\dx (lower|higher) than pairs \+ noise", table)
     # error against time per arm: curves.csv (mean and p95 per frame), corrector.png
     with open(out / "curves.csv") as f:
         rows = list(csv.DictReader(f))
