@@ -603,10 +603,8 @@ def open_cache(path, complete_only: bool = False):
                    if k not in ds.attrs]
         missing += [v for v in ("complete", "sample") if v not in ds.variables]
         if missing:
-            from .export import exported_as
-
-            layout = exported_as(path) if path.is_file() else None
-            if layout is not None:  # (it said "missing complete, sample")
+            layout = ds.attrs.get("pdestream_export")  # the layout an export names at its root (export._common)
+            if isinstance(layout, str) and path.is_file():  # (it said "missing complete, sample")
                 raise ValueError(f"{path} is an export written by `pdestream export --to {layout}`, not a cache: "
                                  f"`pdestream import {path} --out CACHE.h5` makes it one (train --source reads it as "
                                  "it is)")
