@@ -126,7 +126,7 @@ def _beyond(pde, fine, plan: list, net_modes: list, cfg: InteractiveConfig, log)
     """Every trained arm (each seed's saved model) and the coarse solver rolled out on a held-out set beyond the
     training range: {"pde": the shifted PDE's config (the corrector's where it runs), "domains": its parameter
     domains in words, "arms": records as the main set's}; None when no parameter could be shifted (logged)."""
-    arms, shifted = [], None
+    arms, shifted, domains = [], None, ""
     for base, part, corrector in ((pde, plan[:len(net_modes)], False), (fine, plan[len(net_modes):], True)):
         if not part:
             continue
@@ -153,7 +153,7 @@ def _beyond(pde, fine, plan: list, net_modes: list, cfg: InteractiveConfig, log)
         if corrector:
             score_against_coarse(found)
         arms += found
-    return {"pde": shifted.config(), "domains": ", ".join(f"{k} ~ {v}" for k, v in shifted.param_domains.items()),
+    return {"pde": shifted.config(), "domains": domains,
             "arms": arms}
 
 
