@@ -43,8 +43,23 @@ class Fixed:
         return repr(float(self.value))
 
 
+class _Interval:
+    """What an interval domain [low, high] answers besides its draws (fields ``low``, ``high`` in the subclass)."""
+
+    low: float
+    high: float
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return (self.low, self.high)
+
+    def contains(self, value: float) -> bool:
+        """Whether ``value`` lies in [low, high] (float32 rounding allowed)."""
+        return bool(np.float32(self.low) <= np.float32(value) <= np.float32(self.high))
+
+
 @dataclass(frozen=True)
-class Uniform:
+class Uniform(_Interval):
     """Uniform on [low, high)."""
 
     low: float
@@ -56,20 +71,12 @@ class Uniform:
     def sample(self, key: jax.Array) -> jax.Array:
         return jax.random.uniform(key, (), jnp.float32, self.low, self.high)
 
-    @property
-    def bounds(self) -> tuple[float, float]:
-        return (self.low, self.high)
-
-    def contains(self, value: float) -> bool:
-        """Whether ``value`` lies in [low, high] (float32 rounding allowed)."""
-        return bool(np.float32(self.low) <= np.float32(value) <= np.float32(self.high))
-
     def __str__(self) -> str:
         return f"uniform({self.low!r}, {self.high!r})"
 
 
 @dataclass(frozen=True)
-class LogUniform:
+class LogUniform(_Interval):
     """log(value) uniform on [log low, log high); low > 0."""
 
     low: float
@@ -84,14 +91,6 @@ class LogUniform:
         log_v = jax.random.uniform(key, (), jnp.float32, math.log(self.low), math.log(self.high))
         # exp can round a hair past the ends in float32; the domain is a promise, so clip.
         return jnp.clip(jnp.exp(log_v), jnp.float32(self.low), jnp.float32(self.high))
-
-    @property
-    def bounds(self) -> tuple[float, float]:
-        return (self.low, self.high)
-
-    def contains(self, value: float) -> bool:
-        """Whether ``value`` lies in [low, high] (float32 rounding allowed)."""
-        return bool(np.float32(self.low) <= np.float32(value) <= np.float32(self.high))
 
     def __str__(self) -> str:
         return f"loguniform({self.low!r}, {self.high!r})"

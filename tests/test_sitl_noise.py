@@ -19,18 +19,11 @@ from pdestream.surrogate.mode_table import SITL_NOISE_RULE, mode_settings
 from pdestream.surrogate.modes import SolverInTheLoop, make_mode, subsample
 from pdestream.surrogate.runs import resume_run, train_run
 from tests.interrupt import interrupted_at
+from tests.test_noise_mode import MEAN, STD, TINY, norm  # the synthetic data's statistics
 
 torch.set_num_threads(1)
 
 FINE = generator.get_pde("burgers1d", n=32, n_frames=11)
-TINY = {"width": 8, "modes": 4, "layers": 2}
-MEAN, STD = 3.0, 2.0  # the synthetic data's statistics: normalized units are (u - 3) / 2
-
-
-def norm(channels: int = 1) -> datasets.Normalization:
-    fields = tuple(f"f{c}" for c in range(channels))
-    return datasets.Normalization(fields, torch.full((channels,), MEAN), torch.full((channels,), STD), ("nu",),
-                                  torch.zeros(1), torch.ones(1), 1)
 
 
 def batch(size: int = 64, n: int = 32, k_out: int = 1, seed: int = 1) -> dict:
