@@ -17,8 +17,10 @@ attributes ``dataset_name`` (the PDE's name), ``grid_type`` "cartesian", ``n_spa
 axis, ``{axis}_{bc_type}``, whose ``bc_type`` is the cache's (WALL / OPEN / PERIODIC) and whose ``mask`` marks
 both ends of the axis (no ``values``: pdestream records the kind of boundary, not its values); ``scalars``
 with each parameter as a sample-varying, time-constant scalar [N] (WellDataset's ``constant_scalars``);
-``t0_fields`` with every field as a scalar field [N, T, x(, y, z)] in x-first order (a velocity's components
-stay separate t0 fields; ``t1_fields``/``t2_fields`` are empty). WellDataset reads a directory of such files,
+``t0_fields`` with every field as a scalar field [N, T, x(, y, z)] in x-first order, except an incompressible
+flow's (a MAC-grid entry's) velocity: one vector field ``t1_fields/velocity`` [N, T, x, y(, z), d] (its
+components' names and attributes in its ``pdestream_names`` / ``u.long_name`` attributes, so reading it back is
+exact; its statistics in stats.yaml are lists, one value per component; ``t2_fields`` is empty). WellDataset reads a directory of such files,
 ``DIR/data/SPLIT/*.hdf5``: export to ``DIR/data/train/NAME.hdf5`` and load
 ``WellDataset(path=DIR, well_split_name="train")``. The cache's statistics (``datasets.stats``) go to
 ``DIR/stats.yaml``, where WellDataset's ``use_normalization`` reads them (an export elsewhere writes none:
@@ -199,16 +201,22 @@ class TheWell:
             for p in params:
                 v = sc.create_dataset(p, data=_param_data(ds, p))
                 v.attrs.update({**_attrs(ds[p].attrs), "sample_varying": True, "time_varying": False})
+            varying = {"dim_varying": [True] * len(space), "sample_varying": True, "time_varying": True}
+            velocity = (_incompressible(ds, fields) or ((),))[0]  # a flow's: t1_fields/velocity [N, T, *space, d]
+            t1 = f.create_group("t1_fields")
+            t1.attrs["field_names"] = ["velocity"] if velocity else []
+            if velocity:
+                _write_stacked(ds, t1, "velocity", velocity, len(space))
+                t1["velocity"].attrs.update(varying)
+            fields = tuple(k for k in fields if k not in velocity)
             t0 = f.create_group("t0_fields")
             t0.attrs["field_names"] = list(fields)
             shape = (n, ds.sizes["time"], *(ds.sizes[d] for d in space))
             for name in fields:
                 v = t0.create_dataset(name, shape=shape, dtype="float32")
                 _copy_field(ds, name, v, len(space))
-                v.attrs.update({**_attrs(ds[name].attrs), "dim_varying": [True] * len(space),
-                                "sample_varying": True, "time_varying": True})
-            for order in ("t1_fields", "t2_fields"):
-                f.create_group(order).attrs["field_names"] = []
+                v.attrs.update({**_attrs(ds[name].attrs), **varying})
+            f.create_group("t2_fields").attrs["field_names"] = []
 
     def looks_like(self, f) -> bool:
         return all(k in f for k in ("dimensions", "t0_fields", "scalars")) and "n_trajectories" in f.attrs
@@ -218,6 +226,10 @@ class TheWell:
         coords = {d: (f["dimensions"][d][()], dict(f["dimensions"][d].attrs)) for d in ("time", *space)}
         fields = {name: (f["t0_fields"][name][()], dict(f["t0_fields"][name].attrs))
                   for name in (plain(x) for x in f["t0_fields"].attrs["field_names"])}
+        if "velocity" in f.get("t1_fields", {}):  # a flow's components, stacked last
+            fields.update(_read_stacked(f["t1_fields"]["velocity"]))
+            order = str(plain(f.attrs.get("pdestream_fields", ""))).split()
+            fields = {k: fields[k] for k in (*order, *fields) if k in fields}  # the cache's order
         params = {name: (f["scalars"][name][()], dict(f["scalars"][name].attrs))
                   for name in (plain(x) for x in f["scalars"].attrs["field_names"])}
         return {"space": space, "coords": coords, "fields": fields, "params": params,
@@ -264,6 +276,15 @@ def _write_stacked(ds, f, key: str, names: tuple[str, ...], ndim: int) -> None:
     v.attrs["pdestream_names"] = " ".join(names)
     for c in names:  # each component's own attributes (long_name differs), as "u.long_name"
         v.attrs.update({f"{c}.{k}": a for k, a in _attrs(ds[c].attrs).items()})
+
+
+def _read_stacked(dset) -> dict:
+    """{component: (array [N, T, *space], its own attributes)} of a dataset ``_write_stacked`` wrote."""
+    stacked, attrs = dset[()], dict(dset.attrs)
+    out = {}
+    for i, name in enumerate(str(plain(attrs["pdestream_names"])).split()):
+        out[name] = (stacked[..., i], {k[len(name) + 1:]: v for k, v in attrs.items() if k.startswith(f"{name}.")})
+    return out
 
 
 def _pdebench_keys(fields) -> dict[str, str]:
@@ -341,11 +362,8 @@ class PDEBench:
         rest, flow = names, "velocity" in f and "pdestream_names" in f["velocity"].attrs
         for key in ("velocity", "particles") if flow else ():  # an incompressible flow's stacked fields
             if key in f:
-                stacked, attrs = f[key][()], dict(f[key].attrs)
-                parts = str(plain(attrs["pdestream_names"])).split()
-                for i, name in enumerate(parts):
-                    own = {k[len(name) + 1:]: v for k, v in attrs.items() if k.startswith(f"{name}.")}
-                    fields[name] = (stacked[..., i], own)
+                parts = _read_stacked(f[key])
+                fields.update(parts)
                 rest = [k for k in rest if k not in parts]
         for name, key in ({k: k for k in rest} if flow else _pdebench_keys(rest)).items():
             a = f[key if key in f else name]  # an export written before the CFD names: the field's own
@@ -408,14 +426,25 @@ def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
         except BaseException:
             tmp.unlink(missing_ok=True)  # ours
             raise
+        velocity = (_incompressible(ds, _names(ds)[1]) or ((),))[0]
     finally:
         ds.close()
     stats = well_stats_path(out) if to == "the-well" else None
     if stats is not None:
-        from .stats import write_stats
+        from .stats import cache_stats, write_stats
 
-        write_stats(cache, stats)
+        write_stats(cache, stats, _vector_stats(cache_stats(cache), velocity))
     return out
+
+
+def _vector_stats(stats: dict, velocity: tuple[str, ...]) -> dict:
+    """``stats`` (``cache_stats``) plus, for a flow's velocity (The Well's t1 field), each statistic as the list of
+    its components' values (``{"mean": {"velocity": [mean u, mean v]}}``, as The Well's stats.yaml holds a vector
+    field's); the components' own entries stay (pdestream's normalization reads them)."""
+    for key, values in stats.items():
+        if velocity and key != "pdestream" and isinstance(values, dict):
+            values["velocity"] = [values[c] for c in velocity]
+    return stats
 
 
 def _check_finite(cache, ds) -> None:

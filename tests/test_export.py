@@ -19,6 +19,7 @@ from pdestream import cli, datasets
 from pdestream.datasets import schema
 from pdestream.datasets.cache import open_cache
 from pdestream.datasets.export import FORMATS, export_cache, import_export, read_export
+from pdestream.datasets.stats import read_stats
 
 ENTRIES = {  # tiny caches: a 1D entry, a 2D entry of two fields, a steady 2D entry (PDEBench's Darcy layout)
     "burgers1d": ["--n", "3", "--set", "n=32", "--set", "n_frames=4"],
@@ -104,6 +105,25 @@ def test_the_wells_own_dataset_class_reads_the_export(caches, tmp_path, name):
         np.testing.assert_array_equal(plain[k].values, v)
     grid = np.stack(np.meshgrid(*(coords[d] for d in ("x", "y") if d in coords), indexing="ij"), -1)
     np.testing.assert_array_equal(item["space_grid"].numpy(), grid)
+
+
+@pytest.mark.parametrize("name", ["smoke2d", "channel2d"])
+def test_the_well_holds_a_flows_velocity_as_one_vector_field(caches, tmp_path, name):
+    # adv50: u, v were written as scalar t0 fields; The Well stores a velocity as t1_fields/velocity [N, T, x, y, 2]
+    out = tmp_path / "data" / "train" / f"{name}.hdf5"
+    out.parent.mkdir(parents=True)
+    export_cache(caches[name], "the-well", out)
+    fields, _, _ = _fields(caches[name])
+    with h5py.File(out, "r") as f:
+        assert [str(x) for x in f["t1_fields"].attrs["field_names"]] == ["velocity"]
+        v = f["t1_fields"]["velocity"]
+        np.testing.assert_array_equal(v[...], np.stack([fields["u"], fields["v"]], -1))
+        assert list(v.attrs["dim_varying"]) == [True, True] and v.attrs["sample_varying"] and v.attrs["time_varying"]
+        rest = [k for k in fields if k not in ("u", "v")]
+        assert [str(x) for x in f["t0_fields"].attrs["field_names"]] == rest and set(f["t0_fields"]) == set(rest)
+    stats = read_stats(tmp_path / "stats.yaml")  # The Well's statistics of a vector field: one value per component
+    assert stats["mean"]["velocity"] == [stats["mean"]["u"], stats["mean"]["v"]]
+    assert stats["std"]["velocity"] == [stats["std"]["u"], stats["std"]["v"]]
 
 
 def test_a_steady_cache_goes_to_pdebench_only(caches, tmp_path, capsys):
