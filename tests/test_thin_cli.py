@@ -172,3 +172,19 @@ def test_compare_refuses_frames_options_with_the_operator_view(tmp_path, capsys,
     assert cli.main(["compare", "burgers1d", "--out", str(tmp_path / "c"), *extra]) == 2
     err = capsys.readouterr().err
     assert said in err and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize("argv, option, value, allowed", [  # adv50: argparse printed its whole usage (30 lines)
+    (["train", "burgers1d", "--out", "run", "--steps", "abc"], "--steps", "'abc'", "a whole number"),
+    (["train", "burgers1d", "--out", "run", "--lr", "fast"], "--lr", "'fast'", "a number, e.g. --lr 0.001"),
+    (["generate", "burgers1d", "--out", "x.h5", "--n", "2x"], "--n", "'2x'", "a whole number"),
+    (["compare", "burgers1d", "--out", "cmp", "--budget", "1min"], "--budget", "'1min'", "a number"),
+    (["compare", "burgers1d", "--out", "cmp", "--seeds", "1.5"], "--seeds", "'1.5'", "allowed: a whole number"),
+    (["train", "burgers1d", "--out", "run", "--view", "nope"], "--view", "'nope'", "next_step"),
+])
+def test_a_bad_option_value_is_one_line_naming_it(capsys, argv, option, value, allowed):
+    with pytest.raises(SystemExit) as exit:
+        cli.main(argv)
+    err = capsys.readouterr().err
+    assert exit.value.code == 2 and err.count("\n") == 1 and err.startswith("pdestream: error: "), err
+    assert option in err and value in err and allowed in err and "usage" not in err, err
