@@ -253,10 +253,11 @@ PARTICLES = "smoke"  # the passive scalar a flow carries: PDEBench's ``particles
 
 
 def _incompressible(ds, fields) -> tuple[tuple[str, ...], str | None] | None:
-    """(velocity components, passive scalar or None) of a MAC-grid flow's cache (``sides`` set, no density):
+    """(velocity components, passive scalar or None) of a MAC-grid flow's cache (``sides`` set, a pressure ``p``,
+    no density):
     PDEBench's incompressible files hold ``velocity`` [N, T, x, y(, z), d] and ``particles`` [N, T, x, y(, z), 1];
     None for any other cache."""
-    if not ds.attrs.get("sides") or "rho" in fields:
+    if not ds.attrs.get("sides") or "rho" in fields or "p" not in fields:  # (diffusion_sorption1d has sides, u)
         return None
     parts = tuple(c for c in VELOCITY if c in fields)
     if parts != VELOCITY[:len(parts)] or len(parts) != len(_space(ds)):
