@@ -97,6 +97,8 @@ def _unchanged(root):
     (["train", "--resume", "{root}/run"], "the run is already complete (2 of 2 steps; see metrics.json)"),
     ([*TINY_MODES, "--steps", "3", "--out", "{root}/cmp"], "holds a finished run with other settings (steps: the "
                                                             "run's 2, asked 3)"),
+    # adv50: `train --resume` extended an arm of a comparison, which that comparison then refused
+    (["train", "--resume", "{root}/cmp/one-step", "--steps", "4"], "is the one-step arm of the comparison in {root}/cmp"),
 ])
 def test_refusals_read_from_run_json_come_before_torch(finished, argv, said):
     before = _unchanged(finished)
