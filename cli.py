@@ -100,7 +100,7 @@ def add_generate(sub) -> None:
 def add_inspect(sub) -> None:
     p = sub.add_parser("inspect", help="what a cache holds: PDE, config, completeness, parameter ranges, statistics")
     p.add_argument("path", help="cache file (.h5/.hdf5) or directory (.zarr)")
-    p.add_argument("--plot", metavar="FILE.png", help="also draw a few samples (space-time for 1D, snapshots for 2D)")
+    p.add_argument("--plot", metavar="FILE.png", help="also draw a few samples (space-time for 1D, snapshots for 2D, mid-slices for 3D)")
     p.add_argument("--stats", action="store_true", help="write the normalization statistics to CACHE.stats.yaml")
     p.set_defaults(func=cmd_inspect)
 
