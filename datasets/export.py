@@ -52,6 +52,7 @@ from __future__ import annotations
 import os
 import re
 from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Protocol
 
@@ -107,7 +108,7 @@ def _copy_field(ds, name: str, dset, ndim: int, time_axis: bool = False) -> None
     n = ds.sizes["sample"]
     for lo in range(0, n, CHUNK_SAMPLES):
         hi = min(lo + CHUNK_SAMPLES, n)
-        a = schema.from_disk(np.asarray(ds[name].isel(sample=slice(lo, hi)).values, np.float32), ndim)
+        a = schema.from_disk(_block(ds, name, lo, hi).astype(np.float32, copy=False), ndim)
         dset[lo:hi] = a[:, None] if time_axis else a
 
 
@@ -134,7 +135,7 @@ def _write_outputs(ds, g) -> None:
         var = ds[name]
         v = out.create_dataset(name, shape=var.shape, dtype=var.dtype)
         for lo in range(0, n, CHUNK_SAMPLES):
-            v[lo:min(lo + CHUNK_SAMPLES, n)] = np.asarray(var.isel(sample=slice(lo, lo + CHUNK_SAMPLES)).values)
+            v[lo:min(lo + CHUNK_SAMPLES, n)] = _block(ds, name, lo, min(lo + CHUNK_SAMPLES, n))
         v.attrs.update({**_attrs(var.attrs), "pdestream_dims": " ".join(var.dims)})
 
 
@@ -159,7 +160,40 @@ def _new_hdf5(out: Path):
 
 
 def _param_data(ds, name: str) -> np.ndarray:
-    return np.asarray(ds[name].values, np.float32)
+    return _block(ds, name).astype(np.float32, copy=False)
+
+
+_DAMAGED: ContextVar[set | None] = ContextVar("pdestream_export_damaged", default=None)
+
+
+def _block(ds, name: str, lo: int | None = None, hi: int | None = None) -> np.ndarray:
+    """Variable ``name``'s values (samples lo:hi, or all), as an export reads them to write them: its one read of
+    the cache. Inside ``_damaged_reads`` the positions of samples holding NaN/Inf, or in a chunk that cannot be read
+    (a deleted Zarr chunk reads as NaN, a corrupted one fails its checksum: NaN stands in), are collected there."""
+    var = ds[name] if lo is None else ds[name].isel(sample=slice(lo, hi))
+    seen = _DAMAGED.get()
+    try:
+        a = np.asarray(var.values)
+    except Exception:  # an unreadable chunk: every sample of the block is suspect
+        if seen is None:
+            raise
+        a = np.full(var.shape, np.nan, np.float32)
+    if seen is not None and a.dtype.kind == "f" and "sample" in var.dims:
+        rows = np.moveaxis(a, var.dims.index("sample"), 0)
+        seen.update(int(i) for i in (lo or 0) + np.flatnonzero(~np.isfinite(rows.reshape(len(rows), -1)).all(1)))
+    return a
+
+
+@contextmanager
+def _damaged_reads():
+    """The set of sample positions ``_block`` found damaged while the block ran (the export's NaN check, folded into
+    its own read: as a second read it cost 24-27% of an export's time, docs/results/benchmarks.md)."""
+    seen: set = set()
+    token = _DAMAGED.set(seen)
+    try:
+        yield seen
+    finally:
+        _DAMAGED.reset(token)
 
 
 # --- The Well --------------------------------------------------------------------------------------
@@ -272,7 +306,7 @@ def _write_stacked(ds, f, key: str, names: tuple[str, ...], ndim: int) -> None:
     v = f.create_dataset(key, shape=(n, frames, *grid, len(names)), dtype="float32")
     for lo in range(0, n, CHUNK_SAMPLES):
         hi = min(lo + CHUNK_SAMPLES, n)
-        v[lo:hi] = np.stack([schema.from_disk(np.asarray(ds[c].isel(sample=slice(lo, hi)).values, np.float32), ndim)
+        v[lo:hi] = np.stack([schema.from_disk(_block(ds, c, lo, hi).astype(np.float32, copy=False), ndim)
                              for c in names], axis=-1)
     v.attrs["pdestream_names"] = " ".join(names)
     for c in names:  # each component's own attributes (long_name differs), as "u.long_name"
@@ -307,7 +341,7 @@ class PDEBench:
         from . import pdebench_seeds
 
         if pdebench_seeds.per_seed_entry(ds) is not None:  # a set PDEBench ships per seed: its layout
-            return pdebench_seeds.write(ds, out, _new_hdf5)
+            return pdebench_seeds.write(ds, out, _new_hdf5, _block)
         inputs, fields, params = _names(ds)
         space = _space(ds)
         n, timed = ds.sizes["sample"], "time" in ds.dims
@@ -414,12 +448,13 @@ def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
             done = int((ds["complete"].values == 1).sum())
             raise ValueError(f"{cache} is incomplete ({done} of {ds.sizes['sample']} samples written); only a "
                              "complete cache is exported: finish it with `pdestream generate ... --resume`")
-        _check_finite(cache, ds)
         check_room(out, sum(int(ds[v].size) * 4 for v in ds.data_vars))  # float32 fields, the rest is small
         tmp = out.with_name(f"{out.name}.tmp-{os.getpid()}")
         try:
-            with _write_failures(out):
+            with _write_failures(out), _damaged_reads() as damaged:
                 fmt.write(ds, tmp)
+            if damaged:  # (the file written is removed below)
+                _refuse_damaged(cache, ds, damaged)
             if overwrite and out.exists():  # checked above: a pdestream export, replaced as asked
                 os.replace(tmp, out)
             else:
@@ -448,21 +483,13 @@ def _vector_stats(stats: dict, velocity: tuple[str, ...]) -> dict:
     return stats
 
 
-def _check_finite(cache, ds) -> None:
-    """One line for a cache whose complete samples hold NaN/Inf (a deleted Zarr chunk, a changed file): it was
-    exported with rc 0 into a file that `import` refuses. Reads the fields a block of samples at a time."""
-    from .cache import damaged_samples
-
-    names = [v for v in ds.data_vars if ds[v].dtype.kind == "f"] + \
-        [c for c in ds.coords if c not in ds.dims and ds[c].dims == ("sample",) and ds[c].dtype.kind == "f"]
-    store = {n: ds[n] for n in names}  # (DataArrays: a block is read at a time)
-    store["complete"] = ds["complete"].values
-    bad = damaged_samples(store, names, int(ds.attrs.get("pdestream_block", 64) or 64))
-    if len(bad):
-        idx = [int(i) for i in ds["sample"].values[bad]]
-        shown = ", ".join(map(str, idx[:8])) + (f", ... ({len(idx)} in all)" if len(idx) > 8 else "")
-        raise ValueError(f"{cache} is damaged: samples {shown} hold non-finite or missing data; recompute them with "
-                         "`pdestream generate ... --resume`, then export it")
+def _refuse_damaged(cache, ds, damaged: set) -> None:
+    """One line for a cache whose complete samples (positions ``damaged``) hold NaN/Inf (a deleted Zarr chunk, a
+    changed file): it was exported with rc 0 into a file that `import` refuses."""
+    idx = [int(i) for i in ds["sample"].values[sorted(damaged)]]
+    shown = ", ".join(map(str, idx[:8])) + (f", ... ({len(idx)} in all)" if len(idx) > 8 else "")
+    raise ValueError(f"{cache} is damaged: samples {shown} hold non-finite or missing data; recompute them with "
+                     "`pdestream generate ... --resume`, then export it")
 
 
 def well_stats_path(out: Path) -> Path | None:
