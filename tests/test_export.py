@@ -126,6 +126,31 @@ def test_the_well_holds_a_flows_velocity_as_one_vector_field(caches, tmp_path, n
     assert stats["std"]["velocity"] == [stats["std"]["u"], stats["std"]["v"]]
 
 
+def test_the_wells_own_dataset_class_reads_a_flows_velocity_and_its_statistics(caches, tmp_path):
+    well = pytest.importorskip("the_well.data")
+    out = tmp_path / "data" / "train" / "smoke2d.hdf5"
+    out.parent.mkdir(parents=True)
+    export_cache(caches["smoke2d"], "the-well", out)
+    fields, _, _ = _fields(caches["smoke2d"])
+    raw = well.WellDataset(path=str(tmp_path), well_split_name="train", n_steps_input=1, full_trajectory_mode=True)
+    assert raw.metadata.field_names == {0: ["p", "smoke"], 1: ["velocity_x", "velocity_y"], 2: []}
+    item = raw[0]
+    got = np.concatenate([item["input_fields"].numpy(), item["output_fields"].numpy()], 0)  # [T, x, y, 4]
+    for c, name in enumerate(("p", "smoke", "u", "v")):
+        np.testing.assert_array_equal(got[..., c], fields[name][0])
+    from the_well.data.normalization import ZScoreNormalization
+
+    normed = well.WellDataset(path=str(tmp_path), well_split_name="train", n_steps_input=1, full_trajectory_mode=True,
+                              use_normalization=True, normalization_type=ZScoreNormalization)  # stats.yaml's
+    # velocity: one mean and std per component
+    item = normed[0]
+    got = np.concatenate([item["input_fields"].numpy(), item["output_fields"].numpy()], 0)
+    stats = read_stats(tmp_path / "stats.yaml")
+    for c, name in ((2, "u"), (3, "v")):
+        want = (fields[name][0] - stats["mean"][name]) / stats["std"][name]
+        np.testing.assert_allclose(got[..., c], want, rtol=1e-4, atol=1e-4)
+
+
 def test_a_steady_cache_goes_to_pdebench_only(caches, tmp_path, capsys):
     out = tmp_path / "darcy.hdf5"
     assert cli.main(["export", str(caches["darcy2d"]), "--to", "the-well", "--out", str(out)]) == 2
