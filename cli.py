@@ -19,28 +19,10 @@ from pdestream.datasets.reservoir_options import add_reservoir_args, reservoir_c
 from pdestream.experiments.command import CompareCommand
 from pdestream.interrupts import run
 from pdestream.recipes import cli_command as recipes_command
-from pdestream.settings import parse_sets, settings_from_args
+from pdestream.settings import Parser, parse_sets, settings_from_args
 from pdestream.surrogate.config import RESUME_ALLOWED, TRAIN_STEPS, TrainConfig
 
 GENERATE, TRAIN, COMPARE = GenerateConfig(), TrainConfig(), CompareCommand()  # the options' defaults
-
-
-class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Adds "(default: X)" to an option's help unless it has none (None, a flag off, no list) or says it already."""
-
-    def _get_help_string(self, action):
-        none = action.default is None or action.default is False or action.default == []
-        if none or "default" in (action.help or ""):
-            return action.help
-        return super()._get_help_string(action)
-
-
-class _Parser(argparse.ArgumentParser):
-    """ArgumentParser whose --help shows defaults; subcommand parsers are of this class too."""
-
-    def __init__(self, *args, **kwargs):
-        kwargs.setdefault("formatter_class", _HelpFormatter)
-        super().__init__(*args, **kwargs)
 
 
 def _version() -> str:
@@ -53,7 +35,7 @@ def _version() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="pdestream", description=__doc__.splitlines()[0])
+    parser = Parser(prog="pdestream", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     p = sub.add_parser("list", help="every PDE with its equation, fields, parameters and domains; NAME: its settings")
@@ -118,7 +100,7 @@ def add_generate(sub) -> None:
 def add_inspect(sub) -> None:
     p = sub.add_parser("inspect", help="what a cache holds: PDE, config, completeness, parameter ranges, statistics")
     p.add_argument("path", help="cache file (.h5/.hdf5) or directory (.zarr)")
-    p.add_argument("--plot", metavar="FILE.png", help="also draw a few samples (space-time for 1D, snapshots for 2D)")
+    p.add_argument("--plot", metavar="FILE.png", help="also draw a few samples (space-time for 1D, snapshots for 2D, mid-slices for 3D)")
     p.add_argument("--stats", action="store_true", help="write the normalization statistics to CACHE.stats.yaml")
     p.set_defaults(func=cmd_inspect)
 

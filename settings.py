@@ -1,4 +1,5 @@
-"""A command's PDE and settings: the ``--config`` TOML file's keys, then ``--set KEY=VALUE`` overrides.
+"""A command's PDE and settings: the ``--config`` TOML file's keys, then ``--set KEY=VALUE`` overrides; the CLI's
+argument parser (``Parser``: defaults in --help, a bad option value answered in one line, ``usage_error``).
 
 No JAX, no torch until a PDE is built (``pde_from_args``); a name is checked against ``catalog_names`` first.
 """
@@ -89,3 +90,41 @@ def pde_from_args(name: str | None, args: argparse.Namespace, named: tuple[str |
     ``settings_from_args`` when the caller has it already, so the config file is read once)."""
     name, settings = settings_from_args(name, args) if named is None else named
     return build_pde(name, settings)
+
+
+def usage_error(parser: argparse.ArgumentParser, message: str) -> str:
+    """argparse's error ``message`` as the one line the CLI prints (``pdestream: error: ...``, no usage block): an
+    int/float option given a non-number names the option, the value and what is allowed (with the option's default
+    as the example); any other parse error keeps argparse's words. Ends with where the options are listed."""
+    import re
+
+    bad = re.fullmatch(r"argument (\S+?)(?:/\S+)?: invalid (int|float) value: (.*)", message)
+    if bad:
+        option, kind, value = bad.groups()
+        action = parser._option_string_actions.get(option)
+        default = getattr(action, "default", None)
+        example = f", e.g. {option} {default}" if isinstance(default, (int, float)) and default is not True else ""
+        what = "a whole number" if kind == "int" else "a number"
+        message = f"{option} {value} not allowed; allowed: {what}{example}"
+    return f"pdestream: error: {message} (`{parser.prog} --help` lists the options)\n"
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Adds "(default: X)" to an option's help unless it has none (None, a flag off, no list) or says it already."""
+
+    def _get_help_string(self, action):
+        none = action.default is None or action.default is False or action.default == []
+        if none or "default" in (action.help or ""):
+            return action.help
+        return super()._get_help_string(action)
+
+
+class Parser(argparse.ArgumentParser):
+    """ArgumentParser whose --help shows defaults and whose errors are one line; subcommands' parsers too."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message):  # a bad value named with what is allowed, not argparse's usage block
+        self.exit(2, usage_error(self, message))

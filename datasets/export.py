@@ -17,8 +17,10 @@ attributes ``dataset_name`` (the PDE's name), ``grid_type`` "cartesian", ``n_spa
 axis, ``{axis}_{bc_type}``, whose ``bc_type`` is the cache's (WALL / OPEN / PERIODIC) and whose ``mask`` marks
 both ends of the axis (no ``values``: pdestream records the kind of boundary, not its values); ``scalars``
 with each parameter as a sample-varying, time-constant scalar [N] (WellDataset's ``constant_scalars``);
-``t0_fields`` with every field as a scalar field [N, T, x(, y, z)] in x-first order (a velocity's components
-stay separate t0 fields; ``t1_fields``/``t2_fields`` are empty). WellDataset reads a directory of such files,
+``t0_fields`` with every field as a scalar field [N, T, x(, y, z)] in x-first order, except an incompressible
+flow's (a MAC-grid entry's) velocity: one vector field ``t1_fields/velocity`` [N, T, x, y(, z), d] (its
+components' names and attributes in its ``pdestream_names`` / ``u.long_name`` attributes, so reading it back is
+exact; its statistics in stats.yaml are lists, one value per component; ``t2_fields`` is empty). WellDataset reads a directory of such files,
 ``DIR/data/SPLIT/*.hdf5``: export to ``DIR/data/train/NAME.hdf5`` and load
 ``WellDataset(path=DIR, well_split_name="train")``. The cache's statistics (``datasets.stats``) go to
 ``DIR/stats.yaml``, where WellDataset's ``use_normalization`` reads them (an export elsewhere writes none:
@@ -50,6 +52,7 @@ from __future__ import annotations
 import os
 import re
 from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Protocol
 
@@ -105,7 +108,7 @@ def _copy_field(ds, name: str, dset, ndim: int, time_axis: bool = False) -> None
     n = ds.sizes["sample"]
     for lo in range(0, n, CHUNK_SAMPLES):
         hi = min(lo + CHUNK_SAMPLES, n)
-        a = schema.from_disk(np.asarray(ds[name].isel(sample=slice(lo, hi)).values, np.float32), ndim)
+        a = schema.from_disk(_block(ds, name, lo, hi).astype(np.float32, copy=False), ndim)
         dset[lo:hi] = a[:, None] if time_axis else a
 
 
@@ -132,7 +135,7 @@ def _write_outputs(ds, g) -> None:
         var = ds[name]
         v = out.create_dataset(name, shape=var.shape, dtype=var.dtype)
         for lo in range(0, n, CHUNK_SAMPLES):
-            v[lo:min(lo + CHUNK_SAMPLES, n)] = np.asarray(var.isel(sample=slice(lo, lo + CHUNK_SAMPLES)).values)
+            v[lo:min(lo + CHUNK_SAMPLES, n)] = _block(ds, name, lo, min(lo + CHUNK_SAMPLES, n))
         v.attrs.update({**_attrs(var.attrs), "pdestream_dims": " ".join(var.dims)})
 
 
@@ -157,7 +160,40 @@ def _new_hdf5(out: Path):
 
 
 def _param_data(ds, name: str) -> np.ndarray:
-    return np.asarray(ds[name].values, np.float32)
+    return _block(ds, name).astype(np.float32, copy=False)
+
+
+_DAMAGED: ContextVar[set | None] = ContextVar("pdestream_export_damaged", default=None)
+
+
+def _block(ds, name: str, lo: int | None = None, hi: int | None = None) -> np.ndarray:
+    """Variable ``name``'s values (samples lo:hi, or all), as an export reads them to write them: its one read of
+    the cache. Inside ``_damaged_reads`` the positions of samples holding NaN/Inf, or in a chunk that cannot be read
+    (a deleted Zarr chunk reads as NaN, a corrupted one fails its checksum: NaN stands in), are collected there."""
+    var = ds[name] if lo is None else ds[name].isel(sample=slice(lo, hi))
+    seen = _DAMAGED.get()
+    try:
+        a = np.asarray(var.values)
+    except Exception:  # an unreadable chunk: every sample of the block is suspect
+        if seen is None:
+            raise
+        a = np.full(var.shape, np.nan, np.float32)
+    if seen is not None and a.dtype.kind == "f" and "sample" in var.dims:
+        rows = np.moveaxis(a, var.dims.index("sample"), 0)
+        seen.update(int(i) for i in (lo or 0) + np.flatnonzero(~np.isfinite(rows.reshape(len(rows), -1)).all(1)))
+    return a
+
+
+@contextmanager
+def _damaged_reads():
+    """The set of sample positions ``_block`` found damaged while the block ran (the export's NaN check, folded into
+    its own read: as a second read it cost 24-27% of an export's time, docs/results/benchmarks.md)."""
+    seen: set = set()
+    token = _DAMAGED.set(seen)
+    try:
+        yield seen
+    finally:
+        _DAMAGED.reset(token)
 
 
 # --- The Well --------------------------------------------------------------------------------------
@@ -199,16 +235,22 @@ class TheWell:
             for p in params:
                 v = sc.create_dataset(p, data=_param_data(ds, p))
                 v.attrs.update({**_attrs(ds[p].attrs), "sample_varying": True, "time_varying": False})
+            varying = {"dim_varying": [True] * len(space), "sample_varying": True, "time_varying": True}
+            velocity = (_incompressible(ds, fields) or ((),))[0]  # a flow's: t1_fields/velocity [N, T, *space, d]
+            t1 = f.create_group("t1_fields")
+            t1.attrs["field_names"] = ["velocity"] if velocity else []
+            if velocity:
+                _write_stacked(ds, t1, "velocity", velocity, len(space))
+                t1["velocity"].attrs.update(varying)
+            fields = tuple(k for k in fields if k not in velocity)
             t0 = f.create_group("t0_fields")
             t0.attrs["field_names"] = list(fields)
             shape = (n, ds.sizes["time"], *(ds.sizes[d] for d in space))
             for name in fields:
                 v = t0.create_dataset(name, shape=shape, dtype="float32")
                 _copy_field(ds, name, v, len(space))
-                v.attrs.update({**_attrs(ds[name].attrs), "dim_varying": [True] * len(space),
-                                "sample_varying": True, "time_varying": True})
-            for order in ("t1_fields", "t2_fields"):
-                f.create_group(order).attrs["field_names"] = []
+                v.attrs.update({**_attrs(ds[name].attrs), **varying})
+            f.create_group("t2_fields").attrs["field_names"] = []
 
     def looks_like(self, f) -> bool:
         return all(k in f for k in ("dimensions", "t0_fields", "scalars")) and "n_trajectories" in f.attrs
@@ -218,6 +260,10 @@ class TheWell:
         coords = {d: (f["dimensions"][d][()], dict(f["dimensions"][d].attrs)) for d in ("time", *space)}
         fields = {name: (f["t0_fields"][name][()], dict(f["t0_fields"][name].attrs))
                   for name in (plain(x) for x in f["t0_fields"].attrs["field_names"])}
+        if "velocity" in f.get("t1_fields", {}):  # a flow's components, stacked last
+            fields.update(_read_stacked(f["t1_fields"]["velocity"]))
+            order = str(plain(f.attrs.get("pdestream_fields", ""))).split()
+            fields = {k: fields[k] for k in (*order, *fields) if k in fields}  # the cache's order
         params = {name: (f["scalars"][name][()], dict(f["scalars"][name].attrs))
                   for name in (plain(x) for x in f["scalars"].attrs["field_names"])}
         return {"space": space, "coords": coords, "fields": fields, "params": params,
@@ -241,10 +287,11 @@ PARTICLES = "smoke"  # the passive scalar a flow carries: PDEBench's ``particles
 
 
 def _incompressible(ds, fields) -> tuple[tuple[str, ...], str | None] | None:
-    """(velocity components, passive scalar or None) of a MAC-grid flow's cache (``sides`` set, no density):
+    """(velocity components, passive scalar or None) of a MAC-grid flow's cache (``sides`` set, a pressure ``p``,
+    no density):
     PDEBench's incompressible files hold ``velocity`` [N, T, x, y(, z), d] and ``particles`` [N, T, x, y(, z), 1];
     None for any other cache."""
-    if not ds.attrs.get("sides") or "rho" in fields:
+    if not ds.attrs.get("sides") or "rho" in fields or "p" not in fields:  # (diffusion_sorption1d has sides, u)
         return None
     parts = tuple(c for c in VELOCITY if c in fields)
     if parts != VELOCITY[:len(parts)] or len(parts) != len(_space(ds)):
@@ -259,11 +306,20 @@ def _write_stacked(ds, f, key: str, names: tuple[str, ...], ndim: int) -> None:
     v = f.create_dataset(key, shape=(n, frames, *grid, len(names)), dtype="float32")
     for lo in range(0, n, CHUNK_SAMPLES):
         hi = min(lo + CHUNK_SAMPLES, n)
-        v[lo:hi] = np.stack([schema.from_disk(np.asarray(ds[c].isel(sample=slice(lo, hi)).values, np.float32), ndim)
+        v[lo:hi] = np.stack([schema.from_disk(_block(ds, c, lo, hi).astype(np.float32, copy=False), ndim)
                              for c in names], axis=-1)
     v.attrs["pdestream_names"] = " ".join(names)
     for c in names:  # each component's own attributes (long_name differs), as "u.long_name"
         v.attrs.update({f"{c}.{k}": a for k, a in _attrs(ds[c].attrs).items()})
+
+
+def _read_stacked(dset) -> dict:
+    """{component: (array [N, T, *space], its own attributes)} of a dataset ``_write_stacked`` wrote."""
+    stacked, attrs = dset[()], dict(dset.attrs)
+    out = {}
+    for i, name in enumerate(str(plain(attrs["pdestream_names"])).split()):
+        out[name] = (stacked[..., i], {k[len(name) + 1:]: v for k, v in attrs.items() if k.startswith(f"{name}.")})
+    return out
 
 
 def _pdebench_keys(fields) -> dict[str, str]:
@@ -285,7 +341,7 @@ class PDEBench:
         from . import pdebench_seeds
 
         if pdebench_seeds.per_seed_entry(ds) is not None:  # a set PDEBench ships per seed: its layout
-            return pdebench_seeds.write(ds, out, _new_hdf5)
+            return pdebench_seeds.write(ds, out, _new_hdf5, _block)
         inputs, fields, params = _names(ds)
         space = _space(ds)
         n, timed = ds.sizes["sample"], "time" in ds.dims
@@ -341,11 +397,8 @@ class PDEBench:
         rest, flow = names, "velocity" in f and "pdestream_names" in f["velocity"].attrs
         for key in ("velocity", "particles") if flow else ():  # an incompressible flow's stacked fields
             if key in f:
-                stacked, attrs = f[key][()], dict(f[key].attrs)
-                parts = str(plain(attrs["pdestream_names"])).split()
-                for i, name in enumerate(parts):
-                    own = {k[len(name) + 1:]: v for k, v in attrs.items() if k.startswith(f"{name}.")}
-                    fields[name] = (stacked[..., i], own)
+                parts = _read_stacked(f[key])
+                fields.update(parts)
                 rest = [k for k in rest if k not in parts]
         for name, key in ({k: k for k in rest} if flow else _pdebench_keys(rest)).items():
             a = f[key if key in f else name]  # an export written before the CFD names: the field's own
@@ -395,12 +448,13 @@ def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
             done = int((ds["complete"].values == 1).sum())
             raise ValueError(f"{cache} is incomplete ({done} of {ds.sizes['sample']} samples written); only a "
                              "complete cache is exported: finish it with `pdestream generate ... --resume`")
-        _check_finite(cache, ds)
         check_room(out, sum(int(ds[v].size) * 4 for v in ds.data_vars))  # float32 fields, the rest is small
         tmp = out.with_name(f"{out.name}.tmp-{os.getpid()}")
         try:
-            with _write_failures(out):
+            with _write_failures(out), _damaged_reads() as damaged:
                 fmt.write(ds, tmp)
+            if damaged:  # (the file written is removed below)
+                _refuse_damaged(cache, ds, damaged)
             if overwrite and out.exists():  # checked above: a pdestream export, replaced as asked
                 os.replace(tmp, out)
             else:
@@ -408,31 +462,34 @@ def export_cache(cache, to: str, out, overwrite: bool = False) -> Path:
         except BaseException:
             tmp.unlink(missing_ok=True)  # ours
             raise
+        velocity = (_incompressible(ds, _names(ds)[1]) or ((),))[0]
     finally:
         ds.close()
     stats = well_stats_path(out) if to == "the-well" else None
     if stats is not None:
-        from .stats import write_stats
+        from .stats import cache_stats, write_stats
 
-        write_stats(cache, stats)
+        write_stats(cache, stats, _vector_stats(cache_stats(cache), velocity))
     return out
 
 
-def _check_finite(cache, ds) -> None:
-    """One line for a cache whose complete samples hold NaN/Inf (a deleted Zarr chunk, a changed file): it was
-    exported with rc 0 into a file that `import` refuses. Reads the fields a block of samples at a time."""
-    from .cache import damaged_samples
+def _vector_stats(stats: dict, velocity: tuple[str, ...]) -> dict:
+    """``stats`` (``cache_stats``) plus, for a flow's velocity (The Well's t1 field), each statistic as the list of
+    its components' values (``{"mean": {"velocity": [mean u, mean v]}}``, as The Well's stats.yaml holds a vector
+    field's); the components' own entries stay (pdestream's normalization reads them)."""
+    for key, values in stats.items():
+        if velocity and key != "pdestream" and isinstance(values, dict):
+            values["velocity"] = [values[c] for c in velocity]
+    return stats
 
-    names = [v for v in ds.data_vars if ds[v].dtype.kind == "f"] + \
-        [c for c in ds.coords if c not in ds.dims and ds[c].dims == ("sample",) and ds[c].dtype.kind == "f"]
-    store = {n: ds[n] for n in names}  # (DataArrays: a block is read at a time)
-    store["complete"] = ds["complete"].values
-    bad = damaged_samples(store, names, int(ds.attrs.get("pdestream_block", 64) or 64))
-    if len(bad):
-        idx = [int(i) for i in ds["sample"].values[bad]]
-        shown = ", ".join(map(str, idx[:8])) + (f", ... ({len(idx)} in all)" if len(idx) > 8 else "")
-        raise ValueError(f"{cache} is damaged: samples {shown} hold non-finite or missing data; recompute them with "
-                         "`pdestream generate ... --resume`, then export it")
+
+def _refuse_damaged(cache, ds, damaged: set) -> None:
+    """One line for a cache whose complete samples (positions ``damaged``) hold NaN/Inf (a deleted Zarr chunk, a
+    changed file): it was exported with rc 0 into a file that `import` refuses."""
+    idx = [int(i) for i in ds["sample"].values[sorted(damaged)]]
+    shown = ", ".join(map(str, idx[:8])) + (f", ... ({len(idx)} in all)" if len(idx) > 8 else "")
+    raise ValueError(f"{cache} is damaged: samples {shown} hold non-finite or missing data; recompute them with "
+                     "`pdestream generate ... --resume`, then export it")
 
 
 def well_stats_path(out: Path) -> Path | None:

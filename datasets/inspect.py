@@ -220,7 +220,8 @@ def draw(ds, n_show: int = 4):
     1D: space-time images (x across, t up), one row per field, one column per sample. 2D: first/middle/last
     frames (x across, y up, origin lower, aspect equal), one row per sample, one group of columns per field (at
     most three fields across; more go to a further band of rows),
-    frame times in the titles; 3D: the same for the middle z slice. Colour ranges: in 1D one per field over all
+    frame times in the titles; 3D: the three orthogonal planes through the centre (x-y, x-z, y-z) at the last frame
+    instead of three frames, named in the figure's title. Colour ranges: in 1D one per field over all
     its panels; in 2D/3D one per field and frame column, shared by that column's samples, with its own colourbar
     below it (one range over all frames left ns2d's t = 0 column blank: its vorticity grows ~100x under the
     forcing). Colourbars carry the field's name and units (the PDE's FIELD_UNITS); maps are diverging and centred
@@ -249,6 +250,8 @@ def draw(ds, n_show: int = 4):
         fig = _snapshots(plt, ds, fields, show, index, label, space, mask)
     # wrapped to the figure's width (~14 characters per inch at 9 pt): darcy2d's equation ran past the right edge
     title = textwrap.fill(f"{ds.attrs['pde']}: {ds.attrs['equation']}", max(20, int(14 * fig.get_figwidth())))
+    if slices_note(ds, space):  # which planes a 3D cache's panels are
+        title += "\n" + textwrap.fill(slices_note(ds, space), max(20, int(14 * fig.get_figwidth())))
     fig.suptitle(title, fontsize=9)
     return fig
 
@@ -313,48 +316,67 @@ def _space_time(plt, ds, fields, show, index, label, space):
 MAX_COLUMNS = 9  # panels across a 2D/3D cache's figure (three fields' first/middle/last frames)
 
 
-def _snapshots(plt, ds, fields, show, index, label, space, mask=None):
-    """2D (3D: the middle z slice): one row per sample, first/middle/last frame of each field, x across, y up, at
-    most MAX_COLUMNS panels across (further fields in another band of rows);
-    one colourbar per field. A steady PDE's cache (no time axis): one panel per field, input fields first.
-    ``mask``: a flow's solid cells [sample, time, y, x], drawn in grey over every panel."""
+def _views(ds, space: list[str]) -> list[tuple]:
+    """The panels of one field, (frame index or None, slab {dim: index}, up dim, across dim, where in words): in
+    2D its first, middle and last frames; in 3D the three orthogonal planes through the grid's centre (x-y at the
+    middle z, x-z at the middle y, y-z at the middle x) at the last frame."""
     timed = "time" in ds.dims
     n_frames = ds.sizes["time"] if timed else 1
-    frames = sorted({0, n_frames // 2, n_frames - 1})
-    across, up = space[-1], space[-2]  # stored (z,) y, x
-    slab = {space[0]: ds.sizes[space[0]] // 2} if len(space) == 3 else {}
-    where = f", {space[0]}={float(ds[space[0]][slab[space[0]]]):.3g}" if slab else ""
-    extent = [*_edges(ds[across].values, True), *_edges(ds[up].values, True)]
+    if len(space) < 3:
+        return [(f if timed else None, {}, space[-2], space[-1], "") for f in sorted({0, n_frames // 2, n_frames - 1})]
+    z, y, x = space  # stored order
+    mid = {d: ds.sizes[d] // 2 for d in space}
+    last = n_frames - 1 if timed else None
+    return [(last, {d: mid[d]}, up, across, f" {d}={float(ds[d][mid[d]]):.3g}")
+            for d, up, across in ((z, y, x), (y, z, x), (x, z, y))]
+
+
+def slices_note(ds, space: list[str]) -> str:
+    """A 3D figure's title line: which planes its panels are ("" in 1D / 2D)."""
+    if len(space) < 3:
+        return ""
+    where = ", ".join(f"{d}={float(ds[d][ds.sizes[d] // 2]):.3g}" for d in sorted(space))
+    when = f" at the last frame t={float(ds.time[-1]):.4g}" if "time" in ds.dims else ""
+    return f"3D: mid-slices {where}{when} (x-y, x-z and y-z planes through the centre)"
+
+
+def _snapshots(plt, ds, fields, show, index, label, space, mask=None):
+    """2D: one row per sample, first/middle/last frame of each field, x across, y up; 3D: the three orthogonal
+    mid-slices at the last frame instead of the frames (``_views``); at most MAX_COLUMNS panels across (further
+    fields in another band of rows); one colourbar per field and column. A steady PDE's cache (no time axis): one
+    panel per field, input fields first. ``mask``: a flow's solid cells [sample, time, (z,) y, x], drawn in grey
+    over every panel."""
+    views = _views(ds, space)
     # at most MAX_COLUMNS panels across: a flow's vorticity, u, v, p and scalar made 15 in one row; further fields
     # go to another band of rows (one row per sample in each band)
-    per_band = max(1, MAX_COLUMNS // len(frames))
+    per_band = max(1, MAX_COLUMNS // len(views))
     bands = -(-len(fields) // per_band)
     across_fields = min(len(fields), per_band)
-    cols = across_fields * len(frames)
+    cols = across_fields * len(views)
     fig, axes = plt.subplots(show * bands, cols, figsize=(2.2 * cols + 0.8 * across_fields, 2.4 * show * bands + 0.7),
                              squeeze=False, layout="constrained")
-    for ax in axes[(bands - 1) * show:, (len(fields) - (bands - 1) * per_band) * len(frames):].flat:
+    for ax in axes[(bands - 1) * show:, (len(fields) - (bands - 1) * per_band) * len(views):].flat:
         ax.set_axis_off()  # the last band's empty slots
     for c, name in enumerate(fields):
-        var = ds[name].isel(sample=slice(0, show), **slab)
-        var = var.isel(time=frames) if timed else var.expand_dims("time", axis=1)
-        u = var.transpose("sample", "time", up, across).values  # [S, F, y, x]: row y, column x
         band, slot = divmod(c, per_band)
-        block = axes[band * show:(band + 1) * show, slot * len(frames):(slot + 1) * len(frames)]
-        for j, f in enumerate(frames):
-            scale = colour_scale(u[:, j])  # per frame: a forced field grows ~100x from t = 0 (ns2d)
+        block = axes[band * show:(band + 1) * show, slot * len(views):(slot + 1) * len(views)]
+        for j, (f, slab, up, across, where) in enumerate(views):
+            var = ds[name].isel(sample=slice(0, show), **slab)
+            var = var.isel(time=f) if f is not None else var
+            u = var.transpose("sample", up, across).values  # [S, up, across]: row up, column across
+            extent = [*_edges(ds[across].values, True), *_edges(ds[up].values, True)]
+            scale = colour_scale(u)  # per column: a forced field grows ~100x from t = 0 (ns2d)
             for i in range(show):
                 ax = block[i, j]
-                im = ax.imshow(u[i, j], origin="lower", aspect="equal", extent=extent, interpolation="nearest",
-                               **scale)
+                im = ax.imshow(u[i], origin="lower", aspect="equal", extent=extent, interpolation="nearest", **scale)
                 if mask is not None:
-                    m = mask.isel(sample=i, time=f).transpose(up, across).values
+                    m = mask.isel(sample=i, **({"time": f} if f is not None else {}), **slab).transpose(up, across).values
                     ax.imshow(np.ma.masked_where(m < 0.5, m), origin="lower", aspect="equal", extent=extent,
                               interpolation="nearest", cmap="Greys", vmin=0.0, vmax=1.6)
-                title = f"{name} #{index[i]}" + (f" t={float(ds.time[f]):.4g}" if timed else "") + where
+                title = f"{name} #{index[i]}" + (f" t={float(ds.time[f]):.4g}" if f is not None else "") + where
                 ax.set_title(title + (f"\n{label[i]}" if j == 0 and label[i] else ""), fontsize=7)
                 ax.set_xlabel(axis_label(ds[across]) if i == show - 1 else "", fontsize=8)
-                ax.set_ylabel(axis_label(ds[up]) if slot == 0 and j == 0 else "", fontsize=8)
+                ax.set_ylabel(axis_label(ds[up]) if j == 0 and slot == 0 or where else "", fontsize=8)
                 ax.tick_params(labelsize=7)
             bar = fig.colorbar(im, ax=list(block[:, j]), location="bottom", shrink=0.9, fraction=0.05, pad=0.02)
             bar.ax.tick_params(labelsize=7)

@@ -43,9 +43,9 @@ def _json_attrs(a: dict) -> dict:
             if k not in ("coordinates", "_FillValue")}
 
 
-def write(ds, out: Path, new_hdf5) -> None:
+def write(ds, out: Path, new_hdf5, read) -> None:
     """Write the complete time-dependent cache ``ds`` at ``out`` in the per-seed layout (``new_hdf5``: export's
-    file opener)."""
+    file opener; ``read(ds, name, lo=None, hi=None)``: export's read of a variable, which checks what it reads)."""
     entry = per_seed_entry(ds)
     fields = tuple(str(ds.attrs["pdestream_fields"]).split())
     params = tuple(str(ds.attrs["pdestream_params"]).split())
@@ -59,7 +59,7 @@ def write(ds, out: Path, new_hdf5) -> None:
     t = np.asarray(ds["time"].values)
     sample = np.asarray(ds["sample"].values, np.int64)
     redraws = np.asarray(ds["redraws"].values, np.int8)
-    values = {p: np.asarray(ds[p].values, np.float32) for p in params}
+    values = {p: read(ds, p).astype(np.float32, copy=False) for p in params}
     with new_hdf5(out) as f:
         for k, v in ds.attrs.items():
             f.attrs[k] = v
@@ -69,7 +69,7 @@ def write(ds, out: Path, new_hdf5) -> None:
                                                                                           "time")})
         for lo in range(0, n, 64):  # 64 samples read at a time: bounded memory
             hi = min(lo + 64, n)
-            block = {name: schema.from_disk(np.asarray(ds[name].isel(sample=slice(lo, hi)).values, np.float32), ndim)
+            block = {name: schema.from_disk(read(ds, name, lo, hi).astype(np.float32, copy=False), ndim)
                      for name in fields}  # [b, T, x(, y)]
             for i in range(lo, hi):
                 g = f.create_group(str(i).zfill(width))

@@ -289,7 +289,7 @@ def budget_setup(cmd: CompareCommand, log=print):
 
 def _interactive(cmd: CompareCommand) -> str:
     """modes: training modes at equal steps (experiments.interactive_compare)."""
-    from pdestream.experiments.interactive_config import InteractiveConfig
+    from pdestream.experiments.interactive_config import InteractiveConfig, check_arms
     from pdestream.settings import build_pde
     from pdestream.surrogate.mode_table import check_clip, check_corrector_start, check_noise
 
@@ -322,6 +322,7 @@ def _interactive(cmd: CompareCommand) -> str:
     if cmd.k_out not in (None, 1):
         raise ValueError(f"--k-out={cmd.k_out} not allowed with --modes: every mode predicts one frame per step")
     cfg.check(pde)  # every bad value in one line before torch is imported (3-6 s under load)
+    check_arms(pde, cmd.out, cfg)  # the coarse grid, a finished arm of other settings: as well
     from pdestream.experiments import interactive_compare as module
     from pdestream.surrogate.launch import set_threads
 

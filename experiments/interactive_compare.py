@@ -51,8 +51,14 @@ from pdestream.surrogate.phases import phase
 from pdestream.surrogate.runs import resume_run, train_run
 
 from .budget import stratified_test_set
-from .interactive_config import InteractiveConfig
+from .interactive_config import CHECKPOINTS, InteractiveConfig, check_arms
+from .interactive_config import arm_differs as _differ
 from .interactive_config import arm_settings as _settings
+from .interactive_config import arm_steps as _arm_steps
+from .interactive_config import corrector_arms as _corrector_arms
+from .interactive_config import finished_run as _finished
+from .interactive_config import seed_dir as _run_dir
+from .interactive_config import seeds as _seeds
 from .interactive_report import (
     combine_seeds,
     plot,
@@ -72,21 +78,14 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
     out = Path(out_dir)
     net_modes = [m for m in cfg.modes if m in NETWORK_MODES]
     sitl = "solver-in-the-loop" in cfg.modes
-    fine = pde.replace({"n": cfg.fine_n}) if sitl and cfg.fine_n not in (None, pde.n) else pde
+    # the coarse grid, another comparison in out, a finished run of other settings: refused before any work (the
+    # CLI has run this before importing torch)
+    fine, plan = check_arms(pde, out, cfg)
     for name in net_modes:  # the oracle's solver refuses this PDE (refine, steady, external) before any work
         make_mode(_settings(cfg, name)).bind(pde)
     if sitl:
-        make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)  # sizes fit?
+        make_mode(_settings(cfg, "solver-in-the-loop", unroll=1)).bind(fine)  # the coarse solver builds?
     out.mkdir(parents=True, exist_ok=True)
-    k = _settings(cfg, "solver-in-the-loop")["unroll"] if sitl else None
-    plan = [(name, pde, _settings(cfg, name), out / name) for name in net_modes]
-    if sitl:
-        plan += [(label, fine, _settings(cfg, "solver-in-the-loop", unroll=unroll, noise=noise), out / run)
-                 for label, unroll, noise, run in _corrector_arms(cfg, k)]
-    _check_same_comparison(out, pde, cfg)
-    for _label, arm_pde, settings, run_dir in plan:  # a finished run of other settings: refused before any work
-        for seed in _seeds(cfg):
-            _finished(_run_dir(run_dir, cfg, seed), arm_pde, settings, cfg, seed)
     arms = []
     if net_modes:
         t0 = time.perf_counter()
@@ -157,103 +156,11 @@ def _beyond(pde, fine, plan: list, net_modes: list, cfg: InteractiveConfig, log)
             "arms": arms}
 
 
-def _check_same_comparison(out: Path, pde, cfg: InteractiveConfig) -> None:
-    """ValueError (one line) when ``out`` holds a finished comparison (compare.json) of another PDE or other arms:
-    going on there would replace its tables with those of a different comparison. More seeds are allowed (the
-    finished ones are read back); --overwrite retrains in place."""
-    done = out / "compare.json"
-    if not (cfg.resume and done.is_file()):
-        return
-    have = json.loads(done.read_text())
-    differ = [what for what, a, b in (("--modes", list(have.get("config", {}).get("modes", [])), list(cfg.modes)),
-                                      ("the PDE", have.get("pde"), json.loads(json.dumps(pde.config()))))
-              if a != b]
-    if differ:
-        raise ValueError(f"{out} holds a comparison with other {' and '.join(differ)}; rerun with its own settings to "
-                         "go on, or pass --overwrite (retrains every arm) or another --out")
-
-
-def _corrector_arms(cfg: InteractiveConfig, k: int) -> list[tuple]:
-    """(label, unroll, noise, run directory name) of the three trained corrector arms."""
-    schedule = cfg.schedule()
-    name = "->".join(str(u) for u, _ in schedule) if schedule else str(k)
-    return [("pairs (unroll 1)", 1, 0.0, "sitl_unroll1"),
-            ("pairs + noise (unroll 1)", 1, cfg.noise, "sitl_unroll1_noise"),
-            (f"solver-in-the-loop (unroll {name})", k, 0.0,
-             f"sitl_unroll{'-'.join(str(u) for u, _ in schedule)}" if schedule else f"sitl_unroll{k}")]
-
-
-def _arm_steps(cfg: InteractiveConfig, settings: dict) -> int:
-    """The optimizer steps of the arm with mode ``settings``: pairs_steps for the corrector's pairs arms (unroll
-    1), when given, else steps."""
-    pairs = settings["name"] == "solver-in-the-loop" and settings.get("unroll") == 1
-    return cfg.pairs_steps if pairs and cfg.pairs_steps is not None else cfg.steps
-
-
-def _seeds(cfg: InteractiveConfig) -> range:
-    return range(cfg.seed, cfg.seed + cfg.seeds)
-
-
-def _run_dir(run_dir: Path, cfg: InteractiveConfig, seed: int) -> Path:
-    """One seed's run directory: the arm's own with one seed (as before seeds), ARM_seedS with several; with several,
-    a seed that a one-seed run on the same out trained (the arm's own directory, its run.json of that seed) is
-    found there, so ``--seeds 1`` then ``--seeds 3`` reads seed 0 back instead of training it again."""
-    if cfg.seeds == 1:
-        return run_dir
-    named = run_dir.with_name(f"{run_dir.name}_seed{seed}")
-    if not named.exists() and (run_dir / "run.json").is_file():
-        if json.loads((run_dir / "run.json").read_text()).get("seed") == seed:
-            return run_dir
-    return named
-
-
-CHECKPOINTS = 20  # per arm: an interrupted arm loses at most 5% of its steps
-RESUME_KEYS = ("model", "model_cfg", "steps", "seconds", "batch_size", "lr", "seed", "mode", "pde")
-
-
-def _differ(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int, said: bool = False) -> list[str]:
-    """The RESUME_KEYS in which the run.json in ``run_dir`` differs from what this arm and seed train with
-    (said: each as "KEY: the run's X, asked Y", a dict's differing entries named, as the refusal says them)."""
-    want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": _arm_steps(cfg, settings),
-                                  "seconds": cfg.budget_s,
-                                  "batch_size": cfg.batch_size, "lr": cfg.lr, "seed": seed,
-                                  "mode": make_mode(settings).settings(), "pde": pde.config()}))
-    try:
-        have = json.loads((run_dir / "run.json").read_text())
-    except (OSError, ValueError):
-        have = {}
-    keys = [key for key in RESUME_KEYS if not isinstance(have, dict) or have.get(key) != want[key]]
-    return [_said(key, have.get(key) if isinstance(have, dict) else None, want[key]) for key in keys] if said else keys
-
-
-def _said(key: str, have, want) -> str:
-    """One difference in words: "steps: the run's 3, asked 2"; for dicts, "mode: clip the run's 1.0, asked 0.5"
-    (a rerun with another --clip was refused as "other settings (mode)")."""
-    if not (isinstance(have, dict) and isinstance(want, dict)):
-        return f"{key}: the run's {have}, asked {want}"
-    parts = [f"{k} the run's {have.get(k, 'its default')}, asked {want.get(k, 'its default')}"
-             for k in sorted(set(have) | set(want)) if have.get(k) != want.get(k)]
-    return f"{key}: {', '.join(parts[:3])}{' ...' if len(parts) > 3 else ''}"
-
-
 def _unfinished(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int) -> bool:
     """True when ``run_dir`` holds an interrupted run (run.json and checkpoint.pt, no metrics.json) of the settings
     this arm and seed train with: it goes on from its checkpoint instead of starting over."""
     return (cfg.resume and (run_dir / "checkpoint.pt").is_file() and not (run_dir / "metrics.json").is_file()
             and not _differ(run_dir, pde, settings, cfg, seed))
-
-
-def _finished(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int) -> dict | None:
-    """The summary (metrics.json) of a finished run in ``run_dir`` trained with the settings this arm and seed
-    would train with, None when there is none (or cfg.resume is False); ValueError (one line) for a finished run
-    with other settings."""
-    if not (cfg.resume and (run_dir / "metrics.json").is_file() and (run_dir / "model.pt").is_file()):
-        return None
-    differ = _differ(run_dir, pde, settings, cfg, seed, said=True)
-    if differ:
-        raise ValueError(f"{run_dir} holds a finished run with other settings ({'; '.join(differ)}); rerun with its "
-                         "own settings to go on, or pass --overwrite (retrains every arm) or another --out")
-    return json.loads((run_dir / "metrics.json").read_text())
 
 
 def _train_seeds(label: str, pde, settings: dict, test, cfg: InteractiveConfig, run_dir: Path, log) -> dict:

@@ -1,10 +1,13 @@
 """What every arm of ``compare --modes`` shares (``InteractiveConfig``) and each arm's mode settings, without
 torch: ``InteractiveConfig.check`` refuses a bad value in one line before the comparison's modules (and torch)
-are imported (``experiments.interactive_compare`` runs it)."""
+are imported (``experiments.interactive_compare`` runs it); the arms' run directories and what a rerun finds in
+them (``check_arms``: a finished run of other settings, a coarse grid that does not fit, refused before torch)."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from pdestream.surrogate.checks import check_count, check_number
 from pdestream.surrogate.mode_table import (
@@ -12,6 +15,7 @@ from pdestream.surrogate.mode_table import (
     MODE_NAMES,
     MODE_SPECS,
     NETWORK_MODES,
+    check_coarse_grid,
     check_corrector_start,
     check_noise,
     mode_settings,
@@ -122,3 +126,139 @@ def arm_settings(cfg: InteractiveConfig, name: str, **override) -> dict:
     if given.get("unroll") == 1:  # the pairs arms: no curriculum
         given["unroll_schedule"] = None
     return mode_settings(name, **{k: v for k, v in given.items() if k in MODE_SPECS[name].settings})
+
+
+# --- the arms and their run directories: what a rerun finds there (no torch) -----------------------------
+CHECKPOINTS = 20  # per arm: an interrupted arm loses at most 5% of its steps
+RESUME_KEYS = ("model", "model_cfg", "steps", "seconds", "batch_size", "lr", "seed", "mode", "pde")
+
+
+def corrector_arms(cfg: InteractiveConfig, k: int) -> list[tuple]:
+    """(label, unroll, noise, run directory name) of the three trained corrector arms."""
+    schedule = cfg.schedule()
+    name = "->".join(str(u) for u, _ in schedule) if schedule else str(k)
+    return [("pairs (unroll 1)", 1, 0.0, "sitl_unroll1"),
+            ("pairs + noise (unroll 1)", 1, cfg.noise, "sitl_unroll1_noise"),
+            (f"solver-in-the-loop (unroll {name})", k, 0.0,
+             f"sitl_unroll{'-'.join(str(u) for u, _ in schedule)}" if schedule else f"sitl_unroll{k}")]
+
+
+def plan_arms(pde, out: Path, cfg: InteractiveConfig) -> tuple[object, list[tuple]]:
+    """(the corrector's fine PDE, [(label, arm's PDE, mode settings, arm directory)] of every trained arm, the
+    network modes first)."""
+    net_modes = [m for m in cfg.modes if m in NETWORK_MODES]
+    sitl = "solver-in-the-loop" in cfg.modes
+    fine = pde.replace({"n": cfg.fine_n}) if sitl and cfg.fine_n not in (None, pde.n) else pde
+    plan = [(name, pde, arm_settings(cfg, name), out / name) for name in net_modes]
+    if sitl:
+        k = arm_settings(cfg, "solver-in-the-loop")["unroll"]
+        plan += [(label, fine, arm_settings(cfg, "solver-in-the-loop", unroll=unroll, noise=noise), out / run)
+                 for label, unroll, noise, run in corrector_arms(cfg, k)]
+    return fine, plan
+
+
+def check_arms(pde, out, cfg: InteractiveConfig) -> tuple[object, list[tuple]]:
+    """``plan_arms``, after what can be refused without torch: the corrector's coarse grid against the fine one, a
+    finished comparison of other arms in ``out``, a finished (arm, seed) run of other settings (one line each)."""
+    out = Path(out)
+    fine, plan = plan_arms(pde, out, cfg)
+    if "solver-in-the-loop" in cfg.modes:
+        check_coarse_grid(fine, cfg.coarse_n)
+    check_same_comparison(out, pde, cfg)
+    for _label, arm_pde, settings, arm_dir in plan:
+        for seed in seeds(cfg):
+            finished_run(seed_dir(arm_dir, cfg, seed), arm_pde, settings, cfg, seed)
+    return fine, plan
+
+
+def arm_steps(cfg: InteractiveConfig, settings: dict) -> int:
+    """The optimizer steps of the arm with mode ``settings``: pairs_steps for the corrector's pairs arms (unroll
+    1), when given, else steps."""
+    pairs = settings["name"] == "solver-in-the-loop" and settings.get("unroll") == 1
+    return cfg.pairs_steps if pairs and cfg.pairs_steps is not None else cfg.steps
+
+
+def seeds(cfg: InteractiveConfig) -> range:
+    return range(cfg.seed, cfg.seed + cfg.seeds)
+
+
+def seed_dir(arm_dir: Path, cfg: InteractiveConfig, seed: int) -> Path:
+    """One seed's run directory: the arm's own with one seed (as before seeds), ARM_seedS with several; with several,
+    a seed that a one-seed run on the same out trained (the arm's own directory, its run.json of that seed) is
+    found there, so ``--seeds 1`` then ``--seeds 3`` reads seed 0 back instead of training it again."""
+    if cfg.seeds == 1:
+        return arm_dir
+    named = arm_dir.with_name(f"{arm_dir.name}_seed{seed}")
+    if not named.exists() and (arm_dir / "run.json").is_file():
+        if json.loads((arm_dir / "run.json").read_text()).get("seed") == seed:
+            return arm_dir
+    return named
+
+
+def comparable_mode(mode):
+    """A mode's settings (as given, or run.json's "mode") in one form: every setting of the mode with its default
+    filled in and the loss, without the rule in words (what ``surrogate.modes.make_mode`` reads of it); the value
+    itself when it is not a mode's settings."""
+    if mode is None:  # run.json of runs before modes: one-step
+        mode = {"name": "one-step"}
+    if not isinstance(mode, dict):
+        return mode
+    s = {k: v for k, v in mode.items() if k not in ("loss", "rule")}
+    try:
+        return {**mode_settings(s.pop("name", "one-step"), **s), "loss": mode.get("loss", "mse")}
+    except (ValueError, TypeError):
+        return mode
+
+
+def arm_differs(run: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int, said: bool = False) -> list[str]:
+    """The RESUME_KEYS in which the run.json in ``run`` differs from what this arm and seed train with (said: each
+    as "KEY: the run's X, asked Y", a dict's differing entries named, as the refusal says them)."""
+    want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": arm_steps(cfg, settings),
+                                  "seconds": cfg.budget_s, "batch_size": cfg.batch_size, "lr": cfg.lr, "seed": seed,
+                                  "mode": comparable_mode(settings), "pde": pde.config()}))
+    try:
+        have = json.loads((run / "run.json").read_text())
+    except (OSError, ValueError):
+        have = {}
+    have = {**have, "mode": comparable_mode(have.get("mode"))} if isinstance(have, dict) else {}
+    keys = [key for key in RESUME_KEYS if have.get(key) != want[key]]
+    return [_said(key, have.get(key), want[key]) for key in keys] if said else keys
+
+
+def _said(key: str, have, want) -> str:
+    """One difference in words: "steps: the run's 3, asked 2"; for dicts, "mode: clip the run's 1.0, asked 0.5"
+    (a rerun with another --clip was refused as "other settings (mode)")."""
+    if not (isinstance(have, dict) and isinstance(want, dict)):
+        return f"{key}: the run's {have}, asked {want}"
+    parts = [f"{k} the run's {have.get(k, 'its default')}, asked {want.get(k, 'its default')}"
+             for k in sorted(set(have) | set(want)) if have.get(k) != want.get(k)]
+    return f"{key}: {', '.join(parts[:3])}{' ...' if len(parts) > 3 else ''}"
+
+
+def finished_run(run: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int) -> dict | None:
+    """The summary (metrics.json) of a finished run in ``run`` trained with the settings this arm and seed would
+    train with, None when there is none (or cfg.resume is False); ValueError (one line) for a finished run with
+    other settings."""
+    if not (cfg.resume and (run / "metrics.json").is_file() and (run / "model.pt").is_file()):
+        return None
+    differ = arm_differs(run, pde, settings, cfg, seed, said=True)
+    if differ:
+        raise ValueError(f"{run} holds a finished run with other settings ({'; '.join(differ)}); rerun with its "
+                         "own settings to go on, or pass --overwrite (retrains every arm) or another --out")
+    return json.loads((run / "metrics.json").read_text())
+
+
+def check_same_comparison(out: Path, pde, cfg: InteractiveConfig) -> None:
+    """ValueError (one line) when ``out`` holds a finished comparison (compare.json) of another PDE or other arms:
+    going on there would replace its tables with those of a different comparison. More seeds are allowed (the
+    finished ones are read back); --overwrite retrains in place."""
+    done = out / "compare.json"
+    if not (cfg.resume and done.is_file()):
+        return
+    have = json.loads(done.read_text())
+    differ = [what for what, a, b in (("--modes", list(have.get("config", {}).get("modes", [])), list(cfg.modes)),
+                                      ("the PDE", have.get("pde"), json.loads(json.dumps(pde.config()))))
+              if a != b]
+    if differ:
+        raise ValueError(f"{out} holds a comparison with other {' and '.join(differ)}; rerun with its own settings to "
+                         "go on, or pass --overwrite (retrains every arm) or another --out")

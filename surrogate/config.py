@@ -112,3 +112,36 @@ def env_world() -> int:
         return max(1, int(value))
     except ValueError:
         raise ValueError(f"WORLD_SIZE={value!r} not allowed; must be an integer >= 1 (set by torchrun)") from None
+
+
+def check_resumable(run_dir, steps: int | None) -> None:
+    """What run.json and metrics.json tell of ``train --resume RUN_DIR [--steps N]`` without torch, one line each
+    (``runs.read_run`` says the rest once torch has read checkpoint.pt): RUN_DIR is an arm of a comparison (run.json's
+    label is not "train", the label every run of ``train`` has): resumed or extended here, that comparison would
+    then refuse the arm; a finished run (metrics.json's steps = run.json's: its checkpoint is at that step) given a
+    smaller N, or no larger one."""
+    import json
+    from pathlib import Path
+
+    run_dir = Path(run_dir)
+    try:
+        settings = json.loads((run_dir / "run.json").read_text())
+        done = json.loads((run_dir / "metrics.json").read_text()).get("steps") \
+            if (run_dir / "metrics.json").is_file() else None
+    except (OSError, ValueError, AttributeError):
+        return  # not a run, or a damaged one: read_run's own words
+    if not isinstance(settings, dict) or not (run_dir / "checkpoint.pt").is_file():
+        return
+    label = settings.get("label", "train")
+    if label != "train":
+        raise ValueError(f"{run_dir} is the {label} arm of the comparison in {run_dir.parent}; that comparison would "
+                         "refuse the arm once resumed here: rerun its `pdestream compare` command instead (an "
+                         "interrupted one goes on; longer runs: the new --steps with --overwrite, or another --out)")
+    if settings.get("steps") != done or isinstance(done, bool) or not isinstance(done, int):
+        return  # unfinished, or extended since it finished: the checkpoint holds the step
+    if steps is not None and steps < done:
+        raise ValueError(f"--steps {steps!r} not allowed with --resume {run_dir}: the run already did {done} steps; "
+                         f"allowed: an integer >= {done} (the new total)")
+    if steps is None or steps == done:
+        raise ValueError(f"--resume {run_dir}: the run is already complete ({done} of {done} steps; see "
+                         "metrics.json); --steps N extends it to N steps")

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from pdestream.interrupts import USER_ERRORS, check_writable_dir, remove_created, snapshot
 
-from .config import TRAIN_STEPS, TrainConfig
+from .config import TRAIN_STEPS, TrainConfig, check_resumable
 
 RUN_MARKERS = ("run.json", "checkpoint.pt", "model.pt", "metrics.json")  # any of them: the directory holds a run
 
@@ -29,6 +29,7 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
         check_writable_dir(cfg.out)
     elif Path(cfg.resume).is_dir():
         check_writable_dir(cfg.resume, "--resume")
+        check_resumable(cfg.resume, cfg.steps)  # what run.json and metrics.json say, before torch
     if cfg.resume is None and cfg.pde is None and cfg.source not in (None, "stream"):
         from dataclasses import replace
 
@@ -38,7 +39,12 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
     if cfg.resume is None and isinstance(cfg.pde, str):
         from pdestream.settings import build_pde
 
-        build_pde(cfg.pde, cfg.settings)  # the name and --set checked before torch (and JAX) are imported
+        pde = build_pde(cfg.pde, cfg.settings)  # the name and --set checked before torch (and JAX) are imported
+        if cfg.mode == "solver-in-the-loop" and cfg.source in (None, "stream"):  # its coarse grid (a cache's n is
+            # known once it is open): it was refused only when the corrector was built, after torch was imported
+            from .mode_table import check_coarse_grid, mode_settings
+
+            check_coarse_grid(pde, mode_settings(cfg.mode, coarse_n=cfg.coarse_n)["coarse_n"])
     from pdestream.datasets.generate import configure_solvers
     from pdestream.surrogate import ddp
 

@@ -191,6 +191,24 @@ CHECKS = {"noise": check_noise, "corrector_start": check_corrector_start, "unrol
           "clip": check_clip, "remat": check_remat}  # the settings that are not counts
 
 
+def check_coarse_grid(pde, coarse_n) -> None:
+    """Solver-in-the-loop's coarse grid against the fine PDE ``pde`` (a generator Problem, JAX-free to build): a
+    proper divisor of its n, on a PDE without ``refine``, which the PDE itself accepts as n; else one line. No torch:
+    ``compare --modes`` and ``train --mode`` refuse it before the corrector is built (``SolverInTheLoop.bind``)."""
+    n = pde.n
+    if getattr(pde, "refine", 1) > 1:  # the coarse solver would carry it: its grid n = coarse_n * refine
+        raise ValueError(f"solver-in-the-loop: refine={pde.refine} not allowed: the coarse solver steps the fine "
+                         f"states restricted to its own grid; allowed: refine=1 (--set n={n * pde.refine} "
+                         "--set refine=1 trains on the fine grid itself)")
+    if isinstance(coarse_n, bool) or not isinstance(coarse_n, int) or not (0 < coarse_n < n and n % coarse_n == 0):
+        raise ValueError(f"solver-in-the-loop: coarse n={coarse_n!r} does not fit the fine grid n={n}; "
+                         f"allowed: a proper divisor of {n}, e.g. {n // 8 if n % 8 == 0 and n // 8 >= 8 else n // 2}")
+    try:
+        pde.replace({"n": coarse_n})
+    except ValueError as err:  # the PDE's refusal speaks of n, which the user set as --coarse-n
+        raise ValueError(f"solver-in-the-loop: --coarse-n {coarse_n} not allowed: {err}") from None
+
+
 def option_help() -> dict:
     """The CLI's help text of each mode setting, by setting (cli.py's --unroll, --coarse-n, --noise, ...): kept beside
     the settings they describe, so the parser stays a list of options."""

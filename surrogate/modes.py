@@ -51,7 +51,7 @@ from pdestream import datasets
 from pdestream.datasets.normalize import Normalization
 
 from ..boundaries import kinds, periodic_words
-from .mode_table import DEFAULTS, MODE_NAMES, NOISE_RULE, SITL_NOISE_RULE, mode_settings
+from .mode_table import DEFAULTS, MODE_NAMES, NOISE_RULE, SITL_NOISE_RULE, check_coarse_grid, mode_settings
 from .models import zero_output
 from .predict import model_channels, net_step, pairs, predict, relative_errors, rollout, stack_frames
 
@@ -449,16 +449,8 @@ class SolverInTheLoop:
         """The coarse solver of the fine PDE ``pde``; seed: the run's seed (the start-state noise); ValueError (one
         line) when the sizes do not fit."""
         self.seed = seed
-        n = pde.n
-        if getattr(pde, "refine", 1) > 1:  # the coarse solver would carry it: its grid n = coarse_n * refine
-            raise ValueError(f"solver-in-the-loop: refine={pde.refine} not allowed: the coarse solver steps the fine "
-                             f"states restricted to its own grid; allowed: refine=1 (--set n={n * pde.refine} "
-                             "--set refine=1 trains on the fine grid itself)")
-        if isinstance(self.coarse_n, bool) or not isinstance(self.coarse_n, int) or not (
-                0 < self.coarse_n < n and n % self.coarse_n == 0):
-            raise ValueError(f"solver-in-the-loop: coarse n={self.coarse_n!r} does not fit the fine grid n={n}; "
-                             f"allowed: a proper divisor of {n}, e.g. {n // 8 if n % 8 == 0 and n // 8 >= 8 else n // 2}")
-        self.factor = n // self.coarse_n
+        check_coarse_grid(pde, self.coarse_n)  # (the CLI's commands have run it before torch was imported)
+        self.factor = pde.n // self.coarse_n
         self.walls = tuple(pde.grid.bc)
         where = getattr(pde, "FIELD_LOCATIONS", {})
         self.locations = tuple(where.get(f, "centre") for f in pde.FIELDS) if where else None

@@ -229,7 +229,8 @@ def test_colour_scale():
     assert inspect.colour_scale(spread)["vmax"] == 3.0
 
 
-def test_3d_fields_round_trip_and_plot_the_middle_slice():
+def test_3d_fields_round_trip_and_plot_the_three_mid_slices():
+    # adv50: only the middle z slice was drawn (x-y planes); now x-y, x-z and y-z through the centre, last frame
     u = np.arange(2 * 3 * 4 * 4 * 4, dtype=np.float32).reshape(2, 3, 4, 4, 4) - 100  # [S, T, x, y, z]
     disk = schema.to_disk(u, 3)
     assert disk[1, 2, 3, 1, 0] == u[1, 2, 0, 1, 3]  # stored (z, y, x)
@@ -243,10 +244,32 @@ def test_3d_fields_round_trip_and_plot_the_middle_slice():
     fig = inspect.draw(ds, n_show=2)
     try:
         ims = _images(fig)
-        assert len(ims) == 6 and all("z=2" in im.axes.get_title() for im in ims)
-        np.testing.assert_array_equal(ims[0].get_array(), u[0, 0, :, :, 2].T)  # row y, column x at z = 2
+        assert len(ims) == 6 and all("t=2" in im.axes.get_title() for im in ims)
+        for im, plane in zip(ims[:3], ("z=2", "y=2", "x=2")):
+            assert plane in im.axes.get_title(), im.axes.get_title()
+        np.testing.assert_array_equal(ims[0].get_array(), u[0, 2, :, :, 2].T)  # row y, column x at z = 2
+        np.testing.assert_array_equal(ims[1].get_array(), u[0, 2, :, 2, :].T)  # row z, column x at y = 2
+        np.testing.assert_array_equal(ims[2].get_array(), u[0, 2, 2, :, :].T)  # row z, column y at x = 2
+        assert [im.axes.get_ylabel() for im in ims[3:]] == ["y [length]", "z [length]", "z [length]"]
+        assert "mid-slices x=2, y=2, z=2 at the last frame t=2" in fig._suptitle.get_text()
     finally:
         plt.close(fig)
+
+
+def test_inspect_plot_of_a_3d_cache_shows_three_planes(tmp_path, capsys):
+    from pdestream import cli
+
+    cache, png = tmp_path / "a.h5", tmp_path / "a.png"
+    assert cli.main(["generate", "advection3d", "--n", "1", "--set", "n=16", "--set", "n_frames=2", "--out",
+                     str(cache)]) == 0
+    fig = inspect.figure(cache, n_show=1)
+    try:
+        titles = [im.axes.get_title().splitlines()[0] for im in _images(fig)]
+        assert len(titles) == 3 and [t.split()[-1][0] for t in titles] == ["z", "y", "x"], titles
+        assert "mid-slices" in fig._suptitle.get_text()
+    finally:
+        plt.close(fig)
+    assert cli.main(["inspect", str(cache), "--plot", str(png)]) == 0 and png.stat().st_size > 0
 
 
 def test_a_schema_1_2d_cache_is_refused_in_one_line(tmp_path, ns_cache, capsys):

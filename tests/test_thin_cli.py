@@ -46,20 +46,67 @@ LIGHT = [
     (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step,nosuchmode"], 2, "--modes one-step,nosuchmode"),
     (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step", "--set", "n_frames=4", "--unroll", "4"], 2,
      "needs trajectories of at least 6 frames"),
+    # adv50: a coarse grid that does not fit the fine one was refused only when the corrector was bound (torch)
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--set", "n=32", "--coarse-n", "12"],
+     2, "coarse n=12 does not fit the fine grid n=32"),
+    (["train", "burgers1d", "--out", "run", "--mode", "solver-in-the-loop", "--set", "n=32", "--coarse-n", "12"],
+     2, "coarse n=12 does not fit the fine grid n=32"),
 ]
 
 
-@pytest.mark.parametrize("argv, code, said", LIGHT)
-def test_help_and_refusals_import_neither_jax_nor_torch(tmp_path, argv, code, said):
+def _light(argv, cwd) -> tuple[int, str, bool, bool]:
+    """(exit status, stdout + stderr, JAX imported, torch imported) of ``cli.main(argv)`` in a fresh process."""
     script = ("import contextlib, io, json, sys\nfrom pdestream import cli\nout, err = io.StringIO(), io.StringIO()\n"
               "with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):\n"
               f"    try:\n        rc = cli.main({argv!r})\n    except SystemExit as e:\n        rc = e.code\n"
               "print(json.dumps([rc, out.getvalue() + err.getvalue(), 'jax' in sys.modules, 'torch' in sys.modules]))")
-    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=tmp_path, timeout=120)
-    rc, said_there, jax, torch = json.loads(res.stdout.strip().splitlines()[-1])
-    assert rc == code and said in said_there, (rc, said_there, res.stderr)
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=cwd, timeout=120)
+    assert res.stdout.strip(), res.stderr
+    return tuple(json.loads(res.stdout.strip().splitlines()[-1]))
+
+
+@pytest.mark.parametrize("argv, code, said", LIGHT)
+def test_help_and_refusals_import_neither_jax_nor_torch(tmp_path, argv, code, said):
+    rc, said_there, jax, torch = _light(argv, tmp_path)
+    assert rc == code and said in said_there, (rc, said_there)
     assert not jax and not torch, f"{argv}: jax imported {jax}, torch imported {torch}"
     assert list(tmp_path.iterdir()) == []
+
+
+TINY_TRAIN = ["--set", "n=16", "--set", "n_frames=3", "--batch-size", "2", "--test-samples", "1", "--threads", "1",
+              "--model-set", "width=4", "--model-set", "modes=2", "--model-set", "layers=1"]
+TINY_MODES = ["compare", "burgers1d", "--quick", "--modes", "one-step", "--test-samples", "2", "--threads", "1"]
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """A finished 2-step run and a finished one-arm `compare --modes` (2 steps) under one directory."""
+    root = tmp_path_factory.mktemp("finished")
+    assert cli.main(["train", "burgers1d", *TINY_TRAIN, "--steps", "2", "--out", str(root / "run")]) == 0
+    assert cli.main([*TINY_MODES, "--steps", "2", "--out", str(root / "cmp")]) == 0
+    return root
+
+
+def _unchanged(root):
+    return {str(p): p.stat().st_mtime_ns for p in root.rglob("*")}
+
+
+@pytest.mark.parametrize("argv, said", [
+    # adv50: each was refused only after torch was imported (read_run loads checkpoint.pt; the arms were bound)
+    (["train", "--resume", "{root}/run", "--steps", "1"], "the run already did 2 steps; allowed: an integer >= 2"),
+    (["train", "--resume", "{root}/run"], "the run is already complete (2 of 2 steps; see metrics.json)"),
+    ([*TINY_MODES, "--steps", "3", "--out", "{root}/cmp"], "holds a finished run with other settings (steps: the "
+                                                            "run's 2, asked 3)"),
+    # adv50: `train --resume` extended an arm of a comparison, which that comparison then refused
+    (["train", "--resume", "{root}/cmp/one-step", "--steps", "4"], "is the one-step arm of the comparison in {root}/cmp"),
+])
+def test_refusals_read_from_run_json_come_before_torch(finished, argv, said):
+    before = _unchanged(finished)
+    argv = [a.format(root=finished) for a in argv]
+    rc, err, jax, torch = _light(argv, finished)
+    assert rc == 2 and said.format(root=finished) in err and err.count("\n") == 1, err
+    assert not torch and not jax, f"{argv}: torch imported {torch}, jax imported {jax}"
+    assert _unchanged(finished) == before
 
 
 def test_every_entry_refuses_bad_settings_and_builds_its_defaults_without_jax():
@@ -172,3 +219,19 @@ def test_compare_refuses_frames_options_with_the_operator_view(tmp_path, capsys,
     assert cli.main(["compare", "burgers1d", "--out", str(tmp_path / "c"), *extra]) == 2
     err = capsys.readouterr().err
     assert said in err and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize("argv, option, value, allowed", [  # adv50: argparse printed its whole usage (30 lines)
+    (["train", "burgers1d", "--out", "run", "--steps", "abc"], "--steps", "'abc'", "a whole number"),
+    (["train", "burgers1d", "--out", "run", "--lr", "fast"], "--lr", "'fast'", "a number, e.g. --lr 0.001"),
+    (["generate", "burgers1d", "--out", "x.h5", "--n", "2x"], "--n", "'2x'", "a whole number"),
+    (["compare", "burgers1d", "--out", "cmp", "--budget", "1min"], "--budget", "'1min'", "a number"),
+    (["compare", "burgers1d", "--out", "cmp", "--seeds", "1.5"], "--seeds", "'1.5'", "allowed: a whole number"),
+    (["train", "burgers1d", "--out", "run", "--view", "nope"], "--view", "'nope'", "next_step"),
+])
+def test_a_bad_option_value_is_one_line_naming_it(capsys, argv, option, value, allowed):
+    with pytest.raises(SystemExit) as exit:
+        cli.main(argv)
+    err = capsys.readouterr().err
+    assert exit.value.code == 2 and err.count("\n") == 1 and err.startswith("pdestream: error: "), err
+    assert option in err and value in err and allowed in err and "usage" not in err, err
