@@ -217,7 +217,7 @@ def _differ(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed: in
     want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": _arm_steps(cfg, settings),
                                   "seconds": cfg.budget_s,
                                   "batch_size": cfg.batch_size, "lr": cfg.lr, "seed": seed,
-                                  "mode": make_mode(settings).settings(), "pde": pde.config()}))
+                                  "mode": make_mode(settings, pde).settings(), "pde": pde.config()}))
     try:
         have = json.loads((run_dir / "run.json").read_text())
     except (OSError, ValueError):
@@ -233,6 +233,10 @@ def _said(key: str, have, want) -> str:
         return f"{key}: the run's {have}, asked {want}"
     parts = [f"{k} the run's {have.get(k, 'its default')}, asked {want.get(k, 'its default')}"
              for k in sorted(set(have) | set(want)) if have.get(k) != want.get(k)]
+    if key == "mode" and have.get("restrict") != want.get("restrict"):  # absent: point sampling, the runs before it
+        parts = [p for p in parts if not p.startswith("restrict ")]
+        parts.insert(0, f"restrict the run's {have.get('restrict', 'points')}, asked {want.get('restrict', 'points')}: "
+                        f"pass --restrict {have.get('restrict', 'points')}")
     return f"{key}: {', '.join(parts[:3])}{' ...' if len(parts) > 3 else ''}"
 
 

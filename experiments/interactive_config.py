@@ -28,7 +28,9 @@ class InteractiveConfig:
     corrector arm's network starts ("random" or "zero", ``SolverInTheLoop.init_model``); unroll_schedule: the
     solver-in-the-loop arm's unroll curriculum, "K1:S1,K2:S2,..." (unroll Ki for the share Si of the steps,
     ``mode_table.parse_unroll_schedule``; its longest unroll replaces sitl_unroll); clip / remat: every corrector
-    arm's gradient clipping norm and rematerialisation (``SolverInTheLoop``); shift / shift_set: every arm rolled
+    arm's gradient clipping norm and rematerialisation (``SolverInTheLoop``); restrict: how every corrector arm,
+    the coarse solver and the references restrict a fine periodic field to the coarse grid ("fourier" or
+    "points", ``surrogate.modes.subsample``); shift / shift_set: every arm rolled
     out again on a second held-out set beyond the training range (``experiments.shift.shifted_pde``: the parameter
     domains moved by this fraction of their width, or as shift_set names them; None: no such set); seed: the
     first model and data
@@ -56,6 +58,7 @@ class InteractiveConfig:
     unroll_schedule: str | None = None
     clip: float | None = None
     remat: bool = False
+    restrict: str = DEFAULTS["restrict"]
     shift: float | None = None
     shift_set: dict = field(default_factory=dict)
     seeds: int = 1
@@ -118,7 +121,8 @@ def arm_settings(cfg: InteractiveConfig, name: str, **override) -> dict:
         unroll = max(k for k, _ in schedule)
     noise = 0.0 if name == "solver-in-the-loop" else cfg.noise  # (the corrector's noise arm overrides it)
     given = {"unroll": unroll, "coarse_n": cfg.coarse_n, "noise": noise, "corrector_start": cfg.corrector_start,
-             "unroll_schedule": schedule, "clip": cfg.clip, "remat": cfg.remat, **override}
+             "unroll_schedule": schedule, "clip": cfg.clip, "remat": cfg.remat,
+             "restrict": cfg.restrict, **override}
     if given.get("unroll") == 1:  # the pairs arms: no curriculum
         given["unroll_schedule"] = None
     return mode_settings(name, **{k: v for k, v in given.items() if k in MODE_SPECS[name].settings})

@@ -133,7 +133,8 @@ def mode_settings(cfg: TrainConfig) -> dict:
     from pdestream.surrogate import mode_table
 
     settings = mode_table.mode_settings(cfg.mode, unroll=cfg.unroll, coarse_n=cfg.coarse_n, noise=cfg.noise,
-                                        corrector_start=cfg.corrector_start, clip=cfg.clip, remat=cfg.remat)
+                                        corrector_start=cfg.corrector_start, clip=cfg.clip, remat=cfg.remat,
+                                        restrict=cfg.restrict)
     return settings if cfg.loss == "mse" else {**settings, "loss": cfg.loss}
 
 
