@@ -322,7 +322,9 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
         given = _given_with_resume(args)
         if given:
             raise ValueError(f"--resume takes the run's settings from {Path(args.resume) / 'run.json'}; drop "
-                             f"{', '.join(given)} (only --threads, --steps and --ddp may go with it)")
+                             f"{', '.join(given)} (only --threads, --steps and --ddp may go with it" + (
+                                 "; the run restricts as it started: a run.json without \"restrict\" by points"
+                                 if "--restrict" in given else "") + ")")
         return TrainConfig(resume=args.resume, threads=args.threads, steps=args.steps, ddp=args.ddp,
                            solver_workers=args.solver_workers, solver_timeout=args.solver_timeout)
     if args.out is None:

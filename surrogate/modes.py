@@ -384,7 +384,7 @@ class SolverInTheLoop:
     Built with ``bind(pde)`` from the fine training PDE: the coarse solver is the same PDE config with
     n = coarse_n (its own stable step), ``factor`` = n / coarse_n. A step is
     s <- S(s) + std * net(normalize(S(s)), params): the network outputs the correction in normalized units.
-    The loss (``loss``) is over the k unrolled states against the fine trajectory subsampled, gradients through
+    The loss (``loss``) is over the k unrolled states against the fine trajectory restricted, gradients through
     the solver (``datasets.SolverStep``). unroll=1 is training on precomputed (coarse step, fine) pairs.
 
     ``noise`` = sigma > 0 (the noise baseline on the corrector, Sanchez-Gonzalez et al. 2020 applied to the
@@ -566,7 +566,7 @@ class SolverInTheLoop:
 
     @torch.no_grad()
     def rollout(self, model, norm, u, params, k_in=1):
-        """The corrected coarse solver (model=None: the coarse solver alone) from u[:, 0] subsampled."""
+        """The corrected coarse solver (model=None: the coarse solver alone) from u[:, 0] restricted (``restrict``)."""
         ndim = u.ndim - 3
         truth = subsample(u, self.factor, ndim, self.walls, self.locations, self.restrict)  # [B, T, C, *coarse]
         p = norm.normalize_params(params) if model is not None else None
