@@ -194,7 +194,7 @@ def _add_model_args(p: argparse.ArgumentParser, d, lr_note: str = "") -> None:
 
 
 def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
-    from pdestream.surrogate.mode_table import CORRECTOR_STARTS, MODE_NAMES, MODE_SPECS, option_help
+    from pdestream.surrogate.mode_table import MODE_NAMES, MODE_SPECS, add_mode_options
 
     g = p.add_argument_group("interactive training modes (see surrogate/modes.py)")
     if isinstance(d, TrainConfig):
@@ -208,15 +208,8 @@ def _add_mode_args(p: argparse.ArgumentParser, d) -> None:
                    help="training loss: mse (in normalized units) or relative (the mean per-example relative L2, the "
                         "FNO paper's: a trajectory with a small target weighs as much as any)"
                         + ("" if isinstance(d, TrainConfig) else "; with --budget / --sim-budget"))
-    hint = option_help()  # the values are checked by the mode table (one line for a bad one)
-    g.add_argument("--unroll", type=int, default=d.unroll, metavar="K", help=hint["unroll"])
-    g.add_argument("--coarse-n", type=int, metavar="N", help=hint["coarse_n"])
-    g.add_argument("--noise", metavar="SIGMA", help=hint["noise"])
-    g.add_argument("--corrector-start", metavar="|".join(CORRECTOR_STARTS), help=hint["corrector_start"])
-    g.add_argument("--clip", metavar="NORM", help=hint["clip"])
-    g.add_argument("--remat", action="store_true", help=hint["remat"])
+    add_mode_options(g, d.unroll, compare=not isinstance(d, TrainConfig))  # the values: checked by the mode table
     if not isinstance(d, TrainConfig):
-        g.add_argument("--unroll-schedule", metavar="K1:S1,K2:S2,...", help=hint["unroll_schedule"])
         g.add_argument("--pairs-steps", type=int, metavar="N", help="the corrector's pairs arms' steps (default --steps)")
 
 
@@ -311,7 +304,9 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
         given = _given_with_resume(args)
         if given:
             raise ValueError(f"--resume takes the run's settings from {Path(args.resume) / 'run.json'}; drop "
-                             f"{', '.join(given)} (only --threads, --steps and --ddp may go with it)")
+                             f"{', '.join(given)} (only --threads, --steps and --ddp may go with it" + (
+                                 "; the run restricts as it started: a run.json without \"restrict\" by points"
+                                 if "--restrict" in given else "") + ")")
         return TrainConfig(resume=args.resume, threads=args.threads, steps=args.steps, ddp=args.ddp,
                            solver_workers=args.solver_workers, solver_timeout=args.solver_timeout)
     if args.out is None:
@@ -323,7 +318,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
         model_cfg=parse_sets(args.model_set, "--model-set"), view=args.view, k_in=args.k_in, k_out=args.k_out, steps=args.steps,
         batch_size=args.batch_size, lr=args.lr, schedule=args.schedule, threads=args.threads, device=args.device,
         mode=args.mode, loss=args.loss, unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise,
-        corrector_start=args.corrector_start, clip=args.clip, remat=args.remat,
+        corrector_start=args.corrector_start, clip=args.clip, remat=args.remat, restrict=args.restrict,
         solver_workers=args.solver_workers, solver_timeout=args.solver_timeout)
     cfg.check()  # its own values first (a cache with --ddp is named as such, not as a cache with --reservoir)
     cfg.reservoir = reservoir_cfg(args)
@@ -353,7 +348,8 @@ def compare_command(args: argparse.Namespace) -> CompareCommand:
         steps=args.steps, batch_size=args.batch_size, lr=args.lr, threads=args.threads, device=args.device,
         modes=None if args.modes is None else tuple(args.modes.split(",")), fine_n=args.fine_n, loss=args.loss,
         unroll=args.unroll, coarse_n=args.coarse_n, noise=args.noise, corrector_start=args.corrector_start,
-        unroll_schedule=args.unroll_schedule, pairs_steps=args.pairs_steps, clip=args.clip, remat=args.remat, reservoir=reservoir)
+        unroll_schedule=args.unroll_schedule, pairs_steps=args.pairs_steps, clip=args.clip, remat=args.remat,
+        restrict=args.restrict, reservoir=reservoir)
 
 
 def cmd_compare(args: argparse.Namespace) -> None:

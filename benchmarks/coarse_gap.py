@@ -5,7 +5,8 @@
 ``--n`` samples of the entry's defaults (``--set`` applied, n = ``--fine-n``) are solved on the fine grid; the
 coarse solver (the same settings at n = ``--coarse-n``, its own stable step: ``surrogate.modes.SolverInTheLoop``,
 as ``compare --modes solver-in-the-loop`` builds it) is rolled out from the first frame restricted to the coarse
-grid. Printed per frame: the relative L2 error of the coarse rollout against the fine trajectory restricted to the
+grid (``--restrict``: fourier, the default of new runs, or points, every factor-th point as the figures before
+the option). Printed per frame: the relative L2 error of the coarse rollout against the fine trajectory restricted to the
 coarse grid (mean, median and max over samples) and the solve times. Used to pick issue 29's spectral case
 (docs/results/interactive.md): a corrector can pay only where this error is large and grows.
 """
@@ -19,7 +20,8 @@ import time
 import numpy as np
 
 
-def coarse_gap(name: str, fine_n: int, coarse_n: int, n: int = 8, settings: dict | None = None, seed: int = 0) -> dict:
+def coarse_gap(name: str, fine_n: int, coarse_n: int, n: int = 8, settings: dict | None = None, seed: int = 0,
+               restrict: str = "fourier") -> dict:
     """{"t": [T] frame times after the first, "mean" / "median" / "max": [T] relative L2 errors over the ``n``
     samples, "fine_s", "coarse_s": wall seconds} for entry ``name`` (settings as --set strings)."""
     import torch
@@ -31,7 +33,7 @@ def coarse_gap(name: str, fine_n: int, coarse_n: int, n: int = 8, settings: dict
     t0 = time.perf_counter()
     data = datasets.sample_tensors(pde, np.arange(n), seed)
     t1 = time.perf_counter()
-    pred, truth = SolverInTheLoop(unroll=1, coarse_n=coarse_n).bind(pde).rollout(None, None, data["u"], data["params"])
+    pred, truth = SolverInTheLoop(unroll=1, coarse_n=coarse_n, restrict=restrict).bind(pde).rollout(None, None, data["u"], data["params"])
     t2 = time.perf_counter()
     err = (pred - truth).flatten(2).norm(dim=2) / truth.flatten(2).norm(dim=2).clamp_min(1e-12)  # [n, T]
     return {"t": [float(t) for t in pde.times()[1:]], "mean": err.mean(0).tolist(),
@@ -45,13 +47,16 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--fine-n", type=int, required=True, help="fine grid")
     p.add_argument("--coarse-n", type=int, required=True, help="coarse grid, a proper divisor of --fine-n")
     p.add_argument("--n", type=int, default=8, help="samples (default 8)")
+    p.add_argument("--restrict", choices=("fourier", "points"), default="fourier",
+                   help="fine -> coarse on periodic axes (default fourier)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a setting of the entry")
     a = p.parse_args(argv)
     bad_set = [kv for kv in a.set if "=" not in kv or not kv.split("=", 1)[0]]
     if bad_set or a.n < 1:
         sys.exit(f"--set {bad_set[0]!r}: need KEY=VALUE" if bad_set else f"--n {a.n}: need >= 1")
     try:
-        g = coarse_gap(a.pde, a.fine_n, a.coarse_n, a.n, dict(kv.split("=", 1) for kv in a.set))
+        g = coarse_gap(a.pde, a.fine_n, a.coarse_n, a.n, dict(kv.split("=", 1) for kv in a.set),
+                       restrict=a.restrict)
     except (ValueError, KeyError) as err:
         sys.exit(str(err).splitlines()[0])
     print(f"{a.pde} fine n={a.fine_n} -> coarse n={a.coarse_n}, {a.n} samples: fine solve {g['fine_s']:.1f} s, "

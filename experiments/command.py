@@ -63,6 +63,7 @@ class CompareCommand:
     pairs_steps: int | None = None  # --modes: the corrector's pairs arms' steps (equal wall clock), None: steps
     clip: float | str | None = None  # --modes: the corrector arms' gradient clipping norm
     remat: bool = False  # --modes: the corrector arms' rematerialisation
+    restrict: str | None = None  # --modes: the corrector arms' fine -> coarse restriction (None: the mode table's)
     reservoir: dict = field(default_factory=dict)
 
 
@@ -202,9 +203,9 @@ def _compare(cmd: CompareCommand, log) -> str:
                          "(u(t=0) -> u(t_end), no frames to stack)")
     if (cmd.unroll is not None or cmd.coarse_n is not None or cmd.fine_n is not None or cmd.noise is not None
             or cmd.corrector_start is not None or cmd.unroll_schedule is not None or cmd.pairs_steps is not None
-            or cmd.clip is not None or cmd.remat):
+            or cmd.clip is not None or cmd.remat or cmd.restrict is not None):
         raise ValueError("--unroll, --unroll-schedule, --coarse-n, --fine-n, --pairs-steps, --corrector-start, --noise, "
-                         "--clip and --remat go with --modes (compare training modes)")
+                         "--clip, --remat and --restrict go with --modes (compare training modes)")
     if budget:
         return _budget(cmd, log)
     from pdestream.experiments import compare as module
@@ -291,7 +292,7 @@ def _interactive(cmd: CompareCommand) -> str:
     """modes: training modes at equal steps (experiments.interactive_compare)."""
     from pdestream.experiments.interactive_config import InteractiveConfig, check_arms
     from pdestream.settings import build_pde
-    from pdestream.surrogate.mode_table import check_clip, check_corrector_start, check_noise
+    from pdestream.surrogate.mode_table import check_clip, check_corrector_start, check_noise, check_restrict
 
     if cmd.sim_budget is not None:
         raise ValueError("--modes compares at equal --steps or, with --budget SECONDS, at equal wall clock; "
@@ -302,6 +303,10 @@ def _interactive(cmd: CompareCommand) -> str:
         check_corrector_start(cmd.corrector_start)
     clip = check_clip(cmd.clip)
     modes = tuple(m.strip() for m in cmd.modes if m.strip())
+    if cmd.restrict is not None:
+        check_restrict(cmd.restrict)
+        if "solver-in-the-loop" not in modes:
+            raise ValueError(f"--restrict {cmd.restrict} goes with the corrector's arms (--modes ...,solver-in-the-loop)")
     settings = {"n": "32", "n_frames": "11", **cmd.settings} if cmd.quick else dict(cmd.settings)  # tiny: tests
     pde = build_pde(cmd.pde, settings)
     if not cmd.quick:
@@ -311,7 +316,7 @@ def _interactive(cmd: CompareCommand) -> str:
     model_cfg = {**model_cfg, **cmd.model_cfg}
     quick = cmd.quick and cmd.steps == 1000  # quick without steps: a few steps
     given = {"unroll": cmd.unroll, "coarse_n": 16 if cmd.quick and cmd.coarse_n is None else cmd.coarse_n,
-             "noise": cmd.noise, "corrector_start": cmd.corrector_start}
+             "noise": cmd.noise, "corrector_start": cmd.corrector_start, "restrict": cmd.restrict}
     cfg = InteractiveConfig(
         modes=modes, **{k: v for k, v in given.items() if v is not None},  # else the mode table's
         steps=20 if quick else cmd.steps, batch_size=8 if quick else cmd.batch_size, lr=cmd.lr, model=cmd.model,

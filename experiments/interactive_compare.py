@@ -8,8 +8,9 @@ frames. Reported per mode: relative L2 per frame (mean over trajectories), the e
 p95, max over trajectories) and the training wall time.
 
 ``solver-in-the-loop``: the PDE on a coarse grid (``coarse_n``) against the same PDE on a fine grid (``fine_n``,
-default the PDE's own n), four arms rolled out over the whole trajectory from the fine IC subsampled and
-compared with the fine solution subsampled: the coarse solver alone, the coarse solver with a correction trained
+default the PDE's own n), four arms rolled out over the whole trajectory from the fine IC restricted to the coarse
+grid and compared with the fine solution restricted alike (``--restrict``: Fourier truncation or point sampling on
+periodic axes, ``surrogate.modes.subsample``): the coarse solver alone, the coarse solver with a correction trained
 on (coarse step, fine) pairs (unroll 1: no unrolling, the precomputed-pairs baseline), the same with the coarse
 start state perturbed by N(0, noise^2) in normalized units and the fine target clean ("pairs + noise", the noise
 baseline on the corrector, Sanchez-Gonzalez et al. 2020), and with a correction trained unrolled ``unroll``

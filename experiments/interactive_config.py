@@ -20,6 +20,7 @@ from pdestream.surrogate.mode_table import (
     check_noise,
     mode_settings,
     parse_unroll_schedule,
+    pde_restricts_periodic,
 )
 
 
@@ -32,7 +33,9 @@ class InteractiveConfig:
     corrector arm's network starts ("random" or "zero", ``SolverInTheLoop.init_model``); unroll_schedule: the
     solver-in-the-loop arm's unroll curriculum, "K1:S1,K2:S2,..." (unroll Ki for the share Si of the steps,
     ``mode_table.parse_unroll_schedule``; its longest unroll replaces sitl_unroll); clip / remat: every corrector
-    arm's gradient clipping norm and rematerialisation (``SolverInTheLoop``); shift / shift_set: every arm rolled
+    arm's gradient clipping norm and rematerialisation (``SolverInTheLoop``); restrict: how every corrector arm,
+    the coarse solver and the references restrict a fine periodic field to the coarse grid ("fourier" or
+    "points", ``surrogate.modes.subsample``); shift / shift_set: every arm rolled
     out again on a second held-out set beyond the training range (``experiments.shift.shifted_pde``: the parameter
     domains moved by this fraction of their width, or as shift_set names them; None: no such set); seed: the
     first model and data
@@ -60,6 +63,7 @@ class InteractiveConfig:
     unroll_schedule: str | None = None
     clip: float | None = None
     remat: bool = False
+    restrict: str = DEFAULTS["restrict"]
     shift: float | None = None
     shift_set: dict = field(default_factory=dict)
     seeds: int = 1
@@ -122,7 +126,8 @@ def arm_settings(cfg: InteractiveConfig, name: str, **override) -> dict:
         unroll = max(k for k, _ in schedule)
     noise = 0.0 if name == "solver-in-the-loop" else cfg.noise  # (the corrector's noise arm overrides it)
     given = {"unroll": unroll, "coarse_n": cfg.coarse_n, "noise": noise, "corrector_start": cfg.corrector_start,
-             "unroll_schedule": schedule, "clip": cfg.clip, "remat": cfg.remat, **override}
+             "unroll_schedule": schedule, "clip": cfg.clip, "remat": cfg.remat,
+             "restrict": cfg.restrict, **override}
     if given.get("unroll") == 1:  # the pairs arms: no curriculum
         given["unroll_schedule"] = None
     return mode_settings(name, **{k: v for k, v in given.items() if k in MODE_SPECS[name].settings})
@@ -195,19 +200,27 @@ def seed_dir(arm_dir: Path, cfg: InteractiveConfig, seed: int) -> Path:
     return named
 
 
-def comparable_mode(mode):
+def comparable_mode(mode, pde=None):
     """A mode's settings (as given, or run.json's "mode") in one form: every setting of the mode with its default
     filled in and the loss, without the rule in words (what ``surrogate.modes.make_mode`` reads of it); the value
-    itself when it is not a mode's settings."""
+    itself when it is not a mode's settings. Solver-in-the-loop's "restrict" left out reads "points" (run.json
+    files before the setting), as make_mode reads it; on the fine ``pde``'s grid where it does not act (walls
+    only, staggered fields: ``mode_table.pde_restricts_periodic``) it is left out of the form."""
     if mode is None:  # run.json of runs before modes: one-step
         mode = {"name": "one-step"}
     if not isinstance(mode, dict):
         return mode
     s = {k: v for k, v in mode.items() if k not in ("loss", "rule")}
+    name = s.pop("name", "one-step")
+    if name == "solver-in-the-loop":
+        s.setdefault("restrict", "points")
     try:
-        return {**mode_settings(s.pop("name", "one-step"), **s), "loss": mode.get("loss", "mse")}
+        form = {**mode_settings(name, **s), "loss": mode.get("loss", "mse")}
     except (ValueError, TypeError):
         return mode
+    if name == "solver-in-the-loop" and pde is not None and not pde_restricts_periodic(pde):
+        form.pop("restrict", None)
+    return form
 
 
 def arm_differs(run: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int, said: bool = False) -> list[str]:
@@ -215,12 +228,12 @@ def arm_differs(run: Path, pde, settings: dict, cfg: InteractiveConfig, seed: in
     as "KEY: the run's X, asked Y", a dict's differing entries named, as the refusal says them)."""
     want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": arm_steps(cfg, settings),
                                   "seconds": cfg.budget_s, "batch_size": cfg.batch_size, "lr": cfg.lr, "seed": seed,
-                                  "mode": comparable_mode(settings), "pde": pde.config()}))
+                                  "mode": comparable_mode(settings, pde), "pde": pde.config()}))
     try:
         have = json.loads((run / "run.json").read_text())
     except (OSError, ValueError):
         have = {}
-    have = {**have, "mode": comparable_mode(have.get("mode"))} if isinstance(have, dict) else {}
+    have = {**have, "mode": comparable_mode(have.get("mode"), pde)} if isinstance(have, dict) else {}
     keys = [key for key in RESUME_KEYS if have.get(key) != want[key]]
     return [_said(key, have.get(key), want[key]) for key in keys] if said else keys
 
@@ -231,7 +244,10 @@ def _said(key: str, have, want) -> str:
     if not (isinstance(have, dict) and isinstance(want, dict)):
         return f"{key}: the run's {have}, asked {want}"
     parts = [f"{k} the run's {have.get(k, 'its default')}, asked {want.get(k, 'its default')}"
-             for k in sorted(set(have) | set(want)) if have.get(k) != want.get(k)]
+             for k in sorted(set(have) | set(want)) if have.get(k) != want.get(k) and k != "restrict"]
+    if key == "mode" and have.get("restrict") != want.get("restrict"):  # first: the flag to pass
+        parts.insert(0, f"restrict the run's {have.get('restrict', 'points')}, asked "
+                        f"{want.get('restrict', 'points')}: pass --restrict {have.get('restrict', 'points')}")
     return f"{key}: {', '.join(parts[:3])}{' ...' if len(parts) > 3 else ''}"
 
 

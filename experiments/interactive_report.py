@@ -120,6 +120,9 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
             noise += ", every corrector arm" + (f"'s gradient clipped to global norm {clip:g}" if clip is not None
                                                 else "") + (" and" if clip is not None and remat else "") + \
                 (" rematerialised (--remat)" if remat else "")
+        restrict = getattr(cfg, "restrict", "points")
+        noise += (", fine -> coarse restriction on periodic axes: " + ("Fourier truncation (the coarse grid's modes, its "
+                  "Nyquist mode zeroed)" if restrict == "fourier" else "point sampling (every factor-th point)"))
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
     pairs = getattr(cfg, "pairs_steps", None)
     per_arm = (f"{cfg.steps} optimizer steps" + (f" (the two pairs arms: {pairs})" if pairs else "")
@@ -223,11 +226,16 @@ def plot(path: Path, result: dict) -> None:
         fine = result["fine_pde"]["n"] if result["fine_pde"] else None
         steps = max(a["steps"] for a in group)
         ax.set_title(f"network modes, {steps} steps each" if group[0]["mode"] in NETWORK_MODES else
-                     f"coarse solver n={group[0]['n']} vs fine n={fine} (subsampled)")
+                     f"coarse solver n={group[0]['n']} vs fine n={fine} ({_restriction(result)})")
         ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _restriction(result: dict) -> str:
+    """The fine -> coarse restriction of a comparison in a figure's words (compare.json without it: points)."""
+    return "Fourier-restricted" if (result.get("config") or {}).get("restrict", "points") == "fourier" else "subsampled"
 
 
 def plot_corrector(path: Path, result: dict) -> None:
@@ -252,7 +260,7 @@ def plot_corrector(path: Path, result: dict) -> None:
     ax.plot([], [], color="grey", ls="--", lw=0.9, label="dashed: p95 over trajectories")
     ax.set(yscale="log", xlabel="time (rolled out from t=0)", ylabel="relative L2 error (solid: mean over trajectories)")
     fine = result["fine_pde"]["n"] if result["fine_pde"] else None
-    ax.set_title(f"corrector arms: coarse n={arms[0]['n']} vs fine n={fine} (subsampled), "
+    ax.set_title(f"corrector arms: coarse n={arms[0]['n']} vs fine n={fine} ({_restriction(result)}), "
                  f"{max(a['steps'] for a in arms)} steps each", fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()

@@ -23,7 +23,7 @@ class TrainConfig:
     model_cfg: the model's settings (e.g. {"width": 64}); view: "next_step" or "operator" (None: next_step, operator
     on a steady PDE); steps: optimizer steps (None: TRAIN_STEPS, or a resumed run's own); threads: torch CPU
     threads (None: all cores but one, shared by the ranks); ddp: ranks started here (None: 1, or torchrun's).
-    mode / loss / unroll / coarse_n / noise / corrector_start / clip / remat: the interactive training mode
+    mode / loss / unroll / coarse_n / noise / corrector_start / clip / remat / restrict: the interactive training mode
     (surrogate/mode_table.py; None: its default).
     reservoir: the training reservoir's settings (train_run's data_cfg, kind "reservoir"; None: no reservoir).
     solver_workers / solver_timeout: external solvers' worker processes and seconds per solve.
@@ -58,6 +58,7 @@ class TrainConfig:
     corrector_start: str | None = None
     clip: float | str | None = None
     remat: bool = False
+    restrict: str | None = None
     reservoir: dict | None = None
     solver_workers: int | None = None
     solver_timeout: float | None = None
@@ -96,7 +97,7 @@ class TrainConfig:
         from pdestream.surrogate.mode_table import mode_settings  # (no torch)
 
         mode_settings(self.mode, unroll=self.unroll, coarse_n=self.coarse_n, noise=self.noise,
-                      corrector_start=self.corrector_start, clip=self.clip, remat=self.remat)
+                      corrector_start=self.corrector_start, clip=self.clip, remat=self.remat, restrict=self.restrict)
 
     def given_with_resume(self) -> list[str]:
         """The fields set besides those RESUME_ALLOWED (a resumed run takes its settings from its run.json)."""

@@ -139,7 +139,8 @@ def mode_settings(cfg: TrainConfig) -> dict:
     from pdestream.surrogate import mode_table
 
     settings = mode_table.mode_settings(cfg.mode, unroll=cfg.unroll, coarse_n=cfg.coarse_n, noise=cfg.noise,
-                                        corrector_start=cfg.corrector_start, clip=cfg.clip, remat=cfg.remat)
+                                        corrector_start=cfg.corrector_start, clip=cfg.clip, remat=cfg.remat,
+                                        restrict=cfg.restrict)
     return settings if cfg.loss == "mse" else {**settings, "loss": cfg.loss}
 
 
@@ -399,8 +400,9 @@ def run_report(s: dict, model: str, source: str, n_test: int, out) -> str:
              f"included; computing {s['t_compute']:.1f} s); "
              f"{s['trajectories_seen']} trajectories, final loss {s['final_loss']:.4g}"]
     t = s["test"]["test"]
-    if mode["name"] == "solver-in-the-loop":  # the corrected coarse solver against the fine solution subsampled
-        lines.append(f"(errors on the coarse grid n={mode['coarse_n']}, against the fine solution subsampled)")
+    if mode["name"] == "solver-in-the-loop":  # the corrected coarse solver against the fine solution restricted
+        how = "Fourier-truncated" if mode.get("restrict") == "fourier" else "subsampled"  # (absent: points)
+        lines.append(f"(errors on the coarse grid n={mode['coarse_n']}, against the fine solution {how})")
     lines.append(f"test ({n_test} held-out trajectories): rel L2 {t['rel_l2']:.4f}, nRMSE {t['nrmse']:.4f}"
                  + (f", rollout rel L2 at the last frame {t['rollout_final']:.4f}" if "rollout_final" in t else ""))
     reservoir = "data_stats" in s and "reuse_mean" in s["data_stats"]

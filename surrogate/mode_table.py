@@ -11,14 +11,19 @@ import math
 import numbers
 from dataclasses import dataclass
 
+from ..boundaries import kinds
 from .checks import check_count
 
 # a setting's default for every mode that takes it
 DEFAULTS = {"unroll": 4, "coarse_n": 64, "noise": 0.01, "corrector_start": "random", "unroll_schedule": None,
-            "clip": None, "remat": False}
+            "clip": None, "remat": False, "restrict": "fourier"}
 # how a correction network starts: "random" (the model's own initialisation) or "zero" (its output layer's weights and
 # bias set to zero, so the corrected solver starts as the coarse solver alone: Mosaic's correctors start this way)
 CORRECTOR_STARTS = ("random", "zero")
+# how the corrector restricts a fine periodic field to its coarse grid: "fourier" (the modes the coarse grid holds,
+# the coarse Nyquist mode zeroed: the mean kept, a resolved field mapped to itself) or "points" (every factor-th
+# point: the fine modes beyond the coarse Nyquist alias; every run.json without "restrict" was restricted so)
+RESTRICTS = ("fourier", "points")
 
 
 @dataclass(frozen=True)
@@ -45,7 +50,7 @@ MODE_SPECS = {spec.name: spec for spec in (
     ModeSpec("oracle", ("unroll",), True,
              "train on states the network reaches in 0..K steps, labelled by the solver"),
     ModeSpec("solver-in-the-loop", ("unroll", "coarse_n", "noise", "corrector_start", "unroll_schedule", "clip",
-                                    "remat"), False,
+                                    "remat", "restrict"), False,
              "a correction network on a coarse differentiable solver, unrolled K steps, against the fine solve "
              "(--noise SIGMA: the coarse start state perturbed, the fine target clean; default 0; "
              "--corrector-start zero: the correction's output layer starts at zero)",
@@ -65,7 +70,8 @@ SITL_NOISE_RULE = ("s0 + eps, s0 the coarse start state (the fine state restrict
                    "the correction step from s0 + eps, the fine targets clean")
 # how the CLI spells each setting
 OPTION = {"unroll": "--unroll", "coarse_n": "--coarse-n", "noise": "--noise", "corrector_start": "--corrector-start",
-          "unroll_schedule": "--unroll-schedule", "clip": "--clip", "remat": "--remat"}
+          "unroll_schedule": "--unroll-schedule", "clip": "--clip", "remat": "--remat",
+          "restrict": "--restrict"}
 
 
 def takes(setting: str) -> str:
@@ -180,6 +186,14 @@ def check_clip(value) -> float | None:
     return number
 
 
+def check_restrict(value) -> str:
+    """The fine -> coarse restriction of periodic axes, one of RESTRICTS, else one line naming the value."""
+    if value not in RESTRICTS:
+        raise ValueError(f"--restrict={value!r} not allowed; allowed: {', '.join(RESTRICTS)} (fourier: the coarse "
+                         "grid's Fourier modes of the fine field; points: every factor-th fine point)")
+    return value
+
+
 def check_remat(value) -> bool:
     """Rematerialisation on or off: a bool, else one line."""
     if not isinstance(value, bool):
@@ -188,7 +202,7 @@ def check_remat(value) -> bool:
 
 
 CHECKS = {"noise": check_noise, "corrector_start": check_corrector_start, "unroll_schedule": check_unroll_schedule,
-          "clip": check_clip, "remat": check_remat}  # the settings that are not counts
+          "clip": check_clip, "remat": check_remat, "restrict": check_restrict}  # the settings that are not counts
 
 
 def check_coarse_grid(pde, coarse_n) -> None:
@@ -207,6 +221,18 @@ def check_coarse_grid(pde, coarse_n) -> None:
         pde.replace({"n": coarse_n})
     except ValueError as err:  # the PDE's refusal speaks of n, which the user set as --coarse-n
         raise ValueError(f"solver-in-the-loop: --coarse-n {coarse_n} not allowed: {err}") from None
+
+
+def restricts_periodic(bc, locations) -> bool:
+    """Whether ``--restrict`` acts on a fine grid of per-axis ``bc`` (boundary words; None: periodic) whose fields
+    sit at ``locations`` (a staggered grid's per-field locations; empty or None: none): a periodic axis and no
+    staggered fields (these take cell / face means whatever ``--restrict`` says)."""
+    return not locations and (bc is None or any(b.periodic for b in kinds(bc)))
+
+
+def pde_restricts_periodic(pde) -> bool:
+    """``restricts_periodic`` of a generator Problem (its grid's bc and FIELD_LOCATIONS; no JAX, no torch)."""
+    return restricts_periodic(tuple(pde.grid.bc), getattr(pde, "FIELD_LOCATIONS", {}))
 
 
 def option_help() -> dict:
@@ -228,6 +254,26 @@ def option_help() -> dict:
         "remat": "solver-in-the-loop: rematerialise each unrolled step in the backward pass (memory of about two "
                  "steps' activations and solver residuals instead of K: long unrolls, large grids; each step's "
                  "forward runs twice)",
+        "restrict": "solver-in-the-loop: how a fine field is restricted to the coarse grid on periodic axes (start "
+                    "states, targets, references; compare --modes: every corrector arm and the coarse solver): fourier "
+                    "(default: the Fourier modes the coarse grid holds, its Nyquist mode zeroed; keeps the mean) or "
+                    "points (every factor-th point: aliases the fine modes beyond the coarse Nyquist; the runs "
+                    "written before the option). Axes with walls and staggered fields: cell / face means either way",
         "unroll_schedule": "solver-in-the-loop arm: an unroll curriculum (Um et al. 2020), unroll Ki for the share Si "
                            "of --steps, in order (shares summing to 1), e.g. 1:0.3,4:0.3,16:0.4; recorded in run.json",
     }
+
+
+def add_mode_options(group, unroll_default: int | None, compare: bool) -> None:
+    """The training modes' settings as options of an argparse ``group`` (train and compare alike; compare also
+    --unroll-schedule): each defaults to None (the mode's own default) and is checked by ``mode_settings``."""
+    hint = option_help()
+    group.add_argument("--unroll", type=int, default=unroll_default, metavar="K", help=hint["unroll"])
+    group.add_argument("--coarse-n", type=int, metavar="N", help=hint["coarse_n"])
+    group.add_argument("--noise", metavar="SIGMA", help=hint["noise"])
+    group.add_argument("--corrector-start", metavar="|".join(CORRECTOR_STARTS), help=hint["corrector_start"])
+    group.add_argument("--clip", metavar="NORM", help=hint["clip"])
+    group.add_argument("--remat", action="store_true", help=hint["remat"])
+    group.add_argument("--restrict", metavar="|".join(RESTRICTS), help=hint["restrict"])
+    if compare:
+        group.add_argument("--unroll-schedule", metavar="K1:S1,K2:S2,...", help=hint["unroll_schedule"])

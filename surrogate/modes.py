@@ -18,8 +18,8 @@ per-mode branches:
   n=32, 20 steps: training loss 7e-6, held-out rollout error 1.0).
 - ``SolverInTheLoop(k, coarse_n)``: a correction network applied after each step of a coarse differentiable
   solver (``datasets.SolverStep`` on a coarse grid of the same PDE), unrolled k steps with gradients through
-  the solver; the target is the fine solve of the same sample, subsampled (Um et al. 2020). With ``noise`` > 0
-  the coarse start state is perturbed (N(0, noise^2) in normalized units), the targets clean: at unroll 1 the
+  the solver; the target is the fine solve of the same sample, restricted to the coarse grid (Um et al. 2020).
+  With ``noise`` > 0 the coarse start state is perturbed (N(0, noise^2) in normalized units), the targets clean: at unroll 1 the
   noise baseline on the corrector (non-interacting pairs with SGGP+20's perturbed inputs).
 - ``Noise(sigma)``: one-step training on perturbed inputs (Sanchez-Gonzalez et al. 2020, "Learning to simulate
   complex physics with graph networks"): Gaussian noise on the input frames, the target the clean next frames,
@@ -51,7 +51,15 @@ from pdestream import datasets
 from pdestream.datasets.normalize import Normalization
 
 from ..boundaries import kinds, periodic_words
-from .mode_table import DEFAULTS, MODE_NAMES, NOISE_RULE, SITL_NOISE_RULE, check_coarse_grid, mode_settings
+from .mode_table import (
+    DEFAULTS,
+    MODE_NAMES,
+    NOISE_RULE,
+    SITL_NOISE_RULE,
+    check_coarse_grid,
+    mode_settings,
+    restricts_periodic,
+)
 from .models import zero_output
 from .predict import model_channels, net_step, pairs, predict, relative_errors, rollout, stack_frames
 
@@ -318,23 +326,48 @@ class Oracle:
 
 
 def subsample(u: torch.Tensor, factor: int, ndim: int, bc: tuple[str, ...] | None = None,
-              locations: tuple[str, ...] | None = None) -> torch.Tensor:
-    """The fine field at the coarse grid's points, [..., *fine] -> [..., *fine/factor] over the last ndim dims.
-    On a periodic axis (x_i = i L / n) fine point factor*i is coarse point i exactly. On an axis with walls the
+              locations: tuple[str, ...] | None = None, restrict: str = "points") -> torch.Tensor:
+    """The fine field restricted to the coarse grid, [..., *fine] -> [..., *fine/factor] over the last ndim dims.
+    On a periodic axis (x_i = i L / n), ``restrict`` "points": fine point factor*i is coarse point i exactly (the
+    fine modes at and beyond the coarse Nyquist alias onto the coarse ones); "fourier": the Fourier truncation
+    (``fourier_restrict``: the modes the coarse grid holds, its Nyquist mode zeroed). On an axis with walls the
     points are cell centres: coarse centre i is fine point factor*i + (factor-1)/2, which for an even factor lies
-    midway between two fine points, whose mean is taken (second order in the fine spacing).
-    ``locations``: per channel (the dim before space), a staggered grid's field locations (Problem.FIELD_LOCATIONS)."""
+    midway between two fine points, whose mean is taken (second order in the fine spacing), whichever ``restrict``.
+    ``locations``: per channel (the dim before space), a staggered grid's field locations (Problem.FIELD_LOCATIONS):
+    cell and face means (``_restrict``), whichever ``restrict``."""
     if locations:
         return torch.stack([_restrict(u.select(-ndim - 1, c), factor, ndim, where)
                             for c, where in enumerate(locations)], dim=-ndim - 1)
     for axis, b in enumerate(kinds(bc or periodic_words(ndim))):
         dim = u.ndim - ndim + axis
-        if b.periodic:
+        if b.periodic and restrict == "fourier":
+            u = fourier_restrict(u, u.shape[dim] // factor, dim)
+        elif b.periodic:
             u = u[(slice(None),) * dim + (slice(None, None, factor),)]
         else:
             lo, hi = (factor - 1) // 2, factor // 2  # the same point for an odd factor
             u = 0.5 * (u.unfold(dim, factor, factor).select(-1, lo) + u.unfold(dim, factor, factor).select(-1, hi))
     return u
+
+
+def fourier_restrict(u: torch.Tensor, n_coarse: int, dim: int) -> torch.Tensor:
+    """A real field periodic along ``dim`` (n fine points x_i = i L / n) on the coarse grid of ``n_coarse`` points
+    there by Fourier truncation: [..., n, ...] -> [..., n_coarse, ...], u's real dtype and device.
+
+    The coarse field is sum over |k| < n_coarse / 2 of the fine field's Fourier coefficients a_k exp(2 pi i k x / L)
+    at the coarse points: the modes the coarse grid holds, its Nyquist mode (k = n_coarse / 2, even n_coarse)
+    zeroed, every mode of the fine field beyond dropped instead of aliased. So the mean (a_0) is kept to rounding,
+    and a field band-limited below the coarse Nyquist restricts to its own values at the coarse points (as
+    point sampling gives). Computed in float64 (rfft with norm "forward": amplitudes a_k; irfft of length
+    n_coarse, norm "forward"), returned in u's dtype."""
+    n = u.shape[dim]
+    keep = (n_coarse + 1) // 2  # k = 0 .. keep - 1 (|k| < n_coarse / 2)
+    if not 0 < n_coarse <= n:
+        raise ValueError(f"fourier_restrict: n_coarse={n_coarse} not allowed on an axis of {n} points; 1..{n}")
+    a = torch.fft.rfft(u.double(), dim=dim, norm="forward").narrow(dim, 0, keep)
+    if n_coarse % 2 == 0:  # the coarse Nyquist slot, zero
+        a = torch.cat([a, torch.zeros_like(a.narrow(dim, 0, 1))], dim=dim)
+    return torch.fft.irfft(a, n=n_coarse, dim=dim, norm="forward").to(u.dtype)
 
 
 def _restrict(u: torch.Tensor, factor: int, ndim: int, where: str) -> torch.Tensor:
@@ -359,7 +392,7 @@ class SolverInTheLoop:
     Built with ``bind(pde)`` from the fine training PDE: the coarse solver is the same PDE config with
     n = coarse_n (its own stable step), ``factor`` = n / coarse_n. A step is
     s <- S(s) + std * net(normalize(S(s)), params): the network outputs the correction in normalized units.
-    The loss (``loss``) is over the k unrolled states against the fine trajectory subsampled, gradients through
+    The loss (``loss``) is over the k unrolled states against the fine trajectory restricted, gradients through
     the solver (``datasets.SolverStep``). unroll=1 is training on precomputed (coarse step, fine) pairs.
 
     ``noise`` = sigma > 0 (the noise baseline on the corrector, Sanchez-Gonzalez et al. 2020 applied to the
@@ -378,6 +411,12 @@ class SolverInTheLoop:
     n1 optimizer steps, then k2 for n2, ...; the last k after the schedule; ``unroll`` is the longest k (the
     window's frames). A pure function of the optimizer step, so a resumed run unrolls as the uninterrupted one.
 
+    ``restrict`` (how a fine field reaches the coarse grid: start states, targets and the rollout's references):
+    on a periodic axis "fourier" (``fourier_restrict``: the coarse grid's modes of the fine field, the mean kept)
+    or "points" (every factor-th point: the fine modes beyond the coarse Nyquist alias, e.g. into the coarse
+    mean, which the coarse solver then conserves); axes with walls and staggered fields: cell / face means either
+    way (``subsample``). ``settings()`` records "restrict": "fourier" where it acts; its absence reads as points.
+
     ``clip`` (a norm, None: off): the training loop scales the gradient down to this global norm before each
     optimizer step (``surrogate.train``; the steps clipped go to metrics.json). ``remat``: each unrolled step
     after the first (solver step and correction) is rematerialised in the backward pass
@@ -395,6 +434,7 @@ class SolverInTheLoop:
     unroll_schedule: list | None = None
     clip: float | None = None
     remat: bool = False
+    restrict: str = DEFAULTS["restrict"]
     seed: int = 0
     step: nn.Module | None = None
     factor: int = 0
@@ -415,7 +455,22 @@ class SolverInTheLoop:
             s["clip"] = self.clip
         if self.remat:
             s["remat"] = True
+        if self.restrict == "fourier" and self.restricts_periodic():  # (absent: point sampling, every older run.json)
+            s["restrict"] = "fourier"
         return _with_loss(s, self.loss)
+
+    def restricts_periodic(self) -> bool:
+        """Whether ``restrict`` acts on the PDE's grid: a periodic axis and no staggered fields (True before
+        ``locate``, whose grid is not yet known)."""
+        return restricts_periodic(self.walls, self.locations)
+
+    def locate(self, pde) -> "SolverInTheLoop":
+        """Take the fine PDE's per-axis bc and field locations (what the restriction needs; ``bind`` does it too);
+        returns self."""
+        self.walls = tuple(pde.grid.bc)
+        where = getattr(pde, "FIELD_LOCATIONS", {})
+        self.locations = tuple(where.get(f, "centre") for f in pde.FIELDS) if where else None
+        return self
 
     def unroll_at(self, step: int) -> int:
         """The unroll length of optimizer step ``step`` (1-based, as the training loop counts): ``unroll``, or the
@@ -451,9 +506,7 @@ class SolverInTheLoop:
         self.seed = seed
         check_coarse_grid(pde, self.coarse_n)  # (the CLI's commands have run it before torch was imported)
         self.factor = pde.n // self.coarse_n
-        self.walls = tuple(pde.grid.bc)
-        where = getattr(pde, "FIELD_LOCATIONS", {})
-        self.locations = tuple(where.get(f, "centre") for f in pde.FIELDS) if where else None
+        self.locate(pde)
         try:
             self.step = datasets.SolverStep({**pde.config(), "n": self.coarse_n}, frames=1)
         except ValueError as err:  # the PDE's refusal speaks of n, which the user set as --coarse-n
@@ -483,7 +536,7 @@ class SolverInTheLoop:
         """The coarse start states of optimizer step ``step``, physical units [B, C, *coarse]: the newest input
         frame restricted to the coarse grid, perturbed when noise > 0."""
         ndim = batch["x"].ndim - 3
-        s = subsample(batch["x"][:, -1], self.factor, ndim, self.walls, self.locations)
+        s = subsample(batch["x"][:, -1], self.factor, ndim, self.walls, self.locations, self.restrict)
         if self.noise > 0:  # s + std * eps: denormalize(normalize(s) + eps), a channel without noise left bit for bit
             std = norm.std.to(device=s.device, dtype=s.dtype).reshape(-1, *([1] * ndim))
             s = s + std * self.perturbation(step, s)
@@ -503,7 +556,8 @@ class SolverInTheLoop:
                 s = self._advance(s, params, p, model, norm)
             states.append(s)
         pred = norm.normalize(torch.stack(states, dim=1))  # [B, k, C, *coarse]
-        target = norm.normalize(subsample(batch["y"][:, :k], self.factor, ndim, self.walls, self.locations))
+        target = norm.normalize(subsample(batch["y"][:, :k], self.factor, ndim, self.walls, self.locations,
+                                          self.restrict))
         return objective(self.loss, pred, target), relative_errors(pred, target)
 
     def _advance(self, s, params, p, model, norm):
@@ -512,9 +566,9 @@ class SolverInTheLoop:
 
     @torch.no_grad()
     def rollout(self, model, norm, u, params, k_in=1):
-        """The corrected coarse solver (model=None: the coarse solver alone) from u[:, 0] subsampled."""
+        """The corrected coarse solver (model=None: the coarse solver alone) from u[:, 0] restricted (``restrict``)."""
         ndim = u.ndim - 3
-        truth = subsample(u, self.factor, ndim, self.walls, self.locations)  # [B, T, C, *coarse]
+        truth = subsample(u, self.factor, ndim, self.walls, self.locations, self.restrict)  # [B, T, C, *coarse]
         p = norm.normalize_params(params) if model is not None else None
         s, out = truth[:, 0], []
         for _ in range(u.shape[1] - 1):
@@ -625,17 +679,23 @@ def check_mode_settings(name: str, unroll: int | None = None, coarse_n: int | No
     mode_settings(name, unroll=unroll, coarse_n=coarse_n, noise=noise, corrector_start=corrector_start)
 
 
-def make_mode(settings: dict | None) -> Mode:
-    """The mode of run.json's "mode" settings ({"name", "unroll", "coarse_n", "noise", "loss"}; None: one-step; a setting left
-    out: its default, ``mode_table.DEFAULTS``), not yet bound to a PDE: ``mode.bind(pde, seed)`` gives it its
-    solver. ValueError (one line) for a bad name or setting."""
+def make_mode(settings: dict | None, pde=None) -> Mode:
+    """The mode of run.json's "mode" settings ({"name", "unroll", "coarse_n", "noise", "loss", ...}; None: one-step;
+    a setting left out: its default, ``mode_table.DEFAULTS``, except solver-in-the-loop's "restrict", which
+    left out reads "points": every run.json written before the setting restricted by point sampling, and a new
+    run's settings (``mode_table.mode_settings``) carry it), not yet bound to a PDE: ``mode.bind(pde, seed)`` gives
+    it its solver. ``pde``: the fine PDE, located (``SolverInTheLoop.locate``) so that ``settings()`` records what
+    applies to its grid. ValueError (one line) for a bad name or setting."""
     s = dict(settings or {"name": "one-step"})
     loss = s.pop("loss", "mse")
     s.pop("rule", None)  # the noise mode's rule in words (run.json), not a setting
     if loss not in LOSSES:
         raise ValueError(f"--loss={loss!r} not allowed; allowed: {', '.join(LOSSES)}")
+    if s.get("name") == SolverInTheLoop.name:
+        s.setdefault("restrict", "points")
     s = mode_settings(s.pop("name", "one-step"), **s)
-    return MODES[s.pop("name")](**s, loss=loss)
+    mode = MODES[s.pop("name")](**s, loss=loss)
+    return mode.locate(pde) if pde is not None and hasattr(mode, "locate") else mode
 
 
 def training_view(mode: Mode, view):

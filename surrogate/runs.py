@@ -224,8 +224,8 @@ def _run(pde, settings: dict, out: Path, tests: dict | None = None, explicit: di
     space = (coarse,) * data_pde.NDIM if coarse else tuple(data_pde.grid.shape)
     check_output(net, space)  # your own model: its output shape, before run.json is written
     writes = ddp.world()[0] == 0  # several ranks: rank 0 writes the run's files
-    if resume is None:
-        s = {**s, "pde": data_pde.config()}  # the data's PDE: a cache's own settings
+    if resume is None:  # the data's PDE: a cache's own settings; the mode's as bound to its grid (what applies)
+        s = {**s, "pde": data_pde.config(), "mode": mode.settings()}
         try:
             text = json.dumps(s, indent=2)
         except TypeError as err:

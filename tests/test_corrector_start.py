@@ -108,7 +108,7 @@ def test_cli_refuses_a_bad_start_in_one_line(tmp_path, capsys, argv):
     assert "--corrector-start='ones' not allowed; allowed: random, zero" in err
     rc = cli.main(["compare", "burgers1d", "--corrector-start", "zero", "--out", str(out)])
     err = capsys.readouterr().err
-    assert rc == 2 and "--corrector-start, --noise, --clip and --remat go with --modes" in err and err.count("\n") == 1
+    assert rc == 2 and "--corrector-start, --noise, --clip, --remat and --restrict go with --modes" in err and err.count("\n") == 1
     assert not out.exists()
 
 

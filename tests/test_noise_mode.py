@@ -176,7 +176,7 @@ def test_cli_noise_goes_with_the_noise_mode_only(tmp_path, capsys):
     assert rc == 2 and "--noise=0.1 goes with solver-in-the-loop or noise, not pushforward" in err and err.count("\n") == 1
     rc = cli.main(["compare", "burgers1d", "--noise", "0.1", "--out", str(tmp_path / "c")])
     err = capsys.readouterr().err
-    assert rc == 2 and "--remat go with --modes" in err and err.count("\n") == 1
+    assert rc == 2 and "--remat and --restrict go with --modes" in err and err.count("\n") == 1
     assert list(tmp_path.iterdir()) == []
 
 

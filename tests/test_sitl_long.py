@@ -121,12 +121,13 @@ def test_cli_takes_clip_and_remat_and_refuses_them_without_the_corrector(tmp_pat
     out = tmp_path / "run"
     assert cli.main(corrector_train_argv(out, 2, "--clip", "1.5", "--remat")) == 0
     assert json.loads((out / "run.json").read_text())["mode"] == {
-        "name": "solver-in-the-loop", "unroll": 2, "coarse_n": 16, "clip": 1.5, "remat": True}
+        "name": "solver-in-the-loop", "unroll": 2, "coarse_n": 16, "clip": 1.5, "remat": True,
+        "restrict": "fourier"}  # a new run: the default restriction
     capsys.readouterr()
     for argv, said in [(["train", "burgers1d", "--out", str(tmp_path / "r2"), "--clip", "1"],
                         "--clip=1 goes with solver-in-the-loop, not one-step"),
                        (["compare", "burgers1d", "--out", str(tmp_path / "c"), "--remat"],
-                        "--clip and --remat go with --modes"),
+                        "--clip, --remat and --restrict go with --modes"),
                        (["compare", "burgers1d", "--out", str(tmp_path / "c"), "--modes", "one-step", "--clip", "1"],
                         "--clip goes with the corrector's arms")]:
         assert cli.main(argv) == 2

@@ -216,7 +216,8 @@ def test_pairs_steps_give_the_pairs_arms_their_own_steps_and_a_rerun_reads_them_
 
 
 @pytest.mark.parametrize("extra, said", [
-    (["--pairs-steps", "30"], "--pairs-steps, --corrector-start, --noise, --clip and --remat go with --modes"),
+    (["--pairs-steps", "30"],
+     "--pairs-steps, --corrector-start, --noise, --clip, --remat and --restrict go with --modes"),
     (["--modes", "solver-in-the-loop", "--pairs-steps", "0"], "--pairs-steps"),
     (["--modes", "pushforward", "--pairs-steps", "30"], "--pairs-steps 30 goes with the corrector's arms"),
 ])
