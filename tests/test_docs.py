@@ -101,17 +101,23 @@ BASH = [b for b in ALL if b.lang == "bash"]
 RUN_PAGES = sorted({b.page for b in BASH if b.directive}, key=PAGES.index)
 
 
+REDIRECT = re.compile(r"\d?>>?(&\d|\S+)?")
+
+
 def pdestream_commands(script: str) -> list[list[str]]:
     """The argv after `pdestream` of every command in a shell script (continuations joined, comments dropped)."""
     commands = []
     for line in script.replace("\\\n", " ").split("\n"):
         words = shlex.split(line, comments=True)
         command: list[str] = []
+        target = False  # the word after a bare `>` / `2>>` is its file
         for word in [*words, "&&"]:
             if word in ("&&", "||", ";", "|"):
                 if "pdestream" in command:
                     commands.append(command[command.index("pdestream") + 1:])
                 command = []
+            elif REDIRECT.fullmatch(word) or target:  # a redirection (2>&1, >log, > log) is the shell's
+                target = not target and word.endswith(">")
             else:
                 command.append(word)
     return commands
