@@ -20,7 +20,7 @@ from pdestream.experiments.command import CompareCommand
 from pdestream.interrupts import run
 from pdestream.recipes import cli_command as recipes_command
 from pdestream.settings import Parser, parse_sets, settings_from_args
-from pdestream.surrogate.config import RESUME_ALLOWED, TRAIN_STEPS, TrainConfig
+from pdestream.surrogate.config import RESUME_ALLOWED, TRAIN_STEPS, TrainConfig, check_solver_options
 
 GENERATE, TRAIN, COMPARE = GenerateConfig(), TrainConfig(), CompareCommand()  # the options' defaults
 
@@ -307,6 +307,7 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                              f"{', '.join(given)} (only --threads, --steps and --ddp may go with it" + (
                                  "; the run restricts as it started: a run.json without \"restrict\" by points"
                                  if "--restrict" in given else "") + ")")
+        check_solver_options(args.solver_workers, args.solver_timeout)
         return TrainConfig(resume=args.resume, threads=args.threads, steps=args.steps, ddp=args.ddp,
                            solver_workers=args.solver_workers, solver_timeout=args.solver_timeout)
     if args.out is None:

@@ -33,6 +33,16 @@ LIGHT = [
     (["train", "burgers1d", "--out", "run", "--batch-size", "0"], 2, "batch_size=0 not allowed"),
     (["train", "burgers1d", "--out", "run", "--lr", "nan"], 2, "lr=nan not allowed; must be a number > 0"),
     (["train", "burgers1d", "--out", "run", "--steps", "0"], 2, "steps=0 not allowed"),
+    # adv51: these imported torch (3.6-5.3 s at load 5-8) before the same refusal
+    (["train", "burgers1d", "--out", "run", "--seed", "-1"], 2, "--seed=-1 not allowed; must be an integer in [0, 2**31)"),
+    (["train", "burgers1d", "--out", "run", "--k-in", "0"], 2, "--k-in=0 not allowed; must be an integer >= 1"),
+    (["train", "burgers1d", "--out", "run", "--k-out", "-1"], 2, "--k-out=-1 not allowed; must be an integer >= 1"),
+    (["train", "burgers1d", "--out", "run", "--solver-workers", "-1"], 2,
+     "--solver-workers=-1 not allowed; must be an integer in [0, 256]"),
+    (["train", "burgers1d", "--out", "run", "--solver-timeout", "nan"], 2,
+     "--solver-timeout=nan not allowed; must be a number of seconds > 0"),
+    (["train", "--resume", "run", "--solver-timeout", "inf"], 2,
+     "--solver-timeout=inf not allowed; must be a number of seconds > 0"),
     # compare --modes' own options (stop 49): each imported torch before its refusal (3-6 s at load 8)
     (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step", "--clip", "1"], 2, "--clip goes with"),
     (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--clip", "-3"], 2, "--clip='-3'"),
