@@ -71,6 +71,7 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
     """Run the comparison of ``cmd`` into ``cmd.out``; returns compare.md's text and the files' line. A Ctrl-C is
     raised again as a KeyboardInterrupt saying what was kept (finished runs stay; else what it created goes)."""
     log = log or (lambda line: print(line, flush=True))  # (said before a long run: flushed)
+    check_numbers(cmd)
     if cmd.modes is None or not _modes_out(cmd.out):  # --modes resumes in its own out: (arm, seed) runs are kept
         check_compare_out(cmd.out, cmd.overwrite)
     check_writable_dir(cmd.out)
@@ -85,6 +86,39 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
         return _compare(cmd, log)
     except KeyboardInterrupt:
         raise KeyboardInterrupt(compare_left(cmd.out, before, resumes=cmd.modes is not None)) from None
+
+
+def check_numbers(cmd: CompareCommand) -> None:
+    """The numbers of ``cmd`` that need no PDE, one line each before torch is imported (the budget comparison's and
+    the cache/stream comparison's were refused after it, 4-7 s at load 5-8; ``--modes`` checks its own in
+    ``InteractiveConfig.check``), in the words of ``BudgetConfig.check`` / ``compare``. ``--cache-samples`` goes with
+    the cache/stream comparison alone (elsewhere it went unread, -1 too)."""
+    from pdestream.surrogate.checks import check_count, check_number  # (no torch)
+
+    budget = cmd.budget is not None or cmd.sim_budget is not None or cmd.quick
+    if cmd.cache_samples != CompareCommand.cache_samples and (budget or cmd.modes is not None):
+        raise ValueError(f"--cache-samples {cmd.cache_samples} goes with the cache/stream comparison (no --budget, "
+                         "--sim-budget, --quick or --modes): the others write no cache of that size")
+    if cmd.modes is not None:
+        return
+    check_count("--cache-samples", cmd.cache_samples)
+    for name, value in (("--steps", cmd.steps), ("--batch-size", cmd.batch_size), ("--test-samples", cmd.test_samples),
+                        ("--seeds", cmd.seeds)):
+        if value is not None:
+            check_count(name, value)
+    check_number("--lr", cmd.lr, 0)
+    if not budget:
+        return
+    if cmd.budget is not None and cmd.sim_budget is not None:
+        raise ValueError("give exactly one budget: --budget SECONDS or --sim-budget N")
+    if cmd.budget is not None:
+        check_number("--budget", cmd.budget, 0, unit="seconds")
+    if cmd.sim_budget is not None:
+        check_count("--sim-budget", cmd.sim_budget, note=" (trajectories)")
+    check_number("sim warm-up share", cmd.sim_warmup_share, 0, 1, closed="both")
+    check_number("--priority-cap", cmd.priority_cap, 1, closed="low")
+    if cmd.precompute_share is not None:
+        check_number("precompute share", cmd.precompute_share, 0, 1)
 
 
 def check_compare_out(out: str, overwrite: bool) -> None:
