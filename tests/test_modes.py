@@ -347,3 +347,18 @@ def test_cli_train_loss_relative_is_recorded_and_a_resume_keeps_it(tmp_path, cap
     err = capsys.readouterr().err
     assert "--loss relative goes with --budget or --sim-budget" in err and err.count("\n") == 1
     assert not (tmp_path / "c").exists()
+
+
+def test_a_comparison_of_other_pde_settings_is_refused_naming_them(tmp_path):
+    """adv51: `compare --modes` over a comparison of another grid said "holds a comparison with other the PDE"."""
+    from pdestream.experiments.interactive_config import InteractiveConfig, check_same_comparison
+
+    have = generator.get_pde("burgers1d", n=32, n_frames=4)
+    (tmp_path / "compare.json").write_text(json.dumps({"pde": have.config(), "config": {"modes": ["one-step"]}}))
+    cfg = InteractiveConfig(modes=("one-step",))
+    with pytest.raises(ValueError, match=r"holds a comparison with other PDE settings \(n: the comparison's 32, "
+                                         r"asked 48\); rerun with its own settings"):
+        check_same_comparison(tmp_path, have.replace({"n": 48}), cfg)
+    with pytest.raises(ValueError, match=r"with other --modes and PDE \(the comparison's burgers1d, asked ks1d\);"):
+        check_same_comparison(tmp_path, generator.get_pde("ks1d"), InteractiveConfig(modes=("oracle",)))
+    check_same_comparison(tmp_path, have, cfg)  # the same comparison: goes on
