@@ -20,7 +20,7 @@ from pdestream.experiments.command import CompareCommand
 from pdestream.interrupts import run
 from pdestream.recipes import cli_command as recipes_command
 from pdestream.settings import Parser, parse_sets, settings_from_args
-from pdestream.surrogate.config import RESUME_ALLOWED, TRAIN_STEPS, TrainConfig, check_solver_options
+from pdestream.surrogate.config import RESUME_ALLOWED, TRAIN_STEPS, TrainConfig
 
 GENERATE, TRAIN, COMPARE = GenerateConfig(), TrainConfig(), CompareCommand()  # the options' defaults
 
@@ -307,9 +307,10 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                              f"{', '.join(given)} (only --threads, --steps and --ddp may go with it" + (
                                  "; the run restricts as it started: a run.json without \"restrict\" by points"
                                  if "--restrict" in given else "") + ")")
-        check_solver_options(args.solver_workers, args.solver_timeout)
-        return TrainConfig(resume=args.resume, threads=args.threads, steps=args.steps, ddp=args.ddp,
-                           solver_workers=args.solver_workers, solver_timeout=args.solver_timeout)
+        cfg = TrainConfig(resume=args.resume, threads=args.threads, steps=args.steps, ddp=args.ddp,
+                          solver_workers=args.solver_workers, solver_timeout=args.solver_timeout)
+        cfg.check_resume()
+        return cfg
     if args.out is None:
         raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
     name, settings = settings_from_args(args.pde, args)  # the --config file, read once

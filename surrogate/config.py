@@ -105,6 +105,14 @@ class TrainConfig:
         mode_settings(self.mode, unroll=self.unroll, coarse_n=self.coarse_n, noise=self.noise,
                       corrector_start=self.corrector_start, clip=self.clip, remat=self.remat, restrict=self.restrict)
 
+    def check_resume(self) -> None:
+        """The checks of what may go with --resume (--threads, --ddp, --solver-*), one line each before torch (a bad
+        --threads or --ddp was refused after it, 7-10 s at load 8)."""
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"--threads={self.threads} not allowed; must be >= 1")
+        self.ranks()
+        check_solver_options(self.solver_workers, self.solver_timeout)
+
     def given_with_resume(self) -> list[str]:
         """The fields set besides those RESUME_ALLOWED (a resumed run takes its settings from its run.json)."""
         default = TrainConfig()

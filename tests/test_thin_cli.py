@@ -43,6 +43,9 @@ LIGHT = [
      "--solver-timeout=nan not allowed; must be a number of seconds > 0"),
     (["train", "--resume", "run", "--solver-timeout", "inf"], 2,
      "--solver-timeout=inf not allowed; must be a number of seconds > 0"),
+    (["train", "--resume", "run", "--threads", "0"], 2, "--threads=0 not allowed; must be >= 1"),
+    (["train", "--resume", "run", "--ddp", "0"], 2, "--ddp=0 not allowed; must be an integer >= 1 (ranks)"),
+    (["train", "--resume", "nowhere", "--steps", "8"], 2, "--resume nowhere: no such run directory"),
     # compare --modes' own options (stop 49): each imported torch before its refusal (3-6 s at load 8)
     (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step", "--clip", "1"], 2, "--clip goes with"),
     (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--clip", "-3"], 2, "--clip='-3'"),
