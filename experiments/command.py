@@ -326,7 +326,7 @@ def _interactive(cmd: CompareCommand) -> str:
     """modes: training modes at equal steps (experiments.interactive_compare)."""
     from pdestream.experiments.interactive_config import InteractiveConfig, check_arms
     from pdestream.settings import build_pde
-    from pdestream.surrogate.mode_table import check_clip, check_corrector_start, check_noise, check_restrict
+    from pdestream.surrogate.mode_table import MODE_SPECS, check_clip, check_corrector_start, check_noise, check_restrict
 
     if cmd.sim_budget is not None:
         raise ValueError("--modes compares at equal --steps or, with --budget SECONDS, at equal wall clock; "
@@ -341,6 +341,9 @@ def _interactive(cmd: CompareCommand) -> str:
         check_restrict(cmd.restrict)
         if "solver-in-the-loop" not in modes:
             raise ValueError(f"--restrict {cmd.restrict} goes with the corrector's arms (--modes ...,solver-in-the-loop)")
+    if cmd.unroll is not None and not any("unroll" in MODE_SPECS[m].settings for m in modes if m in MODE_SPECS):
+        raise ValueError(f"--unroll {cmd.unroll} goes with the modes that unroll (--modes ...,pushforward, oracle or "
+                         "solver-in-the-loop)")
     settings = {"n": "32", "n_frames": "11", **cmd.settings} if cmd.quick else dict(cmd.settings)  # tiny: tests
     pde = build_pde(cmd.pde, settings)
     if not cmd.quick:

@@ -107,10 +107,11 @@ class InteractiveConfig:
                                  "(--modes ...,solver-in-the-loop)")
             self.schedule()  # one line for a bad value, before any work
         check_number("--lr", self.lr, 0)
-        longest = max([self.unroll, *(k for k, _ in self.schedule() or ())])
+        unrolled = [m for m in self.modes if "unroll" in MODE_SPECS[m].settings]  # (one-step, noise: one frame)
+        longest = max([self.unroll, *(k for k, _ in self.schedule() or ())]) if unrolled else 1
         if pde.n_frames < self.k_in + longest + 1:
-            raise ValueError(f"--unroll {longest} needs trajectories of at least {self.k_in + longest + 1} "
-                             f"frames; {pde.NAME} has n_frames={pde.n_frames}")
+            raise ValueError(f"{f'--unroll {longest}' if unrolled else f'--k-in {self.k_in}'} needs trajectories of "
+                             f"at least {self.k_in + longest + 1} frames; {pde.NAME} has n_frames={pde.n_frames}")
         if self.device != "cpu":  # (torch only for another device: every refusal above comes without it)
             from pdestream.surrogate.data import check_device
 
