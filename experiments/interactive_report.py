@@ -62,10 +62,14 @@ def score_against_coarse(arms: list[dict]) -> None:
 
 
 def _times(arm: dict, other: dict, key: str) -> str:
-    """'2.00x lower' or '2.00x higher': ``arm``'s figure ``key`` against ``other``'s, the factor always >= 1 (a
-    ratio below 1 read "0.18x lower" for an error 5.5 times higher)."""
+    """'2.00x lower than', '2.00x higher than' or 'the same (x1.00) as': ``arm``'s figure ``key`` against
+    ``other``'s, the factor always >= 1 (a ratio below 1 read "0.18x lower" for an error 5.5 times higher; a tie to
+    the digits shown read "1.00x lower")."""
     ratio = _ratio(other[key], arm[key])
-    return f"{ratio:.2f}x lower" if ratio >= 1 else f"{_ratio(arm[key], other[key]):.2f}x higher"
+    factor = ratio if ratio >= 1 else _ratio(arm[key], other[key])
+    if f"{factor:.2f}" == "1.00":
+        return "the same (x1.00) as"
+    return f"{factor:.2f}x {'lower' if ratio >= 1 else 'higher'} than"
 
 
 def _ratio(num: float, den: float) -> float:
@@ -178,7 +182,7 @@ def _arms_lines(arms: list[dict]) -> list[str]:
     if "one-step" in by:
         for name in ("pushforward", "oracle", "noise"):
             if name in by:
-                lines.append(f"\n{name}: end error {_times(by[name], by['one-step'], 'end_mean')} than one-step; "
+                lines.append(f"\n{name}: end error {_times(by[name], by['one-step'], 'end_mean')} one-step; "
                              + verdict(by[name], by["one-step"], "end_mean", "end mean"))
     sitl = [a for a in arms if a["mode"] in CORRECTOR_MODES]
     if len(sitl) == 4:
@@ -192,11 +196,11 @@ def _arms_lines(arms: list[dict]) -> list[str]:
             v = a["vs_coarse"]
             lines.append(f"| {a['arm']} | " + " | ".join(f"{v[key]['improvement']:.2f}x | {v[key]['gap_closed']:+.1%}"
                                                           for key, _ in SCORED) + " |")
-        lines.append(f"\nsolver-in-the-loop rollout mean error: {_times(loop, base, 'rollout_mean')} than the coarse "
-                     f"solver alone, {_times(loop, pairs, 'rollout_mean')} than the correction trained on pairs, "
-                     f"{_times(loop, noisy, 'rollout_mean')} than pairs + noise; end error: "
-                     f"{_times(loop, base, 'end_mean')} than the coarse solver alone, {_times(loop, pairs, 'end_mean')} "
-                     "than the correction trained on pairs")
+        lines.append(f"\nsolver-in-the-loop rollout mean error: {_times(loop, base, 'rollout_mean')} the coarse "
+                     f"solver alone, {_times(loop, pairs, 'rollout_mean')} the correction trained on pairs, "
+                     f"{_times(loop, noisy, 'rollout_mean')} pairs + noise; end error: "
+                     f"{_times(loop, base, 'end_mean')} the coarse solver alone, {_times(loop, pairs, 'end_mean')} "
+                     "the correction trained on pairs")
         lines += ["", "Solver-in-the-loop against each non-interacting corrector arm per metric (x: the other arm's "
                   "error / solver-in-the-loop's, > 1: solver-in-the-loop better; outside the seed spread when the "
                   "margin exceeds the two arms' stds over seeds added):", ""]
