@@ -103,6 +103,20 @@ def record(label: str, mode: str, errors: np.ndarray, wall: float, summary: dict
 COLUMNS = ("end_mean", "end_p95", "end_max", "rollout_mean", "rollout_p95", "wall_s", "steps", "final_loss")
 
 
+def restriction_words(restrict: str, pde) -> str:
+    """compare.md's words for the corrector arms' fine -> coarse restriction (``--restrict``) on ``pde``'s grid: on
+    one without a periodic axis, or of staggered fields, the flag does not act (it said "Fourier truncation" there,
+    of arms that may have run with points)."""
+    from pdestream.surrogate.mode_table import pde_restricts_periodic
+
+    if not pde_restricts_periodic(pde):
+        return ("fine -> coarse restriction: means of the fine cells and faces (no periodic axis, or staggered "
+                "fields: --restrict does not act)")
+    return "fine -> coarse restriction on periodic axes: " + (
+        "Fourier truncation (the coarse grid's modes, its Nyquist mode zeroed)" if restrict == "fourier" else
+        "point sampling (every factor-th point)")
+
+
 def write_tables(out: Path, result: dict, pde, cfg) -> None:
     """compare.md and compare.csv of an interactive comparison: one row per arm (mean ± std over seeds), the
     network modes against one-step, the corrector arms against the coarse solver and solver-in-the-loop's verdicts."""
@@ -124,9 +138,7 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
             noise += ", every corrector arm" + (f"'s gradient clipped to global norm {clip:g}" if clip is not None
                                                 else "") + (" and" if clip is not None and remat else "") + \
                 (" rematerialised (--remat)" if remat else "")
-        restrict = getattr(cfg, "restrict", "points")
-        noise += (", fine -> coarse restriction on periodic axes: " + ("Fourier truncation (the coarse grid's modes, its "
-                  "Nyquist mode zeroed)" if restrict == "fourier" else "point sampling (every factor-th point)"))
+        noise += ", " + restriction_words(getattr(cfg, "restrict", "points"), pde)
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
     pairs = getattr(cfg, "pairs_steps", None)
     per_arm = (f"{cfg.steps} optimizer steps" + (f" (the two pairs arms: {pairs})" if pairs else "")
