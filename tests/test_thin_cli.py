@@ -67,6 +67,22 @@ LIGHT = [
     # adv51: one-step and noise take no --unroll (the window check refused the default one they do not take)
     (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step,noise", "--unroll", "4"], 2,
      "--unroll 4 goes with the modes that unroll (--modes ...,pushforward, oracle or solver-in-the-loop)"),
+    # adv51: train --reservoir's numbers were refused when the reservoir was built, after torch (5-21 s at load 6-8)
+    (["train", "burgers1d", "--out", "run", "--reservoir", "--capacity", "0"], 2,
+     "capacity=0 not allowed; must be an integer >= 1"),
+    (["train", "burgers1d", "--out", "run", "--reservoir", "--capacity", "4"], 2,
+     "capacity=4 not allowed: must be >= batch_size (32)"),
+    (["train", "burgers1d", "--out", "run", "--reservoir", "--max-reuse", "inf"], 2,
+     "max_reuse=inf not allowed; must be a finite number >= 1"),
+    (["train", "burgers1d", "--out", "run", "--reservoir", "--target-reuse", "0"], 2, "target_reuse=0.0 not allowed"),
+    (["train", "burgers1d", "--out", "run", "--reservoir", "--draw", "priority", "--priority-floor", "nan"], 2,
+     "priority_floor=nan not allowed"),
+    (["train", "burgers1d", "--out", "run", "--reservoir", "--proposal", "loss", "--proposal-floor", "nan"], 2,
+     "proposal floor=nan not allowed; must be in (0, 1]"),
+    (["train", "burgers1d", "--out", "run", "--reservoir", "--proposal", "active", "--proposal-ensemble", "1"], 2,
+     "proposal ensemble=1 not allowed; must be an integer >= 2"),
+    (["train", "burgers1d", "--out", "run", "--reservoir", "--proposal", "active", "--proposal-kappa", "-1"], 2,
+     "proposal kappa=-1.0 not allowed; must be in [0, 100]"),
     # adv51: the budget comparison's and the cache/stream comparison's numbers imported torch (4-7 s at load 5-8)
     (["compare", "burgers1d", "--out", "cmp", "--budget", "-1"], 2, "--budget=-1.0 not allowed"),
     (["compare", "burgers1d", "--out", "cmp", "--quick", "--budget", "1e400"], 2, "--budget=inf not allowed"),
