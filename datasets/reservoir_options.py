@@ -167,8 +167,9 @@ def check_numbers(args: argparse.Namespace) -> None:
     torch)."""
     from .reservoir_config import ReservoirConfig
 
-    ReservoirConfig(capacity=args.capacity, max_reuse=args.max_reuse, warmup=args.warmup, eviction=args.eviction,
-                    draw=args.draw, priority_power=args.priority_power, priority_floor=args.priority_floor,
+    ReservoirConfig(capacity=args.capacity, max_reuse=args.max_reuse, warmup=getattr(args, "warmup", None),
+                    eviction=getattr(args, "eviction", "fifo"), draw=getattr(args, "draw", "uniform"),  # (compare's)
+                    priority_power=args.priority_power, priority_floor=args.priority_floor,
                     solve_batch=solve_batch(args), mode=args.reservoir_mode,
                     target_reuse=args.target_reuse).checked(getattr(args, "batch_size", 1))  # (none: a library's)
     floor, ensemble, kappa = args.proposal_floor, args.proposal_ensemble, args.proposal_kappa

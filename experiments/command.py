@@ -119,6 +119,9 @@ def check_numbers(cmd: CompareCommand) -> None:
     check_number("--priority-cap", cmd.priority_cap, 1, closed="low")
     if cmd.precompute_share is not None:
         check_number("precompute share", cmd.precompute_share, 0, 1)
+    from pdestream.datasets.reservoir_options import check_numbers as check_reservoir  # (no torch)
+
+    check_reservoir(argparse.Namespace(**{**vars(_options(cmd)), "batch_size": cmd.batch_size}))  # the reservoir arms'
 
 
 def check_compare_out(out: str, overwrite: bool) -> None:

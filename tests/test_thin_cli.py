@@ -98,6 +98,10 @@ LIGHT = [
     (["compare", "burgers1d", "--out", "cmp", "--steps", "0"], 2, "--steps=0 not allowed"),
     (["compare", "burgers1d", "--out", "cmp", "--lr", "inf"], 2, "--lr=inf not allowed"),
     (["compare", "burgers1d", "--out", "cmp", "--cache-samples", "0"], 2, "--cache-samples=0 not allowed"),
+    (["compare", "burgers1d", "--out", "cmp", "--quick", "--capacity", "0"], 2,
+     "capacity=0 not allowed; must be an integer >= 1"),
+    (["compare", "burgers1d", "--out", "cmp", "--budget", "5", "--max-reuse", "nan"], 2,
+     "max_reuse=nan not allowed; must be a finite number >= 1"),
     # adv51: --cache-samples -1 went unread (rc 0) where no cache of that size is written
     (["compare", "burgers1d", "--out", "cmp", "--quick", "--cache-samples", "-1"], 2,
      "goes with the cache/stream comparison (no --budget"),
