@@ -344,6 +344,15 @@ def _interactive(cmd: CompareCommand) -> str:
         check_restrict(cmd.restrict)
         if "solver-in-the-loop" not in modes:
             raise ValueError(f"--restrict {cmd.restrict} goes with the corrector's arms (--modes ...,solver-in-the-loop)")
+    if "solver-in-the-loop" not in modes:  # (they ran, rc 0, the option unread)
+        given = [f"{o} {v}" for o, v in (("--fine-n", cmd.fine_n), ("--coarse-n", cmd.coarse_n),
+                                         ("--corrector-start", cmd.corrector_start)) if v is not None]
+        if given:
+            raise ValueError(f"{', '.join(given)} {'goes' if len(given) == 1 else 'go'} with the corrector's arms "
+                             "(--modes ...,solver-in-the-loop)")
+        if cmd.noise is not None and "noise" not in modes:
+            raise ValueError(f"--noise {cmd.noise} goes with the noise mode or the corrector's arms (--modes ...,noise "
+                             "or ...,solver-in-the-loop)")
     if cmd.unroll is not None and not any("unroll" in MODE_SPECS[m].settings for m in modes if m in MODE_SPECS):
         raise ValueError(f"--unroll {cmd.unroll} goes with the modes that unroll (--modes ...,pushforward, oracle or "
                          "solver-in-the-loop)")

@@ -107,6 +107,15 @@ LIGHT = [
      "goes with the cache/stream comparison (no --budget"),
     (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step", "--cache-samples", "8"], 2,
      "goes with the cache/stream comparison (no --budget"),
+    # adv51: these ran (rc 0) with the option unread where no arm takes it
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step", "--fine-n", "64"], 2,
+     "--fine-n 64 goes with the corrector's arms (--modes ...,solver-in-the-loop)"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step,pushforward", "--coarse-n", "16"], 2,
+     "--coarse-n 16 goes with the corrector's arms (--modes ...,solver-in-the-loop)"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step", "--corrector-start", "zero"], 2,
+     "--corrector-start zero goes with the corrector's arms (--modes ...,solver-in-the-loop)"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step,oracle", "--noise", "0.1"], 2,
+     "--noise 0.1 goes with the noise mode or the corrector's arms (--modes ...,noise or ...,solver-in-the-loop)"),
     # adv50: a coarse grid that does not fit the fine one was refused only when the corrector was bound (torch)
     (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--set", "n=32", "--coarse-n", "12"],
      2, "coarse n=12 does not fit the fine grid n=32"),
