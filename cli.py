@@ -307,8 +307,10 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
                              f"{', '.join(given)} (only --threads, --steps and --ddp may go with it" + (
                                  "; the run restricts as it started: a run.json without \"restrict\" by points"
                                  if "--restrict" in given else "") + ")")
-        return TrainConfig(resume=args.resume, threads=args.threads, steps=args.steps, ddp=args.ddp,
-                           solver_workers=args.solver_workers, solver_timeout=args.solver_timeout)
+        cfg = TrainConfig(resume=args.resume, threads=args.threads, steps=args.steps, ddp=args.ddp,
+                          solver_workers=args.solver_workers, solver_timeout=args.solver_timeout)
+        cfg.check_resume()
+        return cfg
     if args.out is None:
         raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
     name, settings = settings_from_args(args.pde, args)  # the --config file, read once

@@ -316,8 +316,12 @@ def _write_stacked(ds, f, key: str, names: tuple[str, ...], ndim: int) -> None:
 def _read_stacked(dset) -> dict:
     """{component: (array [N, T, *space], its own attributes)} of a dataset ``_write_stacked`` wrote."""
     stacked, attrs = dset[()], dict(dset.attrs)
+    names = str(plain(attrs["pdestream_names"])).split()
+    if len(names) != stacked.shape[-1]:  # (an IndexError traceback, or components left out)
+        raise ValueError(f"{dset.name.rsplit('/', 1)[-1]} holds {stacked.shape[-1]} components but pdestream_names "
+                         f"lists {len(names)} ({' '.join(names)})")
     out = {}
-    for i, name in enumerate(str(plain(attrs["pdestream_names"])).split()):
+    for i, name in enumerate(names):
         out[name] = (stacked[..., i], {k[len(name) + 1:]: v for k, v in attrs.items() if k.startswith(f"{name}.")})
     return out
 

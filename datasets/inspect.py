@@ -241,9 +241,13 @@ def draw(ds, n_show: int = 4):
     if ds.attrs.get("sides"):  # a MAC-grid flow: its bodies drawn over every panel, its vorticity shown first
         if "solid" in fields:
             fields, mask = [f for f in fields if f != "solid"], ds["solid"]
-        if {"u", "v"} <= set(fields):
-            ds = ds.assign(vorticity=flow_vorticity(ds))
-            fields = ["vorticity", *fields]
+        if {"u", "v"} <= set(fields):  # in 3D its z component alone, named so (it read as the flow's vorticity)
+            name = "vorticity_z" if len(space) == 3 else "vorticity"
+            w = flow_vorticity(ds)
+            if len(space) == 3:
+                w = w.assign_attrs(long_name="z-vorticity dv/dx - du/dy")
+            ds = ds.assign({name: w})
+            fields = [name, *fields]
     if len(space) == 1:
         fig = _space_time(plt, ds, fields, show, index, label, space)
     else:

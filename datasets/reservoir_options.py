@@ -150,6 +150,7 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
     check_proposal_options(args, args.proposal != "uniform", args.proposal == "active",
                            "--proposal loss / active / generative (--proposal-floor, --proposal-gate, --proposal-space) or "
                            "--proposal active (the others)")
+    check_numbers(args)
     cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,
            "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,
            "workers": args.workers, "scheduler": args.scheduler, "proposal": args.proposal,
@@ -157,6 +158,28 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
            "target_reuse": args.target_reuse, "on_blowup": None if args.on_blowup == "raise" else args.on_blowup,
            "priority_power": args.priority_power, "priority_floor": args.priority_floor}
     return {k: v for k, v in cfg.items() if v is not None}
+
+
+def check_numbers(args: argparse.Namespace) -> None:
+    """`train --reservoir`'s numbers, one line each before torch is imported (they were refused when the reservoir
+    and its proposal were built, after it): ``ReservoirConfig.checked`` against --batch-size (per rank), and the
+    steered proposal's floor, ensemble and kappa in ``proposal_fit.check_settings``' words (that module imports
+    torch)."""
+    from .reservoir_config import ReservoirConfig
+
+    ReservoirConfig(capacity=args.capacity, max_reuse=args.max_reuse, warmup=getattr(args, "warmup", None),
+                    eviction=getattr(args, "eviction", "fifo"), draw=getattr(args, "draw", "uniform"),  # (compare's)
+                    priority_power=args.priority_power, priority_floor=args.priority_floor,
+                    solve_batch=solve_batch(args), mode=args.reservoir_mode,
+                    target_reuse=args.target_reuse).checked(getattr(args, "batch_size", 1))  # (none: a library's)
+    floor, ensemble, kappa = args.proposal_floor, args.proposal_ensemble, args.proposal_kappa
+    if not 0 < floor <= 1:
+        raise ValueError(f"proposal floor={floor!r} not allowed; must be in (0, 1] (uniform share)")
+    if ensemble < 2:
+        raise ValueError(f"proposal ensemble={ensemble!r} not allowed; must be an integer >= 2 (the uncertainty "
+                         "signal is the disagreement of its members)")
+    if not 0 <= kappa <= 100:
+        raise ValueError(f"proposal kappa={kappa!r} not allowed; must be in [0, 100] (weight of the ensemble spread)")
 
 
 def defaults(train: bool = True) -> dict:

@@ -71,6 +71,7 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
     """Run the comparison of ``cmd`` into ``cmd.out``; returns compare.md's text and the files' line. A Ctrl-C is
     raised again as a KeyboardInterrupt saying what was kept (finished runs stay; else what it created goes)."""
     log = log or (lambda line: print(line, flush=True))  # (said before a long run: flushed)
+    check_numbers(cmd)
     if cmd.modes is None or not _modes_out(cmd.out):  # --modes resumes in its own out: (arm, seed) runs are kept
         check_compare_out(cmd.out, cmd.overwrite)
     check_writable_dir(cmd.out)
@@ -85,6 +86,42 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
         return _compare(cmd, log)
     except KeyboardInterrupt:
         raise KeyboardInterrupt(compare_left(cmd.out, before, resumes=cmd.modes is not None)) from None
+
+
+def check_numbers(cmd: CompareCommand) -> None:
+    """The numbers of ``cmd`` that need no PDE, one line each before torch is imported (the budget comparison's and
+    the cache/stream comparison's were refused after it, 4-7 s at load 5-8; ``--modes`` checks its own in
+    ``InteractiveConfig.check``), in the words of ``BudgetConfig.check`` / ``compare``. ``--cache-samples`` goes with
+    the cache/stream comparison alone (elsewhere it went unread, -1 too)."""
+    from pdestream.surrogate.checks import check_count, check_number  # (no torch)
+
+    budget = cmd.budget is not None or cmd.sim_budget is not None or cmd.quick
+    if cmd.cache_samples != CompareCommand.cache_samples and (budget or cmd.modes is not None):
+        raise ValueError(f"--cache-samples {cmd.cache_samples} goes with the cache/stream comparison (no --budget, "
+                         "--sim-budget, --quick or --modes): the others write no cache of that size")
+    if cmd.modes is not None:
+        return
+    check_count("--cache-samples", cmd.cache_samples)
+    for name, value in (("--steps", cmd.steps), ("--batch-size", cmd.batch_size), ("--test-samples", cmd.test_samples),
+                        ("--seeds", cmd.seeds)):
+        if value is not None:
+            check_count(name, value)
+    check_number("--lr", cmd.lr, 0)
+    if not budget:
+        return
+    if cmd.budget is not None and cmd.sim_budget is not None:
+        raise ValueError("give exactly one budget: --budget SECONDS or --sim-budget N")
+    if cmd.budget is not None:
+        check_number("--budget", cmd.budget, 0, unit="seconds")
+    if cmd.sim_budget is not None:
+        check_count("--sim-budget", cmd.sim_budget, note=" (trajectories)")
+    check_number("sim warm-up share", cmd.sim_warmup_share, 0, 1, closed="both")
+    check_number("--priority-cap", cmd.priority_cap, 1, closed="low")
+    if cmd.precompute_share is not None:
+        check_number("precompute share", cmd.precompute_share, 0, 1)
+    from pdestream.datasets.reservoir_options import check_numbers as check_reservoir  # (no torch)
+
+    check_reservoir(argparse.Namespace(**{**vars(_options(cmd)), "batch_size": cmd.batch_size}))  # the reservoir arms'
 
 
 def check_compare_out(out: str, overwrite: bool) -> None:
@@ -292,7 +329,7 @@ def _interactive(cmd: CompareCommand) -> str:
     """modes: training modes at equal steps (experiments.interactive_compare)."""
     from pdestream.experiments.interactive_config import InteractiveConfig, check_arms
     from pdestream.settings import build_pde
-    from pdestream.surrogate.mode_table import check_clip, check_corrector_start, check_noise, check_restrict
+    from pdestream.surrogate.mode_table import MODE_SPECS, check_clip, check_corrector_start, check_noise, check_restrict
 
     if cmd.sim_budget is not None:
         raise ValueError("--modes compares at equal --steps or, with --budget SECONDS, at equal wall clock; "
@@ -307,6 +344,18 @@ def _interactive(cmd: CompareCommand) -> str:
         check_restrict(cmd.restrict)
         if "solver-in-the-loop" not in modes:
             raise ValueError(f"--restrict {cmd.restrict} goes with the corrector's arms (--modes ...,solver-in-the-loop)")
+    if "solver-in-the-loop" not in modes:  # (they ran, rc 0, the option unread)
+        given = [f"{o} {v}" for o, v in (("--fine-n", cmd.fine_n), ("--coarse-n", cmd.coarse_n),
+                                         ("--corrector-start", cmd.corrector_start)) if v is not None]
+        if given:
+            raise ValueError(f"{', '.join(given)} {'goes' if len(given) == 1 else 'go'} with the corrector's arms "
+                             "(--modes ...,solver-in-the-loop)")
+        if cmd.noise is not None and "noise" not in modes:
+            raise ValueError(f"--noise {cmd.noise} goes with the noise mode or the corrector's arms (--modes ...,noise "
+                             "or ...,solver-in-the-loop)")
+    if cmd.unroll is not None and not any("unroll" in MODE_SPECS[m].settings for m in modes if m in MODE_SPECS):
+        raise ValueError(f"--unroll {cmd.unroll} goes with the modes that unroll (--modes ...,pushforward, oracle or "
+                         "solver-in-the-loop)")
     settings = {"n": "32", "n_frames": "11", **cmd.settings} if cmd.quick else dict(cmd.settings)  # tiny: tests
     pde = build_pde(cmd.pde, settings)
     if not cmd.quick:

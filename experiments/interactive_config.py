@@ -107,10 +107,11 @@ class InteractiveConfig:
                                  "(--modes ...,solver-in-the-loop)")
             self.schedule()  # one line for a bad value, before any work
         check_number("--lr", self.lr, 0)
-        longest = max([self.unroll, *(k for k, _ in self.schedule() or ())])
+        unrolled = [m for m in self.modes if "unroll" in MODE_SPECS[m].settings]  # (one-step, noise: one frame)
+        longest = max([self.unroll, *(k for k, _ in self.schedule() or ())]) if unrolled else 1
         if pde.n_frames < self.k_in + longest + 1:
-            raise ValueError(f"--unroll {longest} needs trajectories of at least {self.k_in + longest + 1} "
-                             f"frames; {pde.NAME} has n_frames={pde.n_frames}")
+            raise ValueError(f"{f'--unroll {longest}' if unrolled else f'--k-in {self.k_in}'} needs trajectories of "
+                             f"at least {self.k_in + longest + 1} frames; {pde.NAME} has n_frames={pde.n_frames}")
         if self.device != "cpu":  # (torch only for another device: every refusal above comes without it)
             from pdestream.surrogate.data import check_device
 
@@ -264,6 +265,20 @@ def finished_run(run: Path, pde, settings: dict, cfg: InteractiveConfig, seed: i
     return json.loads((run / "metrics.json").read_text())
 
 
+def _pde_differs(have, want: dict) -> list[str]:
+    """How a comparison's PDE config (compare.json's "pde") differs from ``want`` in words: [] (the same), ["PDE
+    (the comparison's NAME, asked NAME)"] or ["PDE settings (KEY: the comparison's A, asked B, ...)"] (it said
+    "other the PDE", naming nothing)."""
+    if have == want:
+        return []
+    if not isinstance(have, dict) or have.get("pde") != want.get("pde"):
+        name = have.get("pde") if isinstance(have, dict) else have
+        return [f"PDE (the comparison's {name}, asked {want.get('pde')})"]
+    keys = [k for k in (*have, *(k for k in want if k not in have)) if have.get(k) != want.get(k)]
+    parts = [f"{k}: the comparison's {have.get(k)}, asked {want.get(k)}" for k in keys]
+    return [f"PDE settings ({'; '.join(parts[:3])}{' ...' if len(parts) > 3 else ''})"]
+
+
 def check_same_comparison(out: Path, pde, cfg: InteractiveConfig) -> None:
     """ValueError (one line) when ``out`` holds a finished comparison (compare.json) of another PDE or other arms:
     going on there would replace its tables with those of a different comparison. More seeds are allowed (the
@@ -272,9 +287,8 @@ def check_same_comparison(out: Path, pde, cfg: InteractiveConfig) -> None:
     if not (cfg.resume and done.is_file()):
         return
     have = json.loads(done.read_text())
-    differ = [what for what, a, b in (("--modes", list(have.get("config", {}).get("modes", [])), list(cfg.modes)),
-                                      ("the PDE", have.get("pde"), json.loads(json.dumps(pde.config()))))
-              if a != b]
+    differ = ["--modes"] if list(have.get("config", {}).get("modes", [])) != list(cfg.modes) else []
+    differ += _pde_differs(have.get("pde"), json.loads(json.dumps(pde.config())))
     if differ:
         raise ValueError(f"{out} holds a comparison with other {' and '.join(differ)}; rerun with its own settings to "
                          "go on, or pass --overwrite (retrains every arm) or another --out")

@@ -62,10 +62,14 @@ def score_against_coarse(arms: list[dict]) -> None:
 
 
 def _times(arm: dict, other: dict, key: str) -> str:
-    """'2.00x lower' or '2.00x higher': ``arm``'s figure ``key`` against ``other``'s, the factor always >= 1 (a
-    ratio below 1 read "0.18x lower" for an error 5.5 times higher)."""
+    """'2.00x lower than', '2.00x higher than' or 'the same (x1.00) as': ``arm``'s figure ``key`` against
+    ``other``'s, the factor always >= 1 (a ratio below 1 read "0.18x lower" for an error 5.5 times higher; a tie to
+    the digits shown read "1.00x lower")."""
     ratio = _ratio(other[key], arm[key])
-    return f"{ratio:.2f}x lower" if ratio >= 1 else f"{_ratio(arm[key], other[key]):.2f}x higher"
+    factor = ratio if ratio >= 1 else _ratio(arm[key], other[key])
+    if f"{factor:.2f}" == "1.00":
+        return "the same (x1.00) as"
+    return f"{factor:.2f}x {'lower' if ratio >= 1 else 'higher'} than"
 
 
 def _ratio(num: float, den: float) -> float:
@@ -99,6 +103,20 @@ def record(label: str, mode: str, errors: np.ndarray, wall: float, summary: dict
 COLUMNS = ("end_mean", "end_p95", "end_max", "rollout_mean", "rollout_p95", "wall_s", "steps", "final_loss")
 
 
+def restriction_words(restrict: str, pde) -> str:
+    """compare.md's words for the corrector arms' fine -> coarse restriction (``--restrict``) on ``pde``'s grid: on
+    one without a periodic axis, or of staggered fields, the flag does not act (it said "Fourier truncation" there,
+    of arms that may have run with points)."""
+    from pdestream.surrogate.mode_table import pde_restricts_periodic
+
+    if not pde_restricts_periodic(pde):
+        return ("fine -> coarse restriction: means of the fine cells and faces (no periodic axis, or staggered "
+                "fields: --restrict does not act)")
+    return "fine -> coarse restriction on periodic axes: " + (
+        "Fourier truncation (the coarse grid's modes, its Nyquist mode zeroed)" if restrict == "fourier" else
+        "point sampling (every factor-th point)")
+
+
 def write_tables(out: Path, result: dict, pde, cfg) -> None:
     """compare.md and compare.csv of an interactive comparison: one row per arm (mean ± std over seeds), the
     network modes against one-step, the corrector arms against the coarse solver and solver-in-the-loop's verdicts."""
@@ -120,9 +138,7 @@ def write_tables(out: Path, result: dict, pde, cfg) -> None:
             noise += ", every corrector arm" + (f"'s gradient clipped to global norm {clip:g}" if clip is not None
                                                 else "") + (" and" if clip is not None and remat else "") + \
                 (" rematerialised (--remat)" if remat else "")
-        restrict = getattr(cfg, "restrict", "points")
-        noise += (", fine -> coarse restriction on periodic axes: " + ("Fourier truncation (the coarse grid's modes, its "
-                  "Nyquist mode zeroed)" if restrict == "fourier" else "point sampling (every factor-th point)"))
+        noise += ", " + restriction_words(getattr(cfg, "restrict", "points"), pde)
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
     pairs = getattr(cfg, "pairs_steps", None)
     per_arm = (f"{cfg.steps} optimizer steps" + (f" (the two pairs arms: {pairs})" if pairs else "")
@@ -178,7 +194,7 @@ def _arms_lines(arms: list[dict]) -> list[str]:
     if "one-step" in by:
         for name in ("pushforward", "oracle", "noise"):
             if name in by:
-                lines.append(f"\n{name}: end error {_times(by[name], by['one-step'], 'end_mean')} than one-step; "
+                lines.append(f"\n{name}: end error {_times(by[name], by['one-step'], 'end_mean')} one-step; "
                              + verdict(by[name], by["one-step"], "end_mean", "end mean"))
     sitl = [a for a in arms if a["mode"] in CORRECTOR_MODES]
     if len(sitl) == 4:
@@ -192,11 +208,11 @@ def _arms_lines(arms: list[dict]) -> list[str]:
             v = a["vs_coarse"]
             lines.append(f"| {a['arm']} | " + " | ".join(f"{v[key]['improvement']:.2f}x | {v[key]['gap_closed']:+.1%}"
                                                           for key, _ in SCORED) + " |")
-        lines.append(f"\nsolver-in-the-loop rollout mean error: {_times(loop, base, 'rollout_mean')} than the coarse "
-                     f"solver alone, {_times(loop, pairs, 'rollout_mean')} than the correction trained on pairs, "
-                     f"{_times(loop, noisy, 'rollout_mean')} than pairs + noise; end error: "
-                     f"{_times(loop, base, 'end_mean')} than the coarse solver alone, {_times(loop, pairs, 'end_mean')} "
-                     "than the correction trained on pairs")
+        lines.append(f"\nsolver-in-the-loop rollout mean error: {_times(loop, base, 'rollout_mean')} the coarse "
+                     f"solver alone, {_times(loop, pairs, 'rollout_mean')} the correction trained on pairs, "
+                     f"{_times(loop, noisy, 'rollout_mean')} pairs + noise; end error: "
+                     f"{_times(loop, base, 'end_mean')} the coarse solver alone, {_times(loop, pairs, 'end_mean')} "
+                     "the correction trained on pairs")
         lines += ["", "Solver-in-the-loop against each non-interacting corrector arm per metric (x: the other arm's "
                   "error / solver-in-the-loop's, > 1: solver-in-the-loop better; outside the seed spread when the "
                   "margin exceeds the two arms' stds over seeds added):", ""]

@@ -80,6 +80,12 @@ class TrainConfig:
 
         if self.test_samples < 1:
             raise ValueError(f"--test-samples={self.test_samples} not allowed; must be >= 1")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**31:
+            raise ValueError(f"--seed={self.seed!r} not allowed; must be an integer in [0, 2**31)")  # (the sampler's)
+        for name, value in (("--k-in", self.k_in), ("--k-out", self.k_out)):
+            if value is not None:
+                check_count(name, value)
+        check_solver_options(self.solver_workers, self.solver_timeout)
         if self.threads is not None and self.threads < 1:  # (as set_threads says it, which imports torch)
             raise ValueError(f"--threads={self.threads} not allowed; must be >= 1")
         if self.steps is not None:  # (None: TRAIN_STEPS)
@@ -99,11 +105,31 @@ class TrainConfig:
         mode_settings(self.mode, unroll=self.unroll, coarse_n=self.coarse_n, noise=self.noise,
                       corrector_start=self.corrector_start, clip=self.clip, remat=self.remat, restrict=self.restrict)
 
+    def check_resume(self) -> None:
+        """The checks of what may go with --resume (--threads, --ddp, --solver-*), one line each before torch (a bad
+        --threads or --ddp was refused after it, 7-10 s at load 8)."""
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"--threads={self.threads} not allowed; must be >= 1")
+        self.ranks()
+        check_solver_options(self.solver_workers, self.solver_timeout)
+
     def given_with_resume(self) -> list[str]:
         """The fields set besides those RESUME_ALLOWED (a resumed run takes its settings from its run.json)."""
         default = TrainConfig()
         return [f.name for f in fields(self) if f.name not in RESUME_ALLOWED
                 and getattr(self, f.name) != getattr(default, f.name)]
+
+
+def check_solver_options(workers, timeout) -> None:
+    """--solver-workers (an integer in [0, 256]) and --solver-timeout (seconds > 0, finite), None: not given; one
+    line each, as ``generator.external.solver.configure`` says them (which train reached after torch)."""
+    import math
+
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or not 0 <= workers <= 256):
+        raise ValueError(f"--solver-workers={workers!r} not allowed; must be an integer in [0, 256]")
+    if timeout is not None and (isinstance(timeout, bool) or not isinstance(timeout, (int, float))
+                                or not 0 < timeout < math.inf):
+        raise ValueError(f"--solver-timeout={timeout!r} not allowed; must be a number of seconds > 0")
 
 
 def env_world() -> int:

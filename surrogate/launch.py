@@ -30,6 +30,8 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
     elif Path(cfg.resume).is_dir():
         check_writable_dir(cfg.resume, "--resume")
         check_resumable(cfg.resume, cfg.steps)  # what run.json and metrics.json say, before torch
+    else:  # (said by runs.read_run after torch before adv51)
+        raise ValueError(f"--resume {cfg.resume}: no such run directory")
     if cfg.resume is None and cfg.pde is None and cfg.source not in (None, "stream"):
         from dataclasses import replace
 

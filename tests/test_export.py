@@ -357,6 +357,20 @@ def test_a_damaged_export_is_refused_in_one_line_and_nothing_is_written(caches, 
     assert "\n" not in str(err.value) and [p.name for p in tmp_path.iterdir()] == ["e.h5"]
 
 
+@pytest.mark.parametrize("to", list(FORMATS))
+def test_a_flows_velocity_naming_other_components_than_it_holds_is_refused_in_one_line(caches, tmp_path, to):
+    """adv51: a velocity whose pdestream_names lists three components over its two was an IndexError traceback."""
+    export = tmp_path / "e.h5"
+    export_cache(caches["smoke2d"], to, export)
+    with h5py.File(export, "r+") as f:
+        dset = f["t1_fields"]["velocity"] if "t1_fields" in f else f["velocity"]
+        dset.attrs["pdestream_names"] = "u v w"
+    with pytest.raises(ValueError, match=r"damaged .* export: velocity holds 2 components but pdestream_names "
+                                         r"lists 3 \(u v w\); export the cache again") as err:
+        import_export(export, tmp_path / "c.h5")
+    assert "\n" not in str(err.value) and [p.name for p in tmp_path.iterdir()] == ["e.h5"]
+
+
 PER_SEED = {  # the sets PDEBench ships per seed (its FNODatasetMult / UNetDatasetMult files), tiny
     "diffusion_sorption1d": ["--n", "3", "--set", "n=16", "--set", "n_frames=3", "--set", "t_end=1"],
     "diffusion_reaction2d": ["--n", "3", "--set", "n=32", "--set", "n_frames=3", "--set", "t_end=0.1"],

@@ -347,3 +347,31 @@ def test_cli_train_loss_relative_is_recorded_and_a_resume_keeps_it(tmp_path, cap
     err = capsys.readouterr().err
     assert "--loss relative goes with --budget or --sim-budget" in err and err.count("\n") == 1
     assert not (tmp_path / "c").exists()
+
+
+def test_a_comparison_of_other_pde_settings_is_refused_naming_them(tmp_path):
+    """adv51: `compare --modes` over a comparison of another grid said "holds a comparison with other the PDE"."""
+    from pdestream.experiments.interactive_config import InteractiveConfig, check_same_comparison
+
+    have = generator.get_pde("burgers1d", n=32, n_frames=4)
+    (tmp_path / "compare.json").write_text(json.dumps({"pde": have.config(), "config": {"modes": ["one-step"]}}))
+    cfg = InteractiveConfig(modes=("one-step",))
+    with pytest.raises(ValueError, match=r"holds a comparison with other PDE settings \(n: the comparison's 32, "
+                                         r"asked 48\); rerun with its own settings"):
+        check_same_comparison(tmp_path, have.replace({"n": 48}), cfg)
+    with pytest.raises(ValueError, match=r"with other --modes and PDE \(the comparison's burgers1d, asked ks1d\);"):
+        check_same_comparison(tmp_path, generator.get_pde("ks1d"), InteractiveConfig(modes=("oracle",)))
+    check_same_comparison(tmp_path, have, cfg)  # the same comparison: goes on
+
+
+def test_modes_that_do_not_unroll_are_not_refused_for_the_default_unroll():
+    """adv51: `compare --modes one-step,noise` on 4 frames was refused with "--unroll 4 needs trajectories of at
+    least 6 frames", an option not given that neither mode takes (with --unroll 1 the same arms ran)."""
+    from pdestream.experiments.interactive_config import InteractiveConfig
+
+    short = generator.get_pde("burgers1d", n=32, n_frames=4)
+    InteractiveConfig(modes=("one-step", "noise")).check(short)
+    with pytest.raises(ValueError, match=r"^--unroll 4 needs trajectories of at least 6 frames; burgers1d has "):
+        InteractiveConfig(modes=("one-step", "pushforward")).check(short)
+    with pytest.raises(ValueError, match=r"^--k-in 4 needs trajectories of at least 6 frames; burgers1d has "):
+        InteractiveConfig(modes=("one-step",), k_in=4).check(short)

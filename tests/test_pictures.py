@@ -272,6 +272,29 @@ def test_inspect_plot_of_a_3d_cache_shows_three_planes(tmp_path, capsys):
     assert cli.main(["inspect", str(cache), "--plot", str(png)]) == 0 and png.stat().st_size > 0
 
 
+def test_a_3d_flows_vorticity_panels_say_they_are_its_z_component():
+    """adv51: plume3d's figure drew dv/dx - du/dy (the z component) titled "vorticity", in its x-z and y-z planes
+    too, as if it were the vorticity of the 3D flow."""
+    grid = np.arange(4, dtype=np.float32)
+    dims = ("sample", "time", "z", "y", "x")
+    u = np.random.default_rng(0).standard_normal((1, 2, 4, 4, 4)).astype(np.float32)
+    units = {"long_name": "u", "units": "m/s"}
+    ds = xr.Dataset({k: (dims, u * (i + 1), {**units, "long_name": k}) for i, k in enumerate("uvwp")},
+                    coords={**{d: (d, grid, {"long_name": d, "units": "m"}) for d in "xyz"},
+                            "time": ("time", np.arange(2.0), {"long_name": "t", "units": "s"}),
+                            "sample": ("sample", np.arange(1))},
+                    attrs={"pdestream_fields": "u v w p", "pdestream_params": "", "pde": "fake_flow3d",
+                           "equation": "-", "sides": "left=wall"})
+    fig = inspect.draw(ds, n_show=1)
+    try:
+        first = [im.axes.get_title().split()[0] for im in _images(fig)[:3]]
+        assert first == ["vorticity_z"] * 3, first
+        labels = {ax.get_xlabel() for ax in fig.axes if ax.get_label() == "<colorbar>"}
+        assert "z-vorticity dv/dx - du/dy [1/s]" in labels, labels
+    finally:
+        plt.close(fig)
+
+
 def test_a_schema_1_2d_cache_is_refused_in_one_line(tmp_path, ns_cache, capsys):
     import h5py
 

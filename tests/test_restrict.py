@@ -135,3 +135,18 @@ def test_a_grid_the_flag_does_not_act_on_compares_equal_whatever_it_says():
     assert comparable_mode(old, FINE) == comparable_mode({**new, "restrict": "points"}, FINE)
     karman = generator.get_pde("karman2d")  # staggered (MAC) fields
     assert comparable_mode(old, karman) == comparable_mode(new, karman)
+
+
+def test_compare_md_names_the_restriction_only_where_it_acts():
+    """adv51: compare.md said "restriction on periodic axes: Fourier truncation" of a grid with walls on every axis
+    and of karman2d's staggered fields, where --restrict does not act (the arms there may have run with points)."""
+    from pdestream.experiments.interactive_report import restriction_words
+
+    assert restriction_words("fourier", FINE) == ("fine -> coarse restriction on periodic axes: Fourier truncation "
+                                                  "(the coarse grid's modes, its Nyquist mode zeroed)")
+    assert restriction_words("points", FINE).endswith("point sampling (every factor-th point)")
+    walled = generator.get_pde("burgers1d", n=32, n_frames=11, bc="dirichlet")
+    for pde in (walled, generator.get_pde("karman2d")):
+        for how in ("fourier", "points"):
+            words = restriction_words(how, pde)
+            assert "Fourier" not in words and "point sampling" not in words and "does not act" in words, words

@@ -232,3 +232,6 @@ def test_a_network_mode_worse_than_one_step_is_said_higher_not_a_fraction_lower(
     text = "\n".join(_arms_lines([arm("one-step", 0.1), arm("pushforward", 0.2), arm("oracle", 0.05)]))
     assert "pushforward: end error 2.00x higher than one-step" in text
     assert "oracle: end error 2.00x lower than one-step" in text
+    # adv51: a tie to the digits shown read "1.00x lower than one-step" (an untrained noise arm equal to one-step)
+    tie = "\n".join(_arms_lines([arm("one-step", 0.1), arm("noise", 0.1002)]))
+    assert "noise: end error the same (x1.00) as one-step" in tie, tie
