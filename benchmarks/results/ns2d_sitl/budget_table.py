@@ -47,6 +47,23 @@ def ratio(o: np.ndarray, s: np.ndarray) -> str:
     return f"{r:.3f}x" if len(o) < 2 else f"{r:.3f}x (per-seed std {np.std(o / s, ddof=1):.3f})"
 
 
+def verdict(short: dict, long: dict, other: str, metric: str, seeds: list) -> str:
+    """The rule's reading of one ratio's change: "widened" / "narrowed" when it exceeds the per-seed ratio's std at
+    500 steps over all the short run's seeds (one seed at 1500) or the two runs' stds over ``seeds`` added."""
+    def ratios(run, which):
+        return per_seed(run[other], metric, which) / per_seed(run[SITL], metric, which)
+    r_short, r_long = ratios(short, seeds), ratios(long, seeds)
+    change = (per_seed(long[other], metric, seeds).mean() / per_seed(long[SITL], metric, seeds).mean()
+              - per_seed(short[other], metric, seeds).mean() / per_seed(short[SITL], metric, seeds).mean())
+    if len(seeds) < 2:
+        every = [p["seed"] for p in short[SITL]["per_seed"]]
+        limit = np.std(ratios(short, every), ddof=1)
+    else:
+        limit = np.std(r_short, ddof=1) + np.std(r_long, ddof=1)
+    word = "unchanged" if abs(change) <= limit else ("widened" if change > 0 else "narrowed")
+    return f"{metric} {word} ({change:+.3f}, limit {limit:.3f})"
+
+
 def tables(short: Path, long: Path) -> None:
     """Print the arm table, the ratio table and the per-frame table of the two runs."""
     a, b = load(short), load(long)
@@ -65,6 +82,10 @@ def tables(short: Path, long: Path) -> None:
                 vals = [ratio(per_seed(run[name][other], m, seeds), per_seed(run[name][SITL], m, seeds))
                         for m in METRICS]
                 print(f"| {name} | {other} | {label} | " + " | ".join(vals) + " |")
+    print("\nchange of each ratio, 500 -> 1500, against the rule's threshold")
+    for name in ("inside", "beyond"):
+        for other in OTHERS:
+            print(f"- {name}, {other}: " + "; ".join(verdict(a[name], b[name], other, m, seeds) for m in METRICS))
     print("\nper-frame pairs / solver-in-the-loop (seed means of the curves; the 500-step run: all its seeds)")
     print("| set | steps | " + " | ".join(f"t-10={t}" for t in TIMES) + " |\n| --- | --- | " + "--- | " * len(TIMES))
     for name in ("inside", "beyond"):
