@@ -329,7 +329,13 @@ def _interactive(cmd: CompareCommand) -> str:
     """modes: training modes at equal steps (experiments.interactive_compare)."""
     from pdestream.experiments.interactive_config import InteractiveConfig, check_arms
     from pdestream.settings import build_pde
-    from pdestream.surrogate.mode_table import MODE_SPECS, check_clip, check_corrector_start, check_noise, check_restrict
+    from pdestream.surrogate.mode_table import (
+        MODE_SPECS,
+        check_clip,
+        check_corrector_start,
+        check_noise,
+        check_restrict,
+    )
 
     if cmd.sim_budget is not None:
         raise ValueError("--modes compares at equal --steps or, with --budget SECONDS, at equal wall clock; "
