@@ -42,8 +42,9 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
         from pdestream.settings import build_pde
 
         pde = build_pde(cfg.pde, cfg.settings)  # the name and --set checked before torch (and JAX) are imported
-        if cfg.mode == "solver-in-the-loop" and cfg.source in (None, "stream"):  # its coarse grid (a cache's n is
-            # known once it is open): it was refused only when the corrector was built, after torch was imported
+        if cfg.mode == "solver-in-the-loop" and cfg.source in (None, "stream") and not pde.STEADY:  # its coarse
+            # grid (a steady entry is refused for the mode itself, below; a cache's n is
+            # known once it is open) was refused only when the corrector was built, after torch was imported
             from .mode_table import check_coarse_grid, mode_settings
 
             check_coarse_grid(pde, mode_settings(cfg.mode, coarse_n=cfg.coarse_n)["coarse_n"])
