@@ -41,6 +41,15 @@ def coarse_gap(name: str, fine_n: int, coarse_n: int, n: int = 8, settings: dict
             "fine_s": t1 - t0, "coarse_s": t2 - t1, "finite": bool(torch.isfinite(pred).all())}
 
 
+def entry_settings(items: list[str]) -> dict:
+    """``--set KEY=VALUE`` items as {KEY: VALUE} (strings, as the catalog parses them); exits with one line naming
+    a malformed item."""
+    bad = [kv for kv in items if "=" not in kv or not kv.split("=", 1)[0]]
+    if bad:
+        sys.exit(f"--set {bad[0]!r}: need KEY=VALUE")
+    return dict(kv.split("=", 1) for kv in items)
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="python -m benchmarks.coarse_gap", description=__doc__.splitlines()[0])
     p.add_argument("pde", help="a catalog entry, e.g. ns2d")
@@ -51,11 +60,11 @@ def main(argv: list[str] | None = None) -> None:
                    help="fine -> coarse on periodic axes (default fourier)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a setting of the entry")
     a = p.parse_args(argv)
-    bad_set = [kv for kv in a.set if "=" not in kv or not kv.split("=", 1)[0]]
-    if bad_set or a.n < 1:
-        sys.exit(f"--set {bad_set[0]!r}: need KEY=VALUE" if bad_set else f"--n {a.n}: need >= 1")
+    settings = entry_settings(a.set)
+    if a.n < 1:
+        sys.exit(f"--n {a.n}: need >= 1")
     try:
-        g = coarse_gap(a.pde, a.fine_n, a.coarse_n, a.n, dict(kv.split("=", 1) for kv in a.set),
+        g = coarse_gap(a.pde, a.fine_n, a.coarse_n, a.n, settings,
                        restrict=a.restrict)
     except (ValueError, KeyError) as err:
         sys.exit(str(err).splitlines()[0])

@@ -16,6 +16,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from benchmarks.coarse_gap import entry_settings
+
 
 def restrict_gap(name: str, coarse_n: int, n_test: int = 32, settings: dict | None = None,
                  shift: float | None = None) -> dict:
@@ -57,11 +59,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--shift", type=float, help="the set beyond the training range (compare's --shift)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a setting of the entry")
     a = p.parse_args(argv)
-    bad_set = [kv for kv in a.set if "=" not in kv or not kv.split("=", 1)[0]]
-    if bad_set or a.test_samples < 1:
-        sys.exit(f"--set {bad_set[0]!r}: need KEY=VALUE" if bad_set else f"--test-samples {a.test_samples}: need >= 1")
+    settings = entry_settings(a.set)
+    if a.test_samples < 1:
+        sys.exit(f"--test-samples {a.test_samples}: need >= 1")
     try:
-        g = restrict_gap(a.pde, a.coarse_n, a.test_samples, dict(kv.split("=", 1) for kv in a.set), a.shift)
+        g = restrict_gap(a.pde, a.coarse_n, a.test_samples, settings, a.shift)
     except (ValueError, KeyError) as err:
         sys.exit(str(err).splitlines()[0])
     print(f"{a.pde} -> coarse n={a.coarse_n}, {a.test_samples} held-out trajectories"
