@@ -335,6 +335,7 @@ def _interactive(cmd: CompareCommand) -> str:
         check_corrector_start,
         check_noise,
         check_restrict,
+        check_restrict_acts,
     )
 
     if cmd.sim_budget is not None:
@@ -364,6 +365,7 @@ def _interactive(cmd: CompareCommand) -> str:
                          "solver-in-the-loop)")
     settings = {"n": "32", "n_frames": "11", **cmd.settings} if cmd.quick else dict(cmd.settings)  # tiny: tests
     pde = build_pde(cmd.pde, settings)
+    check_restrict_acts(pde, cmd.restrict)  # (given only with the corrector's arms: checked above)
     if not cmd.quick:
         check_shift(pde, cmd)  # the set beyond the training range (not with --quick, a smoke run)
     model_cfg = ({"width": 8, "modes": 4, "layers": 2} if cmd.quick else {"width": 32, "modes": 12, "layers": 3}) \

@@ -45,9 +45,10 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
         if cfg.mode == "solver-in-the-loop" and cfg.source in (None, "stream") and not pde.STEADY:  # its coarse
             # grid (a steady entry is refused for the mode itself, below; a cache's n is
             # known once it is open) was refused only when the corrector was built, after torch was imported
-            from .mode_table import check_coarse_grid, mode_settings
+            from .mode_table import check_coarse_grid, check_restrict_acts, mode_settings
 
             check_coarse_grid(pde, mode_settings(cfg.mode, coarse_n=cfg.coarse_n)["coarse_n"])
+            check_restrict_acts(pde, cfg.restrict)
     from pdestream.datasets.generate import configure_solvers
     from pdestream.surrogate import ddp
 

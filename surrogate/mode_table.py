@@ -235,6 +235,15 @@ def pde_restricts_periodic(pde) -> bool:
     return restricts_periodic(tuple(pde.grid.bc), getattr(pde, "FIELD_LOCATIONS", {}))
 
 
+def check_restrict_acts(pde, restrict) -> None:
+    """An explicit ``--restrict`` on a fine grid it does not act on (no periodic axis, or staggered fields: these
+    take cell / face means) refused in one line naming what the grid does instead; None (not given) passes."""
+    if restrict is not None and not pde_restricts_periodic(pde):
+        why = "staggered (MAC) fields" if getattr(pde, "FIELD_LOCATIONS", {}) else "no periodic axis"
+        raise ValueError(f"--restrict {restrict} does not act on {pde.NAME} ({why}: the corrector takes cell / face "
+                         "means of the fine field whatever it says); drop --restrict")
+
+
 def option_help() -> dict:
     """The CLI's help text of each mode setting, by setting (cli.py's --unroll, --coarse-n, --noise, ...): kept beside
     the settings they describe, so the parser stays a list of options."""

@@ -150,3 +150,28 @@ def test_compare_md_names_the_restriction_only_where_it_acts():
         for how in ("fourier", "points"):
             words = restriction_words(how, pde)
             assert "Fourier" not in words and "point sampling" not in words and "does not act" in words, words
+
+
+@pytest.mark.parametrize("command", ["train", "compare"])
+@pytest.mark.parametrize("restrict", ["fourier", "points"])
+def test_an_explicit_restrict_on_a_grid_it_does_not_act_on_is_refused_in_one_line(tmp_path, capsys, command, restrict):
+    """adv51: `--restrict fourier` on walls ran rc 0, the flag unread (the house refuses options no arm reads).
+    Nothing is written; the default (no flag) still runs there (test above)."""
+    out = tmp_path / "run"
+    argv = corrector_train_argv(out, 1, "--set", "bc=dirichlet", "--restrict", restrict)
+    if command == "compare":
+        argv = ["compare", "burgers1d", "--modes", "solver-in-the-loop", "--quick", "--set", "bc=dirichlet",
+                "--restrict", restrict, "--out", str(out)]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"--restrict {restrict} does not act on burgers1d (no periodic axis" in err and "\n" not in err, err
+    assert not out.exists()
+
+
+def test_an_explicit_restrict_on_staggered_fields_names_them():
+    from pdestream.surrogate.mode_table import check_restrict_acts
+
+    check_restrict_acts(generator.get_pde("karman2d"), None)  # not given: nothing to refuse
+    with pytest.raises(ValueError, match=r"karman2d \(staggered \(MAC\) fields"):
+        check_restrict_acts(generator.get_pde("karman2d"), "fourier")
+    check_restrict_acts(FINE, "points")  # acts on a periodic grid
