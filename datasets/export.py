@@ -538,9 +538,10 @@ def exported_as(path) -> str | None:
         return None
 
 
-def named_pde(path) -> str | None:
-    """The PDE a pdestream cache or export at ``path`` holds (its config's ``pde``), read from its attributes
-    alone; None when ``path`` is not one or cannot be read (the reader's own checks then say why)."""
+def cached_config(path) -> dict | None:
+    """The PDE config (``PDE.config()``: "pde" and every setting) a pdestream cache or export at ``path`` holds,
+    read from its attributes alone (no torch, no JAX); None when ``path`` is not one or cannot be read (the
+    reader's own checks then say why)."""
     import json
 
     try:
@@ -554,9 +555,15 @@ def named_pde(path) -> str | None:
 
             with h5py.File(path, "r") as f:
                 attrs = {schema.CONFIG_ATTR: f.attrs.get(schema.CONFIG_ATTR)}
-        name = json.loads(str(plain(attrs.get(schema.CONFIG_ATTR)))).get("pde")
+        config = json.loads(str(plain(attrs.get(schema.CONFIG_ATTR))))
     except Exception:  # anything unreadable: not ours to explain here
         return None
+    return config if isinstance(config, dict) else None
+
+
+def named_pde(path) -> str | None:
+    """The PDE a pdestream cache or export at ``path`` holds (its config's ``pde``), or None (``cached_config``)."""
+    name = (cached_config(path) or {}).get("pde")
     return name if isinstance(name, str) and name else None
 
 

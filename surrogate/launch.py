@@ -42,13 +42,9 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
         from pdestream.settings import build_pde
 
         pde = build_pde(cfg.pde, cfg.settings)  # the name and --set checked before torch (and JAX) are imported
-        if cfg.mode == "solver-in-the-loop" and cfg.source in (None, "stream") and not pde.STEADY:  # its coarse
-            # grid (a steady entry is refused for the mode itself, below; a cache's n is
-            # known once it is open) was refused only when the corrector was built, after torch was imported
-            from .mode_table import check_coarse_grid, check_restrict_acts, mode_settings
-
-            check_coarse_grid(pde, mode_settings(cfg.mode, coarse_n=cfg.coarse_n)["coarse_n"])
-            check_restrict_acts(pde, cfg.restrict)
+        if cfg.mode == "solver-in-the-loop" and not pde.STEADY:  # its coarse grid was refused only when the
+            # corrector was built, after torch was imported (a steady entry is refused for the mode itself, below)
+            check_corrector_grid(pde, cfg)
     from pdestream.datasets.generate import configure_solvers
     from pdestream.surrogate import ddp
 
@@ -63,6 +59,23 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
             return _resume(cfg, ranks, log) if cfg.resume is not None else _new(cfg, ranks, log)
         finally:
             ddp.finish()
+
+
+def check_corrector_grid(pde, cfg: TrainConfig) -> None:
+    """Solver-in-the-loop's coarse grid and an explicit ``--restrict`` against the fine grid: the stream's ``pde``,
+    or the one a ``--source`` cache holds (its stored config, read without torch or JAX); one line each."""
+    from .mode_table import check_coarse_grid, check_restrict_acts, mode_settings
+
+    if cfg.source not in (None, "stream"):
+        from pdestream.datasets._bridge import pde_from_config
+        from pdestream.datasets.export import cached_config
+
+        config = cached_config(cfg.source)
+        if config is None:
+            return  # not a cache this can read: the reader says why
+        pde = pde_from_config(config)
+    check_coarse_grid(pde, mode_settings(cfg.mode, coarse_n=cfg.coarse_n)["coarse_n"])
+    check_restrict_acts(pde, cfg.restrict)
 
 
 @contextlib.contextmanager

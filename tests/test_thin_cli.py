@@ -154,6 +154,9 @@ def finished(tmp_path_factory):
     root = tmp_path_factory.mktemp("finished")
     assert cli.main(["train", "burgers1d", *TINY_TRAIN, "--steps", "2", "--out", str(root / "run")]) == 0
     assert cli.main([*TINY_MODES, "--steps", "2", "--out", str(root / "cmp")]) == 0
+    for name, extra in (("c.h5", []), ("walls.h5", ["--set", "bc=dirichlet"])):  # caches to train from
+        assert cli.main(["generate", "burgers1d", "--n", "2", "--set", "n=16", "--set", "n_frames=3", *extra,
+                         "--out", str(root / name)]) == 0
     return root
 
 
@@ -169,6 +172,11 @@ def _unchanged(root):
                                                             "run's 2, asked 3)"),
     # adv50: `train --resume` extended an arm of a comparison, which that comparison then refused
     (["train", "--resume", "{root}/cmp/one-step", "--steps", "4"], "is the one-step arm of the comparison in {root}/cmp"),
+    # adv51: the corrector's coarse grid against a cache's fine grid was refused only once the cache was open (torch)
+    (["train", "--source", "{root}/c.h5", "--mode", "solver-in-the-loop", "--coarse-n", "12", "--out", "{root}/new"],
+     "coarse n=12 does not fit the fine grid n=16"),
+    (["train", "--source", "{root}/walls.h5", "--mode", "solver-in-the-loop", "--coarse-n", "8", "--restrict",
+      "fourier", "--out", "{root}/new"], "--restrict fourier does not act on burgers1d (no periodic axis"),
 ])
 def test_refusals_read_from_run_json_come_before_torch(finished, argv, said):
     before = _unchanged(finished)
