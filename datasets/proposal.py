@@ -76,7 +76,6 @@ from .proposal_fit import (
     _fit_plain,
     _plain,
     active_fit,
-    check_settings,
     correlation,
     features,
     gauss_ratio,
@@ -89,7 +88,7 @@ from .proposal_fit import (
     pick_weights,
     running_median,
 )
-from .reservoir_config import PROPOSALS
+from .reservoir_config import PROPOSALS, check_proposal_settings
 
 MODES = ("uniform", "loss", "active", "generative")
 if MODES != PROPOSALS:
@@ -118,7 +117,7 @@ class ParamProposal:
                  refit: int = 256, candidates: int = 2048, gate: bool = True, skill_window: int = 256,
                  skill_min: int = 32, skill_full: float = 0.5, latent_prior: tuple | None = None, top: float = 0.25,
                  step: float = 0.25):
-        check_settings(mode, floor=floor, bandwidth=bandwidth, power=power, window=window, ensemble=ensemble,
+        check_proposal_settings(mode, floor=floor, bandwidth=bandwidth, power=power, window=window, ensemble=ensemble,
                        kappa=kappa, top=top, step=step, gate=gate, skill_full=skill_full, skill_min=skill_min,
                        refit=refit, candidates=candidates, skill_window=skill_window)
         self.mode, self.floor, self.window, self.bandwidth, self.power = mode, float(floor), window, float(bandwidth), float(power)

@@ -262,38 +262,3 @@ def _plain(state):
     return int(state) if isinstance(state, (np.integer, int)) and not isinstance(state, bool) else state
 
 
-def check_settings(mode: str, floor, bandwidth, power, window, ensemble, kappa, top, step, gate, skill_full, skill_min,
-                   refit, candidates, skill_window) -> None:
-    """Refuse a ``ParamProposal`` setting outside its range: ValueError, one line naming it and what is allowed."""
-    from .reservoir_config import PROPOSALS as MODES
-
-    if mode not in MODES:
-        raise ValueError(f"proposal={mode!r} not allowed; allowed: {', '.join(MODES)}")
-    if not (isinstance(floor, (int, float)) and 0 < floor <= 1):
-        raise ValueError(f"proposal floor={floor!r} not allowed; must be in (0, 1] (uniform share)")
-    if not (isinstance(bandwidth, (int, float)) and 0 < bandwidth <= 1):
-        raise ValueError(f"proposal bandwidth={bandwidth!r} not allowed; must be in (0, 1] (unit-box units)")
-    if not (isinstance(power, (int, float)) and 0 <= power <= 8):
-        raise ValueError(f"proposal power={power!r} not allowed; must be in [0, 8]")
-    if isinstance(window, bool) or not isinstance(window, int) or window < 1:
-        raise ValueError(f"proposal window={window!r} not allowed; must be an integer >= 1")
-    if isinstance(ensemble, bool) or not isinstance(ensemble, int) or ensemble < 2:
-        raise ValueError(f"proposal ensemble={ensemble!r} not allowed; must be an integer >= 2 (the uncertainty "
-                         "signal is the disagreement of its members)")
-    if not (isinstance(kappa, (int, float)) and 0 <= kappa <= 100):
-        raise ValueError(f"proposal kappa={kappa!r} not allowed; must be in [0, 100] (weight of the ensemble spread)")
-    if not (isinstance(top, (int, float)) and 0 < top < 1):
-        raise ValueError(f"proposal top={top!r} not allowed; must be in (0, 1) (the share of fresh solves that "
-                         "counts as high difficulty)")
-    if not (isinstance(step, (int, float)) and 0 < step <= 1):
-        raise ValueError(f"proposal step={step!r} not allowed; must be in (0, 1] (the generative proposal's move, "
-                         "in prior standard deviations)")
-    if not isinstance(gate, bool):
-        raise ValueError(f"proposal gate={gate!r} not allowed; must be True or False")
-    if not (isinstance(skill_full, (int, float)) and 0 < skill_full <= 1):
-        raise ValueError(f"proposal skill_full={skill_full!r} not allowed; must be in (0, 1] (a rank correlation)")
-    if isinstance(skill_min, bool) or not isinstance(skill_min, int) or skill_min < 3:
-        raise ValueError(f"proposal skill_min={skill_min!r} not allowed; must be an integer >= 3")
-    for name, value in (("refit", refit), ("candidates", candidates), ("skill_window", skill_window)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"proposal {name}={value!r} not allowed; must be an integer >= 1")

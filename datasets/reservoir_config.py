@@ -24,6 +24,48 @@ PROPOSALS = ("uniform", "loss", "active", "generative")
 PROPOSAL_SPACES = ("params", "params+ic")
 
 
+def _real(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _integer(value) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+# a steered proposal's settings (datasets.proposal.ParamProposal): what each accepts and the words that say so. One
+# table: the CLI checks its numbers with it before torch, the proposal (a torch module) when it is built.
+PROPOSAL_RANGES: dict[str, tuple[Callable, str]] = {
+    "floor": (lambda v: _real(v) and 0 < v <= 1, "must be in (0, 1] (uniform share)"),
+    "bandwidth": (lambda v: _real(v) and 0 < v <= 1, "must be in (0, 1] (unit-box units)"),
+    "power": (lambda v: _real(v) and 0 <= v <= 8, "must be in [0, 8]"),
+    "window": (lambda v: _integer(v) and v >= 1, "must be an integer >= 1"),
+    "ensemble": (lambda v: _integer(v) and v >= 2, "must be an integer >= 2 (the uncertainty signal is the "
+                 "disagreement of its members)"),
+    "kappa": (lambda v: _real(v) and 0 <= v <= 100, "must be in [0, 100] (weight of the ensemble spread)"),
+    "top": (lambda v: _real(v) and 0 < v < 1, "must be in (0, 1) (the share of fresh solves that counts as high "
+            "difficulty)"),
+    "step": (lambda v: _real(v) and 0 < v <= 1, "must be in (0, 1] (the generative proposal's move, in prior "
+             "standard deviations)"),
+    "gate": (lambda v: isinstance(v, bool), "must be True or False"),
+    "skill_full": (lambda v: _real(v) and 0 < v <= 1, "must be in (0, 1] (a rank correlation)"),
+    "skill_min": (lambda v: _integer(v) and v >= 3, "must be an integer >= 3"),
+    "refit": (lambda v: _integer(v) and v >= 1, "must be an integer >= 1"),
+    "candidates": (lambda v: _integer(v) and v >= 1, "must be an integer >= 1"),
+    "skill_window": (lambda v: _integer(v) and v >= 1, "must be an integer >= 1"),
+}
+
+
+def check_proposal_settings(mode: str | None = None, **values) -> None:
+    """Refuse a steered proposal's setting outside PROPOSAL_RANGES (``values``: those given, by name; ``mode``: one
+    of PROPOSALS, None: not given): ValueError, one line naming it and what is allowed."""
+    if mode is not None and mode not in PROPOSALS:
+        raise ValueError(f"proposal={mode!r} not allowed; allowed: {', '.join(PROPOSALS)}")
+    for name, value in values.items():
+        accepts, allowed = PROPOSAL_RANGES[name]  # (KeyError: a setting the table lacks, a programming error)
+        if not accepts(value):
+            raise ValueError(f"proposal {name}={value!r} not allowed; {allowed}")
+
+
 def _check_int(name: str, value, low: int) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
         raise ValueError(f"{name}={value!r} not allowed; must be an integer >= {low}")

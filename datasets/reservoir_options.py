@@ -163,23 +163,16 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
 def check_numbers(args: argparse.Namespace) -> None:
     """`train --reservoir`'s numbers, one line each before torch is imported (they were refused when the reservoir
     and its proposal were built, after it): ``ReservoirConfig.checked`` against --batch-size (per rank), and the
-    steered proposal's floor, ensemble and kappa in ``proposal_fit.check_settings``' words (that module imports
-    torch)."""
-    from .reservoir_config import ReservoirConfig
+    steered proposal's floor, ensemble and kappa by ``reservoir_config.PROPOSAL_RANGES`` (the table the proposal
+    itself checks by)."""
+    from .reservoir_config import ReservoirConfig, check_proposal_settings
 
     ReservoirConfig(capacity=args.capacity, max_reuse=args.max_reuse, warmup=getattr(args, "warmup", None),
                     eviction=getattr(args, "eviction", "fifo"), draw=getattr(args, "draw", "uniform"),  # (compare's)
                     priority_power=args.priority_power, priority_floor=args.priority_floor,
                     solve_batch=solve_batch(args), mode=args.reservoir_mode,
                     target_reuse=args.target_reuse).checked(getattr(args, "batch_size", 1))  # (none: a library's)
-    floor, ensemble, kappa = args.proposal_floor, args.proposal_ensemble, args.proposal_kappa
-    if not 0 < floor <= 1:
-        raise ValueError(f"proposal floor={floor!r} not allowed; must be in (0, 1] (uniform share)")
-    if ensemble < 2:
-        raise ValueError(f"proposal ensemble={ensemble!r} not allowed; must be an integer >= 2 (the uncertainty "
-                         "signal is the disagreement of its members)")
-    if not 0 <= kappa <= 100:
-        raise ValueError(f"proposal kappa={kappa!r} not allowed; must be in [0, 100] (weight of the ensemble spread)")
+    check_proposal_settings(floor=args.proposal_floor, ensemble=args.proposal_ensemble, kappa=args.proposal_kappa)
 
 
 def defaults(train: bool = True) -> dict:

@@ -300,3 +300,25 @@ def test_a_state_saved_before_the_gate_loads_with_the_gate_closed():
     out = again.propose(100)
     assert np.isfinite(out["x"]).all()
     prop.close()
+
+
+def test_the_cli_and_the_proposal_refuse_by_one_table(capsys):
+    """reservoir_options.check_numbers (before torch) and ParamProposal (when built) read one table
+    (reservoir_config.PROPOSAL_RANGES): each setting's bad value is refused in the same words by both."""
+    from pdestream import cli
+    from pdestream.datasets.proposal import ParamProposal
+    from pdestream.datasets.reservoir_config import PROPOSAL_RANGES
+
+    bad = {"floor": 0.0, "bandwidth": 1.5, "power": 9.0, "window": 0, "ensemble": 1, "kappa": -1.0, "top": 1.0,
+           "step": 0.0, "gate": 1, "skill_full": float("nan"), "skill_min": 2, "refit": 0, "candidates": 0,
+           "skill_window": 0}
+    assert set(bad) == set(PROPOSAL_RANGES)
+    for name, value in bad.items():
+        with pytest.raises(ValueError, match=rf"^proposal {name}=") as e:
+            ParamProposal({"nu": (0.0, 1.0)}, **{name: value})
+        assert "\n" not in str(e.value)
+        if name in ("floor", "ensemble", "kappa"):  # the CLI's proposal options
+            option = f"--proposal-{name}"
+            assert cli.main(["train", "burgers1d", "--reservoir", "--proposal", "active", "--out", "never", option,
+                             str(value)]) == 2
+            assert str(e.value) in capsys.readouterr().err
