@@ -67,7 +67,7 @@ def check_corrector_grid(pde, cfg: TrainConfig) -> None:
     from .mode_table import check_coarse_grid, check_restrict_acts, mode_settings
 
     if cfg.source not in (None, "stream"):
-        from pdestream.datasets._bridge import pde_from_config
+        from pdestream.datasets import pde_from_config
         from pdestream.datasets.export import cached_config
 
         config = cached_config(cfg.source)
