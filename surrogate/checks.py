@@ -36,3 +36,43 @@ def check_number(name: str, value, low: float | None = None, high: float | None 
 
 def _real(value) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def check_cache_matches(path, config: dict, pde, explicit: dict | None = None) -> None:
+    """ValueError (one line) when the cache at ``path`` (its stored PDE ``config``) holds another PDE than ``pde``,
+    or differs from settings the user set explicitly (``explicit``: the --set dict). No torch: `train --source`
+    checks it before torch is imported, the loader again when it opens the cache."""
+    name = config.get("pde")
+    if name != pde.NAME:
+        raise ValueError(f"cache {path} holds {name!r} samples, not {pde.NAME!r}; "
+                         f"train on {name} or generate a {pde.NAME} cache")
+    wanted = pde.config()
+    # a setting the cache recorded counts too when the asked PDE leaves it out of its config (bc=periodic is the
+    # default, so a periodic entry records no bc: asked on a Dirichlet cache, it trained on the Dirichlet data)
+    differ = [k for k in (explicit or {}) if (k.split(".")[0] in wanted or k.split(".")[0] in config)
+              and _lookup(wanted, k) != _lookup(config, k)]
+    if differ:
+        # a setting a config leaves out is at its default (bc: periodic, refine: 1): shown as that, not as None
+        shown = {k: tuple(_default(pde, k) if v is None else v for v in (_lookup(config, k), _lookup(wanted, k)))
+                 for k in differ}
+        detail = ", ".join(f"{k}: cache {c!r} vs asked {w!r}" for k, (c, w) in shown.items())
+        raise ValueError(f"cache {path} was written with other settings ({detail})")
+
+
+def _default(pde, key: str):
+    """The default of the setting ``key`` that a config leaves out (bc: periodic; a field of ``pde``'s dataclass:
+    its default), or None."""
+    import dataclasses
+
+    from ..boundaries import PERIODIC
+
+    if key.split(".")[0] == "bc":
+        return PERIODIC.value
+    field = next((f for f in dataclasses.fields(pde) if f.name == key), None) if dataclasses.is_dataclass(pde) else None
+    return None if field is None or field.default is dataclasses.MISSING else field.default
+
+
+def _lookup(config: dict, key: str):
+    head, _, rest = key.partition(".")
+    value = config.get(head)
+    return _lookup(value, rest) if rest and isinstance(value, dict) else value

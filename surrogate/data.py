@@ -16,8 +16,7 @@ from pdestream.datasets.export import as_cache
 from pdestream.datasets.ranks import RankReservoirStream, placement
 from pdestream.datasets.reservoir_config import ReservoirConfig
 
-from ..boundaries import PERIODIC
-from .checks import check_count
+from .checks import check_cache_matches, check_count
 
 TEST_SEED_OFFSET = 1_000_003  # test seeds never coincide with a training seed below this offset
 # data_cfg {"kind": "reservoir", ...}: the ReservoirStream keyword arguments a run may set (ReservoirConfig's plain
@@ -53,42 +52,6 @@ def model_device(model: torch.nn.Module) -> torch.device:
     return next(model.parameters()).device
 
 
-def check_cache_matches(cached, pde, explicit: dict | None = None) -> None:
-    """ValueError when the cache holds another PDE, or differs from settings the user set explicitly."""
-    name = cached.config.get("pde")
-    if name != pde.NAME:
-        raise ValueError(f"cache {cached.path} holds {name!r} samples, not {pde.NAME!r}; "
-                         f"train on {name} or generate a {pde.NAME} cache")
-    wanted = pde.config()
-    # a setting the cache recorded counts too when the asked PDE leaves it out of its config (bc=periodic is the
-    # default, so a periodic entry records no bc: asked on a Dirichlet cache, it trained on the Dirichlet data)
-    differ = [k for k in (explicit or {}) if (k.split(".")[0] in wanted or k.split(".")[0] in cached.config)
-              and _lookup(wanted, k) != _lookup(cached.config, k)]
-    if differ:
-        # a setting a config leaves out is at its default (bc: periodic, refine: 1): shown as that, not as None
-        shown = {k: tuple(_default(pde, k) if v is None else v for v in (_lookup(cached.config, k), _lookup(wanted, k)))
-                 for k in differ}
-        detail = ", ".join(f"{k}: cache {c!r} vs asked {w!r}" for k, (c, w) in shown.items())
-        raise ValueError(f"cache {cached.path} was written with other settings ({detail})")
-
-
-def _default(pde, key: str):
-    """The default of the setting ``key`` that a config leaves out (bc: periodic; a field of ``pde``'s dataclass:
-    its default), or None."""
-    import dataclasses
-
-    if key.split(".")[0] == "bc":
-        return PERIODIC.value
-    field = next((f for f in dataclasses.fields(pde) if f.name == key), None) if dataclasses.is_dataclass(pde) else None
-    return None if field is None or field.default is dataclasses.MISSING else field.default
-
-
-def _lookup(config: dict, key: str):
-    head, _, rest = key.partition(".")
-    value = config.get(head)
-    return _lookup(value, rest) if rest and isinstance(value, dict) else value
-
-
 def train_loader(pde, source: str, view, batch_size: int, seed: int = 0, data_seed: int = 0,
                  explicit: dict | None = None, data_cfg: dict | None = None, device: str | None = None):
     """(DataLoader of batch dicts, the PDE the data comes from) for ``source`` = "stream" or a cache path.
@@ -121,7 +84,7 @@ def train_loader(pde, source: str, view, batch_size: int, seed: int = 0, data_se
     path = as_cache(source)  # an export of The Well's or PDEBench's layout: a temporary cache made from it
     try:
         cached = datasets.CachedTrajectories(path, view=view)
-        check_cache_matches(cached, pde, explicit)
+        check_cache_matches(cached.path, cached.config, pde, explicit)
     except ValueError as err:  # named after what the user gave
         raise ValueError(str(err).replace(str(path), str(source))) from None
     sampler = EpochBatchSampler(len(cached), batch_size, seed, drop_last=len(cached) >= batch_size)

@@ -42,6 +42,8 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
         from pdestream.settings import build_pde
 
         pde = build_pde(cfg.pde, cfg.settings)  # the name and --set checked before torch (and JAX) are imported
+        if cfg.source not in (None, "stream"):  # a cache of another PDE or other --set was refused once open (torch)
+            check_source_cache(pde, cfg)
         if cfg.mode == "solver-in-the-loop" and not pde.STEADY:  # its coarse grid was refused only when the
             # corrector was built, after torch was imported (a steady entry is refused for the mode itself, below)
             check_corrector_grid(pde, cfg)
@@ -76,6 +78,18 @@ def check_corrector_grid(pde, cfg: TrainConfig) -> None:
         pde = pde_from_config(config)
     check_coarse_grid(pde, mode_settings(cfg.mode, coarse_n=cfg.coarse_n)["coarse_n"])
     check_restrict_acts(pde, cfg.restrict)
+
+
+def check_source_cache(pde, cfg: TrainConfig) -> None:
+    """`train --source CACHE`: the cache's stored config against ``pde`` and the --set given (one line, no torch);
+    an export of another layout (no pdestream config) is left to the loader."""
+    from pdestream.datasets.export import cached_config
+
+    from .checks import check_cache_matches
+
+    config = cached_config(cfg.source)
+    if config is not None:
+        check_cache_matches(cfg.source, config, pde, cfg.settings)
 
 
 @contextlib.contextmanager

@@ -149,14 +149,12 @@ def test_compare_modes_refuse_a_refined_oracle_before_any_work(tmp_path, capsys)
 def test_a_cache_of_another_refine_names_both_values_not_none():
     # train --source CACHE --set refine=1 on a refined cache said "refine: cache 2 vs asked None" (a config leaves
     # refine out at 1)
-    from types import SimpleNamespace
-
-    from pdestream.surrogate.data import check_cache_matches
+    from pdestream.surrogate.checks import check_cache_matches
 
     plain, refined = generator.get_pde("burgers1d", n=16), generator.get_pde("burgers1d", n=16, refine=2)
     for cache, asked, said in ((refined, plain, "refine: cache 2 vs asked 1"), (plain, refined, "refine: cache 1 vs asked 2")):
         with pytest.raises(ValueError) as err:
-            check_cache_matches(SimpleNamespace(path="c.h5", config=cache.config()), asked, {"refine": "x"})
+            check_cache_matches("c.h5", cache.config(), asked, {"refine": "x"})
         assert said in str(err.value), str(err.value)
 
 

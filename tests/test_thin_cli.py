@@ -177,6 +177,10 @@ def _unchanged(root):
      "coarse n=12 does not fit the fine grid n=16"),
     (["train", "--source", "{root}/walls.h5", "--mode", "solver-in-the-loop", "--coarse-n", "8", "--restrict",
       "fourier", "--out", "{root}/new"], "--restrict fourier does not act on burgers1d (no periodic axis"),
+    # a cache of another PDE, or of other --set, was refused once the loader opened it (torch)
+    (["train", "--source", "{root}/c.h5", "--set", "bc=dirichlet", "--out", "{root}/new"],
+     "was written with other settings (bc: cache 'periodic' vs asked 'dirichlet')"),
+    (["train", "ns2d", "--source", "{root}/c.h5", "--out", "{root}/new"], "holds 'burgers1d' samples, not 'ns2d'"),
 ])
 def test_refusals_read_from_run_json_come_before_torch(finished, argv, said):
     before = _unchanged(finished)
