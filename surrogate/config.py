@@ -141,6 +141,41 @@ def env_world() -> int:
         raise ValueError(f"WORLD_SIZE={value!r} not allowed; must be an integer >= 1 (set by torchrun)") from None
 
 
+def checkpoint_step(path) -> int | None:
+    """The optimizer step a checkpoint.pt (``torch.save``'s zip of a ``train_state`` dict) was saved at, read
+    without torch: its pickle unpickled with every class and tensor storage stubbed out (only the plain "step" is
+    kept). None when the file is not such a zip or holds no int step (``runs.read_run`` then says why)."""
+    import pickle
+    import zipfile
+
+    class _Stub(dict):  # a dict: an OrderedDict of weights is filled item by item
+        def __init__(self, *args, **kwargs):
+            super().__init__()
+
+        def __call__(self, *args, **kwargs):
+            return self
+
+        def __setstate__(self, state):
+            pass
+
+    class _Plain(pickle.Unpickler):
+        def find_class(self, module, name):  # tensors, dtypes, OrderedDicts of weights: not needed here
+            return _Stub
+
+        def persistent_load(self, pid):  # the tensors' storages
+            return None
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            name = next(n for n in archive.namelist() if n.endswith("/data.pkl"))
+            with archive.open(name) as f:
+                state = _Plain(f).load()
+    except Exception:  # not a zip of this layout, or a pickle this cannot read: read_run's own words
+        return None
+    step = state.get("step") if isinstance(state, dict) else None
+    return step if isinstance(step, int) and not isinstance(step, bool) else None
+
+
 def check_resumable(run_dir, steps: int | None) -> None:
     """What run.json and metrics.json tell of ``train --resume RUN_DIR [--steps N]`` without torch, one line each
     (``runs.read_run`` says the rest once torch has read checkpoint.pt): RUN_DIR is an arm of a comparison (run.json's
@@ -165,7 +200,12 @@ def check_resumable(run_dir, steps: int | None) -> None:
                          "refuse the arm once resumed here: rerun its `pdestream compare` command instead (an "
                          "interrupted one goes on; longer runs: the new --steps with --overwrite, or another --out)")
     if settings.get("steps") != done or isinstance(done, bool) or not isinstance(done, int):
-        return  # unfinished, or extended since it finished: the checkpoint holds the step
+        # unfinished, or extended since it finished: the checkpoint holds the step (read_run judged it after torch)
+        at = checkpoint_step(run_dir / "checkpoint.pt")
+        if steps is not None and at is not None and steps < at:
+            raise ValueError(f"--steps {steps!r} not allowed with --resume {run_dir}: the run already did {at} "
+                             f"steps; allowed: an integer >= {at} (the new total)")
+        return
     if steps is not None and steps < done:
         raise ValueError(f"--steps {steps!r} not allowed with --resume {run_dir}: the run already did {done} steps; "
                          f"allowed: an integer >= {done} (the new total)")

@@ -2,6 +2,7 @@
 configs', and a refused command or --help answers before JAX or torch is imported."""
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -154,6 +155,11 @@ def finished(tmp_path_factory):
     root = tmp_path_factory.mktemp("finished")
     assert cli.main(["train", "burgers1d", *TINY_TRAIN, "--steps", "2", "--out", str(root / "run")]) == 0
     assert cli.main([*TINY_MODES, "--steps", "2", "--out", str(root / "cmp")]) == 0
+    unfinished = root / "unfinished"  # the run as if stopped at its checkpoint of step 2 of 5
+    shutil.copytree(root / "run", unfinished)
+    (unfinished / "metrics.json").unlink()
+    settings = json.loads((unfinished / "run.json").read_text())
+    (unfinished / "run.json").write_text(json.dumps({**settings, "steps": 5}))
     for name, extra in (("c.h5", []), ("walls.h5", ["--set", "bc=dirichlet"])):  # caches to train from
         assert cli.main(["generate", "burgers1d", "--n", "2", "--set", "n=16", "--set", "n_frames=3", *extra,
                          "--out", str(root / name)]) == 0
@@ -172,6 +178,8 @@ def _unchanged(root):
                                                             "run's 2, asked 3)"),
     # adv50: `train --resume` extended an arm of a comparison, which that comparison then refused
     (["train", "--resume", "{root}/cmp/one-step", "--steps", "4"], "is the one-step arm of the comparison in {root}/cmp"),
+    # adv51: an unfinished run's step is in checkpoint.pt, read by torch (now: its pickle, torch-free)
+    (["train", "--resume", "{root}/unfinished", "--steps", "1"], "the run already did 2 steps; allowed: an integer >= 2"),
     # adv51: the corrector's coarse grid against a cache's fine grid was refused only once the cache was open (torch)
     (["train", "--source", "{root}/c.h5", "--mode", "solver-in-the-loop", "--coarse-n", "12", "--out", "{root}/new"],
      "coarse n=12 does not fit the fine grid n=16"),
