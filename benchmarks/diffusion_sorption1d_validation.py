@@ -15,8 +15,10 @@ sets' per-frame mean and std across samples with their sampling errors, and ours
 PDEBench's own draws (paired: the solvers' difference without sampling error), RESULTS/stats.json. Figures, and
 one verdict each (docs/results/recipes.md).
 
---pdebench DIR: a directory holding PDEBench's ``pdebench`` package (e.g. the pdebench 0.1.0 wheel unpacked; this
-module needs numpy and scipy only). PDEBench is not part of pdestream and is not imported otherwise.
+--pdebench DIR: a directory holding PDEBench's ``pdebench`` package (the pdebench 0.1.0 wheel unpacked, or its git
+tag: ``git archive v0.1.0 pdebench | tar -x -C DIR``; this module needs numpy and scipy only). Not its later code:
+from 2025 on ``sim_diff_sorp`` draws u0 with ``np.random.default_rng(seed)``, another sample per seed than the
+published set's (``pdebench_draw``), which the rows here would then mislabel. PDEBench is not part of pdestream and is not imported otherwise.
 """
 
 from __future__ import annotations
