@@ -65,7 +65,7 @@ def verdict(m: list[tuple[float, float]], p: float | None) -> str:
     diffs = [abs(m[i][0] - m[i + 1][0]) for i in range(2)]
     scatter = [max(m[i][1], m[i + 1][1]) for i in range(2)]
     if any(d <= s for d, s in zip(diffs, scatter)):
-        return "no order at this scatter (" + ", ".join(f"|diff| {d:.4g} vs std {s:.4g}"
+        return "no order at this scatter (" + ", ".join(f"difference {d:.4f} vs std {s:.4f}"
                                                           for d, s in zip(diffs, scatter)) + ")"
     if p is None:
         return "missed (differences change sign)"
