@@ -7,7 +7,8 @@ rule's verdict (order >= 1.5 and both grid-to-grid differences above the alignme
     python -m benchmarks.flow_align [DIR]      # DIR default benchmarks/results/flow_align
 
 DIR holds shift_<S>.jsonl (16/32/64 from rest) and c128_t2_<S>.jsonl (688x128, the figure: t 2.0 past the 344x64
-state); c128_t1_<S>.jsonl (t 1.0) gives the continuation's drift. Numpy only, no JAX.
+state); c128_t1_<S>.jsonl (t 1.0) and c128_t3_<S>.jsonl (t 3.0, a drift check) give the continuation's drift
+against the figure. Numpy only, no JAX.
 """
 
 from __future__ import annotations
@@ -25,11 +26,13 @@ PUBLISHED = {"cd": (5.57, 5.59), "cl": (0.0104, 0.0110), "dp": (0.1172, 0.1176),
              "cd_cv": (5.57, 5.59), "cl_cv": (0.0104, 0.0110)}
 
 
-def load(folder: Path) -> tuple[list[dict], list[dict]]:
-    """(rows of the figures: shift_*.jsonl and c128_t2_*.jsonl, rows of c128_t1_*.jsonl): each a flow_bodies row."""
+def load(folder: Path) -> tuple[list[dict], dict[str, list[dict]]]:
+    """(rows of the figures: shift_*.jsonl and c128_t2_*.jsonl, {"1.0": c128_t1 rows, "3.0": c128_t3 rows}): each
+    a flow_bodies row."""
     read = lambda pat: [json.loads(line) for f in sorted(folder.glob(pat))  # noqa: E731
                         for line in f.read_text().splitlines() if line.strip()]
-    return read("shift_*.jsonl") + read("c128_t2_*.jsonl"), read("c128_t1_*.jsonl")
+    return read("shift_*.jsonl") + read("c128_t2_*.jsonl"), {"1.0": read("c128_t1_*.jsonl"),
+                                                              "3.0": read("c128_t3_*.jsonl")}
 
 
 def stats(rows: list[dict]) -> dict[int, dict]:
@@ -72,7 +75,7 @@ def verdict(m: list[tuple[float, float]], p: float | None) -> str:
     return f"met (p {p:.2f})" if p >= 1.5 else f"missed (p {p:.2f} < 1.5)"
 
 
-def tables(rows: list[dict], leg1: list[dict]) -> str:
+def tables(rows: list[dict], legs: dict[str, list[dict]]) -> str:
     """The markdown tables: per grid (shifts, mean, std, half range), the continuation's drift, the orders."""
     st = stats(rows)
     head = "| grid | shift | " + " | ".join(NAMES[k] for k in KEYS) + " |\n|---|---|" + "---|" * len(KEYS)
@@ -82,13 +85,18 @@ def tables(rows: list[dict], leg1: list[dict]) -> str:
             out.append(f"| {s['nx']}x{ny} | {r['shift_x']:g} | " + " | ".join(f"{r[k]:.4f}" for k in KEYS) + " |")
         for i, lab in enumerate(("**mean**", "std", "half range")):
             out.append(f"| {s['nx']}x{ny} | {lab} | " + " | ".join(f"{s[k][i]:.4f}" for k in KEYS) + " |")
-    if leg1:
-        out += ["", "688x128 continuation, t 2.0 minus t 1.0 (leg 2 - leg 1):", "",
+    for t, leg in legs.items():
+        if not leg:
+            continue
+        out += ["", "688x128 continuation, " + ("t 2.0 (the figure) minus t 1.0:" if float(t) < 2 else
+                                                 "t 3.0 (the drift check) minus t 2.0 (the figure):"), "",
                 "| shift | " + " | ".join(NAMES[k] for k in KEYS) + " |", "|---|" + "---|" * len(KEYS)]
-        for r1 in sorted(leg1, key=lambda r: r["shift_x"]):
+        for r1 in sorted(leg, key=lambda r: r["shift_x"]):
             r2 = [r for r in rows if r["ny"] == r1["ny"] and r["shift_x"] == r1["shift_x"]]
             if r2:
-                out.append(f"| {r1['shift_x']:g} | " + " | ".join(f"{r2[0][k] - r1[k]:+.4f}" for k in KEYS) + " |")
+                sign = 1 if float(t) < 2 else -1
+                out.append(f"| {r1['shift_x']:g} | " + " | ".join(f"{sign * (r2[0][k] - r1[k]):+.4f}" for k in KEYS)
+                           + " |")
     nys = list(st)
     out += ["", "Orders of the means against the published interval's middle, log2(|e_k| / |e_k+1|):", "",
             "| grids | " + " | ".join(NAMES[k] for k in KEYS) + " |", "|---|" + "---|" * len(KEYS)]
@@ -111,10 +119,10 @@ def main(argv=None):
     folder = Path(args[0]) if args else Path("benchmarks/results/flow_align")
     if not folder.is_dir():
         raise SystemExit(f"no folder {folder}: give the folder of flow_bodies' shift_*.jsonl files")
-    rows, leg1 = load(folder)
+    rows, legs = load(folder)
     if not rows:
         raise SystemExit(f"no shift_*.jsonl rows in {folder}")
-    print(tables(rows, leg1))
+    print(tables(rows, legs))
 
 
 if __name__ == "__main__":
