@@ -145,11 +145,8 @@ def case(ny: int, body: str, t_end: float, cfl: float = 0.4, tol: float = 1e-5,
     c, cj = int(round(cx / h)), int(round(CY / h))
     # a square 5 radii wide (2 radii of fluid around the cylinder): 3 radii wide moved Cd by 0.02 at 172x32 (its
     # edges in the wall layer), 6 radii wide by < 1e-4 from this; 7 radii wide as a second check
-    half = int(round(2.5 * R / h))
-    fx, fy = momentum_balance(s.u, s.v, s.p, h, (c - half, c + half, cj - half, cj + half))
-    half7 = int(round(3.5 * R / h))
-    fx7, fy7 = momentum_balance(s.u, s.v, s.p, h, (c - half7, c + half7, cj - half7, cj + half7))
     scale = 2 / (U_MEAN ** 2 * D)
+    (fx, fy), (fx7, fy7) = (_box_balance(s, h, c, cj, nx, ny, radii, scale) for radii in (2.5, 3.5))
     extra = {"cd_vol": 0.0, "cl_vol": 0.0}
     extra["cd_vol"], extra["cl_vol"] = (scale * a for a in weighted_force(s.u, s.v, s.p, h, cx, CY, 1.5 * R, 3 * R))
     for d in force_distances if body == "sharp" else ():  # the sharp force with its wall samples d cells out (forces.FORCE_DISTANCE) instead
@@ -160,10 +157,22 @@ def case(ny: int, body: str, t_end: float, cfl: float = 0.4, tol: float = 1e-5,
         finally:
             forces.FORCE_DISTANCE = default
     return extra | {"ny": ny, "nx": nx, "body": body, "cells_per_d": D / h, "steps": n, "cd": float(coef[0]),
-            "cl": float(coef[1]), "dp": float(dp), "cd_cv": fx * scale, "cl_cv": fy * scale,
-            "cd_cv7": fx7 * scale, "cl_cv7": fy7 * scale, "shift_x": shift_x, "t": t_end,
+            "cl": float(coef[1]), "dp": float(dp), "cd_cv": fx, "cl_cv": fy,
+            "cd_cv7": fx7, "cl_cv7": fy7, "shift_x": shift_x, "t": t_end,
             "continued": start is not None, "finite": bool(jnp.isfinite(s.u).all()), "capped": int(s.capped),
             "wall_s": wall, "_state": {k: np.asarray(getattr(s, k)) for k in ("u", "v", "p")}}
+
+
+def _box_balance(s, h, c, cj, nx, ny, radii, scale):
+    """(Cd, Cl) of the momentum balance over the square ``radii`` cylinder radii from cell (c, cj) on each side,
+    or (None, None) where the square (with the one cell its differences reach) leaves the nx x ny grid (the
+    7-radii square at 86x16 with the body shifted upstream)."""
+    half = int(round(radii * R / h))
+    box = (c - half, c + half, cj - half, cj + half)
+    if min(box[0], box[2]) < 1 or box[1] + 1 > nx or box[3] + 1 > ny:
+        return None, None
+    fx, fy = momentum_balance(s.u, s.v, s.p, h, box)
+    return fx * scale, fy * scale
 
 
 def _err(x, lo_hi):
@@ -205,7 +214,7 @@ def richardson(rows: list[dict]) -> str:
                 continue
             cells = []
             for k in RICHARDSON:
-                if not all(k in r for r in (a, b, c)):
+                if not all(r.get(k) is not None for r in (a, b, c)):
                     cells.append("")
                     continue
                 d1, d2 = a[k] - b[k], b[k] - c[k]

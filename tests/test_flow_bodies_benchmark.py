@@ -3,10 +3,11 @@ whose force is known in closed form, and the three-grid observed order / Richard
 Small numpy arrays only (no rollout)."""
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 
-from benchmarks.flow_bodies import _prolong, momentum_balance, richardson, weighted_force
+from benchmarks.flow_bodies import _box_balance, _prolong, momentum_balance, richardson, weighted_force
 
 
 def _linear_pressure(a=0.7, n=80, h=0.01):
@@ -21,6 +22,14 @@ def test_momentum_balance_is_minus_the_pressure_gradient_times_the_area():
     fx, fy = momentum_balance(u, v, p, h, (20, 50, 25, 45))  # 30 x 20 cells
     assert math.isclose(fx, -a * (30 * h) * (20 * h), rel_tol=1e-12)
     assert abs(fy) < 1e-14
+
+
+def test_a_box_past_the_grid_gives_none_not_a_crash():
+    u, v, p = _linear_pressure(0.7, n=16, h=0.025625)
+    s = SimpleNamespace(u=u, v=v, p=p)
+    # 86x16's 7-radii square around a body shifted upstream to cell 7 reaches cell 0 (its differences cell -1)
+    assert _box_balance(s, 0.025625, 7, 8, 16, 16, 3.5, 1.0) == (None, None)
+    assert _box_balance(s, 0.025625, 8, 8, 16, 16, 2.5, 1.0)[0] is not None
 
 
 def test_weighted_force_is_minus_the_gradient_times_the_weight_integral():
