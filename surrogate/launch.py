@@ -42,11 +42,7 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
         from pdestream.settings import build_pde
 
         pde = build_pde(cfg.pde, cfg.settings)  # the name and --set checked before torch (and JAX) are imported
-        if cfg.source not in (None, "stream"):  # a cache of another PDE or other --set was refused once open (torch)
-            check_source_cache(pde, cfg)
-        if cfg.mode == "solver-in-the-loop" and not pde.STEADY:  # its coarse grid was refused only when the
-            # corrector was built, after torch was imported (a steady entry is refused for the mode itself, below)
-            check_corrector_grid(pde, cfg)
+        check_new_data(pde, cfg)
     from pdestream.datasets.generate import configure_solvers
     from pdestream.surrogate import ddp
 
@@ -63,11 +59,16 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
             ddp.finish()
 
 
-def check_corrector_grid(pde, cfg: TrainConfig) -> None:
-    """Solver-in-the-loop's coarse grid and an explicit ``--restrict`` against the fine grid: the stream's ``pde``,
-    or the one a ``--source`` cache holds (its stored config, read without torch or JAX); one line each."""
+def check_new_data(pde, cfg: TrainConfig) -> None:
+    """What a new run's data allows, one line each before torch (each was refused only once the cache was open or
+    the corrector built, after torch): a ``--source`` cache's stored config (read once, without torch or JAX)
+    against ``pde`` and the --set given; solver-in-the-loop's coarse grid and an explicit ``--restrict`` against the
+    fine grid (the stream's ``pde`` or the cache's). An export of another layout (no pdestream config) is left to
+    the loader; a steady entry is refused for the mode itself (``check_new``)."""
+    from .checks import check_cache_matches
     from .mode_table import check_coarse_grid, check_restrict_acts, mode_settings
 
+    fine = pde
     if cfg.source not in (None, "stream"):
         from pdestream.datasets import pde_from_config
         from pdestream.datasets.export import cached_config
@@ -75,21 +76,11 @@ def check_corrector_grid(pde, cfg: TrainConfig) -> None:
         config = cached_config(cfg.source)
         if config is None:
             return  # not a cache this can read: the reader says why
-        pde = pde_from_config(config)
-    check_coarse_grid(pde, mode_settings(cfg.mode, coarse_n=cfg.coarse_n)["coarse_n"])
-    check_restrict_acts(pde, cfg.restrict)
-
-
-def check_source_cache(pde, cfg: TrainConfig) -> None:
-    """`train --source CACHE`: the cache's stored config against ``pde`` and the --set given (one line, no torch);
-    an export of another layout (no pdestream config) is left to the loader."""
-    from pdestream.datasets.export import cached_config
-
-    from .checks import check_cache_matches
-
-    config = cached_config(cfg.source)
-    if config is not None:
         check_cache_matches(cfg.source, config, pde, cfg.settings)
+        fine = pde_from_config(config)
+    if cfg.mode == "solver-in-the-loop" and not pde.STEADY:
+        check_coarse_grid(fine, mode_settings(cfg.mode, coarse_n=cfg.coarse_n)["coarse_n"])
+        check_restrict_acts(fine, cfg.restrict)
 
 
 @contextlib.contextmanager
