@@ -4,14 +4,14 @@ latent), the active suite's settings, resumable unit by unit.
 ``python -m benchmarks.generative_suite [--out DIR] [--problems burgers1d,kdv1d] [--seeds 3] [--max-minutes M]
 [--summary-only]``: rerun the same command to go on from the finished units.
 
-**Why this suite** (2026-11-29, stop 52). The active suite's proposal steers the parameters alone, which explain about
+**Why this suite** (2026-11-28, stop 52). The active suite's proposal steers the parameters alone, which explain about
 half of the error on the problems that train (docs/results/active.md); the generative proposal over the joint space
 drew fresh solves 1.6x as hard as uniform ones on burgers1d (2 seeds of 3) but never steered in training: its
 correlation gate scored a smooth summary with no skill. The lift gate (``datasets.proposal_lift``) measures the
 steered draws' fresh losses against the uniform ones' directly, so the proposal steers where its draws are harder and
 falls back to uniform where they are not.
 
-**Settings, written before any run (2026-11-29 00:00 UTC, stop 52), none tuned on a result:** the active suite's
+**Settings, written before any run (2026-11-28 23:56 UTC, stop 52), none tuned on a result:** the active suite's
 (``benchmarks.active_suite.SETTINGS``: 256 solves per arm, a quarter up front and the rest paced and steered, 1500
 steps, batch 32, lr 3e-3 cosine, FNO 32 / 12 / 3, operator view, relative-L2 loss, one torch thread), its grid,
 horizon and test-set rules (1024 in-domain trajectories, seed 0), and its units, resume and summary. Arms:
