@@ -72,7 +72,7 @@ def test_latents_drawn_from_the_prior_give_the_keys_law(name, grid):
     z = a + b * rng.standard_normal((512, a.size)) if kind == "normal" else rng.uniform(a, b, (512, a.size))
     keys = jax.random.split(jax.random.key(1), 1024)
     drawn = jax.jit(jax.vmap(lambda k: ic.sample(k, grid, n_fields)))(keys[:512])
-    given = jax.jit(jax.vmap(lambda l, k: ic.ic_from_latent(l, k, grid, n_fields)))(np.float32(z), keys[512:])
+    given = jax.jit(jax.vmap(lambda lat, k: ic.ic_from_latent(lat, k, grid, n_fields)))(np.float32(z), keys[512:])
     energy = [np.asarray(u, np.float64).reshape(512, -1).var(1) for u in (drawn, given)]
     se = np.hypot(*(e.std() / np.sqrt(512) for e in energy))
     assert abs(energy[0].mean() - energy[1].mean()) < 4 * se, (energy[0].mean(), energy[1].mean(), se)
