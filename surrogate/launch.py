@@ -32,17 +32,16 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
         check_resumable(cfg.resume, cfg.steps)  # what run.json and metrics.json say, before torch
     else:  # (said by runs.read_run after torch before adv51)
         raise ValueError(f"--resume {cfg.resume}: no such run directory")
-    if cfg.resume is None and cfg.pde is None and cfg.source not in (None, "stream"):
+    config = source_config(cfg.source) if cfg.resume is None else None  # (one line for a cache it cannot train on)
+    if config is not None and cfg.pde is None and isinstance(config.get("pde"), str):
         from dataclasses import replace
 
-        from pdestream.datasets.export import named_pde
-
-        cfg = replace(cfg, pde=named_pde(cfg.source))  # `train --source PATH`: the PDE its cache (or export) holds
+        cfg = replace(cfg, pde=config["pde"])  # `train --source PATH`: the PDE its cache (or export) holds
     if cfg.resume is None and isinstance(cfg.pde, str):
         from pdestream.settings import build_pde
 
         pde = build_pde(cfg.pde, cfg.settings)  # the name and --set checked before torch (and JAX) are imported
-        check_new_data(pde, cfg)
+        check_new_data(pde, cfg, config)
     from pdestream.datasets.generate import configure_solvers
     from pdestream.surrogate import ddp
 
@@ -59,23 +58,45 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
             ddp.finish()
 
 
-def check_new_data(pde, cfg: TrainConfig) -> None:
+def source_config(source) -> dict | None:
+    """The PDE config (``PDE.config()``) of a new run's ``--source`` cache or export, read without torch or JAX;
+    None for the stream (or a source the reader opens all the same: it is left to the loader). One line, the
+    reader's own, for a path that is not there, not a pdestream cache or export, damaged, or an interrupted
+    generate's (each was said only once torch was imported, 2-5 s; a damaged cache with no PDE named read "no PDE
+    named")."""
+    if source in (None, "stream"):
+        return None
+    if not Path(source).exists():
+        raise FileNotFoundError(f"--source {source}: no such cache (or use --source stream)")
+    from pdestream.datasets.export import cache_written, cached_config
+
+    config = cached_config(source)
+    if config is None:  # the reader's words for why (xarray and h5py, no torch)
+        from pdestream.datasets.cache import open_cache
+        from pdestream.datasets.export import as_cache
+
+        open_cache(as_cache(source)).close()
+        return None
+    written = cache_written(source)
+    if written is not None:
+        raise ValueError(f"{source} is incomplete ({written[0]} of {written[1]} samples written); finish it with "
+                         "`pdestream generate ... --resume` (train reads complete caches)")
+    return config
+
+
+def check_new_data(pde, cfg: TrainConfig, config: dict | None = None) -> None:
     """What a new run's data allows, one line each before torch (each was refused only once the cache was open or
-    the corrector built, after torch): a ``--source`` cache's stored config (read once, without torch or JAX)
-    against ``pde`` and the --set given; solver-in-the-loop's coarse grid and an explicit ``--restrict`` against the
-    fine grid (the stream's ``pde`` or the cache's). An export of another layout (no pdestream config) is left to
-    the loader; a steady entry is refused for the mode itself (``check_new``)."""
+    the corrector built, after torch): a ``--source`` cache's stored ``config`` (``source_config``; None: the
+    stream) against ``pde`` and the --set given; solver-in-the-loop's coarse grid and an explicit ``--restrict``
+    against the fine grid (the stream's ``pde`` or the cache's). A steady entry is refused for the mode itself
+    (``check_new``)."""
     from .checks import check_cache_matches
     from .mode_table import check_coarse_grid, check_restrict_acts, mode_settings
 
     fine = pde
-    if cfg.source not in (None, "stream"):
+    if config is not None:
         from pdestream.datasets import pde_from_config
-        from pdestream.datasets.export import cached_config
 
-        config = cached_config(cfg.source)
-        if config is None:
-            return  # not a cache this can read: the reader says why
         check_cache_matches(cfg.source, config, pde, cfg.settings)
         fine = pde_from_config(config)
     if cfg.mode == "solver-in-the-loop" and not pde.STEADY:

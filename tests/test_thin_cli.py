@@ -163,6 +163,14 @@ def finished(tmp_path_factory):
     for name, extra in (("c.h5", []), ("walls.h5", ["--set", "bc=dirichlet"])):  # caches to train from
         assert cli.main(["generate", "burgers1d", "--n", "2", "--set", "n=16", "--set", "n_frames=3", *extra,
                          "--out", str(root / name)]) == 0
+    import h5py
+
+    for name, attrs in (("cut.h5", {"pdestream_complete": 0}), ("garbled.h5", {"pdestream_config": "{not json"})):
+        shutil.copy(root / "c.h5", root / name)  # an interrupted generate's cache; one whose config is damaged
+        with h5py.File(root / name, "r+") as f:
+            f.attrs.update(attrs)
+            if name == "cut.h5":
+                f["complete"][1] = 0
     return root
 
 
@@ -189,6 +197,13 @@ def _unchanged(root):
     (["train", "--source", "{root}/c.h5", "--set", "bc=dirichlet", "--out", "{root}/new"],
      "was written with other settings (bc: cache 'periodic' vs asked 'dirichlet')"),
     (["train", "ns2d", "--source", "{root}/c.h5", "--out", "{root}/new"], "holds 'burgers1d' samples, not 'ns2d'"),
+    # adv52: an interrupted generate's cache, a damaged config or a missing path were refused after torch (2-5 s),
+    # and without a PDE named the damaged cache read "no PDE named"
+    (["train", "--source", "{root}/cut.h5", "--out", "{root}/new"], "cut.h5 is incomplete (1 of 2 samples written)"),
+    (["train", "--source", "{root}/garbled.h5", "--out", "{root}/new"], "garbled.h5 is damaged: attribute "
+                                                                          "pdestream_config = '{{not json'"),
+    (["train", "burgers1d", "--source", "{root}/garbled.h5", "--out", "{root}/new"], "garbled.h5 is damaged"),
+    (["train", "--source", "{root}/none.h5", "--out", "{root}/new"], "--source {root}/none.h5: no such cache"),
 ])
 def test_refusals_read_from_run_json_come_before_torch(finished, argv, said):
     before = _unchanged(finished)
