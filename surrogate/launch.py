@@ -88,10 +88,11 @@ def check_new_data(pde, cfg: TrainConfig, config: dict | None = None) -> None:
     """What a new run's data allows, one line each before torch (each was refused only once the cache was open or
     the corrector built, after torch): a ``--source`` cache's stored ``config`` (``source_config``; None: the
     stream) against ``pde`` and the --set given; solver-in-the-loop's coarse grid and an explicit ``--restrict``
-    against the fine grid (the stream's ``pde`` or the cache's). A steady entry is refused for the mode itself
+    against the fine grid (the stream's ``pde`` or the cache's); the mode's next-step window against its frames
+    (the cache's was refused by the view after torch, naming k_out). A steady entry is refused for the mode itself
     (``check_new``)."""
     from .checks import check_cache_matches
-    from .mode_table import check_coarse_grid, check_restrict_acts, mode_settings
+    from .mode_table import check_coarse_grid, check_restrict_acts, check_window, frames_ahead, mode_settings
 
     fine = pde
     if config is not None:
@@ -102,6 +103,11 @@ def check_new_data(pde, cfg: TrainConfig, config: dict | None = None) -> None:
     if cfg.mode == "solver-in-the-loop" and not pde.STEADY:
         check_coarse_grid(fine, mode_settings(cfg.mode, coarse_n=cfg.coarse_n)["coarse_n"])
         check_restrict_acts(fine, cfg.restrict)
+    if not fine.STEADY and (cfg.view or "next_step") == "next_step":  # the mode's window against the frames
+        unroll = mode_settings(cfg.mode, unroll=cfg.unroll).get("unroll", 1)  # (one-step, noise: 1)
+        k_out = 1 if cfg.k_out is None else cfg.k_out
+        check_window(cfg.mode, unroll, 1 if cfg.k_in is None else cfg.k_in, frames_ahead(cfg.mode, unroll, k_out),
+                     fine.n_frames)
 
 
 @contextlib.contextmanager

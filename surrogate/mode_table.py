@@ -223,6 +223,38 @@ def check_coarse_grid(pde, coarse_n) -> None:
         raise ValueError(f"solver-in-the-loop: --coarse-n {coarse_n} not allowed: {err}") from None
 
 
+# the target frames per window each mode reads from a next-step view (``surrogate.modes``' frames_ahead): the view's
+# k_out ("k_out"), its unroll ("unroll"), or 1 (the oracle's targets come from the solver)
+FRAMES_AHEAD = {"one-step": "k_out", "pushforward": "unroll", "oracle": 1, "solver-in-the-loop": "unroll",
+                "noise": "k_out"}
+
+
+def frames_ahead(name: str, unroll: int, k_out: int) -> int:
+    """The target frames per window mode ``name`` reads (FRAMES_AHEAD) at this unroll and k_out."""
+    ahead = FRAMES_AHEAD[name]
+    return unroll if ahead == "unroll" else k_out if ahead == "k_out" else ahead
+
+
+def check_window(name: str, unroll: int, k_in: int, frames_out: int, n_frames: int) -> None:
+    """ValueError (one line) when mode ``name``'s window, ``k_in`` input frames and ``frames_out`` targets, is
+    longer than trajectories of ``n_frames``, naming what would fit. No torch: ``train --source CACHE`` checks it
+    against the cache's frames before torch, ``surrogate.modes.check_fits`` against the data's."""
+    if k_in + frames_out > n_frames:
+        raise ValueError(f"--mode {name} with --unroll {unroll} and --k-in {k_in} needs {k_in + frames_out} frames "
+                         f"per window but the trajectories have {n_frames}; allowed: "
+                         f"{_fits_hint(name, frames_out, n_frames, k_in)}")
+
+
+def _fits_hint(name: str, frames_out: int, n_frames: int, k_in: int) -> str:
+    """What would fit: a shorter unroll where one exists (it said "--unroll <= -2" when --k-in alone was too long,
+    and offered --unroll to one-step, which has none), else fewer input frames, else more frames."""
+    if name != "one-step" and n_frames - k_in >= 1:
+        return f"--unroll <= {n_frames - k_in}"
+    if n_frames - frames_out >= 1:
+        return f"--k-in <= {n_frames - frames_out} (or --set n_frames={k_in + frames_out})"
+    return f"--set n_frames={k_in + frames_out} or more"
+
+
 def restricts_periodic(bc, locations) -> bool:
     """Whether ``--restrict`` acts on a fine grid of per-axis ``bc`` (boundary words; None: periodic) whose fields
     sit at ``locations`` (a staggered grid's per-field locations; empty or None: none): a periodic axis and no

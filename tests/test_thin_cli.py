@@ -204,6 +204,13 @@ def _unchanged(root):
                                                                           "pdestream_config = '{{not json'"),
     (["train", "burgers1d", "--source", "{root}/garbled.h5", "--out", "{root}/new"], "garbled.h5 is damaged"),
     (["train", "--source", "{root}/none.h5", "--out", "{root}/new"], "--source {root}/none.h5: no such cache"),
+    # adv52: a window longer than the cache's trajectories was refused by the view after torch (4.6 s), in words
+    # naming k_out (the unroll the user gave or left at its default was not named)
+    (["train", "--source", "{root}/c.h5", "--mode", "solver-in-the-loop", "--coarse-n", "8", "--out", "{root}/new"],
+     "--mode solver-in-the-loop with --unroll 4 and --k-in 1 needs 5 frames per window but the trajectories have 3; "
+     "allowed: --unroll <= 2"),
+    (["train", "--source", "{root}/c.h5", "--k-in", "3", "--out", "{root}/new"],
+     "--mode one-step with --unroll 1 and --k-in 3 needs 4 frames per window but the trajectories have 3"),
 ])
 def test_refusals_read_from_run_json_come_before_torch(finished, argv, said):
     before = _unchanged(finished)
