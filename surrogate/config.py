@@ -176,6 +176,24 @@ def checkpoint_step(path) -> int | None:
     return step if isinstance(step, int) and not isinstance(step, bool) else None
 
 
+def damaged_checkpoint(path, why: str) -> str:
+    """The one line for a checkpoint.pt that cannot be read (``why``: "empty", "not a torch.save file ...")."""
+    return (f"{path} is damaged ({why}); the run cannot go on from it: start it again with --overwrite (a copy of "
+            "the file from before the damage resumes)")
+
+
+def check_checkpoint_file(path) -> None:
+    """ValueError (one line, ``damaged_checkpoint``) for a checkpoint.pt that is empty or not a zip at all (torch.save
+    writes a zip; a truncated one has lost its closing directory), without torch."""
+    import os
+    import zipfile
+
+    if os.path.getsize(path) == 0:
+        raise ValueError(damaged_checkpoint(path, "empty"))
+    if not zipfile.is_zipfile(path):
+        raise ValueError(damaged_checkpoint(path, "not a torch.save file: truncated or overwritten"))
+
+
 def check_resumable(run_dir, steps: int | None) -> None:
     """What run.json and metrics.json tell of ``train --resume RUN_DIR [--steps N]`` without torch, one line each
     (``runs.read_run`` says the rest once torch has read checkpoint.pt): RUN_DIR is an arm of a comparison (run.json's
@@ -194,6 +212,8 @@ def check_resumable(run_dir, steps: int | None) -> None:
         return  # not a run, or a damaged one: read_run's own words
     if not isinstance(settings, dict) or not (run_dir / "checkpoint.pt").is_file():
         return
+    if "format" in settings:  # (a run.json that is no run file: read_run names it first)
+        check_checkpoint_file(run_dir / "checkpoint.pt")
     label = settings.get("label", "train")
     if label != "train":
         raise ValueError(f"{run_dir} is the {label} arm of the comparison in {run_dir.parent}; that comparison would "

@@ -214,7 +214,7 @@ def test_resume_refusals(tmp_path, capsys):
     (empty / "checkpoint.pt").write_bytes(b"not a checkpoint")
     refused(["train", "--resume", str(empty)], "run.json is not a pdestream run file")
     (empty / "run.json").write_text(json.dumps({"format": 1, "steps": 5}))
-    refused(["train", "--resume", str(empty)], "checkpoint.pt cannot be read as a pdestream checkpoint")
+    refused(["train", "--resume", str(empty)], "checkpoint.pt is damaged (not a torch.save file")
     assert sorted(p.name for p in empty.iterdir()) == ["checkpoint.pt", "run.json"]
     # settings given with --resume are refused, all named in one line, before the directory is even looked at
     refused(["train", "burgers1d", "--resume", str(empty), "--steps", "5", "--set", "n=64"],

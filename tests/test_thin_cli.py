@@ -163,6 +163,9 @@ def finished(tmp_path_factory):
     for name, extra in (("c.h5", []), ("walls.h5", ["--set", "bc=dirichlet"])):  # caches to train from
         assert cli.main(["generate", "burgers1d", "--n", "2", "--set", "n=16", "--set", "n_frames=3", *extra,
                          "--out", str(root / name)]) == 0
+    for name, data in (("empty", b""), ("garbage", b"garbage\n")):  # checkpoint.pt emptied / overwritten
+        shutil.copytree(unfinished, root / name)
+        (root / name / "checkpoint.pt").write_bytes(data)
     import h5py
 
     for name, attrs in (("cut.h5", {"pdestream_complete": 0}), ("garbled.h5", {"pdestream_config": "{not json"})):
@@ -211,6 +214,11 @@ def _unchanged(root):
      "allowed: --unroll <= 2"),
     (["train", "--source", "{root}/c.h5", "--k-in", "3", "--out", "{root}/new"],
      "--mode one-step with --unroll 1 and --k-in 3 needs 4 frames per window but the trajectories have 3"),
+    # adv52: an empty or overwritten checkpoint.pt was said after torch, as "(EOFError: )" or in torch's words
+    # advising weights_only=False
+    (["train", "--resume", "{root}/empty", "--steps", "9"], "{root}/empty/checkpoint.pt is damaged (empty)"),
+    (["train", "--resume", "{root}/garbage", "--steps", "9"], "{root}/garbage/checkpoint.pt is damaged (not a "
+                                                               "torch.save file"),
 ])
 def test_refusals_read_from_run_json_come_before_torch(finished, argv, said):
     before = _unchanged(finished)
