@@ -136,7 +136,7 @@ def arm_settings(cfg: InteractiveConfig, name: str, **override) -> dict:
 
 # --- the arms and their run directories: what a rerun finds there (no torch) -----------------------------
 CHECKPOINTS = 20  # per arm: an interrupted arm loses at most 5% of its steps
-RESUME_KEYS = ("model", "model_cfg", "steps", "seconds", "batch_size", "lr", "seed", "mode", "pde")
+RESUME_KEYS = ("model", "model_cfg", "k_in", "steps", "seconds", "batch_size", "lr", "seed", "mode", "pde")
 
 
 def corrector_arms(cfg: InteractiveConfig, k: int) -> list[tuple]:
@@ -227,16 +227,27 @@ def comparable_mode(mode, pde=None):
 def arm_differs(run: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int, said: bool = False) -> list[str]:
     """The RESUME_KEYS in which the run.json in ``run`` differs from what this arm and seed train with (said: each
     as "KEY: the run's X, asked Y", a dict's differing entries named, as the refusal says them)."""
-    want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": arm_steps(cfg, settings),
+    want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "k_in": cfg.k_in,
+                                  "steps": arm_steps(cfg, settings),
                                   "seconds": cfg.budget_s, "batch_size": cfg.batch_size, "lr": cfg.lr, "seed": seed,
                                   "mode": comparable_mode(settings, pde), "pde": pde.config()}))
     try:
         have = json.loads((run / "run.json").read_text())
     except (OSError, ValueError):
         have = {}
-    have = {**have, "mode": comparable_mode(have.get("mode"), pde)} if isinstance(have, dict) else {}
+    # k_in: the next-step view's input frames (run.json's view_args; a model of 1 read back for 2 failed in the
+    # rollout on its input channels)
+    have = {**have, "mode": comparable_mode(have.get("mode"), pde),
+            "k_in": _view_k_in(have.get("view_args"))} if isinstance(have, dict) else {}
     keys = [key for key in RESUME_KEYS if have.get(key) != want[key]]
     return [_said(key, have.get(key), want[key]) for key in keys] if said else keys
+
+
+def _view_k_in(view_args) -> int | None:
+    """The input frames run.json's ``view_args`` record (1 where it records none), None for a damaged entry."""
+    if view_args is None:
+        return 1
+    return view_args.get("k_in", 1) if isinstance(view_args, dict) else None
 
 
 def _said(key: str, have, want) -> str:

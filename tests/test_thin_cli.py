@@ -219,6 +219,12 @@ def _unchanged(root):
     (["train", "--resume", "{root}/empty", "--steps", "9"], "{root}/empty/checkpoint.pt is damaged (empty)"),
     (["train", "--resume", "{root}/garbage", "--steps", "9"], "{root}/garbage/checkpoint.pt is damaged (not a "
                                                                "torch.save file"),
+    # adv52: a finished arm of --k-in 1 was read back for --k-in 2 and failed in the rollout (the model's input
+    # channels); --view operator with --modes ran rc 0 on the next-step view, the option unread
+    ([*TINY_MODES, "--steps", "2", "--k-in", "2", "--out", "{root}/cmp"], "holds a finished run with other settings "
+                                                                          "(k_in: the run's 1, asked 2)"),
+    ([*TINY_MODES, "--steps", "2", "--view", "operator", "--out", "{root}/new"], "--view operator not allowed with "
+                                                                                 "--modes"),
 ])
 def test_refusals_read_from_run_json_come_before_torch(finished, argv, said):
     before = _unchanged(finished)
