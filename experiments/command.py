@@ -341,6 +341,9 @@ def _interactive(cmd: CompareCommand) -> str:
     if cmd.sim_budget is not None:
         raise ValueError("--modes compares at equal --steps or, with --budget SECONDS, at equal wall clock; "
                          "--sim-budget goes with the data-route comparison")
+    if cmd.view not in (None, "next_step"):  # (it ran rc 0 on the next-step view, the option unread)
+        raise ValueError(f"--view {cmd.view} not allowed with --modes: every mode trains on the next-step view and is "
+                         "rolled out frame by frame; drop --view")
     if cmd.noise is not None:
         check_noise(cmd.noise)  # before the PDE (and JAX) is built
     if cmd.corrector_start is not None:
