@@ -309,7 +309,7 @@ def budget_setup(cmd: CompareCommand, log=print):
     o = _options(cmd)
     check_priority_options(o, steered, "the arms reservoir_active or reservoir_priority")
     check_proposal_options(o, bool({"reservoir_loss", "reservoir_active"} & set(arms)), "reservoir_active" in arms,
-                           "the arms reservoir_loss / reservoir_active (--proposal-floor, --proposal-gate) or reservoir_active")
+                           "the arms reservoir_loss / reservoir_active", "the arm reservoir_active")
     check_priority_cap(cmd, steered and cmd.sim_budget is not None)
     cfg = module.BudgetConfig(
         budget_s=budget_s, sim_budget=cmd.sim_budget, arms=arms, model=cmd.model, model_cfg=model_cfg,

@@ -392,12 +392,14 @@ def test_reservoir_options_without_reservoir_and_zero_workers_are_refused(tmp_pa
     assert cli.main(_tiny_train(out, "--reservoir", "--proposal-floor", "0.5")) == 2
     assert "--proposal-floor goes with --proposal loss / active / generative" in capsys.readouterr().err
     assert cli.main(_tiny_train(out, "--reservoir", "--proposal-gate", "off")) == 2
-    assert "--proposal-gate goes with --proposal loss / active / generative (--proposal-floor, --proposal-gate" in capsys.readouterr().err
+    assert "--proposal-gate goes with --proposal loss / active / generative; nothing here uses it" in capsys.readouterr().err
     assert cli.main(_tiny_train(out, "--reservoir", "--proposal", "loss", "--proposal-ensemble", "3")) == 2
-    assert "--proposal-ensemble goes with" in capsys.readouterr().err
+    # adv52: the words named every group's options for each ("... (--proposal-floor, ...) or --proposal active (the
+    # others)"): now the proposal that uses this one, and the one given
+    assert "--proposal-ensemble goes with --proposal active (not loss); nothing here uses it" in capsys.readouterr().err
     assert cli.main(["compare", "burgers1d", "--quick", "--arms", "fifo,reservoir", "--proposal-kappa", "2",
                      "--out", str(out)]) == 2
-    assert "--proposal-kappa goes with the arms reservoir_loss / reservoir_active" in capsys.readouterr().err
+    assert "--proposal-kappa goes with the arm reservoir_active; nothing here uses it" in capsys.readouterr().err
     assert not out.exists()
 
 
