@@ -39,8 +39,8 @@ PROPOSAL_RANGES: dict[str, tuple[Callable, str]] = {
     "bandwidth": (lambda v: _real(v) and 0 < v <= 1, "must be in (0, 1] (unit-box units)"),
     "power": (lambda v: _real(v) and 0 <= v <= 8, "must be in [0, 8]"),
     "window": (lambda v: _integer(v) and v >= 1, "must be an integer >= 1"),
-    "ensemble": (lambda v: _integer(v) and v >= 2, "must be an integer >= 2 (the uncertainty signal is the "
-                 "disagreement of its members)"),
+    "ensemble": (lambda v: _integer(v) and 2 <= v <= 100, "must be an integer >= 2 (the uncertainty signal is the "
+                 "disagreement of its members) and <= 100 (each member is a loss model refitted at every refit)"),
     "kappa": (lambda v: _real(v) and 0 <= v <= 100, "must be in [0, 100] (weight of the ensemble spread)"),
     "top": (lambda v: _real(v) and 0 < v < 1, "must be in (0, 1) (the share of fresh solves that counts as high "
             "difficulty)"),

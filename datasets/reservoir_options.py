@@ -37,7 +37,7 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                         "jointly with the initial condition's latent coordinates (Fourier amplitudes and phases, a "
                         "GRF's leading white-noise modes, spot centres: generator.ics.LatentIC); default: params")
     g.add_argument("--proposal-ensemble", type=int, default=5, metavar="K",
-                   help="active sampling: bootstrap loss models whose disagreement is the uncertainty signal (>= 2)")
+                   help="active sampling: bootstrap loss models whose disagreement is the uncertainty signal (2-100)")
     g.add_argument("--proposal-kappa", type=float, default=1.0,
                    help="active sampling: weight of that disagreement against the predicted log-loss")
     g.add_argument("--priority-power", type=float, default=R.priority_power, metavar="A",

@@ -82,6 +82,9 @@ LIGHT = [
      "proposal floor=nan not allowed; must be in (0, 1]"),
     (["train", "burgers1d", "--out", "run", "--reservoir", "--proposal", "active", "--proposal-ensemble", "1"], 2,
      "proposal ensemble=1 not allowed; must be an integer >= 2"),
+    # adv52: an ensemble of 10**8 trained (rc 0 at 2 steps); a longer run failed at its second refit
+    (["train", "burgers1d", "--out", "run", "--reservoir", "--proposal", "active", "--proposal-ensemble", "100000000"],
+     2, "proposal ensemble=100000000 not allowed; must be an integer >= 2"),
     (["train", "burgers1d", "--out", "run", "--reservoir", "--proposal", "active", "--proposal-kappa", "-1"], 2,
      "proposal kappa=-1.0 not allowed; must be in [0, 100]"),
     # adv51: the budget comparison's and the cache/stream comparison's numbers imported torch (4-7 s at load 5-8)
