@@ -183,7 +183,8 @@ def test_other_producers_give_the_same_deterministic_batches(kind):
     (dict(mode="sync"), "mode='sync' not allowed; allowed: async, deterministic"),
     (dict(proposal="bayes"), "proposal='bayes' not allowed; allowed: uniform, loss, active, generative"),
     (dict(proposal="active", proposal_kwargs={"ensemble": 1}),
-     "proposal ensemble=1 not allowed; must be an integer >= 2 (the uncertainty signal is the disagreement of its members)"),
+     "proposal ensemble=1 not allowed; must be an integer >= 2 (the uncertainty signal is the disagreement of its members) "
+     "and <= 100 (each member is a loss model refitted at every refit)"),
 ])
 def test_bad_settings_are_one_line_errors(kw, message):
     with pytest.raises(ValueError) as err:
