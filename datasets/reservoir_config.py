@@ -66,6 +66,22 @@ def check_proposal_settings(mode: str | None = None, **values) -> None:
             raise ValueError(f"proposal {name}={value!r} not allowed; {allowed}")
 
 
+def check_proposal_kwargs(mode, kwargs) -> None:
+    """A reservoir's ``proposal`` and ``proposal_kwargs`` (ParamProposal's settings by name, plus "space"), one line
+    for an unknown proposal, a kwargs that is not a dict, an unknown key, or a value outside PROPOSAL_RANGES."""
+    if kwargs is not None and not isinstance(kwargs, dict):
+        raise ValueError(f"proposal_kwargs={kwargs!r} not allowed; a dict of the proposal's settings "
+                         "(datasets.proposal.ParamProposal) or None")
+    kwargs = dict(kwargs or {})
+    space = kwargs.pop("space", "params")
+    unknown = [k for k in kwargs if k not in PROPOSAL_RANGES]
+    if unknown:
+        raise ValueError(f"proposal_kwargs key {unknown[0]!r} not allowed; allowed: {', '.join(PROPOSAL_RANGES)}, space")
+    check_proposal_settings(mode, **kwargs)
+    if space not in PROPOSAL_SPACES:
+        raise ValueError(f"proposal space={space!r} not allowed; allowed: {', '.join(PROPOSAL_SPACES)}")
+
+
 def _check_int(name: str, value, low: int) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
         raise ValueError(f"{name}={value!r} not allowed; must be an integer >= {low}")
@@ -150,6 +166,7 @@ class ReservoirConfig:
             raise ValueError(f"priority_floor={self.priority_floor!r} not allowed; must be in (0, 1] (the uniform "
                              "share of draws)")
         _check_choice("mode", self.mode, MODES)
+        check_proposal_kwargs(self.proposal, self.proposal_kwargs)  # (the stream's ParamProposal refused them later)
         sim_budget = None if self.sim_budget is None else _check_int("sim_budget", self.sim_budget, 1)
         inflight = None if self.inflight is None else _check_int("inflight", self.inflight, 1)
         target = None if self.target_reuse == "off" else self.target_reuse

@@ -192,6 +192,30 @@ def test_bad_settings_are_one_line_errors(kw, message):
     assert str(err.value) == message
 
 
+@pytest.mark.parametrize("kw, message", [
+    (dict(proposal="bayes"), "proposal='bayes' not allowed; allowed: uniform, loss, active, generative"),
+    (dict(proposal="loss", proposal_kwargs={"floor": float("nan")}),
+     "proposal floor=nan not allowed; must be in (0, 1] (uniform share)"),
+    (dict(proposal="active", proposal_kwargs={"kappa": 1e400}),
+     "proposal kappa=inf not allowed; must be in [0, 100] (weight of the ensemble spread)"),
+    (dict(proposal="loss", proposal_kwargs={"flor": 0.5}), "proposal_kwargs key 'flor' not allowed; allowed: floor, "
+     "bandwidth, power, window, ensemble, kappa, top, step, gate, skill_full, skill_min, refit, candidates, "
+     "skill_window, space"),
+    (dict(proposal="loss", proposal_kwargs=[0.5]), "proposal_kwargs=[0.5] not allowed; a dict of the proposal's "
+     "settings (datasets.proposal.ParamProposal) or None"),
+    (dict(proposal="active", proposal_kwargs={"space": "ic"}), "proposal space='ic' not allowed; allowed: params, "
+     "params+ic"),
+])
+def test_the_config_checks_its_proposal_before_a_stream_is_built(kw, message):
+    # adv52: ReservoirConfig.checked passed every one of these (the stream's ParamProposal refused the values later;
+    # an unknown key was a TypeError there)
+    from pdestream.datasets.reservoir_config import ReservoirConfig
+
+    with pytest.raises(ValueError) as err:
+        ReservoirConfig(**kw).checked(1)
+    assert str(err.value) == message
+
+
 def test_a_reservoir_larger_than_memory_is_refused():
     with pytest.raises(ValueError, match=r"capacity=100000000 not allowed: holding 100000000 trajectories takes .* GiB, "
                                          r"more than half of this machine's"):
