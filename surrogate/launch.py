@@ -450,8 +450,8 @@ def run_report(s: dict, model: str, source: str, n_test: int, out) -> str:
              f"{s['trajectories_seen']} trajectories, final loss {s['final_loss']:.4g}"]
     t = s["test"]["test"]
     if mode["name"] == "solver-in-the-loop":  # the corrected coarse solver against the fine solution restricted
-        how = "Fourier-truncated" if mode.get("restrict") == "fourier" else "subsampled"  # (absent: points)
-        lines.append(f"(errors on the coarse grid n={mode['coarse_n']}, against the fine solution {how})")
+        lines.append(f"(errors on the coarse grid n={mode['coarse_n']}, against the fine solution "
+                     f"{restriction_words(mode, s.get('pde'))})")
     lines.append(f"test ({n_test} held-out trajectories): rel L2 {t['rel_l2']:.4f}, nRMSE {t['nrmse']:.4f}"
                  + (f", rollout rel L2 at the last frame {t['rollout_final']:.4f}" if "rollout_final" in t else ""))
     reservoir = "data_stats" in s and "reuse_mean" in s["data_stats"]
@@ -465,6 +465,30 @@ def run_report(s: dict, model: str, source: str, n_test: int, out) -> str:
     extra = ", reservoir.json, reservoir.png" if reservoir else ""
     lines.append(f"run: {out}/metrics.csv, metrics.json, model.pt, checkpoint.pt{extra}")
     return "\n".join(lines)
+
+
+def restriction_words(mode: dict, config: dict | None) -> str:
+    """How the corrector restricted the fine solution (``surrogate.modes.subsample``), in words: by ``mode``'s
+    "restrict" on periodic axes (absent: points, as make_mode reads it), by the mean of the two fine points around
+    each coarse cell centre across walls, by cell / face means on a staggered grid (the run's PDE ``config``; it
+    said "subsampled" on a grid with walls, whose run records no "restrict")."""
+    periodic = "Fourier-truncated" if mode.get("restrict") == "fourier" else "subsampled"  # (absent: points)
+    try:
+        from pdestream.boundaries import kinds
+        from pdestream.datasets import pde_from_config
+
+        pde = pde_from_config(config)
+        walls = [not b.periodic for b in kinds(tuple(pde.grid.bc))]
+        staggered = bool(getattr(pde, "FIELD_LOCATIONS", {}))
+    except Exception:  # no config (a summary of old), or one this cannot build: the setting's own words
+        return periodic
+    if staggered:
+        return "restricted by cell / face means (a staggered grid)"
+    if all(walls):
+        return "averaged to the coarse cell centres"
+    if any(walls):
+        return f"{periodic} on its periodic axes, averaged to the coarse cell centres across its walls"
+    return periodic
 
 
 def _pacing(d: dict) -> str:
