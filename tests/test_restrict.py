@@ -195,3 +195,14 @@ def test_the_run_report_names_the_restriction_the_grid_takes(name, settings, res
          "final_loss": 0.1, "test": {"test": {"rel_l2": 0.1, "nrmse": 0.1}}, "mode": mode,
          "pde": generator.get_pde(name, {"n": 32, **settings}).config()}
     assert f"(errors on the coarse grid n=16, {words})" in run_report(s, "fno", "stream", 2, "run")
+
+
+def test_the_corrector_figures_name_the_restriction_only_where_it_acts():
+    """adv52: compare.png's and corrector.png's titles said "Fourier-restricted" of a grid with walls on every axis
+    (compare's default --restrict is fourier; adv51 fixed compare.md's words only)."""
+    from pdestream.experiments.interactive_report import _restriction
+
+    walled = generator.get_pde("burgers1d", n=32, n_frames=11, bc="dirichlet")
+    assert _restriction({"config": {"restrict": "fourier"}, "fine_pde": FINE.config()}) == "Fourier-restricted"
+    assert _restriction({"config": {}, "fine_pde": FINE.config()}) == "subsampled"
+    assert _restriction({"config": {"restrict": "fourier"}, "fine_pde": walled.config()}) == "cell / face means"
