@@ -203,6 +203,9 @@ def _unchanged(root):
     (["train", "--source", "{root}/c.h5", "--set", "bc=dirichlet", "--out", "{root}/new"],
      "was written with other settings (bc: cache 'periodic' vs asked 'dirichlet')"),
     (["train", "ns2d", "--source", "{root}/c.h5", "--out", "{root}/new"], "holds 'burgers1d' samples, not 'ns2d'"),
+    # adv52: another initial condition was said as two whole dicts of its settings (a 400-character line)
+    (["train", "--source", "{root}/c.h5", "--set", "ic=sines", "--out", "{root}/new"],
+     "was written with other settings (ic.kind: cache 'grf' vs asked 'sines')\n"),
     # adv52: an interrupted generate's cache, a damaged config or a missing path were refused after torch (2-5 s),
     # and without a PDE named the damaged cache read "no PDE named"
     (["train", "--source", "{root}/cut.h5", "--out", "{root}/new"], "cut.h5 is incomplete (1 of 2 samples written)"),
