@@ -27,6 +27,7 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
         raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
     if cfg.resume is None:
         check_writable_dir(cfg.out)
+        check_out_free(cfg.out, cfg.overwrite)
     elif Path(cfg.resume).is_dir():
         check_writable_dir(cfg.resume, "--resume")
         check_resumable(cfg.resume, cfg.steps)  # what run.json and metrics.json say, before torch
@@ -193,16 +194,23 @@ def mode_settings(cfg: TrainConfig) -> dict:
     return settings if cfg.loss == "mse" else {**settings, "loss": cfg.loss}
 
 
+def check_out_free(out, overwrite: bool) -> list[str]:
+    """The run files ``out`` holds (RUN_MARKERS); FileExistsError (one line) when it holds any and ``overwrite`` is
+    not given. No torch: ``train`` checks it first (it was said after torch was imported), ``check_new`` again."""
+    held = [name for name in RUN_MARKERS if (Path(out) / name).exists()]
+    if held and not overwrite:
+        raise FileExistsError(f"{out} already holds a run ({', '.join(held)}); pass --resume {out} to "
+                              "continue it, --overwrite to replace it, or choose another --out")
+    return held
+
+
 def check_new(cfg: TrainConfig, ranks: int):
     """(pde, held run files) of a new run, after its checks (ValueError: one line)."""
     from pdestream.settings import build_pde
 
     if cfg.out is None:
         raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
-    held = [name for name in RUN_MARKERS if (Path(cfg.out) / name).exists()]
-    if held and not cfg.overwrite:
-        raise FileExistsError(f"{cfg.out} already holds a run ({', '.join(held)}); pass --resume {cfg.out} to "
-                              "continue it, --overwrite to replace it, or choose another --out")
+    held = check_out_free(cfg.out, cfg.overwrite)
     if cfg.source != "stream" and not Path(cfg.source).exists():
         raise FileNotFoundError(f"--source {cfg.source}: no such cache (or use --source stream)")
     pde = build_pde(cfg.pde, cfg.settings)

@@ -203,6 +203,9 @@ def _unchanged(root):
     (["train", "--source", "{root}/c.h5", "--set", "bc=dirichlet", "--out", "{root}/new"],
      "was written with other settings (bc: cache 'periodic' vs asked 'dirichlet')"),
     (["train", "ns2d", "--source", "{root}/c.h5", "--out", "{root}/new"], "holds 'burgers1d' samples, not 'ns2d'"),
+    # adv52: an --out that holds a run was refused after torch (check_new)
+    (["train", "--source", "{root}/c.h5", "--out", "{root}/run"], "{root}/run already holds a run (run.json, "
+                                                                  "checkpoint.pt, model.pt, metrics.json); pass --resume"),
     # adv52: another initial condition was said as two whole dicts of its settings (a 400-character line)
     (["train", "--source", "{root}/c.h5", "--set", "ic=sines", "--out", "{root}/new"],
      "was written with other settings (ic.kind: cache 'grf' vs asked 'sines')\n"),
