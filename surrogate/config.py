@@ -225,6 +225,7 @@ def check_resumable(run_dir, steps: int | None) -> None:
         if steps is not None and at is not None and steps < at:
             raise ValueError(f"--steps {steps!r} not allowed with --resume {run_dir}: the run already did {at} "
                              f"steps; allowed: an integer >= {at} (the new total)")
+        check_source_unchanged(run_dir, settings)
         return
     if steps is not None and steps < done:
         raise ValueError(f"--steps {steps!r} not allowed with --resume {run_dir}: the run already did {done} steps; "
@@ -232,3 +233,33 @@ def check_resumable(run_dir, steps: int | None) -> None:
     if steps is None or steps == done:
         raise ValueError(f"--resume {run_dir}: the run is already complete ({done} of {done} steps; see "
                          "metrics.json); --steps N extends it to N steps")
+    check_source_unchanged(run_dir, settings)
+
+
+def check_source_unchanged(run_dir, settings: dict) -> None:
+    """ValueError (one line) when the cache a run trained on (run.json's "source", a path) now holds data of
+    another PDE config than the run's (run.json's "pde"; both read through the current PDE classes, so a cache
+    written by an older version compares by its meaning): replaced since. It was refused after torch as "the
+    checkpoint belongs to another run". Anything unreadable is left to the resume's own checks."""
+    source = settings.get("source")
+    if not isinstance(source, str) or source == "stream":
+        return
+    try:
+        from pdestream.datasets import pde_from_config
+        from pdestream.datasets.export import cached_config
+
+        found = cached_config(source)
+        have, now = pde_from_config(settings["pde"]).config(), pde_from_config(found).config()
+    except Exception:  # no cache there, unreadable, or a config these classes cannot build: read_run's words
+        return
+    if have == now:
+        return
+    keys = [k for k in (*have, *(k for k in now if k not in have)) if have.get(k) != now.get(k)]
+    said = "; ".join(f"{k}: the run's {_shown(have, k)}, the cache's {_shown(now, k)}" for k in keys[:3])
+    raise ValueError(f"--resume {run_dir}: its cache {source} now holds other data ({said}"
+                     f"{'; ...' if len(keys) > 3 else ''}); put back the cache it trained on to go on (or train "
+                     "afresh on this one: --overwrite)")
+
+
+def _shown(config: dict, key: str) -> str:
+    return repr(config[key]) if key in config else "unset"

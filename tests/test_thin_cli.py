@@ -169,6 +169,11 @@ def finished(tmp_path_factory):
     for name, data in (("empty", b""), ("garbage", b"garbage\n")):  # checkpoint.pt emptied / overwritten
         shutil.copytree(unfinished, root / name)
         (root / name / "checkpoint.pt").write_bytes(data)
+    # a run trained on a cache that was then replaced by one of other settings (walls)
+    shutil.copy(root / "c.h5", root / "src.h5")
+    assert cli.main(["train", "--source", str(root / "src.h5"), *TINY_TRAIN[4:], "--steps", "2", "--out",
+                     str(root / "on_cache")]) == 0
+    shutil.copy(root / "walls.h5", root / "src.h5")
     import h5py
 
     for name, attrs in (("cut.h5", {"pdestream_complete": 0}), ("garbled.h5", {"pdestream_config": "{not json"})):
@@ -203,6 +208,11 @@ def _unchanged(root):
     (["train", "--source", "{root}/c.h5", "--set", "bc=dirichlet", "--out", "{root}/new"],
      "was written with other settings (bc: cache 'periodic' vs asked 'dirichlet')"),
     (["train", "ns2d", "--source", "{root}/c.h5", "--out", "{root}/new"], "holds 'burgers1d' samples, not 'ns2d'"),
+    # adv52: a run's cache replaced by one of other settings was refused after torch as "the checkpoint belongs to
+    # another run"
+    (["train", "--resume", "{root}/on_cache", "--steps", "4"], "--resume {root}/on_cache: its cache {root}/src.h5 "
+                                                               "now holds other data (bc: the run's unset, the cache's "
+                                                               "'dirichlet';"),
     # adv52: an --out that holds a run was refused after torch (check_new)
     (["train", "--source", "{root}/c.h5", "--out", "{root}/run"], "{root}/run already holds a run (run.json, "
                                                                   "checkpoint.pt, model.pt, metrics.json); pass --resume"),
