@@ -311,14 +311,21 @@ def _resume(cfg: TrainConfig, ranks: int, log) -> dict | None:
     ddp.barrier()  # every rank has read run.json before rank 0 may rewrite it (an extension)
     writes = ddp.world()[0] == 0
     if steps != settings["steps"] and writes:
-        log(f"extending {cfg.resume} from {settings['steps']} to {steps} steps at its step {run[1]['step']}; "
-            f"the {settings.get('schedule', 'cosine')} schedule is re-planned for {steps} steps")
+        log(replan_line(cfg.resume, settings["steps"], steps, run[1]["step"], settings.get("schedule", "cosine")))
     s, step = resume_run(cfg.resume, run, steps)
     if not writes:
         return None
     log(f"resumed {cfg.resume} at step {step} of {steps}")
     log(run_report(s, settings["model"], settings["source"], settings["n_test"], cfg.resume))
     return s
+
+
+def replan_line(run_dir, planned: int, steps: int, at: int, schedule: str = "cosine") -> str:
+    """The line a resume with a new total says: a run of ``planned`` steps, at step ``at``, now ``steps`` (fewer
+    than planned: an unfinished run cut short, which it called "extending")."""
+    verb = "extending" if steps > planned else "shortening"
+    return (f"{verb} {run_dir} from {planned} to {steps} steps at its step {at}; the {schedule} schedule is re-planned "
+            f"for {steps} steps")
 
 
 def check_rank_count(ranks: int, device: str) -> None:

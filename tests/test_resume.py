@@ -484,3 +484,14 @@ def test_a_run_being_resumed_refuses_a_second_resume_in_one_line(tmp_path, capsy
     finally:
         os.close(fd)
     assert cli.main(["train", "--resume", str(out), "--steps", "6"]) == 0  # free again: it resumes
+
+
+def test_the_resume_line_says_whether_the_plan_grows_or_shrinks():
+    """adv52: a run planned for 100000 steps, stopped at 1000 and resumed with --steps 1002 was "extending ... from
+    100000 to 1002 steps"."""
+    from pdestream.surrogate.launch import replan_line
+
+    assert replan_line("r", 20, 30, 20) == ("extending r from 20 to 30 steps at its step 20; the cosine schedule is "
+                                            "re-planned for 30 steps")
+    assert replan_line("r", 100000, 1002, 1000, "constant").startswith("shortening r from 100000 to 1002 steps at its "
+                                                                       "step 1000; the constant schedule")
