@@ -95,6 +95,7 @@ def check_new_data(pde, cfg: TrainConfig, config: dict | None = None) -> None:
     from .checks import check_cache_matches
     from .mode_table import check_coarse_grid, check_restrict_acts, check_window, frames_ahead, mode_settings
 
+    check_view_options(pde, cfg)
     fine = pde
     if config is not None:
         from pdestream.datasets import pde_from_config
@@ -194,6 +195,27 @@ def mode_settings(cfg: TrainConfig) -> dict:
     return settings if cfg.loss == "mse" else {**settings, "loss": cfg.loss}
 
 
+def check_view_options(pde, cfg: TrainConfig) -> None:
+    """What the view allows, one line each (no torch: ``check_new_data`` says it before torch, ``check_new`` again
+    for a PDE object): a mode other than one-step, or the next-step view, on a steady entry (the modes' own refusal
+    would send the user to --view next_step); --k-in / --k-out on the operator view, which takes none (they ran,
+    rc 0, unread)."""
+    if pde.STEADY and cfg.mode != "one-step":
+        verb = "perturbs input frames" if cfg.mode == "noise" else "unrolls over frames"
+        raise ValueError(f"--mode {cfg.mode} {verb} and {pde.NAME} is steady (no frames); allowed: "
+                         "--mode one-step")
+    if pde.STEADY and cfg.view == "next_step":  # (the view refused it after torch)
+        raise ValueError(f"--view next_step needs a time axis and {pde.NAME} is steady (no frames); allowed: "
+                         "--view operator")
+    view = cfg.view or ("operator" if pde.STEADY else "next_step")
+    given = [f"{o} {v}" for o, v, unset in (("--k-in", cfg.k_in, None), ("--k-out", cfg.k_out, 1)) if v != unset]
+    if view != "next_step" and given:
+        why = (f"{pde.NAME} is steady: its samples (input field -> solution) have no frames" if pde.STEADY else
+               f"not {view} (u(t=0) -> u(t_end))")
+        raise ValueError(f"{' and '.join(given)} {'goes' if len(given) == 1 else 'go'} with --view next_step"
+                         f"{'; ' if pde.STEADY else ', '}{why}")
+
+
 def check_out_free(out, overwrite: bool) -> list[str]:
     """The run files ``out`` holds (RUN_MARKERS); FileExistsError (one line) when it holds any and ``overwrite`` is
     not given. No torch: ``train`` checks it first (it was said after torch was imported), ``check_new`` again."""
@@ -214,10 +236,7 @@ def check_new(cfg: TrainConfig, ranks: int):
     if cfg.source != "stream" and not Path(cfg.source).exists():
         raise FileNotFoundError(f"--source {cfg.source}: no such cache (or use --source stream)")
     pde = build_pde(cfg.pde, cfg.settings)
-    if pde.STEADY and cfg.mode != "one-step":  # the modes' own refusal would send the user to --view next_step
-        verb = "perturbs input frames" if cfg.mode == "noise" else "unrolls over frames"
-        raise ValueError(f"--mode {cfg.mode} {verb} and {pde.NAME} is steady (no frames); allowed: "
-                         "--mode one-step")
+    check_view_options(pde, cfg)
     cfg.check()
     return pde, held
 

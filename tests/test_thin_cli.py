@@ -120,6 +120,16 @@ LIGHT = [
      "--corrector-start zero goes with the corrector's arms (--modes ...,solver-in-the-loop)"),
     (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step,oracle", "--noise", "0.1"], 2,
      "--noise 0.1 goes with the noise mode or the corrector's arms (--modes ...,noise or ...,solver-in-the-loop)"),
+    # adv52: a steady entry refused a mode that unrolls only after torch; --k-in / --k-out on the operator view (a
+    # steady entry's default) ran rc 0, unread
+    (["train", "poisson1d", "--out", "run", "--mode", "noise"], 2,
+     "--mode noise perturbs input frames and poisson1d is steady (no frames); allowed: --mode one-step"),
+    (["train", "poisson1d", "--out", "run", "--k-out", "2"], 2,
+     "--k-out 2 goes with --view next_step; poisson1d is steady: its samples (input field -> solution) have no frames"),
+    (["train", "poisson1d", "--out", "run", "--view", "next_step"], 2,
+     "--view next_step needs a time axis and poisson1d is steady (no frames); allowed: --view operator"),
+    (["train", "burgers1d", "--out", "run", "--view", "operator", "--k-in", "2"], 2,
+     "--k-in 2 goes with --view next_step, not operator (u(t=0) -> u(t_end))"),
     # adv50: a coarse grid that does not fit the fine one was refused only when the corrector was bound (torch)
     (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--set", "n=32", "--coarse-n", "12"],
      2, "coarse n=12 does not fit the fine grid n=32"),
