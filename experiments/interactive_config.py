@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pdestream.surrogate.checks import check_count, check_number
+from pdestream.surrogate.config import check_checkpoint_file
 from pdestream.surrogate.mode_table import (
     DEFAULTS,
     MODE_NAMES,
@@ -269,6 +270,14 @@ def finished_run(run: Path, pde, settings: dict, cfg: InteractiveConfig, seed: i
     other settings."""
     if not (cfg.resume and (run / "metrics.json").is_file() and (run / "model.pt").is_file()):
         return None
+    again = "pass --overwrite (retrains every arm) or another --out"
+    try:  # (a damaged one read as "other settings", every key None)
+        readable = isinstance(json.loads((run / "run.json").read_text()), dict)
+    except (OSError, ValueError):
+        readable = False
+    if not readable:
+        raise ValueError(f"{run / 'run.json'} is damaged (not a JSON object); {again}")
+    check_checkpoint_file(run / "model.pt", again)  # (torch's UnpicklingError, a traceback, after the test set)
     differ = arm_differs(run, pde, settings, cfg, seed, said=True)
     if differ:
         raise ValueError(f"{run} holds a finished run with other settings ({'; '.join(differ)}); rerun with its "

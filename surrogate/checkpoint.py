@@ -186,8 +186,14 @@ def save_checkpoint(path, model: nn.Module, normalizer: Normalization, step: int
 
 
 def load_checkpoint(path) -> tuple[nn.Module, Normalization, dict]:
-    """(model in eval mode, its normalization, the checkpoint dict) from ``save_checkpoint``'s file."""
-    ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    """(model in eval mode, its normalization, the checkpoint dict) from ``save_checkpoint``'s file; ValueError (one
+    line) for a file torch cannot read (it was torch's UnpicklingError, a traceback)."""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # truncated or foreign file: torch raises several kinds
+        from .config import damaged_checkpoint
+
+        raise ValueError(damaged_checkpoint(path, f"torch cannot read it: {type(err).__name__}")) from None
     if "normalization" not in ckpt:
         raise ValueError(f"{path} is a checkpoint of an older pdestream (no 'normalization' entry); train it again")
     spec = dict(ckpt["spec"])

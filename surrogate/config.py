@@ -176,22 +176,26 @@ def checkpoint_step(path) -> int | None:
     return step if isinstance(step, int) and not isinstance(step, bool) else None
 
 
-def damaged_checkpoint(path, why: str) -> str:
-    """The one line for a checkpoint.pt that cannot be read (``why``: "empty", "not a torch.save file ...")."""
-    return (f"{path} is damaged ({why}); the run cannot go on from it: start it again with --overwrite (a copy of "
-            "the file from before the damage resumes)")
+RESUME_ADVICE = "the run cannot go on from it: start it again with --overwrite (a copy of the file from before the " \
+                "damage resumes)"
 
 
-def check_checkpoint_file(path) -> None:
-    """ValueError (one line, ``damaged_checkpoint``) for a checkpoint.pt that is empty or not a zip at all (torch.save
-    writes a zip; a truncated one has lost its closing directory), without torch."""
+def damaged_checkpoint(path, why: str, advice: str = RESUME_ADVICE) -> str:
+    """The one line for a checkpoint.pt or model.pt that cannot be read (``why``: "empty", "not a torch.save file
+    ...") and what to do (``advice``)."""
+    return f"{path} is damaged ({why}); {advice}"
+
+
+def check_checkpoint_file(path, advice: str = RESUME_ADVICE) -> None:
+    """ValueError (one line, ``damaged_checkpoint``) for a checkpoint.pt or model.pt that is empty or not a zip at
+    all (torch.save writes a zip; a truncated one has lost its closing directory), without torch."""
     import os
     import zipfile
 
     if os.path.getsize(path) == 0:
-        raise ValueError(damaged_checkpoint(path, "empty"))
+        raise ValueError(damaged_checkpoint(path, "empty", advice))
     if not zipfile.is_zipfile(path):
-        raise ValueError(damaged_checkpoint(path, "not a torch.save file: truncated or overwritten"))
+        raise ValueError(damaged_checkpoint(path, "not a torch.save file: truncated or overwritten", advice))
 
 
 def check_resumable(run_dir, steps: int | None) -> None:

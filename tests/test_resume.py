@@ -495,3 +495,14 @@ def test_the_resume_line_says_whether_the_plan_grows_or_shrinks():
                                             "re-planned for 30 steps")
     assert replan_line("r", 100000, 1002, 1000, "constant").startswith("shortening r from 100000 to 1002 steps at its "
                                                                        "step 1000; the constant schedule")
+
+
+def test_a_damaged_model_file_is_one_line(tmp_path):
+    """adv52: load_checkpoint (a finished arm read back, predict) raised torch's UnpicklingError, a traceback."""
+    from pdestream.surrogate.checkpoint import load_checkpoint
+
+    (tmp_path / "model.pt").write_bytes(b"garbage\n")
+    with pytest.raises(ValueError) as err:
+        load_checkpoint(tmp_path / "model.pt")
+    assert str(err.value).startswith(f"{tmp_path / 'model.pt'} is damaged (torch cannot read it: UnpicklingError)")
+    assert "\n" not in str(err.value)

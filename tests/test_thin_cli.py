@@ -179,6 +179,9 @@ def finished(tmp_path_factory):
     for name, data in (("empty", b""), ("garbage", b"garbage\n")):  # checkpoint.pt emptied / overwritten
         shutil.copytree(unfinished, root / name)
         (root / name / "checkpoint.pt").write_bytes(data)
+    for name, file, data in (("cmp_json", "run.json", b"{bad"), ("cmp_model", "model.pt", b"garbage\n")):
+        shutil.copytree(root / "cmp", root / name)  # a finished arm's run.json / model.pt damaged
+        (root / name / "one-step" / file).write_bytes(data)
     # a run trained on a cache that was then replaced by one of other settings (walls)
     shutil.copy(root / "c.h5", root / "src.h5")
     assert cli.main(["train", "--source", str(root / "src.h5"), *TINY_TRAIN[4:], "--steps", "2", "--out",
@@ -223,6 +226,13 @@ def _unchanged(root):
     (["train", "--resume", "{root}/on_cache", "--steps", "4"], "--resume {root}/on_cache: its cache {root}/src.h5 "
                                                                "now holds other data (bc: the run's unset, the cache's "
                                                                "'dirichlet';"),
+    # adv52: a finished arm's damaged run.json read as "other settings" (every key None, a 700-character line); its
+    # damaged model.pt was a traceback (torch's UnpicklingError) after the test set was built
+    ([*TINY_MODES, "--steps", "2", "--out", "{root}/cmp_json"], "{root}/cmp_json/one-step/run.json is damaged (not a "
+                                                                "JSON object); pass --overwrite"),
+    ([*TINY_MODES, "--steps", "2", "--out", "{root}/cmp_model"], "{root}/cmp_model/one-step/model.pt is damaged (not a "
+                                                                 "torch.save file: truncated or overwritten); pass "
+                                                                 "--overwrite"),
     # adv52: an --out that holds a run was refused after torch (check_new)
     (["train", "--source", "{root}/c.h5", "--out", "{root}/run"], "{root}/run already holds a run (run.json, "
                                                                   "checkpoint.pt, model.pt, metrics.json); pass --resume"),
