@@ -155,7 +155,10 @@ def plan_arms(pde, out: Path, cfg: InteractiveConfig) -> tuple[object, list[tupl
     network modes first)."""
     net_modes = [m for m in cfg.modes if m in NETWORK_MODES]
     sitl = "solver-in-the-loop" in cfg.modes
-    fine = pde.replace({"n": cfg.fine_n}) if sitl and cfg.fine_n not in (None, pde.n) else pde
+    try:
+        fine = pde.replace({"n": cfg.fine_n}) if sitl and cfg.fine_n not in (None, pde.n) else pde
+    except ValueError as err:  # the PDE's refusal speaks of n, which the user set as --fine-n
+        raise ValueError(f"--fine-n {cfg.fine_n} not allowed: {err}") from None
     plan = [(name, pde, arm_settings(cfg, name), out / name) for name in net_modes]
     if sitl:
         k = arm_settings(cfg, "solver-in-the-loop")["unroll"]

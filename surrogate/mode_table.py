@@ -215,8 +215,10 @@ def check_coarse_grid(pde, coarse_n) -> None:
                          f"states restricted to its own grid; allowed: refine=1 (--set n={n * pde.refine} "
                          "--set refine=1 trains on the fine grid itself)")
     if isinstance(coarse_n, bool) or not isinstance(coarse_n, int) or not (0 < coarse_n < n and n % coarse_n == 0):
-        raise ValueError(f"solver-in-the-loop: coarse n={coarse_n!r} does not fit the fine grid n={n}; "
-                         f"allowed: a proper divisor of {n}, e.g. {n // 8 if n % 8 == 0 and n // 8 >= 8 else n // 2}")
+        example = _coarse_example(pde)
+        allowed = (f"allowed: a proper divisor of {n}, e.g. {example}" if example else
+                   f"no proper divisor of {n} is a grid {pde.NAME} takes: choose a finer grid")
+        raise ValueError(f"solver-in-the-loop: coarse n={coarse_n!r} does not fit the fine grid n={n}; {allowed}")
     try:
         pde.replace({"n": coarse_n})
     except ValueError as err:  # the PDE's refusal speaks of n, which the user set as --coarse-n
@@ -253,6 +255,20 @@ def _fits_hint(name: str, frames_out: int, n_frames: int, k_in: int) -> str:
     if n_frames - frames_out >= 1:
         return f"--k-in <= {n_frames - frames_out} (or --set n_frames={k_in + frames_out})"
     return f"--set n_frames={k_in + frames_out} or more"
+
+
+def _coarse_example(pde) -> int | None:
+    """A coarse grid to offer on ``pde``'s fine grid: n/8 where that is a whole grid of >= 8, else the largest proper
+    divisor, the first that the PDE itself accepts as n (it offered 15 on n=30 to a PDE of even n), or None."""
+    n = pde.n
+    first = [n // 8] if n % 8 == 0 and n // 8 >= 8 else []
+    for d in first + [d for d in range(n // 2, 0, -1) if n % d == 0]:
+        try:
+            pde.replace({"n": d})
+            return d
+        except ValueError:
+            continue
+    return None
 
 
 def restricts_periodic(bc, locations) -> bool:

@@ -120,6 +120,14 @@ LIGHT = [
      "--corrector-start zero goes with the corrector's arms (--modes ...,solver-in-the-loop)"),
     (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step,oracle", "--noise", "0.1"], 2,
      "--noise 0.1 goes with the noise mode or the corrector's arms (--modes ...,noise or ...,solver-in-the-loop)"),
+    # adv52: the coarse grid offered was one the PDE refuses (15 for burgers1d, whose n is even; 4, below its 8)
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--set", "n_frames=6", "--fine-n", "30",
+      "--coarse-n", "16"], 2, "coarse n=16 does not fit the fine grid n=30; allowed: a proper divisor of 30, e.g. 10"),
+    (["train", "burgers1d", "--out", "run", "--mode", "solver-in-the-loop", "--set", "n=8", "--coarse-n", "16"], 2,
+     "coarse n=16 does not fit the fine grid n=8; no proper divisor of 8 is a grid burgers1d takes: choose a finer "
+     "grid"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--fine-n", "0"], 2,
+     "--fine-n 0 not allowed: burgers1d: n=0 not allowed"),
     # adv52: a steady entry refused a mode that unrolls only after torch; --k-in / --k-out on the operator view (a
     # steady entry's default) ran rc 0, unread
     (["train", "poisson1d", "--out", "run", "--mode", "noise"], 2,
