@@ -208,7 +208,8 @@ def check_view_options(pde, cfg: TrainConfig) -> None:
         raise ValueError(f"--view next_step needs a time axis and {pde.NAME} is steady (no frames); allowed: "
                          "--view operator")
     view = cfg.view or ("operator" if pde.STEADY else "next_step")
-    given = [f"{o} {v}" for o, v, unset in (("--k-in", cfg.k_in, None), ("--k-out", cfg.k_out, 1)) if v != unset]
+    given = [f"{o} {v}" for o, v, unset in (("--k-in", cfg.k_in, None), ("--k-out", cfg.k_out, 1))
+             if v not in (None, unset)]
     if view != "next_step" and given:
         why = (f"{pde.NAME} is steady: its samples (input field -> solution) have no frames" if pde.STEADY else
                f"not {view} (u(t=0) -> u(t_end))")
