@@ -18,6 +18,7 @@ from pdestream.surrogate.mode_table import (
     NETWORK_MODES,
     check_coarse_grid,
     check_corrector_start,
+    check_mode_k_in,
     check_noise,
     mode_settings,
     parse_unroll_schedule,
@@ -84,6 +85,7 @@ class InteractiveConfig:
             raise ValueError(f"--modes {','.join(self.modes)} not allowed; choose from {', '.join(MODE_NAMES)}")
         for name in self.modes:
             arm_settings(self, name)
+            check_mode_k_in(name, self.k_in)  # (the other arms trained first, then the corrector refused it)
         self.noise = check_noise(self.noise)  # a bad --noise is refused even without the noise arm
         check_corrector_start(self.corrector_start)  # (and a bad --corrector-start without the corrector arms)
         for name, value in (("--steps", self.steps), ("--batch-size", self.batch_size), ("--test-samples", self.n_test),

@@ -204,6 +204,9 @@ def check_view_options(pde, cfg: TrainConfig) -> None:
         verb = "perturbs input frames" if cfg.mode == "noise" else "unrolls over frames"
         raise ValueError(f"--mode {cfg.mode} {verb} and {pde.NAME} is steady (no frames); allowed: "
                          "--mode one-step")
+    from .mode_table import check_mode_k_in
+
+    check_mode_k_in(cfg.mode, cfg.k_in)  # (said after torch)
     if pde.STEADY and cfg.view == "next_step":  # (the view refused it after torch)
         raise ValueError(f"--view next_step needs a time axis and {pde.NAME} is steady (no frames); allowed: "
                          "--view operator")

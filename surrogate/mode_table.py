@@ -237,6 +237,13 @@ def frames_ahead(name: str, unroll: int, k_out: int) -> int:
     return unroll if ahead == "unroll" else k_out if ahead == "k_out" else ahead
 
 
+def check_mode_k_in(name: str, k_in) -> None:
+    """One line for input frames a mode cannot take: solver-in-the-loop corrects one state at a time (k_in None:
+    not given). No torch: train and compare say it before any work (``SolverInTheLoop.train_view`` again)."""
+    if name == "solver-in-the-loop" and k_in not in (None, 1):
+        raise ValueError(f"--mode solver-in-the-loop corrects one state at a time: --k-in={k_in} not allowed; use 1")
+
+
 def check_window(name: str, unroll: int, k_in: int, frames_out: int, n_frames: int) -> None:
     """ValueError (one line) when mode ``name``'s window, ``k_in`` input frames and ``frames_out`` targets, is
     longer than trajectories of ``n_frames``, naming what would fit. No torch: ``train --source CACHE`` checks it

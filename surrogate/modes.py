@@ -57,6 +57,7 @@ from .mode_table import (
     NOISE_RULE,
     SITL_NOISE_RULE,
     check_coarse_grid,
+    check_mode_k_in,
     check_window,
     mode_settings,
     restricts_periodic,
@@ -493,9 +494,7 @@ class SolverInTheLoop:
         return self.unroll
 
     def train_view(self, view):
-        if view.rollout_k_in not in (None, 1):
-            raise ValueError(f"--mode solver-in-the-loop corrects one state at a time: --k-in={view.rollout_k_in} not "
-                             "allowed; use 1")
+        check_mode_k_in(self.name, view.rollout_k_in)
         return _unrolling_view(self, view)
 
     def channels(self, pde, view) -> tuple[int, int]:

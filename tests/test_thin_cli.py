@@ -128,6 +128,11 @@ LIGHT = [
      "grid"),
     (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--fine-n", "0"], 2,
      "--fine-n 0 not allowed: burgers1d: n=0 not allowed"),
+    # adv52: --k-in 2 with the corrector was refused after torch; compare trained the other arms first (7 s)
+    (["train", "burgers1d", "--out", "run", "--mode", "solver-in-the-loop", "--k-in", "2"], 2,
+     "--mode solver-in-the-loop corrects one state at a time: --k-in=2 not allowed; use 1"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step,solver-in-the-loop", "--set", "n_frames=8",
+      "--k-in", "2"], 2, "--mode solver-in-the-loop corrects one state at a time: --k-in=2 not allowed; use 1"),
     # adv52: a steady entry refused a mode that unrolls only after torch; --k-in / --k-out on the operator view (a
     # steady entry's default) ran rc 0, unread
     (["train", "poisson1d", "--out", "run", "--mode", "noise"], 2,
