@@ -109,7 +109,7 @@ def check_new_data(pde, cfg: TrainConfig, config: dict | None = None) -> None:
         unroll = mode_settings(cfg.mode, unroll=cfg.unroll).get("unroll", 1)  # (one-step, noise: 1)
         k_out = 1 if cfg.k_out is None else cfg.k_out
         check_window(cfg.mode, unroll, 1 if cfg.k_in is None else cfg.k_in, frames_ahead(cfg.mode, unroll, k_out),
-                     fine.n_frames)
+                     fine.n_frames, "--set n_frames={n}" if config is None else "a cache of {n} frames")
 
 
 @contextlib.contextmanager

@@ -244,24 +244,30 @@ def check_mode_k_in(name: str, k_in) -> None:
         raise ValueError(f"--mode solver-in-the-loop corrects one state at a time: --k-in={k_in} not allowed; use 1")
 
 
-def check_window(name: str, unroll: int, k_in: int, frames_out: int, n_frames: int) -> None:
+def check_window(name: str, unroll: int, k_in: int, frames_out: int, n_frames: int,
+                 more: str = "--set n_frames={n}") -> None:
     """ValueError (one line) when mode ``name``'s window, ``k_in`` input frames and ``frames_out`` targets, is
-    longer than trajectories of ``n_frames``, naming what would fit. No torch: ``train --source CACHE`` checks it
-    against the cache's frames before torch, ``surrogate.modes.check_fits`` against the data's."""
-    if k_in + frames_out > n_frames:
-        raise ValueError(f"--mode {name} with --unroll {unroll} and --k-in {k_in} needs {k_in + frames_out} frames "
-                         f"per window but the trajectories have {n_frames}; allowed: "
-                         f"{_fits_hint(name, frames_out, n_frames, k_in)}")
+    longer than trajectories of ``n_frames``, naming what would fit (``more``: how to get n frames, "--set
+    n_frames={n}" on the stream, a cache of them). No torch: ``train --source CACHE`` checks it against the cache's
+    frames before torch, ``surrogate.modes.check_fits`` against the data's."""
+    if k_in + frames_out <= n_frames:
+        return
+    ahead = FRAMES_AHEAD.get(name, "k_out")
+    what = {"unroll": f"--unroll {unroll} and --k-in {k_in}",
+            "k_out": f"--k-in {k_in} and --k-out {frames_out}"}.get(ahead, f"--k-in {k_in}")
+    raise ValueError(f"--mode {name} with {what} needs {k_in + frames_out} frames per window but the trajectories "
+                     f"have {n_frames}; allowed: {_fits_hint(ahead, frames_out, n_frames, k_in, more)}")
 
 
-def _fits_hint(name: str, frames_out: int, n_frames: int, k_in: int) -> str:
-    """What would fit: a shorter unroll where one exists (it said "--unroll <= -2" when --k-in alone was too long,
-    and offered --unroll to one-step, which has none), else fewer input frames, else more frames."""
-    if name != "one-step" and n_frames - k_in >= 1:
+def _fits_hint(ahead, frames_out: int, n_frames: int, k_in: int, more: str) -> str:
+    """What would fit: a shorter unroll where the mode unrolls and one exists (it said "--unroll <= -2" when --k-in
+    alone was too long, and offered --unroll to one-step and noise, which take none), else fewer input frames, else
+    more frames."""
+    if ahead == "unroll" and n_frames - k_in >= 1:
         return f"--unroll <= {n_frames - k_in}"
     if n_frames - frames_out >= 1:
-        return f"--k-in <= {n_frames - frames_out} (or --set n_frames={k_in + frames_out})"
-    return f"--set n_frames={k_in + frames_out} or more"
+        return f"--k-in <= {n_frames - frames_out} (or {more.format(n=k_in + frames_out)})"
+    return f"{more.format(n=k_in + frames_out)} or more"
 
 
 def _coarse_example(pde) -> int | None:

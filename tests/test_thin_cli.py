@@ -265,7 +265,8 @@ def _unchanged(root):
      "--mode solver-in-the-loop with --unroll 4 and --k-in 1 needs 5 frames per window but the trajectories have 3; "
      "allowed: --unroll <= 2"),
     (["train", "--source", "{root}/c.h5", "--k-in", "3", "--out", "{root}/new"],
-     "--mode one-step with --unroll 1 and --k-in 3 needs 4 frames per window but the trajectories have 3"),
+     "--mode one-step with --k-in 3 and --k-out 1 needs 4 frames per window but the trajectories have 3; allowed: "
+     "--k-in <= 2 (or a cache of 4 frames)"),
     # adv52: an empty or overwritten checkpoint.pt was said after torch, as "(EOFError: )" or in torch's words
     # advising weights_only=False
     (["train", "--resume", "{root}/empty", "--steps", "9"], "{root}/empty/checkpoint.pt is damaged (empty)"),
