@@ -78,6 +78,15 @@ def source_config(source) -> dict | None:
 
         open_cache(as_cache(source)).close()
         return None
+    if not isinstance(config.get("pde"), str) or not config["pde"]:  # (it read "no PDE named", or "holds 5 samples")
+        raise ValueError(f"{source} is damaged: its stored config (pdestream_config) names no PDE "
+                         f"({config.get('pde')!r})")
+    from pdestream.catalog_names import check_name
+
+    try:
+        check_name(config["pde"])
+    except ValueError as err:  # (it said "unknown PDE ..." without naming the cache)
+        raise ValueError(f"{source} holds samples of {config['pde']!r}, a PDE not known here: {err}") from None
     written = cache_written(source)
     if written is not None:
         raise ValueError(f"{source} is incomplete ({written[0]} of {written[1]} samples written); finish it with "
@@ -101,7 +110,10 @@ def check_new_data(pde, cfg: TrainConfig, config: dict | None = None) -> None:
         from pdestream.datasets import pde_from_config
 
         check_cache_matches(cfg.source, config, pde, cfg.settings)
-        fine = pde_from_config(config)
+        try:
+            fine = pde_from_config(config)
+        except ValueError as err:  # (it named a setting the user never gave: "burgers1d: bad value for n")
+            raise ValueError(f"{cfg.source}: its stored config does not build here: {err}") from None
     if cfg.mode == "solver-in-the-loop" and not pde.STEADY:
         check_coarse_grid(fine, mode_settings(cfg.mode, coarse_n=cfg.coarse_n)["coarse_n"])
         check_restrict_acts(fine, cfg.restrict)

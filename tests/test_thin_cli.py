@@ -202,7 +202,10 @@ def finished(tmp_path_factory):
     shutil.copy(root / "walls.h5", root / "src.h5")
     import h5py
 
-    for name, attrs in (("cut.h5", {"pdestream_complete": 0}), ("garbled.h5", {"pdestream_config": "{not json"})):
+    for name, attrs in (("cut.h5", {"pdestream_complete": 0}), ("garbled.h5", {"pdestream_config": "{not json"}),
+                        ("noname.h5", {"pdestream_config": '{"pde": 5}'}),
+                        ("unknown.h5", {"pdestream_config": '{"pde": "nosuchpde", "n": 16}'}),
+                        ("badn.h5", {"pdestream_config": '{"pde": "burgers1d", "n": "abc", "n_frames": 3}'})):
         shutil.copy(root / "c.h5", root / name)  # an interrupted generate's cache; one whose config is damaged
         with h5py.File(root / name, "r+") as f:
             f.attrs.update(attrs)
@@ -259,6 +262,15 @@ def _unchanged(root):
                                                                           "pdestream_config = '{{not json'"),
     (["train", "burgers1d", "--source", "{root}/garbled.h5", "--out", "{root}/new"], "garbled.h5 is damaged"),
     (["train", "--source", "{root}/none.h5", "--out", "{root}/new"], "--source {root}/none.h5: no such cache"),
+    # adv52: a stored config naming no PDE read "no PDE named" (or "holds 5 samples"); one that does not build
+    # named a setting the user never gave ("burgers1d: bad value for n")
+    (["train", "--source", "{root}/noname.h5", "--out", "{root}/new"], "noname.h5 is damaged: its stored config "
+                                                                        "(pdestream_config) names no PDE (5)"),
+    (["train", "burgers1d", "--source", "{root}/noname.h5", "--out", "{root}/new"], "noname.h5 is damaged"),
+    (["train", "--source", "{root}/unknown.h5", "--out", "{root}/new"], "unknown.h5 holds samples of 'nosuchpde', a "
+                                                                         "PDE not known here: unknown PDE 'nosuchpde'"),
+    (["train", "--source", "{root}/badn.h5", "--out", "{root}/new"], "badn.h5: its stored config does not build "
+                                                                      "here: burgers1d: bad value for n"),
     # adv52: a window longer than the cache's trajectories was refused by the view after torch (4.6 s), in words
     # naming k_out (the unroll the user gave or left at its default was not named)
     (["train", "--source", "{root}/c.h5", "--mode", "solver-in-the-loop", "--coarse-n", "8", "--out", "{root}/new"],
