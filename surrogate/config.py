@@ -241,13 +241,18 @@ def check_resumable(run_dir, steps: int | None) -> None:
 
 
 def check_source_unchanged(run_dir, settings: dict) -> None:
-    """ValueError (one line) when the cache a run trained on (run.json's "source", a path) now holds data of
-    another PDE config than the run's (run.json's "pde"; both read through the current PDE classes, so a cache
+    """ValueError (one line) when the cache a run trained on (run.json's "source", a path) is gone, or now holds data
+    of another PDE config than the run's (run.json's "pde"; both read through the current PDE classes, so a cache
     written by an older version compares by its meaning): replaced since. It was refused after torch as "the
     checkpoint belongs to another run". Anything unreadable is left to the resume's own checks."""
     source = settings.get("source")
     if not isinstance(source, str) or source == "stream":
         return
+    from pathlib import Path
+
+    if not Path(source).exists():  # (said after torch: "no cache at ...")
+        raise ValueError(f"--resume {run_dir}: its cache {source} is not there (moved or deleted, or a path relative "
+                         "to the directory the run was started in); put it back, or resume from that directory")
     try:
         from pdestream.datasets import pde_from_config
         from pdestream.datasets.export import cached_config

@@ -200,6 +200,9 @@ def finished(tmp_path_factory):
     assert cli.main(["train", "--source", str(root / "src.h5"), *TINY_TRAIN[4:], "--steps", "2", "--out",
                      str(root / "on_cache")]) == 0
     shutil.copy(root / "walls.h5", root / "src.h5")
+    shutil.copytree(root / "on_cache", root / "gone")  # a run whose cache is no longer there
+    settings = json.loads((root / "gone" / "run.json").read_text())
+    (root / "gone" / "run.json").write_text(json.dumps({**settings, "source": str(root / "moved.h5")}))
     import h5py
 
     for name, attrs in (("cut.h5", {"pdestream_complete": 0}), ("garbled.h5", {"pdestream_config": "{not json"}),
@@ -249,6 +252,9 @@ def _unchanged(root):
     ([*TINY_MODES, "--steps", "2", "--out", "{root}/cmp_model"], "{root}/cmp_model/one-step/model.pt is damaged (not a "
                                                                  "torch.save file: truncated or overwritten); pass "
                                                                  "--overwrite"),
+    # adv52: a run whose cache is gone was said after torch ("no cache at ...")
+    (["train", "--resume", "{root}/gone", "--steps", "4"], "--resume {root}/gone: its cache {root}/moved.h5 is not "
+                                                           "there"),
     # adv52: an --out that holds a run was refused after torch (check_new)
     (["train", "--source", "{root}/c.h5", "--out", "{root}/run"], "{root}/run already holds a run (run.json, "
                                                                   "checkpoint.pt, model.pt, metrics.json); pass --resume"),
