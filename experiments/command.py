@@ -11,7 +11,7 @@ import argparse
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pdestream.interrupts import check_writable_dir, remove_created, snapshot
+from pdestream.interrupts import check_not_in_zarr, check_writable_dir, remove_created, snapshot
 
 BUDGET_ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")  # experiments.budget.DEFAULT_ARMS
 COMPARE_DEFAULTS = {"n": "64", "n_frames": "11"}  # small enough for ~10 min on 2 CPU cores
@@ -75,6 +75,7 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
     if cmd.modes is None or not _modes_out(cmd.out):  # --modes resumes in its own out: (arm, seed) runs are kept
         check_compare_out(cmd.out, cmd.overwrite)
     check_writable_dir(cmd.out)
+    check_not_in_zarr(cmd.out)
     if isinstance(cmd.pde, str):
         from pdestream.settings import build_pde
 

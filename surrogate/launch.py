@@ -13,7 +13,7 @@ import signal
 import sys
 from pathlib import Path
 
-from pdestream.interrupts import USER_ERRORS, check_writable_dir, remove_created, snapshot
+from pdestream.interrupts import USER_ERRORS, check_not_in_zarr, check_writable_dir, remove_created, snapshot
 
 from .config import TRAIN_STEPS, TrainConfig, check_resumable
 
@@ -27,6 +27,7 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
         raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
     if cfg.resume is None:
         check_writable_dir(cfg.out)
+        check_not_in_zarr(cfg.out)
         check_out_free(cfg.out, cfg.overwrite)
     elif Path(cfg.resume).is_dir():
         check_writable_dir(cfg.resume, "--resume")

@@ -186,7 +186,7 @@ def finished(tmp_path_factory):
     (unfinished / "metrics.json").unlink()
     settings = json.loads((unfinished / "run.json").read_text())
     (unfinished / "run.json").write_text(json.dumps({**settings, "steps": 5}))
-    for name, extra in (("c.h5", []), ("walls.h5", ["--set", "bc=dirichlet"])):  # caches to train from
+    for name, extra in (("c.h5", []), ("walls.h5", ["--set", "bc=dirichlet"]), ("z.zarr", [])):  # caches to train from
         assert cli.main(["generate", "burgers1d", "--n", "2", "--set", "n=16", "--set", "n_frames=3", *extra,
                          "--out", str(root / name)]) == 0
     for name, data in (("empty", b""), ("garbage", b"garbage\n")):  # checkpoint.pt emptied / overwritten
@@ -255,6 +255,12 @@ def _unchanged(root):
     # adv52: a run whose cache is gone was said after torch ("no cache at ...")
     (["train", "--resume", "{root}/gone", "--steps", "4"], "--resume {root}/gone: its cache {root}/moved.h5 is not "
                                                            "there"),
+    # adv52: a run written into a Zarr cache's directory (rc 0): its files among the arrays, which a later
+    # `generate --overwrite` then refuses as foreign entries
+    (["train", "--source", "{root}/z.zarr", "--out", "{root}/z.zarr"], "--out {root}/z.zarr is a Zarr cache"),
+    (["train", "--source", "{root}/c.h5", "--out", "{root}/z.zarr/run"], "--out {root}/z.zarr/run is inside the Zarr "
+                                                                         "cache {root}/z.zarr"),
+    ([*TINY_MODES, "--steps", "2", "--out", "{root}/z.zarr"], "--out {root}/z.zarr is a Zarr cache"),
     # adv52: an --out that holds a run was refused after torch (check_new)
     (["train", "--source", "{root}/c.h5", "--out", "{root}/run"], "{root}/run already holds a run (run.json, "
                                                                   "checkpoint.pt, model.pt, metrics.json); pass --resume"),
