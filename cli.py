@@ -264,13 +264,13 @@ def add_compare(sub) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an earlier compare output in DIR (--modes: "
                    "without it a rerun goes on, reading back each finished (arm, seed); with it every arm retrains)")
     b = p.add_argument_group("budget-matched comparison (precomputed / fifo / reservoir / reservoir_loss / "
-                             "reservoir_active / reservoir_priority)")
+                             "reservoir_active / reservoir_priority / reservoir_generative)")
     b.add_argument("--budget", type=float, metavar="SECONDS",
                    help="every arm gets this wall-clock time (solving, caching and training all count; --modes: each trained arm)")
     b.add_argument("--sim-budget", type=int, metavar="N",
                    help="every arm gets N solved trajectories and --steps optimizer steps")
     b.add_argument("--arms", default=",".join(d.arms), help="comma-separated subset of the arms (default: all "
-                   "but the steered reservoir_active and reservoir_priority: add them by name)")
+                   "but the steered reservoir_active, reservoir_priority and reservoir_generative: add them by name)")
     b.add_argument("--priority-cap", type=float, default=d.priority_cap, metavar="C",
                    help="--sim-budget: the reuse bound of the prioritized-replay arms, in multiples of the mean reuse "
                         "(>= 1; their solves are paced at the mean)")

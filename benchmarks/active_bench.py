@@ -71,7 +71,7 @@ def summarize(out: Path) -> list[str]:
     fitted = np.array([y[bins == b].mean() for b in bins])
     explained = 1 - ((y - fitted) ** 2).sum() / ((y - y.mean()) ** 2).sum()
     worst = max(set(bins.tolist()), key=lambda b: base.mean(0)[bins == b].mean())
-    for name in ("reservoir_loss", "reservoir_active", "reservoir_priority"):
+    for name in ("reservoir_loss", "reservoir_active", "reservoir_priority", "reservoir_generative"):
         arm = _arm(result, name)
         if arm is None or uniform is None:
             continue

@@ -300,11 +300,14 @@ def summary(out: Path, problems, seeds: int, suite: Suite = ACTIVE) -> str:
             notes.append(f"- {name}: **not trained** ({suite.labels[suite.pairs[0][0]]} mean {first['test_mean'][0]:.3f}"
                          f" >= {UNTRAINED}): the FNO does not learn u(0) -> u(t_end) at this budget, so its ratios "
                          "compare untrained models.")
-        gate = [r["stats"] for r in runs.get("reservoir_active", []) if "proposal_skill" in (r.get("stats") or {})]
-        if gate:
-            notes.append(f"- {name}: the active arm's skill gate at the end (mean over its seeds): skill "
-                         f"{np.mean([g['proposal_skill'] for g in gate]):.2f}, steered share "
-                         f"{np.mean([g['proposal_steer'] for g in gate]):.2f} (of 0.75 at most: floor 0.25).")
+        for arm in suite.arms_of(name):
+            gate = [r["stats"] for r in runs.get(arm, []) if "proposal_skill" in (r.get("stats") or {})]
+            if gate:
+                lift = [v for v in (g.get("proposal_lift") for g in gate) if v is not None and v == v]  # (NaN: none)
+                notes.append(f"- {name}: the {suite.labels[arm]} arm's gate at the end, per seed: skill "
+                             + ", ".join(f"{g['proposal_skill']:.2f}" for g in gate) + "; steered share "
+                             + ", ".join(f"{g['proposal_steer']:.2f}" for g in gate) + " (of 0.75 at most: floor 0.25)"
+                             + ("; the lift's lower bound " + ", ".join(f"{v:.2f}" for v in lift) if lift else "") + ".")
         notes += _spending(name, runs, suite.labels)
         share = explained(out, name, runs.get("reservoir", []))
         if share is not None:

@@ -15,10 +15,8 @@ ensemble spread as the uncertainty, candidates resampled by the acquisition; ``p
 
 In ``"generative"`` mode (OGAS's idea, a conditional generative model of the inputs given difficulty, at its
 smallest) the proposal learns p(x | high difficulty) from the fresh solves and draws from it (``proposal_fit``'s
-docstring: its coordinates, data, model and predictor).
-
-Breed-style importance sampling (Melissa's Breed: resample past inputs by their loss, perturb them, keep a uniform
-share) is the ``"loss"`` mode above.
+docstring: its coordinates, data, model and predictor). Breed-style importance sampling (Melissa's Breed: resample
+past inputs by their loss, perturb them, keep a uniform share) is the ``"loss"`` mode above.
 
 The "active" fit runs in a background thread, off the training loop: it starts in ``record`` on a snapshot of the
 window and is used from the next refit on (one refit interval later, ``refit`` losses), by which time it is
@@ -46,8 +44,13 @@ fresh solves and moves its weight between the steered and the uniform draw by it
 - **the steered share** w = (1 - floor) * clip(skill / skill_full, 0, 1): each draw is steered with probability
   w and uniform otherwise. No skill: w = 0, the draws are uniform; skill >= ``skill_full``: w = 1 - floor, the
   ungated proposal. ``gate=False`` keeps w = 1 - floor always (the proposal before the gate). ``skill`` and
-  ``steer`` (w) are in the reservoir's ``stats()`` (metrics.csv: ``proposal_skill``, ``proposal_steer``) and in
-  ``state_dict``.
+  ``steer`` (w) are in the reservoir's ``stats()`` (metrics.csv: ``proposal_skill``, ``proposal_steer``, and the
+  lift's lower bound ``proposal_lift``) and in ``state_dict``.
+- **the lift** (``proposal_lift``; where the caller passes sample indices, as the reservoir does): the steered
+  draws' fresh losses against the uniform draws' at the same moment, on the draws themselves. Its lower bound opens
+  the share too, w = (1 - floor) * clip(max(skill / skill_full, lift_low / log 2), 0, 1); its upper bound below 0
+  (steered draws measurably easier) closes it (w = 0) whatever the correlation says; the generative proposal (its
+  correlation predictor a smooth summary of a local model) probes, w >= ``probe``, until its lift is measured.
 
 **The initial condition too** (``latent_prior``, the reservoir's ``proposal_space="params+ic"``): where the entry's IC
 has latent coordinates (``generator.ics.LatentIC``: Fourier amplitudes and phases, a GRF's leading white-noise modes,
@@ -69,6 +72,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 
 from ._bridge import LATENT  # propose()'s key for the IC latents [n, L] (no parameter can be named so)
+from .proposal_box import params_to_unit, unit_to_params
 from .proposal_fit import (
     LEVEL_SPAN,
     UNIT_EDGE,
@@ -88,6 +92,7 @@ from .proposal_fit import (
     pick_weights,
     running_median,
 )
+from .proposal_lift import LIFT_FULL, LIFT_MIN, LiftGate
 from .reservoir_config import PROPOSALS, check_proposal_settings
 
 MODES = ("uniform", "loss", "active", "generative")
@@ -109,21 +114,21 @@ class ParamProposal:
     latent_prior: None, or the IC latent's law ("normal" | "uniform", a [L], b [L]) (``LatentIC.latent_prior``):
     the proposals then draw (parameters, latent) jointly (the module docstring). "generative" only: top, the share of
     the fresh solves (by importance weight) its model is of; step, its move in prior standard deviations; refit, the
-    losses between fits.
+    losses between fits; probe, its steered share until its lift is measured (``proposal_lift``).
     """
 
     def __init__(self, domains: dict, mode: str = "loss", floor: float = 0.25, window: int = 2048,
                  bandwidth: float = 0.05, power: float = 1.0, seed: int = 0, ensemble: int = 5, kappa: float = 1.0,
                  refit: int = 256, candidates: int = 2048, gate: bool = True, skill_window: int = 256,
                  skill_min: int = 32, skill_full: float = 0.5, latent_prior: tuple | None = None, top: float = 0.25,
-                 step: float = 0.25):
+                 step: float = 0.25, probe: float = 0.25):
         check_proposal_settings(mode, floor=floor, bandwidth=bandwidth, power=power, window=window, ensemble=ensemble,
                        kappa=kappa, top=top, step=step, gate=gate, skill_full=skill_full, skill_min=skill_min,
-                       refit=refit, candidates=candidates, skill_window=skill_window)
+                       refit=refit, candidates=candidates, skill_window=skill_window, probe=probe)
         self.mode, self.floor, self.window, self.bandwidth, self.power = mode, float(floor), window, float(bandwidth), float(power)
         self.ensemble, self.kappa, self.refit, self.candidates = ensemble, float(kappa), refit, candidates
         self.gate, self.skill_window, self.skill_min, self.skill_full = gate, skill_window, skill_min, float(skill_full)
-        self.seed, self.top, self.step = seed, float(top), float(step)
+        self.seed, self.top, self.step, self.probe = seed, float(top), float(step), float(probe)
         self.names = list(domains)  # every PDE parameter, PARAMS order (the columns of batch["params"])
         self.domains = {k: tuple(v) for k, v in domains.items()}
         self.random = [k for k, (kind, *_rest) in self.domains.items() if kind != "fixed"]
@@ -156,34 +161,20 @@ class ParamProposal:
         self.g_points, self.g_losses = np.zeros((0, self.dims)), np.zeros(0)
         self.g_at, self.g_logiw = np.zeros(0), np.zeros(0)
         self._gen = None
+        self.lift = LiftGate(skill_window)  # the steered draws' fresh losses against the uniform ones'
 
     # --- unit box <-> parameter values -------------------------------------------------------------
     def to_unit(self, values: np.ndarray, latent: np.ndarray | None = None) -> np.ndarray:
         """[N, P] parameter values (all PDE parameters, PARAMS order) and, with a latent prior, [N, L] IC latents ->
         [N, D] unit coordinates of the random ones (then the latent's)."""
         values = np.asarray(values, np.float64).reshape(len(values), len(self.names))
-        params = self._params_to_unit(values)
+        params = params_to_unit(self.domains, self.names, self.random, values)
         if not self.n_latent:
             return params
         kind, a, b = self.latent_prior
         x = np.asarray(latent, np.float64).reshape(len(values), self.n_latent)
         z = ndtr((x - a) / b) if kind == "normal" else (x - a) / (b - a)
         return np.concatenate([params, np.clip(z, 0.0, 1.0)], 1)
-
-    def _params_to_unit(self, values: np.ndarray) -> np.ndarray:
-        cols = []
-        for name in self.random:
-            kind, low, high, options = self.domains[name]
-            v = values[:, self.names.index(name)]
-            if kind == "loguniform":
-                z = (np.log(v) - math.log(low)) / (math.log(high) - math.log(low))
-            elif kind == "choice":
-                opts = np.asarray(options)
-                z = (np.abs(v[:, None] - opts[None]).argmin(1) + 0.5) / len(opts)
-            else:
-                z = (v - low) / (high - low)
-            cols.append(np.clip(z, 0.0, 1.0))
-        return np.stack(cols, 1) if cols else np.zeros((len(values), 0))
 
     def from_unit(self, z: np.ndarray) -> dict[str, np.ndarray]:
         """[N, D] unit coordinates -> {name: float64 [N]} values inside each domain (and LATENT: float64 [N, L],
@@ -194,32 +185,19 @@ class ParamProposal:
             u = z[:, len(self.random):]
             out[LATENT] = (a + b * ndtri(np.clip(u, UNIT_EDGE, 1 - UNIT_EDGE)) if kind == "normal"
                            else a + np.clip(u, 0.0, 1.0) * (b - a))
-        for j, name in enumerate(self.random):
-            kind, low, high, options = self.domains[name]
-            u = np.clip(z[:, j], 0.0, 1.0)
-            if kind == "loguniform":
-                v = np.exp(math.log(low) + u * (math.log(high) - math.log(low)))
-            elif kind == "choice":
-                v = np.asarray(options)[np.minimum((u * len(options)).astype(int), len(options) - 1)]
-            else:
-                v = low + u * (high - low)
-            if kind == "choice":  # the options as they are: the clip below moved the end ones off the set
-                out[name] = v.astype(np.float64)
-                continue
-            # float32 rounding must not step outside the domain the solver checks against
-            out[name] = np.clip(v, np.nextafter(np.float32(low), np.float32(high)),
-                                np.nextafter(np.float32(high), np.float32(low))).astype(np.float64)
+        out.update(unit_to_params(self.domains, self.random, z[:, : len(self.random)]))
         return out
 
     # --- the loop's feedback and the proposals -----------------------------------------------------
     def record(self, params: np.ndarray, losses: np.ndarray, fresh: np.ndarray | None = None,
-               latent: np.ndarray | None = None) -> None:
+               latent: np.ndarray | None = None, indices: np.ndarray | None = None) -> None:
         """Per-sample training losses [B] of samples with parameters [B, P] (PARAMS order). A row whose loss or
         parameters are not finite (a diverged step, a NaN parameter) is dropped and counted in ``dropped``: one
         such row would otherwise turn the pick weights, and then the proposals sent to the solver, into NaN.
         fresh: bool [B], which rows are samples trained on for the first time (their losses measure the skill
         gate, before they join the window); None: every row (a caller that reports each sample once). latent:
-        [B, L], the samples' IC latents (with a latent prior; None or a NaN row: unknown, the row is dropped)."""
+        [B, L], the samples' IC latents (with a latent prior; None or a NaN row: unknown, the row is dropped). indices: [B],
+        the samples' indices (the lift gate scores the fresh rows of draws ``propose`` tagged; None: none)."""
         losses = np.asarray(losses, np.float64).reshape(-1)
         params = np.asarray(params, np.float64).reshape(len(losses), len(self.names))
         if self.n_latent:
@@ -235,6 +213,9 @@ class ParamProposal:
         unit = self.to_unit(params[ok], None if latent is None else latent[ok])
         if self.mode != "uniform" and fresh[ok].any():
             self._score(unit[fresh[ok]], losses[ok][fresh[ok]])
+            if indices is not None:
+                f = fresh[ok]
+                self.lift.score(np.asarray(indices).reshape(len(losses))[ok][f], self._log(losses[ok][f]))
         if self.mode == "generative" and fresh[ok].any():
             # first-draw losses only: the loss of a solve the model has not trained on is the difficulty the
             # proposal is asked to find (a replayed sample's loss falls as the model learns it)
@@ -284,11 +265,15 @@ class ParamProposal:
         pred = self.predict(z)
         if pred is None:
             return
-        positive = np.concatenate([self.losses, losses])
-        positive = positive[positive > 0]
-        real = np.log(np.maximum(losses, positive.min() if len(positive) else 1e-30))  # 0 as the smallest positive
+        real = self._log(losses)
         self.skill_pred = np.concatenate([self.skill_pred, pred])[-self.skill_window :]
         self.skill_real = np.concatenate([self.skill_real, real])[-self.skill_window :]
+
+    def _log(self, losses: np.ndarray) -> np.ndarray:
+        """log of losses [F], a loss <= 0 counted as the smallest positive one recorded (log of 0 is no number)."""
+        positive = np.concatenate([self.losses, losses])
+        positive = positive[positive > 0]
+        return np.log(np.maximum(losses, positive.min() if len(positive) else 1e-30))
 
     def predict(self, z: np.ndarray) -> np.ndarray | None:
         """The loss model's predicted log-loss at unit points z [N, D], or None without one: "active", the mean
@@ -341,24 +326,39 @@ class ParamProposal:
 
     @property
     def steer(self) -> float:
-        """The share of steered draws: (1 - floor) * clip(skill / skill_full, 0, 1); 1 - floor without the gate;
-        0 in "uniform" mode."""
+        """The share of steered draws (the module docstring's w; 1 - floor without the gate; 0 in "uniform" mode)."""
         if self.mode == "uniform":
             return 0.0
         if not self.gate:
             return 1.0 - self.floor
-        return (1.0 - self.floor) * min(1.0, max(0.0, self.skill / self.skill_full))
+        opened = self.skill / self.skill_full
+        lift = self.lift.bounds()
+        if lift is not None:
+            if lift[1] < 0:  # the steered draws are measurably easier than uniform ones: never do harm
+                return 0.0
+            opened = max(opened, lift[0] / LIFT_FULL)
+        w = (1.0 - self.floor) * min(1.0, max(0.0, opened))
+        if self.mode == "generative" and self.lift.indexed and self.lift.probed < LIFT_MIN and self._gen is not None:
+            w = max(w, min(self.probe, 1.0 - self.floor))  # probing: its lift can only be measured on steered draws
+        return w
 
-    def propose(self, n: int) -> dict[str, np.ndarray] | None:
-        """Explicit values {name: float64 [n]} for the next n solves; None in "uniform" mode (key draws)."""
+    def propose(self, n: int, indices: np.ndarray | None = None) -> dict[str, np.ndarray] | None:
+        """Explicit values {name: float64 [n]} for the next n solves; None in "uniform" mode (key draws). indices:
+        the n solves' sample indices (the lift gate tags each draw steered or uniform by them; None: no tags)."""
         if self.mode == "uniform" or not self.dims:
             return None
+        if indices is not None:
+            self.lift.indexed = True  # (before the share is read: a generative proposal may probe from this draw on)
         z = self.rng.random((n, self.dims))  # the uniform part
         steer = self.rng.random(n) >= 1.0 - self.steer  # ungated (steer = 1 - floor): the draws of before the gate
         if steer.any():
             moved = self.steered(int(steer.sum()), self.rng)
             if moved is not None:
                 z[steer] = moved
+            else:
+                steer[:] = False  # nothing to steer by yet: these draws are uniform
+        if indices is not None:
+            self.lift.tag(indices, steer)
         self.proposed.extend(z.tolist())
         return self.from_unit(z)
 
@@ -440,7 +440,8 @@ class ParamProposal:
                 "skill_real": self.skill_real.tolist(), "top": self.top,
                 "generative": {"points": self.g_points.tolist(), "losses": self.g_losses.tolist(),
                                "at": self.g_at.tolist(), "log_iw": self.g_logiw.tolist(),
-                               "model": None if self._gen is None else [x.tolist() for x in self._gen]}}
+                               "model": None if self._gen is None else [x.tolist() for x in self._gen]},
+                "lift": self.lift.state()}
 
     def load_state_dict(self, state: dict) -> None:
         """Restore ``state_dict()`` output (the same domains and mode are required)."""
@@ -474,6 +475,7 @@ class ParamProposal:
         self.g_logiw = np.asarray(gen.get("log_iw", []), np.float64)
         model = gen.get("model")
         self._gen = None if model is None else tuple(np.asarray(x, np.float64) for x in model)
+        self.lift.load(state.get("lift"))  # (states saved before the lift gate: none, it starts empty)
 
     def __getstate__(self):
         # copy.deepcopy / pickle: the background fit is resolved into its result, the thread pool is not copied

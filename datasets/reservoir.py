@@ -178,7 +178,7 @@ class ReservoirStream(IterableDataset):
                              self.priority_floor, storage=None if factory is None else factory(self.capacity, self._where))
         self.pipeline = SolvePipeline(self.config, self.seed, self.solve_batch, self.producer, self.workers,
                                       self.scheduler, self.inflight, self.on_blowup, self.sim_budget,
-                                      propose=lambda n: self.proposal.propose(n), sample_indices=self._sample_indices,
+                                      propose=self.proposal.propose, sample_indices=self._sample_indices,
                                       paced=self._paced, clock=lambda: self._clock(), pacer=self.pacer)
         self._paid, self._paid_drawn = float(self.warmup), 0  # pacing: trajectories the draws so far paid for
         self._drawn = None  # (the last batch's params tensor, its slots, their serials, first draws?, sample indices)
@@ -360,11 +360,11 @@ class ReservoirStream(IterableDataset):
         losses = per_example.detach().cpu().numpy()
         # which rows are first draws (the proposal's skill gate scores those): known for the batch last drawn (the
         # same tensor, or a copy moved to the model's device: the same sample indices); any other batch has none
-        fresh, latent = np.zeros(len(losses), bool), None  # (latent: a joint proposal's; unknown rows are dropped)
+        fresh, latent, index = np.zeros(len(losses), bool), None, None  # (latent: a joint proposal's; unknown rows are dropped)
         if self._drawn is not None and len(self._drawn[3]) == len(losses):
             if batch["params"] is self._drawn[0] or np.array_equal(batch["index"].detach().cpu().numpy(), self._drawn[4]):
-                fresh, latent = self._drawn[3], self._drawn[5]
-        self.proposal.record(params.detach().cpu().numpy(), losses, fresh=fresh, latent=latent)
+                fresh, latent, index = self._drawn[3], self._drawn[5], self._drawn[4]
+        self.proposal.record(params.detach().cpu().numpy(), losses, fresh=fresh, latent=latent, indices=index)
         if self.draw == "priority":
             self._prioritize(batch, losses)
 
@@ -403,8 +403,13 @@ class ReservoirStream(IterableDataset):
                 "solver_traj_per_s": res.inserted / elapsed, "examples_per_s": res.drawn / elapsed,
                 "wait_share": self.t_wait / elapsed, "skipped": self.skipped, **pace, "producer_idle_s": idle,
                 "producer_idle_share": idle / (elapsed * self.pipeline.slots),
-                **({"proposal_skill": self.proposal.skill, "proposal_steer": self.proposal.steer}
-                   if self.proposal.mode != "uniform" else {})}
+                **({"proposal_skill": self.proposal.skill, "proposal_steer": self.proposal.steer,
+                    "proposal_lift": self._lift_low()} if self.proposal.mode != "uniform" else {})}
+
+    def _lift_low(self) -> float:
+        """The lift's lower bound (``datasets.proposal_lift``; log-loss units), NaN while it is not measured."""
+        bounds = self.proposal.lift.bounds()
+        return float("nan") if bounds is None else bounds[0]
 
     def report(self) -> dict:
         """What a run saves about its data: stats, reuse of every trajectory (1 = one FIFO pass), and where

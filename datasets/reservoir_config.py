@@ -52,6 +52,8 @@ PROPOSAL_RANGES: dict[str, tuple[Callable, str]] = {
     "refit": (lambda v: _integer(v) and v >= 1, "must be an integer >= 1"),
     "candidates": (lambda v: _integer(v) and v >= 1, "must be an integer >= 1"),
     "skill_window": (lambda v: _integer(v) and v >= 1, "must be an integer >= 1"),
+    "probe": (lambda v: _real(v) and 0 <= v < 1, "must be in [0, 1) (the generative proposal's steered share until its "
+              "lift is measured)"),
 }
 
 

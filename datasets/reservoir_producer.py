@@ -39,7 +39,7 @@ class SolvePipeline:
     config, seed: the PDE's config and the stream's seed (sample identity); solve_batch: samples per job (every
     job padded to it: one compiled shape); producer, workers, scheduler: ``open_producer``'s; inflight: jobs
     submitted ahead (None: 2 per producer slot); on_blowup: the solver's rule for a failed sample; sim_budget:
-    samples to solve in all (None: endless); propose(n) -> params dict or None; sample_indices(first, n) ->
+    samples to solve in all (None: endless); propose(n, indices) -> params dict or None (indices: the n samples' [n]); sample_indices(first, n) ->
     int64 [n]; paced() -> True to hold the next submission back; clock: the host clock the stream reads (the time a
     job finished, ``last_done``, is on it); pacer: told each job's solve seconds and insertion seconds (None: none).
     """
@@ -103,7 +103,7 @@ class SolvePipeline:
             if budget <= 0 or self.paced():
                 return
             indices = self.sample_indices(self.next_index, budget)
-            params = self.propose(budget)
+            params = self.propose(budget, indices)
             self.next_index += budget
             self.pending.append((indices, params, self._submit(indices, params)))
 

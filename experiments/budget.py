@@ -9,6 +9,8 @@ does: compiling, solving, writing and reading a cache, computing normalization s
 - ``reservoir_loss``: the reservoir with loss-driven parameter sampling;
 - ``reservoir_active``: the reservoir with active sampling (loss model + ensemble disagreement, a proposal that
   can hold a sharp mode, a uniform floor: ``datasets.proposal``, mode "active");
+- ``reservoir_generative``: the reservoir with the generative proposal (draws near the hardest fresh solves,
+  ``datasets.proposal`` mode "generative", behind its lift gate), uniform replay;
 - ``reservoir_priority``: the reservoir with uniform parameters and prioritized replay (draw "priority": each
   trajectory drawn in proportion to its last per-example relative L2 error in training, over a uniform floor), the lever that reaches the
   initial conditions, which no proposal over parameters steers. At a simulation budget its reuse bound is
@@ -73,9 +75,10 @@ from .budget_report import precompute_line as precompute_line
 from .budget_report import too_few_steps_note as too_few_steps_note
 from .shift import shifted_pde
 
-ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss", "reservoir_active", "reservoir_priority")
+ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss", "reservoir_active", "reservoir_priority",
+        "reservoir_generative")
 DEFAULT_ARMS = ARMS[:4]  # the steered arms after them are named to be run (one more arm x seeds each)
-PROPOSALS = {"reservoir_loss": "loss", "reservoir_active": "active"}  # the steered arms' proposal modes
+PROPOSALS = {"reservoir_loss": "loss", "reservoir_active": "active", "reservoir_generative": "generative"}  # the steered arms' proposal modes
 DRAWS = {"reservoir_priority": "priority", "reservoir_active": "priority"}  # the arms that draw by priority (the rest: uniform)
 
 
@@ -298,9 +301,11 @@ def _paced(stats: dict) -> str:
 
 def _proposal_kwargs(cfg: BudgetConfig, arm: str) -> dict:
     """ParamProposal settings of ``arm``: the floor, plus ``cfg.proposal_kwargs`` those of its mode accepts
-    (the "active" mode's ensemble, kappa, refit and candidates go to reservoir_active only)."""
+    (the "active" mode's ensemble, kappa, refit and candidates go to reservoir_active only; the space to steered arms)."""
     active_only = ("ensemble", "kappa", "refit", "candidates")
     extra = {k: v for k, v in (cfg.proposal_kwargs or {}).items() if arm == "reservoir_active" or k not in active_only}
+    if arm not in PROPOSALS:  # an arm with the key's own draws steers nothing: no space to steer in
+        extra.pop("space", None)
     return {"floor": cfg.proposal_floor, **extra}
 
 
@@ -386,10 +391,12 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
     view = training_view(mode, datasets.for_sample(datasets.make_view(cfg.view), pde.n_frames, len(pde.INPUTS)))
     check_fits(mode, view, pde)
     build_model(cfg.model, pde.NDIM, *mode.channels(pde, view), len(pde.PARAMS), bc=pde.grid.bc, **cfg.model_cfg)
+    steered = next((a for a in ("reservoir_active", "reservoir_generative", "reservoir_loss") if a in cfg.arms),
+                   "reservoir_active")
     datasets.ReservoirStream(pde, view=view, batch_size=cfg.batch_size, capacity=cfg.capacity,
                              solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode,
-                             proposal="active" if "reservoir_active" in cfg.arms else "uniform",
-                             proposal_kwargs=_proposal_kwargs(cfg, "reservoir_active"), draw="priority",
+                             proposal=PROPOSALS[steered] if steered in cfg.arms else "uniform",
+                             proposal_kwargs=_proposal_kwargs(cfg, steered), draw="priority",
                              priority_power=cfg.priority_power, priority_floor=cfg.priority_floor)  # settings checked before any work
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

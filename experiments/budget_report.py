@@ -167,14 +167,21 @@ def gate_line(arms: list[dict], gate: bool = True) -> str:
     """compare.md's line on the steered arms' skill gate (``datasets.proposal``) at the end of seed 0's run: the
     measured skill and the share of steered draws it allowed (gate off: 1 - floor whatever the skill); "" when
     no arm steers."""
-    parts = [f"{a['arm']} skill {a['stats']['proposal_skill']:.2f}, steered share {a['stats']['proposal_steer']:.2f}"
-             for a in arms if "proposal_skill" in (a.get("stats") or {})]
+    parts = [f"{a['arm']} skill {a['stats']['proposal_skill']:.2f}{_lift(a['stats'])}, steered share "
+             f"{a['stats']['proposal_steer']:.2f}" for a in arms if "proposal_skill" in (a.get("stats") or {})]
     if not parts:
         return ""
-    rule = ("steered share = (1 - floor) x clip(skill / 0.5, 0, 1)" if gate else
-            "--proposal-gate off: steered share 1 - floor whatever the skill")
+    rule = ("steered share = (1 - floor) x clip(max(skill / 0.5, lift / log 2), 0, 1), 0 when the lift's upper bound "
+            "is below 0" if gate else "--proposal-gate off: steered share 1 - floor whatever the skill")
     return (f"Proposal skill gate (seed 0, at the end; {rule}; skill = the correlation of predicted and realized "
-            "log-losses of fresh solves - 2 / sqrt(n - 1)): " + "; ".join(parts) + ".")
+            "log-losses of fresh solves - 2 / sqrt(n - 1); lift = the lower bound of the steered draws' fresh "
+            "log-loss over the uniform draws', datasets.proposal_lift): " + "; ".join(parts) + ".")
+
+
+def _lift(stats: dict) -> str:
+    """", lift L" from a steered arm's stats (the lift gate's lower bound), "" where it was not measured."""
+    low = stats.get("proposal_lift")
+    return "" if low is None or low != low else f", lift {low:.2f}"
 
 
 def precompute_line(plan: dict, record: dict) -> str:

@@ -309,8 +309,9 @@ def budget_setup(cmd: CompareCommand, log=print):
     steered = bool({"reservoir_active", "reservoir_priority"} & set(arms))
     o = _options(cmd)
     check_priority_options(o, steered, "the arms reservoir_active or reservoir_priority")
-    check_proposal_options(o, bool({"reservoir_loss", "reservoir_active"} & set(arms)), "reservoir_active" in arms,
-                           "the arms reservoir_loss / reservoir_active", "the arm reservoir_active")
+    check_proposal_options(o, bool({"reservoir_loss", "reservoir_active", "reservoir_generative"} & set(arms)),
+                           "reservoir_active" in arms, "the arms reservoir_loss / reservoir_active / reservoir_generative",
+                           "the arm reservoir_active")
     check_priority_cap(cmd, steered and cmd.sim_budget is not None)
     cfg = module.BudgetConfig(
         budget_s=budget_s, sim_budget=cmd.sim_budget, arms=arms, model=cmd.model, model_cfg=model_cfg,

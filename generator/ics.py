@@ -93,6 +93,16 @@ def _full_mode_norm(grid: Grid) -> np.ndarray:
     return np.sqrt(sum(x**2 for x in np.meshgrid(*([m] * grid.ndim), indexing="ij")))
 
 
+def _twins(grid: Grid) -> np.ndarray:
+    """For each flat rfft-layout index [prod(kshape)], the flat index of its conjugate twin -m where both live in the
+    layout (the real planes: last axis 0, and n/2 for an even n; itself for a self-conjugate mode), else -1."""
+    idx = np.indices(grid.kshape).reshape(grid.ndim, -1)
+    last = idx[-1]
+    real = (last == 0) | ((grid.n % 2 == 0) & (last == grid.n // 2))
+    mirror = np.concatenate([(-idx[:-1]) % grid.n, last[None]])
+    return np.where(real, np.ravel_multi_index(tuple(mirror), grid.kshape), -1)
+
+
 def _pow2_scale(grid: Grid) -> float:
     """The power of two nearest the std of a real or imaginary part of an rfft coefficient of unit white noise,
     sqrt(n^ndim / 2): a latent in these units is about standard normal, and scaling by a power of two is exact."""
@@ -103,17 +113,22 @@ class SpectralLatent:
     """The latent of an IC made from the rfft of unit white noise (``_white_noise_hat``): the real and imaginary
     parts of its leading modes (those the distribution weights, the zero mode left out, in order of |m| then layout
     position), per field, divided by ``_pow2_scale``; layout [n_fields, modes, 2] flattened, at most MAX_LATENT.
-    Modes beyond it come from the key. In 2D and 3D the rfft's last-axis-0 plane holds both m and its mirror
-    (complex conjugates in a key's draw); a proposal setting them apart gets the real part of their sum."""
+    Modes beyond it come from the key. In 2D and 3D the rfft's real planes (last axis 0, and n/2 for an even n) hold
+    both m and its twin -m, complex conjugates in a key's draw: the latent holds one of each pair (the first in the
+    layout; a self-conjugate mode, real in a key's draw, none) and sets its twin to the conjugate, so a latent drawn
+    from ``latent_prior`` is a draw of the key's law (set apart, the two would halve those modes' energy: a 2D GRF's
+    by 16%). Where a latent mode equals the key's own value its twin keeps the key's (whose rounding may differ from
+    an exact conjugate), so the key's own latent gives the key's IC bit for bit."""
 
     def _weights(self, grid: Grid) -> np.ndarray:
         """Which rfft modes the distribution uses (nonzero), float64 kshape."""
         raise NotImplementedError
 
     def _modes(self, grid: Grid, n_fields: int) -> np.ndarray:
-        """Flat rfft-layout indices of the latent's modes, int [modes]."""
+        """Flat rfft-layout indices of the latent's modes, int [modes] (one of each conjugate pair: the class doc)."""
         m = _mode_norm(grid).ravel()
-        used = np.flatnonzero((self._weights(grid).ravel() != 0) & (m > 0))
+        twin, flat = _twins(grid), np.arange(m.size)
+        used = np.flatnonzero((self._weights(grid).ravel() != 0) & (m > 0) & ((twin < 0) | (twin > flat)))
         order = used[np.argsort(m[used], kind="stable")]
         return order[: MAX_LATENT // (2 * n_fields)]
 
@@ -128,8 +143,14 @@ class SpectralLatent:
         """The key's white-noise rfft with the latent's modes set from ``latent``: complex [C, *kshape]."""
         modes = self._modes(grid, n_fields)
         z = jnp.asarray(latent, jnp.float32).reshape(n_fields, len(modes), 2) * _pow2_scale(grid)
+        z = jax.lax.complex(z[..., 0], z[..., 1])
         hat = _white_noise_hat(key, grid, n_fields).reshape(n_fields, -1)
-        hat = hat.at[:, modes].set(jax.lax.complex(z[..., 0], z[..., 1]))
+        twin = _twins(grid)[modes]
+        paired = twin >= 0
+        if paired.any():  # a twin is the conjugate, or the key's own value where the mode is the key's (class doc)
+            same = z[:, paired] == hat[:, modes[paired]]
+            hat = hat.at[:, twin[paired]].set(jnp.where(same, hat[:, twin[paired]], jnp.conj(z[:, paired])))
+        hat = hat.at[:, modes].set(z)
         return hat.reshape(n_fields, *grid.kshape)
 
     def latent_prior(self, grid: Grid, n_fields: int) -> tuple[str, np.ndarray, np.ndarray]:

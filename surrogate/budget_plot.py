@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 COLORS = {"precomputed": "tab:red", "fifo": "tab:gray", "reservoir": "tab:blue", "reservoir_loss": "tab:green",
-          "reservoir_active": "tab:purple"}
+          "reservoir_active": "tab:purple", "reservoir_generative": "tab:olive"}
 
 
 def plot_budget(path, result: dict, domains: dict) -> None:
@@ -54,7 +54,7 @@ def plot_budget(path, result: dict, domains: dict) -> None:
 
     draw_reuse(ax_reuse, {r["arm"]: r["reuse"] for r in arms if r["reuse"]})
     # the active arm when there is one, else the loss-driven one
-    steered = next((r for name in ("reservoir_active", "reservoir_loss") for r in arms
+    steered = next((r for name in ("reservoir_active", "reservoir_generative", "reservoir_loss") for r in arms
                     if r["arm"] == name and r["density"]), None)
     if steered and random:
         draw_proposal(ax_prop, steered["density"], random[0], domains[random[0]], COLORS[steered["arm"]])

@@ -271,9 +271,9 @@ def test_the_reservoir_scores_only_first_draws():
     seen, marks = set(), []
     record = s.proposal.record
 
-    def spy(params, losses, fresh=None, latent=None):
+    def spy(params, losses, fresh=None, latent=None, indices=None):
         marks.append(fresh.copy())
-        record(params, losses, fresh=fresh, latent=latent)
+        record(params, losses, fresh=fresh, latent=latent, indices=indices)
 
     s.proposal.record = spy
     for batch in torch.utils.data.DataLoader(s, batch_size=None):
@@ -313,7 +313,7 @@ def test_the_cli_and_the_proposal_refuse_by_one_table(capsys):
 
     bad = {"floor": 0.0, "bandwidth": 1.5, "power": 9.0, "window": 0, "ensemble": 1, "kappa": -1.0, "top": 1.0,
            "step": 0.0, "gate": 1, "skill_full": float("nan"), "skill_min": 2, "refit": 0, "candidates": 0,
-           "skill_window": 0}
+           "skill_window": 0, "probe": 1.0}
     assert set(bad) == set(PROPOSAL_RANGES)
     for name, value in bad.items():
         with pytest.raises(ValueError, match=rf"^proposal {name}=") as e:

@@ -100,3 +100,19 @@ def test_wall_clock_suite_runs_its_arms_on_both_test_sets_and_keeps_no_data(tmp_
     text = (tmp_path / "summary.md").read_text()
     assert "**precomputed / stream**" in text and "**stream / active**" in text and "shifted p99" in text
     assert "stream x" in text and "the steps" in text and "Units missing (0)" in text
+
+
+@pytest.mark.slow
+def test_generative_suite_steers_the_joint_space_and_reports_its_gate(tmp_path, capsys):
+    """benchmarks.generative_suite: the uniform arm and the generative arm over (parameters, IC latent); the steered
+    unit records its gate (skill, steered share, the lift) and the summary gives it per seed."""
+    from benchmarks import generative_suite as gen
+
+    tiny = {"settings": {"n": "32"}, "sim_budget": 16, "steps": 8, "batch_size": 4, "n_test": 8,
+            "model_cfg": {"width": 4, "modes": 4, "layers": 1}}
+    gen.main(["--out", str(tmp_path), "--problems", "burgers1d", "--seeds", "1"], tiny=tiny)
+    assert "2 of 2 units to run" in capsys.readouterr().out
+    rec = json.loads((tmp_path / "burgers1d" / "reservoir_generative_seed0" / "arm.json").read_text())
+    assert {"proposal_skill", "proposal_steer", "proposal_lift"} <= set(rec["stats"])
+    text = (tmp_path / "summary.md").read_text()
+    assert "**uniform / generative**" in text and "the generative arm's gate at the end, per seed" in text

@@ -98,3 +98,71 @@ def test_the_loss_proposal_over_a_long_latent_draws_no_nan():
         p.record(np.c_[d["nu"]], np.exp(d[LATENT][:, 0] / prior[2][0]), latent=d[LATENT])
     hard = p.from_unit(p.steered(2000, np.random.default_rng(0)))
     assert np.isfinite(hard[LATENT]).all() and np.mean(hard[LATENT][:, 0]) > 0.3 * prior[2][0]
+
+
+def feed_indexed(p, rounds, loss_of, rng, n=64, first=0):
+    """As ``feed``, the reservoir's way: each draw proposed for a sample index, its loss reported with it."""
+    for r in range(rounds):
+        idx = np.arange(first + r * n, first + (r + 1) * n)
+        d = p.propose(n, idx)
+        p.record(np.c_[d["nu"], d["c"], np.ones(n)], loss_of(d, rng), latent=d[LATENT], indices=idx)
+    return first + rounds * n
+
+
+class NoCorrelation(ParamProposal):
+    """A proposal whose loss model predicts nothing: its correlation gate stays shut, only the lift can open it."""
+
+    def predict(self, z):
+        return None
+
+
+def steep(d, rng, sd=PDE.latent_prior()[2][0]):
+    return np.exp(3 * np.abs(d[LATENT][:, 0] / sd) - 5 * np.log10(d["nu"]) + 0.3 * rng.standard_normal(len(d["nu"])))
+
+
+def test_the_lift_opens_the_gate_where_the_correlation_cannot():
+    from pdestream.datasets.proposal_lift import LIFT_MIN
+
+    p = NoCorrelation(DOMAINS, mode="generative", seed=1, latent_prior=PDE.latent_prior(), refit=64, probe=0.25)
+    feed_indexed(p, 1, steep, np.random.default_rng(0))  # the first fit: nothing to steer by before it
+    assert p.fits == 1 and p.skill == 0.0 and p.lift.probed == 0 and p.steer == 0.25  # probing: no lift measured yet
+    feed_indexed(p, 20, steep, np.random.default_rng(1), first=64)
+    low, high = p.lift.bounds()
+    assert p.skill == 0.0 and p.lift.probed >= LIFT_MIN and low > 0.3, (p.lift.probed, low)
+    assert p.steer > 0.3, p.steer  # opened by the steered draws' own losses, past the probe share
+
+
+def test_with_no_structure_the_probes_stop_and_the_draws_are_uniform():
+    from pdestream.datasets.proposal_lift import LIFT_MIN
+
+    p = NoCorrelation(DOMAINS, mode="generative", seed=2, latent_prior=PDE.latent_prior(), refit=64, probe=0.25)
+    flat = lambda d, rng: np.exp(rng.standard_normal(len(d["nu"])))  # noqa: E731
+    first = feed_indexed(p, 30, flat, np.random.default_rng(0))
+    assert p.lift.probed >= LIFT_MIN and p.lift.bounds() is not None and p.steer == 0.0
+    waiting = dict(p.lift.tags)
+    probed = p.lift.probed
+    feed_indexed(p, 4, flat, np.random.default_rng(1), first=first)
+    assert p.lift.probed == probed and p.steer == 0.0  # after the probes: uniform draws only
+    assert not waiting  # every tagged draw was scored (nothing left waiting)
+
+
+def test_steered_draws_measurably_easier_close_the_gate_whatever_the_correlation():
+    p = ParamProposal(DOMAINS, mode="generative", seed=1, latent_prior=PDE.latent_prior(), refit=64)
+    feed(p, 16, steep, np.random.default_rng(0))
+    assert p.skill > 0.3 and p.steer > 0.4
+    rng = np.random.default_rng(3)
+    idx = np.arange(10**6, 10**6 + 64)
+    p.lift.tag(idx, np.arange(64) % 2 == 0)
+    p.lift.score(idx, np.where(np.arange(64) % 2 == 0, -3.0, 0.0) + 0.1 * rng.standard_normal(64))
+    assert p.lift.bounds()[1] < 0 and p.steer == 0.0
+
+
+def test_the_lift_resumes_exactly():
+    p = NoCorrelation(DOMAINS, mode="generative", seed=4, latent_prior=PDE.latent_prior(), refit=64)
+    first = feed_indexed(p, 12, steep, np.random.default_rng(0))
+    q = NoCorrelation(DOMAINS, mode="generative", seed=4, latent_prior=PDE.latent_prior(), refit=64)
+    q.load_state_dict(p.state_dict())
+    assert q.lift.state() == p.lift.state() and q.steer == p.steer
+    idx = np.arange(first, first + 64)
+    a, b = p.propose(64, idx), q.propose(64, idx)
+    assert all(np.array_equal(a[k], b[k]) for k in a) and q.lift.tags == p.lift.tags

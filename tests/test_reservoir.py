@@ -200,7 +200,7 @@ def test_bad_settings_are_one_line_errors(kw, message):
      "proposal kappa=inf not allowed; must be in [0, 100] (weight of the ensemble spread)"),
     (dict(proposal="loss", proposal_kwargs={"flor": 0.5}), "proposal_kwargs key 'flor' not allowed; allowed: floor, "
      "bandwidth, power, window, ensemble, kappa, top, step, gate, skill_full, skill_min, refit, candidates, "
-     "skill_window, space"),
+     "skill_window, probe, space"),
     (dict(proposal="loss", proposal_kwargs=[0.5]), "proposal_kwargs=[0.5] not allowed; a dict of the proposal's "
      "settings (datasets.proposal.ParamProposal) or None"),
     (dict(proposal="active", proposal_kwargs={"space": "ic"}), "proposal space='ic' not allowed; allowed: params, "
