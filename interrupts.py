@@ -114,6 +114,17 @@ def check_writable_dir(d, option: str = "--out") -> None:
         raise PermissionError(f"{option} {d}: directory {there} is not writable")
 
 
+def check_not_in_zarr(d, option: str = "--out") -> None:
+    """One-line ValueError when the directory ``d`` is a Zarr store (a cache) or lies inside one: a run or a
+    comparison written there mixed its files with the arrays (`train --source X.zarr --out X.zarr` ran, rc 0), which
+    a later `generate --overwrite` refuses as foreign entries."""
+    d = Path(d)
+    for p in (d.absolute(), *d.absolute().parents):
+        if (p / "zarr.json").is_file() or (p / ".zgroup").is_file():
+            where = "is a Zarr cache" if p == d.absolute() else f"is inside the Zarr cache {p}"
+            raise ValueError(f"{option} {d} {where}; write the run to a directory of its own")
+
+
 def snapshot(d) -> dict[str, tuple[int, int]] | None:
     """{name: (inode, mtime ns)} of the entries of directory ``d``, or None when there is no such directory (the
     command will create it): what was there before a command, so an interrupt removes only what it created."""

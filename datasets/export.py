@@ -561,6 +561,31 @@ def cached_config(path) -> dict | None:
     return config if isinstance(config, dict) else None
 
 
+def cache_written(path) -> tuple[int, int] | None:
+    """(samples written, samples) of a pdestream cache at ``path`` whose writer did not finish (``cache.is_complete``
+    false: its pdestream_complete flag unset or a sample's ``complete`` flag 0), read from the flags alone (no
+    torch, no JAX, no xarray); None for a finished cache, an export (no flags) or anything unreadable."""
+    try:
+        path = Path(path)
+        if path.is_dir():  # a Zarr cache
+            import zarr
+
+            group = zarr.open_group(str(path), mode="r")
+            done, flags = group.attrs.get("pdestream_complete"), np.asarray(group["complete"][:])
+        else:
+            import h5py
+
+            with h5py.File(path, "r") as f:
+                if "complete" not in f:
+                    return None
+                done, flags = f.attrs.get("pdestream_complete"), np.asarray(f["complete"][:])
+    except Exception:  # not a cache this reads: the reader's own checks say why
+        return None
+    if plain(done) == 1 and (flags == 1).all():
+        return None
+    return int((flags == 1).sum()), int(flags.size)
+
+
 def named_pde(path) -> str | None:
     """The PDE a pdestream cache or export at ``path`` holds (its config's ``pde``), or None (``cached_config``)."""
     name = (cached_config(path) or {}).get("pde")

@@ -39,8 +39,8 @@ PROPOSAL_RANGES: dict[str, tuple[Callable, str]] = {
     "bandwidth": (lambda v: _real(v) and 0 < v <= 1, "must be in (0, 1] (unit-box units)"),
     "power": (lambda v: _real(v) and 0 <= v <= 8, "must be in [0, 8]"),
     "window": (lambda v: _integer(v) and v >= 1, "must be an integer >= 1"),
-    "ensemble": (lambda v: _integer(v) and v >= 2, "must be an integer >= 2 (the uncertainty signal is the "
-                 "disagreement of its members)"),
+    "ensemble": (lambda v: _integer(v) and 2 <= v <= 100, "must be an integer >= 2 (the uncertainty signal is the "
+                 "disagreement of its members) and <= 100 (each member is a loss model refitted at every refit)"),
     "kappa": (lambda v: _real(v) and 0 <= v <= 100, "must be in [0, 100] (weight of the ensemble spread)"),
     "top": (lambda v: _real(v) and 0 < v < 1, "must be in (0, 1) (the share of fresh solves that counts as high "
             "difficulty)"),
@@ -66,6 +66,22 @@ def check_proposal_settings(mode: str | None = None, **values) -> None:
         accepts, allowed = PROPOSAL_RANGES[name]  # (KeyError: a setting the table lacks, a programming error)
         if not accepts(value):
             raise ValueError(f"proposal {name}={value!r} not allowed; {allowed}")
+
+
+def check_proposal_kwargs(mode, kwargs) -> None:
+    """A reservoir's ``proposal`` and ``proposal_kwargs`` (ParamProposal's settings by name, plus "space"), one line
+    for an unknown proposal, a kwargs that is not a dict, an unknown key, or a value outside PROPOSAL_RANGES."""
+    if kwargs is not None and not isinstance(kwargs, dict):
+        raise ValueError(f"proposal_kwargs={kwargs!r} not allowed; a dict of the proposal's settings "
+                         "(datasets.proposal.ParamProposal) or None")
+    kwargs = dict(kwargs or {})
+    space = kwargs.pop("space", "params")
+    unknown = [k for k in kwargs if k not in PROPOSAL_RANGES]
+    if unknown:
+        raise ValueError(f"proposal_kwargs key {unknown[0]!r} not allowed; allowed: {', '.join(PROPOSAL_RANGES)}, space")
+    check_proposal_settings(mode, **kwargs)
+    if space not in PROPOSAL_SPACES:
+        raise ValueError(f"proposal space={space!r} not allowed; allowed: {', '.join(PROPOSAL_SPACES)}")
 
 
 def _check_int(name: str, value, low: int) -> int:
@@ -152,6 +168,7 @@ class ReservoirConfig:
             raise ValueError(f"priority_floor={self.priority_floor!r} not allowed; must be in (0, 1] (the uniform "
                              "share of draws)")
         _check_choice("mode", self.mode, MODES)
+        check_proposal_kwargs(self.proposal, self.proposal_kwargs)  # (the stream's ParamProposal refused them later)
         sim_budget = None if self.sim_budget is None else _check_int("sim_budget", self.sim_budget, 1)
         inflight = None if self.inflight is None else _check_int("inflight", self.inflight, 1)
         target = None if self.target_reuse == "off" else self.target_reuse

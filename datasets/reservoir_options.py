@@ -37,7 +37,7 @@ def add_reservoir_args(p: argparse.ArgumentParser, train: bool) -> None:
                         "jointly with the initial condition's latent coordinates (Fourier amplitudes and phases, a "
                         "GRF's leading white-noise modes, spot centres: generator.ics.LatentIC); default: params")
     g.add_argument("--proposal-ensemble", type=int, default=5, metavar="K",
-                   help="active sampling: bootstrap loss models whose disagreement is the uncertainty signal (>= 2)")
+                   help="active sampling: bootstrap loss models whose disagreement is the uncertainty signal (2-100)")
     g.add_argument("--proposal-kappa", type=float, default=1.0,
                    help="active sampling: weight of that disagreement against the predicted log-loss")
     g.add_argument("--priority-power", type=float, default=R.priority_power, metavar="A",
@@ -100,12 +100,22 @@ def check_priority_options(args: argparse.Namespace, used: bool, needs: str) -> 
     _refuse_unused(args, {"priority_power": used, "priority_floor": used}, needs, " (prioritized replay)")
 
 
-def check_proposal_options(args: argparse.Namespace, floor_used: bool, active_used: bool, needs: str) -> None:
-    """--proposal-floor, --proposal-gate (loss-driven and active proposals) / --proposal-ensemble, --proposal-kappa (active only) given
-    where nothing uses them: one line."""
-    _refuse_unused(args, {"proposal_floor": floor_used, "proposal_gate": floor_used, "proposal_space": floor_used,
-                          "proposal_ensemble": active_used,
-                          "proposal_kappa": active_used}, needs, "; nothing here uses it: drop it")
+def check_proposal_options(args: argparse.Namespace, floor_used: bool, active_used: bool, needs: str,
+                           active_needs: str | None = None) -> None:
+    """--proposal-floor, --proposal-gate, --proposal-space (the steered proposals: ``needs`` says which) /
+    --proposal-ensemble, --proposal-kappa (active only: ``active_needs``, None: ``needs``) given where nothing uses
+    them: one line naming each group with what it goes with (it named both groups' words for every option)."""
+    default = defaults(train=False)
+    groups = ((("proposal_floor", "proposal_gate", "proposal_space"), floor_used, needs),
+              (("proposal_ensemble", "proposal_kappa"), active_used, active_needs or needs))
+    parts, count = [], 0
+    for names, used, where in groups:
+        unused = ["--" + n.replace("_", "-") for n in names if not used and getattr(args, n) != default[n]]
+        if unused:
+            parts.append(f"{', '.join(unused)} {'goes' if len(unused) == 1 else 'go'} with {where}")
+            count += len(unused)
+    if parts:
+        raise ValueError(f"{'; '.join(parts)}; nothing here uses {'it: drop it' if count == 1 else 'them: drop them'}")
 
 
 def active_kwargs(args: argparse.Namespace) -> dict:
@@ -148,8 +158,8 @@ def reservoir_cfg(args: argparse.Namespace) -> dict | None:
         raise ValueError(f"--reservoir goes with --source stream (got --source {args.source})")
     check_priority_options(args, args.draw == "priority", "--draw priority")
     check_proposal_options(args, args.proposal != "uniform", args.proposal == "active",
-                           "--proposal loss / active / generative (--proposal-floor, --proposal-gate, --proposal-space) or "
-                           "--proposal active (the others)")
+                           "--proposal loss / active / generative",
+                           f"--proposal active (not {args.proposal})")
     check_numbers(args)
     cfg = {"kind": "reservoir", "capacity": args.capacity, "max_reuse": args.max_reuse, "warmup": args.warmup,
            "eviction": args.eviction, "draw": args.draw, "mode": args.reservoir_mode, "producer": args.producer,

@@ -11,7 +11,7 @@ import argparse
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pdestream.interrupts import check_writable_dir, remove_created, snapshot
+from pdestream.interrupts import check_not_in_zarr, check_writable_dir, remove_created, snapshot
 
 BUDGET_ARMS = ("precomputed", "fifo", "reservoir", "reservoir_loss")  # experiments.budget.DEFAULT_ARMS
 COMPARE_DEFAULTS = {"n": "64", "n_frames": "11"}  # small enough for ~10 min on 2 CPU cores
@@ -75,6 +75,7 @@ def run_compare(cmd: CompareCommand, log=None) -> str:
     if cmd.modes is None or not _modes_out(cmd.out):  # --modes resumes in its own out: (arm, seed) runs are kept
         check_compare_out(cmd.out, cmd.overwrite)
     check_writable_dir(cmd.out)
+    check_not_in_zarr(cmd.out)
     if isinstance(cmd.pde, str):
         from pdestream.settings import build_pde
 
@@ -309,8 +310,8 @@ def budget_setup(cmd: CompareCommand, log=print):
     o = _options(cmd)
     check_priority_options(o, steered, "the arms reservoir_active or reservoir_priority")
     check_proposal_options(o, bool({"reservoir_loss", "reservoir_active", "reservoir_generative"} & set(arms)),
-                           "reservoir_active" in arms, "the arms reservoir_loss / reservoir_active / reservoir_generative "
-                           "(--proposal-floor, --proposal-gate, --proposal-space) or reservoir_active")
+                           "reservoir_active" in arms, "the arms reservoir_loss / reservoir_active / reservoir_generative",
+                           "the arm reservoir_active")
     check_priority_cap(cmd, steered and cmd.sim_budget is not None)
     cfg = module.BudgetConfig(
         budget_s=budget_s, sim_budget=cmd.sim_budget, arms=arms, model=cmd.model, model_cfg=model_cfg,
@@ -342,6 +343,9 @@ def _interactive(cmd: CompareCommand) -> str:
     if cmd.sim_budget is not None:
         raise ValueError("--modes compares at equal --steps or, with --budget SECONDS, at equal wall clock; "
                          "--sim-budget goes with the data-route comparison")
+    if cmd.view not in (None, "next_step"):  # (it ran rc 0 on the next-step view, the option unread)
+        raise ValueError(f"--view {cmd.view} not allowed with --modes: every mode trains on the next-step view and is "
+                         "rolled out frame by frame; drop --view")
     if cmd.noise is not None:
         check_noise(cmd.noise)  # before the PDE (and JAX) is built
     if cmd.corrector_start is not None:

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pdestream.surrogate.checks import check_count, check_number
+from pdestream.surrogate.config import check_checkpoint_file
 from pdestream.surrogate.mode_table import (
     DEFAULTS,
     MODE_NAMES,
@@ -17,6 +18,7 @@ from pdestream.surrogate.mode_table import (
     NETWORK_MODES,
     check_coarse_grid,
     check_corrector_start,
+    check_mode_k_in,
     check_noise,
     mode_settings,
     parse_unroll_schedule,
@@ -83,6 +85,7 @@ class InteractiveConfig:
             raise ValueError(f"--modes {','.join(self.modes)} not allowed; choose from {', '.join(MODE_NAMES)}")
         for name in self.modes:
             arm_settings(self, name)
+            check_mode_k_in(name, self.k_in)  # (the other arms trained first, then the corrector refused it)
         self.noise = check_noise(self.noise)  # a bad --noise is refused even without the noise arm
         check_corrector_start(self.corrector_start)  # (and a bad --corrector-start without the corrector arms)
         for name, value in (("--steps", self.steps), ("--batch-size", self.batch_size), ("--test-samples", self.n_test),
@@ -136,7 +139,7 @@ def arm_settings(cfg: InteractiveConfig, name: str, **override) -> dict:
 
 # --- the arms and their run directories: what a rerun finds there (no torch) -----------------------------
 CHECKPOINTS = 20  # per arm: an interrupted arm loses at most 5% of its steps
-RESUME_KEYS = ("model", "model_cfg", "steps", "seconds", "batch_size", "lr", "seed", "mode", "pde")
+RESUME_KEYS = ("model", "model_cfg", "k_in", "steps", "seconds", "batch_size", "lr", "seed", "mode", "pde")
 
 
 def corrector_arms(cfg: InteractiveConfig, k: int) -> list[tuple]:
@@ -154,7 +157,10 @@ def plan_arms(pde, out: Path, cfg: InteractiveConfig) -> tuple[object, list[tupl
     network modes first)."""
     net_modes = [m for m in cfg.modes if m in NETWORK_MODES]
     sitl = "solver-in-the-loop" in cfg.modes
-    fine = pde.replace({"n": cfg.fine_n}) if sitl and cfg.fine_n not in (None, pde.n) else pde
+    try:
+        fine = pde.replace({"n": cfg.fine_n}) if sitl and cfg.fine_n not in (None, pde.n) else pde
+    except ValueError as err:  # the PDE's refusal speaks of n, which the user set as --fine-n
+        raise ValueError(f"--fine-n {cfg.fine_n} not allowed: {err}") from None
     plan = [(name, pde, arm_settings(cfg, name), out / name) for name in net_modes]
     if sitl:
         k = arm_settings(cfg, "solver-in-the-loop")["unroll"]
@@ -227,16 +233,27 @@ def comparable_mode(mode, pde=None):
 def arm_differs(run: Path, pde, settings: dict, cfg: InteractiveConfig, seed: int, said: bool = False) -> list[str]:
     """The RESUME_KEYS in which the run.json in ``run`` differs from what this arm and seed train with (said: each
     as "KEY: the run's X, asked Y", a dict's differing entries named, as the refusal says them)."""
-    want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "steps": arm_steps(cfg, settings),
+    want = json.loads(json.dumps({"model": cfg.model, "model_cfg": cfg.model_cfg, "k_in": cfg.k_in,
+                                  "steps": arm_steps(cfg, settings),
                                   "seconds": cfg.budget_s, "batch_size": cfg.batch_size, "lr": cfg.lr, "seed": seed,
                                   "mode": comparable_mode(settings, pde), "pde": pde.config()}))
     try:
         have = json.loads((run / "run.json").read_text())
     except (OSError, ValueError):
         have = {}
-    have = {**have, "mode": comparable_mode(have.get("mode"), pde)} if isinstance(have, dict) else {}
+    # k_in: the next-step view's input frames (run.json's view_args; a model of 1 read back for 2 failed in the
+    # rollout on its input channels)
+    have = {**have, "mode": comparable_mode(have.get("mode"), pde),
+            "k_in": _view_k_in(have.get("view_args"))} if isinstance(have, dict) else {}
     keys = [key for key in RESUME_KEYS if have.get(key) != want[key]]
     return [_said(key, have.get(key), want[key]) for key in keys] if said else keys
+
+
+def _view_k_in(view_args) -> int | None:
+    """The input frames run.json's ``view_args`` record (1 where it records none), None for a damaged entry."""
+    if view_args is None:
+        return 1
+    return view_args.get("k_in", 1) if isinstance(view_args, dict) else None
 
 
 def _said(key: str, have, want) -> str:
@@ -258,6 +275,14 @@ def finished_run(run: Path, pde, settings: dict, cfg: InteractiveConfig, seed: i
     other settings."""
     if not (cfg.resume and (run / "metrics.json").is_file() and (run / "model.pt").is_file()):
         return None
+    again = "pass --overwrite (retrains every arm) or another --out"
+    try:  # (a damaged one read as "other settings", every key None)
+        readable = isinstance(json.loads((run / "run.json").read_text()), dict)
+    except (OSError, ValueError):
+        readable = False
+    if not readable:
+        raise ValueError(f"{run / 'run.json'} is damaged (not a JSON object); {again}")
+    check_checkpoint_file(run / "model.pt", again)  # (torch's UnpicklingError, a traceback, after the test set)
     differ = arm_differs(run, pde, settings, cfg, seed, said=True)
     if differ:
         raise ValueError(f"{run} holds a finished run with other settings ({'; '.join(differ)}); rerun with its "

@@ -250,7 +250,18 @@ def plot(path: Path, result: dict) -> None:
 
 
 def _restriction(result: dict) -> str:
-    """The fine -> coarse restriction of a comparison in a figure's words (compare.json without it: points)."""
+    """The fine -> coarse restriction of a comparison in a figure's words (compare.json without it: points); on a
+    fine grid --restrict does not act on (walls only, staggered fields), the means it takes there (it said
+    "Fourier-restricted" of walls)."""
+    try:
+        from pdestream.datasets import pde_from_config
+        from pdestream.surrogate.mode_table import pde_restricts_periodic
+
+        acts = pde_restricts_periodic(pde_from_config(result["fine_pde"]))
+    except Exception:  # no fine PDE recorded (no corrector arm) or one this cannot build: the setting's words
+        acts = True
+    if not acts:
+        return "cell / face means"
     return "Fourier-restricted" if (result.get("config") or {}).get("restrict", "points") == "fourier" else "subsampled"
 
 

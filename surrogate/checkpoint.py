@@ -166,8 +166,11 @@ def load_train_state(path) -> dict:
     """checkpoint.pt as a dict (weights_only: plain containers and tensors); ValueError when unreadable."""
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # truncated or foreign file: torch raises several kinds
-        raise ValueError(f"{path} cannot be read as a pdestream checkpoint ({type(err).__name__}: {err})".splitlines()[0]) from None
+    except Exception as err:  # truncated or foreign file: torch raises several kinds (its words for a file that is
+        # no pickle advise weights_only=False: not for a damaged file)
+        from .config import damaged_checkpoint
+
+        raise ValueError(damaged_checkpoint(path, f"torch cannot read it: {type(err).__name__}")) from None
     if not isinstance(ckpt, dict):
         raise ValueError(f"{path} is not a pdestream checkpoint: it holds a {type(ckpt).__name__}, not a dict")
     missing = [key for key in CHECKPOINT_KEYS if key not in ckpt]
@@ -183,8 +186,14 @@ def save_checkpoint(path, model: nn.Module, normalizer: Normalization, step: int
 
 
 def load_checkpoint(path) -> tuple[nn.Module, Normalization, dict]:
-    """(model in eval mode, its normalization, the checkpoint dict) from ``save_checkpoint``'s file."""
-    ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    """(model in eval mode, its normalization, the checkpoint dict) from ``save_checkpoint``'s file; ValueError (one
+    line) for a file torch cannot read (it was torch's UnpicklingError, a traceback)."""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # truncated or foreign file: torch raises several kinds
+        from .config import damaged_checkpoint
+
+        raise ValueError(damaged_checkpoint(path, f"torch cannot read it: {type(err).__name__}")) from None
     if "normalization" not in ckpt:
         raise ValueError(f"{path} is a checkpoint of an older pdestream (no 'normalization' entry); train it again")
     spec = dict(ckpt["spec"])

@@ -51,12 +51,22 @@ def check_cache_matches(path, config: dict, pde, explicit: dict | None = None) -
     # default, so a periodic entry records no bc: asked on a Dirichlet cache, it trained on the Dirichlet data)
     differ = [k for k in (explicit or {}) if (k.split(".")[0] in wanted or k.split(".")[0] in config)
               and _lookup(wanted, k) != _lookup(config, k)]
+    differ = [k for k in differ if k.split(".")[0] == k or k.split(".")[0] not in differ]  # (ic, not ic.max_mode too)
     if differ:
         # a setting a config leaves out is at its default (bc: periodic, refine: 1): shown as that, not as None
-        shown = {k: tuple(_default(pde, k) if v is None else v for v in (_lookup(config, k), _lookup(wanted, k)))
-                 for k in differ}
-        detail = ", ".join(f"{k}: cache {c!r} vs asked {w!r}" for k, (c, w) in shown.items())
+        shown = [(k, *(_default(pde, k) if v is None else v for v in (_lookup(config, k), _lookup(wanted, k))))
+                 for k in differ]
+        detail = ", ".join(f"{k}: cache {c!r} vs asked {w!r}" for key, c0, w0 in shown for k, c, w in _entries(key, c0, w0))
         raise ValueError(f"cache {path} was written with other settings ({detail})")
+
+
+def _entries(key: str, cache, asked) -> list[tuple]:
+    """The differing entries of one setting as (name, cache's, asked): two dicts (an initial condition's settings)
+    by their differing keys, only "kind" where that differs (it said both whole dicts); else the setting itself."""
+    if not (isinstance(cache, dict) and isinstance(asked, dict)):
+        return [(key, cache, asked)]
+    keys = ["kind"] if cache.get("kind") != asked.get("kind") else sorted(cache.keys() | asked.keys())
+    return [(f"{key}.{k}", cache.get(k), asked.get(k)) for k in keys if cache.get(k) != asked.get(k)]
 
 
 def _default(pde, key: str):

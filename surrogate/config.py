@@ -176,6 +176,28 @@ def checkpoint_step(path) -> int | None:
     return step if isinstance(step, int) and not isinstance(step, bool) else None
 
 
+RESUME_ADVICE = "the run cannot go on from it: start it again with --overwrite (a copy of the file from before the " \
+                "damage resumes)"
+
+
+def damaged_checkpoint(path, why: str, advice: str = RESUME_ADVICE) -> str:
+    """The one line for a checkpoint.pt or model.pt that cannot be read (``why``: "empty", "not a torch.save file
+    ...") and what to do (``advice``)."""
+    return f"{path} is damaged ({why}); {advice}"
+
+
+def check_checkpoint_file(path, advice: str = RESUME_ADVICE) -> None:
+    """ValueError (one line, ``damaged_checkpoint``) for a checkpoint.pt or model.pt that is empty or not a zip at
+    all (torch.save writes a zip; a truncated one has lost its closing directory), without torch."""
+    import os
+    import zipfile
+
+    if os.path.getsize(path) == 0:
+        raise ValueError(damaged_checkpoint(path, "empty", advice))
+    if not zipfile.is_zipfile(path):
+        raise ValueError(damaged_checkpoint(path, "not a torch.save file: truncated or overwritten", advice))
+
+
 def check_resumable(run_dir, steps: int | None) -> None:
     """What run.json and metrics.json tell of ``train --resume RUN_DIR [--steps N]`` without torch, one line each
     (``runs.read_run`` says the rest once torch has read checkpoint.pt): RUN_DIR is an arm of a comparison (run.json's
@@ -194,6 +216,8 @@ def check_resumable(run_dir, steps: int | None) -> None:
         return  # not a run, or a damaged one: read_run's own words
     if not isinstance(settings, dict) or not (run_dir / "checkpoint.pt").is_file():
         return
+    if "format" in settings:  # (a run.json that is no run file: read_run names it first)
+        check_checkpoint_file(run_dir / "checkpoint.pt")
     label = settings.get("label", "train")
     if label != "train":
         raise ValueError(f"{run_dir} is the {label} arm of the comparison in {run_dir.parent}; that comparison would "
@@ -205,6 +229,7 @@ def check_resumable(run_dir, steps: int | None) -> None:
         if steps is not None and at is not None and steps < at:
             raise ValueError(f"--steps {steps!r} not allowed with --resume {run_dir}: the run already did {at} "
                              f"steps; allowed: an integer >= {at} (the new total)")
+        check_source_unchanged(run_dir, settings)
         return
     if steps is not None and steps < done:
         raise ValueError(f"--steps {steps!r} not allowed with --resume {run_dir}: the run already did {done} steps; "
@@ -212,3 +237,38 @@ def check_resumable(run_dir, steps: int | None) -> None:
     if steps is None or steps == done:
         raise ValueError(f"--resume {run_dir}: the run is already complete ({done} of {done} steps; see "
                          "metrics.json); --steps N extends it to N steps")
+    check_source_unchanged(run_dir, settings)
+
+
+def check_source_unchanged(run_dir, settings: dict) -> None:
+    """ValueError (one line) when the cache a run trained on (run.json's "source", a path) is gone, or now holds data
+    of another PDE config than the run's (run.json's "pde"; both read through the current PDE classes, so a cache
+    written by an older version compares by its meaning): replaced since. It was refused after torch as "the
+    checkpoint belongs to another run". Anything unreadable is left to the resume's own checks."""
+    source = settings.get("source")
+    if not isinstance(source, str) or source == "stream":
+        return
+    from pathlib import Path
+
+    if not Path(source).exists():  # (said after torch: "no cache at ...")
+        raise ValueError(f"--resume {run_dir}: its cache {source} is not there (moved or deleted, or a path relative "
+                         "to the directory the run was started in); put it back, or resume from that directory")
+    try:
+        from pdestream.datasets import pde_from_config
+        from pdestream.datasets.export import cached_config
+
+        found = cached_config(source)
+        have, now = pde_from_config(settings["pde"]).config(), pde_from_config(found).config()
+    except Exception:  # no cache there, unreadable, or a config these classes cannot build: read_run's words
+        return
+    if have == now:
+        return
+    keys = [k for k in (*have, *(k for k in now if k not in have)) if have.get(k) != now.get(k)]
+    said = "; ".join(f"{k}: the run's {_shown(have, k)}, the cache's {_shown(now, k)}" for k in keys[:3])
+    raise ValueError(f"--resume {run_dir}: its cache {source} now holds other data ({said}"
+                     f"{'; ...' if len(keys) > 3 else ''}); put back the cache it trained on to go on (or train "
+                     "afresh on this one: --overwrite)")
+
+
+def _shown(config: dict, key: str) -> str:
+    return repr(config[key]) if key in config else "unset"

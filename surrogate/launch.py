@@ -13,7 +13,7 @@ import signal
 import sys
 from pathlib import Path
 
-from pdestream.interrupts import USER_ERRORS, check_writable_dir, remove_created, snapshot
+from pdestream.interrupts import USER_ERRORS, check_not_in_zarr, check_writable_dir, remove_created, snapshot
 
 from .config import TRAIN_STEPS, TrainConfig, check_resumable
 
@@ -27,22 +27,23 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
         raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
     if cfg.resume is None:
         check_writable_dir(cfg.out)
+        check_not_in_zarr(cfg.out)
+        check_out_free(cfg.out, cfg.overwrite)
     elif Path(cfg.resume).is_dir():
         check_writable_dir(cfg.resume, "--resume")
         check_resumable(cfg.resume, cfg.steps)  # what run.json and metrics.json say, before torch
     else:  # (said by runs.read_run after torch before adv51)
         raise ValueError(f"--resume {cfg.resume}: no such run directory")
-    if cfg.resume is None and cfg.pde is None and cfg.source not in (None, "stream"):
+    config = source_config(cfg.source) if cfg.resume is None else None  # (one line for a cache it cannot train on)
+    if config is not None and cfg.pde is None and isinstance(config.get("pde"), str):
         from dataclasses import replace
 
-        from pdestream.datasets.export import named_pde
-
-        cfg = replace(cfg, pde=named_pde(cfg.source))  # `train --source PATH`: the PDE its cache (or export) holds
+        cfg = replace(cfg, pde=config["pde"])  # `train --source PATH`: the PDE its cache (or export) holds
     if cfg.resume is None and isinstance(cfg.pde, str):
         from pdestream.settings import build_pde
 
         pde = build_pde(cfg.pde, cfg.settings)  # the name and --set checked before torch (and JAX) are imported
-        check_new_data(pde, cfg)
+        check_new_data(pde, cfg, config)
     from pdestream.datasets.generate import configure_solvers
     from pdestream.surrogate import ddp
 
@@ -59,28 +60,69 @@ def train(cfg: TrainConfig, log=print) -> dict | None:
             ddp.finish()
 
 
-def check_new_data(pde, cfg: TrainConfig) -> None:
+def source_config(source) -> dict | None:
+    """The PDE config (``PDE.config()``) of a new run's ``--source`` cache or export, read without torch or JAX;
+    None for the stream (or a source the reader opens all the same: it is left to the loader). One line, the
+    reader's own, for a path that is not there, not a pdestream cache or export, damaged, or an interrupted
+    generate's (each was said only once torch was imported, 2-5 s; a damaged cache with no PDE named read "no PDE
+    named")."""
+    if source in (None, "stream"):
+        return None
+    if not Path(source).exists():
+        raise FileNotFoundError(f"--source {source}: no such cache (or use --source stream)")
+    from pdestream.datasets.export import cache_written, cached_config
+
+    config = cached_config(source)
+    if config is None:  # the reader's words for why (xarray and h5py, no torch)
+        from pdestream.datasets.cache import open_cache
+        from pdestream.datasets.export import as_cache
+
+        open_cache(as_cache(source)).close()
+        return None
+    if not isinstance(config.get("pde"), str) or not config["pde"]:  # (it read "no PDE named", or "holds 5 samples")
+        raise ValueError(f"{source} is damaged: its stored config (pdestream_config) names no PDE "
+                         f"({config.get('pde')!r})")
+    from pdestream.catalog_names import check_name
+
+    try:
+        check_name(config["pde"])
+    except ValueError as err:  # (it said "unknown PDE ..." without naming the cache)
+        raise ValueError(f"{source} holds samples of {config['pde']!r}, a PDE not known here: {err}") from None
+    written = cache_written(source)
+    if written is not None:
+        raise ValueError(f"{source} is incomplete ({written[0]} of {written[1]} samples written); finish it with "
+                         "`pdestream generate ... --resume` (train reads complete caches)")
+    return config
+
+
+def check_new_data(pde, cfg: TrainConfig, config: dict | None = None) -> None:
     """What a new run's data allows, one line each before torch (each was refused only once the cache was open or
-    the corrector built, after torch): a ``--source`` cache's stored config (read once, without torch or JAX)
-    against ``pde`` and the --set given; solver-in-the-loop's coarse grid and an explicit ``--restrict`` against the
-    fine grid (the stream's ``pde`` or the cache's). An export of another layout (no pdestream config) is left to
-    the loader; a steady entry is refused for the mode itself (``check_new``)."""
+    the corrector built, after torch): a ``--source`` cache's stored ``config`` (``source_config``; None: the
+    stream) against ``pde`` and the --set given; solver-in-the-loop's coarse grid and an explicit ``--restrict``
+    against the fine grid (the stream's ``pde`` or the cache's); the mode's next-step window against its frames
+    (the cache's was refused by the view after torch, naming k_out). A steady entry is refused for the mode itself
+    (``check_new``)."""
     from .checks import check_cache_matches
-    from .mode_table import check_coarse_grid, check_restrict_acts, mode_settings
+    from .mode_table import check_coarse_grid, check_restrict_acts, check_window, frames_ahead, mode_settings
 
+    check_view_options(pde, cfg)
     fine = pde
-    if cfg.source not in (None, "stream"):
+    if config is not None:
         from pdestream.datasets import pde_from_config
-        from pdestream.datasets.export import cached_config
 
-        config = cached_config(cfg.source)
-        if config is None:
-            return  # not a cache this can read: the reader says why
         check_cache_matches(cfg.source, config, pde, cfg.settings)
-        fine = pde_from_config(config)
+        try:
+            fine = pde_from_config(config)
+        except ValueError as err:  # (it named a setting the user never gave: "burgers1d: bad value for n")
+            raise ValueError(f"{cfg.source}: its stored config does not build here: {err}") from None
     if cfg.mode == "solver-in-the-loop" and not pde.STEADY:
         check_coarse_grid(fine, mode_settings(cfg.mode, coarse_n=cfg.coarse_n)["coarse_n"])
         check_restrict_acts(fine, cfg.restrict)
+    if not fine.STEADY and (cfg.view or "next_step") == "next_step":  # the mode's window against the frames
+        unroll = mode_settings(cfg.mode, unroll=cfg.unroll).get("unroll", 1)  # (one-step, noise: 1)
+        k_out = 1 if cfg.k_out is None else cfg.k_out
+        check_window(cfg.mode, unroll, 1 if cfg.k_in is None else cfg.k_in, frames_ahead(cfg.mode, unroll, k_out),
+                     fine.n_frames, "--set n_frames={n}" if config is None else "a cache of {n} frames")
 
 
 @contextlib.contextmanager
@@ -166,23 +208,52 @@ def mode_settings(cfg: TrainConfig) -> dict:
     return settings if cfg.loss == "mse" else {**settings, "loss": cfg.loss}
 
 
+def check_view_options(pde, cfg: TrainConfig) -> None:
+    """What the view allows, one line each (no torch: ``check_new_data`` says it before torch, ``check_new`` again
+    for a PDE object): a mode other than one-step, or the next-step view, on a steady entry (the modes' own refusal
+    would send the user to --view next_step); --k-in / --k-out on the operator view, which takes none (they ran,
+    rc 0, unread)."""
+    if pde.STEADY and cfg.mode != "one-step":
+        verb = "perturbs input frames" if cfg.mode == "noise" else "unrolls over frames"
+        raise ValueError(f"--mode {cfg.mode} {verb} and {pde.NAME} is steady (no frames); allowed: "
+                         "--mode one-step")
+    from .mode_table import check_mode_k_in
+
+    check_mode_k_in(cfg.mode, cfg.k_in)  # (said after torch)
+    if pde.STEADY and cfg.view == "next_step":  # (the view refused it after torch)
+        raise ValueError(f"--view next_step needs a time axis and {pde.NAME} is steady (no frames); allowed: "
+                         "--view operator")
+    view = cfg.view or ("operator" if pde.STEADY else "next_step")
+    given = [f"{o} {v}" for o, v, unset in (("--k-in", cfg.k_in, None), ("--k-out", cfg.k_out, 1))
+             if v not in (None, unset)]
+    if view != "next_step" and given:
+        why = (f"{pde.NAME} is steady: its samples (input field -> solution) have no frames" if pde.STEADY else
+               f"not {view} (u(t=0) -> u(t_end))")
+        raise ValueError(f"{' and '.join(given)} {'goes' if len(given) == 1 else 'go'} with --view next_step"
+                         f"{'; ' if pde.STEADY else ', '}{why}")
+
+
+def check_out_free(out, overwrite: bool) -> list[str]:
+    """The run files ``out`` holds (RUN_MARKERS); FileExistsError (one line) when it holds any and ``overwrite`` is
+    not given. No torch: ``train`` checks it first (it was said after torch was imported), ``check_new`` again."""
+    held = [name for name in RUN_MARKERS if (Path(out) / name).exists()]
+    if held and not overwrite:
+        raise FileExistsError(f"{out} already holds a run ({', '.join(held)}); pass --resume {out} to "
+                              "continue it, --overwrite to replace it, or choose another --out")
+    return held
+
+
 def check_new(cfg: TrainConfig, ranks: int):
     """(pde, held run files) of a new run, after its checks (ValueError: one line)."""
     from pdestream.settings import build_pde
 
     if cfg.out is None:
         raise ValueError("give --out RUN_DIR for a new run (or --resume RUN_DIR to continue one)")
-    held = [name for name in RUN_MARKERS if (Path(cfg.out) / name).exists()]
-    if held and not cfg.overwrite:
-        raise FileExistsError(f"{cfg.out} already holds a run ({', '.join(held)}); pass --resume {cfg.out} to "
-                              "continue it, --overwrite to replace it, or choose another --out")
+    held = check_out_free(cfg.out, cfg.overwrite)
     if cfg.source != "stream" and not Path(cfg.source).exists():
         raise FileNotFoundError(f"--source {cfg.source}: no such cache (or use --source stream)")
     pde = build_pde(cfg.pde, cfg.settings)
-    if pde.STEADY and cfg.mode != "one-step":  # the modes' own refusal would send the user to --view next_step
-        verb = "perturbs input frames" if cfg.mode == "noise" else "unrolls over frames"
-        raise ValueError(f"--mode {cfg.mode} {verb} and {pde.NAME} is steady (no frames); allowed: "
-                         "--mode one-step")
+    check_view_options(pde, cfg)
     cfg.check()
     return pde, held
 
@@ -276,14 +347,21 @@ def _resume(cfg: TrainConfig, ranks: int, log) -> dict | None:
     ddp.barrier()  # every rank has read run.json before rank 0 may rewrite it (an extension)
     writes = ddp.world()[0] == 0
     if steps != settings["steps"] and writes:
-        log(f"extending {cfg.resume} from {settings['steps']} to {steps} steps at its step {run[1]['step']}; "
-            f"the {settings.get('schedule', 'cosine')} schedule is re-planned for {steps} steps")
+        log(replan_line(cfg.resume, settings["steps"], steps, run[1]["step"], settings.get("schedule", "cosine")))
     s, step = resume_run(cfg.resume, run, steps)
     if not writes:
         return None
     log(f"resumed {cfg.resume} at step {step} of {steps}")
     log(run_report(s, settings["model"], settings["source"], settings["n_test"], cfg.resume))
     return s
+
+
+def replan_line(run_dir, planned: int, steps: int, at: int, schedule: str = "cosine") -> str:
+    """The line a resume with a new total says: a run of ``planned`` steps, at step ``at``, now ``steps`` (fewer
+    than planned: an unfinished run cut short, which it called "extending")."""
+    verb = "extending" if steps > planned else "shortening"
+    return (f"{verb} {run_dir} from {planned} to {steps} steps at its step {at}; the {schedule} schedule is re-planned "
+            f"for {steps} steps")
 
 
 def check_rank_count(ranks: int, device: str) -> None:
@@ -423,8 +501,8 @@ def run_report(s: dict, model: str, source: str, n_test: int, out) -> str:
              f"{s['trajectories_seen']} trajectories, final loss {s['final_loss']:.4g}"]
     t = s["test"]["test"]
     if mode["name"] == "solver-in-the-loop":  # the corrected coarse solver against the fine solution restricted
-        how = "Fourier-truncated" if mode.get("restrict") == "fourier" else "subsampled"  # (absent: points)
-        lines.append(f"(errors on the coarse grid n={mode['coarse_n']}, against the fine solution {how})")
+        lines.append(f"(errors on the coarse grid n={mode['coarse_n']}, against the fine solution "
+                     f"{restriction_words(mode, s.get('pde'))})")
     lines.append(f"test ({n_test} held-out trajectories): rel L2 {t['rel_l2']:.4f}, nRMSE {t['nrmse']:.4f}"
                  + (f", rollout rel L2 at the last frame {t['rollout_final']:.4f}" if "rollout_final" in t else ""))
     reservoir = "data_stats" in s and "reuse_mean" in s["data_stats"]
@@ -438,6 +516,30 @@ def run_report(s: dict, model: str, source: str, n_test: int, out) -> str:
     extra = ", reservoir.json, reservoir.png" if reservoir else ""
     lines.append(f"run: {out}/metrics.csv, metrics.json, model.pt, checkpoint.pt{extra}")
     return "\n".join(lines)
+
+
+def restriction_words(mode: dict, config: dict | None) -> str:
+    """How the corrector restricted the fine solution (``surrogate.modes.subsample``), in words: by ``mode``'s
+    "restrict" on periodic axes (absent: points, as make_mode reads it), by the mean of the two fine points around
+    each coarse cell centre across walls, by cell / face means on a staggered grid (the run's PDE ``config``; it
+    said "subsampled" on a grid with walls, whose run records no "restrict")."""
+    periodic = "Fourier-truncated" if mode.get("restrict") == "fourier" else "subsampled"  # (absent: points)
+    try:
+        from pdestream.boundaries import kinds
+        from pdestream.datasets import pde_from_config
+
+        pde = pde_from_config(config)
+        walls = [not b.periodic for b in kinds(tuple(pde.grid.bc))]
+        staggered = bool(getattr(pde, "FIELD_LOCATIONS", {}))
+    except Exception:  # no config (a summary of old), or one this cannot build: the setting's own words
+        return periodic
+    if staggered:
+        return "restricted by cell / face means (a staggered grid)"
+    if all(walls):
+        return "averaged to the coarse cell centres"
+    if any(walls):
+        return f"{periodic} on its periodic axes, averaged to the coarse cell centres across its walls"
+    return periodic
 
 
 def _pacing(d: dict) -> str:

@@ -215,12 +215,73 @@ def check_coarse_grid(pde, coarse_n) -> None:
                          f"states restricted to its own grid; allowed: refine=1 (--set n={n * pde.refine} "
                          "--set refine=1 trains on the fine grid itself)")
     if isinstance(coarse_n, bool) or not isinstance(coarse_n, int) or not (0 < coarse_n < n and n % coarse_n == 0):
-        raise ValueError(f"solver-in-the-loop: coarse n={coarse_n!r} does not fit the fine grid n={n}; "
-                         f"allowed: a proper divisor of {n}, e.g. {n // 8 if n % 8 == 0 and n // 8 >= 8 else n // 2}")
+        example = _coarse_example(pde)
+        allowed = (f"allowed: a proper divisor of {n}, e.g. {example}" if example else
+                   f"no proper divisor of {n} is a grid {pde.NAME} takes: choose a finer grid")
+        raise ValueError(f"solver-in-the-loop: coarse n={coarse_n!r} does not fit the fine grid n={n}; {allowed}")
     try:
         pde.replace({"n": coarse_n})
     except ValueError as err:  # the PDE's refusal speaks of n, which the user set as --coarse-n
         raise ValueError(f"solver-in-the-loop: --coarse-n {coarse_n} not allowed: {err}") from None
+
+
+# the target frames per window each mode reads from a next-step view (``surrogate.modes``' frames_ahead): the view's
+# k_out ("k_out"), its unroll ("unroll"), or 1 (the oracle's targets come from the solver)
+FRAMES_AHEAD = {"one-step": "k_out", "pushforward": "unroll", "oracle": 1, "solver-in-the-loop": "unroll",
+                "noise": "k_out"}
+
+
+def frames_ahead(name: str, unroll: int, k_out: int) -> int:
+    """The target frames per window mode ``name`` reads (FRAMES_AHEAD) at this unroll and k_out."""
+    ahead = FRAMES_AHEAD[name]
+    return unroll if ahead == "unroll" else k_out if ahead == "k_out" else ahead
+
+
+def check_mode_k_in(name: str, k_in) -> None:
+    """One line for input frames a mode cannot take: solver-in-the-loop corrects one state at a time (k_in None:
+    not given). No torch: train and compare say it before any work (``SolverInTheLoop.train_view`` again)."""
+    if name == "solver-in-the-loop" and k_in not in (None, 1):
+        raise ValueError(f"--mode solver-in-the-loop corrects one state at a time: --k-in={k_in} not allowed; use 1")
+
+
+def check_window(name: str, unroll: int, k_in: int, frames_out: int, n_frames: int,
+                 more: str = "--set n_frames={n}") -> None:
+    """ValueError (one line) when mode ``name``'s window, ``k_in`` input frames and ``frames_out`` targets, is
+    longer than trajectories of ``n_frames``, naming what would fit (``more``: how to get n frames, "--set
+    n_frames={n}" on the stream, a cache of them). No torch: ``train --source CACHE`` checks it against the cache's
+    frames before torch, ``surrogate.modes.check_fits`` against the data's."""
+    if k_in + frames_out <= n_frames:
+        return
+    ahead = FRAMES_AHEAD.get(name, "k_out")
+    what = {"unroll": f"--unroll {unroll} and --k-in {k_in}",
+            "k_out": f"--k-in {k_in} and --k-out {frames_out}"}.get(ahead, f"--k-in {k_in}")
+    raise ValueError(f"--mode {name} with {what} needs {k_in + frames_out} frames per window but the trajectories "
+                     f"have {n_frames}; allowed: {_fits_hint(ahead, frames_out, n_frames, k_in, more)}")
+
+
+def _fits_hint(ahead, frames_out: int, n_frames: int, k_in: int, more: str) -> str:
+    """What would fit: a shorter unroll where the mode unrolls and one exists (it said "--unroll <= -2" when --k-in
+    alone was too long, and offered --unroll to one-step and noise, which take none), else fewer input frames, else
+    more frames."""
+    if ahead == "unroll" and n_frames - k_in >= 1:
+        return f"--unroll <= {n_frames - k_in}"
+    if n_frames - frames_out >= 1:
+        return f"--k-in <= {n_frames - frames_out} (or {more.format(n=k_in + frames_out)})"
+    return f"{more.format(n=k_in + frames_out)} or more"
+
+
+def _coarse_example(pde) -> int | None:
+    """A coarse grid to offer on ``pde``'s fine grid: n/8 where that is a whole grid of >= 8, else the largest proper
+    divisor, the first that the PDE itself accepts as n (it offered 15 on n=30 to a PDE of even n), or None."""
+    n = pde.n
+    first = [n // 8] if n % 8 == 0 and n // 8 >= 8 else []
+    for d in first + [d for d in range(n // 2, 0, -1) if n % d == 0]:
+        try:
+            pde.replace({"n": d})
+            return d
+        except ValueError:
+            continue
+    return None
 
 
 def restricts_periodic(bc, locations) -> bool:

@@ -57,6 +57,8 @@ from .mode_table import (
     NOISE_RULE,
     SITL_NOISE_RULE,
     check_coarse_grid,
+    check_mode_k_in,
+    check_window,
     mode_settings,
     restricts_periodic,
 )
@@ -492,9 +494,7 @@ class SolverInTheLoop:
         return self.unroll
 
     def train_view(self, view):
-        if view.rollout_k_in not in (None, 1):
-            raise ValueError(f"--mode solver-in-the-loop corrects one state at a time: --k-in={view.rollout_k_in} not "
-                             "allowed; use 1")
+        check_mode_k_in(self.name, view.rollout_k_in)
         return _unrolling_view(self, view)
 
     def channels(self, pde, view) -> tuple[int, int]:
@@ -710,17 +710,5 @@ def check_fits(mode: Mode, view, pde) -> None:
         datasets.for_sample(view, pde.n_frames, len(pde.INPUTS))
         return
     k_in = view.rollout_k_in
-    if k_in is not None and k_in + view.frames_out > pde.n_frames:
-        raise ValueError(f"--mode {mode.name} with --unroll {mode.unroll} and --k-in {k_in} needs "
-                         f"{k_in + view.frames_out} frames per window but the trajectories have {pde.n_frames}; "
-                         f"allowed: {_fits_hint(mode, view, pde.n_frames, k_in)}")
-
-
-def _fits_hint(mode: Mode, view, n_frames: int, k_in: int) -> str:
-    """What would fit: a shorter unroll where one exists (it said "--unroll <= -2" when --k-in alone was too long,
-    and offered --unroll to one-step, which has none), else fewer input frames, else more frames."""
-    if mode.name != "one-step" and n_frames - k_in >= 1:
-        return f"--unroll <= {n_frames - k_in}"
-    if n_frames - view.frames_out >= 1:
-        return f"--k-in <= {n_frames - view.frames_out} (or --set n_frames={k_in + view.frames_out})"
-    return f"--set n_frames={k_in + view.frames_out} or more"
+    if k_in is not None:
+        check_window(mode.name, mode.unroll, k_in, view.frames_out, pde.n_frames)

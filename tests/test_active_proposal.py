@@ -69,12 +69,14 @@ def test_ensemble_spread_is_high_where_no_loss_was_seen_and_kappa_sends_draws_th
     assert shares[1] > shares[0] + 0.1
 
 
-@pytest.mark.parametrize("ensemble", [1, 0, -3, True, 2.5])
-def test_an_ensemble_below_two_is_refused_in_one_line(ensemble):
+@pytest.mark.parametrize("ensemble", [1, 0, -3, True, 2.5, 101, 10**8])
+def test_an_ensemble_below_two_or_above_a_hundred_is_refused_in_one_line(ensemble):
+    # adv52: 10**8 was accepted and failed at the second refit (a MemoryError from the fit thread, a traceback)
     with pytest.raises(ValueError) as err:
         ParamProposal(DOMAINS, mode="active", ensemble=ensemble)
     assert str(err.value) == (f"proposal ensemble={ensemble!r} not allowed; must be an integer >= 2 (the uncertainty "
-                              "signal is the disagreement of its members)")
+                              "signal is the disagreement of its members) and <= 100 (each member is a loss model "
+                              "refitted at every refit)")
 
 
 def test_cli_train_refuses_an_ensemble_of_one(capsys, tmp_path):

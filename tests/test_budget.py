@@ -206,8 +206,8 @@ def test_verdicts_weigh_the_margin_against_the_seed_spread():
     (["--sim-budget", "16", "--arms", "reservoir_priority", "--priority-floor", "0"],
      "priority_floor=0.0 not allowed; must be in (0, 1] (the uniform share of draws)"),
     (["--sim-budget", "16", "--arms", "fifo,reservoir", "--proposal-gate", "off"],
-     "--proposal-gate goes with the arms reservoir_loss / reservoir_active / reservoir_generative (--proposal-floor, "
-     "--proposal-gate, --proposal-space)"),
+     "--proposal-gate goes with the arms reservoir_loss / reservoir_active / reservoir_generative; nothing here uses "
+     "it: drop it"),
     (["--sim-budget", "16", "--arms", "reservoir,reservoir_active", "--proposal-ensemble", "1"],
      "proposal ensemble=1 not allowed; must be an integer >= 2 (the uncertainty signal is the disagreement of its members)"),
 ])

@@ -243,6 +243,9 @@ def test_modes_ask_the_view_not_its_class():
     # --k-in alone too long: it said "allowed: --unroll <= -2" (and offered one-step an --unroll it does not take)
     (["--k-in", "13"], "allowed: --k-in <= 10 (or --set n_frames=14)"),
     (["--mode", "pushforward", "--k-in", "13"], "allowed: --k-in <= 7 (or --set n_frames=17)"),
+    # adv52: the noise mode (no --unroll) was offered "--unroll <= 2", and one-step named an "--unroll 1"
+    (["--mode", "noise", "--k-in", "9", "--k-out", "3"], "--mode noise with --k-in 9 and --k-out 3 needs 12 frames per "
+                                                         "window but the trajectories have 11; allowed: --k-in <= 8"),
     (["--mode", "solver-in-the-loop", "--coarse-n", "12"], "coarse n=12 does not fit the fine grid n=32"),
     (["--mode", "oracle", "--set", "refine=2"], "burgers1d: refine=2 not allowed here"),
     (["--mode", "solver-in-the-loop", "--coarse-n", "16", "--set", "refine=2"], "solver-in-the-loop: refine=2 not"),

@@ -183,11 +183,36 @@ def test_other_producers_give_the_same_deterministic_batches(kind):
     (dict(mode="sync"), "mode='sync' not allowed; allowed: async, deterministic"),
     (dict(proposal="bayes"), "proposal='bayes' not allowed; allowed: uniform, loss, active, generative"),
     (dict(proposal="active", proposal_kwargs={"ensemble": 1}),
-     "proposal ensemble=1 not allowed; must be an integer >= 2 (the uncertainty signal is the disagreement of its members)"),
+     "proposal ensemble=1 not allowed; must be an integer >= 2 (the uncertainty signal is the disagreement of its members) "
+     "and <= 100 (each member is a loss model refitted at every refit)"),
 ])
 def test_bad_settings_are_one_line_errors(kw, message):
     with pytest.raises(ValueError) as err:
         stream(**kw)
+    assert str(err.value) == message
+
+
+@pytest.mark.parametrize("kw, message", [
+    (dict(proposal="bayes"), "proposal='bayes' not allowed; allowed: uniform, loss, active, generative"),
+    (dict(proposal="loss", proposal_kwargs={"floor": float("nan")}),
+     "proposal floor=nan not allowed; must be in (0, 1] (uniform share)"),
+    (dict(proposal="active", proposal_kwargs={"kappa": 1e400}),
+     "proposal kappa=inf not allowed; must be in [0, 100] (weight of the ensemble spread)"),
+    (dict(proposal="loss", proposal_kwargs={"flor": 0.5}), "proposal_kwargs key 'flor' not allowed; allowed: floor, "
+     "bandwidth, power, window, ensemble, kappa, top, step, gate, skill_full, skill_min, refit, candidates, "
+     "skill_window, probe, space"),
+    (dict(proposal="loss", proposal_kwargs=[0.5]), "proposal_kwargs=[0.5] not allowed; a dict of the proposal's "
+     "settings (datasets.proposal.ParamProposal) or None"),
+    (dict(proposal="active", proposal_kwargs={"space": "ic"}), "proposal space='ic' not allowed; allowed: params, "
+     "params+ic"),
+])
+def test_the_config_checks_its_proposal_before_a_stream_is_built(kw, message):
+    # adv52: ReservoirConfig.checked passed every one of these (the stream's ParamProposal refused the values later;
+    # an unknown key was a TypeError there)
+    from pdestream.datasets.reservoir_config import ReservoirConfig
+
+    with pytest.raises(ValueError) as err:
+        ReservoirConfig(**kw).checked(1)
     assert str(err.value) == message
 
 

@@ -175,3 +175,34 @@ def test_an_explicit_restrict_on_staggered_fields_names_them():
     with pytest.raises(ValueError, match=r"karman2d \(staggered \(MAC\) fields"):
         check_restrict_acts(generator.get_pde("karman2d"), "fourier")
     check_restrict_acts(FINE, "points")  # acts on a periodic grid
+
+
+@pytest.mark.parametrize("name, settings, restrict, words", [
+    ("burgers1d", {}, "fourier", "against the fine solution Fourier-truncated"),
+    ("burgers1d", {}, None, "against the fine solution subsampled"),  # run.json before the setting: points
+    # adv52: a grid with walls restricts by the mean of the two fine points around each coarse centre whatever
+    # --restrict says (the run records none): the report said "subsampled"
+    ("diffusion1d", {"bc": "dirichlet"}, None, "against the fine solution averaged to the coarse cell centres"),
+    ("diffusion2d", {"bc.x": "dirichlet"}, "fourier",
+     "against the fine solution Fourier-truncated on its periodic axes, averaged to the coarse cell centres across "
+     "its walls"),
+])
+def test_the_run_report_names_the_restriction_the_grid_takes(name, settings, restrict, words):
+    from pdestream.surrogate.launch import run_report
+
+    mode = {"name": "solver-in-the-loop", "unroll": 2, "coarse_n": 16, **({"restrict": restrict} if restrict else {})}
+    s = {"steps": 2, "wall": 1.0, "t_data": 0.0, "t_compute": 1.0, "data_share": 0.0, "trajectories_seen": 2,
+         "final_loss": 0.1, "test": {"test": {"rel_l2": 0.1, "nrmse": 0.1}}, "mode": mode,
+         "pde": generator.get_pde(name, {"n": 32, **settings}).config()}
+    assert f"(errors on the coarse grid n=16, {words})" in run_report(s, "fno", "stream", 2, "run")
+
+
+def test_the_corrector_figures_name_the_restriction_only_where_it_acts():
+    """adv52: compare.png's and corrector.png's titles said "Fourier-restricted" of a grid with walls on every axis
+    (compare's default --restrict is fourier; adv51 fixed compare.md's words only)."""
+    from pdestream.experiments.interactive_report import _restriction
+
+    walled = generator.get_pde("burgers1d", n=32, n_frames=11, bc="dirichlet")
+    assert _restriction({"config": {"restrict": "fourier"}, "fine_pde": FINE.config()}) == "Fourier-restricted"
+    assert _restriction({"config": {}, "fine_pde": FINE.config()}) == "subsampled"
+    assert _restriction({"config": {"restrict": "fourier"}, "fine_pde": walled.config()}) == "cell / face means"

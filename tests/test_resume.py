@@ -214,7 +214,7 @@ def test_resume_refusals(tmp_path, capsys):
     (empty / "checkpoint.pt").write_bytes(b"not a checkpoint")
     refused(["train", "--resume", str(empty)], "run.json is not a pdestream run file")
     (empty / "run.json").write_text(json.dumps({"format": 1, "steps": 5}))
-    refused(["train", "--resume", str(empty)], "checkpoint.pt cannot be read as a pdestream checkpoint")
+    refused(["train", "--resume", str(empty)], "checkpoint.pt is damaged (not a torch.save file")
     assert sorted(p.name for p in empty.iterdir()) == ["checkpoint.pt", "run.json"]
     # settings given with --resume are refused, all named in one line, before the directory is even looked at
     refused(["train", "burgers1d", "--resume", str(empty), "--steps", "5", "--set", "n=64"],
@@ -392,12 +392,14 @@ def test_reservoir_options_without_reservoir_and_zero_workers_are_refused(tmp_pa
     assert cli.main(_tiny_train(out, "--reservoir", "--proposal-floor", "0.5")) == 2
     assert "--proposal-floor goes with --proposal loss / active / generative" in capsys.readouterr().err
     assert cli.main(_tiny_train(out, "--reservoir", "--proposal-gate", "off")) == 2
-    assert "--proposal-gate goes with --proposal loss / active / generative (--proposal-floor, --proposal-gate" in capsys.readouterr().err
+    assert "--proposal-gate goes with --proposal loss / active / generative; nothing here uses it" in capsys.readouterr().err
     assert cli.main(_tiny_train(out, "--reservoir", "--proposal", "loss", "--proposal-ensemble", "3")) == 2
-    assert "--proposal-ensemble goes with" in capsys.readouterr().err
+    # adv52: the words named every group's options for each ("... (--proposal-floor, ...) or --proposal active (the
+    # others)"): now the proposal that uses this one, and the one given
+    assert "--proposal-ensemble goes with --proposal active (not loss); nothing here uses it" in capsys.readouterr().err
     assert cli.main(["compare", "burgers1d", "--quick", "--arms", "fifo,reservoir", "--proposal-kappa", "2",
                      "--out", str(out)]) == 2
-    assert "--proposal-kappa goes with the arms reservoir_loss / reservoir_active" in capsys.readouterr().err
+    assert "--proposal-kappa goes with the arm reservoir_active; nothing here uses it" in capsys.readouterr().err
     assert not out.exists()
 
 
@@ -482,3 +484,25 @@ def test_a_run_being_resumed_refuses_a_second_resume_in_one_line(tmp_path, capsy
     finally:
         os.close(fd)
     assert cli.main(["train", "--resume", str(out), "--steps", "6"]) == 0  # free again: it resumes
+
+
+def test_the_resume_line_says_whether_the_plan_grows_or_shrinks():
+    """adv52: a run planned for 100000 steps, stopped at 1000 and resumed with --steps 1002 was "extending ... from
+    100000 to 1002 steps"."""
+    from pdestream.surrogate.launch import replan_line
+
+    assert replan_line("r", 20, 30, 20) == ("extending r from 20 to 30 steps at its step 20; the cosine schedule is "
+                                            "re-planned for 30 steps")
+    assert replan_line("r", 100000, 1002, 1000, "constant").startswith("shortening r from 100000 to 1002 steps at its "
+                                                                       "step 1000; the constant schedule")
+
+
+def test_a_damaged_model_file_is_one_line(tmp_path):
+    """adv52: load_checkpoint (a finished arm read back, predict) raised torch's UnpicklingError, a traceback."""
+    from pdestream.surrogate.checkpoint import load_checkpoint
+
+    (tmp_path / "model.pt").write_bytes(b"garbage\n")
+    with pytest.raises(ValueError) as err:
+        load_checkpoint(tmp_path / "model.pt")
+    assert str(err.value).startswith(f"{tmp_path / 'model.pt'} is damaged (torch cannot read it: UnpicklingError)")
+    assert "\n" not in str(err.value)

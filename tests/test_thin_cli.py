@@ -82,6 +82,9 @@ LIGHT = [
      "proposal floor=nan not allowed; must be in (0, 1]"),
     (["train", "burgers1d", "--out", "run", "--reservoir", "--proposal", "active", "--proposal-ensemble", "1"], 2,
      "proposal ensemble=1 not allowed; must be an integer >= 2"),
+    # adv52: an ensemble of 10**8 trained (rc 0 at 2 steps); a longer run failed at its second refit
+    (["train", "burgers1d", "--out", "run", "--reservoir", "--proposal", "active", "--proposal-ensemble", "100000000"],
+     2, "proposal ensemble=100000000 not allowed; must be an integer >= 2"),
     (["train", "burgers1d", "--out", "run", "--reservoir", "--proposal", "active", "--proposal-kappa", "-1"], 2,
      "proposal kappa=-1.0 not allowed; must be in [0, 100]"),
     # adv51: the budget comparison's and the cache/stream comparison's numbers imported torch (4-7 s at load 5-8)
@@ -117,6 +120,29 @@ LIGHT = [
      "--corrector-start zero goes with the corrector's arms (--modes ...,solver-in-the-loop)"),
     (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step,oracle", "--noise", "0.1"], 2,
      "--noise 0.1 goes with the noise mode or the corrector's arms (--modes ...,noise or ...,solver-in-the-loop)"),
+    # adv52: the coarse grid offered was one the PDE refuses (15 for burgers1d, whose n is even; 4, below its 8)
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--set", "n_frames=6", "--fine-n", "30",
+      "--coarse-n", "16"], 2, "coarse n=16 does not fit the fine grid n=30; allowed: a proper divisor of 30, e.g. 10"),
+    (["train", "burgers1d", "--out", "run", "--mode", "solver-in-the-loop", "--set", "n=8", "--coarse-n", "16"], 2,
+     "coarse n=16 does not fit the fine grid n=8; no proper divisor of 8 is a grid burgers1d takes: choose a finer "
+     "grid"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--fine-n", "0"], 2,
+     "--fine-n 0 not allowed: burgers1d: n=0 not allowed"),
+    # adv52: --k-in 2 with the corrector was refused after torch; compare trained the other arms first (7 s)
+    (["train", "burgers1d", "--out", "run", "--mode", "solver-in-the-loop", "--k-in", "2"], 2,
+     "--mode solver-in-the-loop corrects one state at a time: --k-in=2 not allowed; use 1"),
+    (["compare", "burgers1d", "--out", "cmp", "--modes", "one-step,solver-in-the-loop", "--set", "n_frames=8",
+      "--k-in", "2"], 2, "--mode solver-in-the-loop corrects one state at a time: --k-in=2 not allowed; use 1"),
+    # adv52: a steady entry refused a mode that unrolls only after torch; --k-in / --k-out on the operator view (a
+    # steady entry's default) ran rc 0, unread
+    (["train", "poisson1d", "--out", "run", "--mode", "noise"], 2,
+     "--mode noise perturbs input frames and poisson1d is steady (no frames); allowed: --mode one-step"),
+    (["train", "poisson1d", "--out", "run", "--k-out", "2"], 2,
+     "--k-out 2 goes with --view next_step; poisson1d is steady: its samples (input field -> solution) have no frames"),
+    (["train", "poisson1d", "--out", "run", "--view", "next_step"], 2,
+     "--view next_step needs a time axis and poisson1d is steady (no frames); allowed: --view operator"),
+    (["train", "burgers1d", "--out", "run", "--view", "operator", "--k-in", "2"], 2,
+     "--k-in 2 goes with --view next_step, not operator (u(t=0) -> u(t_end))"),
     # adv50: a coarse grid that does not fit the fine one was refused only when the corrector was bound (torch)
     (["compare", "burgers1d", "--out", "cmp", "--modes", "solver-in-the-loop", "--set", "n=32", "--coarse-n", "12"],
      2, "coarse n=12 does not fit the fine grid n=32"),
@@ -160,9 +186,34 @@ def finished(tmp_path_factory):
     (unfinished / "metrics.json").unlink()
     settings = json.loads((unfinished / "run.json").read_text())
     (unfinished / "run.json").write_text(json.dumps({**settings, "steps": 5}))
-    for name, extra in (("c.h5", []), ("walls.h5", ["--set", "bc=dirichlet"])):  # caches to train from
+    for name, extra in (("c.h5", []), ("walls.h5", ["--set", "bc=dirichlet"]), ("z.zarr", [])):  # caches to train from
         assert cli.main(["generate", "burgers1d", "--n", "2", "--set", "n=16", "--set", "n_frames=3", *extra,
                          "--out", str(root / name)]) == 0
+    for name, data in (("empty", b""), ("garbage", b"garbage\n")):  # checkpoint.pt emptied / overwritten
+        shutil.copytree(unfinished, root / name)
+        (root / name / "checkpoint.pt").write_bytes(data)
+    for name, file, data in (("cmp_json", "run.json", b"{bad"), ("cmp_model", "model.pt", b"garbage\n")):
+        shutil.copytree(root / "cmp", root / name)  # a finished arm's run.json / model.pt damaged
+        (root / name / "one-step" / file).write_bytes(data)
+    # a run trained on a cache that was then replaced by one of other settings (walls)
+    shutil.copy(root / "c.h5", root / "src.h5")
+    assert cli.main(["train", "--source", str(root / "src.h5"), *TINY_TRAIN[4:], "--steps", "2", "--out",
+                     str(root / "on_cache")]) == 0
+    shutil.copy(root / "walls.h5", root / "src.h5")
+    shutil.copytree(root / "on_cache", root / "gone")  # a run whose cache is no longer there
+    settings = json.loads((root / "gone" / "run.json").read_text())
+    (root / "gone" / "run.json").write_text(json.dumps({**settings, "source": str(root / "moved.h5")}))
+    import h5py
+
+    for name, attrs in (("cut.h5", {"pdestream_complete": 0}), ("garbled.h5", {"pdestream_config": "{not json"}),
+                        ("noname.h5", {"pdestream_config": '{"pde": 5}'}),
+                        ("unknown.h5", {"pdestream_config": '{"pde": "nosuchpde", "n": 16}'}),
+                        ("badn.h5", {"pdestream_config": '{"pde": "burgers1d", "n": "abc", "n_frames": 3}'})):
+        shutil.copy(root / "c.h5", root / name)  # an interrupted generate's cache; one whose config is damaged
+        with h5py.File(root / name, "r+") as f:
+            f.attrs.update(attrs)
+            if name == "cut.h5":
+                f["complete"][1] = 0
     return root
 
 
@@ -189,6 +240,68 @@ def _unchanged(root):
     (["train", "--source", "{root}/c.h5", "--set", "bc=dirichlet", "--out", "{root}/new"],
      "was written with other settings (bc: cache 'periodic' vs asked 'dirichlet')"),
     (["train", "ns2d", "--source", "{root}/c.h5", "--out", "{root}/new"], "holds 'burgers1d' samples, not 'ns2d'"),
+    # adv52: a run's cache replaced by one of other settings was refused after torch as "the checkpoint belongs to
+    # another run"
+    (["train", "--resume", "{root}/on_cache", "--steps", "4"], "--resume {root}/on_cache: its cache {root}/src.h5 "
+                                                               "now holds other data (bc: the run's unset, the cache's "
+                                                               "'dirichlet';"),
+    # adv52: a finished arm's damaged run.json read as "other settings" (every key None, a 700-character line); its
+    # damaged model.pt was a traceback (torch's UnpicklingError) after the test set was built
+    ([*TINY_MODES, "--steps", "2", "--out", "{root}/cmp_json"], "{root}/cmp_json/one-step/run.json is damaged (not a "
+                                                                "JSON object); pass --overwrite"),
+    ([*TINY_MODES, "--steps", "2", "--out", "{root}/cmp_model"], "{root}/cmp_model/one-step/model.pt is damaged (not a "
+                                                                 "torch.save file: truncated or overwritten); pass "
+                                                                 "--overwrite"),
+    # adv52: a run whose cache is gone was said after torch ("no cache at ...")
+    (["train", "--resume", "{root}/gone", "--steps", "4"], "--resume {root}/gone: its cache {root}/moved.h5 is not "
+                                                           "there"),
+    # adv52: a run written into a Zarr cache's directory (rc 0): its files among the arrays, which a later
+    # `generate --overwrite` then refuses as foreign entries
+    (["train", "--source", "{root}/z.zarr", "--out", "{root}/z.zarr"], "--out {root}/z.zarr is a Zarr cache"),
+    (["train", "--source", "{root}/c.h5", "--out", "{root}/z.zarr/run"], "--out {root}/z.zarr/run is inside the Zarr "
+                                                                         "cache {root}/z.zarr"),
+    ([*TINY_MODES, "--steps", "2", "--out", "{root}/z.zarr"], "--out {root}/z.zarr is a Zarr cache"),
+    # adv52: an --out that holds a run was refused after torch (check_new)
+    (["train", "--source", "{root}/c.h5", "--out", "{root}/run"], "{root}/run already holds a run (run.json, "
+                                                                  "checkpoint.pt, model.pt, metrics.json); pass --resume"),
+    # adv52: another initial condition was said as two whole dicts of its settings (a 400-character line)
+    (["train", "--source", "{root}/c.h5", "--set", "ic=sines", "--out", "{root}/new"],
+     "was written with other settings (ic.kind: cache 'grf' vs asked 'sines')\n"),
+    # adv52: an interrupted generate's cache, a damaged config or a missing path were refused after torch (2-5 s),
+    # and without a PDE named the damaged cache read "no PDE named"
+    (["train", "--source", "{root}/cut.h5", "--out", "{root}/new"], "cut.h5 is incomplete (1 of 2 samples written)"),
+    (["train", "--source", "{root}/garbled.h5", "--out", "{root}/new"], "garbled.h5 is damaged: attribute "
+                                                                          "pdestream_config = '{{not json'"),
+    (["train", "burgers1d", "--source", "{root}/garbled.h5", "--out", "{root}/new"], "garbled.h5 is damaged"),
+    (["train", "--source", "{root}/none.h5", "--out", "{root}/new"], "--source {root}/none.h5: no such cache"),
+    # adv52: a stored config naming no PDE read "no PDE named" (or "holds 5 samples"); one that does not build
+    # named a setting the user never gave ("burgers1d: bad value for n")
+    (["train", "--source", "{root}/noname.h5", "--out", "{root}/new"], "noname.h5 is damaged: its stored config "
+                                                                        "(pdestream_config) names no PDE (5)"),
+    (["train", "burgers1d", "--source", "{root}/noname.h5", "--out", "{root}/new"], "noname.h5 is damaged"),
+    (["train", "--source", "{root}/unknown.h5", "--out", "{root}/new"], "unknown.h5 holds samples of 'nosuchpde', a "
+                                                                         "PDE not known here: unknown PDE 'nosuchpde'"),
+    (["train", "--source", "{root}/badn.h5", "--out", "{root}/new"], "badn.h5: its stored config does not build "
+                                                                      "here: burgers1d: bad value for n"),
+    # adv52: a window longer than the cache's trajectories was refused by the view after torch (4.6 s), in words
+    # naming k_out (the unroll the user gave or left at its default was not named)
+    (["train", "--source", "{root}/c.h5", "--mode", "solver-in-the-loop", "--coarse-n", "8", "--out", "{root}/new"],
+     "--mode solver-in-the-loop with --unroll 4 and --k-in 1 needs 5 frames per window but the trajectories have 3; "
+     "allowed: --unroll <= 2"),
+    (["train", "--source", "{root}/c.h5", "--k-in", "3", "--out", "{root}/new"],
+     "--mode one-step with --k-in 3 and --k-out 1 needs 4 frames per window but the trajectories have 3; allowed: "
+     "--k-in <= 2 (or a cache of 4 frames)"),
+    # adv52: an empty or overwritten checkpoint.pt was said after torch, as "(EOFError: )" or in torch's words
+    # advising weights_only=False
+    (["train", "--resume", "{root}/empty", "--steps", "9"], "{root}/empty/checkpoint.pt is damaged (empty)"),
+    (["train", "--resume", "{root}/garbage", "--steps", "9"], "{root}/garbage/checkpoint.pt is damaged (not a "
+                                                               "torch.save file"),
+    # adv52: a finished arm of --k-in 1 was read back for --k-in 2 and failed in the rollout (the model's input
+    # channels); --view operator with --modes ran rc 0 on the next-step view, the option unread
+    ([*TINY_MODES, "--steps", "2", "--k-in", "2", "--out", "{root}/cmp"], "holds a finished run with other settings "
+                                                                          "(k_in: the run's 1, asked 2)"),
+    ([*TINY_MODES, "--steps", "2", "--view", "operator", "--out", "{root}/new"], "--view operator not allowed with "
+                                                                                 "--modes"),
 ])
 def test_refusals_read_from_run_json_come_before_torch(finished, argv, said):
     before = _unchanged(finished)
