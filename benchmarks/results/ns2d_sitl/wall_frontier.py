@@ -55,6 +55,7 @@ def draw(pts: dict, out: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     style = {SITL: ("tab:purple", "o"), PAIRS: ("tab:blue", "s"), NOISE: ("tab:green", "^")}
@@ -64,7 +65,9 @@ def draw(pts: dict, out: Path) -> None:
             ax.loglog([r[1] for r in rows], [r[col] for r in rows], marker=marker, color=color, label=arm)
             for r in rows:
                 ax.annotate(f"{r[0]}", (r[1], r[col]), textcoords="offset points", xytext=(4, 4), fontsize=7)
-        ax.set_xlabel("training cost (pairs optimizer steps; solver-in-the-loop step = 5)")
+        ax.set_xticks([500, 1000, 2500, 7500], ["500", "1000", "2500", "7500"])
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.set_xlabel("training cost, pairs steps (a solver-in-the-loop step = 5)")
         ax.set_ylabel("relative L2")
         ax.set_title(f"ns2d 64 -> 32, {title} (seed 0)", fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
