@@ -66,13 +66,14 @@ and the order of calls), so a deterministic reservoir stays deterministic. ``sta
 
 from __future__ import annotations
 
+import inspect
 import math
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
 from ._bridge import LATENT  # propose()'s key for the IC latents [n, L] (no parameter can be named so)
-from .proposal_box import params_to_unit, unit_to_params
+from .proposal_box import density, params_to_unit, unit_to_params
 from .proposal_fit import (
     LEVEL_SPAN,
     UNIT_EDGE,
@@ -93,7 +94,7 @@ from .proposal_fit import (
     running_median,
 )
 from .proposal_lift import LIFT_FULL, LIFT_MIN, LiftGate
-from .reservoir_config import PROPOSALS, check_proposal_settings
+from .reservoir_config import PROPOSALS, check_proposal_settings, check_proposal_uses
 
 MODES = ("uniform", "loss", "active", "generative")
 if MODES != PROPOSALS:
@@ -106,7 +107,7 @@ class ParamProposal:
     domains: {name: (kind, low, high, options)} for every PDE parameter in PARAMS order (``_bridge.param_domains``);
     "fixed" ones are left to the solver. mode: "uniform" (propose() returns None: the solver draws from the
     key as usual), "loss", "active" or "generative" (the module docstring). floor: share of uniform draws in "loss" and
-    "active" mode, in (0, 1]. window: recent losses kept. "active" only: ensemble (>= 2) bootstrap loss models,
+    "active" mode, in (0, 1]. window: recent losses kept. "active" only: ensemble (2-100) bootstrap loss models,
     kappa (>= 0) the weight of their spread against their mean (log-loss units), refit: losses between fits,
     candidates: uniform points of the box the proposal resamples. The skill gate ("loss" and "active", the module
     docstring): gate (False: always steer 1 - floor), skill_window: fresh (prediction, loss) pairs kept,
@@ -122,9 +123,11 @@ class ParamProposal:
                  refit: int = 256, candidates: int = 2048, gate: bool = True, skill_window: int = 256,
                  skill_min: int = 32, skill_full: float = 0.5, latent_prior: tuple | None = None, top: float = 0.25,
                  step: float = 0.25, probe: float = 0.25):
-        check_proposal_settings(mode, floor=floor, bandwidth=bandwidth, power=power, window=window, ensemble=ensemble,
-                       kappa=kappa, top=top, step=step, gate=gate, skill_full=skill_full, skill_min=skill_min,
-                       refit=refit, candidates=candidates, skill_window=skill_window, probe=probe)
+        settings = dict(floor=floor, bandwidth=bandwidth, power=power, window=window, ensemble=ensemble, kappa=kappa,
+                        top=top, step=step, gate=gate, skill_full=skill_full, skill_min=skill_min, refit=refit,
+                        candidates=candidates, skill_window=skill_window, probe=probe)
+        check_proposal_settings(mode, **settings)
+        check_proposal_uses(mode, {k: v for k, v in settings.items() if v != _DEFAULTS[k]})
         self.mode, self.floor, self.window, self.bandwidth, self.power = mode, float(floor), window, float(bandwidth), float(power)
         self.ensemble, self.kappa, self.refit, self.candidates = ensemble, float(kappa), refit, candidates
         self.gate, self.skill_window, self.skill_min, self.skill_full = gate, skill_window, skill_min, float(skill_full)
@@ -416,18 +419,10 @@ class ParamProposal:
         return np.maximum(np.exp(-0.5 * (diff**2).sum(-1) / self.bandwidth**2).mean(1), np.finfo(np.float64).tiny)
 
     def density(self, bins: int = 20) -> dict:
-        """For plots and reports, along the first random parameter: bin edges (unit box), proposal counts
-        and mean recent loss per bin (NaN where no loss was recorded)."""
-        edges = np.linspace(0, 1, bins + 1)
-        prop = np.asarray(self.proposed)[:, 0] if self.proposed and self.random else np.zeros(0)
-        counts = np.histogram(prop, edges)[0]
-        loss = np.full(bins, np.nan)
-        if len(self.losses):
-            which = np.minimum((self.points[:, 0] * bins).astype(int), bins - 1)
-            for b in range(bins):
-                if (which == b).any():
-                    loss[b] = self.losses[which == b].mean()
-        return {"edges": edges.tolist(), "counts": counts.tolist(), "loss": loss.tolist()}
+        """For plots and reports (``proposal_box.density``): along the first random parameter, the proposals' counts
+        and the mean recent loss per bin."""
+        return density(np.asarray(self.proposed).reshape(-1, self.dims) if self.random else None, self.points,
+                       self.losses, bins)
 
     # --- state -------------------------------------------------------------------------------------
     def state_dict(self) -> dict:
@@ -497,3 +492,6 @@ class ParamProposal:
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
+
+
+_DEFAULTS = {k: p.default for k, p in inspect.signature(ParamProposal.__init__).parameters.items() if p.default is not p.empty}

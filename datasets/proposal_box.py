@@ -1,5 +1,6 @@
 """The unit box of ``datasets.proposal.ParamProposal``: a PDE's random parameters <-> unit coordinates (uniform:
-linear, loguniform: log, choice: equal-width bins per option, the bin's centre for a value); numpy only."""
+linear, loguniform: log, choice: equal-width bins per option, the bin's centre for a value), and the proposals'
+density along its first coordinate; numpy only."""
 
 from __future__ import annotations
 
@@ -41,3 +42,18 @@ def unit_to_params(domains: dict, random: list, z: np.ndarray) -> dict[str, np.n
         out[name] = np.clip(v, np.nextafter(np.float32(low), np.float32(high)),
                             np.nextafter(np.float32(high), np.float32(low))).astype(np.float64)
     return out
+
+
+def density(proposed: np.ndarray | None, points: np.ndarray, losses: np.ndarray, bins: int = 20) -> dict:
+    """Along the first unit coordinate: bin edges [bins + 1], counts of the proposed unit points [P, D] (None: no
+    random parameter, no counts) and the mean loss [bins] of the recorded points [W, D] with losses [W] per bin (NaN
+    where none was recorded); plain lists, for plots and reports."""
+    edges = np.linspace(0, 1, bins + 1)
+    counts = np.histogram(proposed[:, 0] if proposed is not None and len(proposed) else np.zeros(0), edges)[0]
+    loss = np.full(bins, np.nan)
+    if len(losses):
+        which = np.minimum((points[:, 0] * bins).astype(int), bins - 1)
+        for b in range(bins):
+            if (which == b).any():
+                loss[b] = losses[which == b].mean()
+    return {"edges": edges.tolist(), "counts": counts.tolist(), "loss": loss.tolist()}

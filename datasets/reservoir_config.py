@@ -57,6 +57,23 @@ PROPOSAL_RANGES: dict[str, tuple[Callable, str]] = {
 }
 
 
+# which settings each proposal reads (window: every mode keeps its recent losses, the loss-over-domain plot's)
+_STEERED = {"window", "floor", "gate", "skill_window", "skill_min", "skill_full"}
+PROPOSAL_USES = {"uniform": {"window"}, "loss": _STEERED | {"bandwidth", "power"},
+                 "active": _STEERED | {"power", "ensemble", "kappa", "refit", "candidates"},
+                 "generative": _STEERED | {"refit", "top", "step", "probe"}}
+
+
+def check_proposal_uses(mode: str, changed: dict) -> None:
+    """Refuse a setting given away from its default (``changed``: by name) to a proposal ``mode`` that does not read
+    it (PROPOSAL_USES): one line naming the proposals that do (it was silently ignored)."""
+    for name in changed:
+        if name not in PROPOSAL_USES[mode]:
+            users = " / ".join(m for m in PROPOSALS if name in PROPOSAL_USES[m])
+            raise ValueError(f"proposal {name}={changed[name]!r} goes with proposal {users} (not {mode}); nothing here "
+                             "uses it: drop it")
+
+
 def check_proposal_settings(mode: str | None = None, **values) -> None:
     """Refuse a steered proposal's setting outside PROPOSAL_RANGES (``values``: those given, by name; ``mode``: one
     of PROPOSALS, None: not given): ValueError, one line naming it and what is allowed."""

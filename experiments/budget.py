@@ -301,11 +301,11 @@ def _paced(stats: dict) -> str:
 
 def _proposal_kwargs(cfg: BudgetConfig, arm: str) -> dict:
     """ParamProposal settings of ``arm``: the floor, plus ``cfg.proposal_kwargs`` those of its mode accepts
-    (the "active" mode's ensemble, kappa, refit and candidates go to reservoir_active only; the space to steered arms)."""
+    (the "active" mode's ensemble, kappa, refit and candidates go to reservoir_active only; none to an unsteered arm)."""
+    if arm not in PROPOSALS:  # an arm with the key's own draws steers nothing: no setting of a proposal applies
+        return {}
     active_only = ("ensemble", "kappa", "refit", "candidates")
     extra = {k: v for k, v in (cfg.proposal_kwargs or {}).items() if arm == "reservoir_active" or k not in active_only}
-    if arm not in PROPOSALS:  # an arm with the key's own draws steers nothing: no space to steer in
-        extra.pop("space", None)
     return {"floor": cfg.proposal_floor, **extra}
 
 
@@ -396,7 +396,7 @@ def budget_compare(pde, out_dir, cfg: BudgetConfig, shift_overrides: dict | None
     datasets.ReservoirStream(pde, view=view, batch_size=cfg.batch_size, capacity=cfg.capacity,
                              solve_batch=cfg.solve_batch, mode=cfg.reservoir_mode,
                              proposal=PROPOSALS[steered] if steered in cfg.arms else "uniform",
-                             proposal_kwargs=_proposal_kwargs(cfg, steered), draw="priority",
+                             proposal_kwargs=_proposal_kwargs(cfg, steered) if steered in cfg.arms else {}, draw="priority",
                              priority_power=cfg.priority_power, priority_floor=cfg.priority_floor)  # settings checked before any work
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

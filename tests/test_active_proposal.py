@@ -324,3 +324,20 @@ def test_the_cli_and_the_proposal_refuse_by_one_table(capsys):
             assert cli.main(["train", "burgers1d", "--reservoir", "--proposal", "active", "--out", "never", option,
                              str(value)]) == 2
             assert str(e.value) in capsys.readouterr().err
+
+
+def test_a_setting_the_proposal_does_not_read_is_refused_in_one_line():
+    """ParamProposal (and so a reservoir's proposal_kwargs from Python): a setting given away from its default to a
+    proposal that does not read it is refused, naming the proposals that do (it was silently ignored); at its default,
+    or to a proposal that reads it, it is taken."""
+    from pdestream.datasets.proposal import ParamProposal
+
+    box = {"x": ("uniform", 0.0, 1.0, ())}
+    for mode, name, value, users in (("uniform", "kappa", 5.0, "active"), ("loss", "top", 0.5, "generative"),
+                                     ("generative", "bandwidth", 0.1, "loss"), ("active", "probe", 0.5, "generative"),
+                                     ("uniform", "floor", 0.5, "loss / active / generative")):
+        with pytest.raises(ValueError, match=rf"^proposal {name}={value!r} goes with proposal {users} \(not {mode}\)"):
+            ParamProposal(box, mode=mode, **{name: value})
+    ParamProposal(box, mode="uniform", kappa=1.0, floor=0.25)  # the defaults: nothing was set
+    ParamProposal(box, mode="active", kappa=5.0, floor=0.5)
+    ParamProposal(box, mode="generative", top=0.5, probe=0.0)
