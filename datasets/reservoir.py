@@ -428,13 +428,13 @@ class ReservoirStream(IterableDataset):
         """Where the stream stands, plain values only, as the composition of its parts' states: {"kind",
         "layout": 2, the settings a resume must share, "reservoir": the store's (``Reservoir.state_dict``: held
         slots, storage, writer, sampler, generator), "producer": the pipeline's (next index, jobs in flight),
-        "schedule": {"drawn_since_insert", "batches"}, "proposal"}. Exact for mode="deterministic"; async
+        "schedule": {"drawn_since_insert", "batches"}, "proposal", "latent_twins"}. Exact for mode="deterministic"; async
         resumes approximately."""
         return {"kind": "reservoir", "layout": 2, "seed": self.seed, "config_hash": self.pde.config_hash(),
                 "mode": self.mode, "capacity": self.capacity, "max_reuse": self.max_reuse, "view": self.view.name,
                 "n_windows": self.n_windows, "reservoir": self.res.state_dict(), "producer": self.pipeline.state_dict(),
                 "schedule": {"drawn_since_insert": self.drawn_since_insert, "batches": self.progress.consumed(0)},
-                "proposal": self.proposal.state_dict()}
+                "proposal": self.proposal.state_dict(), "latent_twins": True}
 
     def load_state_dict(self, state: dict) -> None:
         """Resume from ``state_dict()`` (or the flat layout saved before the parts: ``reservoir_store.from_flat``):
@@ -448,6 +448,10 @@ class ReservoirStream(IterableDataset):
             # states saved before capacity, max_reuse, view and n_windows were recorded are not compared on them
             if (key in state or key in ("seed", "config_hash", "mode")) and state.get(key) != mine[key]:
                 raise ValueError(f"reservoir state has {key}={state.get(key)!r} but this stream has {key}={mine[key]!r}")
+        if self.proposal.n_latent and self.pde.NDIM > 1 and not state.get("latent_twins"):
+            # its held trajectories' IC latents, re-solved now, would be read with another layout (generator.ics)
+            raise ValueError("reservoir state saved before a 2D / 3D IC latent paired its conjugate twins (stop 52): "
+                             "its latents now give other initial conditions; start a new run")
         try:
             if "layout" not in state:
                 state = from_flat(state)

@@ -127,3 +127,27 @@ def test_a_training_run_with_a_joint_proposal_resumes_exactly(tmp_path, monkeypa
     a = torch.load(tmp_path / "whole" / "model.pt", weights_only=True)["model"]
     b = torch.load(tmp_path / "cut" / "model.pt", weights_only=True)["model"]
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_a_2d_joint_state_saved_before_the_twins_were_paired_is_refused_in_one_line():
+    # a 2D IC latent's layout changed when its conjugate twins were paired (generator.ics): an older state's held
+    # latents would now give other initial conditions, so its resume is refused (a 1D state, whose layout did not
+    # change, still resumes)
+    pde2 = generator.get_pde("burgers2d", n=16, n_frames=3)
+    s = ReservoirStream(pde2, seed=0, view="operator", batch_size=2, capacity=4, max_reuse=2, solve_batch=2,
+                        mode="deterministic", proposal="generative", proposal_kwargs={"space": "params+ic"})
+    run(s, 2)
+    state = s.state_dict()
+    assert state["latent_twins"] is True
+    del state["latent_twins"]
+    again = ReservoirStream(pde2, seed=0, view="operator", batch_size=2, capacity=4, max_reuse=2, solve_batch=2,
+                            mode="deterministic", proposal="generative", proposal_kwargs={"space": "params+ic"})
+    with pytest.raises(ValueError, match="^reservoir state saved before a 2D / 3D IC latent paired") as e:
+        again.load_state_dict(state)
+    assert "\n" not in str(e.value)
+    old = stream()
+    run(old, 2, head=2)
+    flat = old.state_dict()
+    old.close()
+    del flat["latent_twins"]
+    stream().load_state_dict(flat)  # 1D: resumes
