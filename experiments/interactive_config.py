@@ -282,11 +282,11 @@ def finished_run(run: Path, pde, settings: dict, cfg: InteractiveConfig, seed: i
         readable = False
     if not readable:
         raise ValueError(f"{run / 'run.json'} is damaged (not a JSON object); {again}")
-    check_checkpoint_file(run / "model.pt", again)  # (torch's UnpicklingError, a traceback, after the test set)
     differ = arm_differs(run, pde, settings, cfg, seed, said=True)
-    if differ:
+    if differ:  # (first: what to pass to read it back, before whether its weights can be)
         raise ValueError(f"{run} holds a finished run with other settings ({'; '.join(differ)}); rerun with its "
                          "own settings to go on, or pass --overwrite (retrains every arm) or another --out")
+    check_checkpoint_file(run / "model.pt", again)  # (torch's UnpicklingError, a traceback, after the test set)
     return json.loads((run / "metrics.json").read_text())
 
 

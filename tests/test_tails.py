@@ -85,6 +85,9 @@ def test_compare_md_states_the_skill_gate_of_the_steered_arms():
     arms = [{"arm": "reservoir", "stats": {}}, {"arm": "reservoir_active",
                                                 "stats": {"proposal_skill": 0.123, "proposal_steer": 0.185}}]
     line = gate_line(arms)
-    assert line.startswith("Proposal skill gate (seed 0, at the end; steered share = (1 - floor) x clip(skill / 0.5")
+    assert line.startswith("Proposal skill gate (seed 0, at the end; steered share = (1 - floor) x clip(max(skill / "
+                           "0.5, lift / log 2), 0, 1), 0 when the lift's upper bound is below 0")
     assert line.endswith("reservoir_active skill 0.12, steered share 0.18.") and "reservoir skill" not in line
+    arms[1]["stats"]["proposal_lift"] = 0.234  # measured: said beside the skill
+    assert gate_line(arms).endswith("reservoir_active skill 0.12, lift 0.23, steered share 0.18.")
     assert "--proposal-gate off" in gate_line(arms, gate=False) and gate_line(arms[:1]) == ""
