@@ -404,12 +404,14 @@ class ReservoirStream(IterableDataset):
                 "wait_share": self.t_wait / elapsed, "skipped": self.skipped, **pace, "producer_idle_s": idle,
                 "producer_idle_share": idle / (elapsed * self.pipeline.slots),
                 **({"proposal_skill": self.proposal.skill, "proposal_steer": self.proposal.steer,
-                    "proposal_lift": self._lift_low()} if self.proposal.mode != "uniform" else {})}
+                    "proposal_lift": self._lift(0), "proposal_lift_high": self._lift(1)}
+                   if self.proposal.mode != "uniform" else {})}
 
-    def _lift_low(self) -> float:
-        """The lift's lower bound (``datasets.proposal_lift``; log-loss units), NaN while it is not measured."""
+    def _lift(self, end: int) -> float:
+        """The lift's lower (end 0) or upper (1) bound (``datasets.proposal_lift``; log-loss units), NaN while it is
+        not measured."""
         bounds = self.proposal.lift.bounds()
-        return float("nan") if bounds is None else bounds[0]
+        return float("nan") if bounds is None else bounds[end]
 
     def report(self) -> dict:
         """What a run saves about its data: stats, reuse of every trajectory (1 = one FIFO pass), and where

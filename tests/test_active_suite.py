@@ -113,6 +113,6 @@ def test_generative_suite_steers_the_joint_space_and_reports_its_gate(tmp_path, 
     gen.main(["--out", str(tmp_path), "--problems", "burgers1d", "--seeds", "1"], tiny=tiny)
     assert "2 of 2 units to run" in capsys.readouterr().out
     rec = json.loads((tmp_path / "burgers1d" / "reservoir_generative_seed0" / "arm.json").read_text())
-    assert {"proposal_skill", "proposal_steer", "proposal_lift"} <= set(rec["stats"])
+    assert {"proposal_skill", "proposal_steer", "proposal_lift", "proposal_lift_high"} <= set(rec["stats"])
     text = (tmp_path / "summary.md").read_text()
     assert "**uniform / generative**" in text and "the generative arm's gate at the end, per seed" in text

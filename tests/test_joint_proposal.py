@@ -42,7 +42,8 @@ def same(a, b):
 
 # the generative proposal learns from fresh solves only (a few here): its high-difficulty set is the top 3/4
 STEERING = {"active": {"proposal": "active"},
-            "generative": {"proposal": "generative", "proposal_kwargs": {**JOINT, "top": 0.75, "refit": 8}}}
+            "generative": {"proposal": "generative", "proposal_kwargs": {**{k: v for k, v in JOINT.items() if k != "candidates"},
+                                                                          "top": 0.75, "refit": 8}}}
 
 
 @pytest.mark.parametrize("proposal", list(STEERING))
