@@ -303,11 +303,11 @@ def summary(out: Path, problems, seeds: int, suite: Suite = ACTIVE) -> str:
         for arm in suite.arms_of(name):
             gate = [r["stats"] for r in runs.get(arm, []) if "proposal_skill" in (r.get("stats") or {})]
             if gate:
-                lift = [v for v in (g.get("proposal_lift") for g in gate) if v is not None and v == v]  # (NaN: none)
+                lift = [_bounds(g) for g in gate if _bounds(g)]
                 notes.append(f"- {name}: the {suite.labels[arm]} arm's gate at the end, per seed: skill "
                              + ", ".join(f"{g['proposal_skill']:.2f}" for g in gate) + "; steered share "
                              + ", ".join(f"{g['proposal_steer']:.2f}" for g in gate) + " (of 0.75 at most: floor 0.25)"
-                             + ("; the lift's lower bound " + ", ".join(f"{v:.2f}" for v in lift) if lift else "") + ".")
+                             + ("; the lift " + ", ".join(lift) if lift else "") + ".")
         notes += _spending(name, runs, suite.labels)
         share = explained(out, name, runs.get("reservoir", []))
         if share is not None:
@@ -316,6 +316,15 @@ def summary(out: Path, problems, seeds: int, suite: Suite = ACTIVE) -> str:
     missing = [f"{p} {a} seed {s}" for p, s, a in units(problems, seeds, suite)
                if not (unit_dir(out, p, a, s) / "arm.json").is_file()]
     return "\n".join(lines + ["", *notes, "", f"Units missing ({len(missing)}): " + (", ".join(missing) or "none")]) + "\n"
+
+
+def _bounds(stats: dict) -> str:
+    """A steered unit's lift at the end in words: "[low, high]", "low >= L" (units recorded before the upper bound
+    was), "" where it was not measured (NaN or absent)."""
+    low, high = stats.get("proposal_lift"), stats.get("proposal_lift_high")
+    if low is None or low != low:
+        return ""
+    return f"[{low:.2f}, {high:.2f}]" if high is not None and high == high else f"low >= {low:.2f}"
 
 
 def _spending(name: str, runs: dict, labels: dict) -> list[str]:

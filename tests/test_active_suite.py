@@ -116,3 +116,5 @@ def test_generative_suite_steers_the_joint_space_and_reports_its_gate(tmp_path, 
     assert {"proposal_skill", "proposal_steer", "proposal_lift", "proposal_lift_high"} <= set(rec["stats"])
     text = (tmp_path / "summary.md").read_text()
     assert "**uniform / generative**" in text and "the generative arm's gate at the end, per seed" in text
+    low = rec["stats"]["proposal_lift"]
+    assert ("the lift [" in text) == (low == low)  # measured (not NaN): both bounds said
