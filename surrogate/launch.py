@@ -68,6 +68,8 @@ def source_config(source) -> dict | None:
     named")."""
     if source in (None, "stream"):
         return None
+    if not str(source).strip():  # (Path("") is ".": it read "cache path '.' must end in .h5 ...")
+        raise ValueError("--source '' is empty; allowed: stream, or a cache's path (.h5, .hdf5, .zarr) or an export's")
     if not Path(source).exists():
         raise FileNotFoundError(f"--source {source}: no such cache (or use --source stream)")
     from pdestream.datasets.export import cache_written, cached_config

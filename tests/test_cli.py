@@ -97,6 +97,7 @@ def test_generate_from_toml(capsys, tmp_path):
     (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/a.nc"], "must end in .h5, .hdf5 or .zarr"),
     (["generate", "burgers1d", "--n", "0", "--out", "{tmp}/a.h5"], "n_samples=0"),
     (["generate", "burgers1d", "--n", "2", "--out", "{tmp}/exists.h5"], "exists; pass --resume"),
+    (["train", "burgers1d", "--out", "{tmp}/r", "--source", ""], "--source '' is empty; allowed: stream"),
     (["inspect", "{tmp}/missing.zarr"], "does not exist"),
     (["inspect", "{tmp}/exists.h5"], "not a readable hdf5 cache"),
 ])
