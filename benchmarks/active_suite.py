@@ -303,7 +303,7 @@ def summary(out: Path, problems, seeds: int, suite: Suite = ACTIVE) -> str:
         for arm in suite.arms_of(name):
             gate = [r["stats"] for r in runs.get(arm, []) if "proposal_skill" in (r.get("stats") or {})]
             if gate:
-                lift = [_bounds(g) for g in gate if _bounds(g)]
+                lift = [said for said in map(_bounds, gate) if said]
                 notes.append(f"- {name}: the {suite.labels[arm]} arm's gate at the end, per seed: skill "
                              + ", ".join(f"{g['proposal_skill']:.2f}" for g in gate) + "; steered share "
                              + ", ".join(f"{g['proposal_steer']:.2f}" for g in gate) + " (of 0.75 at most: floor 0.25)"

@@ -294,8 +294,7 @@ class ParamProposal:
             # local, ~0 at any uniform draw, and would keep the gate shut for want of a prediction
             return gauss_ratio(normal_scores(z), *self._gen[2:])
         if self.mode == "loss" and len(self.losses):
-            positive = self.losses[self.losses > 0]
-            y = np.log(np.maximum(self.losses, positive.min() if len(positive) else 1e-30))
+            y = self._log(self.losses)
             k = np.exp(-0.5 * ((z[:, None, :] - self.points[None]) ** 2).sum(-1) / self.bandwidth**2)  # [N, W]
             total = k.sum(1)
             return np.where(total > 1e-12, (k @ y) / np.maximum(total, 1e-300), y.mean())
