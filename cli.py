@@ -254,6 +254,9 @@ def add_compare(sub) -> None:
     p.add_argument("--cache-samples", type=int, default=d.cache_samples, metavar="M", help="size of the fixed cached set")
     p.add_argument("--seeds", type=int, default=d.seeds, help="model and data seeds per arm: mean, spread and, with a "
                    "budget or --modes, a verdict per metric (default: 3; a budget with --quick and --modes: 1)")
+    p.add_argument("--only-seed", type=int, metavar="S", help="--modes: train (or read back) seed S of every arm and "
+                   "stop, no tables: one process or machine per seed; the same command without it then reads every "
+                   "seed back and writes them")
     p.add_argument("--test-samples", type=int, default=d.test_samples, help="held-out trajectories per test set")
     p.add_argument("--shift", type=float, default=d.shift,
                    help="shifted test set (--modes: every arm rolled out on it too; not with --quick): parameter domains "
@@ -342,7 +345,7 @@ def compare_command(args: argparse.Namespace) -> CompareCommand:
                                                "proposal_kappa", "priority_power", "priority_floor", "solve_batch")}
     return CompareCommand(
         pde=name, out=args.out, settings=settings, overwrite=args.overwrite, cache_samples=args.cache_samples,
-        seeds=args.seeds, test_samples=args.test_samples, shift=args.shift, shift_set=parse_sets(args.shift_set, "--shift-set"),
+        seeds=args.seeds, only_seed=args.only_seed, test_samples=args.test_samples, shift=args.shift, shift_set=parse_sets(args.shift_set, "--shift-set"),
         format=args.format, budget=args.budget, sim_budget=args.sim_budget,
         arms=tuple(a.strip() for a in args.arms.split(",") if a.strip()), priority_cap=args.priority_cap,
         precompute_share=args.precompute_share, sim_warmup_share=args.sim_warmup_share, quick=args.quick,

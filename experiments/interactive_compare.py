@@ -107,8 +107,12 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
         log(f"coarse solver (n={cfg.coarse_n}): end error {arms[-1]['end_mean']:.4f} ({time.perf_counter() - t0:.1f} s)")
         for label, arm_pde, settings, run_dir in plan[len(net_modes):]:
             arms.append(_train_seeds(label, arm_pde, settings, test, cfg, run_dir, log))
+        if cfg.only_seed is not None:
+            return {"arms": arms}  # one seed of several: the tables wait for the run that reads every seed back
         score_against_coarse(arms)
         _plot_sitl_rollouts(out / "rollouts.png", fine, coarse, test[0], [p[3] for p in plan[len(net_modes):]], cfg)
+    if cfg.only_seed is not None:
+        return {"arms": arms}
     result = {"pde": pde.config(), "fine_pde": fine.config() if sitl else None, "config": asdict(cfg),
               "frame_dt": pde.frame_dt, "arms": arms}
     if cfg.shift is not None:
@@ -167,7 +171,7 @@ def _unfinished(run_dir: Path, pde, settings: dict, cfg: InteractiveConfig, seed
 def _train_seeds(label: str, pde, settings: dict, test, cfg: InteractiveConfig, run_dir: Path, log) -> dict:
     """Train (or read back) one arm for every seed; its record with each figure's mean and std over seeds."""
     runs = []
-    for seed in _seeds(cfg):
+    for seed in _seeds(cfg) if cfg.only_seed is None else (cfg.only_seed,):
         rec = _train_arm(label, pde, settings, test, cfg, _run_dir(run_dir, cfg, seed), log, seed)
         runs.append(rec)
     return combine_seeds(runs)

@@ -41,7 +41,8 @@ class InteractiveConfig:
     out again on a second held-out set beyond the training range (``experiments.shift.shifted_pde``: the parameter
     domains moved by this fraction of their width, or as shift_set names them; None: no such set); seed: the
     first model and data
-    seed and the test set's; seeds: how many (seed, seed + 1, ...); resume: read back finished (arm, seed) runs;
+    seed and the test set's; seeds: how many (seed, seed + 1, ...); only_seed: train (or read back) this one of them
+    in every arm and stop before the tables (seeds spread over processes, read back by a run without it); resume: read back finished (arm, seed) runs;
     budget_s: equal wall clock instead of equal steps: every trained arm trains this many seconds (solver calls
     included; the steps it reaches are in the table), None: ``steps`` each; pairs_steps: the corrector's two pairs
     arms' steps (None: ``steps``), for equal wall clock with solver-in-the-loop, whose unrolled steps cost more
@@ -69,6 +70,7 @@ class InteractiveConfig:
     shift: float | None = None
     shift_set: dict = field(default_factory=dict)
     seeds: int = 1
+    only_seed: int | None = None
     resume: bool = True
     device: str = "cpu"
     budget_s: float | None = None
@@ -91,6 +93,9 @@ class InteractiveConfig:
         for name, value in (("--steps", self.steps), ("--batch-size", self.batch_size), ("--test-samples", self.n_test),
                             ("--k-in", self.k_in), ("--seeds", self.seeds)):
             check_count(name, value)
+        if self.only_seed is not None and self.only_seed not in seeds(self):
+            raise ValueError(f"--only-seed {self.only_seed} not among the seeds trained ({self.seed}..."
+                             f"{self.seed + self.seeds - 1}: --seeds {self.seeds})")
         if self.pairs_steps is not None:
             check_count("--pairs-steps", self.pairs_steps)
             if "solver-in-the-loop" not in self.modes or self.budget_s is not None:

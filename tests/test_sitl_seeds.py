@@ -88,6 +88,37 @@ def test_a_one_seed_run_is_read_back_as_seed_0_of_a_several_seed_rerun(tmp_path,
             assert a["seeds"] == [0, 1] and a["per_seed"][0]["rollout_mean"] == one[a["arm"]]
 
 
+def test_only_seed_trains_that_seed_alone_and_a_run_without_it_reads_it_back(tmp_path, capsys, monkeypatch):
+    """--only-seed S: one process per seed (a comparison's seeds spread over cores or machines); it writes no tables,
+    and the same command without it trains only the seeds still missing, then writes them."""
+    out = tmp_path / "cmp"
+    argv = [*SMALL, "--steps", "2", "--seeds", "2", "--out", str(out)]
+    assert cli.main([*argv, "--only-seed", "1"]) == 0
+    assert "--only-seed reads it back" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["sitl_unroll1_noise_seed1", "sitl_unroll1_seed1",
+                                                     "sitl_unroll4_seed1"]  # no tables, no seed 0
+    from pdestream.experiments import interactive_compare
+
+    trained, real = [], interactive_compare.train_run
+
+    def seed_0_only(*args, **kwargs):
+        assert kwargs["seed"] == 0, "seed 1 was trained again"
+        trained.append(kwargs["seed"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(interactive_compare, "train_run", seed_0_only)
+    assert cli.main(argv) == 0
+    assert capsys.readouterr().out.count("read back (not retrained)") == 3 and trained == [0, 0, 0]
+    arms = [a for a in json.loads((out / "compare.json").read_text())["arms"] if a["mode"] == "solver-in-the-loop"]
+    assert len(arms) == 3 and all(a["seeds"] == [0, 1] for a in arms)
+    for bad, says in ((["--only-seed", "2"], "--only-seed 2 not among the seeds trained (0...1: --seeds 2)"),):
+        assert cli.main([*argv, *bad]) == 2
+        assert capsys.readouterr().err.strip() == f"pdestream: error: {says}"
+    assert cli.main(["compare", "burgers1d", "--quick", "--only-seed", "1", "--out", str(tmp_path / "b")]) == 2
+    assert "--only-seed 1 goes with --modes" in capsys.readouterr().err
+    assert not (tmp_path / "b").exists()
+
+
 def test_the_rollouts_figure_names_the_unroll_it_shows(tmp_path, monkeypatch):
     from pdestream.experiments import interactive_compare
 
