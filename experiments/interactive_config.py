@@ -248,10 +248,28 @@ def arm_differs(run: Path, pde, settings: dict, cfg: InteractiveConfig, seed: in
         have = {}
     # k_in: the next-step view's input frames (run.json's view_args; a model of 1 read back for 2 failed in the
     # rollout on its input channels)
-    have = {**have, "mode": comparable_mode(have.get("mode"), pde),
+    have = {**have, "mode": comparable_mode(have.get("mode"), pde), "model_cfg": comparable_model_cfg(have),
             "k_in": _view_k_in(have.get("view_args"))} if isinstance(have, dict) else {}
+    want["model_cfg"] = comparable_model_cfg(want)
     keys = [key for key in RESUME_KEYS if have.get(key) != want[key]]
     return [_said(key, have.get(key), want[key]) for key in keys] if said else keys
+
+
+def comparable_model_cfg(run: dict):
+    """A run's model settings (run.json's "model_cfg", or an arm's) in one form: a built-in model's integers as
+    ints, so that --model-set width=08 (kept as the string "08" for the model to parse) and a run of width=8 read as
+    the same model; your own model's settings (a "package.module:Class" model) as given."""
+    cfg = run.get("model_cfg")
+    if not isinstance(cfg, dict) or ":" in str(run.get("model")):
+        return cfg
+    return {k: _as_int(v) for k, v in cfg.items()}
+
+
+def _as_int(value):
+    try:
+        return int(value) if isinstance(value, (int, str)) and not isinstance(value, bool) else value
+    except ValueError:
+        return value
 
 
 def _view_k_in(view_args) -> int | None:

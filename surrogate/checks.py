@@ -56,8 +56,17 @@ def check_cache_matches(path, config: dict, pde, explicit: dict | None = None) -
         # a setting a config leaves out is at its default (bc: periodic, refine: 1): shown as that, not as None
         shown = [(k, *(_default(pde, k) if v is None else v for v in (_lookup(config, k), _lookup(wanted, k))))
                  for k in differ]
-        detail = ", ".join(f"{k}: cache {c!r} vs asked {w!r}" for key, c0, w0 in shown for k, c, w in _entries(key, c0, w0))
+        detail = ", ".join(f"{k}: cache {_said(k, c)} vs asked {_said(k, w)}" for key, c0, w0 in shown
+                           for k, c, w in _entries(key, c0, w0))
         raise ValueError(f"cache {path} was written with other settings ({detail})")
+
+
+def _said(key: str, value) -> str:
+    """A setting's value in the refusal: None (a default that is no value) in words, the step's "automatic" (the
+    PDE's stable step; it said "cache None")."""
+    if value is None:
+        return "automatic (the stable step)" if key == "dt" else "unset"
+    return repr(value)
 
 
 def _entries(key: str, cache, asked) -> list[tuple]:

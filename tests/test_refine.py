@@ -158,6 +158,18 @@ def test_a_cache_of_another_refine_names_both_values_not_none():
         assert said in str(err.value), str(err.value)
 
 
+def test_a_cache_of_the_automatic_step_says_so_not_none():
+    # train --source CACHE --set dt=0.001 on a cache of the automatic step said "dt: cache None vs asked 0.001"
+    from pdestream.surrogate.checks import check_cache_matches
+
+    auto, fixed = generator.get_pde("burgers1d", n=16), generator.get_pde("burgers1d", n=16, dt=0.001)
+    for cache, asked, said in ((auto, fixed, "dt: cache automatic (the stable step) vs asked 0.001"),
+                               (fixed, auto, "dt: cache 0.001 vs asked automatic (the stable step)")):
+        with pytest.raises(ValueError) as err:
+            check_cache_matches("c.h5", cache.config(), asked, {"dt": "x"})
+        assert said in str(err.value) and "None" not in str(err.value), str(err.value)
+
+
 def test_a_refined_problem_steps_as_its_solve_grid_and_the_operator_arm_stores_its_frames():
     # step_dt was the kept grid's (0.02 here, unstable on the solve grid): compare --budget's operator arm pinned it
     # as dt and refused the run ("dt=0.020000000020000002 is unstable"), leaving OUT behind; a blow-up named it too

@@ -119,6 +119,23 @@ def test_only_seed_trains_that_seed_alone_and_a_run_without_it_reads_it_back(tmp
     assert not (tmp_path / "b").exists()
 
 
+def test_a_model_setting_written_otherwise_reads_the_same_arm_back(tmp_path, capsys, monkeypatch):
+    # --model-set width=08 against the finished arm of width=8 was refused as "other settings" (compared as strings)
+    out = tmp_path / "cmp"
+    argv = [*SMALL, "--steps", "2", "--out", str(out)]
+    assert cli.main(argv) == 0
+    capsys.readouterr()
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("a finished arm was trained again")
+
+    monkeypatch.setattr("pdestream.experiments.interactive_compare.train_run", no_training)
+    assert cli.main([a.replace("width=8", "width=08") for a in argv]) == 0
+    assert capsys.readouterr().out.count("read back (not retrained)") == 3
+    assert cli.main([a.replace("width=8", "width=9") for a in argv]) == 2  # another width: another model
+    assert "model_cfg" in capsys.readouterr().err
+
+
 def test_the_rollouts_figure_names_the_unroll_it_shows(tmp_path, monkeypatch):
     from pdestream.experiments import interactive_compare
 
