@@ -50,7 +50,7 @@ fresh solves and moves its weight between the steered and the uniform draw by it
   draws' fresh losses against the uniform draws' at the same moment, on the draws themselves. Its lower bound opens
   the share too, w = (1 - floor) * clip(max(skill / skill_full, lift_low / log 2), 0, 1); its upper bound below 0
   (steered draws measurably easier) closes it (w = 0) whatever the correlation says; the generative proposal (its
-  correlation predictor a smooth summary of a local model) probes, w >= ``probe``, until its lift is measured.
+  correlation predictor a smooth summary of a local model) probes, w >= ``probe``, until its lift is measured (or vetoed).
 
 **The initial condition too** (``latent_prior``, the reservoir's ``proposal_space="params+ic"``): where the entry's IC
 has latent coordinates (``generator.ics.LatentIC``: Fourier amplitudes and phases, a GRF's leading white-noise modes,
@@ -333,11 +333,11 @@ class ParamProposal:
             return 0.0
         if not self.gate:
             return 1.0 - self.floor
+        if self.lift.vetoed():  # the steered draws are measurably easier than uniform ones: never do harm
+            return 0.0
         opened = self.skill / self.skill_full
         lift = self.lift.bounds()
         if lift is not None:
-            if lift[1] < 0:  # the steered draws are measurably easier than uniform ones: never do harm
-                return 0.0
             opened = max(opened, lift[0] / LIFT_FULL)
         w = (1.0 - self.floor) * min(1.0, max(0.0, opened))
         if self.mode == "generative" and self.lift.indexed and self.lift.probed < LIFT_MIN and self._gen is not None:

@@ -157,6 +157,34 @@ def test_steered_draws_measurably_easier_close_the_gate_whatever_the_correlation
     assert p.lift.bounds()[1] < 0 and p.steer == 0.0
 
 
+def test_easier_steered_draws_end_the_probe_after_veto_min_not_lift_min():
+    # burgers2d: the probes drew 16 measurably easier fields before the veto fell (the p99 6% worse); the veto reads
+    # the sign from VETO_MIN draws of each kind, the opening still waits for LIFT_MIN
+    from pdestream.datasets.proposal_lift import LIFT_MIN, VETO_MIN
+
+    p = NoCorrelation(DOMAINS, mode="generative", seed=1, latent_prior=PDE.latent_prior(), refit=64, probe=0.25)
+    feed_indexed(p, 1, steep, np.random.default_rng(0))
+    assert p.steer == 0.25 and p.lift.probed == 0
+    rng = np.random.default_rng(3)
+    for k in range(LIFT_MIN):  # one steered and one uniform draw scored at a time: steered ones e^-2 as hard
+        idx = np.array([10**6 + 2 * k, 10**6 + 2 * k + 1])
+        p.lift.tag(idx, np.array([True, False]))
+        p.lift.score(idx, np.median(p.lift.level) + np.array([-2.0, 0.0]) + 0.3 * rng.standard_normal(2))
+        scored = len(p.lift.d_steered)
+        if scored < VETO_MIN:
+            assert p.steer == 0.25, k  # still probing: too few to read a sign from
+        elif scored < LIFT_MIN:
+            assert p.lift.bounds() is None and p.steer == 0.0, k  # vetoed before the lift is decided
+    # a lift never opens from VETO_MIN draws: harder steered draws leave the probe share until LIFT_MIN
+    q = NoCorrelation(DOMAINS, mode="generative", seed=1, latent_prior=PDE.latent_prior(), refit=64, probe=0.25)
+    feed_indexed(q, 1, steep, np.random.default_rng(0))
+    for k in range(LIFT_MIN - 1):
+        idx = np.array([10**6 + 2 * k, 10**6 + 2 * k + 1])
+        q.lift.tag(idx, np.array([True, False]))
+        q.lift.score(idx, np.median(q.lift.level) + np.array([2.0, 0.0]) + 0.3 * rng.standard_normal(2))
+    assert len(q.lift.d_steered) >= VETO_MIN and q.lift.bounds() is None and q.steer == 0.25
+
+
 def test_the_lift_resumes_exactly():
     p = NoCorrelation(DOMAINS, mode="generative", seed=4, latent_prior=PDE.latent_prior(), refit=64)
     first = feed_indexed(p, 12, steep, np.random.default_rng(0))
