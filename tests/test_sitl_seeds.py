@@ -63,6 +63,21 @@ def test_corrector_arms_train_every_seed_report_mean_and_std_and_resume(tmp_path
 
 
 
+def train_only_seed(monkeypatch, seed: int) -> list:
+    """compare's training patched to fail for any seed but ``seed``; the seeds it trained, in order."""
+    from pdestream.experiments import interactive_compare
+
+    trained, real = [], interactive_compare.train_run
+
+    def only(*args, **kwargs):
+        assert kwargs["seed"] == seed, f"seed {kwargs['seed']} was trained again"
+        trained.append(kwargs["seed"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(interactive_compare, "train_run", only)
+    return trained
+
+
 def test_a_one_seed_run_is_read_back_as_seed_0_of_a_several_seed_rerun(tmp_path, capsys, monkeypatch):
     """--seeds 1 then --seeds 2 on the same out: seed 0 (in ARM/, not ARM_seed0/) is read back, only seed 1 trains
     (before, the rerun trained seed 0 again under ARM_seed0: on ns2d a quarter of an hour)."""
@@ -70,16 +85,7 @@ def test_a_one_seed_run_is_read_back_as_seed_0_of_a_several_seed_rerun(tmp_path,
     assert cli.main([*SMALL, "--steps", "2", "--seeds", "1", "--out", str(out)]) == 0
     one = {a["arm"]: a["rollout_mean"] for a in json.loads((out / "compare.json").read_text())["arms"]}
     capsys.readouterr()
-    from pdestream.experiments import interactive_compare
-
-    trained, real = [], interactive_compare.train_run
-
-    def seed_1_only(*args, **kwargs):
-        assert kwargs["seed"] == 1, "seed 0 was trained again"
-        trained.append(kwargs["seed"])
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(interactive_compare, "train_run", seed_1_only)
+    trained = train_only_seed(monkeypatch, 1)
     assert cli.main([*SMALL, "--steps", "2", "--seeds", "2", "--out", str(out)]) == 0
     assert capsys.readouterr().out.count("read back (not retrained)") == 3 and trained == [1, 1, 1]
     assert not any((out / f"{run}_seed0").exists() for run in ("sitl_unroll1", "sitl_unroll1_noise", "sitl_unroll4"))
@@ -97,26 +103,21 @@ def test_only_seed_trains_that_seed_alone_and_a_run_without_it_reads_it_back(tmp
     assert "--only-seed reads it back" in capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == ["sitl_unroll1_noise_seed1", "sitl_unroll1_seed1",
                                                      "sitl_unroll4_seed1"]  # no tables, no seed 0
-    from pdestream.experiments import interactive_compare
-
-    trained, real = [], interactive_compare.train_run
-
-    def seed_0_only(*args, **kwargs):
-        assert kwargs["seed"] == 0, "seed 1 was trained again"
-        trained.append(kwargs["seed"])
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(interactive_compare, "train_run", seed_0_only)
+    trained = train_only_seed(monkeypatch, 0)
     assert cli.main(argv) == 0
     assert capsys.readouterr().out.count("read back (not retrained)") == 3 and trained == [0, 0, 0]
     arms = [a for a in json.loads((out / "compare.json").read_text())["arms"] if a["mode"] == "solver-in-the-loop"]
     assert len(arms) == 3 and all(a["seeds"] == [0, 1] for a in arms)
-    for bad, says in ((["--only-seed", "2"], "--only-seed 2 not among the seeds trained (0...1: --seeds 2)"),):
-        assert cli.main([*argv, *bad]) == 2
-        assert capsys.readouterr().err.strip() == f"pdestream: error: {says}"
-    assert cli.main(["compare", "burgers1d", "--quick", "--only-seed", "1", "--out", str(tmp_path / "b")]) == 2
+
+
+def test_only_seed_outside_the_seeds_or_without_modes_is_one_line_before_any_work(tmp_path, capsys):
+    out = tmp_path / "cmp"
+    assert cli.main([*SMALL, "--steps", "2", "--seeds", "2", "--only-seed", "2", "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == ("pdestream: error: --only-seed 2 not among the seeds trained (0...1: "
+                                               "--seeds 2)")
+    assert cli.main(["compare", "burgers1d", "--quick", "--only-seed", "1", "--out", str(out)]) == 2
     assert "--only-seed 1 goes with --modes" in capsys.readouterr().err
-    assert not (tmp_path / "b").exists()
+    assert not out.exists()
 
 
 def test_a_model_setting_written_otherwise_reads_the_same_arm_back(tmp_path, capsys, monkeypatch):
@@ -134,6 +135,16 @@ def test_a_model_setting_written_otherwise_reads_the_same_arm_back(tmp_path, cap
     assert capsys.readouterr().out.count("read back (not retrained)") == 3
     assert cli.main([a.replace("width=8", "width=9") for a in argv]) == 2  # another width: another model
     assert "model_cfg" in capsys.readouterr().err
+
+
+def test_built_in_model_settings_compare_as_numbers_your_own_models_as_given():
+    from pdestream.experiments.interactive_config import comparable_model_cfg
+
+    assert comparable_model_cfg({"model": "fno", "model_cfg": {"width": "08", "modes": 4}}) == {"width": 8, "modes": 4}
+    assert comparable_model_cfg({"model": "unet2d", "model_cfg": {"depth": " 3"}}) == {"depth": 3}
+    assert comparable_model_cfg({"model": "fno", "model_cfg": {"width": "wide"}}) == {"width": "wide"}  # refused later
+    mine = {"model": "my.models:Net", "model_cfg": {"width": "08"}}
+    assert comparable_model_cfg(mine) == {"width": "08"}  # your own model parses its own settings
 
 
 def test_the_rollouts_figure_names_the_unroll_it_shows(tmp_path, monkeypatch):
