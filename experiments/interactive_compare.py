@@ -107,12 +107,11 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
         log(f"coarse solver (n={cfg.coarse_n}): end error {arms[-1]['end_mean']:.4f} ({time.perf_counter() - t0:.1f} s)")
         for label, arm_pde, settings, run_dir in plan[len(net_modes):]:
             arms.append(_train_seeds(label, arm_pde, settings, test, cfg, run_dir, log))
-        if cfg.only_seed is not None:
-            return {"arms": arms}  # one seed of several: the tables wait for the run that reads every seed back
-        score_against_coarse(arms)
-        _plot_sitl_rollouts(out / "rollouts.png", fine, coarse, test[0], [p[3] for p in plan[len(net_modes):]], cfg)
+        if cfg.only_seed is None:
+            score_against_coarse(arms)
+            _plot_sitl_rollouts(out / "rollouts.png", fine, coarse, test[0], [p[3] for p in plan[len(net_modes):]], cfg)
     if cfg.only_seed is not None:
-        return {"arms": arms}
+        return {"arms": arms}  # one seed of several: the tables wait for the run that reads every seed back
     result = {"pde": pde.config(), "fine_pde": fine.config() if sitl else None, "config": asdict(cfg),
               "frame_dt": pde.frame_dt, "arms": arms}
     if cfg.shift is not None:

@@ -42,7 +42,8 @@ class InteractiveConfig:
     domains moved by this fraction of their width, or as shift_set names them; None: no such set); seed: the
     first model and data
     seed and the test set's; seeds: how many (seed, seed + 1, ...); only_seed: train (or read back) this one of them
-    in every arm and stop before the tables (seeds spread over processes, read back by a run without it); resume: read back finished (arm, seed) runs;
+    in every arm and stop before the tables (seeds spread over processes, read back by a run without it); resume:
+    read back finished (arm, seed) runs;
     budget_s: equal wall clock instead of equal steps: every trained arm trains this many seconds (solver calls
     included; the steps it reaches are in the table), None: ``steps`` each; pairs_steps: the corrector's two pairs
     arms' steps (None: ``steps``), for equal wall clock with solver-in-the-loop, whose unrolled steps cost more
