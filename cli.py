@@ -257,6 +257,9 @@ def add_compare(sub) -> None:
     p.add_argument("--only-seed", type=int, metavar="S", help="--modes: train (or read back) seed S of every arm and "
                    "stop, no tables: one process or machine per seed; the same command without it then reads every "
                    "seed back and writes them")
+    p.add_argument("--only-arm", metavar="NAME[,NAME]", help="--modes: train (or read back) only these arms (their "
+                   "directories in DIR, e.g. sitl_unroll1,sitl_unroll8) and stop, no tables; with --only-seed, that "
+                   "seed of them")
     p.add_argument("--test-samples", type=int, default=d.test_samples, help="held-out trajectories per test set")
     p.add_argument("--shift", type=float, default=d.shift,
                    help="shifted test set (--modes: every arm rolled out on it too; not with --quick): parameter domains "
@@ -345,7 +348,8 @@ def compare_command(args: argparse.Namespace) -> CompareCommand:
                                                "proposal_kappa", "priority_power", "priority_floor", "solve_batch")}
     return CompareCommand(
         pde=name, out=args.out, settings=settings, overwrite=args.overwrite, cache_samples=args.cache_samples,
-        seeds=args.seeds, only_seed=args.only_seed, test_samples=args.test_samples, shift=args.shift, shift_set=parse_sets(args.shift_set, "--shift-set"),
+        seeds=args.seeds, only_seed=args.only_seed,
+        only_arms=tuple(a.strip() for a in (args.only_arm or "").split(",") if a.strip()), test_samples=args.test_samples, shift=args.shift, shift_set=parse_sets(args.shift_set, "--shift-set"),
         format=args.format, budget=args.budget, sim_budget=args.sim_budget,
         arms=tuple(a.strip() for a in args.arms.split(",") if a.strip()), priority_cap=args.priority_cap,
         precompute_share=args.precompute_share, sim_warmup_share=args.sim_warmup_share, quick=args.quick,

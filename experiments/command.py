@@ -32,6 +32,7 @@ class CompareCommand:
     cache_samples: int = 32
     seeds: int | None = None
     only_seed: int | None = None  # --modes: train this seed of every arm and stop (no tables)
+    only_arms: tuple = ()  # --modes: train these arms (their directory names) and stop (no tables)
     test_samples: int = 128
     shift: float = -0.25
     shift_set: dict = field(default_factory=dict)
@@ -103,6 +104,8 @@ def check_numbers(cmd: CompareCommand) -> None:
                          "--sim-budget, --quick or --modes): the others write no cache of that size")
     if cmd.only_seed is not None and cmd.modes is None:
         raise ValueError(f"--only-seed {cmd.only_seed} goes with --modes (one seed of every training mode's arm)")
+    if cmd.only_arms and cmd.modes is None:
+        raise ValueError(f"--only-arm {','.join(cmd.only_arms)} goes with --modes (the training modes' arms)")
     if cmd.modes is not None:
         return
     check_count("--cache-samples", cmd.cache_samples)
@@ -386,7 +389,7 @@ def _interactive(cmd: CompareCommand) -> str:
         modes=modes, **{k: v for k, v in given.items() if v is not None},  # else the mode table's
         steps=20 if quick else cmd.steps, batch_size=8 if quick else cmd.batch_size, lr=cmd.lr, model=cmd.model,
         model_cfg=model_cfg, k_in=(1 if cmd.k_in is None else cmd.k_in), seed=0, seeds=1 if cmd.seeds is None else cmd.seeds,
-        only_seed=cmd.only_seed,
+        only_seed=cmd.only_seed, only_arms=tuple(cmd.only_arms),
         unroll_schedule=cmd.unroll_schedule, resume=not cmd.overwrite, n_test=4 if cmd.quick and cmd.test_samples == 128 else
         cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device, budget_s=cmd.budget, pairs_steps=cmd.pairs_steps,
         clip=clip, remat=cmd.remat, shift=None if cmd.quick else cmd.shift, shift_set=dict(cmd.shift_set))
@@ -399,9 +402,11 @@ def _interactive(cmd: CompareCommand) -> str:
 
     set_threads(1 if cmd.threads is None else cmd.threads)
     module.interactive_compare(pde, cmd.out, cfg)
-    if cfg.only_seed is not None:
-        return (f"seed {cfg.only_seed} of every arm trained in {cmd.out}; the same command without --only-seed reads "
-                f"it back with the other seeds and writes the tables")
+    if cfg.partial():
+        which = f"{', '.join(cfg.only_arms) if cfg.only_arms else 'every arm'}" + \
+            ("" if cfg.only_seed is None else f", seed {cfg.only_seed}")
+        return (f"trained ({which}) in {cmd.out}; the same command without --only-seed / --only-arm reads it back "
+                "with the rest and writes the tables")
     corrector = ", corrector.png (corrector arms)" if "solver-in-the-loop" in modes else ""
     return (Path(cmd.out) / "compare.md").read_text() + \
         f"table: {cmd.out}/compare.md, compare.csv, compare.json, curves.csv (error against time per arm); " \

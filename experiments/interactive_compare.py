@@ -94,7 +94,8 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
             test = stratified_test_set(pde, cfg.n_test, cfg.seed)
         log(f"test set: {cfg.n_test} trajectories of {pde.n_frames} frames in {time.perf_counter() - t0:.1f} s")
         for name, arm_pde, settings, run_dir in plan[:len(net_modes)]:
-            arms.append(_train_seeds(name, arm_pde, settings, test, cfg, run_dir, log))
+            if cfg.trains(run_dir):
+                arms.append(_train_seeds(name, arm_pde, settings, test, cfg, run_dir, log))
     if sitl and not (net_modes and fine is pde):  # (the network modes' test set is the fine one: not solved twice)
         with phase(f"building the fine test set ({cfg.n_test} trajectories, n={fine.n})", total=cfg.n_test,
                    solves=-(-cfg.n_test // 32)):  # stratified_test_set's chunks of 32
@@ -106,12 +107,13 @@ def interactive_compare(pde, out_dir, cfg: InteractiveConfig, log=print) -> dict
         arms.append(record("coarse solver", "none", errors, 0.0, None, cfg.coarse_n))
         log(f"coarse solver (n={cfg.coarse_n}): end error {arms[-1]['end_mean']:.4f} ({time.perf_counter() - t0:.1f} s)")
         for label, arm_pde, settings, run_dir in plan[len(net_modes):]:
-            arms.append(_train_seeds(label, arm_pde, settings, test, cfg, run_dir, log))
-        if cfg.only_seed is None:
+            if cfg.trains(run_dir):
+                arms.append(_train_seeds(label, arm_pde, settings, test, cfg, run_dir, log))
+        if not cfg.partial():
             score_against_coarse(arms)
             _plot_sitl_rollouts(out / "rollouts.png", fine, coarse, test[0], [p[3] for p in plan[len(net_modes):]], cfg)
-    if cfg.only_seed is not None:
-        return {"arms": arms}  # one seed of several: the tables wait for the run that reads every seed back
+    if cfg.partial():
+        return {"arms": arms}  # some seeds or arms of several: the tables wait for the run that reads every seed back
     result = {"pde": pde.config(), "fine_pde": fine.config() if sitl else None, "config": asdict(cfg),
               "frame_dt": pde.frame_dt, "arms": arms}
     if cfg.shift is not None:

@@ -42,8 +42,9 @@ class InteractiveConfig:
     domains moved by this fraction of their width, or as shift_set names them; None: no such set); seed: the
     first model and data
     seed and the test set's; seeds: how many (seed, seed + 1, ...); only_seed: train (or read back) this one of them
-    in every arm and stop before the tables (seeds spread over processes, read back by a run without it); resume:
-    read back finished (arm, seed) runs;
+    in every arm and stop before the tables (seeds spread over processes, read back by a run without it);
+    only_arms: the same for these arms (their run directories' names; empty: every arm); resume: read back finished
+    (arm, seed) runs;
     budget_s: equal wall clock instead of equal steps: every trained arm trains this many seconds (solver calls
     included; the steps it reaches are in the table), None: ``steps`` each; pairs_steps: the corrector's two pairs
     arms' steps (None: ``steps``), for equal wall clock with solver-in-the-loop, whose unrolled steps cost more
@@ -72,10 +73,19 @@ class InteractiveConfig:
     shift_set: dict = field(default_factory=dict)
     seeds: int = 1
     only_seed: int | None = None
+    only_arms: tuple = ()
     resume: bool = True
     device: str = "cpu"
     budget_s: float | None = None
     pairs_steps: int | None = None
+
+    def partial(self) -> bool:
+        """Only some seeds or arms trained (``only_seed`` / ``only_arms``): no tables."""
+        return self.only_seed is not None or bool(self.only_arms)
+
+    def trains(self, arm_dir: Path) -> bool:
+        """Whether this run trains (or reads back) the arm whose run directory is ``arm_dir``."""
+        return not self.only_arms or arm_dir.name in self.only_arms
 
     def schedule(self) -> list | None:
         """The solver-in-the-loop arm's unroll curriculum in optimizer steps ([[k, steps], ...]) or None."""
@@ -180,6 +190,10 @@ def check_arms(pde, out, cfg: InteractiveConfig) -> tuple[object, list[tuple]]:
     finished comparison of other arms in ``out``, a finished (arm, seed) run of other settings (one line each)."""
     out = Path(out)
     fine, plan = plan_arms(pde, out, cfg)
+    names = [arm_dir.name for *_, arm_dir in plan]
+    unknown = [a for a in cfg.only_arms if a not in names]
+    if unknown:
+        raise ValueError(f"--only-arm {','.join(unknown)} not an arm of this comparison; its arms: {', '.join(names)}")
     if "solver-in-the-loop" in cfg.modes:
         check_coarse_grid(fine, cfg.coarse_n)
     check_same_comparison(out, pde, cfg)

@@ -100,7 +100,7 @@ def test_only_seed_trains_that_seed_alone_and_a_run_without_it_reads_it_back(tmp
     out = tmp_path / "cmp"
     argv = [*SMALL, "--steps", "2", "--seeds", "2", "--out", str(out)]
     assert cli.main([*argv, "--only-seed", "1"]) == 0
-    assert "--only-seed reads it back" in capsys.readouterr().out
+    assert "(every arm, seed 1)" in capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == ["sitl_unroll1_noise_seed1", "sitl_unroll1_seed1",
                                                      "sitl_unroll4_seed1"]  # no tables, no seed 0
     trained = train_only_seed(monkeypatch, 0)
@@ -110,6 +110,20 @@ def test_only_seed_trains_that_seed_alone_and_a_run_without_it_reads_it_back(tmp
     assert len(arms) == 3 and all(a["seeds"] == [0, 1] for a in arms)
 
 
+def test_only_arm_trains_those_arms_and_a_run_without_it_trains_the_rest(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "cmp"
+    argv = [*SMALL, "--steps", "2", "--seeds", "1", "--out", str(out)]
+    assert cli.main([*argv, "--only-arm", "sitl_unroll4"]) == 0
+    assert "trained (sitl_unroll4)" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["sitl_unroll4"]  # that arm alone, no tables
+    assert cli.main([*argv, "--only-arm", "sitl_unroll1,sitl_unroll1_noise"]) == 0  # beside it, e.g. another core
+    capsys.readouterr()
+    trained = train_only_seed(monkeypatch, 0)
+    assert cli.main(argv) == 0
+    assert capsys.readouterr().out.count("read back (not retrained)") == 3 and trained == []
+    assert (out / "compare.md").is_file()
+
+
 def test_only_seed_outside_the_seeds_or_without_modes_is_one_line_before_any_work(tmp_path, capsys):
     out = tmp_path / "cmp"
     assert cli.main([*SMALL, "--steps", "2", "--seeds", "2", "--only-seed", "2", "--out", str(out)]) == 2
@@ -117,6 +131,11 @@ def test_only_seed_outside_the_seeds_or_without_modes_is_one_line_before_any_wor
                                                "--seeds 2)")
     assert cli.main(["compare", "burgers1d", "--quick", "--only-seed", "1", "--out", str(out)]) == 2
     assert "--only-seed 1 goes with --modes" in capsys.readouterr().err
+    assert cli.main([*SMALL, "--steps", "2", "--only-arm", "sitl_unroll4,pairs", "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == ("pdestream: error: --only-arm pairs not an arm of this comparison; its "
+                                               "arms: sitl_unroll1, sitl_unroll1_noise, sitl_unroll4")
+    assert cli.main(["compare", "burgers1d", "--quick", "--only-arm", "x", "--out", str(out)]) == 2
+    assert "--only-arm x goes with --modes" in capsys.readouterr().err
     assert not out.exists()
 
 
