@@ -102,10 +102,10 @@ def check_numbers(cmd: CompareCommand) -> None:
     if cmd.cache_samples != CompareCommand.cache_samples and (budget or cmd.modes is not None):
         raise ValueError(f"--cache-samples {cmd.cache_samples} goes with the cache/stream comparison (no --budget, "
                          "--sim-budget, --quick or --modes): the others write no cache of that size")
-    if cmd.only_seed is not None and cmd.modes is None:
-        raise ValueError(f"--only-seed {cmd.only_seed} goes with --modes (one seed of every training mode's arm)")
-    if cmd.only_arms and cmd.modes is None:
-        raise ValueError(f"--only-arm {','.join(cmd.only_arms)} goes with --modes (the training modes' arms)")
+    for flag, given, what in (("--only-seed", cmd.only_seed, "one seed of every training mode's arm"),
+                              ("--only-arm", ",".join(cmd.only_arms) or None, "the training modes' arms")):
+        if given is not None and cmd.modes is None:
+            raise ValueError(f"{flag} {given} goes with --modes ({what})")
     if cmd.modes is not None:
         return
     check_count("--cache-samples", cmd.cache_samples)
@@ -389,7 +389,7 @@ def _interactive(cmd: CompareCommand) -> str:
         modes=modes, **{k: v for k, v in given.items() if v is not None},  # else the mode table's
         steps=20 if quick else cmd.steps, batch_size=8 if quick else cmd.batch_size, lr=cmd.lr, model=cmd.model,
         model_cfg=model_cfg, k_in=(1 if cmd.k_in is None else cmd.k_in), seed=0, seeds=1 if cmd.seeds is None else cmd.seeds,
-        only_seed=cmd.only_seed, only_arms=tuple(cmd.only_arms),
+        only_seed=cmd.only_seed, only_arms=cmd.only_arms,
         unroll_schedule=cmd.unroll_schedule, resume=not cmd.overwrite, n_test=4 if cmd.quick and cmd.test_samples == 128 else
         cmd.test_samples, fine_n=cmd.fine_n, device=cmd.device, budget_s=cmd.budget, pairs_steps=cmd.pairs_steps,
         clip=clip, remat=cmd.remat, shift=None if cmd.quick else cmd.shift, shift_set=dict(cmd.shift_set))
