@@ -48,9 +48,11 @@ from .user import unregister
 # lift outputs; 8: the pressure V-cycle's Jacobi sweeps in a loop and its coarse weight on the restricted residual:
 # every flow's bits, rounding-level; 9: the sharp body's cut-face centroids, centroid weights and the inflow
 # parabola written with no product feeding a sum, so LLVM's multiply-add contraction cannot follow the CPU's
-# vector width: karman2d's and channel2d's bits, rounding-level).
+# vector width: karman2d's and channel2d's bits, rounding-level; 10: a rollout computes the sharp bodies' geometry
+# once and fills their ghost faces from a list of them, not at every face: karman2d's and sharp channel2d's bits,
+# rounding-level).
 # Caches record it and --resume compares it, so a cache is never finished with samples of other bits.
-NUMERICS = 9
+NUMERICS = 10
 
 _REFUSED_CACHE_DIRS: set[str] = set()
 CACHE_MAX_BYTES = 2 * 1024**3  # the compilation cache's bound (least recently used programs go first)

@@ -136,3 +136,55 @@ def test_a_bad_body_setting_is_refused_in_one_line():
         Geometry(8, 8, 1.0, 1.0, body="cut")
     assert generator.get_pde("karman2d").body == grid.DEFAULT_BODY == "sharp"
     assert "sharp circle" in generator.get_pde("karman2d").describe()
+
+
+def _prepared_case():
+    """A sharp circle and a box row in a channel, a random velocity field with its boundary values (64x32)."""
+    import jax
+
+    geom = Geometry(64, 32, 2.0, 1.0, left="inflow", right="outflow", body="sharp")
+    params = Params(nu=1e-2, inflow=1.0, circle=(CX, CY, R), obstacles=np.array([[2.0, 1.5, 0.5, 0.1, 0.15]], np.float32))
+    k1, k2 = jax.random.split(jax.random.PRNGKey(3))
+    u = jax.random.normal(k1, (geom.ny, geom.nx + 1), jnp.float32)
+    v = jax.random.normal(k2, (geom.ny + 1, geom.nx), jnp.float32)
+    return geom, params, u, v
+
+
+def test_a_rollouts_prepared_geometry_is_what_each_step_computes():
+    """step.prepare: the masks, faces, centroid weights and ghosts a rollout computes once are the bits each step
+    computes for itself, and the fill from the listed ghost faces equals the fill at every face (to float32
+    rounding: the two kernels may round a multiply-add differently) and leaves every other face alone."""
+    import importlib
+
+    step = importlib.import_module("pdestream.generator.flow.step")
+    geom, params, u, v = _prepared_case()
+    ready = step.prepare(geom, params).prepared
+    assert bool(ready.listed_fits)
+    assert all(np.array_equal(a, b) for a, b in zip(ready.faces, step.body_faces(geom, params)))
+    for got, want in zip(ready.weights, step._centroid_weights(geom, params, jnp.float32)):
+        assert all(np.array_equal(a, b) for a, b in zip(got, want[:3]))
+    bodies = step.sharp_bodies(geom, params)
+    assert np.array_equal(ready.ghosts[1].w1, grid.body_ghosts(geom, bodies, 0.5, 0.0, v.shape).w1)
+    listed = step.fill_ghosts(geom, step.prepare(geom, params), u, v)
+    everywhere = step.fill_ghosts(geom, params, u, v)
+    for a, b, q, g in zip(listed, everywhere, (u, v), ready.ghosts):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)
+        assert not np.allclose(np.asarray(a)[np.asarray(g.ghost)], np.asarray(q)[np.asarray(g.ghost)])  # filled
+        rest = ~np.asarray(g.ghost | g.deep)
+        assert np.array_equal(np.asarray(a)[rest], np.asarray(q)[rest])  # untouched elsewhere
+        assert np.all(np.asarray(a)[np.asarray(g.deep)] == 0)
+
+
+def test_ghosts_beyond_the_list_fall_back_to_filling_every_face(monkeypatch):
+    """Bodies with more ghost faces than the list holds (GHOST_LIST (nx + ny) per component) are filled at every
+    face: the result is then the unprepared fill's (to float32 rounding: one compiled kernel against op by op);
+    a list too short taken as whole would leave most ghosts unfilled."""
+    import importlib
+
+    step = importlib.import_module("pdestream.generator.flow.step")
+    geom, params, u, v = _prepared_case()
+    monkeypatch.setattr(step, "GHOST_LIST", 0.05)  # 4 faces: fewer than the bodies' ghosts
+    prepared = step.prepare(geom, params)
+    assert not bool(prepared.prepared.listed_fits)
+    for a, b in zip(step.fill_ghosts(geom, prepared, u, v), step.fill_ghosts(geom, params, u, v)):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)

@@ -107,7 +107,8 @@ class Params(NamedTuple):
     frame's ``solid`` field when the solver continues from a frame; force: a body force per unit mass [m/s^2]
     on the faces, a pair (fx [ny, nx+1] on u faces, fy [ny+1, nx] on v faces), steady (None: none; e.g. a
     manufactured solution's forcing); pulse: a pulsed inflow (A, f): the inflow profile times 1 + A sin(2 pi f t)
-    (f in Hz; None: steady, the same program as before pulses existed)."""
+    (f in Hz; None: steady, the same program as before pulses existed); prepared: the bodies' geometry a rollout
+    computed once (``step.prepare``: the bodies do not move), None where each step computes it (a step alone)."""
 
     nu: float = 0.01
     lid: float = 0.0
@@ -120,6 +121,7 @@ class Params(NamedTuple):
     mask: Any = None
     force: Any = None
     pulse: Any = None
+    prepared: Any = None
 
 
 # Obstacle primitives of Params.obstacles rows (kind, cx, cy, a, b): code -> what a and b are.

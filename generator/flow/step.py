@@ -13,7 +13,7 @@ generator.flow.pressure; afterwards the discrete divergence is zero to the solve
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -95,6 +95,8 @@ def body_apertures(geom: Geometry, params: Params, dtype=None):
 def body_faces(geom: Geometry, params: Params):
     """The pressure operator's face coefficients (grid.Faces) of params' bodies: staircase cells, and the exact
     bodies' open fractions where geom.body is 'sharp'."""
+    if params.prepared is not None:
+        return params.prepared.faces
     cut = body_apertures(geom, params)
     if cut is None:
         return faces(geom, solid_mask(geom, params))
@@ -114,6 +116,9 @@ def _centroid_weights(geom: Geometry, params: Params, dtype):
     centroid: u(centroid) = (1 - up - down) u + up u_next + down u_prev. Nonzero on cut faces only, toward the
     fluid (the neighbour is then a whole face: a convex body's chord ends in at most one face per side, for a body
     at least 2 cells across), < 1/2."""
+    ready = params.prepared
+    if ready is not None and ready.weights is not None and ready.weights[0][1].dtype == dtype:
+        return [(*w, axis) for w, axis in zip(ready.weights, (0, 1))]
     ax, ay, my, mx = body_apertures(geom, params, dtype)
     h = geom.h
     out = []
@@ -162,15 +167,103 @@ def fill_ghosts(geom: Geometry, params: Params, u, v):
     bodies = sharp_bodies(geom, params)
     if not bodies:
         return u, v
+    ready = params.prepared
+    if ready is not None and ready.ghosts is not None and ready.ghosts[0].w1.dtype == u.dtype:
+        gu, gv = ready.ghosts
+        listed = lambda uv: tuple(_fill_listed(geom, q, g, lg, o) for q, g, lg, o in zip(  # noqa: E731
+            uv, ready.ghosts, ready.listed, ((0.0, 0.5), (0.5, 0.0))))
+        everywhere = lambda uv: _fill_everywhere(geom, *uv, gu, gv)  # noqa: E731
+        return jax.lax.cond(ready.listed_fits, listed, everywhere, (u, v))
     gu = body_ghosts(geom, bodies, 0.0, 0.5, u.shape, u.dtype)
     gv = body_ghosts(geom, bodies, 0.5, 0.0, v.shape, v.dtype)
+    return _fill_everywhere(geom, u, v, gu, gv)
+
+
+def _ghost_values(geom: Geometry, q, g, ox: float, oy: float):
+    """q's ghost values w1 q(x1, y1) + w2 q(x2, y2) at g's points (grid.Ghosts or ``ListedGhosts``: any shape)."""
+    sq = _sampler(geom, q, ox, oy)
+    return g.w1 * sq(g.x1, g.y1) + g.w2 * sq(g.x2, g.y2)
+
+
+def _fill_everywhere(geom: Geometry, u, v, gu, gv):
+    """fill_ghosts evaluated at every face (then kept on the ghosts): what a step alone computes."""
     # the image stencils hold fluid faces only (IMAGE_DISTANCE), so one pass is exact: no ghost reads a ghost
-    su, sv = _sampler(geom, u, 0.0, 0.5), _sampler(geom, v, 0.5, 0.0)
-    ug = gu.w1 * su(gu.x1, gu.y1) + gu.w2 * su(gu.x2, gu.y2)
-    vg = gv.w1 * sv(gv.x1, gv.y1) + gv.w2 * sv(gv.x2, gv.y2)
-    u = jnp.where(gu.ghost, ug, jnp.where(gu.deep, 0.0, u))
-    v = jnp.where(gv.ghost, vg, jnp.where(gv.deep, 0.0, v))
+    u = jnp.where(gu.ghost, _ghost_values(geom, u, gu, 0.0, 0.5), jnp.where(gu.deep, 0.0, u))
+    v = jnp.where(gv.ghost, _ghost_values(geom, v, gv, 0.5, 0.0), jnp.where(gv.deep, 0.0, v))
     return u, v
+
+
+def _fill_listed(geom: Geometry, q, g, listed, offset):
+    """fill_ghosts of one component evaluated on its listed ghost faces only (``ListedGhosts``; the same
+    arithmetic per face as ``_fill_everywhere``, equal to float32 rounding: the compiled kernels may round a
+    multiply-add differently): its interpolations gather a few dozen faces' stencils, not the whole grid's
+    (karman2d: 1-2% of the faces are ghosts; evaluated everywhere, the three fills of a step were twice the rest
+    of its work)."""
+    flat = jnp.where(g.deep, 0.0, q).reshape(-1)
+    return flat.at[listed.index].set(_ghost_values(geom, q, listed, *offset), mode="drop").reshape(q.shape)
+
+
+class ListedGhosts(NamedTuple):
+    """The ghost faces of one component as a list of fixed length (``prepare``): index [K] (int32, into the
+    component's flattened faces; its size where the list has no more ghosts: such rows are dropped) and grid.Ghosts'
+    w1, w2, x1, y1, x2, y2 at them [K]."""
+
+    index: jax.Array
+    w1: jax.Array
+    w2: jax.Array
+    x1: jax.Array
+    y1: jax.Array
+    x2: jax.Array
+    y2: jax.Array
+
+
+# A rollout lists up to this many times (nx + ny) ghost faces per velocity component (``prepare``); bodies with more
+# (many or large ones; 64 default samples of karman2d reach 0.2 of it, of channel2d 0.4, at twice their default
+# grid 0.23 and 0.44) fill every face instead.
+GHOST_LIST = 2
+
+
+def _listed(g, capacity: int):
+    """(``ListedGhosts`` of g's first ``capacity`` ghost faces in index order, whether g has no more)."""
+    flat = g.ghost.reshape(-1)
+    index = jnp.nonzero(flat, size=capacity, fill_value=flat.size)[0].astype(jnp.int32)
+    at = jnp.minimum(index, flat.size - 1)
+    return ListedGhosts(index, *(a.reshape(-1)[at] for a in (g.w1, g.w2, g.x1, g.y1, g.x2, g.y2))), \
+        jnp.sum(flat) <= capacity
+
+
+class Prepared(NamedTuple):
+    """The bodies' geometry every step reads, computed once per rollout by ``prepare`` (Params.prepared): the
+    velocity masks (mu [ny, nx+1], mv [ny+1, nx]) of the staircase cells, the pressure operator's face
+    coefficients (grid.Faces), and where geom.body is 'sharp' with bodies the centroid weights ((ax, up, down) of
+    the u faces, the same of the v faces: ``_centroid_weights``) and the ghosts (grid.Ghosts of u, of v) in the
+    velocity's dtype, with the ghosts also listed (``ListedGhosts`` of u, of v; listed_fits: whether the lists
+    hold every ghost, else each fill evaluates every face); None for those without sharp bodies."""
+
+    masks: tuple
+    faces: Any
+    weights: Any
+    ghosts: Any
+    listed: Any = None
+    listed_fits: Any = None
+
+
+def prepare(geom: Geometry, params: Params, dtype=np.float32) -> Params:
+    """params with ``prepared`` set: the bodies' geometry (``Prepared``) for velocities of dtype, the values each
+    step would compute (the same bits), computed once. A rollout calls it before its loop: XLA left this geometry
+    inside the loop, where a sharp body's apertures, ghosts and centroid weights (an ellipse's nearest points by
+    bisection, every shape of an obstacle row since its kind is traced) are recomputed every step."""
+    params = params._replace(prepared=None)
+    masks = velocity_masks(geom, _staircase_solid(geom, params))
+    bodies = sharp_bodies(geom, params)
+    weights = ghosts = listed = fits = None
+    if bodies:
+        weights = tuple(w[:3] for w in _centroid_weights(geom, params, dtype))
+        ghosts = (body_ghosts(geom, bodies, 0.0, 0.5, (geom.ny, geom.nx + 1), dtype),
+                  body_ghosts(geom, bodies, 0.5, 0.0, (geom.ny + 1, geom.nx), dtype))
+        (lu, fits_u), (lv, fits_v) = (_listed(g, int(GHOST_LIST * (geom.nx + geom.ny))) for g in ghosts)
+        listed, fits = (lu, lv), fits_u & fits_v
+    return params._replace(prepared=Prepared(masks, body_faces(geom, params), weights, ghosts, listed, fits))
 
 
 def inflow_profile(geom: Geometry, params: Params, dtype=np.float32, t=None):
@@ -215,7 +308,8 @@ def apply_bc(geom: Geometry, params: Params, u, v, t=None):
         v = v.at[0].set(v[1] if geom.bottom == "outflow" else 0.0)
         if geom.top != "convective":
             v = v.at[-1].set(v[-2] if geom.top == "outflow" else 0.0)
-    mu, mv = velocity_masks(geom, _staircase_solid(geom, params))
+    mu, mv = velocity_masks(geom, _staircase_solid(geom, params)) if params.prepared is None else \
+        params.prepared.masks
     u, v = fill_ghosts(geom, params, u * mu, v * mv)
     return _balance_convective(geom, u, v, mu, mv)
 
@@ -502,6 +596,7 @@ def run(geom: Geometry, state: State, params: Params, dt, n_steps: int, tol=1e-5
     """n_steps steps of dt in a lax.scan (jit this with geom and n_steps static); tol, max_iter: step's. The
     pressure operator is prepared once, before the loop (the obstacles do not move)."""
     check_dt(geom, params, dt)
+    params = prepare(geom, params, state.u.dtype)
     op = operator(geom, params)
     return jax.lax.scan(lambda s, _: (step(geom, s, params, dt, tol, max_iter, op, advection), None), state, None,
                         length=n_steps)[0]
@@ -515,6 +610,7 @@ def run_counted(geom: Geometry, state: State, params: Params, dt, n_steps, op: p
     pseudo-inverse is one), so JAX's persistent compilation cache can keep it for the next run.
     Not reverse-differentiable (a loop of traced length): differentiate ``run``."""
     check_dt(geom, params, dt)
+    params = prepare(geom, params, state.u.dtype)
     return jax.lax.fori_loop(0, n_steps, lambda _, s: step(geom, s, params, dt, tol, max_iter, op, advection), state)
 
 
