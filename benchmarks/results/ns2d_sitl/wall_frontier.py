@@ -7,7 +7,7 @@ not the axis: the runs ran at loads from 0.5 to 8, and one arm's seeds took 621-
     python benchmarks/results/ns2d_sitl/wall_frontier.py [--out docs/ns2d_sitl_frontier.png]
 
 Reads the compare.json of c32_u8_fourier (500 steps), c32_u8_fourier_1500 (1500), c32_u8_eqwall (pairs 2500) and
-c32_u8_eqwall1500 (pairs 7500, where it exists); prints a markdown table and draws the figure."""
+c32_u8_eqwall1500 (pairs 7500), c32_u8_cost11000 (solver-in-the-loop 2200, pairs 11,000), where they exist; prints a markdown table and draws the figure."""
 import argparse
 import json
 from pathlib import Path
@@ -16,9 +16,10 @@ HERE = Path(__file__).parent
 SITL, PAIRS, NOISE = "solver-in-the-loop (unroll 8)", "pairs (unroll 1)", "pairs + noise (unroll 1)"
 COST = {SITL: 5.0, PAIRS: 1.0, NOISE: 1.0}  # pairs-step units per optimizer step
 RUNS = {"c32_u8_fourier": (SITL, PAIRS, NOISE), "c32_u8_fourier_1500": (SITL, PAIRS, NOISE),
-        "c32_u8_eqwall": (PAIRS, NOISE), "c32_u8_eqwall1500": (PAIRS, NOISE)}
+        "c32_u8_eqwall": (PAIRS, NOISE), "c32_u8_eqwall1500": (PAIRS, NOISE), "c32_u8_cost11000": (SITL, PAIRS, NOISE)}
 STEPS = {"c32_u8_fourier": {SITL: 500, PAIRS: 500, NOISE: 500}, "c32_u8_fourier_1500": {SITL: 1500, PAIRS: 1500, NOISE: 1500},
-         "c32_u8_eqwall": {PAIRS: 2500, NOISE: 2500}, "c32_u8_eqwall1500": {PAIRS: 7500, NOISE: 7500}}
+         "c32_u8_eqwall": {PAIRS: 2500, NOISE: 2500}, "c32_u8_eqwall1500": {PAIRS: 7500, NOISE: 7500},
+         "c32_u8_cost11000": {SITL: 2200, PAIRS: 11000, NOISE: 11000}}
 
 
 def points() -> dict:
@@ -65,7 +66,7 @@ def draw(pts: dict, out: Path) -> None:
             ax.loglog([r[1] for r in rows], [r[col] for r in rows], marker=marker, color=color, label=arm)
             for r in rows:
                 ax.annotate(f"{r[0]}", (r[1], r[col]), textcoords="offset points", xytext=(4, 4), fontsize=7)
-        ax.set_xticks([500, 1000, 2500, 7500], ["500", "1000", "2500", "7500"])
+        ax.set_xticks([500, 1000, 2500, 7500, 11000], ["500", "1000", "2500", "7500", "11000"])
         ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_xlabel("training cost, pairs steps (a solver-in-the-loop step = 5)")
         ax.set_ylabel("relative L2")
