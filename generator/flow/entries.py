@@ -66,9 +66,9 @@ class Karman2D(FlowProblem):
     does not shed has sheds = 0 and St = amplitude = drift = 0, never NaN)."""
 
     NAME: ClassVar[str] = "karman2d"
-    # `pdestream generate karman2d --n 4` on 2 shared CPU cores (load 4-6, 2026-11-27: chunks row by row), no
-    # compilation cache (the progress history's record)
-    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 24.7, "unit_s": 7.1}
+    # `pdestream generate karman2d --n 4` on 2 shared CPU cores (load 4, 2026-11-29: chunks row by row, the ghosts
+    # filled from their list), no compilation cache (the progress history's record)
+    TYPICAL_TIMES: ClassVar[dict] = {"startup_s": 15.0, "unit_s": 1.33}
     EQUATION: ClassVar[str] = ("u_t + (u.grad)u = -grad p + nu lap u, div u = 0; cylinder in a channel, "
                                "nu = U D / Re")
     FIELDS: ClassVar[tuple] = ("u", "v", "p", "solid")
