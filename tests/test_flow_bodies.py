@@ -188,3 +188,16 @@ def test_ghosts_beyond_the_list_fall_back_to_filling_every_face(monkeypatch):
     assert not bool(prepared.prepared.listed_fits)
     for a, b in zip(step.fill_ghosts(geom, prepared, u, v), step.fill_ghosts(geom, params, u, v)):
         np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)
+
+
+def test_without_the_list_the_prepared_fill_is_the_fill_at_every_face():
+    """prepare(..., ghost_list=False) (a GPU's default: its batches are vectorised) fills every face from the
+    prepared ghosts: the unprepared fill's values."""
+    import importlib
+
+    step = importlib.import_module("pdestream.generator.flow.step")
+    geom, params, u, v = _prepared_case()
+    prepared = step.prepare(geom, params, ghost_list=False)
+    assert prepared.prepared.listed is None and prepared.prepared.ghosts is not None
+    for a, b in zip(step.fill_ghosts(geom, prepared, u, v), step.fill_ghosts(geom, params, u, v)):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)

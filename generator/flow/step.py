@@ -170,6 +170,8 @@ def fill_ghosts(geom: Geometry, params: Params, u, v):
     ready = params.prepared
     if ready is not None and ready.ghosts is not None and ready.ghosts[0].w1.dtype == u.dtype:
         gu, gv = ready.ghosts
+        if ready.listed is None:
+            return _fill_everywhere(geom, u, v, gu, gv)
         listed = lambda uv: tuple(_fill_listed(geom, q, g, lg, o) for q, g, lg, o in zip(  # noqa: E731
             uv, ready.ghosts, ready.listed, ((0.0, 0.5), (0.5, 0.0))))
         everywhere = lambda uv: _fill_everywhere(geom, *uv, gu, gv)  # noqa: E731
@@ -238,7 +240,8 @@ class Prepared(NamedTuple):
     coefficients (grid.Faces), and where geom.body is 'sharp' with bodies the centroid weights ((ax, up, down) of
     the u faces, the same of the v faces: ``_centroid_weights``) and the ghosts (grid.Ghosts of u, of v) in the
     velocity's dtype, with the ghosts also listed (``ListedGhosts`` of u, of v; listed_fits: whether the lists
-    hold every ghost, else each fill evaluates every face); None for those without sharp bodies."""
+    hold every ghost, else each fill evaluates every face; None where not listed); None for those without sharp
+    bodies."""
 
     masks: tuple
     faces: Any
@@ -248,21 +251,26 @@ class Prepared(NamedTuple):
     listed_fits: Any = None
 
 
-def prepare(geom: Geometry, params: Params, dtype=np.float32) -> Params:
+def prepare(geom: Geometry, params: Params, dtype=np.float32, ghost_list: bool | None = None) -> Params:
     """params with ``prepared`` set: the bodies' geometry (``Prepared``) for velocities of dtype, the values each
     step would compute (the same bits), computed once. A rollout calls it before its loop: XLA left this geometry
     inside the loop, where a sharp body's apertures, ghosts and centroid weights (an ellipse's nearest points by
-    bisection, every shape of an obstacle row since its kind is traced) are recomputed every step."""
+    bisection, every shape of an obstacle row since its kind is traced) are recomputed every step.
+    ghost_list: fill the ghosts from their list (``ListedGhosts``); None: on a CPU only. A GPU's batches are
+    vectorised, where ``lax.cond`` evaluates both of its branches and a gather over every face runs in parallel:
+    there the list would only add work (not measured on a GPU)."""
     params = params._replace(prepared=None)
     masks = velocity_masks(geom, _staircase_solid(geom, params))
     bodies = sharp_bodies(geom, params)
     weights = ghosts = listed = fits = None
+    ghost_list = jax.default_backend() == "cpu" if ghost_list is None else ghost_list
     if bodies:
         weights = tuple(w[:3] for w in _centroid_weights(geom, params, dtype))
         ghosts = (body_ghosts(geom, bodies, 0.0, 0.5, (geom.ny, geom.nx + 1), dtype),
                   body_ghosts(geom, bodies, 0.5, 0.0, (geom.ny + 1, geom.nx), dtype))
-        (lu, fits_u), (lv, fits_v) = (_listed(g, int(GHOST_LIST * (geom.nx + geom.ny))) for g in ghosts)
-        listed, fits = (lu, lv), fits_u & fits_v
+        if ghost_list:
+            (lu, fits_u), (lv, fits_v) = (_listed(g, int(GHOST_LIST * (geom.nx + geom.ny))) for g in ghosts)
+            listed, fits = (lu, lv), fits_u & fits_v
     return params._replace(prepared=Prepared(masks, body_faces(geom, params), weights, ghosts, listed, fits))
 
 
